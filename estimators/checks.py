@@ -1,0 +1,52 @@
+"""Validation at the estimators' boundary: wrong shapes, NaN and broken covariances fail loudly here."""
+from __future__ import annotations
+
+import numpy as np
+
+
+def check_sequence(name: str, array, rows: int | None = None, cols: int | None = None) -> np.ndarray:
+    """A (T, k) finite float array; a 1-D array is read as one channel."""
+    arr = np.asarray(array, dtype=float)
+    if arr.ndim == 1 and cols in (None, 1):
+        arr = arr[:, None]
+    if arr.ndim != 2:
+        raise ValueError(f"{name} must be 2-D (time, channels), got shape {arr.shape}")
+    if rows is not None and arr.shape[0] != rows:
+        raise ValueError(f"{name} has {arr.shape[0]} rows, expected {rows}")
+    if cols is not None and arr.shape[1] != cols:
+        raise ValueError(f"{name} has {arr.shape[1]} columns, expected {cols}")
+    if not np.all(np.isfinite(arr)):
+        bad = int(np.argwhere(~np.isfinite(arr))[0, 0])
+        raise ValueError(f"{name} contains NaN or infinite values (first at row {bad})")
+    return arr
+
+
+def check_vector(name: str, vector, size: int) -> np.ndarray:
+    vec = np.asarray(vector, dtype=float).reshape(-1)
+    if vec.shape != (size,):
+        raise ValueError(f"{name} must have {size} entries, got shape {np.shape(vector)}")
+    if not np.all(np.isfinite(vec)):
+        raise ValueError(f"{name} contains NaN or infinite values")
+    return vec
+
+
+def check_covariance(name: str, matrix, size: int, allow_singular: bool = False) -> np.ndarray:
+    """Square, finite, symmetric and positive (semi-)definite; the message says which test failed."""
+    mat = np.asarray(matrix, dtype=float)
+    if mat.shape != (size, size):
+        raise ValueError(f"{name} must be {size}x{size}, got shape {mat.shape}")
+    if not np.all(np.isfinite(mat)):
+        raise ValueError(f"{name} contains NaN or infinite values")
+    if not np.allclose(mat, mat.T, rtol=1e-8, atol=1e-12):
+        raise ValueError(f"{name} is not symmetric")
+    smallest = np.linalg.eigvalsh(mat).min()
+    if smallest < -1e-12 * max(1.0, np.abs(mat).max()) or (not allow_singular and smallest <= 0):
+        kind = "semi-definite" if allow_singular else "definite"
+        raise ValueError(f"{name} is not positive {kind} (smallest eigenvalue {smallest:.3g})")
+    return mat
+
+
+def check_dt(dt) -> float:
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt must be a positive finite number of seconds, got {dt}")
+    return float(dt)

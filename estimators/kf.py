@@ -1,0 +1,72 @@
+"""Linear Kalman filtering on filterpy: the KF estimator for linear priors and the pre-training observers.
+
+The pre-training observer runs offline (Phase 1 of Algorithm 1), so it adds the Rauch-Tung-Striebel
+backward pass: a forward KF alone lags by its own time constant and that lag would be learned as a
+spurious residual.
+"""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+from filterpy.kalman import KalmanFilter
+
+from estimators.checks import check_covariance, check_dt, check_sequence, check_vector
+
+
+def linearize(model, dt: float, x_op=None):
+    """(F, H): exact Jacobians of the discrete model step (RK4 of f_c, as every estimator here uses)
+    and of h at x_op (default 0).  For a linear prior they are the model, not an approximation."""
+    x, u = ca.SX.sym("x", model.n), ca.SX.sym("u", model.system.p)
+    jacobians = ca.Function("FH", [x, u], [ca.jacobian(model.step(x, u, dt), x), ca.jacobian(model.h(x, u), x)])
+    x_op = np.zeros(model.n) if x_op is None else x_op
+    F, H = jacobians(x_op, np.zeros(model.system.p))
+    return np.array(F), np.array(H)
+
+
+def _filter(F, H, Q, R, x0, P0, y, smooth: bool):
+    """x0, P0 describe the state at the first sample: update with y[0], then predict/update."""
+    kf = KalmanFilter(dim_x=F.shape[0], dim_z=H.shape[0])
+    kf.F, kf.H, kf.Q, kf.R, kf.x, kf.P = F, H, Q, R, x0.copy(), P0.copy()
+    means, covs = np.empty((len(y), len(x0))), np.empty((len(y), len(x0), len(x0)))
+    for k, measurement in enumerate(y):
+        if k:
+            kf.predict()
+        kf.update(measurement)
+        means[k], covs[k] = kf.x, kf.P
+    if smooth:
+        means, covs, _, _ = kf.rts_smoother(means, covs)
+    return means, covs
+
+
+def run_kf(model, y, u, dt, Q, R, x0, P0, smooth: bool = False) -> np.ndarray:
+    """KF over a whole sequence with the (linear) model's exact discretisation; returns (T, n)."""
+    dt = check_dt(dt)
+    n = model.n
+    y = check_sequence("y", y, cols=model.system.m)
+    Q, R = check_covariance("Q", Q, n, allow_singular=True), check_covariance("R", R, y.shape[1])
+    x0, P0 = check_vector("x0", x0, n), check_covariance("P0", P0, n)
+    F, H = linearize(model, dt)
+    means, _ = _filter(F, H, Q, R, x0, P0, y, smooth)
+    return means
+
+
+def kinematic_smoother(positions, dt, meas_std, accel_std: float = 1.0, jerk_std: float = 50.0):
+    """Per-channel constant-acceleration KF + RTS: positions (T, k) -> (positions, velocities, accels).
+
+    Used as the pre-training observer when only positions (or angles) of a nonlinear system are
+    measured: it knows nothing of the system, only that its trajectories are smooth.
+    """
+    dt = check_dt(dt)
+    positions = check_sequence("positions", positions)
+    F = np.array([[1.0, dt, dt**2 / 2], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
+    G = np.array([[dt**3 / 6], [dt**2 / 2], [dt]])
+    Q = (G @ G.T) * jerk_std**2
+    H = np.array([[1.0, 0.0, 0.0]])
+    out = np.empty(positions.shape + (3,))
+    std = np.broadcast_to(np.asarray(meas_std, dtype=float), (positions.shape[1],))
+    for j in range(positions.shape[1]):
+        x0 = np.array([positions[0, j], 0.0, 0.0])
+        P0 = np.diag([std[j] ** 2, 10.0, accel_std**2 * 100])
+        means, _ = _filter(F, H, Q, np.array([[std[j] ** 2]]), x0, P0, positions[:, j:j + 1], smooth=True)
+        out[:, j] = means
+    return out[..., 0], out[..., 1], out[..., 2]

@@ -1,0 +1,1 @@
+"""Raw flight logs -> canonical Flight."""

@@ -1,0 +1,93 @@
+"""Shared normalisation: raw mocap + accelerometer streams -> a Flight on a uniform grid.
+
+Every adapter parses its format into raw arrays with their own time stamps and calls `build_flight`;
+resampling, rotation into the world frame, gravity removal and the take-off/landing cut happen here once.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ingest.flight import Flight, IngestError, world_acceleration
+
+# The flying part: from TAKEOFF_SETTLE_S after the vehicle first rises FLYING_HEIGHT_M above its resting
+# height, to LANDING_SETTLE_S before it last comes down below that height.
+FLYING_HEIGHT_M = 0.10
+TAKEOFF_SETTLE_S = 1.0
+LANDING_SETTLE_S = 1.0
+
+
+def uniform_grid(t_start: float, t_end: float, rate_hz: float) -> np.ndarray:
+    n = int(np.floor((t_end - t_start) * rate_hz + 1e-9)) + 1
+    return t_start + np.arange(n) / rate_hz
+
+
+def resample(t_src, values, t_grid, max_gap_s: float | None = None):
+    """Linear interpolation of (N, k) values onto t_grid; returns (values, mask of grid points that fell
+    into a gap longer than max_gap_s, where interpolation would invent data)."""
+    t_src = np.asarray(t_src, dtype=float)
+    values = np.asarray(values, dtype=float)
+    values = values[:, None] if values.ndim == 1 else values
+    out = np.column_stack([np.interp(t_grid, t_src, values[:, j]) for j in range(values.shape[1])])
+    in_gap = np.zeros(len(t_grid), dtype=bool)
+    if max_gap_s is not None and len(t_src) > 1:
+        idx = np.clip(np.searchsorted(t_src, t_grid), 1, len(t_src) - 1)
+        in_gap = (t_src[idx] - t_src[idx - 1]) > max_gap_s
+    return out, in_gap
+
+
+def resample_quaternions(t_src, quat, t_grid):
+    """Component-wise interpolation after making the sign continuous, then renormalised (fine at
+    mocap rates, where consecutive attitudes differ by far less than the nlerp/slerp discrepancy)."""
+    q = np.array(quat, dtype=float, copy=True)
+    flips = np.cumsum(np.r_[0, np.sum(q[1:] * q[:-1], axis=1) < 0]) % 2 == 1
+    q[flips] *= -1
+    out, _ = resample(t_src, q, t_grid)
+    return out / np.linalg.norm(out, axis=1, keepdims=True)
+
+
+def flying_window(t, z, rate_hz) -> tuple[int, int, str]:
+    """Indices [start, stop) of the flying part and the rule that chose them."""
+    rest = np.median(z[: max(1, int(0.5 * rate_hz))])
+    airborne = np.flatnonzero(z > rest + FLYING_HEIGHT_M)
+    if airborne.size == 0:
+        return 0, len(t), "never rose above the resting height: whole recording kept"
+    start = airborne[0] + int(TAKEOFF_SETTLE_S * rate_hz)
+    stop = airborne[-1] + 1 - int(LANDING_SETTLE_S * rate_hz)
+    if stop <= start:
+        return airborne[0], airborne[-1] + 1, "airborne too briefly to trim: airborne part kept"
+    rule = (f"kept {TAKEOFF_SETTLE_S:g} s after first rising {FLYING_HEIGHT_M:g} m above the resting height "
+            f"to {LANDING_SETTLE_S:g} s before last coming down below it")
+    return int(start), int(stop), rule
+
+
+def build_flight(path, *, t_mocap, p, quat, t_acc, acc_body_g, channels=None, rate_hz: float = 100.0,
+                 meta=None, cut: bool = True) -> Flight:
+    """Resample mocap (m, scalar-last quaternions) and accelerometer (g, body frame) onto one grid.
+
+    `channels` maps name -> (t, values) for optional streams.  Times are seconds on one clock (the caller
+    applies any clock offset first).  The grid covers the time where both streams exist.
+    """
+    t_mocap, t_acc = np.asarray(t_mocap, float), np.asarray(t_acc, float)
+    if len(t_mocap) < 2 or len(t_acc) < 2:
+        raise IngestError(path, f"too few samples (mocap {len(t_mocap)}, accelerometer {len(t_acc)})")
+    t0, t1 = max(t_mocap[0], t_acc[0]), min(t_mocap[-1], t_acc[-1])
+    if t1 - t0 < 2.0 / rate_hz:
+        raise IngestError(path, "mocap and accelerometer streams do not overlap in time")
+    grid = uniform_grid(t0, t1, rate_hz)
+    p_grid, mocap_gap = resample(t_mocap, p, grid, max_gap_s=5.0 / rate_hz)
+    q_grid = resample_quaternions(t_mocap, quat, grid)
+    acc_grid, acc_gap = resample(t_acc, acc_body_g, grid, max_gap_s=5.0 / rate_hz)
+    extra = {name: resample(ts, vals, grid)[0] for name, (ts, vals) in (channels or {}).items()}
+    extra["acc_body"] = acc_grid * 9.80665
+    meta = dict(meta or {})
+    meta.setdefault("gaps", {"mocap_samples_in_gaps": int(mocap_gap.sum()),
+                             "acc_samples_in_gaps": int(acc_gap.sum())})
+    meta["rate_hz"] = rate_hz
+    meta["t0_source_s"] = float(t0)
+    flight = Flight(grid - grid[0], p_grid, world_acceleration(acc_grid, q_grid), q_grid, extra, meta)
+    if cut:
+        start, stop, rule = flying_window(flight.t, flight.p[:, 2], rate_hz)
+        flight = flight.slice(start, stop)
+        flight.meta["flying_window"] = {"start_s": float(grid[start] - grid[0]),
+                                        "stop_s": float(grid[stop - 1] - grid[0]), "rule": rule}
+    return flight

@@ -1,0 +1,104 @@
+"""KNODE hybrid model: f_h,c(x, u) = f_prior(x, u) + Δθ(x, u), discretised with RK4 (eqs. 4-5).
+
+`Residual` is the trained MLP as plain float64 arrays; it evaluates in numpy (batched over rows, so one
+call propagates every sigma point), torch and CasADi (pure symbols, no callback) from one function.
+`HybridModel` is what the estimators consume: prior-only, KNODE and true-dynamics variants differ only
+in which continuous vector field they hold.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from models.backend import CasadiOps, TorchOps, ops_for, rk4_step
+from models.systems import System, make_system
+
+
+@dataclass
+class Residual:
+    """A tanh MLP Δθ([x, u]); `layers` is a list of (weight (out, in), bias (out,)) float64 arrays.
+
+    Input standardisation is folded into the first layer, so the exported network is exactly the
+    trained one and has nothing else to carry around.
+    """
+
+    layers: list
+
+    def __call__(self, x, u):
+        ops = ops_for(x)
+        z = ops.concat([x, u]) if u is not None and _width(u) else x
+        for i, (weight, bias) in enumerate(self.layers):
+            if ops is TorchOps:
+                weight, bias = torch.as_tensor(weight), torch.as_tensor(bias)
+            z = ops.linear(z, weight, bias)
+            if i < len(self.layers) - 1:
+                z = ops.tanh(z)
+        return z
+
+    def to_dict(self) -> dict:
+        return {"layers": [[w.tolist(), b.tolist()] for w, b in self.layers]}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "Residual":
+        return cls([(np.asarray(w, dtype=float), np.asarray(b, dtype=float)) for w, b in data["layers"]])
+
+
+def _width(u) -> int:
+    return int(u.shape[0] if ops_for(u) is CasadiOps else u.shape[-1])
+
+
+class HybridModel:
+    """Continuous vector field + RK4 discretisation + the system's measurement model."""
+
+    def __init__(self, system: System, kind: str = "prior", residual: Residual | None = None,
+                 meta: dict | None = None):
+        if kind not in ("prior", "true", "knode"):
+            raise ValueError(f"model kind must be 'prior', 'true' or 'knode', not {kind!r}")
+        if kind == "knode" and residual is None:
+            raise ValueError("a 'knode' model needs a trained residual")
+        self.system, self.kind, self.residual, self.meta = system, kind, residual, dict(meta or {})
+
+    @property
+    def n(self) -> int:
+        return self.system.n
+
+    def f_c(self, x, u):
+        base = self.system.f_true(x, u) if self.kind == "true" else self.system.f_prior(x, u)
+        return base + self.residual(x, u) if self.residual is not None else base
+
+    def step(self, x, u, dt):
+        """Discrete model f_h(x, u) = RK4(f_h,c); x may be a batch (B, n) of sigma points."""
+        return rk4_step(self.f_c, x, u, dt)
+
+    def h(self, x, u=None):
+        return self.system.h(x, u)
+
+    def __repr__(self) -> str:
+        return f"HybridModel({self.system.name}, {self.kind})"
+
+    # -- persistence: everything needed to rebuild the model, no pickle --------------------------
+    def save(self, path: str | Path) -> None:
+        data = {"format": "learnest-model/1", "system": self.system.name, "kind": self.kind,
+                "prior_params": self.system.prior_params, "true_params": self.system.true_params,
+                "residual": self.residual.to_dict() if self.residual else None, "meta": self.meta}
+        path = Path(path)
+        tmp = path.with_suffix(path.suffix + ".tmp")
+        tmp.write_text(json.dumps(data))
+        tmp.replace(path)  # atomic: a crash never leaves half a model behind
+
+    @classmethod
+    def load(cls, path: str | Path) -> "HybridModel":
+        try:
+            data = json.loads(Path(path).read_text())
+        except (OSError, json.JSONDecodeError) as err:
+            raise ValueError(f"{path}: not a readable learnest model ({err})") from None
+        if data.get("format") != "learnest-model/1":
+            raise ValueError(f"{path}: not a learnest model file (format {data.get('format')!r})")
+        system = make_system(data["system"], prior_params=data["prior_params"],
+                             true_params=data["true_params"])
+        residual = Residual.from_dict(data["residual"]) if data["residual"] else None
+        return cls(system, data["kind"], residual, data.get("meta"))

@@ -1,0 +1,86 @@
+"""Pre-training observers g (eq. 6): measurements -> state observations ζ for Algorithm 1.
+
+As in Sec. V: a KF for the cartpole and the quadrotor, a precursory UKF followed by a linear KF for the
+ground robot.  They run offline, so each ends with a Rauch-Tung-Striebel backward pass (no lag to learn).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from estimators.kf import kinematic_smoother, run_kf
+from estimators.ukf import run_ukf
+from models.knode import HybridModel
+from models.systems import GroundRobot, System
+
+
+def observe_cartpole(system: System, y, u, dt):
+    """Constant-acceleration KF + RTS on the measured position and angle gives their rates."""
+    pos, vel, _ = kinematic_smoother(y, dt, meas_std=system.meas_noise_std, jerk_std=200.0)
+    return np.column_stack([pos[:, 0], vel[:, 0], pos[:, 1], vel[:, 1]])
+
+
+class _PlanarKinematics:
+    """Constant-velocity point in the plane with a slowly varying heading, seen by the robot's sensors."""
+
+    def __init__(self, robot: GroundRobot):
+        self.robot, self.n = robot, 5
+        self.system = type("S", (), {"m": robot.m, "p": 0})()
+
+    def step(self, x, u, dt):
+        out = np.array(x, dtype=float, copy=True)
+        out[..., 0] += dt * x[..., 2]
+        out[..., 1] += dt * x[..., 3]
+        return out
+
+    def h(self, x, u=None):
+        state = np.stack([x[..., 0], x[..., 1], np.hypot(x[..., 2], x[..., 3]), x[..., 4]], axis=-1)
+        return self.robot.h(state)
+
+
+def observe_robot(system: GroundRobot, y, u, dt):
+    """Precursory UKF (ranges + heading -> position, heading), then a linear KF for the speed."""
+    kinematics = _PlanarKinematics(system)
+    x0 = _trilaterate(system, y[0])
+    Q = np.diag([1e-6, 1e-6, 4e-4, 4e-4, 1e-4])
+    P0 = np.diag([1.0, 1.0, 4.0, 4.0, 0.1])
+    forward = run_ukf(kinematics, y, np.zeros((len(y), 0)), dt, Q, system.R, x0, P0)
+    planar = np.column_stack([forward[:, 0], forward[:, 1], forward[:, 4]])
+    pos, vel, _ = kinematic_smoother(planar, dt, meas_std=[0.03, 0.03, np.deg2rad(0.5)], jerk_std=5.0)
+    speed = np.hypot(vel[:, 0], vel[:, 1])
+    return np.column_stack([pos[:, 0], pos[:, 1], speed, pos[:, 2]])
+
+
+def _trilaterate(system: GroundRobot, ranges) -> np.ndarray:
+    """Least-squares position from the first set of ranges (linearised by differencing sensor 0)."""
+    s = np.asarray(system.sensors)
+    r = np.asarray(ranges[: len(s)])
+    A = 2 * (s[1:] - s[0])
+    b = r[0] ** 2 - r[1:] ** 2 + (s[1:] ** 2).sum(1) - (s[0] ** 2).sum()
+    xy = np.linalg.lstsq(A, b, rcond=None)[0]
+    return np.array([xy[0], xy[1], 0.0, 0.0, ranges[-1]])
+
+
+def observe_quadrotor(system: System, y, u, dt):
+    """The prior is linear (p, v, a kinematic chain), so the observer is a KF + RTS on that prior."""
+    model = HybridModel(system, "prior")
+    x0 = np.concatenate([y[0, :3], np.zeros(3), y[0, 3:]])
+    return run_kf(model, y, u, dt, system.Q, system.R, x0, system.P0, smooth=True)
+
+
+OBSERVERS = {"cartpole": observe_cartpole, "robot": observe_robot, "quadrotor": observe_quadrotor}
+
+
+def pretraining_observer(system: System, y, u, dt) -> np.ndarray:
+    """ζ_1..ζ_M = g(y_1..y_M, u_1..u_M), eq. (6)."""
+    return OBSERVERS[system.name](system, np.asarray(y, float), np.asarray(u, float), dt)
+
+
+def full_state_observer(system: System, x_measured, dt) -> np.ndarray:
+    """The "full state" variant of Algorithm 1: every state is measured (y = x + v, v ~ state noise);
+    the observer is then a per-channel constant-acceleration KF + RTS that only removes that noise."""
+    pos, _, _ = kinematic_smoother(x_measured, dt, meas_std=system.state_noise_std,
+                                   jerk_std=_JERK_STD[system.name])
+    return pos
+
+
+_JERK_STD = {"cartpole": 200.0, "robot": 5.0, "quadrotor": 50.0}

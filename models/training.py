@@ -1,0 +1,104 @@
+"""Algorithm 1, Phase 1: pre-training observer -> state observations ζ -> one-step predictions (7)
+with torchdiffeq's RK4 -> loss (8) -> Adam -> discrete hybrid model f_h = RK4(f_prior + Δθ*)."""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+import torch
+from torchdiffeq import odeint
+
+from estimators.checks import check_dt, check_sequence
+from models.knode import HybridModel, Residual
+from models.systems import System
+
+
+@dataclass
+class TrainingConfig:
+    hidden: int = 8            # neurons between the two layers (paper: 8 cartpole/robot, 16 quadrotor)
+    epochs: int = 250
+    lr: float = 1e-2
+    batch_size: int = 0        # 0 = full batch (one Adam step per epoch)
+    seed: int = 0
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+@dataclass
+class TrainingResult:
+    model: HybridModel
+    losses: list = field(default_factory=list)
+    seconds: float = 0.0
+
+
+class _MLP(torch.nn.Module):
+    """Δθ with fixed input standardisation (from the training data) so tanh sees O(1) inputs."""
+
+    def __init__(self, n_in: int, n_out: int, hidden: int, mean: np.ndarray, std: np.ndarray):
+        super().__init__()
+        self.hidden_layer = torch.nn.Linear(n_in, hidden, dtype=torch.float64)
+        self.output_layer = torch.nn.Linear(hidden, n_out, dtype=torch.float64)
+        torch.nn.init.zeros_(self.output_layer.weight)  # start at the prior: Δθ ≡ 0
+        torch.nn.init.zeros_(self.output_layer.bias)
+        self.register_buffer("mean", torch.as_tensor(mean))
+        self.register_buffer("std", torch.as_tensor(std))
+
+    def forward(self, z):
+        return self.output_layer(torch.tanh(self.hidden_layer((z - self.mean) / self.std)))
+
+    def export(self) -> Residual:
+        """Fold the standardisation into the first layer: W(z-m)/s + b = (W/s) z + (b - W m/s)."""
+        w1 = self.hidden_layer.weight.detach().numpy() / self.std.numpy()
+        b1 = self.hidden_layer.bias.detach().numpy() - w1 @ self.mean.numpy()
+        return Residual([(w1.copy(), b1.copy()),
+                         (self.output_layer.weight.detach().numpy().copy(),
+                          self.output_layer.bias.detach().numpy().copy())])
+
+
+def train_knode(system: System, zeta, u, dt: float, config: TrainingConfig | None = None,
+                progress: Callable[[int, float], None] | None = None) -> TrainingResult:
+    """Fit Δθ so that one RK4 step of f_prior + Δθ from ζ_i lands on ζ_{i+1} (eqs. 7-8)."""
+    config = config or TrainingConfig()
+    zeta = check_sequence("zeta", zeta, cols=system.n)
+    u = check_sequence("u", np.asarray(u, dtype=float).reshape(len(zeta), -1), rows=len(zeta), cols=system.p)
+    if len(zeta) < 3:
+        raise ValueError(f"training needs at least 3 state observations, got {len(zeta)}")
+    dt = check_dt(dt)
+    torch.manual_seed(config.seed)
+    features = np.concatenate([zeta, u], axis=1)
+    std = features.std(axis=0)
+    mlp = _MLP(features.shape[1], system.n, config.hidden, features.mean(axis=0), np.where(std > 1e-9, std, 1.0))
+
+    z_now, z_next = torch.as_tensor(zeta[:-1]), torch.as_tensor(zeta[1:])
+    u_now = torch.as_tensor(u[:-1])
+    t_span = torch.tensor([0.0, dt], dtype=torch.float64)
+    optimizer = torch.optim.Adam(mlp.parameters(), lr=config.lr)
+    batch = config.batch_size or len(z_now)
+    generator = torch.Generator().manual_seed(config.seed)
+    losses, started = [], time.perf_counter()
+    for epoch in range(config.epochs):
+        order = torch.randperm(len(z_now), generator=generator) if batch < len(z_now) else None
+        epoch_loss = 0.0
+        for start in range(0, len(z_now), batch):
+            idx = order[start:start + batch] if order is not None else slice(None)
+            x0, u0, target = z_now[idx], u_now[idx], z_next[idx]
+
+            def vector_field(_t, x, u0=u0):
+                return system.f_prior(x, u0) + mlp(torch.cat([x, u0], dim=-1))
+
+            prediction = odeint(vector_field, x0, t_span, method="rk4")[-1]       # eq. (7)
+            loss = ((prediction - target) ** 2).sum(dim=-1).mean()               # eq. (8)
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+            epoch_loss += loss.item() * len(x0)
+        losses.append(epoch_loss / len(z_now))
+        if progress:
+            progress(epoch, losses[-1])
+    seconds = time.perf_counter() - started
+    model = HybridModel(system, "knode", mlp.export(),
+                        meta={"training": config.as_dict(), "final_loss": losses[-1], "seconds": seconds})
+    return TrainingResult(model, losses, seconds)

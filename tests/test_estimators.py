@@ -1,0 +1,115 @@
+"""KF, UKF and MHE against known answers on linear-Gaussian systems, and their input checks."""
+import numpy as np
+import pytest
+
+from estimators.kf import linearize, run_kf
+from estimators.mhe import MHE
+from estimators.ukf import run_ukf
+from models.knode import HybridModel
+from models.systems import make_system
+
+
+@pytest.fixture(scope="module")
+def linear_case():
+    """The quadrotor prior (a linear kinematic chain) with linear measurements y = [p, a]."""
+    system = make_system("quadrotor")
+    model = HybridModel(system, "prior")
+    run = system.simulate(5, n_samples=300)
+    return system, model, run
+
+
+def test_ukf_equals_kf_on_a_linear_gaussian_system(linear_case):
+    system, model, run = linear_case
+    x0 = run.x_noisy[0]
+    kf = run_kf(model, run.y, run.u, system.dt, system.Q, system.R, x0, system.P0)
+    ukf = run_ukf(model, run.y, run.u, system.dt, system.Q, system.R, x0, system.P0)
+    # alpha = 1e-3 puts weights of order 1e6 on the sigma points: ~1e-7 relative is the floor there
+    np.testing.assert_allclose(ukf, kf, rtol=0, atol=1e-7)
+    wide = run_ukf(model, run.y, run.u, system.dt, system.Q, system.R, x0, system.P0, alpha=1.0)
+    np.testing.assert_allclose(wide, kf, rtol=0, atol=1e-10)
+
+
+def test_mhe_with_a_long_horizon_is_the_full_information_estimate(linear_case):
+    """With the window covering the whole record, MHE solves the batch least-squares problem, whose
+    last node is the KF estimate (linear-Gaussian), at every step."""
+    system, model, run = linear_case
+    T = 40
+    y, u, x0 = run.y[:T], run.u[:T], run.x_noisy[0]
+    kf = run_kf(model, y, u, system.dt, system.Q, system.R, x0, system.P0)
+    mhe = MHE(model, system.dt, system.Q, system.R, system.P0, horizon=T + 5).run(y, u, x0)
+    np.testing.assert_allclose(mhe, kf, rtol=0, atol=1e-6 * np.abs(kf).max())
+    # and the last node equals an independent dense batch least-squares solution
+    F, H = linearize(model, system.dt)
+    n = model.n
+    rows, rhs, weights = [], [], []
+    for k in range(T):                                       # measurement rows
+        row = np.zeros((6, n * T)); row[:, k * n:(k + 1) * n] = H
+        rows.append(row); rhs.append(y[k]); weights.append(np.linalg.inv(system.R))
+    for k in range(T - 1):                                   # dynamics rows x_{k+1} - F x_k = w_k
+        row = np.zeros((n, n * T)); row[:, (k + 1) * n:(k + 2) * n] = np.eye(n); row[:, k * n:(k + 1) * n] = -F
+        rows.append(row); rhs.append(np.zeros(n)); weights.append(np.linalg.inv(system.Q))
+    row = np.zeros((n, n * T)); row[:, :n] = np.eye(n)       # arrival cost
+    rows.append(row); rhs.append(x0); weights.append(np.linalg.inv(system.P0))
+    A, b = np.vstack(rows), np.concatenate(rhs)
+    from scipy.linalg import block_diag
+    W = block_diag(*weights)
+    batch = np.linalg.solve(A.T @ W @ A, A.T @ W @ b).reshape(T, n)
+    np.testing.assert_allclose(mhe[-1], batch[-1], rtol=0, atol=1e-6 * np.abs(batch).max())
+
+
+def test_mhe_warm_start_and_arrival_options_give_the_same_estimates_on_a_linear_system(linear_case):
+    system, model, run = linear_case
+    y, u, x0 = run.y[:60], run.u[:60], run.x_noisy[0]
+    warm = MHE(model, system.dt, system.Q, system.R, system.P0, horizon=10).run(y, u, x0)
+    cold = MHE(model, system.dt, system.Q, system.R, system.P0, horizon=10, warm_start=False).run(y, u, x0)
+    np.testing.assert_allclose(warm, cold, atol=1e-7)
+    fixed = MHE(model, system.dt, system.Q, system.R, system.P0, horizon=10, arrival="fixed").run(y, u, x0)
+    # a propagated P_k summarises the data that left the window better than a constant P0 does; the KF
+    # (optimal here) bounds both from below
+    mse = {name: np.mean((est - run.x[:60]) ** 2) for name, est in
+           [("ekf", warm), ("fixed", fixed), ("kf", run_kf(model, y, u, system.dt, system.Q, system.R, x0, system.P0))]}
+    assert mse["kf"] <= mse["ekf"] < mse["fixed"]
+
+
+def test_ukf_survives_ten_thousand_steps_with_a_singular_process_noise():
+    """No process noise, very precise sensors and a nonlinear model: the covariance collapses towards
+    singular, which kills a plain Cholesky; ours stays symmetric positive definite."""
+    system = make_system("robot")
+    run = system.simulate(1, n_samples=10_000)
+    model = HybridModel(system, "true")
+    estimates = run_ukf(model, run.y, run.u, system.dt, np.zeros((4, 4)), system.R * 1e-6,
+                        run.x[0], system.P0 * 1e-6)
+    assert np.all(np.isfinite(estimates))
+    assert np.sqrt(np.mean((estimates - run.x) ** 2)) < 0.05
+
+
+@pytest.mark.parametrize("estimator", ["kf", "ukf", "mhe"])
+@pytest.mark.parametrize("change,match", [
+    (dict(y=np.zeros((10, 5))), "columns"),
+    (dict(y=np.full((10, 6), np.nan)), "NaN"),
+    (dict(Q=np.full((9, 9), np.inf)), "Q contains NaN"),
+    (dict(R=-np.eye(6)), "R is not positive"),
+    (dict(P0=np.ones((3, 3))), "P0 must be 9x9"),
+    (dict(x0=np.zeros(4)), "x0 must have 9"),
+    (dict(dt=0.0), "dt must be"),
+])
+def test_bad_arguments_raise_clear_value_errors(linear_case, estimator, change, match):
+    system, model, _ = linear_case
+    args = dict(y=np.zeros((10, 6)), u=np.zeros((10, 0)), dt=0.01, Q=system.Q, R=system.R,
+                x0=np.zeros(9), P0=system.P0)
+    args.update(change)
+    with pytest.raises(ValueError, match=match):
+        if estimator == "kf":
+            run_kf(model, **args)
+        elif estimator == "ukf":
+            run_ukf(model, **args)
+        else:
+            MHE(model, args["dt"], args["Q"], args["R"], args["P0"], horizon=5).run(args["y"], args["u"], args["x0"])
+
+
+def test_mhe_rejects_bad_options(linear_case):
+    system, model, _ = linear_case
+    with pytest.raises(ValueError, match="horizon"):
+        MHE(model, 0.01, system.Q, system.R, system.P0, horizon=0)
+    with pytest.raises(ValueError, match="arrival"):
+        MHE(model, 0.01, system.Q, system.R, system.P0, arrival="magic")
