@@ -22,6 +22,10 @@ class TrainingConfig:
     lr: float = 1e-2
     batch_size: int = 0        # 0 = full batch (one Adam step per epoch)
     seed: int = 0
+    # hold out the last part of the record (a time block, never random samples of one series) and keep
+    # the weights of the epoch that predicted it best: an observer's artefacts are what a long run
+    # overfits, and they do not repeat in the held-out block
+    validation_fraction: float = 0.2
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -32,6 +36,7 @@ class TrainingResult:
     model: HybridModel
     losses: list = field(default_factory=list)
     seconds: float = 0.0
+    validation_losses: list = field(default_factory=list)
 
 
 class _MLP(torch.nn.Module):
@@ -72,33 +77,49 @@ def train_knode(system: System, zeta, u, dt: float, config: TrainingConfig | Non
     std = features.std(axis=0)
     mlp = _MLP(features.shape[1], system.n, config.hidden, features.mean(axis=0), np.where(std > 1e-9, std, 1.0))
 
+    pairs = len(zeta) - 1
+    n_val = int(round(config.validation_fraction * pairs)) if pairs >= 10 else 0
+    n_fit = pairs - n_val
     z_now, z_next = torch.as_tensor(zeta[:-1]), torch.as_tensor(zeta[1:])
     u_now = torch.as_tensor(u[:-1])
     t_span = torch.tensor([0.0, dt], dtype=torch.float64)
+
+    def one_step_loss(idx):
+        x0, u0, target = z_now[idx], u_now[idx], z_next[idx]
+
+        def vector_field(_t, x):
+            return system.f_prior(x, u0) + mlp(torch.cat([x, u0], dim=-1))
+
+        prediction = odeint(vector_field, x0, t_span, method="rk4")[-1]           # eq. (7)
+        return ((prediction - target) ** 2).sum(dim=-1).mean()                   # eq. (8)
+
     optimizer = torch.optim.Adam(mlp.parameters(), lr=config.lr)
-    batch = config.batch_size or len(z_now)
+    batch = config.batch_size or n_fit
     generator = torch.Generator().manual_seed(config.seed)
-    losses, started = [], time.perf_counter()
+    losses, val_losses, started = [], [], time.perf_counter()
+    best = (float("inf"), None, -1)
     for epoch in range(config.epochs):
-        order = torch.randperm(len(z_now), generator=generator) if batch < len(z_now) else None
+        order = torch.randperm(n_fit, generator=generator) if batch < n_fit else torch.arange(n_fit)
         epoch_loss = 0.0
-        for start in range(0, len(z_now), batch):
-            idx = order[start:start + batch] if order is not None else slice(None)
-            x0, u0, target = z_now[idx], u_now[idx], z_next[idx]
-
-            def vector_field(_t, x, u0=u0):
-                return system.f_prior(x, u0) + mlp(torch.cat([x, u0], dim=-1))
-
-            prediction = odeint(vector_field, x0, t_span, method="rk4")[-1]       # eq. (7)
-            loss = ((prediction - target) ** 2).sum(dim=-1).mean()               # eq. (8)
+        for start in range(0, n_fit, batch):
+            idx = order[start:start + batch]
+            loss = one_step_loss(idx)
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
-            epoch_loss += loss.item() * len(x0)
-        losses.append(epoch_loss / len(z_now))
+            epoch_loss += loss.item() * len(idx)
+        losses.append(epoch_loss / n_fit)
+        if n_val:
+            with torch.no_grad():
+                val_losses.append(one_step_loss(torch.arange(n_fit, pairs)).item())
+            if val_losses[-1] < best[0]:
+                best = (val_losses[-1], {k: v.clone() for k, v in mlp.state_dict().items()}, epoch)
         if progress:
             progress(epoch, losses[-1])
+    if best[1] is not None:
+        mlp.load_state_dict(best[1])
     seconds = time.perf_counter() - started
     model = HybridModel(system, "knode", mlp.export(),
-                        meta={"training": config.as_dict(), "final_loss": losses[-1], "seconds": seconds})
-    return TrainingResult(model, losses, seconds)
+                        meta={"training": config.as_dict(), "final_loss": losses[-1], "seconds": seconds,
+                              "best_epoch": best[2], "best_validation_loss": best[0] if n_val else None})
+    return TrainingResult(model, losses, seconds, val_losses)

@@ -12,7 +12,7 @@ from tqdm import tqdm
 def _reproduce(args) -> int:
     from service.reproduce import ReproduceSettings, format_table, reproduce
 
-    settings = ReproduceSettings(task=args.task, n_samples=args.samples, epochs=args.epochs, horizon=args.horizon)
+    settings = ReproduceSettings(task=args.task, eval_samples=args.samples, epochs=args.epochs, horizon=args.horizon)
     with tqdm(total=args.seeds, desc=f"Table I {args.task}", unit="seed", file=sys.stderr) as bar:
         report = reproduce(settings, args.seeds, workers=args.workers, progress=lambda _r: bar.update(1))
     print(format_table(report))
@@ -31,7 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--task", choices=["cartpole", "robot"], required=True)
     rep.add_argument("--seeds", type=int, default=15)
     rep.add_argument("--json", metavar="FILE", help="also write the results as JSON")
-    rep.add_argument("--samples", type=int, default=None, help="trajectory length (default: the paper's)")
+    rep.add_argument("--samples", type=int, default=None, help="evaluation trajectory length in samples (default: the paper's)")
     rep.add_argument("--epochs", type=int, default=None, help="training epochs (default: the paper's)")
     rep.add_argument("--horizon", type=int, default=20, help="MHE horizon N (default 20)")
     rep.add_argument("--workers", type=int, default=1, help="processes to spread the seeds over")

@@ -10,6 +10,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 
 from estimators.mhe import MHE
 from estimators.ukf import run_ukf
@@ -32,24 +33,28 @@ PAPER = {
 }
 
 TRAINING = {  # Sec. V: 2 layers x 8 tanh; 250 epochs (cartpole), 10000 epochs (robot)
-    "cartpole": TrainingConfig(hidden=8, epochs=250, lr=2e-2),
-    "robot": TrainingConfig(hidden=8, epochs=10000, lr=5e-3),
+    # 250 full-batch epochs cannot overfit the cartpole record, so it trains on all of it, as the paper;
+    # 10000 epochs on the robot fit the range observer's artefacts unless a held-out block stops them
+    "cartpole": TrainingConfig(hidden=8, epochs=250, lr=2e-2, validation_fraction=0.0),
+    "robot": TrainingConfig(hidden=8, epochs=10000, lr=5e-3, validation_fraction=0.2),
 }
 
 
 @dataclass(frozen=True)
 class ReproduceSettings:
     task: str
-    n_samples: int | None = None   # None: the paper's length (5000 cartpole, 2500 robot)
+    eval_samples: int | None = None  # evaluation length; None: the paper's (5000 cartpole, 2500 robot).
+    # Training always uses the paper's full record: it is cheap, and a short record under-determines Δθ.
     epochs: int | None = None      # None: the paper's epochs
     horizon: int = 20              # MHE window N
 
 
 def run_seed(settings: ReproduceSettings, seed: int) -> dict:
     """All 8 rows for one seed: {row: mse}, plus timings."""
+    torch.set_num_threads(1)  # tiny networks: threads only contend with the other worker processes
     system = make_system(settings.task)
-    train = system.simulate(10_000 + seed, settings.n_samples)
-    test = system.simulate(20_000 + seed, settings.n_samples)
+    train = system.simulate(10_000 + seed)
+    test = system.simulate(20_000 + seed, settings.eval_samples)
     config = TRAINING[settings.task]
     if settings.epochs:
         config = TrainingConfig(**{**config.as_dict(), "epochs": settings.epochs})

@@ -1,0 +1,18 @@
+# learnest image: CPU-only torch, the learnest CLI (and, once the service lands, its uvicorn app).
+# Build: docker build -t learnest .      Run: docker run --rm -v learnest-data:/data learnest reproduce --task cartpole --seeds 2
+FROM python:3.11-slim
+
+WORKDIR /app
+# CPU build of torch first, from PyTorch's CPU index, so no CUDA packages are pulled in
+RUN pip install --no-cache-dir torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu
+COPY pyproject.toml constraints.txt README.md ./
+COPY ingest ./ingest
+COPY models ./models
+COPY estimators ./estimators
+COPY service ./service
+RUN pip install --no-cache-dir -c constraints.txt .
+
+ENV LEARNEST_HOME=/data
+VOLUME /data
+ENTRYPOINT ["learnest"]
+CMD ["--help"]

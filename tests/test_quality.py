@@ -1,0 +1,207 @@
+"""Quality checks: each fires for its defect and stays quiet on clean data (synthetic and NanoBench)."""
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ingest import nanobench, quality
+from ingest.align import build_flight
+from ingest.flight import GRAVITY, Flight
+
+NANOBENCH = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "nanobench"
+# Found by inspecting all 17 flights (see ingest/nanobench.py and the report): the onboard link of this
+# one died at 31.3 s while the vehicle flew on until 38.2 s, so 6.9 s of flight have no accelerometer.
+BAD_NANOBENCH_FLIGHTS = {"B2_circle_medium_rep3"}
+
+RATE = 100.0
+
+
+# -- a synthetic, physically consistent flight ----------------------------------------------------------
+def smoothstep(u):
+    u = np.clip(u, 0.0, 1.0)
+    return u ** 3 * (10 - 15 * u + 6 * u ** 2)
+
+
+def raw_circle_flight(duration=30.0, radius=1.0, omega=1.0, seed=0):
+    """Mocap + body-frame accelerometer (g) of a take-off, circle, landing; thrust along body z, with
+    sub-millimetre mocap noise and 0.005 g accelerometer noise like a real Crazyflie."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, duration, 1.0 / RATE)
+    up = smoothstep((t - 2.0) / 2.0) - smoothstep((t - (duration - 4.0)) / 2.0)
+    envelope = smoothstep((t - 5.0) / 3.0) * (1.0 - smoothstep((t - (duration - 8.0)) / 3.0))
+    p = np.column_stack([radius * envelope * np.sin(omega * t),
+                         radius * envelope * (1.0 - np.cos(omega * t)),
+                         0.03 + 0.97 * up])
+    a = np.gradient(np.gradient(p, t, axis=0), t, axis=0)
+    thrust = a + np.array([0.0, 0.0, GRAVITY])
+    quat = rotation_from_z(thrust / np.linalg.norm(thrust, axis=1, keepdims=True))
+    acc_g = np.column_stack([np.zeros_like(t), np.zeros_like(t), np.linalg.norm(thrust, axis=1) / GRAVITY])
+    return {"t_mocap": t, "p": p + rng.normal(0, 2e-4, p.shape), "quat": quat,
+            "t_acc": t.copy(), "acc_body_g": acc_g + rng.normal(0, 0.005, acc_g.shape)}
+
+
+def rotation_from_z(direction):
+    """Scalar-last quaternions of the shortest rotation taking body z onto `direction` (zero yaw)."""
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(z, direction)
+    w = 1.0 + direction @ z
+    quat = np.column_stack([axis, w])
+    return quat / np.linalg.norm(quat, axis=1, keepdims=True)
+
+
+def build(raw, **changes):
+    return build_flight("synthetic", **{**raw, **changes}, rate_hz=RATE)
+
+
+@pytest.fixture(scope="module")
+def raw():
+    return raw_circle_flight()
+
+
+@pytest.fixture(scope="module")
+def clean(raw):
+    return build(raw)
+
+
+def issues_of(flight):
+    return quality.assess(flight)["issues"]
+
+
+def assert_flags(flight, *words):
+    issues = issues_of(flight)
+    assert any(all(w in issue for w in words) for issue in issues), issues
+
+
+# -- clean data -----------------------------------------------------------------------------------------
+def test_clean_synthetic_flight_passes(clean):
+    result = quality.assess(clean)
+    assert result == {"ok": True, "issues": []}
+    assert quality.acc_mocap_correlation(clean) > 0.95
+
+
+# -- each defect ----------------------------------------------------------------------------------------
+def test_acc_in_ms2_read_as_g(raw):
+    flight = build(raw, acc_body_g=raw["acc_body_g"] * GRAVITY)
+    assert_flags(flight, "m/s² read as g")
+
+
+def test_implausible_mean_acc(raw):
+    flight = build(raw, acc_body_g=raw["acc_body_g"] * 0.6)   # e.g. wrong scale factor
+    assert_flags(flight, "implausible accelerometer", "0.6")
+
+
+def test_saturation_repeated_rail(raw):
+    acc = raw["acc_body_g"].copy()
+    acc[1500:1506, 0] = 2.5           # stuck at a ±2.5 g rail for 60 ms
+    assert_flags(build(raw, acc_body_g=acc), "saturation on x", "2.50 g")
+
+
+def test_saturation_hard_rail(raw):
+    acc = raw["acc_body_g"].copy()
+    acc[1500, 2] = -16.0
+    assert_flags(build(raw, acc_body_g=acc), "saturation on z")
+
+
+def test_spike(raw):
+    acc = raw["acc_body_g"].copy()
+    acc[1400, 1] += 6.0
+    flight = build(raw, acc_body_g=acc)
+    assert_flags(flight, "spike")
+    assert not any("saturation" in issue for issue in issues_of(flight))
+
+
+@pytest.mark.parametrize("stream", ["acc", "mocap"])
+def test_long_gap_found_from_interpolated_stretch(raw, stream):
+    t_key, value_keys = ("t_acc", ["acc_body_g"]) if stream == "acc" else ("t_mocap", ["p", "quat"])
+    keep = ~((raw[t_key] > 15.0) & (raw[t_key] < 16.2))        # 1.2 s of samples lost mid-air
+    flight = build(raw, **{t_key: raw[t_key][keep]}, **{k: raw[k][keep] for k in value_keys})
+    assert_flags(flight, f"{stream} stream missing for 1.2")
+
+
+def test_many_short_gaps_as_a_fraction(raw):
+    keep = np.arange(len(raw["t_acc"])) % 10 < 3                 # 7 of every 10 samples lost
+    flight = build(raw, t_acc=raw["t_acc"][keep], acc_body_g=raw["acc_body_g"][keep])
+    assert_flags(flight, "acc:", "fall into gaps")
+
+
+def test_gap_reported_by_adapter_meta(clean):
+    flight = dataclasses.replace(clean, meta={**clean.meta, "gaps": {**clean.meta["gaps"],
+                                                                    "acc_longest_gap_airborne_s": 6.9}})
+    assert_flags(flight, "acc stream missing for 6.90 s")
+
+
+def test_frozen_mocap_while_accelerometer_moves(raw):
+    p = raw["p"].copy()
+    p[1200:1230] = p[1200]             # exporter holds the last pose for 0.3 s during an occlusion
+    assert_flags(build(raw, p=p), "mocap position frozen", "0.30 s")
+
+
+def test_frozen_mocap_needs_a_live_accelerometer(clean):
+    p, acc = clean.p.copy(), clean.channels["acc_body"].copy()
+    p[1000:1030], acc[1000:1030] = p[1000], acc[1000]             # whole recorder stalled
+    flight = dataclasses.replace(clean, p=p, channels={**clean.channels, "acc_body": acc})
+    assert not any("frozen" in issue for issue in issues_of(flight))
+
+
+def test_non_monotonic_time(clean):
+    t = clean.t.copy()
+    t[500] = t[498]
+    assert_flags(dataclasses.replace(clean, t=t), "not strictly increasing")
+
+
+def test_too_short(clean):
+    assert_flags(clean.slice(0, 300), "too short")
+
+
+def test_positions_in_millimetres(clean):
+    assert_flags(dataclasses.replace(clean, p=clean.p * 1000.0), "millimetres")
+
+
+def test_axes_swapped_disagree_with_mocap(clean):
+    swapped = dataclasses.replace(clean, a_meas=clean.a_meas[:, [1, 0, 2]])
+    assert_flags(swapped, "disagree")
+
+
+def test_attitude_misaligned_in_time_disagrees_with_mocap(raw):
+    # On a quadrotor the horizontal a_meas comes from tilting the thrust, i.e. from the mocap attitude.
+    flight = build(raw, quat=np.roll(raw["quat"], 160, axis=0))   # 1.6 s ≈ a quarter turn at 1 rad/s
+    assert_flags(flight, "disagree", "correlation")
+
+
+def test_quaternion_scalar_first_mixup_disagrees_with_mocap(raw):
+    flight = build(raw, quat=raw["quat"][:, [3, 0, 1, 2]])        # [w, x, y, z] passed as [x, y, z, w]
+    assert_flags(flight, "disagree", "mean a_meas")
+
+
+def test_gravity_not_removed_is_a_mean_offset(clean):
+    flight = dataclasses.replace(clean, a_meas=clean.a_meas + np.array([0.0, 0.0, GRAVITY]))
+    assert_flags(flight, "disagree", "mean a_meas")
+
+
+def test_hover_is_not_judged_by_correlation(raw):
+    hover = raw_circle_flight(radius=0.0)
+    assert quality.acc_mocap_correlation(build(hover)) is None
+    assert quality.assess(build(hover))["ok"]
+
+
+def test_interpolated_stretch_measure():
+    rng = np.random.default_rng(1)
+    noisy = rng.normal(size=(200, 3))
+    assert quality.interpolated_stretch_s(noisy, 0.01) == 0.0
+    noisy[50:71] = np.linspace(noisy[50], noisy[70], 21)          # 20 intervals drawn as a straight line
+    assert quality.interpolated_stretch_s(noisy, 0.01) == pytest.approx(0.20)
+
+
+# -- real data ------------------------------------------------------------------------------------------
+needs_data = pytest.mark.skipif(
+    not NANOBENCH.is_dir(), reason=f"NanoBench data not found at {NANOBENCH} (only in the shared workspace / CI)")
+
+
+@needs_data
+def test_quality_flags_exactly_the_bad_nanobench_flights():
+    verdicts = {path.stem: quality.assess(nanobench.read(path)) for path in sorted(NANOBENCH.glob("*.csv"))}
+    assert len(verdicts) == 17
+    flagged = {name for name, verdict in verdicts.items() if not verdict["ok"]}
+    assert flagged == BAD_NANOBENCH_FLIGHTS, {name: verdicts[name]["issues"] for name in flagged}
+    assert any("acc stream missing for 6.9" in issue for issue in verdicts["B2_circle_medium_rep3"]["issues"])

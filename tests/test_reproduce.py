@@ -1,0 +1,20 @@
+"""Quick Table I (2 seeds, short trajectories): the paper's finding must hold on both tasks."""
+import pytest
+
+from service.reproduce import ReproduceSettings, reproduce
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("task,samples,epochs", [("cartpole", 1500, None), ("robot", 1000, 2000)])
+def test_quick_reproduction_shows_the_papers_ordering(task, samples, epochs):
+    report = reproduce(ReproduceSettings(task, eval_samples=samples, epochs=epochs), seeds=2, workers=2)
+    mu = {row: r["mu"] for row, r in report["rows"].items()}
+    for estimator in ("MHE", "UKF"):
+        prior, knode = mu[estimator], mu[f"KNODE-{estimator}"]
+        full, true = mu[f"KNODE-{estimator} (full state)"], mu[f"{estimator} (true dynamics)"]
+        factor = {"cartpole": {"MHE": 5, "UKF": 10}, "robot": {"MHE": 2, "UKF": 2}}[task][estimator]
+        assert knode * factor < prior, f"{task} KNODE-{estimator} {knode:.2e} vs {estimator} {prior:.2e}"
+        assert true < full, f"{task}: true dynamics should beat the full-state KNODE ({estimator})"
+        assert full < 1.5 * knode, f"{task}: full-state KNODE should not lose to partial ({estimator})"
+    assert set(report["rows"]) == {"MHE", "KNODE-MHE", "KNODE-MHE (full state)", "MHE (true dynamics)", "UKF",
+                                   "KNODE-UKF", "KNODE-UKF (full state)", "UKF (true dynamics)"}
