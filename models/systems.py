@@ -247,7 +247,7 @@ class Quadrotor(System):
     true_params: dict = field(default_factory=lambda: dict(omega=1.0))  # 0.5 m/s on a 0.5 m circle
     state_noise_std: tuple = (1e-3,) * 3 + (0.01,) * 3 + (0.1,) * 3
     meas_noise_std: tuple = (1e-3,) * 3 + (0.3,) * 3
-    process_noise_std: tuple = (1e-5,) * 3 + (1e-4,) * 3 + (0.05,) * 3
+    process_noise_std: tuple = (1e-5,) * 3 + (1e-4,) * 3 + (0.01,) * 3  # jerk ~1 m/s³ per step
     initial_std: tuple = (0.01,) * 3 + (0.1,) * 3 + (0.5,) * 3
 
     def dynamics(self, x, u, params):

@@ -1,0 +1,205 @@
+"""Clock offset between two recordings of one flight, found by cross-correlating what both measured.
+
+A Vicon export counts time from its first frame; a cfclient log stamps rows in milliseconds since the
+Crazyflie booted.  The two clocks share nothing, so the offset is estimated from the data:
+
+    t_ref = t_other + offset_s
+
+`estimate_clock_offset` works on any pair of scalar signals.  For mocap + accelerometer,
+`align_mocap_and_accelerometer` compares the magnitude of the specific force:
+
+    mocap:          |p̈ + g ẑ|      (p̈ = Savitzky–Golay second derivative of the mocap position)
+    accelerometer:  |acc| · g      (body frame, in g from the log)
+
+Why this quantity:
+  * It needs no attitude.  Rotating the accelerometer into the world (or the mocap acceleration into the
+    body) uses the mocap attitude *at the accelerometer's time stamps* — i.e. the offset being estimated.
+  * It is frame-free: a norm is unchanged by the IMU's mounting rotation, the mocap object's axis
+    definition (its yaw is set when the object is created in Vicon, often unrelated to the IMU axes) and
+    quaternion/axis conventions, none of which the two files tell us.
+  * It is what an ideal accelerometer measures in magnitude, gravity included, so both sides agree up to
+    sensor scale and bias — which the normalised correlation (mean removed) ignores.
+  * Cost: a norm discards direction.  Motion at constant |a + g ẑ| (a hover, a level circle at constant
+    speed) carries no timing information; the score then stays low and the caller must not trust the
+    offset.  Take-off and landing, which every recording normally contains, excite it strongly.
+
+Both signals pass through the same zero-phase low-pass, so any filter phase is common to both and cannot
+bias the offset; the band keeps the manoeuvre and drops double-differentiated mocap noise (it grows with
+frequency squared) and propeller vibration.
+
+Accuracy (simulated 8 s figure-eight with take-off and landing, tests/test_ingest_vicon_csv.py): ~1-3 ms
+with 0.01 g accelerometer and 0.1 mm mocap noise (score 0.99); ~10-15 ms at 0.05 g / 0.5 mm (score 0.9);
+~20-35 ms at 0.1 g / 1 mm (score 0.75).  It is limited by how fast |specific force| changes: brisk
+manoeuvres and take-offs give sharper correlation peaks than slow, level motion.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import butter, correlate, savgol_filter, sosfiltfilt
+
+from ingest.flight import GRAVITY
+
+DEFAULT_MAX_LAG_S = 30.0
+# Tracking manoeuvres of a quadrotor live below a few Hz; above this, mocap p̈ is mostly differentiated
+# noise (at 0.5 mm) and the accelerometer shows propeller vibration.  (2-5 Hz performed alike on the tests.)
+BAND_HZ = 3.0
+BAND_ORDER = 4
+# SG second derivative over 0.31 s: short enough not to blur a take-off (~0.5 s), long enough to tame
+# the noise of double differentiation before the common low-pass.
+SG_WINDOW_S = 0.31
+SG_ORDER = 2
+# A candidate lag must overlap the shorter signal by this fraction: tiny overlaps can correlate perfectly
+# by chance and would otherwise win.
+MIN_OVERLAP_FRACTION = 0.5
+# Shorter signals cannot be aligned meaningfully (a few manoeuvre periods are needed).
+MIN_SIGNAL_S = 2.0
+# The side-lobe search ignores the main lobe: the contiguous lags around the peak above half its height.
+MAIN_LOBE_FRACTION = 0.5
+
+
+@dataclass
+class ClockAlignment:
+    offset_s: float          # t_ref = t_other + offset_s
+    score: float             # normalised correlation at the peak, in [-1, 1]
+    runner_up: float         # highest normalised correlation outside the peak's main lobe (periodic motion)
+    excitation: float        # rms of the band-limited reference signal, in its units
+    start_offset_s: float    # the offset that aligns the two starts: the centre of the search
+
+    def as_meta(self) -> dict:
+        return {name: float(value) for name, value in vars(self).items()}
+
+
+# -- the generic estimator ------------------------------------------------------------------------------
+def estimate_clock_offset(t_ref, a_ref, t_other, a_other, max_lag_s: float = DEFAULT_MAX_LAG_S,
+                          rate_hz: float = 100.0) -> tuple[float, float]:
+    """(offset_s, score) with t_ref = t_other + offset_s, for two scalar signals of one quantity.
+
+    The starts are aligned first (t_ref[0] <-> t_other[0]) and the offset is searched within ±max_lag_s
+    of that.  Score: normalised correlation at the peak (1 = identical shape); see `ClockAlignment`.
+    Raises ValueError for signals too short or too flat to correlate.
+    """
+    alignment = align_signals(t_ref, a_ref, t_other, a_other, max_lag_s=max_lag_s, rate_hz=rate_hz)
+    return alignment.offset_s, alignment.score
+
+
+def align_signals(t_ref, a_ref, t_other, a_other, max_lag_s: float = DEFAULT_MAX_LAG_S,
+                  rate_hz: float = 100.0) -> ClockAlignment:
+    """As `estimate_clock_offset`, with the diagnostics.  Signals need not be uniformly sampled."""
+    grid_ref, x = _uniform(t_ref, a_ref, rate_hz, "reference")
+    grid_other, y = _uniform(t_other, a_other, rate_hz, "other")
+    x, y = _band_limited(x, rate_hz), _band_limited(y, rate_hz)
+    lags, ncc = _normalised_correlation(x, y)
+    start_offset = grid_ref[0] - grid_other[0]     # lag 0 pairs the first samples of both grids
+    min_overlap = MIN_OVERLAP_FRACTION * min(len(x), len(y))
+    candidates = (np.abs(lags) <= max_lag_s * rate_hz) & (_overlap(lags, len(x), len(y)) >= min_overlap)
+    if not candidates.any():
+        raise ValueError("the signals cannot overlap by half the shorter one within the lag range")
+    ncc = np.where(candidates, ncc, -np.inf)
+    peak = int(np.argmax(ncc))
+    offset = start_offset + (lags[peak] + _parabolic_vertex(ncc, peak)) / rate_hz
+    return ClockAlignment(offset_s=float(offset), score=float(ncc[peak]), runner_up=_runner_up(ncc, peak),
+                          excitation=float(np.sqrt(np.mean(x ** 2))), start_offset_s=float(start_offset))
+
+
+def _uniform(t, values, rate_hz: float, name: str) -> tuple[np.ndarray, np.ndarray]:
+    t, values = np.asarray(t, dtype=float), np.asarray(values, dtype=float)
+    if t.ndim != 1 or values.shape != t.shape:
+        raise ValueError(f"{name}: times {t.shape} and values {values.shape} must be equal 1-D arrays")
+    finite = np.isfinite(t) & np.isfinite(values)
+    t, values = t[finite], values[finite]
+    if len(t) < 2 or not np.all(np.diff(t) > 0):
+        raise ValueError(f"{name}: needs at least 2 finite samples with increasing times")
+    if t[-1] - t[0] < MIN_SIGNAL_S:
+        raise ValueError(f"{name}: {t[-1] - t[0]:.2f} s is too short to align clocks (needs {MIN_SIGNAL_S:g} s)")
+    grid = t[0] + np.arange(int(np.floor((t[-1] - t[0]) * rate_hz)) + 1) / rate_hz
+    return grid, np.interp(grid, t, values)
+
+
+def _band_limited(signal: np.ndarray, rate_hz: float) -> np.ndarray:
+    """Zero-phase low-pass and mean removal (the same for both signals: no relative delay)."""
+    cutoff = min(BAND_HZ, 0.4 * rate_hz)
+    sos = butter(BAND_ORDER, cutoff, fs=rate_hz, output="sos")
+    filtered = sosfiltfilt(sos, signal - signal.mean())
+    return filtered - filtered.mean()
+
+
+def _normalised_correlation(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lags m and sum_n x[n+m] y[n] / sqrt(energy of x and of y over their overlap at m).
+
+    Normalising by the overlap (not the whole signals) keeps a lag with a short but perfect overlap
+    comparable with the full one; the caller bounds the overlap from below.
+    """
+    lags = np.arange(-(len(y) - 1), len(x))
+    raw = correlate(x, y, mode="full", method="fft")
+    cx, cy = np.r_[0.0, np.cumsum(x ** 2)], np.r_[0.0, np.cumsum(y ** 2)]
+    x_start, x_stop = np.maximum(lags, 0), np.minimum(len(y) + lags, len(x))
+    y_start, y_stop = np.maximum(-lags, 0), np.minimum(len(y), len(x) - lags)
+    energy = (cx[x_stop] - cx[x_start]) * (cy[y_stop] - cy[y_start])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ncc = np.where(energy > 0, raw / np.sqrt(energy), 0.0)
+    return lags, np.clip(ncc, -1.0, 1.0)
+
+
+def _overlap(lags: np.ndarray, n_x: int, n_y: int) -> np.ndarray:
+    return np.minimum(n_y, n_x - lags) - np.maximum(0, -lags)
+
+
+def _parabolic_vertex(values: np.ndarray, peak: int) -> float:
+    """Sub-sample position of the peak (in samples, within ±0.5) from the parabola through 3 points."""
+    if peak == 0 or peak == len(values) - 1 or not np.all(np.isfinite(values[peak - 1:peak + 2])):
+        return 0.0
+    left, centre, right = values[peak - 1:peak + 2]
+    curvature = left - 2 * centre + right
+    return float(np.clip(0.5 * (left - right) / curvature, -0.5, 0.5)) if curvature < 0 else 0.0
+
+
+def _runner_up(ncc: np.ndarray, peak: int) -> float:
+    """Best correlation outside the main lobe: close to the peak when the motion repeats (a periodic
+    trajectory matches itself one period later), so the peak cannot be told from its neighbours."""
+    threshold = MAIN_LOBE_FRACTION * ncc[peak]
+    below = ~(ncc > threshold)
+    left = peak - int(np.argmax(below[peak::-1])) if below[:peak + 1].any() else -1
+    right = peak + int(np.argmax(below[peak:])) if below[peak:].any() else len(ncc)
+    outside = np.r_[ncc[:max(left, 0)], ncc[right:]]
+    outside = outside[np.isfinite(outside)]
+    return float(outside.max()) if outside.size else float("nan")
+
+
+# -- mocap vs accelerometer -----------------------------------------------------------------------------
+def mocap_specific_force(t, p, rate_hz: float = 100.0) -> tuple[np.ndarray, np.ndarray]:
+    """(uniform times, |p̈ + g ẑ| in m/s²) from mocap positions (m, world z-up) at frame times `t`.
+
+    Occlusion gaps are bridged linearly (p̈ = 0 inside, a short bump at the edges): harmless for the
+    correlation as long as gaps are a small part of the flight.
+    """
+    t, p = np.asarray(t, dtype=float), np.asarray(p, dtype=float)
+    grid = t[0] + np.arange(int(np.floor((t[-1] - t[0]) * rate_hz)) + 1) / rate_hz
+    window = _odd_window(SG_WINDOW_S * rate_hz, len(grid))
+    p_grid = np.column_stack([np.interp(grid, t, p[:, j]) for j in range(3)])
+    acc = savgol_filter(p_grid, window, SG_ORDER, deriv=2, delta=1.0 / rate_hz, axis=0, mode="interp")
+    return grid, np.linalg.norm(acc + [0.0, 0.0, GRAVITY], axis=1)
+
+
+def accelerometer_specific_force(acc_g) -> np.ndarray:
+    """|acc| in m/s² from body-frame accelerometer samples in g."""
+    return np.linalg.norm(np.asarray(acc_g, dtype=float), axis=1) * GRAVITY
+
+
+def _odd_window(samples: float, n: int) -> int:
+    window = max(SG_ORDER + 1, int(round(samples)))
+    window += 1 - window % 2
+    if window > n:
+        raise ValueError(f"mocap: {n} samples are too few for the {window}-sample differentiation window")
+    return window
+
+
+def align_mocap_and_accelerometer(t_mocap, p, t_acc, acc_g, max_lag_s: float = DEFAULT_MAX_LAG_S,
+                                  rate_hz: float = 100.0) -> ClockAlignment:
+    """Offset with t_mocap = t_acc + offset_s, from the specific-force magnitude (module docstring)."""
+    if len(t_mocap) < 2:
+        raise ValueError("mocap: needs at least 2 frames")
+    grid, mocap_norm = mocap_specific_force(t_mocap, p, rate_hz)
+    return align_signals(grid, mocap_norm, t_acc, accelerometer_specific_force(acc_g),
+                         max_lag_s=max_lag_s, rate_hz=rate_hz)
