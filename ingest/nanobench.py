@@ -339,3 +339,37 @@ def _json_safe(metadata):
     # Flight.save stores meta as JSON; YAML may hold dates or other non-JSON scalars.
     return None if metadata is None else json.loads(json.dumps(metadata, default=str))
 
+
+
+# -- writer (simulator and tests) -----------------------------------------------------------------------
+# Optional streams in the column order of the NanoBench files.
+WRITE_ORDER = ("gyro", "motors", "p_onboard", "v_onboard", "setpoint", "vbat")
+
+
+def write(path, t, p, quat_xyzw, acc_body_g, *, gyro=None, motors=None, p_onboard=None, v_onboard=None,
+          setpoint=None, vbat=None, metadata: dict | None = None, decimals: int = 9) -> None:
+    """A NanoBench CSV that `read` accepts: one row per time stamp t (s; NanoBench uses Unix time), the
+    REQUIRED_COLUMNS (p in m, quaternion scalar last, acc in g, body frame), then every optional stream
+    given (columns of OPTIONAL_STREAMS, in NanoBench's order, SI units as `read` expects), printed with
+    `decimals` decimals like the recorder.  `metadata` is written beside it as <stem>_metadata.yaml."""
+    t = np.asarray(t, dtype=float).reshape(-1)
+    if len(t) < 2 or not np.all(np.diff(t) > 0):
+        raise ValueError("t must hold at least 2 strictly increasing time stamps")
+    streams = {"mocap": (MOCAP_COLUMNS, np.column_stack([p, quat_xyzw])), "acc": (ACC_COLUMNS, acc_body_g)}
+    given = {"gyro": gyro, "motors": motors, "p_onboard": p_onboard, "v_onboard": v_onboard,
+             "setpoint": setpoint, "vbat": vbat}
+    streams.update({name: (OPTIONAL_STREAMS[name], given[name]) for name in WRITE_ORDER if given[name] is not None})
+    header, blocks = ["t"], [t[:, None]]
+    for name, (columns, values) in streams.items():
+        values = np.asarray(values, dtype=float).reshape(len(t), -1) if np.size(values) == len(t) * len(columns) \
+            else np.asarray(values, dtype=float)
+        if values.shape != (len(t), len(columns)):
+            raise ValueError(f"{name}: expected {len(t)} rows of {len(columns)} values, got shape {values.shape}")
+        header += list(columns)
+        blocks.append(values)
+    path = Path(path)
+    with open(path, "w", encoding="utf-8", newline="\n") as handle:
+        np.savetxt(handle, np.hstack(blocks), fmt=f"%.{decimals}f", delimiter=",", header=",".join(header),
+                   comments="")
+    if metadata is not None:
+        _metadata_path(path).write_text(yaml.safe_dump(_json_safe(metadata), sort_keys=True), encoding="utf-8")

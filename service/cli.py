@@ -22,6 +22,130 @@ def _reproduce(args) -> int:
     return 0
 
 
+def _read(paths, rate_hz):
+    from ingest import read_flights
+
+    return read_flights(paths, rate_hz=rate_hz)
+
+
+def _ingest(args) -> int:
+    from ingest import summary
+
+    flights = _read(args.files, args.rate)
+    if args.json:
+        print(json.dumps({"flights": [summary(f) for f in flights]}, indent=2))
+    else:
+        for f in flights:
+            s = summary(f)
+            state = "ok" if s["quality"]["ok"] else "BAD: " + "; ".join(s["quality"]["issues"])
+            offset = "" if s["clock_offset_s"] is None else f", clock offset {s['clock_offset_s']:+.3f} s"
+            print(f"{f.name}: {s['adapter']}, {s['duration_s']:.1f} s at {s['rate_hz']:.0f} Hz "
+                  f"({s['samples']} samples{offset}) — {state}")
+    return 0
+
+
+def _train(args) -> int:
+    from models.training import TrainingConfig
+    from service.experiment import CRAZYFLIE_TRAINING, train_on_flight
+    from service.store import save_model
+
+    flights = _read(args.files, args.rate)
+    if len(flights) != 1:
+        raise ValueError(f"train takes the log file(s) of exactly one flight; these make {len(flights)} flights")
+    flight = flights[0]
+    if not flight.quality["ok"] and not args.include_bad:
+        raise ValueError(f"{flight.name} failed the quality checks ({'; '.join(flight.quality['issues'])}); "
+                         "pass --include-bad to train on it anyway")
+    config = TrainingConfig(**{**CRAZYFLIE_TRAINING.as_dict(), **({"epochs": args.epochs} if args.epochs else {})})
+    with tqdm(total=config.epochs, desc=f"training {args.name}", unit="epoch", file=sys.stderr) as bar:
+        result = train_on_flight(flight, config, progress=lambda _e, loss: (bar.update(1), bar.set_postfix(loss=f"{loss:.3g}")))
+    path = save_model(result["model"], args.name)
+    out = {"name": args.name, "path": str(path), "training_flight": flight.name, "epochs": config.epochs,
+           "best_epoch": result["model"].meta.get("best_epoch"), "final_loss": result["losses"][-1],
+           "seconds": result["seconds"]}
+    print(json.dumps(out, indent=2) if args.json else
+          f"trained {args.name} on {flight.name} in {result['seconds']:.1f} s -> {path}")
+    return 0
+
+
+def _evaluate(args) -> int:
+    from estimators.evaluate import parse_methods
+    from service.experiment import evaluate_flights
+    from service.plots import mse_boxplot
+    from service.store import load_model
+
+    methods = parse_methods(args.methods)
+    model = load_model(args.model)
+    flights = _read(args.files, args.rate)
+    with tqdm(total=len(flights), desc="evaluating", unit="flight", file=sys.stderr) as bar:
+        report = evaluate_flights(model, flights, methods, include_bad=args.include_bad, horizon=args.horizon,
+                                  progress=lambda _f: bar.update(1))
+    report["model"] = args.model
+    if args.plot:
+        mse_boxplot(report, args.plot)
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        print(format_report(report))
+    return 0
+
+
+def _demo(args) -> int:
+    """ingest -> train on one flight -> evaluate on every other flight of a folder."""
+    from estimators.evaluate import parse_methods
+    from ingest import IngestError, detect
+    from service.experiment import CRAZYFLIE_TRAINING, evaluate_flights, train_on_flight
+    from service.plots import mse_boxplot
+    from service.store import save_model
+
+    folder = Path(args.folder)
+    if not folder.is_dir():
+        raise ValueError(f"{folder}: not a folder")
+    logs = []
+    for path in sorted(p for p in folder.iterdir() if p.is_file()):
+        try:
+            detect(path)
+            logs.append(path)
+        except IngestError as err:
+            print(f"skipped {err}", file=sys.stderr)
+    flights = _read(logs, args.rate)
+    print(f"ingested {len(flights)} flights from {len(logs)} files in {folder}")
+    clean = [f for f in flights if f.quality["ok"]]
+    if len(clean) < 2:
+        raise ValueError(f"{folder}: need at least two flights that pass the quality checks, found {len(clean)}")
+    chosen = [f for f in clean if f.name == args.train] if args.train else clean[:1]
+    if not chosen:
+        raise ValueError(f"no clean flight named {args.train!r} in {folder}")
+    with tqdm(total=CRAZYFLIE_TRAINING.epochs, desc=f"training on {chosen[0].name}", unit="epoch",
+              file=sys.stderr) as bar:
+        trained = train_on_flight(chosen[0], progress=lambda *_: bar.update(1))
+    save_model(trained["model"], args.name)
+    with tqdm(total=len(flights), desc="evaluating", unit="flight", file=sys.stderr) as bar:
+        report = evaluate_flights(trained["model"], flights, parse_methods(args.methods), horizon=args.horizon,
+                                  progress=lambda _f: bar.update(1))
+    report["model"] = args.name
+    print(format_report(report))
+    if args.plot:
+        mse_boxplot(report, args.plot)
+        print(f"box plot: {args.plot}")
+    return 0
+
+
+def format_report(report: dict) -> str:
+    methods = list(report["median"])
+    lines = [f"model {report['model']}: MSE over [p, v, a] vs Savitzky-Golay references (x 1e-3)",
+             f"{'flight':<28}" + "".join(f"{m:>12}" for m in methods)]
+    for f in report["flights"]:
+        if f["excluded"]:
+            lines.append(f"{f['flight']:<28}  excluded: {f['reason']}")
+        else:
+            lines.append(f"{f['flight']:<28}" + "".join(f"{f['mse'][m] * 1e3:>12.3f}" for m in methods))
+    lines.append(f"{'median':<28}" + "".join(f"{report['median'][m] * 1e3:>12.3f}" for m in methods))
+    for key, value in report["improvement_pct"].items():
+        lines.append(f"improvement {key}: {value:+.1f} % (median MSE)")
+    return "\n".join(lines)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="learnest", description="Learning-enhanced state estimation "
                                      "for Crazyflie flight logs (LEARNEST).")
@@ -36,14 +160,53 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--horizon", type=int, default=20, help="MHE horizon N (default 20)")
     rep.add_argument("--workers", type=int, default=1, help="processes to spread the seeds over")
     rep.set_defaults(func=_reproduce)
+
+    ing = sub.add_parser("ingest", help="read flight logs, normalise them and check their quality")
+    ing.add_argument("files", nargs="+")
+    ing.add_argument("--json", action="store_true")
+    ing.add_argument("--rate", type=float, default=100.0, help="grid rate in Hz (default 100)")
+    ing.set_defaults(func=_ingest)
+
+    tr = sub.add_parser("train", help="train a KNODE on one flight (Algorithm 1) and store it")
+    tr.add_argument("files", nargs="+", help="the log file(s) of one flight")
+    tr.add_argument("--name", required=True)
+    tr.add_argument("--epochs", type=int, default=None, help="default 150 (Sec. V-C)")
+    tr.add_argument("--json", action="store_true")
+    tr.add_argument("--rate", type=float, default=100.0)
+    tr.add_argument("--include-bad", action="store_true", help="train even if the flight fails quality checks")
+    tr.set_defaults(func=_train)
+
+    ev = sub.add_parser("evaluate", help="run UKF/MHE/KNODE-UKF/KNODE-MHE on flights and score them")
+    ev.add_argument("files", nargs="+")
+    ev.add_argument("--model", required=True)
+    ev.add_argument("--methods", default="ukf,mhe,knode-ukf,knode-mhe")
+    ev.add_argument("--json", action="store_true")
+    ev.add_argument("--plot", metavar="PNG", help="write a Fig. 3-style box plot")
+    ev.add_argument("--horizon", type=int, default=20, help="MHE horizon N")
+    ev.add_argument("--rate", type=float, default=100.0)
+    ev.add_argument("--include-bad", action="store_true", help="also score flights that fail quality checks")
+    ev.set_defaults(func=_evaluate)
+
+    demo = sub.add_parser("demo", help="ingest, train on one flight and evaluate the others, for a folder")
+    demo.add_argument("folder")
+    demo.add_argument("--train", help="name of the training flight (default: the first clean one)")
+    demo.add_argument("--name", default="demo", help="name to store the model under")
+    demo.add_argument("--methods", default="ukf,mhe,knode-ukf,knode-mhe")
+    demo.add_argument("--plot", metavar="PNG", default=None)
+    demo.add_argument("--horizon", type=int, default=20)
+    demo.add_argument("--rate", type=float, default=100.0)
+    demo.set_defaults(func=_demo)
     return parser
 
 
 def main(argv=None) -> int:
+    import torch
+
+    torch.set_num_threads(1)  # the networks are tiny: extra threads only add contention
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except ValueError as err:  # bad input: one clear line, no traceback
+    except ValueError as err:  # bad input (IngestError included): one clear line, no traceback
         print(f"learnest: error: {err}", file=sys.stderr)
         return 2
 

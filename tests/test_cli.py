@@ -1,0 +1,62 @@
+"""The learnest command line end to end: ingest --json, train, evaluate, and clean errors."""
+import json
+from pathlib import Path
+
+import pytest
+
+from service.cli import main
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+NANOBENCH = DATA / "nanobench"
+needs_data = pytest.mark.skipif(not NANOBENCH.is_dir(), reason="../shared/data/nanobench not present")
+
+
+@needs_data
+def test_ingest_json_reports_each_flight_and_flags_the_bad_one(capsys):
+    files = [NANOBENCH / "B2_circle_medium_rep2.csv", NANOBENCH / "B2_circle_medium_rep3.csv",
+             DATA / "crazyswarm2-tools" / "log182"]
+    assert main(["ingest", *map(str, files), "--json"]) == 0
+    flights = json.loads(capsys.readouterr().out)["flights"]
+    assert [f["adapter"] for f in flights] == ["nanobench", "nanobench", "usd"]  # in the order given
+    by_name = {Path(f["source"][0]).name: f for f in flights}
+    assert by_name["B2_circle_medium_rep2.csv"]["quality"]["ok"]
+    bad = by_name["B2_circle_medium_rep3.csv"]["quality"]
+    assert not bad["ok"] and any("acc" in issue for issue in bad["issues"])
+    for f in flights:
+        assert f["rate_hz"] == pytest.approx(100.0) and f["clock_offset_s"] is None
+        assert f["samples"] == pytest.approx(f["duration_s"] * 100 + 1, abs=1)
+
+
+@needs_data
+def test_train_then_evaluate_scores_other_flights_and_never_the_training_one(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("LEARNEST_HOME", str(tmp_path))
+    train = NANOBENCH / "B2_circle_slow_rep1.csv"
+    assert main(["train", str(train), "--name", "circle", "--epochs", "5", "--json"]) == 0
+    trained = json.loads(capsys.readouterr().out)
+    assert trained["training_flight"] == "B2_circle_slow_rep1" and Path(trained["path"]).is_file()
+    files = [train, NANOBENCH / "B2_circle_slow_rep2.csv", NANOBENCH / "B2_circle_medium_rep3.csv"]
+    plot = tmp_path / "box.png"
+    assert main(["evaluate", "--model", "circle", *map(str, files), "--methods", "ukf,knode-ukf", "--json",
+                 "--plot", str(plot)]) == 0
+    report = json.loads(capsys.readouterr().out)
+    rows = {f["flight"]: f for f in report["flights"]}
+    assert rows["B2_circle_slow_rep1"]["excluded"] and "training" in rows["B2_circle_slow_rep1"]["reason"]
+    assert rows["B2_circle_medium_rep3"]["excluded"] and "quality" in rows["B2_circle_medium_rep3"]["reason"]
+    scored = rows["B2_circle_slow_rep2"]
+    assert not scored["excluded"] and set(scored["mse"]) == {"ukf", "knode-ukf"}
+    # MSE over [p, v, a] is dominated by acceleration; on a clean flight it is small but not zero
+    assert 1e-4 < scored["mse"]["ukf"] < 0.1
+    assert report["median"]["ukf"] == scored["mse"]["ukf"]
+    assert set(report["improvement_pct"]) == {"knode-ukf_vs_ukf"}
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_bad_input_is_one_clear_line_without_traceback(tmp_path, capsys):
+    junk = tmp_path / "junk.bin"
+    junk.write_bytes(b"\x00\xff" * 100)
+    assert main(["ingest", str(junk)]) == 2
+    err = capsys.readouterr().err
+    assert "junk.bin" in err and "unrecognised format" in err and "Traceback" not in err
+    assert main(["evaluate", "--model", "nope", str(junk)]) == 2
+    assert main(["evaluate", "--model", "../etc/passwd", str(junk)]) == 2
+    assert "must be" in capsys.readouterr().err
