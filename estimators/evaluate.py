@@ -33,9 +33,11 @@ def run_method(method: str, prior_model, knode_model, y, u, dt, Q, R, x0, P0, ho
     return MHE(model, dt, Q, R, P0, horizon=horizon).run(y, u, x0)
 
 
-def score(estimates, reference, groups=STATE_GROUPS) -> dict:
-    """{"mse": overall, "groups": {name: mse}} over the rows where the reference is defined."""
+def score(estimates, reference, groups=None) -> dict:
+    """{"mse": overall, "groups": {name: mse}}; groups default to p, v, a for the 9-state quadrotor."""
     estimates = check_sequence("estimates", estimates)
+    if groups is None:
+        groups = STATE_GROUPS if estimates.shape[1] == 9 else {}
     reference = check_sequence("reference", reference, rows=len(estimates), cols=estimates.shape[1])
     err2 = (estimates - reference) ** 2
     return {"mse": float(err2.mean()), "groups": {name: float(err2[:, cols].mean()) for name, cols in groups.items()}}

@@ -361,8 +361,8 @@ def write(path, t, p, quat_xyzw, acc_body_g, *, gyro=None, motors=None, p_onboar
     streams.update({name: (OPTIONAL_STREAMS[name], given[name]) for name in WRITE_ORDER if given[name] is not None})
     header, blocks = ["t"], [t[:, None]]
     for name, (columns, values) in streams.items():
-        values = np.asarray(values, dtype=float).reshape(len(t), -1) if np.size(values) == len(t) * len(columns) \
-            else np.asarray(values, dtype=float)
+        values = np.asarray(values, dtype=float)
+        values = values[:, None] if values.ndim == 1 else values     # a single column (vbat) may be 1-D
         if values.shape != (len(t), len(columns)):
             raise ValueError(f"{name}: expected {len(t)} rows of {len(columns)} values, got shape {values.shape}")
         header += list(columns)

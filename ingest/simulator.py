@@ -13,8 +13,8 @@ Model (world frame z-up, SI units, quaternions scalar-last as in ingest.flight):
                 machine precision; the attitude step is the exact solution of the lag for a target held
                 over the step, and the body rate is that step's rotation / dt (integrating the true gyro
                 reproduces the true attitudes exactly).
-  ground        the vehicle rests (v = a = 0, level, motors off) before take-off and after touch-down;
-                the loop runs from take-off to the end of the landing.
+  ground        the vehicle rests (v = a = 0, motors off) level before take-off, and after the landing
+                reference reaches the ground where and as it touched down (within mm of z = 0).
 
 Flight timeline (Timing): sit on the ground, take off vertically (minimum-jerk) to the trajectory's start,
 hover, fly the trajectory (its speed ramps up and down smoothly), hover, land vertically, sit.  So the
@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 import sys
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -44,13 +44,16 @@ from scipy.interpolate import CubicSpline
 from scipy.signal import lfilter, lfilter_zi
 from scipy.spatial.transform import Rotation
 
+from ingest import mcap_log, nanobench, usd
 from ingest.flight import GRAVITY, Flight
+from ingest.vicon_csv import write_cfclient_csv, write_vicon_csv
 
 SIM_RATE_HZ = 1000.0
 CRAZYFLIE_MASS_KG = 0.032
-# Rotor drag of a Crazyflie 2.x: Förster (ETH 2015 system identification) measured ≈ 9.2e-7 N·s/m per
-# rad/s of summed rotor speed; at hover each rotor turns ≈ 1850 rad/s (m g / 4 = k_thrust ω² with
-# k_thrust ≈ 2.3e-8 N·s²), so k_drag ≈ 9.2e-7 · 4 · 1850 ≈ 0.007 kg/s: 0.2 m/s² of deceleration at 1 m/s.
+# Rotor drag of a Crazyflie 2.x: Förster's system identification (ETH Zurich, 2015) gives ≈ 9.2e-7 kg/rad
+# times the summed rotor speed; at hover each rotor turns ≈ 1850 rad/s (m g / 4 = k_thrust ω², k_thrust
+# ≈ 2.3e-8 N s²), so k_drag ≈ 9.2e-7 · 4 · 1850 ≈ 0.007 kg/s: 0.2 m/s² of deceleration at 1 m/s, small
+# next to the manoeuvres but visible to an estimator (it is the kind of residual a learned model finds).
 CRAZYFLIE_DRAG_KG_S = 0.007
 # Total thrust of four 7 mm motors with stock propellers is ≈ 58 g (thrust-to-weight ≈ 1.8).
 CRAZYFLIE_MAX_THRUST_N = 0.57
@@ -90,7 +93,7 @@ def _minimum_jerk(t, start, stop, duration):
 
 
 # -- trajectories ------------------------------------------------------------------------------------------
-@dataclass
+@dataclass(kw_only=True)
 class Trajectory:
     """A path p(s) in the nominal time s.  Flown over `duration_s`: the speed ds/dt ramps smoothly from
     0 to 1 over ramp_s, stays at 1, and ramps down over the last ramp_s, so s runs over [0, s_end]."""
@@ -104,9 +107,6 @@ class Trajectory:
     def path(self, s):
         """(p, dp/ds, d²p/ds²), each (N, 3)."""
         raise NotImplementedError
-
-    def describe(self) -> dict:
-        return {"type": type(self).__name__.lower(), **asdict(self)}
 
     def flown(self, tau):
         """(p, v, a, s) at times tau from the start of the flying part (held outside it)."""
@@ -124,7 +124,7 @@ class Trajectory:
         return p, dp * s_dot[:, None], ddp * (s_dot ** 2)[:, None] + dp * s_ddot[:, None], s
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Circle(Trajectory):
     """Counter-clockwise circle at constant speed, starting at center + (radius, 0)."""
     radius: float = 0.5
@@ -145,7 +145,7 @@ class Circle(Trajectory):
         return p, dp, ddp
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Figure8(Trajectory):
     """Lemniscate of Gerono: x = size·sin(Ωs), y = (size/2)·sin(2Ωs), Ω = 2π/period; starts at the centre."""
     size: float = 0.6
@@ -167,7 +167,7 @@ class Figure8(Trajectory):
         return p, dp, ddp
 
 
-@dataclass
+@dataclass(kw_only=True)
 class RandomWaypoints(Trajectory):
     """A C² cubic spline through `count` random points in `box` (seeded), knots spaced by distance/speed,
     zero velocity at both ends.  duration_s follows from the path (length / speed + ramp_s)."""
@@ -189,9 +189,6 @@ class RandomWaypoints(Trajectory):
     def path(self, s):
         s = np.asarray(s, float)
         return self._spline(s), self._spline(s, 1), self._spline(s, 2)
-
-    def describe(self) -> dict:
-        return {**super().describe(), "points": np.round(self.points, 4).tolist()}
 
 
 # -- the reference over the whole flight -------------------------------------------------------------------
@@ -226,12 +223,10 @@ class Reference:
 
 def reference(trajectory: Trajectory, timing: Timing, yaw_rad: float, yaw_rate: float):
     """(Reference on the 1 kHz grid, Phases).  Yaw: yaw_rad + yaw_rate · s along the trajectory."""
-    phases = Phases(takeoff=timing.sit_before_s, fly=timing.sit_before_s + timing.takeoff_s + timing.hover_s,
-                    fly_end=0.0, land=0.0, touchdown=0.0, end=0.0)
-    phases.fly_end = phases.fly + trajectory.duration_s
-    phases.land = phases.fly_end + timing.hover_s
-    phases.touchdown = phases.land + timing.land_s
-    phases.end = phases.touchdown + timing.sit_after_s
+    fly = timing.sit_before_s + timing.takeoff_s + timing.hover_s
+    land = fly + trajectory.duration_s + timing.hover_s
+    phases = Phases(takeoff=timing.sit_before_s, fly=fly, fly_end=fly + trajectory.duration_s, land=land,
+                    touchdown=land + timing.land_s, end=land + timing.land_s + timing.sit_after_s)
     t = np.arange(int(round(phases.end * SIM_RATE_HZ)) + 1) / SIM_RATE_HZ
 
     first, last = trajectory.path(np.array([0.0, trajectory.s_end]))[0]
@@ -253,8 +248,8 @@ class Vehicle:
     drag: float = CRAZYFLIE_DRAG_KG_S          # kg/s, linear, isotropic
     attitude_tau_s: float = 0.03
     max_thrust_n: float = CRAZYFLIE_MAX_THRUST_N
-    # PD gains (1/s², 1/s): ≈ 0.6 s horizontal and 0.35 s vertical settling, well inside the attitude
-    # lag's stability bound Kd > τ·Kp.
+    # PD gains (1/s², 1/s): critically damped at 4 rad/s horizontally and 5.5 rad/s vertically, far
+    # inside the stability bound Kd > τ·Kp that the attitude lag sets on the horizontal loop.
     kp: tuple = (16.0, 16.0, 30.0)
     kd: tuple = (8.0, 8.0, 11.0)
 
@@ -395,11 +390,10 @@ class SensorModel:
         return cls(**{"mocap_position_noise_m": 0.0, "mocap_attitude_noise_rad": 0.0, "acc_noise_g": 0.0,
                       "gyro_noise_rad_s": 0.0, **changes})
 
-    def effects(self) -> dict:
-        """The non-nominal sensor effects, for READMEs and metadata."""
+    def changes(self) -> dict:
+        """Every setting that differs from the defaults (noise, rates and effects), for READMEs."""
         nominal = SensorModel()
-        names = ("bias", "scale", "delay_s", "misalignment", "lowpass_hz")
-        return {name: getattr(self, name) for name in names if getattr(self, name) != getattr(nominal, name)}
+        return {name: value for name, value in vars(self).items() if value != getattr(nominal, name)}
 
     def misalignment_rotation(self) -> Rotation:
         roll, pitch = self.misalignment
@@ -435,10 +429,6 @@ class SimulatedFlight:
     sensors: SensorModel
     seed: int
     name: str = "simulated"
-
-    def describe(self) -> dict:
-        return {"trajectory": self.trajectory.describe(), "vehicle": asdict(self.vehicle),
-                "sensors": asdict(self.sensors), "phases": asdict(self.phases), "seed": self.seed}
 
 
 def _sample_times(end_s: float, rate_hz: float) -> np.ndarray:
@@ -528,7 +518,6 @@ def _decimated(imu: Imu, rate_hz: float) -> tuple[np.ndarray, np.ndarray, np.nda
 
 
 def _write_nanobench(sim: SimulatedFlight, path: Path) -> list[Path]:
-    from ingest import nanobench
     # The NanoBench recorder resampled every onboard stream onto the Vicon stamps by linear interpolation.
     t = sim.mocap.t
     nanobench.write(path, NANOBENCH_EPOCH_S + t, sim.mocap.p, sim.mocap.quat, _on_times(sim.imu.t, sim.imu.acc_g, t),
@@ -540,7 +529,6 @@ def _write_usd(sim: SimulatedFlight, path: Path, version: int, pose_stream: str)
     """The firmware's layout: a fixed-frequency stream at the IMU rate with acc (g), gyro (deg/s) and the
     setpoint (ctrltargetZ, int16 mm); the mocap pose (locSrv) either sample-and-hold inside it (what real
     logs hold) or in its own event stream at the mocap frames ("event")."""
-    from ingest import usd
     imu, mocap = sim.imu, sim.mocap
     fixed = {f"acc.{axis}": ("f", imu.acc_g[:, j]) for j, axis in enumerate("xyz")}
     fixed.update({f"gyro.{axis}": ("f", np.degrees(imu.gyro[:, j])) for j, axis in enumerate("xyz")})
@@ -562,7 +550,6 @@ def _write_usd(sim: SimulatedFlight, path: Path, version: int, pose_stream: str)
 def _write_vicon_cfclient(sim: SimulatedFlight, vicon_path: Path, cfclient_path: Path) -> list[Path]:
     """Two clocks: the Vicon export counts from its first frame (VICON_START_S after the cfclient log
     began), the cfclient log stamps ms since boot (CFCLIENT_BOOT_S at simulation time 0)."""
-    from ingest.vicon_csv import write_cfclient_csv, write_vicon_csv
     mocap = sim.mocap
     seen = mocap.t >= VICON_START_S - 1e-9
     write_vicon_csv(vicon_path, mocap.t[seen] - VICON_START_S, mocap.p[seen], mocap.quat[seen],
@@ -586,7 +573,6 @@ def write_flight(sim: SimulatedFlight, fmt: str, directory, stem: str, *, usd_po
     if fmt == "vicon+cfclient":
         return _write_vicon_cfclient(sim, directory / f"{stem}_vicon.csv", directory / f"{stem}_cfclient.csv")
     if fmt in ("mcap-ros2", "mcap-json"):
-        from ingest import mcap_log
         path = directory / f"{stem}.mcap"
         writer = mcap_log.write_ros2 if fmt == "mcap-ros2" else mcap_log.write_json
         writer(path, sim.mocap.t, sim.mocap.p, sim.mocap.quat, sim.imu.acc_g, t_acc=sim.imu.t)
@@ -614,7 +600,7 @@ SAMPLE_FLIGHTS = {
        for k in (1, 2, 3, 4)},
     "effects_circle_acc_bias": ("nanobench", Circle(**SAMPLE_CIRCLE),
                                 {"seed": 5, "sensors": SensorModel(bias=SAMPLE_BIAS_M_S2)}, {},
-                                f"accelerometer bias {SAMPLE_BIAS_M_S2} m/s² (IMU = body axes)"),
+                                "constant accelerometer bias in m/s², IMU axes = body axes"),
     "pair_circle": ("vicon+cfclient", Circle(**SAMPLE_CIRCLE), {"seed": 6}, {},
                     f"two clocks: t_vicon = Timestamp/1000 + ({CFCLIENT_CLOCK_OFFSET_S:.3f} s); cfclient at "
                     f"{CFCLIENT_RATE_HZ:g} Hz"),
@@ -641,7 +627,7 @@ def make_sample_logs(directory) -> list[Path]:
     files of one folder); deterministic.  Returns the files written."""
     directory = Path(directory)
     written, rows = [], []
-    for name, (fmt, trajectory, _options, write_options, note) in SAMPLE_FLIGHTS.items():
+    for name, (fmt, trajectory, _, write_options, note) in SAMPLE_FLIGHTS.items():
         sim = sample_flight(name)
         files = write_flight(sim, fmt, directory, name, **write_options)
         written += files
@@ -667,21 +653,24 @@ def _readme(rows) -> str:
         "Written by `python -m ingest.simulator sample_logs` (`ingest.simulator.make_sample_logs`): a closed-loop",
         "Crazyflie simulation (32 g, linear rotor drag 0.007 kg/s, PD + feed-forward position control, 30 ms",
         "attitude lag, 1 kHz) flying each trajectory with take-off and landing. Deterministic: the same code",
-        "writes the same bytes. The truth behind a file: `ingest.simulator.sample_flight(name)`.",
+        "writes the same bytes. The truth behind a file: `ingest.simulator.sample_flight(stem)` (the pair:",
+        "`sample_flight('pair_circle')`).",
         "",
-        f"Sensors (every file unless its note says otherwise): mocap {nominal.mocap_rate_hz:g} Hz with "
+        f"Sensors of every file: mocap {nominal.mocap_rate_hz:g} Hz with "
         f"{nominal.mocap_position_noise_m * 1e3:g} mm position and {nominal.mocap_attitude_noise_rad:g} rad "
         f"attitude noise; IMU {nominal.imu_rate_hz:g} Hz, accelerometer noise {nominal.acc_noise_g:g} g, "
         f"gyro noise {nominal.gyro_noise_rad_s:g} rad/s; no bias, scale error, delay, misalignment or low-pass.",
+        "The sensors column lists every setting of a file that differs from these; there are no other effects.",
         "",
-        "| file(s) | format | trajectory | flight | note |",
-        "|---|---|---|---|---|",
+        "| file(s) | format | trajectory | flight | sensors | note |",
+        "|---|---|---|---|---|---|",
     ]
     for files, fmt, trajectory, sim, note in rows:
         names = " + ".join(f"`{path.name}`" for path in files)
         flight = (f"{sim.phases.end:.1f} s (trajectory {sim.phases.fly:.1f}-{sim.phases.fly_end:.1f} s), "
                   f"seed {sim.seed}")
-        lines.append(f"| {names} | {fmt} | {trajectory} | {flight} | {note or 'nominal sensors'} |")
+        changes = ", ".join(f"{name}={value}" for name, value in sim.sensors.changes().items()) or "nominal"
+        lines.append(f"| {names} | {fmt} | {trajectory} | {flight} | {changes} | {note} |")
     lines += [
         "",
         "Train on one circle (`circle_rep1.csv`), evaluate on the other circles and on the other formats.",

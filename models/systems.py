@@ -243,8 +243,8 @@ class Quadrotor(System):
     meas_names: tuple = ("px", "py", "pz", "ax", "ay", "az")
     dt: float = 0.01
     n_samples: int = 1400
-    prior_params: dict = field(default_factory=lambda: dict(omega=0.0))
-    true_params: dict = field(default_factory=lambda: dict(omega=1.0))  # 0.5 m/s on a 0.5 m circle
+    prior_params: dict = field(default_factory=lambda: dict(omega=0.0, decay=0.0))
+    true_params: dict = field(default_factory=lambda: dict(omega=1.0, decay=0.0))  # 0.5 m/s, 0.5 m circle
     state_noise_std: tuple = (1e-3,) * 3 + (0.01,) * 3 + (0.1,) * 3
     meas_noise_std: tuple = (1e-3,) * 3 + (0.3,) * 3
     process_noise_std: tuple = (1e-5,) * 3 + (1e-4,) * 3 + (0.01,) * 3  # jerk ~1 m/s³ per step
@@ -253,8 +253,9 @@ class Quadrotor(System):
     def dynamics(self, x, u, params):
         ops = ops_for(x)
         _, _, _, vx, vy, vz, ax, ay, az = ops.unstack(x)
-        w2 = params["omega"] ** 2
-        return ops.stack([vx, vy, vz, ax, ay, az, -w2 * vx, -w2 * vy, 0.0 * az])
+        # jerk: -ω² v in the plane (periodic flight), -k a (Singer: acceleration decays at rate k)
+        w2, k = params["omega"] ** 2, params.get("decay", 0.0)
+        return ops.stack([vx, vy, vz, ax, ay, az, -w2 * vx - k * ax, -w2 * vy - k * ay, -k * az])
 
     def h(self, x, u=None):
         ops = ops_for(x)

@@ -98,6 +98,10 @@ def train_knode(system: System, zeta, u, dt: float, config: TrainingConfig | Non
     generator = torch.Generator().manual_seed(config.seed)
     losses, val_losses, started = [], [], time.perf_counter()
     best = (float("inf"), None, -1)
+    if n_val:  # epoch -1 is the prior itself (Δθ starts at zero): training must beat it on held-out data
+        with torch.no_grad():
+            best = (one_step_loss(torch.arange(n_fit, pairs)).item(),
+                    {k: v.clone() for k, v in mlp.state_dict().items()}, -1)
     for epoch in range(config.epochs):
         order = torch.randperm(n_fit, generator=generator) if batch < n_fit else torch.arange(n_fit)
         epoch_loss = 0.0

@@ -74,6 +74,10 @@ def _evaluate(args) -> int:
     from service.plots import mse_boxplot
     from service.store import load_model
 
+    if args.new:
+        return _evaluate_new(args)
+    if not args.model or not args.files:
+        raise ValueError("evaluate needs --model NAME and FILE..., or --new [--alias ALIAS]")
     methods = parse_methods(args.methods)
     model = load_model(args.model)
     flights = _read(args.files, args.rate)
@@ -90,6 +94,38 @@ def _evaluate(args) -> int:
     return 0
 
 
+def _evaluate_new(args) -> int:
+    """One scheduler round (for cron): evaluate every stored flight without a result for name@alias."""
+    from estimators.evaluate import parse_methods
+    from service.jobs import EstimatorSettings
+    from service.scheduler import evaluate_new_once
+
+    settings = EstimatorSettings(tuple(parse_methods(args.methods)), args.horizon, args.include_bad)
+    rounds = evaluate_new_once(args.alias, settings)
+    if args.json:
+        print(json.dumps({"alias": args.alias, "busy": rounds is None, "evaluations": rounds or []}, indent=2))
+    elif rounds is None:
+        print("another process (the server's scheduler) holds the scheduler lease: nothing done")
+    elif not rounds:
+        print(f"nothing new to evaluate for models with alias {args.alias!r}")
+    for r in rounds or []:
+        print(f"{r['model']}: evaluation {r['evaluation_id']} ({r['state']}) of {len(r['flights'])} new flight(s)"
+              + (f" ({r['failed']} failed)" if r.get("failed") else ""))
+    return 0
+
+
+def _serve(args) -> int:
+    """The HTTP service (FastAPI app factory service.app:create_app under uvicorn); docs at /docs."""
+    import os
+
+    import uvicorn
+
+    if args.dask:  # the app reads its settings from the environment, in every worker process
+        os.environ["LEARNEST_DASK"] = args.dask
+    uvicorn.run("service.app:create_app", factory=True, host=args.host, port=args.port, workers=args.workers)
+    return 0
+
+
 def _demo(args) -> int:
     """ingest -> train on one flight -> evaluate on every other flight of a folder."""
     from estimators.evaluate import parse_methods
@@ -102,7 +138,8 @@ def _demo(args) -> int:
     if not folder.is_dir():
         raise ValueError(f"{folder}: not a folder")
     logs = []
-    for path in sorted(p for p in folder.iterdir() if p.is_file()):
+    documents = {".md", ".txt", ".yaml", ".yml"}  # READMEs and sidecar metadata, not logs
+    for path in sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() not in documents):
         try:
             detect(path)
             logs.append(path)
@@ -177,15 +214,26 @@ def build_parser() -> argparse.ArgumentParser:
     tr.set_defaults(func=_train)
 
     ev = sub.add_parser("evaluate", help="run UKF/MHE/KNODE-UKF/KNODE-MHE on flights and score them")
-    ev.add_argument("files", nargs="+")
-    ev.add_argument("--model", required=True)
+    ev.add_argument("files", nargs="*")
+    ev.add_argument("--model", help="a stored model name (required unless --new)")
     ev.add_argument("--methods", default="ukf,mhe,knode-ukf,knode-mhe")
     ev.add_argument("--json", action="store_true")
     ev.add_argument("--plot", metavar="PNG", help="write a Fig. 3-style box plot")
     ev.add_argument("--horizon", type=int, default=20, help="MHE horizon N")
     ev.add_argument("--rate", type=float, default=100.0)
     ev.add_argument("--include-bad", action="store_true", help="also score flights that fail quality checks")
+    ev.add_argument("--new", action="store_true", help="evaluate every stored flight that has no result yet "
+                    "for the registry model holding --alias (one scheduler round, for cron)")
+    ev.add_argument("--alias", default="production", help="with --new: the alias to evaluate (default production)")
     ev.set_defaults(func=_evaluate)
+
+    srv = sub.add_parser("serve", help="run the HTTP service (uvicorn; OpenAPI docs at /docs)")
+    srv.add_argument("--host", default="127.0.0.1")
+    srv.add_argument("--port", type=int, default=8000)
+    srv.add_argument("--workers", type=int, default=1, help="uvicorn worker processes")
+    srv.add_argument("--dask", metavar="URL", help="run jobs on a Dask scheduler (tcp://host:port, or 'local' "
+                     "for a LocalCluster) instead of the local process pool")
+    srv.set_defaults(func=_serve)
 
     demo = sub.add_parser("demo", help="ingest, train on one flight and evaluate the others, for a folder")
     demo.add_argument("folder")

@@ -1,0 +1,209 @@
+"""Tracing a residual to named effects: sparse selection, blocked validation, an autocorrelation-aware
+information criterion, block-bootstrap intervals, and an honest "cannot tell apart".
+
+A `ResidualProblem` is one channel of data in regression form, observed = predicted(θ) + e, exposed as
+residual(values, rows) -> (len(rows), k).  Effects enter through their parameters (nominal = the prior).
+
+Selection is greedy forward: at each step every remaining candidate is fitted together with those
+already chosen (nonlinear least squares, scipy); the best by BIC_eff is kept only if it lowers BIC_eff
+by more than DELTA_BIC and lowers the blocked cross-validation error.  BIC_eff replaces the sample count
+by the effective number of independent samples of an AR(1) residual, N·(1-ρ)/(1+ρ): residuals of
+smoothed or dynamic data are strongly autocorrelated, and counting every sample would claim effects
+that are not there.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from models.effects import Effect
+
+DELTA_BIC = 10.0          # "very strong" evidence on Kass & Raftery's scale
+MIN_CV_GAIN = 0.01        # the chosen effect must lower held-out error by at least 1 %
+CONFOUND_COSINE = 0.95    # parameter sensitivities this aligned cannot be told apart on the data
+BOOTSTRAP_REPLICATES = 60
+
+
+@dataclass
+class ResidualProblem:
+    name: str
+    candidates: list                       # [Effect]
+    residual: Callable                     # (values: dict, rows: ndarray) -> (len(rows), k)
+    n_rows: int
+    blocks: list = field(default_factory=list)   # held-out blocks (row index arrays): flights or time
+
+    def __post_init__(self):
+        if not self.blocks:
+            self.blocks = np.array_split(np.arange(self.n_rows), 5)
+
+
+@dataclass
+class Fit:
+    effects: list
+    values: dict
+    residual: np.ndarray
+    rss: float
+    bic: float
+    rho: float
+
+
+def _lag1(residual: np.ndarray) -> float:
+    r = residual - residual.mean(axis=0)
+    denom = (r[:-1] ** 2).sum()
+    return float(np.clip((r[1:] * r[:-1]).sum() / denom, 0.0, 0.999)) if denom > 0 else 0.0
+
+
+def bic_eff(residual: np.ndarray, n_params: int) -> tuple[float, float]:
+    n = residual.size
+    rho = _lag1(residual)
+    n_eff = max(n * (1 - rho) / (1 + rho), n_params + 2.0)
+    return n_eff * np.log(max(np.mean(residual**2), 1e-300)) + n_params * np.log(n_eff), rho
+
+
+def _all_values(candidates, chosen_values=None):
+    values = {}
+    for effect in candidates:
+        values.update(effect.nominal())
+    values.update(chosen_values or {})
+    return values
+
+
+def fit(problem: ResidualProblem, effects: list, rows=None, offset=None) -> Fit:
+    """Least squares over the parameters of `effects`, every other candidate at its nominal value."""
+    rows = np.arange(problem.n_rows) if rows is None else rows
+    params = [p for e in effects for p in e.params]
+    base = _all_values(problem.candidates)
+
+    def residual_of(theta):
+        values = {**base, **{p.name: v for p, v in zip(params, theta)}}
+        r = problem.residual(values, rows)
+        return r if offset is None else r + offset
+
+    if params:
+        x0 = np.array([p.nominal for p in params])
+        solution = least_squares(lambda th: residual_of(th).ravel(), x0, method="trf", x_scale="jac",
+                                 bounds=([p.lower for p in params], [p.upper for p in params]))
+        theta = solution.x
+    else:
+        theta = np.zeros(0)
+    r = residual_of(theta)
+    bic, rho = bic_eff(r, len(params))
+    return Fit(list(effects), {p.name: float(v) for p, v in zip(params, theta)}, r, float(np.sum(r**2)), bic, rho)
+
+
+def cv_error(problem: ResidualProblem, effects: list) -> float:
+    """Blocked cross-validation: fit without each block, score on it (never random samples)."""
+    everything = np.arange(problem.n_rows)
+    errors = []
+    for block in problem.blocks:
+        train = np.setdiff1d(everything, block)
+        fitted = fit(problem, effects, train)
+        held_out = problem.residual({**_all_values(problem.candidates), **fitted.values}, block)
+        errors.append(np.mean(held_out**2))
+    return float(np.mean(errors))
+
+
+def _sensitivity(problem, values, params, step=1e-5):
+    """Columns ∂r/∂θ at `values` (finite differences), one per parameter."""
+    rows = np.arange(problem.n_rows)
+    base = problem.residual(values, rows).ravel()
+    columns = []
+    for p in params:
+        h = step * max(1.0, abs(values[p.name]), p.upper - p.lower)
+        columns.append((problem.residual({**values, p.name: values[p.name] + h}, rows).ravel() - base) / h)
+    return np.column_stack(columns)
+
+
+def confounded_pairs(problem: ResidualProblem, chosen: list, values: dict) -> list[dict]:
+    """Chosen effects whose parameter sensitivities are (nearly) parallel to another candidate's."""
+    others = [e for e in problem.candidates if e not in chosen]
+    if not chosen or not others:
+        return []
+    allv = _all_values(problem.candidates, values)
+    sens = {e.id: _sensitivity(problem, allv, e.params) for e in chosen + others}
+    out = []
+    for a in chosen:
+        for b in others:
+            A, B = sens[a.id], sens[b.id]
+            norms = np.linalg.norm(A, axis=0)[:, None] * np.linalg.norm(B, axis=0)[None, :]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                cosine = np.abs(A.T @ B) / norms
+            cosine = np.nan_to_num(cosine)
+            i, j = np.unravel_index(np.argmax(cosine), cosine.shape)
+            if cosine[i, j] > CONFOUND_COSINE:
+                out.append({"effects": [a.id, b.id], "params": [a.params[i].name, b.params[j].name],
+                            "cosine": round(float(cosine[i, j]), 4),
+                            "note": f"on this data {a.params[i].name} and {b.params[j].name} change the residual "
+                                    f"almost identically: {a.id} and {b.id} cannot be told apart; "
+                                    f"a flight with more varied motion (thrust, speed) would separate them"})
+    return out
+
+
+def bootstrap_ci(problem: ResidualProblem, final: Fit, replicates: int = BOOTSTRAP_REPLICATES, seed: int = 0):
+    """95 % intervals by a moving-block bootstrap of the residual rows (blocks keep the autocorrelation)."""
+    if not final.effects:
+        return {}
+    rng = np.random.default_rng(seed)
+    r = final.residual
+    n = len(r)
+    block = int(np.clip(np.ceil((1 + final.rho) / (1 - final.rho)), 5, max(5, n // 5)))
+    samples = {name: [] for name in final.values}
+    for _ in range(replicates):
+        starts = rng.integers(0, n - block + 1, size=int(np.ceil(n / block)))
+        resampled = np.concatenate([r[s:s + block] for s in starts])[:n]
+        refit = fit(problem, final.effects, offset=resampled - r)   # observed* = fitted + e*
+        for name, value in refit.values.items():
+            samples[name].append(value)
+    return {name: [float(np.percentile(v, 2.5)), float(np.percentile(v, 97.5))] for name, v in samples.items()}
+
+
+def select_effects(problem: ResidualProblem, max_effects: int = 3) -> dict:
+    """Forward selection; returns the chosen effects with values, intervals, explained fractions, the
+    confounded pairs and the selection trace."""
+    current = fit(problem, [])
+    baseline_rss = current.rss
+    current_cv = cv_error(problem, [])
+    chosen, trace, near_ties = [], [], []
+    while len(chosen) < max_effects:
+        remaining = [e for e in problem.candidates if e not in chosen]
+        if not remaining:
+            break
+        trials = sorted((fit(problem, chosen + [e]) for e in remaining), key=lambda f: f.bic)
+        best = trials[0]
+        step = {"candidates": {t.effects[-1].id: round(t.bic - current.bic, 2) for t in trials}}
+        if best.bic > current.bic - DELTA_BIC:
+            step["stop"] = "no candidate lowers BIC_eff enough"
+            trace.append(step)
+            break
+        cv = cv_error(problem, chosen + [best.effects[-1]])
+        step["cv_gain"] = round(1 - cv / current_cv, 4) if current_cv > 0 else 0.0
+        if cv > (1 - MIN_CV_GAIN) * current_cv:
+            step["stop"] = f"{best.effects[-1].id} does not improve held-out error"
+            trace.append(step)
+            break
+        near_ties += [[best.effects[-1].id, t.effects[-1].id] for t in trials[1:] if t.bic - best.bic < 2.0]
+        chosen.append(best.effects[-1])
+        current, current_cv = best, cv
+        step["chosen"] = best.effects[-1].id
+        trace.append(step)
+
+    intervals = bootstrap_ci(problem, current)
+    results = []
+    for effect in chosen:
+        without = fit(problem, [e for e in chosen if e is not effect]) if len(chosen) > 1 else fit(problem, [])
+        results.append({"id": effect.id, "target": effect.target,
+                        "params": {p.name: current.values[p.name] for p in effect.params},
+                        "units": {p.name: p.unit for p in effect.params},
+                        "ci95": {p.name: intervals.get(p.name) for p in effect.params},
+                        "explained_fraction": float((without.rss - current.rss) / baseline_rss),
+                        "equation": effect.equation(current.values)})
+    results.sort(key=lambda r: -r["explained_fraction"])
+    confounded = confounded_pairs(problem, chosen, current.values)
+    for pair in near_ties:
+        if not any(set(pair) == set(c["effects"]) for c in confounded):
+            confounded.append({"effects": pair, "note": "explain the residual equally well (BIC_eff within 2)"})
+    return {"channel": problem.name, "effects": results, "confounded": confounded, "values": current.values,
+            "rss_before": baseline_rss, "rss_after": current.rss, "trace": trace, "fit": current}

@@ -1,0 +1,139 @@
+"""Named physical effects: parametric terms with units that can be added to a prior or a measurement model.
+
+Dynamics effects are parameters of a system's `dynamics(x, u, params)` (their nominal value is what the
+prior assumes).  Measurement effects describe how a Crazyflie accelerometer departs from an ideal one:
+
+    acc_body(t) = S · R_mis(roll, pitch) · f_body(t - delay) + bias          (specific force, m/s², IMU)
+
+with f_body = Rᵀ (p̈ + g ẑ) the true specific force in the mocap body frame.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ingest.flight import GRAVITY, quat_to_matrix
+
+
+@dataclass(frozen=True)
+class Param:
+    name: str
+    unit: str
+    nominal: float
+    lower: float
+    upper: float
+    key: str = ""           # the system's dynamics parameter it sets (dynamics effects)
+
+
+@dataclass(frozen=True)
+class Effect:
+    id: str
+    system: str
+    target: str             # "dynamics" or "measurement"
+    params: tuple
+    description: str
+
+    @property
+    def names(self) -> list[str]:
+        return [p.name for p in self.params]
+
+    def nominal(self) -> dict:
+        return {p.name: p.nominal for p in self.params}
+
+    def equation(self, values: dict) -> str:
+        """The fitted effect as a human-readable term (pysindy-style)."""
+        return f"{self.id}: " + ", ".join(f"{p.name} = {values[p.name]:.4g} {p.unit}".rstrip() for p in self.params)
+
+
+def _dyn(effect_id, system, description, *params):
+    return Effect(effect_id, system, "dynamics", tuple(params), description)
+
+
+def _meas(effect_id, description, *params):
+    return Effect(effect_id, "quadrotor", "measurement", tuple(params), description)
+
+
+LIBRARY = {e.id: e for e in [
+    # -- cartpole (eq. 9): physical constants of the prior, and viscous friction the prior lacks
+    _dyn("cart_mass", "cartpole", "cart mass differs from the prior's", Param("m_c", "kg", 1.0, 0.1, 10.0, "m_c")),
+    _dyn("pole_mass", "cartpole", "pole mass differs from the prior's", Param("m_p", "kg", 0.1, 0.01, 2.0, "m_p")),
+    _dyn("pole_length", "cartpole", "pole half-length differs", Param("l", "m", 0.5, 0.05, 3.0, "l")),
+    _dyn("cart_friction", "cartpole", "viscous friction on the cart, F_f = -b·ṗ",
+         Param("b", "N·s/m", 0.0, -1.0, 20.0, "b")),
+    # -- ground robot (eq. 10)
+    _dyn("quadratic_drag", "robot", "aerodynamic drag -c·v², c = 0.5·S·C_D/m",
+         Param("c", "1/m", 0.0, -1.0, 5.0, "c_quad")),
+    _dyn("linear_drag", "robot", "rolling resistance -k·v", Param("k", "1/s", 0.0, -1.0, 5.0, "k_lin")),
+    _dyn("steering_offset", "robot", "steering angle offset δ + δ0",
+         Param("delta0_rad", "rad", 0.0, -0.5, 0.5, "delta0")),
+    # -- quadrotor translational dynamics: what the flown trajectory makes identifiable from [p, v, a]
+    _dyn("accel_decay", "quadrotor", "acceleration relaxes, ȧ = -k·a (Singer model)",
+         Param("k", "1/s", 0.0, -5.0, 50.0, "decay")),
+    _dyn("harmonic_motion", "quadrotor", "periodic flight, horizontal jerk -ω²·v",
+         Param("omega", "rad/s", 0.0, 0.0, 10.0, "omega")),
+    # -- quadrotor accelerometer
+    _meas("accel_bias", "constant accelerometer offset (body frame)",
+          Param("bias_x", "m/s²", 0.0, -3.0, 3.0), Param("bias_y", "m/s²", 0.0, -3.0, 3.0),
+          Param("bias_z", "m/s²", 0.0, -3.0, 3.0)),
+    _meas("accel_scale", "accelerometer scale factors (1 = nominal)",
+          Param("scale_x", "", 1.0, 0.5, 1.5), Param("scale_y", "", 1.0, 0.5, 1.5),
+          Param("scale_z", "", 1.0, 0.5, 1.5)),
+    _meas("accel_delay", "accelerometer lags the mocap", Param("delay_s", "s", 0.0, -0.2, 0.2)),
+    _meas("accel_misalignment", "IMU frame tilted against the mocap body frame",
+          Param("roll_rad", "rad", 0.0, -0.3, 0.3), Param("pitch_rad", "rad", 0.0, -0.3, 0.3)),
+]}
+
+
+def effects_for(system: str, target: str | None = None) -> list[Effect]:
+    found = [e for e in LIBRARY.values() if e.system == system and (target is None or e.target == target)]
+    if not found:
+        raise ValueError(f"no effects known for system {system!r}")
+    return found
+
+
+def dynamics_params(system, values: dict, effects) -> dict:
+    """The system's prior parameters with the fitted dynamics effects substituted."""
+    params = dict(system.prior_params)
+    for effect in effects:
+        for p in effect.params:
+            params[p.key] = values[p.name]
+    return params
+
+
+# -- the accelerometer model -----------------------------------------------------------------------------
+def tilt_matrix(roll: float, pitch: float) -> np.ndarray:
+    cr, sr, cp, sp = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch)
+    return np.array([[cp, sp * sr, sp * cr], [0.0, cr, -sr], [-sp, cp * sr, cp * cr]])
+
+
+def predict_acc_body(f_body: np.ndarray, t: np.ndarray, values: dict) -> np.ndarray:
+    """What the accelerometer reads (m/s², IMU frame) for true specific force f_body (T, 3) at times t."""
+    delay = values.get("delay_s", 0.0)
+    shifted = f_body if delay == 0.0 else np.column_stack(
+        [np.interp(t - delay, t, f_body[:, j]) for j in range(3)])
+    tilted = shifted @ tilt_matrix(values.get("roll_rad", 0.0), values.get("pitch_rad", 0.0)).T
+    scale = np.array([values.get(f"scale_{a}", 1.0) for a in "xyz"])
+    bias = np.array([values.get(f"bias_{a}", 0.0) for a in "xyz"])
+    return tilted * scale + bias
+
+
+def correct_acc_body(acc_body: np.ndarray, t: np.ndarray, values: dict) -> np.ndarray:
+    """Invert the accelerometer model: the specific force the IMU would have read were it ideal."""
+    scale = np.array([values.get(f"scale_{a}", 1.0) for a in "xyz"])
+    bias = np.array([values.get(f"bias_{a}", 0.0) for a in "xyz"])
+    untilted = ((acc_body - bias) / scale) @ tilt_matrix(values.get("roll_rad", 0.0), values.get("pitch_rad", 0.0))
+    delay = values.get("delay_s", 0.0)
+    if delay == 0.0:
+        return untilted
+    return np.column_stack([np.interp(t + delay, t, untilted[:, j]) for j in range(3)])
+
+
+def specific_force_body(a_world: np.ndarray, quat: np.ndarray) -> np.ndarray:
+    """f_body = Rᵀ (a + g ẑ): what an ideal body-frame accelerometer reads for world acceleration a."""
+    return np.einsum("tji,tj->ti", quat_to_matrix(quat), a_world + np.array([0.0, 0.0, GRAVITY]))
+
+
+def world_from_body(acc_body: np.ndarray, quat: np.ndarray) -> np.ndarray:
+    """a_meas = R acc_body - g ẑ (the Flight's convention)."""
+    return np.einsum("tij,tj->ti", quat_to_matrix(quat), acc_body) - np.array([0.0, 0.0, GRAVITY])

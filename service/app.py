@@ -1,0 +1,143 @@
+"""The learnest HTTP service (FastAPI).  `create_app()` is the factory uvicorn runs
+(`learnest serve`, or `uvicorn --factory service.app:create_app`); OpenAPI docs at /docs.
+
+Start-up: Alembic `upgrade head`, blob folder, executor (local process pool or Dask), job runner (fails the
+jobs a crashed server left running), scheduler when LEARNEST_SCHEDULE_SECONDS > 0.
+"""
+from __future__ import annotations
+
+import importlib.metadata
+import logging
+import uuid
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI, HTTPException, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+
+from service.db import Conflict, Invalid, NotFound, Settings
+from service.executors import Executor
+from service.jobs import open_services
+from service.routers import evaluations, flights, jobs, models
+from service.scheduler import Scheduler
+
+log = logging.getLogger("learnest.app")
+
+
+def create_app(settings: Settings | None = None, *, executor: Executor | None = None,
+               scheduler: bool = True) -> FastAPI:
+    """`executor`: an already running executor to share (not shut down with the app); None: make one from
+    the settings.  `scheduler=False` never starts the scheduler thread (tests drive `Scheduler.tick`)."""
+    settings = settings or Settings.from_env()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI):
+        services = open_services(settings, executor)
+        app.state.services = services
+        app.state.scheduler = None
+        if scheduler and settings.schedule_seconds > 0:
+            app.state.scheduler = Scheduler(services, settings.schedule_seconds, settings.schedule_alias)
+            app.state.scheduler.start()
+        try:
+            yield
+        finally:
+            if app.state.scheduler is not None:
+                app.state.scheduler.stop()
+            services.close()
+
+    app = FastAPI(title="learnest", version=_version(), lifespan=lifespan,
+                  description="Upload Crazyflie flight logs, train KNODE models into a registry, and batch-"
+                              "evaluate KNODE-UKF / KNODE-MHE against Savitzky-Golay references. Writes need "
+                              "the X-API-Key header when the server has LEARNEST_API_KEY set.")
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
+    install_error_handlers(app)
+    for router in (flights.router, models.router, jobs.router, evaluations.router):
+        app.include_router(router)
+
+    @app.get("/health", tags=["service"])
+    def health(request: Request) -> dict:
+        services = request.app.state.services
+        return {"status": "ok", "version": _version(), "executor": services.executor.describe(),
+                "database": services.db.engine.dialect.name}
+
+    return app
+
+
+def _version() -> str:
+    try:
+        return importlib.metadata.version("learnest")
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown"
+
+
+# -- upload size limit ----------------------------------------------------------------------------------
+class BodySizeLimit:
+    """413 for a request body above max_bytes: at once from Content-Length, else while it streams in
+    (chunked uploads), before the multipart parser writes it anywhere."""
+
+    def __init__(self, app, max_bytes: int):
+        self.app, self.max_bytes = app, max_bytes
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        declared = dict(scope.get("headers") or []).get(b"content-length", b"")
+        if declared.isdigit() and int(declared) > self.max_bytes:
+            return await self._reject(send)
+        received = 0
+
+        async def limited_receive():
+            nonlocal received
+            message = await receive()
+            if message["type"] == "http.request":
+                received += len(message.get("body", b""))
+                if received > self.max_bytes:
+                    raise HTTPException(413, self._message())  # FastAPI passes HTTPExceptions through
+            return message
+
+        await self.app(scope, limited_receive, send)
+
+    def _message(self) -> str:
+        return f"upload too large: the limit is {self.max_bytes / 2**20:g} MB (LEARNEST_MAX_UPLOAD_MB)"
+
+    async def _reject(self, send) -> None:
+        response = JSONResponse({"detail": self._message()}, status_code=413, headers={"Connection": "close"})
+        await response({"type": "http"}, None, send)
+
+
+# -- errors: a 4xx a person can act on, never a traceback ------------------------------------------------
+def install_error_handlers(app: FastAPI) -> None:
+    @app.exception_handler(RequestValidationError)
+    async def invalid_request(_request: Request, err: RequestValidationError):
+        errors = [{"field": _field(e.get("loc", ())), "message": e.get("msg", "invalid")} for e in err.errors()]
+        detail = "; ".join(f"{e['field']}: {e['message']}" if e["field"] else e["message"] for e in errors)
+        return JSONResponse({"detail": detail, "errors": errors}, status_code=422)
+
+    @app.exception_handler(NotFound)
+    async def not_found(_request: Request, err: NotFound):
+        return JSONResponse({"detail": str(err)}, status_code=404)
+
+    @app.exception_handler(Conflict)
+    async def conflict(_request: Request, err: Conflict):
+        return JSONResponse({"detail": str(err)}, status_code=409)
+
+    @app.exception_handler(Invalid)
+    async def invalid(_request: Request, err: Invalid):
+        return JSONResponse({"detail": str(err)}, status_code=422)
+
+    @app.exception_handler(Exception)
+    async def unexpected(request: Request, err: Exception):
+        incident = uuid.uuid4().hex[:12]
+        log.error("incident %s on %s %s", incident, request.method, request.url.path, exc_info=err)
+        return JSONResponse({"detail": f"internal error (incident {incident}; the server log has the details)"},
+                            status_code=500)
+
+
+def _field(loc) -> str:
+    """("body", "epochs") -> "epochs"; ("query", "limit") -> "limit (query)"."""
+    parts = [str(p) for p in loc]
+    if parts and parts[0] == "body":
+        return ".".join(parts[1:]) or "body"
+    if len(parts) > 1 and parts[0] in ("query", "path", "header"):
+        return f"{'.'.join(parts[1:])} ({parts[0]})"
+    return ".".join(parts)

@@ -1,0 +1,125 @@
+"""Content-addressed blob folder: root/ab/cdef... named by the sha256 of the bytes.
+
+Writes go to a temp file in root/.tmp (same file system), are fsync'ed, then atomically renamed into place
+and the directory is fsync'ed: a blob is either complete or absent.  Callers write blobs *before* they
+commit the row that names them, so a crash can leave an unreferenced blob (harmless; `collect` removes it)
+but never a row pointing to a missing one.
+
+Deleting is the only way to break that order (a blob could be unlinked between an uploader finding it
+already present and its row commit), so writers hold a shared lock (`writing()`) from their first blob to
+their commit and `collect` takes the exclusive lock.  The lock is fcntl.flock on root/.lock: it works
+across threads and processes (several uvicorn workers) of one machine.
+"""
+from __future__ import annotations
+
+import fcntl
+import hashlib
+import os
+import re
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Callable, Iterable, Iterator
+
+SHA256 = re.compile(r"^[0-9a-f]{64}$")
+CHUNK = 1 << 20
+
+
+def sha256_bytes(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+class BlobStore:
+    def __init__(self, root: Path):
+        self.root = Path(root)
+        self.tmp = self.root / ".tmp"
+        self.tmp.mkdir(parents=True, exist_ok=True)
+        self._lock_path = self.root / ".lock"
+        self._lock_path.touch(exist_ok=True)
+
+    # -- addressing -------------------------------------------------------------------------------------
+    def path(self, sha: str) -> Path:
+        if not SHA256.fullmatch(sha or ""):  # never let anything else become a path
+            raise ValueError(f"not a sha256: {sha!r}")
+        return self.root / sha[:2] / sha[2:]
+
+    def exists(self, sha: str) -> bool:
+        return self.path(sha).is_file()
+
+    def read_bytes(self, sha: str) -> bytes:
+        return self.path(sha).read_bytes()
+
+    # -- writing ----------------------------------------------------------------------------------------
+    @contextmanager
+    def temp_dir(self) -> Iterator[Path]:
+        """A private scratch folder on the blob file system (so `put_file` can rename, not copy)."""
+        with tempfile.TemporaryDirectory(dir=self.tmp) as directory:
+            yield Path(directory)
+
+    def put_bytes(self, data: bytes) -> str:
+        fd, name = tempfile.mkstemp(dir=self.tmp)
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(data)
+        return self.put_file(Path(name), sha256_bytes(data))
+
+    def put_file(self, source: Path, sha: str | None = None) -> str:
+        """Move `source` (on this file system) into the store; returns its sha256."""
+        sha = sha or file_sha256(source)
+        with open(source, "rb") as handle:
+            os.fsync(handle.fileno())
+        target = self.path(sha)
+        target.parent.mkdir(exist_ok=True)
+        if target.exists():  # same content already stored: keep the existing file
+            source.unlink()
+        else:
+            os.replace(source, target)
+            _fsync_dir(target.parent)
+        return sha
+
+    @contextmanager
+    def writing(self):
+        """Shared lock: held from the first blob written until the row naming it is committed."""
+        with self._flock(fcntl.LOCK_SH):
+            yield
+
+    # -- deleting ---------------------------------------------------------------------------------------
+    def collect(self, candidates: Iterable[str], is_referenced: Callable[[str], bool]) -> list[str]:
+        """Delete the candidate blobs no row references (checked under the exclusive lock)."""
+        removed = []
+        with self._flock(fcntl.LOCK_EX):
+            for sha in set(candidates):
+                path = self.path(sha)
+                if path.exists() and not is_referenced(sha):
+                    path.unlink()
+                    removed.append(sha)
+        return removed
+
+    def all_blobs(self) -> Iterator[str]:
+        for path in self.root.glob("??/*"):
+            if path.is_file() and SHA256.fullmatch(path.parent.name + path.name):
+                yield path.parent.name + path.name
+
+    @contextmanager
+    def _flock(self, mode: int):
+        with open(self._lock_path, "rb") as handle:
+            fcntl.flock(handle, mode)
+            try:
+                yield
+            finally:
+                fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def file_sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for chunk in iter(lambda: handle.read(CHUNK), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def _fsync_dir(directory: Path) -> None:
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)

@@ -1,0 +1,358 @@
+"""Storage: settings, SQLAlchemy tables, the Database handle (engine + short transactions + migrations)
+and leases (the DB-level locks behind "exactly one scheduler" and job ownership).
+
+SQLite (a file under LEARNEST_HOME) is the default; PostgreSQL when LEARNEST_DATABASE_URL is given.
+Tables are created only by the Alembic migrations in service/migrations (the app runs `upgrade head`).
+"""
+from __future__ import annotations
+
+import fcntl
+import json
+import math
+import os
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Iterator
+
+from sqlalchemy import (JSON, BigInteger, Boolean, DateTime, Float, ForeignKey, Integer, String, Text,
+                        UniqueConstraint, create_engine, event, select, text, update)
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, relationship, sessionmaker
+
+MIGRATIONS = Path(__file__).resolve().parent / "migrations"
+DEFAULT_METHODS = "ukf,mhe,knode-ukf,knode-mhe"
+
+
+# -- settings -----------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Settings:
+    """Every knob of the service, from LEARNEST_* environment variables (see `from_env`)."""
+
+    home: Path = Path(".learnest")
+    database_url: str | None = None          # None: SQLite file home/learnest.db
+    max_upload_mb: float = 200.0
+    api_key: str | None = None               # None: writes need no key
+    schedule_seconds: float = 0.0            # 0: scheduler off
+    schedule_alias: str = "production"
+    schedule_methods: str = DEFAULT_METHODS
+    dask_address: str | None = None          # None: local process pool
+    pool_workers: int = field(default_factory=lambda: max(1, min(2, os.cpu_count() or 1)))
+
+    @classmethod
+    def from_env(cls, **overrides) -> "Settings":
+        env = os.environ
+        values: dict[str, Any] = {
+            "home": Path(env.get("LEARNEST_HOME", ".learnest")),
+            "database_url": env.get("LEARNEST_DATABASE_URL") or None,
+            "max_upload_mb": float(env.get("LEARNEST_MAX_UPLOAD_MB", 200)),
+            "api_key": env.get("LEARNEST_API_KEY") or None,
+            "schedule_seconds": float(env.get("LEARNEST_SCHEDULE_SECONDS", 0)),
+            "schedule_alias": env.get("LEARNEST_SCHEDULE_ALIAS", "production"),
+            "schedule_methods": env.get("LEARNEST_SCHEDULE_METHODS", DEFAULT_METHODS),
+            "dask_address": env.get("LEARNEST_DASK") or None,
+        }
+        if env.get("LEARNEST_POOL_WORKERS"):
+            values["pool_workers"] = int(env["LEARNEST_POOL_WORKERS"])
+        return cls(**{**values, **overrides})
+
+    def with_(self, **changes) -> "Settings":
+        return replace(self, **changes)
+
+    @property
+    def url(self) -> str:
+        return self.database_url or f"sqlite:///{(self.home / 'learnest.db').resolve()}"
+
+    @property
+    def max_upload_bytes(self) -> int:
+        return int(self.max_upload_mb * 1024 * 1024)
+
+
+def utcnow() -> datetime:
+    """Naive UTC: SQLite drops time zones, so every timestamp is stored as UTC without one."""
+    return datetime.now(timezone.utc).replace(tzinfo=None)
+
+
+class NotFound(LookupError):
+    """An id, name, version or alias that does not exist (HTTP 404)."""
+
+
+class Conflict(RuntimeError):
+    """The request is valid but the resource is not in a state that allows it (HTTP 409)."""
+
+
+class Invalid(ValueError):
+    """A request the caller can fix (HTTP 422); the message says how."""
+
+
+def json_safe(value):
+    """NaN/inf -> None: PostgreSQL's json type (rightly) rejects them, json.dumps would write them."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    return value
+
+
+def _json_dumps(value) -> str:
+    return json.dumps(json_safe(value))
+
+
+# -- tables -------------------------------------------------------------------------------------------
+class Base(DeclarativeBase):
+    pass
+
+
+class Flight(Base):
+    __tablename__ = "flights"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    sha256: Mapped[str] = mapped_column(String(64), unique=True)   # of the raw file(s): the dedupe key
+    name: Mapped[str] = mapped_column(String(200), unique=True)    # unique: evaluate_flights matches by name
+    adapter: Mapped[str] = mapped_column(String(40))
+    vehicle: Mapped[str | None] = mapped_column(String(200), index=True)
+    notes: Mapped[str | None] = mapped_column(Text)
+    duration_s: Mapped[float] = mapped_column(Float)
+    rate_hz: Mapped[float] = mapped_column(Float)
+    samples: Mapped[int] = mapped_column(Integer)
+    quality_ok: Mapped[bool] = mapped_column(Boolean, index=True)
+    quality: Mapped[dict] = mapped_column(JSON)
+    clock_offset_s: Mapped[float | None] = mapped_column(Float)
+    flight_blob: Mapped[str] = mapped_column(String(64))          # Flight.to_bytes of the normalized flight
+    meta: Mapped[dict] = mapped_column(JSON)
+    created_at: Mapped[datetime] = mapped_column(DateTime, index=True, default=utcnow)
+    files: Mapped[list["FlightFile"]] = relationship(order_by="FlightFile.position", cascade="all, delete-orphan",
+                                                     lazy="selectin")
+
+
+class FlightFile(Base):
+    """One uploaded raw file; the client's file name is metadata only, never a path."""
+
+    __tablename__ = "flight_files"
+
+    flight_id: Mapped[int] = mapped_column(ForeignKey("flights.id", ondelete="CASCADE"), primary_key=True)
+    position: Mapped[int] = mapped_column(Integer, primary_key=True)
+    original_name: Mapped[str] = mapped_column(String(255))
+    sha256: Mapped[str] = mapped_column(String(64), index=True)   # its blob
+    size_bytes: Mapped[int] = mapped_column(BigInteger)
+    role: Mapped[str] = mapped_column(String(20))                 # "log" or "sidecar" (NanoBench metadata)
+
+
+class RegisteredModel(Base):
+    __tablename__ = "registered_models"
+
+    name: Mapped[str] = mapped_column(String(100), primary_key=True)
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+
+
+class ModelVersion(Base):
+    """Immutable once "ready"; "training" and "failed" rows hold the reserved number and the reason."""
+
+    __tablename__ = "model_versions"
+    __table_args__ = (UniqueConstraint("name", "version", name="uq_model_versions_name_version"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    name: Mapped[str] = mapped_column(ForeignKey("registered_models.name"), index=True)
+    version: Mapped[int] = mapped_column(Integer)
+    status: Mapped[str] = mapped_column(String(20), default="training")
+    job_id: Mapped[int | None] = mapped_column(Integer)
+    # no foreign key: the lineage must survive the deletion of the training flight
+    training_flight_id: Mapped[int | None] = mapped_column(Integer)
+    training_flight_sha256: Mapped[str | None] = mapped_column(String(64))
+    training_flight_name: Mapped[str | None] = mapped_column(String(200))
+    parent: Mapped[str | None] = mapped_column(String(120))
+    hyperparameters: Mapped[dict] = mapped_column(JSON)
+    prior: Mapped[dict | None] = mapped_column(JSON)
+    losses: Mapped[list | None] = mapped_column(JSON)
+    training_seconds: Mapped[float | None] = mapped_column(Float)
+    metrics: Mapped[dict | None] = mapped_column(JSON)
+    code_version: Mapped[dict | None] = mapped_column(JSON)
+    library_versions: Mapped[dict | None] = mapped_column(JSON)
+    weights_blob: Mapped[str | None] = mapped_column(String(64))
+    error: Mapped[str | None] = mapped_column(Text)
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+    ready_at: Mapped[datetime | None] = mapped_column(DateTime)
+
+
+class ModelAlias(Base):
+    __tablename__ = "model_aliases"
+
+    name: Mapped[str] = mapped_column(ForeignKey("registered_models.name"), primary_key=True)
+    alias: Mapped[str] = mapped_column(String(100), primary_key=True)
+    version: Mapped[int] = mapped_column(Integer)
+    updated_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+
+
+class Job(Base):
+    __tablename__ = "jobs"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    kind: Mapped[str] = mapped_column(String(20))
+    state: Mapped[str] = mapped_column(String(20), index=True, default="queued")
+    progress: Mapped[float] = mapped_column(Float, default=0.0)
+    error: Mapped[str | None] = mapped_column(Text)
+    result: Mapped[dict | None] = mapped_column(JSON)
+    payload: Mapped[dict | None] = mapped_column(JSON)
+    owner: Mapped[str | None] = mapped_column(String(200))       # the server process running it (leases)
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+    started_at: Mapped[datetime | None] = mapped_column(DateTime)
+    finished_at: Mapped[datetime | None] = mapped_column(DateTime)
+
+
+class Evaluation(Base):
+    __tablename__ = "evaluations"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id"))
+    model_ref: Mapped[str] = mapped_column(String(220))
+    model_version_id: Mapped[int] = mapped_column(ForeignKey("model_versions.id"))
+    flight_ids: Mapped[list] = mapped_column(JSON)
+    settings: Mapped[dict] = mapped_column(JSON)
+    report: Mapped[dict | None] = mapped_column(JSON)
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+
+
+class Result(Base):
+    """Per-flight evaluation cache: one row per (flight content, model version, estimator settings)."""
+
+    __tablename__ = "results"
+    __table_args__ = (UniqueConstraint("flight_sha256", "model_version_id", "settings_key",
+                                       name="uq_results_flight_model_settings"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    flight_sha256: Mapped[str] = mapped_column(String(64))
+    model_version_id: Mapped[int] = mapped_column(ForeignKey("model_versions.id"), index=True)
+    settings_key: Mapped[str] = mapped_column(String(64))
+    flight_id: Mapped[int | None] = mapped_column(Integer)
+    state: Mapped[str] = mapped_column(String(20))               # "succeeded" | "failed"
+    entry: Mapped[dict] = mapped_column(JSON)                    # the flight's entry of the report
+    error: Mapped[str | None] = mapped_column(Text)
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+
+
+class Lease(Base):
+    """A named lock with an expiry: whoever holds an unexpired lease owns the thing it names."""
+
+    __tablename__ = "leases"
+
+    name: Mapped[str] = mapped_column(String(200), primary_key=True)
+    owner: Mapped[str] = mapped_column(String(200))
+    expires_at: Mapped[float] = mapped_column(Float)              # unix time
+
+
+# -- the database handle ------------------------------------------------------------------------------
+class Database:
+    """Engine + session factory.  Use `with db.transaction() as session:` for short units of work: on
+    SQLite every transaction takes the write lock up front (BEGIN IMMEDIATE), so holding one while doing
+    slow work would block every other writer."""
+
+    def __init__(self, url: str):
+        self.url = url
+        self.is_sqlite = url.startswith("sqlite")
+        if self.is_sqlite:
+            self._prepare_sqlite_file()
+            self.engine = create_engine(url, connect_args={"timeout": 60, "check_same_thread": False},
+                                        json_serializer=_json_dumps)
+            _sqlite_pragmas(self.engine)
+        else:
+            self.engine = create_engine(url, pool_pre_ping=True, json_serializer=_json_dumps)
+        self._sessions = sessionmaker(self.engine, expire_on_commit=False)
+
+    def _prepare_sqlite_file(self) -> None:
+        path = self.sqlite_path
+        if path is not None:
+            path.parent.mkdir(parents=True, exist_ok=True)
+
+    @property
+    def sqlite_path(self) -> Path | None:
+        prefix = "sqlite:///"
+        if not self.url.startswith(prefix) or self.url == prefix or ":memory:" in self.url:
+            return None
+        return Path(self.url[len(prefix):].split("?", 1)[0])
+
+    def session(self) -> Session:
+        return self._sessions()
+
+    @contextmanager
+    def transaction(self) -> Iterator[Session]:
+        with self._sessions.begin() as session:
+            yield session
+
+    def migrate(self) -> None:
+        """Alembic `upgrade head`, serialized across processes (several uvicorn workers start at once)."""
+        from alembic import command
+        from alembic.config import Config
+
+        config = Config()
+        config.set_main_option("script_location", str(MIGRATIONS))
+        with self._migration_lock(), self.engine.begin() as connection:
+            if not self.is_sqlite:  # PostgreSQL: held until this transaction ends
+                connection.execute(text("SELECT pg_advisory_xact_lock(7261034)"))
+            config.attributes["connection"] = connection
+            command.upgrade(config, "head")
+
+    @contextmanager
+    def _migration_lock(self):
+        path = self.sqlite_path
+        if path is None:
+            yield
+            return
+        with open(path.with_name(path.name + ".migrate.lock"), "a") as handle:
+            fcntl.flock(handle, fcntl.LOCK_EX)
+            try:
+                yield
+            finally:
+                fcntl.flock(handle, fcntl.LOCK_UN)
+
+    def dispose(self) -> None:
+        self.engine.dispose()
+
+
+def _sqlite_pragmas(engine) -> None:
+    @event.listens_for(engine, "connect")
+    def _on_connect(dbapi_connection, _record):
+        dbapi_connection.isolation_level = None  # let SQLAlchemy's BEGIN below be the only one
+        cursor = dbapi_connection.cursor()
+        cursor.execute("PRAGMA journal_mode=WAL")      # readers never block the writer
+        cursor.execute("PRAGMA foreign_keys=ON")
+        cursor.execute("PRAGMA synchronous=FULL")      # a committed row survives a power cut
+        cursor.close()
+
+    @event.listens_for(engine, "begin")
+    def _on_begin(connection):
+        # IMMEDIATE: take the write lock now (waiting up to the busy timeout) instead of failing with
+        # "database is locked" when a read transaction later tries to write
+        connection.exec_driver_sql("BEGIN IMMEDIATE")
+
+
+# -- leases -------------------------------------------------------------------------------------------
+def acquire_lease(db: Database, name: str, owner: str, ttl_s: float) -> bool:
+    """Take or renew the lease `name` for `owner` for ttl_s seconds; False if someone else holds it."""
+    now = time.time()
+    with db.transaction() as session:
+        taken = session.execute(
+            update(Lease).where(Lease.name == name, (Lease.owner == owner) | (Lease.expires_at < now))
+            .values(owner=owner, expires_at=now + ttl_s)).rowcount
+        if taken:
+            return True
+    try:
+        with db.transaction() as session:
+            session.add(Lease(name=name, owner=owner, expires_at=now + ttl_s))
+        return True
+    except IntegrityError:  # it exists and is held by someone else
+        return False
+
+
+def release_lease(db: Database, name: str, owner: str) -> None:
+    with db.transaction() as session:
+        session.execute(Lease.__table__.delete().where(Lease.name == name, Lease.owner == owner))
+
+
+def lease_holder(db: Database, name: str) -> str | None:
+    with db.transaction() as session:
+        lease = session.scalar(select(Lease).where(Lease.name == name))
+        return lease.owner if lease is not None and lease.expires_at >= time.time() else None

@@ -1,0 +1,118 @@
+"""Where the heavy work (training, per-flight evaluation) runs: one small interface, two back ends.
+
+- `LocalPoolExecutor`: a concurrent.futures ProcessPoolExecutor (spawned processes: forking a server
+  with running threads and torch/CasADi state is unsafe).  The default.
+- `DaskExecutor`: a dask.distributed Client, to a scheduler at tcp://host:port or to an in-process
+  LocalCluster (tests, laptops).
+
+Tasks are plain module-level functions taking and returning bytes/JSON-able values (flight and model
+bytes travel with the task), so remote Dask workers need no access to the blob folder.
+"""
+from __future__ import annotations
+
+import concurrent.futures
+import multiprocessing
+import threading
+from abc import ABC, abstractmethod
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any, Callable, Iterable, Iterator
+
+
+def init_worker() -> None:
+    """The networks are tiny: one torch thread per worker avoids oversubscribing the cores."""
+    import torch
+
+    torch.set_num_threads(1)
+
+
+class Executor(ABC):
+    name = "executor"
+
+    @abstractmethod
+    def submit(self, fn: Callable, *args: Any):
+        """Schedule fn(*args); returns a future with .result()."""
+
+    @abstractmethod
+    def as_completed(self, futures: Iterable) -> Iterator:
+        """Yield the futures as they finish."""
+
+    @abstractmethod
+    def shutdown(self) -> None:
+        ...
+
+    def describe(self) -> dict:
+        return {"name": self.name}
+
+
+class LocalPoolExecutor(Executor):
+    name = "local-pool"
+
+    def __init__(self, max_workers: int = 2):
+        self.max_workers = max_workers
+        self._lock = threading.Lock()
+        self._pool = self._new_pool()
+
+    def _new_pool(self):
+        return concurrent.futures.ProcessPoolExecutor(
+            max_workers=self.max_workers, mp_context=multiprocessing.get_context("spawn"), initializer=init_worker)
+
+    def submit(self, fn, *args):
+        with self._lock:
+            try:
+                return self._pool.submit(fn, *args)
+            except BrokenProcessPool:  # a worker died (killed, out of memory): the jobs after it get a new pool
+                self._pool.shutdown(wait=False, cancel_futures=True)
+                self._pool = self._new_pool()
+                return self._pool.submit(fn, *args)
+
+    def as_completed(self, futures):
+        return concurrent.futures.as_completed(list(futures))
+
+    def shutdown(self) -> None:
+        self._pool.shutdown(wait=False, cancel_futures=True)
+
+    def describe(self) -> dict:
+        return {"name": self.name, "workers": self.max_workers}
+
+
+class DaskExecutor(Executor):
+    name = "dask"
+
+    def __init__(self, address: str | None = None, **cluster_options):
+        from dask.distributed import Client, LocalCluster
+
+        self.address = address
+        self._cluster = None
+        if address:
+            self._client = Client(address)
+        else:
+            options = {"n_workers": 1, "threads_per_worker": 1, "processes": False,
+                       "dashboard_address": None, **cluster_options}
+            self._cluster = LocalCluster(**options)
+            self._client = Client(self._cluster)
+
+    def submit(self, fn, *args):
+        return self._client.submit(fn, *args, pure=False)  # pure=False: never merge two runs of a job
+
+    def as_completed(self, futures):
+        from dask.distributed import as_completed
+
+        return iter(as_completed(list(futures)))
+
+    def shutdown(self) -> None:
+        self._client.close()
+        if self._cluster is not None:
+            self._cluster.close()
+
+    def describe(self) -> dict:
+        return {"name": self.name, "scheduler": self._client.scheduler.address}
+
+
+def make_executor(dask_address: str | None, pool_workers: int) -> Executor:
+    """`dask_address`: None -> local process pool; "local" -> a Dask LocalCluster of worker processes on
+    this machine; anything else -> the Dask scheduler at that address (tcp://host:port)."""
+    if not dask_address:
+        return LocalPoolExecutor(pool_workers)
+    if dask_address == "local":
+        return DaskExecutor(None, processes=True, n_workers=pool_workers)
+    return DaskExecutor(dask_address)

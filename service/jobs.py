@@ -1,0 +1,548 @@
+"""Jobs: long work behind `202 Accepted`.
+
+A job row (queued -> running -> succeeded | failed, progress 0..1) is created in the request's transaction;
+a thread of this server process (the JobRunner) then orchestrates it, sending the heavy parts (training,
+each flight of an evaluation) to the Executor.  Progress is written to the database, by the orchestrating
+thread or, for training, by the worker itself (`report_progress`).
+
+Ownership: every job row names the server process that runs it, and each process holds a lease
+"runner:<owner>" renewed every HEARTBEAT_S.  A job whose owner has no live lease (or, on this host, a dead
+pid) was left behind by a crashed server: `sweep` marks it failed with "server restarted" (at start-up
+and on every heartbeat, so several uvicorn workers never fail each other's live jobs).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import socket
+import threading
+import time
+import uuid
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Callable
+
+from sqlalchemy import select, update
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
+
+from service import registry
+from service.blobs import BlobStore
+from service.db import (Database, Evaluation, Flight, Invalid, Job, Lease, ModelVersion, NotFound, Result,
+                        Settings, acquire_lease, release_lease, utcnow)
+from service.executors import Executor, init_worker, make_executor
+
+log = logging.getLogger("learnest.jobs")
+
+ACTIVE = ("queued", "running")
+HEARTBEAT_S = 10.0
+LEASE_S = 30.0
+ERROR_CHARS = 1000
+
+
+class JobAborted(RuntimeError):
+    """The job is no longer running (a sweep or shutdown failed it): drop its result."""
+
+
+# -- the runner ---------------------------------------------------------------------------------------
+def make_owner_id() -> str:
+    return f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:8]}"
+
+
+@dataclass
+class JobContext:
+    """What a job's work function gets: progress reporting and the transactional completion."""
+
+    job_id: int
+    runner: "JobRunner"
+    on_progress: Callable[[], None] | None = None   # e.g. the scheduler renewing its lease
+    completed: bool = False
+
+    def progress(self, fraction: float) -> None:
+        self.runner.set_progress(self.job_id, fraction)
+        if self.on_progress:
+            self.on_progress()
+
+    @property
+    def progress_target(self) -> tuple[str, int]:
+        """(database URL, job id): lets a worker process write its own progress."""
+        return self.runner.db.url, self.job_id
+
+    def complete(self, session: Session, result: dict) -> None:
+        """Mark the job succeeded inside the caller's transaction (with the rows its result created)."""
+        self.runner.mark_succeeded(session, self.job_id, result)
+        self.completed = True
+
+
+class JobRunner:
+    def __init__(self, db: Database, threads: int = 4):
+        self.db = db
+        self.owner = make_owner_id()
+        self._threads = ThreadPoolExecutor(threads, thread_name_prefix="learnest-job")
+        self._stop = threading.Event()
+        self._heartbeat: threading.Thread | None = None
+        # called in the sweep's transaction with the ids of the jobs it failed
+        self.on_stale: list[Callable[[Session, list[int]], None]] = []
+
+    @property
+    def lease_name(self) -> str:
+        return f"runner:{self.owner}"
+
+    def start(self) -> list[int]:
+        acquire_lease(self.db, self.lease_name, self.owner, LEASE_S)
+        stale = self.sweep()
+        self._heartbeat = threading.Thread(target=self._beat, name="learnest-heartbeat", daemon=True)
+        self._heartbeat.start()
+        return stale
+
+    def _beat(self) -> None:
+        while not self._stop.wait(HEARTBEAT_S):
+            try:
+                acquire_lease(self.db, self.lease_name, self.owner, LEASE_S)
+                self.sweep()
+            except Exception:  # a database hiccup must not kill the heartbeat
+                log.exception("job heartbeat failed")
+
+    def shutdown(self) -> None:
+        self._stop.set()
+        self._threads.shutdown(wait=False, cancel_futures=True)
+        with self.db.transaction() as session:
+            ids = self._fail(session, select(Job).where(Job.owner == self.owner, Job.state.in_(ACTIVE)),
+                             "server stopped before the job finished")
+            for hook in self.on_stale:
+                hook(session, ids)
+        release_lease(self.db, self.lease_name, self.owner)
+
+    # -- state changes ------------------------------------------------------------------------------------
+    def create(self, session: Session, kind: str, payload: dict | None = None) -> Job:
+        job = Job(kind=kind, state="queued", progress=0.0, payload=payload, owner=self.owner, created_at=utcnow())
+        session.add(job)
+        session.flush()
+        return job
+
+    def launch(self, job_id: int, work: Callable[[JobContext], dict | None], on_failure=None):
+        """Run the job in a background thread of this process."""
+        return self._threads.submit(self.run, job_id, work, on_failure)
+
+    def run(self, job_id: int, work: Callable[[JobContext], dict | None], on_failure=None,
+            on_progress=None) -> None:
+        """Run the job here and now (the scheduler and the CLI call this directly)."""
+        if not self._mark_running(job_id):
+            return
+        context = JobContext(job_id, self, on_progress)
+        try:
+            result = work(context)
+            if not context.completed:
+                with self.db.transaction() as session:
+                    context.complete(session, result or {})
+        except JobAborted:
+            log.info("job %s was failed while running; its result is dropped", job_id)
+        except Exception as err:  # recorded on the job: no traceback reaches a user, the log keeps it
+            log.exception("job %s failed", job_id)
+            self.mark_failed(job_id, _message(err), on_failure)
+
+    def _mark_running(self, job_id: int) -> bool:
+        with self.db.transaction() as session:
+            return bool(session.execute(update(Job).where(Job.id == job_id, Job.state == "queued")
+                                        .values(state="running", started_at=utcnow())).rowcount)
+
+    def mark_succeeded(self, session: Session, job_id: int, result: dict) -> None:
+        job = session.get(Job, job_id, with_for_update=True)
+        if job is None or job.state != "running":
+            raise JobAborted(job_id)
+        job.state, job.progress, job.result, job.finished_at = "succeeded", 1.0, result, utcnow()
+
+    def mark_failed(self, job_id: int, message: str, on_failure=None) -> None:
+        with self.db.transaction() as session:
+            job = session.get(Job, job_id, with_for_update=True)
+            if job is None or job.state not in ACTIVE:
+                return
+            job.state, job.error, job.finished_at = "failed", message, utcnow()
+            if on_failure:
+                on_failure(session, message)
+
+    def set_progress(self, job_id: int, fraction: float) -> None:
+        with self.db.transaction() as session:
+            session.execute(update(Job).where(Job.id == job_id, Job.state == "running")
+                            .values(progress=max(0.0, min(1.0, float(fraction)))))
+
+    # -- crashed servers ----------------------------------------------------------------------------------
+    def sweep(self, reason: str = "server restarted") -> list[int]:
+        """Fail the queued/running jobs whose server process is gone."""
+        now = time.time()
+        with self.db.transaction() as session:
+            live = {lease.name.split(":", 1)[1] for lease in
+                    session.scalars(select(Lease).where(Lease.name.like("runner:%"), Lease.expires_at >= now))}
+            jobs = session.scalars(select(Job).where(Job.state.in_(ACTIVE))).all()
+            stale = [job for job in jobs if job.owner != self.owner
+                     and (job.owner not in live or _dead_here(job.owner))]
+            for job in stale:
+                job.state, job.error, job.finished_at = "failed", reason, utcnow()
+            ids = [job.id for job in stale]
+            for hook in self.on_stale:
+                hook(session, ids)
+        if ids:
+            log.warning("marked %d job(s) left by a stopped server as failed: %s", len(ids), ids)
+        return ids
+
+    @staticmethod
+    def _fail(session: Session, query, reason: str) -> list[int]:
+        jobs = session.scalars(query).all()
+        for job in jobs:
+            job.state, job.error, job.finished_at = "failed", reason, utcnow()
+        return [job.id for job in jobs]
+
+
+def _dead_here(owner: str | None) -> bool:
+    """An owner on this host whose process no longer exists (a restart within the lease time)."""
+    try:
+        host, pid, _ = (owner or "").rsplit(":", 2)
+        if host != socket.gethostname():
+            return False
+        os.kill(int(pid), 0)
+        return False
+    except ProcessLookupError:
+        return True
+    except (ValueError, PermissionError):
+        return False
+
+
+def _message(err: BaseException) -> str:
+    text = str(err) or type(err).__name__
+    if not isinstance(err, (ValueError, LookupError)):  # unexpected: name the kind of failure
+        text = f"{type(err).__name__}: {text}"
+    return text[:ERROR_CHARS]
+
+
+# -- the services a job needs --------------------------------------------------------------------------
+@dataclass
+class Services:
+    settings: Settings
+    db: Database
+    blobs: BlobStore
+    executor: Executor
+    runner: JobRunner
+    owns_executor: bool = True
+    extra: dict = field(default_factory=dict)
+
+    def close(self) -> None:
+        self.runner.shutdown()
+        if self.owns_executor:
+            self.executor.shutdown()
+        self.db.dispose()
+
+
+def open_services(settings: Settings, executor: Executor | None = None) -> Services:
+    """Migrate the database, open the blob folder and the executor, fail jobs of crashed servers."""
+    settings.home.mkdir(parents=True, exist_ok=True)
+    db = Database(settings.url)
+    db.migrate()
+    blobs = BlobStore(settings.home / "blobs")
+    runner = JobRunner(db)
+    runner.on_stale.append(registry.fail_versions_of_jobs)
+    runner.start()
+    owns = executor is None
+    executor = executor or make_executor(settings.dask_address, settings.pool_workers)
+    return Services(settings, db, blobs, executor, runner, owns_executor=owns)
+
+
+# -- worker-side tasks (run in executor processes / Dask workers) --------------------------------------
+_worker_databases: dict[str, Database] = {}
+PROGRESS_EVERY_S = 1.0
+
+
+def report_progress(target: tuple[str, int] | None, fraction: float) -> None:
+    """Write a job's progress from a worker; best effort (a remote Dask worker may not reach the DB)."""
+    if target is None:
+        return
+    url, job_id = target
+    try:
+        database = _worker_databases.get(url) or _worker_databases.setdefault(url, Database(url))
+        with database.transaction() as session:
+            session.execute(update(Job).where(Job.id == job_id, Job.state == "running")
+                            .values(progress=max(0.0, min(1.0, fraction))))
+    except Exception:
+        log.debug("progress of job %s not written", job_id, exc_info=True)
+
+
+def train_task(flight_bytes: bytes, config: dict, progress_target=None, meta: dict | None = None) -> dict:
+    """Algorithm 1 on one flight (service.experiment.train_on_flight); the model comes back as JSON."""
+    from ingest.flight import Flight as CanonicalFlight
+    from models.training import TrainingConfig
+    from service.experiment import train_on_flight
+
+    init_worker()
+    last = [0.0]
+
+    def on_epoch(epoch: int, _loss: float) -> None:
+        if time.monotonic() - last[0] >= PROGRESS_EVERY_S:
+            last[0] = time.monotonic()
+            report_progress(progress_target, 0.99 * (epoch + 1) / config["epochs"])
+
+    result = train_on_flight(CanonicalFlight.from_bytes(flight_bytes), TrainingConfig(**config), progress=on_epoch)
+    model = result["model"]
+    model.meta.update(meta or {})
+    return {"model_json": registry.model_to_json(model), "losses": [float(x) for x in result["losses"]],
+            "seconds": float(result["seconds"]), "library_versions": registry.library_versions(),
+            "code_version": registry.code_version(),
+            "metrics": {key: model.meta.get(key) for key in ("final_loss", "best_epoch", "best_validation_loss")}}
+
+
+def evaluate_task(model_json: bytes, flight_bytes: bytes, settings: dict) -> dict:
+    """One flight's entry of service.experiment.evaluate_flights' report."""
+    from ingest.flight import Flight as CanonicalFlight
+    from service.experiment import evaluate_flights
+
+    init_worker()
+    model = registry.model_from_json(model_json)
+    flight = CanonicalFlight.from_bytes(flight_bytes)
+    report = evaluate_flights(model, [flight], list(settings["methods"]), include_bad=settings["include_bad"],
+                              horizon=settings["horizon"])
+    return report["flights"][0]
+
+
+# -- training jobs -------------------------------------------------------------------------------------
+def training_config(overrides: dict) -> dict:
+    from service.experiment import CRAZYFLIE_TRAINING
+
+    return {**CRAZYFLIE_TRAINING.as_dict(), **{k: v for k, v in overrides.items() if v is not None}}
+
+
+def start_training(services: Services, name: str, flight_id: int, overrides: dict, parent: str | None = None,
+                   include_bad: bool = False) -> tuple[Job, ModelVersion]:
+    """Reserve name's next version, create the job and launch it.  -> (job, version)"""
+    registry.check_name(name)
+    with services.db.transaction() as session:
+        flight = _flight(session, flight_id)
+        if not flight.quality_ok and not include_bad:
+            raise Invalid(f"flight {flight_id} ({flight.name}) failed the quality checks "
+                          f"({'; '.join(flight.quality.get('issues', []))}); pass include_bad to train on it anyway")
+        if parent is not None:
+            resolved = registry.resolve(session, parent)
+            parent = f"{resolved.name}:{resolved.version}"
+    config = training_config(overrides)
+    for attempt in range(20):  # another request may take the same version number first
+        try:
+            with services.db.transaction() as session:
+                flight = _flight(session, flight_id)
+                job = services.runner.create(session, "training", {"name": name, "flight_id": flight_id,
+                                                                   "config": config, "parent": parent})
+                version = registry.reserve_version(session, name, job_id=job.id, flight=flight,
+                                                   hyperparameters=config, parent=parent)
+            break
+        except IntegrityError:
+            if attempt == 19:
+                raise
+    version_id = version.id
+    services.runner.launch(job.id, lambda ctx: run_training(services, ctx, version_id),
+                           on_failure=lambda session, message: _fail_version(session, version_id, message))
+    return job, version
+
+
+def run_training(services: Services, ctx: JobContext, version_id: int) -> None:
+    with services.db.transaction() as session:
+        version = session.get(ModelVersion, version_id)
+        flight = session.get(Flight, version.training_flight_id)
+        if flight is None:
+            raise Invalid(f"training flight {version.training_flight_id} was deleted")
+        meta = {"name": version.name, "version": version.version, "training_flight_id": flight.id}
+        config, blob = dict(version.hyperparameters), flight.flight_blob
+    out = services.executor.submit(train_task, services.blobs.read_bytes(blob), config, ctx.progress_target,
+                                   meta).result()
+    with services.blobs.writing():  # the weights blob exists before the row that names it commits
+        weights = services.blobs.put_bytes(out["model_json"])
+        with services.db.transaction() as session:
+            version = session.get(ModelVersion, version_id, with_for_update=True)
+            version.status, version.weights_blob, version.ready_at = "ready", weights, utcnow()
+            version.prior = registry.prior_of(out["model_json"])
+            version.losses, version.training_seconds = out["losses"], out["seconds"]
+            version.metrics, version.code_version = out["metrics"], out["code_version"]
+            version.library_versions = out["library_versions"]
+            ctx.complete(session, {"name": version.name, "version": version.version,
+                                   "final_loss": out["losses"][-1] if out["losses"] else None,
+                                   "seconds": out["seconds"]})
+
+
+def _fail_version(session: Session, version_id: int, message: str) -> None:
+    version = session.get(ModelVersion, version_id)
+    if version is not None and version.status == "training":
+        version.status, version.error = "failed", message
+
+
+def _flight(session: Session, flight_id: int) -> Flight:
+    flight = session.get(Flight, flight_id)
+    if flight is None:
+        raise NotFound(f"flight {flight_id} not found")
+    return flight
+
+
+# -- evaluation jobs -----------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class EstimatorSettings:
+    methods: tuple[str, ...] = ("ukf", "mhe", "knode-ukf", "knode-mhe")
+    horizon: int = 20
+    include_bad: bool = False
+
+    def as_dict(self) -> dict:
+        return {"methods": list(self.methods), "horizon": self.horizon, "include_bad": self.include_bad}
+
+    @property
+    def key(self) -> str:
+        """Cache key part: what changes a flight's entry besides the flight and the model."""
+        canonical = json.dumps({"methods": sorted(self.methods), "horizon": self.horizon,
+                                "include_bad": self.include_bad}, sort_keys=True)
+        return hashlib.sha256(canonical.encode()).hexdigest()
+
+
+def start_evaluation(services: Services, model_ref: str, flights, settings: EstimatorSettings,
+                     wait: bool = False, on_progress=None) -> tuple[int, int, str]:
+    """Create the evaluation and its job; answer from the cache at once when every flight has a result,
+    otherwise run it (in the background, or here when wait=True).  -> (job id, evaluation id, state)"""
+    with services.db.transaction() as session:
+        version = registry.resolve(session, model_ref)
+        flight_ids = _flight_ids(session, flights, version)
+        job = services.runner.create(session, "evaluation", {"model": model_ref, "flights": flight_ids,
+                                                             "settings": settings.as_dict()})
+        evaluation = Evaluation(job_id=job.id, model_ref=f"{version.name}:{version.version}",
+                                model_version_id=version.id, flight_ids=flight_ids,
+                                settings=settings.as_dict(), created_at=utcnow())
+        session.add(evaluation)
+        session.flush()
+        entries = cached_entries(session, version.id, settings.key,
+                                 [f.sha256 for f in _flights_by_id(session, flight_ids).values()])
+        if len(entries) == len(flight_ids):  # everything cached: no job to run
+            evaluation.report = assemble_report(evaluation.model_ref, [entries[sha] for sha in
+                                                                       _shas_in_order(session, flight_ids)])
+            job.state, job.progress, job.started_at, job.finished_at = "succeeded", 1.0, utcnow(), utcnow()
+            job.result = {"evaluation_id": evaluation.id, "flights": len(flight_ids), "computed": 0}
+            return job.id, evaluation.id, job.state
+        job_id, evaluation_id = job.id, evaluation.id
+
+    def work(ctx: JobContext) -> None:
+        run_evaluation(services, ctx, evaluation_id)
+
+    if wait:
+        services.runner.run(job_id, work, on_progress=on_progress)
+    else:
+        services.runner.launch(job_id, work)
+    return job_id, evaluation_id, "queued"
+
+
+def run_evaluation(services: Services, ctx: JobContext, evaluation_id: int) -> None:
+    with services.db.transaction() as session:
+        evaluation = session.get(Evaluation, evaluation_id)
+        version = session.get(ModelVersion, evaluation.model_version_id)
+        settings = EstimatorSettings(tuple(evaluation.settings["methods"]), evaluation.settings["horizon"],
+                                     evaluation.settings["include_bad"])
+        flights = _flights_by_id(session, evaluation.flight_ids)
+        entries = cached_entries(session, version.id, settings.key, [f.sha256 for f in flights.values()])
+        model_json = services.blobs.read_bytes(version.weights_blob)
+        todo = {f.id: (f.name, f.sha256, f.flight_blob) for f in flights.values() if f.sha256 not in entries}
+        order = [flights[i].sha256 if i in flights else None for i in evaluation.flight_ids]
+        model_ref, version_id = evaluation.model_ref, version.id
+
+    total, done = len(evaluation.flight_ids), len(evaluation.flight_ids) - len(todo)
+    futures = {services.executor.submit(evaluate_task, model_json, services.blobs.read_bytes(blob),
+                                        settings.as_dict()): (flight_id, name, sha)
+               for flight_id, (name, sha, blob) in todo.items()}
+    failed = 0
+    for future in services.executor.as_completed(futures):
+        flight_id, name, sha = futures[future]
+        entry, error = _outcome(future, name)
+        failed += error is not None
+        store_result(services.db, sha, version_id, settings.key, flight_id, entry, error)
+        entries[sha] = entry
+        done += 1
+        ctx.progress(done / total)
+
+    report = assemble_report(model_ref, [entries[sha] if sha else _missing_entry(i)
+                                         for i, sha in zip(evaluation.flight_ids, order)])
+    with services.db.transaction() as session:
+        session.get(Evaluation, evaluation_id).report = report
+        ctx.complete(session, {"evaluation_id": evaluation_id, "flights": total, "computed": len(todo),
+                               "failed": failed})
+
+
+def _outcome(future, flight_name: str) -> tuple[dict, str | None]:
+    """A flight that fails is recorded with its reason and does not stop the others."""
+    try:
+        return future.result(), None
+    except Exception as err:
+        message = _message(err)
+        log.warning("evaluation of %s failed: %s", flight_name, message)
+        return {"flight": flight_name, "excluded": True, "reason": f"failed: {message}", "mse": {}, "groups": {},
+                "failed": True}, message
+
+
+def _missing_entry(flight_id: int) -> dict:
+    return {"flight": f"#{flight_id}", "excluded": True, "reason": "flight was deleted", "mse": {}, "groups": {}}
+
+
+def assemble_report(model_ref: str, entries: list[dict]) -> dict:
+    """The same shape and numbers as service.experiment.evaluate_flights."""
+    from estimators.evaluate import summarize
+
+    return {"model": model_ref, "flights": entries, **summarize(entries)}
+
+
+def cached_entries(session: Session, version_id: int, key: str, shas, include_failed: bool = False) -> dict:
+    query = select(Result).where(Result.model_version_id == version_id, Result.settings_key == key,
+                                 Result.flight_sha256.in_(list(shas)))
+    if not include_failed:  # an explicit request retries flights that failed before
+        query = query.where(Result.state == "succeeded")
+    return {row.flight_sha256: row.entry for row in session.scalars(query)}
+
+
+def store_result(db: Database, sha: str, version_id: int, key: str, flight_id: int, entry: dict,
+                 error: str | None) -> None:
+    state = "failed" if error else "succeeded"
+    for _ in range(3):  # two evaluations may store the same flight at once: the second updates
+        try:
+            with db.transaction() as session:
+                row = session.scalar(select(Result).where(Result.flight_sha256 == sha, Result.settings_key == key,
+                                                          Result.model_version_id == version_id))
+                if row is None:
+                    session.add(Result(flight_sha256=sha, model_version_id=version_id, settings_key=key,
+                                       flight_id=flight_id, state=state, entry=entry, error=error,
+                                       created_at=utcnow()))
+                else:
+                    row.state, row.entry, row.error, row.created_at = state, entry, error, utcnow()
+            return
+        except IntegrityError:
+            continue
+
+
+def _flight_ids(session: Session, flights, version: ModelVersion) -> list[int]:
+    if flights == "all-other":
+        query = select(Flight.id).order_by(Flight.id)
+        if version.training_flight_id is not None:
+            query = query.where(Flight.id != version.training_flight_id)
+        ids = list(session.scalars(query))
+        if not ids:
+            raise Invalid("no flights other than the model's training flight are stored")
+        return ids
+    ids = list(dict.fromkeys(int(i) for i in flights))
+    if not ids:
+        raise Invalid("flights: give at least one flight id, or \"all-other\"")
+    found = set(session.scalars(select(Flight.id).where(Flight.id.in_(ids))))
+    missing = [i for i in ids if i not in found]
+    if missing:
+        raise NotFound(f"flight(s) not found: {', '.join(map(str, missing))}")
+    return ids
+
+
+def _flights_by_id(session: Session, ids) -> dict[int, Flight]:
+    return {f.id: f for f in session.scalars(select(Flight).where(Flight.id.in_(list(ids))))}
+
+
+def _shas_in_order(session: Session, ids) -> list[str]:
+    flights = _flights_by_id(session, ids)
+    return [flights[i].sha256 for i in ids]
+
+
+def flights_without_results(session: Session, version_id: int, key: str) -> list[int]:
+    """Every stored flight with no result (succeeded or failed) for this model version and settings."""
+    done = select(Result.flight_sha256).where(Result.model_version_id == version_id, Result.settings_key == key)
+    return list(session.scalars(select(Flight.id).where(Flight.sha256.not_in(done)).order_by(Flight.id)))

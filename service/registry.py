@@ -1,0 +1,237 @@
+"""Model registry, after MLflow: registered model -> immutable integer versions -> movable aliases.
+
+A reference is "name:version", "name@alias" or "name" (its latest ready version).  A version number is
+reserved when training is requested; the row is usable only once its status is "ready".
+
+From Python or the CLI: `load_model_ref("quad@production")` -> HybridModel.
+"""
+from __future__ import annotations
+
+import importlib.metadata
+import json
+import os
+import platform
+import re
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+from models.knode import HybridModel
+from service.blobs import BlobStore
+from service.db import (Conflict, Database, Flight, Invalid, ModelAlias, ModelVersion, NotFound, RegisteredModel,
+                        Settings, utcnow)
+
+NAME = r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}"
+NAME_PATTERN = re.compile(rf"^{NAME}$")
+REF_PATTERN = re.compile(rf"^(?P<name>{NAME})(?::(?P<version>[0-9]{{1,9}})|@(?P<alias>{NAME}))?$")
+LIBRARIES = ("torch", "casadi", "filterpy", "numpy", "scipy", "torchdiffeq")
+
+
+@dataclass(frozen=True)
+class ModelRef:
+    name: str
+    version: int | None = None
+    alias: str | None = None
+
+    def __str__(self) -> str:
+        if self.version is not None:
+            return f"{self.name}:{self.version}"
+        return f"{self.name}@{self.alias}" if self.alias else self.name
+
+
+def parse_ref(text: str) -> ModelRef:
+    match = REF_PATTERN.fullmatch((text or "").strip())
+    if match is None:
+        raise Invalid(f"model reference {text!r} must be 'name:version', 'name@alias' or 'name' (names: "
+                      "1-100 letters, digits, '.', '_' or '-')")
+    version = match["version"]
+    return ModelRef(match["name"], int(version) if version else None, match["alias"])
+
+
+def is_registry_ref(text: str) -> bool:
+    """True for "name:version" / "name@alias" (what the CLI sends to the registry, not the file store)."""
+    return (":" in text or "@" in text) and REF_PATTERN.fullmatch(text.strip()) is not None
+
+
+def check_name(name: str, what: str = "model name") -> str:
+    if not NAME_PATTERN.fullmatch(name or ""):
+        raise Invalid(f"{what} {name!r} must be 1-100 letters, digits, '.', '_' or '-' (starting with a "
+                      "letter or digit)")
+    return name
+
+
+# -- lookups ------------------------------------------------------------------------------------------
+def get_version(session: Session, name: str, version: int) -> ModelVersion:
+    row = session.scalar(select(ModelVersion).where(ModelVersion.name == name, ModelVersion.version == version))
+    if row is None:
+        raise NotFound(f"model {name!r} has no version {version}")
+    return row
+
+
+def get_model(session: Session, name: str) -> RegisteredModel:
+    model = session.get(RegisteredModel, name)
+    if model is None:
+        raise NotFound(f"no registered model named {name!r}")
+    return model
+
+
+def resolve(session: Session, ref: str | ModelRef) -> ModelVersion:
+    """The ready ModelVersion a reference points to (NotFound / Conflict otherwise)."""
+    ref = parse_ref(ref) if isinstance(ref, str) else ref
+    get_model(session, ref.name)
+    version = ref.version
+    if ref.alias is not None:
+        alias = session.get(ModelAlias, (ref.name, ref.alias))
+        if alias is None:
+            raise NotFound(f"model {ref.name!r} has no alias {ref.alias!r}")
+        version = alias.version
+    if version is None:
+        version = session.scalar(select(func.max(ModelVersion.version))
+                                 .where(ModelVersion.name == ref.name, ModelVersion.status == "ready"))
+        if version is None:
+            raise NotFound(f"model {ref.name!r} has no ready version yet")
+    row = get_version(session, ref.name, version)
+    if row.status != "ready":
+        raise Conflict(f"{ref.name}:{version} is not usable: status {row.status!r}"
+                       + (f" ({row.error})" if row.error else ""))
+    return row
+
+
+def aliases_of(session: Session, name: str) -> dict[str, int]:
+    rows = session.scalars(select(ModelAlias).where(ModelAlias.name == name).order_by(ModelAlias.alias))
+    return {row.alias: row.version for row in rows}
+
+
+# -- writes -------------------------------------------------------------------------------------------
+def reserve_version(session: Session, name: str, *, job_id: int, flight: Flight, hyperparameters: dict,
+                    parent: str | None) -> ModelVersion:
+    """Take the next version number of `name` (status "training").  Two concurrent requests may pick the
+    same number: the unique (name, version) constraint rejects one, and the caller retries."""
+    check_name(name)
+    if session.get(RegisteredModel, name) is None:
+        session.add(RegisteredModel(name=name, created_at=utcnow()))
+        session.flush()
+    latest = session.scalar(select(func.max(ModelVersion.version)).where(ModelVersion.name == name)) or 0
+    row = ModelVersion(name=name, version=latest + 1, status="training", job_id=job_id,
+                       training_flight_id=flight.id, training_flight_sha256=flight.sha256,
+                       training_flight_name=flight.name, parent=parent, hyperparameters=hyperparameters,
+                       created_at=utcnow())
+    session.add(row)
+    session.flush()
+    return row
+
+
+def fail_versions_of_jobs(session: Session, job_ids: list[int], reason: str = "server restarted") -> None:
+    """A training job that died leaves its reserved version "failed" with the reason, never "training"."""
+    if not job_ids:
+        return
+    for row in session.scalars(select(ModelVersion).where(ModelVersion.job_id.in_(job_ids),
+                                                          ModelVersion.status == "training")):
+        row.status, row.error = "failed", reason
+
+
+def set_alias(session: Session, name: str, alias: str, version: int) -> ModelAlias:
+    check_name(alias, "alias")
+    get_model(session, name)
+    row = get_version(session, name, version)
+    if row.status != "ready":
+        raise Conflict(f"{name}:{version} has status {row.status!r}; only ready versions can carry an alias")
+    existing = session.get(ModelAlias, (name, alias))
+    if existing is None:
+        existing = ModelAlias(name=name, alias=alias, version=version, updated_at=utcnow())
+        session.add(existing)
+    else:
+        existing.version, existing.updated_at = version, utcnow()
+    return existing
+
+
+def delete_alias(session: Session, name: str, alias: str) -> None:
+    get_model(session, name)
+    existing = session.get(ModelAlias, (name, alias))
+    if existing is None:
+        raise NotFound(f"model {name!r} has no alias {alias!r}")
+    session.delete(existing)
+
+
+# -- weights ------------------------------------------------------------------------------------------
+def model_to_json(model: HybridModel) -> bytes:
+    """HybridModel's own file format (HybridModel.save), as bytes for the blob store."""
+    with tempfile.TemporaryDirectory() as directory:
+        path = Path(directory) / "model.json"
+        model.save(path)
+        return path.read_bytes()
+
+
+def model_from_json(data: bytes) -> HybridModel:
+    with tempfile.TemporaryDirectory() as directory:
+        path = Path(directory) / "model.json"
+        path.write_bytes(data)
+        return HybridModel.load(path)
+
+
+def prior_of(model_json: bytes) -> dict:
+    data = json.loads(model_json)
+    return {"system": data["system"], "kind": data["kind"], "prior_params": data["prior_params"]}
+
+
+def load_version(blobs: BlobStore, row: ModelVersion) -> HybridModel:
+    return model_from_json(blobs.read_bytes(row.weights_blob))
+
+
+def load_model_ref(ref: str, settings: Settings | None = None) -> HybridModel:
+    """The model a registry reference names, from the service's database and blob folder (LEARNEST_HOME,
+    LEARNEST_DATABASE_URL).  model.meta carries "name", "version" and "ref"."""
+    settings = settings or Settings.from_env()
+    database = Database(settings.url)
+    try:
+        database.migrate()
+        with database.transaction() as session:
+            row = resolve(session, ref)
+        model = load_version(BlobStore(settings.home / "blobs"), row)
+    finally:
+        database.dispose()
+    model.meta.update({"name": row.name, "version": row.version, "ref": f"{row.name}:{row.version}"})
+    return model
+
+
+# -- provenance ---------------------------------------------------------------------------------------
+def code_version() -> dict:
+    """Package version + git commit (read from .git without running git; LEARNEST_GIT_COMMIT overrides,
+    e.g. in a Docker image built without .git)."""
+    try:
+        version = importlib.metadata.version("learnest")
+    except importlib.metadata.PackageNotFoundError:
+        version = None
+    return {"package": "learnest", "version": version,
+            "git_commit": os.environ.get("LEARNEST_GIT_COMMIT") or _git_head(Path(__file__).resolve().parents[1])}
+
+
+def _git_head(repo: Path) -> str | None:
+    git = repo / ".git"
+    try:
+        head = (git / "HEAD").read_text().strip()
+        if not head.startswith("ref: "):
+            return head or None  # detached HEAD holds the commit itself
+        ref = head[5:]
+        loose = git / ref
+        if loose.is_file():
+            return loose.read_text().strip()
+        for line in (git / "packed-refs").read_text().splitlines():
+            if line.endswith(" " + ref):
+                return line.split()[0]
+    except OSError:
+        pass
+    return None
+
+
+def library_versions() -> dict:
+    versions = {"python": platform.python_version()}
+    for name in LIBRARIES:
+        try:
+            versions[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            versions[name] = None
+    return versions

@@ -1,0 +1,41 @@
+"""/jobs: the state, progress and result of long work (training, evaluations)."""
+from __future__ import annotations
+
+from typing import Literal
+
+from fastapi import APIRouter, Depends, Query
+from sqlalchemy import func, select
+
+from service.db import Database, Job, NotFound
+from service.routers.deps import get_db
+from service.schemas import JobOut
+
+router = APIRouter(prefix="/jobs", tags=["jobs"])
+
+
+def job_out(job: Job) -> dict:
+    return {"id": job.id, "kind": job.kind, "state": job.state, "progress": job.progress, "error": job.error,
+            "result": job.result, "created_at": job.created_at, "started_at": job.started_at,
+            "finished_at": job.finished_at}
+
+
+@router.get("/{job_id}", response_model=JobOut)
+def job_detail(job_id: int, db: Database = Depends(get_db)):
+    with db.transaction() as session:
+        job = session.get(Job, job_id)
+    if job is None:
+        raise NotFound(f"job {job_id} not found")
+    return job_out(job)
+
+
+@router.get("", response_model=dict)
+def list_jobs(state: Literal["queued", "running", "succeeded", "failed"] | None = None,
+              kind: str | None = None, limit: int = Query(50, ge=1, le=500), offset: int = Query(0, ge=0),
+              db: Database = Depends(get_db)):
+    """Newest first."""
+    conditions = [c for c in (Job.state == state if state else None, Job.kind == kind if kind else None)
+                  if c is not None]
+    with db.transaction() as session:
+        total = session.scalar(select(func.count(Job.id)).where(*conditions))
+        jobs = session.scalars(select(Job).where(*conditions).order_by(Job.id.desc()).limit(limit).offset(offset))
+        return {"items": [JobOut(**job_out(j)).model_dump(mode="json") for j in jobs], "total": total}

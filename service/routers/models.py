@@ -1,0 +1,108 @@
+"""/models: train a new version (a job), browse registered models and versions, move aliases, download
+weights.  MLflow's concepts: registered model -> immutable integer versions -> movable aliases."""
+from __future__ import annotations
+
+from fastapi import APIRouter, Depends, Response
+from sqlalchemy import func, select
+
+from service import registry
+from service.blobs import BlobStore
+from service.db import Database, ModelVersion, RegisteredModel
+from service.jobs import Services, start_training
+from service.routers.deps import get_blobs, get_db, get_services, require_api_key
+from service.schemas import AliasIn, AliasOut, ModelOut, ModelPage, TrainAccepted, TrainRequest, VersionOut
+
+router = APIRouter(prefix="/models", tags=["models"])
+
+
+def version_out(row: ModelVersion, aliases: dict[str, int], full: bool = True) -> dict:
+    out = {"name": row.name, "version": row.version, "status": row.status, "job_id": row.job_id,
+           "training_flight": {"id": row.training_flight_id, "sha256": row.training_flight_sha256,
+                               "name": row.training_flight_name},
+           "parent": row.parent, "hyperparameters": row.hyperparameters, "metrics": row.metrics,
+           "error": row.error, "aliases": sorted(a for a, v in aliases.items() if v == row.version),
+           "created_at": row.created_at, "ready_at": row.ready_at}
+    if full:
+        out.update({"prior": row.prior, "losses": row.losses, "training_seconds": row.training_seconds,
+                    "code_version": row.code_version, "library_versions": row.library_versions,
+                    "weights_sha256": row.weights_blob})
+    return out
+
+
+@router.post("", status_code=202, response_model=TrainAccepted, dependencies=[Depends(require_api_key)])
+def train_model(body: TrainRequest, response: Response, services: Services = Depends(get_services)):
+    """Train a KNODE on one stored flight (Algorithm 1, the Crazyflie settings of Sec. V-C unless
+    overridden) as a job; the next version number of `name` is reserved now and usable once ready."""
+    job, version = start_training(services, body.name, body.flight_id,
+                                  {"epochs": body.epochs, "hidden": body.hidden, "lr": body.lr},
+                                  parent=body.parent, include_bad=body.include_bad)
+    response.headers["Location"] = f"/jobs/{job.id}"
+    return {"job_id": job.id, "name": version.name, "version": version.version, "status": version.status}
+
+
+@router.get("", response_model=ModelPage)
+def list_models(db: Database = Depends(get_db)):
+    with db.transaction() as session:
+        models = session.scalars(select(RegisteredModel).order_by(RegisteredModel.name)).all()
+        items = [{"name": m.name, "created_at": m.created_at, "aliases": registry.aliases_of(session, m.name),
+                  "latest_version": _latest_ready(session, m.name),
+                  "version_count": session.scalar(select(func.count(ModelVersion.id))
+                                                  .where(ModelVersion.name == m.name))}
+                 for m in models]
+    return {"items": items, "total": len(items)}
+
+
+def _latest_ready(session, name: str) -> int | None:
+    return session.scalar(select(func.max(ModelVersion.version))
+                          .where(ModelVersion.name == name, ModelVersion.status == "ready"))
+
+
+@router.get("/{name}", response_model=ModelOut)
+def model_detail(name: str, db: Database = Depends(get_db)):
+    with db.transaction() as session:
+        model = registry.get_model(session, name)
+        aliases = registry.aliases_of(session, name)
+        versions = session.scalars(select(ModelVersion).where(ModelVersion.name == name)
+                                   .order_by(ModelVersion.version)).all()
+        return {"name": model.name, "created_at": model.created_at, "aliases": aliases,
+                "latest_version": _latest_ready(session, name),
+                "versions": [version_out(v, aliases, full=False) for v in versions]}
+
+
+@router.get("/{name}/versions/{version}", response_model=VersionOut)
+def version_detail(name: str, version: int, db: Database = Depends(get_db)):
+    with db.transaction() as session:
+        row = registry.get_version(session, name, version)
+        return version_out(row, registry.aliases_of(session, name))
+
+
+@router.get("/{name}/versions/{version}/weights", response_class=Response,
+            responses={200: {"content": {"application/json": {}},
+                             "description": "the HybridModel file (models.knode.HybridModel.load reads it)"}})
+def version_weights(name: str, version: int, db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
+    with db.transaction() as session:
+        row = registry.resolve(session, registry.ModelRef(name, version))
+    return Response(blobs.read_bytes(row.weights_blob), media_type="application/json",
+                    headers={"Content-Disposition": f'attachment; filename="{name}-{version}.json"'})
+
+
+@router.get("/{name}/aliases/{alias}", response_model=VersionOut)
+def alias_detail(name: str, alias: str, db: Database = Depends(get_db)):
+    """The version an alias points to (name@alias)."""
+    with db.transaction() as session:
+        row = registry.resolve(session, registry.ModelRef(name, alias=alias))
+        return version_out(row, registry.aliases_of(session, name))
+
+
+@router.put("/{name}/aliases/{alias}", response_model=AliasOut, dependencies=[Depends(require_api_key)])
+def put_alias(name: str, alias: str, body: AliasIn, db: Database = Depends(get_db)):
+    with db.transaction() as session:
+        row = registry.set_alias(session, name, alias, body.version)
+        return {"name": row.name, "alias": row.alias, "version": row.version}
+
+
+@router.delete("/{name}/aliases/{alias}", status_code=204, dependencies=[Depends(require_api_key)])
+def delete_alias(name: str, alias: str, db: Database = Depends(get_db)):
+    with db.transaction() as session:
+        registry.delete_alias(session, name, alias)
+    return Response(status_code=204)

@@ -1,0 +1,176 @@
+"""Request and response bodies of the HTTP API (pydantic), kept apart from the storage tables in db.py."""
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from estimators.evaluate import METHODS, parse_methods
+
+NAME_REGEX = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$"
+
+
+class Strict(BaseModel):
+    """Unknown fields are an error (a misspelt "epoch" must not silently train 150 epochs)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+
+# -- flights ------------------------------------------------------------------------------------------
+class Quality(BaseModel):
+    ok: bool
+    issues: list[str] = []
+
+
+class SourceFile(BaseModel):
+    name: str = Field(description="the client's file name (metadata only)")
+    sha256: str
+    size_bytes: int
+    role: str = Field(description='"log", or "sidecar" for a NanoBench *_metadata.yaml')
+
+
+class FlightOut(BaseModel):
+    id: int
+    name: str
+    adapter: str
+    vehicle: str | None
+    notes: str | None
+    duration_s: float
+    rate_hz: float
+    samples: int
+    quality: Quality
+    clock_offset_s: float | None
+    sha256: str = Field(description="sha256 over the sorted sha256s of the raw files: the dedupe key")
+    sources: list[SourceFile]
+    created_at: datetime
+
+
+class FlightDetail(FlightOut):
+    meta: dict[str, Any] = Field(description="the normalized flight's metadata (rates, streams, gaps, ...)")
+
+
+class FlightPage(BaseModel):
+    items: list[FlightOut]
+    total: int
+    limit: int
+    offset: int
+
+
+# -- models -------------------------------------------------------------------------------------------
+class TrainRequest(Strict):
+    name: str = Field(pattern=NAME_REGEX, description="registered model name")
+    flight_id: int = Field(ge=1)
+    epochs: int | None = Field(None, ge=1, le=100_000)
+    hidden: int | None = Field(None, ge=1, le=4096)
+    lr: float | None = Field(None, gt=0, le=1)
+    parent: str | None = Field(None, description='"name:version" or "name@alias" this version derives from')
+    include_bad: bool = Field(False, description="train even if the flight failed the quality checks")
+
+
+class TrainAccepted(BaseModel):
+    job_id: int
+    name: str
+    version: int
+    status: str
+
+
+class TrainingFlight(BaseModel):
+    id: int | None
+    sha256: str | None
+    name: str | None
+
+
+class VersionSummary(BaseModel):
+    name: str
+    version: int
+    status: Literal["training", "ready", "failed"]
+    job_id: int | None
+    training_flight: TrainingFlight
+    parent: str | None
+    hyperparameters: dict[str, Any]
+    metrics: dict[str, Any] | None
+    error: str | None
+    aliases: list[str]
+    created_at: datetime
+    ready_at: datetime | None
+
+
+class VersionOut(VersionSummary):
+    prior: dict[str, Any] | None
+    losses: list[float | None] | None = Field(description="training loss per epoch")
+    training_seconds: float | None
+    code_version: dict[str, Any] | None
+    library_versions: dict[str, Any] | None
+    weights_sha256: str | None
+
+
+class ModelOut(BaseModel):
+    name: str
+    created_at: datetime
+    aliases: dict[str, int]
+    latest_version: int | None = Field(description="highest ready version")
+    versions: list[VersionSummary]
+
+
+class ModelItem(BaseModel):
+    name: str
+    created_at: datetime
+    aliases: dict[str, int]
+    latest_version: int | None
+    version_count: int
+
+
+class ModelPage(BaseModel):
+    items: list[ModelItem]
+    total: int
+
+
+class AliasIn(Strict):
+    version: int = Field(ge=1)
+
+
+class AliasOut(BaseModel):
+    name: str
+    alias: str
+    version: int
+
+
+# -- jobs and evaluations -----------------------------------------------------------------------------
+class JobOut(BaseModel):
+    id: int
+    kind: str
+    state: Literal["queued", "running", "succeeded", "failed"]
+    progress: float
+    error: str | None
+    result: dict[str, Any] | None
+    created_at: datetime
+    started_at: datetime | None
+    finished_at: datetime | None
+
+
+class EvaluationRequest(Strict):
+    model: str = Field(description='"name:version" or "name@alias"')
+    flights: list[int] | Literal["all-other"] = Field(
+        description='flight ids, or "all-other": every stored flight except the model\'s training flight')
+    methods: list[str] = Field(default_factory=lambda: list(METHODS), description=f"any of {', '.join(METHODS)}")
+    horizon: int = Field(20, ge=1, le=500, description="MHE horizon N")
+    include_bad: bool = Field(False, description="also score flights that fail the quality checks")
+
+    @field_validator("methods")
+    @classmethod
+    def known_methods(cls, methods: list[str]) -> list[str]:
+        return parse_methods(",".join(methods))  # ValueError names the unknown ones
+
+
+class EvaluationAccepted(BaseModel):
+    job_id: int
+    evaluation_id: int
+    state: str
+
+
+class EvaluationPending(BaseModel):
+    evaluation_id: int
+    job_id: int
+    state: str
+    progress: float

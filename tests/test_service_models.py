@@ -1,0 +1,120 @@
+"""HTTP service, /models and /jobs: training as a job, immutable versions with provenance, aliases, loading
+"name:version" / "name@alias" from the API and from Python (service.registry.load_model_ref)."""
+import json
+import threading
+
+import numpy as np
+import pytest
+
+from service.registry import load_model_ref, parse_ref
+from test_service_support import (EPOCHS, data_dir, flight_csv, running_app, settings_for, train, upload,  # noqa: F401
+                                  wait_for_job)
+
+
+def test_training_registers_versions_and_aliases(tmp_path, data_dir):
+    home = tmp_path / "home"
+    with running_app(home) as client:
+        flight = upload(client, flight_csv(data_dir, 0)).json()
+        accepted = client.post("/models", json={"name": "quad", "flight_id": flight["id"], "epochs": EPOCHS,
+                                                "hidden": 8, "lr": 0.01})
+        assert accepted.status_code == 202, accepted.text
+        assert accepted.json()["version"] == 1 and accepted.json()["status"] == "training"
+        assert accepted.headers["location"] == f"/jobs/{accepted.json()['job_id']}"
+        job = wait_for_job(client, accepted.json()["job_id"])
+        assert job["state"] == "succeeded" and job["progress"] == 1.0 and job["kind"] == "training"
+        assert job["result"]["name"] == "quad" and job["result"]["version"] == 1 and job["error"] is None
+
+        v1 = client.get("/models/quad/versions/1").json()
+        assert v1["status"] == "ready"
+        assert v1["training_flight"] == {"id": flight["id"], "sha256": flight["sha256"], "name": flight["name"]}
+        assert v1["hyperparameters"]["epochs"] == EPOCHS and v1["hyperparameters"]["hidden"] == 8
+        assert v1["hyperparameters"]["lr"] == 0.01 and v1["hyperparameters"]["validation_fraction"] == 0.2
+        assert len(v1["losses"]) == EPOCHS and v1["training_seconds"] > 0
+        assert v1["prior"]["system"] == "quadrotor" and v1["parent"] is None
+        assert v1["code_version"]["package"] == "learnest" and v1["code_version"]["version"]
+        assert {"torch", "casadi", "filterpy", "numpy"} <= set(v1["library_versions"])
+        assert all(v1["library_versions"][k] for k in ("torch", "casadi", "filterpy", "numpy"))
+
+        # a derived version: next integer, parent recorded
+        second = train(client, "quad", flight["id"], parent="quad:1")
+        assert second["version"] == 2
+        assert client.get("/models/quad/versions/2").json()["parent"] == "quad:1"
+
+        # aliases
+        assert client.put("/models/quad/aliases/production", json={"version": 1}).json() == \
+            {"name": "quad", "alias": "production", "version": 1}
+        assert client.get("/models/quad/aliases/production").json()["version"] == 1
+        model = client.get("/models/quad").json()
+        assert model["aliases"] == {"production": 1} and model["latest_version"] == 2
+        assert [v["version"] for v in model["versions"]] == [1, 2] and model["versions"][0]["aliases"] == ["production"]
+        listing = client.get("/models").json()
+        assert listing["items"][0]["name"] == "quad" and listing["items"][0]["version_count"] == 2
+        assert client.put("/models/quad/aliases/production", json={"version": 7}).status_code == 404
+        assert client.put("/models/quad/aliases/staging", json={"version": 2}).status_code == 200
+        assert client.delete("/models/quad/aliases/staging").status_code == 204
+        assert client.get("/models/quad/aliases/staging").status_code == 404
+
+        weights = client.get("/models/quad/versions/1/weights")
+        assert weights.status_code == 200 and json.loads(weights.content)["format"] == "learnest-model/1"
+
+    # from Python (and the CLI): by alias and by version, through the registry
+    by_alias = load_model_ref("quad@production", settings_for(home))
+    by_version = load_model_ref("quad:1", settings_for(home))
+    latest = load_model_ref("quad", settings_for(home))
+    assert by_alias.meta["ref"] == by_version.meta["ref"] == "quad:1" and latest.meta["version"] == 2
+    stored = json.loads(weights.content)["residual"]["layers"]
+    for (w, b), (w_ref, b_ref) in zip(by_alias.residual.layers, stored):
+        np.testing.assert_array_equal(w, np.asarray(w_ref))
+        np.testing.assert_array_equal(b, np.asarray(b_ref))
+    assert by_alias.meta["training_flight"] == flight["name"]
+    with pytest.raises(LookupError, match="no alias 'staging'"):
+        load_model_ref("quad@staging", settings_for(home))
+
+
+def test_version_numbers_are_reserved_at_request_time(tmp_path, data_dir):
+    with running_app(tmp_path / "home") as client:
+        flight_id = upload(client, flight_csv(data_dir, 1)).json()["id"]
+        answers = []
+
+        def request():
+            answers.append(client.post("/models", json={"name": "race", "flight_id": flight_id, "epochs": 1}).json())
+        threads = [threading.Thread(target=request) for _ in range(4)]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+        assert sorted(a["version"] for a in answers) == [1, 2, 3, 4]
+        # while training, a version exists with its status but is not usable
+        pending = client.get("/models/race").json()["versions"]
+        assert {v["status"] for v in pending} <= {"training", "ready"}
+        for answer in answers:
+            assert wait_for_job(client, answer["job_id"])["state"] == "succeeded"
+        assert {v["status"] for v in client.get("/models/race").json()["versions"]} == {"ready"}
+
+
+def test_quality_failures_and_unready_versions_are_refused(tmp_path, data_dir):
+    table_path = data_dir / "hover.csv"
+    # a hover only 3 s long fails the quality checks (flying part < 5 s)
+    from test_service_support import flight_table
+    flight_table(2, seconds=6.0).to_csv(table_path, index=False, float_format="%.9f")
+    with running_app(tmp_path / "home") as client:
+        bad = upload(client, table_path).json()
+        assert bad["quality"]["ok"] is False
+        refused = client.post("/models", json={"name": "m", "flight_id": bad["id"], "epochs": 1})
+        assert refused.status_code == 422 and "quality" in refused.json()["detail"]
+        assert client.get("/flights", params={"quality": "bad"}).json()["total"] == 1
+
+        good = upload(client, flight_csv(data_dir, 3)).json()
+        accepted = client.post("/models", json={"name": "m", "flight_id": good["id"], "epochs": 1}).json()
+        # the reserved version cannot carry an alias or be evaluated before it is ready (or it already is)
+        alias = client.put("/models/m/aliases/production", json={"version": accepted["version"]})
+        assert alias.status_code in (200, 409)
+        wait_for_job(client, accepted["job_id"])
+
+
+def test_model_references_parse():
+    assert str(parse_ref("quad:3")) == "quad:3" and parse_ref("quad:3").version == 3
+    assert parse_ref("quad@production").alias == "production" and parse_ref("quad").version is None
+    for bad in ("", "quad:", "quad@", "../x:1", "a:b", "quad:1@x"):
+        with pytest.raises(ValueError):
+            parse_ref(bad)
