@@ -1,5 +1,6 @@
 # learnest image: CPU-only torch, the learnest CLI (and, once the service lands, its uvicorn app).
-# Build: docker build -t learnest .      Run: docker run --rm -v learnest-data:/data learnest reproduce --task cartpole --seeds 2
+# Build: docker build -t learnest .   Serve: docker run --rm -p 8000:8000 -v learnest-data:/data learnest
+# One-off command: docker run --rm -v learnest-data:/data learnest reproduce --task cartpole --seeds 2
 FROM python:3.11-slim
 
 WORKDIR /app
@@ -10,9 +11,11 @@ COPY ingest ./ingest
 COPY models ./models
 COPY estimators ./estimators
 COPY service ./service
-RUN pip install --no-cache-dir -c constraints.txt .
+RUN pip install --no-cache-dir -c constraints.txt ".[dask,postgres]"
 
 ENV LEARNEST_HOME=/data
 VOLUME /data
+EXPOSE 8000
 ENTRYPOINT ["learnest"]
-CMD ["--help"]
+# the HTTP service (uvicorn); any other learnest command can be given instead
+CMD ["serve", "--host", "0.0.0.0", "--port", "8000"]

@@ -7,7 +7,7 @@ residual(values, rows) -> (len(rows), k).  Effects enter through their parameter
 Selection is greedy forward: at each step every remaining candidate is fitted together with those
 already chosen (nonlinear least squares, scipy); the best by BIC_eff is kept only if it lowers BIC_eff
 by more than DELTA_BIC and lowers the blocked cross-validation error.  BIC_eff replaces the sample count
-by the effective number of independent samples of an AR(1) residual, N·(1-ρ)/(1+ρ): residuals of
+by the effective number of independent samples N/τ (τ the integrated autocorrelation time): residuals of
 smoothed or dynamic data are strongly autocorrelated, and counting every sample would claim effects
 that are not there.
 """
@@ -22,8 +22,7 @@ from scipy.optimize import least_squares
 from models.effects import Effect
 
 DELTA_BIC = 10.0          # "very strong" evidence on Kass & Raftery's scale
-MIN_CV_GAIN = 0.01        # the chosen effect must lower held-out error by at least 1 %
-CONFOUND_COSINE = 0.95    # parameter sensitivities this aligned cannot be told apart on the data
+MIN_CV_GAIN = 0.0         # and it must not raise the held-out (blocked CV) error: it has to transfer
 BOOTSTRAP_REPLICATES = 60
 
 
@@ -34,6 +33,7 @@ class ResidualProblem:
     residual: Callable                     # (values: dict, rows: ndarray) -> (len(rows), k)
     n_rows: int
     blocks: list = field(default_factory=list)   # held-out blocks (row index arrays): flights or time
+    frozen: dict = field(default_factory=dict)   # param name -> why the data cannot identify it (kept nominal)
 
     def __post_init__(self):
         if not self.blocks:
@@ -47,20 +47,34 @@ class Fit:
     residual: np.ndarray
     rss: float
     bic: float
-    rho: float
+    tau: float       # integrated autocorrelation time of the residual, samples
 
 
-def _lag1(residual: np.ndarray) -> float:
+def autocorrelation_time(residual: np.ndarray) -> float:
+    """Integrated autocorrelation time τ = 1 + 2 Σ ρ_k (samples), summed until ρ_k first drops below zero
+    (Geyer's initial positive sequence), averaged over the residual's columns."""
     r = residual - residual.mean(axis=0)
-    denom = (r[:-1] ** 2).sum()
-    return float(np.clip((r[1:] * r[:-1]).sum() / denom, 0.0, 0.999)) if denom > 0 else 0.0
+    n = len(r)
+    if n < 4:
+        return 1.0
+    spectrum = np.fft.rfft(r, n=2 * n, axis=0)
+    acf = np.fft.irfft(spectrum * np.conj(spectrum), axis=0)[:n]
+    taus = []
+    for column in acf.T:
+        if column[0] <= 0:
+            continue
+        rho = column / column[0]
+        negative = np.flatnonzero(rho < 0)
+        cut = negative[0] if negative.size else n
+        taus.append(1.0 + 2.0 * rho[1:cut].sum())
+    return float(np.clip(np.mean(taus), 1.0, n)) if taus else 1.0
 
 
 def bic_eff(residual: np.ndarray, n_params: int) -> tuple[float, float]:
-    n = residual.size
-    rho = _lag1(residual)
-    n_eff = max(n * (1 - rho) / (1 + rho), n_params + 2.0)
-    return n_eff * np.log(max(np.mean(residual**2), 1e-300)) + n_params * np.log(n_eff), rho
+    """BIC with the effective number of independent samples N/τ (see autocorrelation_time)."""
+    tau = autocorrelation_time(residual)
+    n_eff = max(residual.size / tau, n_params + 2.0)
+    return n_eff * np.log(max(np.mean(residual**2), 1e-300)) + n_params * np.log(n_eff), tau
 
 
 def _all_values(candidates, chosen_values=None):
@@ -74,7 +88,7 @@ def _all_values(candidates, chosen_values=None):
 def fit(problem: ResidualProblem, effects: list, rows=None, offset=None) -> Fit:
     """Least squares over the parameters of `effects`, every other candidate at its nominal value."""
     rows = np.arange(problem.n_rows) if rows is None else rows
-    params = [p for e in effects for p in e.params]
+    params = [p for e in effects for p in e.params if p.name not in problem.frozen]
     base = _all_values(problem.candidates)
 
     def residual_of(theta):
@@ -90,8 +104,8 @@ def fit(problem: ResidualProblem, effects: list, rows=None, offset=None) -> Fit:
     else:
         theta = np.zeros(0)
     r = residual_of(theta)
-    bic, rho = bic_eff(r, len(params))
-    return Fit(list(effects), {p.name: float(v) for p, v in zip(params, theta)}, r, float(np.sum(r**2)), bic, rho)
+    bic, tau = bic_eff(r, len(params))
+    return Fit(list(effects), {p.name: float(v) for p, v in zip(params, theta)}, r, float(np.sum(r**2)), bic, tau)
 
 
 def cv_error(problem: ResidualProblem, effects: list) -> float:
@@ -117,28 +131,23 @@ def _sensitivity(problem, values, params, step=1e-5):
     return np.column_stack(columns)
 
 
-def confounded_pairs(problem: ResidualProblem, chosen: list, values: dict) -> list[dict]:
-    """Chosen effects whose parameter sensitivities are (nearly) parallel to another candidate's."""
-    others = [e for e in problem.candidates if e not in chosen]
-    if not chosen or not others:
-        return []
+def confounded_pairs(problem: ResidualProblem, chosen: list, values: dict, near_ties: list) -> list[dict]:
+    """Chosen effects that another candidate explains about as well (BIC_eff within DELTA_BIC), with the
+    pair of parameters whose sensitivities are most nearly parallel as the reason."""
     allv = _all_values(problem.candidates, values)
-    sens = {e.id: _sensitivity(problem, allv, e.params) for e in chosen + others}
     out = []
-    for a in chosen:
-        for b in others:
-            A, B = sens[a.id], sens[b.id]
-            norms = np.linalg.norm(A, axis=0)[:, None] * np.linalg.norm(B, axis=0)[None, :]
-            with np.errstate(invalid="ignore", divide="ignore"):
-                cosine = np.abs(A.T @ B) / norms
-            cosine = np.nan_to_num(cosine)
-            i, j = np.unravel_index(np.argmax(cosine), cosine.shape)
-            if cosine[i, j] > CONFOUND_COSINE:
-                out.append({"effects": [a.id, b.id], "params": [a.params[i].name, b.params[j].name],
-                            "cosine": round(float(cosine[i, j]), 4),
-                            "note": f"on this data {a.params[i].name} and {b.params[j].name} change the residual "
-                                    f"almost identically: {a.id} and {b.id} cannot be told apart; "
-                                    f"a flight with more varied motion (thrust, speed) would separate them"})
+    for a, b, delta_bic in near_ties:
+        A, B = _sensitivity(problem, allv, a.params), _sensitivity(problem, allv, b.params)
+        norms = np.linalg.norm(A, axis=0)[:, None] * np.linalg.norm(B, axis=0)[None, :]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cosine = np.nan_to_num(np.abs(A.T @ B) / norms)
+        i, j = np.unravel_index(np.argmax(cosine), cosine.shape)
+        out.append({"effects": [a.id, b.id], "params": [a.params[i].name, b.params[j].name],
+                    "cosine": round(float(cosine[i, j]), 4), "delta_bic": delta_bic,
+                    "note": f"{b.id} explains the residual almost as well as {a.id} (BIC_eff within "
+                            f"{DELTA_BIC:g}); {a.params[i].name} and {b.params[j].name} act alike on this data "
+                            f"(cosine {cosine[i, j]:.3f}): they cannot be told apart here, and data with more "
+                            f"varied motion (thrust, speed) would separate them"})
     return out
 
 
@@ -149,7 +158,7 @@ def bootstrap_ci(problem: ResidualProblem, final: Fit, replicates: int = BOOTSTR
     rng = np.random.default_rng(seed)
     r = final.residual
     n = len(r)
-    block = int(np.clip(np.ceil((1 + final.rho) / (1 - final.rho)), 5, max(5, n // 5)))
+    block = int(np.clip(np.ceil(2 * final.tau), 5, max(5, n // 5)))
     samples = {name: [] for name in final.values}
     for _ in range(replicates):
         starts = rng.integers(0, n - block + 1, size=int(np.ceil(n / block)))
@@ -158,6 +167,15 @@ def bootstrap_ci(problem: ResidualProblem, final: Fit, replicates: int = BOOTSTR
         for name, value in refit.values.items():
             samples[name].append(value)
     return {name: [float(np.percentile(v, 2.5)), float(np.percentile(v, 97.5))] for name, v in samples.items()}
+
+
+def _determined(param, interval) -> bool:
+    """The data pin the parameter down: its interval excludes the prior's value or is narrow (< 5 % of
+    the physical range).  Otherwise the value is reported but should not be trusted."""
+    if interval is None:
+        return False
+    lo, hi = interval
+    return bool(not lo <= param.nominal <= hi or hi - lo < 0.05 * (param.upper - param.lower))
 
 
 def select_effects(problem: ResidualProblem, max_effects: int = 3) -> dict:
@@ -173,7 +191,7 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3) -> dict:
             break
         trials = sorted((fit(problem, chosen + [e]) for e in remaining), key=lambda f: f.bic)
         best = trials[0]
-        step = {"candidates": {t.effects[-1].id: round(t.bic - current.bic, 2) for t in trials}}
+        step = {"candidates": {t.effects[-1].id: round(float(t.bic - current.bic), 2) for t in trials}}
         if best.bic > current.bic - DELTA_BIC:
             step["stop"] = "no candidate lowers BIC_eff enough"
             trace.append(step)
@@ -184,7 +202,8 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3) -> dict:
             step["stop"] = f"{best.effects[-1].id} does not improve held-out error"
             trace.append(step)
             break
-        near_ties += [[best.effects[-1].id, t.effects[-1].id] for t in trials[1:] if t.bic - best.bic < 2.0]
+        near_ties += [(best.effects[-1], t.effects[-1], round(float(t.bic - best.bic), 2))
+                      for t in trials[1:] if t.bic - best.bic < DELTA_BIC]
         chosen.append(best.effects[-1])
         current, current_cv = best, cv
         step["chosen"] = best.effects[-1].id
@@ -195,15 +214,15 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3) -> dict:
     for effect in chosen:
         without = fit(problem, [e for e in chosen if e is not effect]) if len(chosen) > 1 else fit(problem, [])
         results.append({"id": effect.id, "target": effect.target,
-                        "params": {p.name: current.values[p.name] for p in effect.params},
+                        "params": {p.name: current.values.get(p.name, p.nominal) for p in effect.params},
+                        "held_nominal": {p.name: problem.frozen[p.name] for p in effect.params
+                                         if p.name in problem.frozen},
                         "units": {p.name: p.unit for p in effect.params},
                         "ci95": {p.name: intervals.get(p.name) for p in effect.params},
+                        "determined": {p.name: _determined(p, intervals.get(p.name)) for p in effect.params},
                         "explained_fraction": float((without.rss - current.rss) / baseline_rss),
-                        "equation": effect.equation(current.values)})
+                        "equation": effect.equation({**effect.nominal(), **current.values})})
     results.sort(key=lambda r: -r["explained_fraction"])
-    confounded = confounded_pairs(problem, chosen, current.values)
-    for pair in near_ties:
-        if not any(set(pair) == set(c["effects"]) for c in confounded):
-            confounded.append({"effects": pair, "note": "explain the residual equally well (BIC_eff within 2)"})
+    confounded = confounded_pairs(problem, chosen, current.values, near_ties)
     return {"channel": problem.name, "effects": results, "confounded": confounded, "values": current.values,
             "rss_before": baseline_rss, "rss_after": current.rss, "trace": trace, "fit": current}

@@ -16,7 +16,9 @@ import fcntl
 import hashlib
 import os
 import re
+import shutil
 import tempfile
+import time
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
@@ -36,6 +38,17 @@ class BlobStore:
         self.tmp.mkdir(parents=True, exist_ok=True)
         self._lock_path = self.root / ".lock"
         self._lock_path.touch(exist_ok=True)
+        self._remove_stale_temp_files()
+
+    def _remove_stale_temp_files(self, older_than_s: float = 3600.0) -> None:
+        """Left by a crash mid-upload; only old ones (another worker may be uploading right now)."""
+        cutoff = time.time() - older_than_s
+        for path in self.tmp.iterdir():
+            try:
+                if path.lstat().st_mtime < cutoff:
+                    shutil.rmtree(path) if path.is_dir() else path.unlink()
+            except OSError:
+                pass
 
     # -- addressing -------------------------------------------------------------------------------------
     def path(self, sha: str) -> Path:
@@ -95,6 +108,8 @@ class BlobStore:
         return removed
 
     def all_blobs(self) -> Iterator[str]:
+        """Every stored sha; `collect(all_blobs(), is_referenced)` removes the orphans a crash between a
+        blob write and its row commit can leave (safe while the server runs: see `writing`)."""
         for path in self.root.glob("??/*"):
             if path.is_file() and SHA256.fullmatch(path.parent.name + path.name):
                 yield path.parent.name + path.name

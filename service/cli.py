@@ -108,7 +108,7 @@ def _evaluate_new(args) -> int:
         print("another process (the server's scheduler) holds the scheduler lease: nothing done")
     elif not rounds:
         print(f"nothing new to evaluate for models with alias {args.alias!r}")
-    for r in rounds or []:
+    for r in [] if args.json else rounds or []:
         print(f"{r['model']}: evaluation {r['evaluation_id']} ({r['state']}) of {len(r['flights'])} new flight(s)"
               + (f" ({r['failed']} failed)" if r.get("failed") else ""))
     return 0
@@ -165,6 +165,32 @@ def _demo(args) -> int:
     if args.plot:
         mse_boxplot(report, args.plot)
         print(f"box plot: {args.plot}")
+    return 0
+
+
+def _diagnose(args) -> int:
+    from estimators.evaluate import parse_methods
+    from service.diagnose import diagnose_flights, diagnose_simulated, format_diagnosis
+    from service.plots import residual_before_after
+
+    methods = parse_methods(args.methods)
+    if args.simulate is not None or args.system in ("cartpole", "robot"):
+        if args.files:
+            raise ValueError("give flight files or --simulate, not both")
+        result = diagnose_simulated(args.system, args.simulate or "", seed=args.seed, methods=methods,
+                                    epochs=args.epochs)
+    else:
+        if not args.files:
+            raise ValueError("diagnose needs flight files (or --system cartpole|robot --simulate ...)")
+        model = None
+        if args.model:
+            from service.store import load_model
+            model = load_model(args.model)
+        result = diagnose_flights(_read(args.files, args.rate), knode=model, methods=methods,
+                                  epochs=args.epochs or 150)
+    if args.plot:
+        residual_before_after(result, args.plot)
+    print(json.dumps(result, indent=2, default=float) if args.json else format_diagnosis(result))
     return 0
 
 
@@ -234,6 +260,21 @@ def build_parser() -> argparse.ArgumentParser:
     srv.add_argument("--dask", metavar="URL", help="run jobs on a Dask scheduler (tcp://host:port, or 'local' "
                      "for a LocalCluster) instead of the local process pool")
     srv.set_defaults(func=_serve)
+
+    dia = sub.add_parser("diagnose", help="trace the residual to named physical effects, add them, "
+                                          "report the error before and after")
+    dia.add_argument("files", nargs="*", help="flight log files (Crazyflie)")
+    dia.add_argument("--system", default="quadrotor", choices=["quadrotor", "cartpole", "robot"])
+    dia.add_argument("--simulate", metavar="NAME=VALUE,...", default=None,
+                     help="simulated systems: the true system's parameters/effects (hidden from the diagnosis)")
+    dia.add_argument("--seed", type=int, default=0)
+    dia.add_argument("--model", help="a stored KNODE to analyse (default: train one on the fitting flight)")
+    dia.add_argument("--methods", default="ukf,knode-ukf", help="estimators scored before and after")
+    dia.add_argument("--epochs", type=int, default=None)
+    dia.add_argument("--json", action="store_true")
+    dia.add_argument("--plot", metavar="PNG", help="residual and MSE before/after")
+    dia.add_argument("--rate", type=float, default=100.0)
+    dia.set_defaults(func=_diagnose)
 
     demo = sub.add_parser("demo", help="ingest, train on one flight and evaluate the others, for a folder")
     demo.add_argument("folder")

@@ -12,7 +12,7 @@ import math
 import os
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Iterator
@@ -57,9 +57,6 @@ class Settings:
         if env.get("LEARNEST_POOL_WORKERS"):
             values["pool_workers"] = int(env["LEARNEST_POOL_WORKERS"])
         return cls(**{**values, **overrides})
-
-    def with_(self, **changes) -> "Settings":
-        return replace(self, **changes)
 
     @property
     def url(self) -> str:

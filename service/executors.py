@@ -69,7 +69,11 @@ class LocalPoolExecutor(Executor):
         return concurrent.futures.as_completed(list(futures))
 
     def shutdown(self) -> None:
+        # the jobs still running are already marked failed: stop their processes instead of waiting for them
+        workers = list(getattr(self._pool, "_processes", {}).values())
         self._pool.shutdown(wait=False, cancel_futures=True)
+        for process in workers:
+            process.terminate()
 
     def describe(self) -> dict:
         return {"name": self.name, "workers": self.max_workers}

@@ -21,7 +21,7 @@ import threading
 import time
 import uuid
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 from sqlalchemy import select, update
@@ -83,8 +83,8 @@ class JobRunner:
         self._threads = ThreadPoolExecutor(threads, thread_name_prefix="learnest-job")
         self._stop = threading.Event()
         self._heartbeat: threading.Thread | None = None
-        # called in the sweep's transaction with the ids of the jobs it failed
-        self.on_stale: list[Callable[[Session, list[int]], None]] = []
+        # called in the sweep's transaction with the ids of the jobs it failed and the reason
+        self.on_stale: list[Callable[[Session, list[int], str], None]] = []
 
     @property
     def lease_name(self) -> str:
@@ -108,11 +108,11 @@ class JobRunner:
     def shutdown(self) -> None:
         self._stop.set()
         self._threads.shutdown(wait=False, cancel_futures=True)
+        reason = "server stopped before the job finished"
         with self.db.transaction() as session:
-            ids = self._fail(session, select(Job).where(Job.owner == self.owner, Job.state.in_(ACTIVE)),
-                             "server stopped before the job finished")
+            ids = self._fail(session, select(Job).where(Job.owner == self.owner, Job.state.in_(ACTIVE)), reason)
             for hook in self.on_stale:
-                hook(session, ids)
+                hook(session, ids, reason)
         release_lease(self.db, self.lease_name, self.owner)
 
     # -- state changes ------------------------------------------------------------------------------------
@@ -182,7 +182,7 @@ class JobRunner:
                 job.state, job.error, job.finished_at = "failed", reason, utcnow()
             ids = [job.id for job in stale]
             for hook in self.on_stale:
-                hook(session, ids)
+                hook(session, ids, reason)
         if ids:
             log.warning("marked %d job(s) left by a stopped server as failed: %s", len(ids), ids)
         return ids
@@ -225,7 +225,6 @@ class Services:
     executor: Executor
     runner: JobRunner
     owns_executor: bool = True
-    extra: dict = field(default_factory=dict)
 
     def close(self) -> None:
         self.runner.shutdown()
@@ -269,19 +268,20 @@ def report_progress(target: tuple[str, int] | None, fraction: float) -> None:
 
 def train_task(flight_bytes: bytes, config: dict, progress_target=None, meta: dict | None = None) -> dict:
     """Algorithm 1 on one flight (service.experiment.train_on_flight); the model comes back as JSON."""
-    from ingest.flight import Flight as CanonicalFlight
     from models.training import TrainingConfig
     from service.experiment import train_on_flight
 
     init_worker()
-    last = [0.0]
+    last, parent = [0.0], os.getppid()
 
     def on_epoch(epoch: int, _loss: float) -> None:
+        if os.getppid() != parent:  # the server died: an orphaned worker must not train on for hours
+            os._exit(1)             # (and nobody is left to read an exception)
         if time.monotonic() - last[0] >= PROGRESS_EVERY_S:
             last[0] = time.monotonic()
             report_progress(progress_target, 0.99 * (epoch + 1) / config["epochs"])
 
-    result = train_on_flight(CanonicalFlight.from_bytes(flight_bytes), TrainingConfig(**config), progress=on_epoch)
+    result = train_on_flight(_flight_from_bytes(flight_bytes), TrainingConfig(**config), progress=on_epoch)
     model = result["model"]
     model.meta.update(meta or {})
     return {"model_json": registry.model_to_json(model), "losses": [float(x) for x in result["losses"]],
@@ -290,14 +290,22 @@ def train_task(flight_bytes: bytes, config: dict, progress_target=None, meta: di
             "metrics": {key: model.meta.get(key) for key in ("final_loss", "best_epoch", "best_validation_loss")}}
 
 
+def _flight_from_bytes(data: bytes):
+    from ingest.flight import Flight as CanonicalFlight
+
+    try:
+        return CanonicalFlight.from_bytes(data)
+    except (OSError, ValueError, KeyError) as err:
+        raise ValueError(f"the stored normalized flight is unreadable ({type(err).__name__})") from None
+
+
 def evaluate_task(model_json: bytes, flight_bytes: bytes, settings: dict) -> dict:
     """One flight's entry of service.experiment.evaluate_flights' report."""
-    from ingest.flight import Flight as CanonicalFlight
     from service.experiment import evaluate_flights
 
     init_worker()
     model = registry.model_from_json(model_json)
-    flight = CanonicalFlight.from_bytes(flight_bytes)
+    flight = _flight_from_bytes(flight_bytes)
     report = evaluate_flights(model, [flight], list(settings["methods"]), include_bad=settings["include_bad"],
                               horizon=settings["horizon"])
     return report["flights"][0]
@@ -443,11 +451,16 @@ def run_evaluation(services: Services, ctx: JobContext, evaluation_id: int) -> N
         order = [flights[i].sha256 if i in flights else None for i in evaluation.flight_ids]
         model_ref, version_id = evaluation.model_ref, version.id
 
-    total, done = len(evaluation.flight_ids), len(evaluation.flight_ids) - len(todo)
-    futures = {services.executor.submit(evaluate_task, model_json, services.blobs.read_bytes(blob),
-                                        settings.as_dict()): (flight_id, name, sha)
-               for flight_id, (name, sha, blob) in todo.items()}
-    failed = 0
+    total, done, failed = len(evaluation.flight_ids), len(evaluation.flight_ids) - len(todo), 0
+    futures = {}
+    for flight_id, (name, sha, blob) in todo.items():
+        try:
+            flight_bytes = services.blobs.read_bytes(blob)
+        except FileNotFoundError:  # deleted while this job was starting
+            entries[sha], done = _missing_entry(flight_id), done + 1
+            continue
+        futures[services.executor.submit(evaluate_task, model_json, flight_bytes, settings.as_dict())] = \
+            (flight_id, name, sha)
     for future in services.executor.as_completed(futures):
         flight_id, name, sha = futures[future]
         entry, error = _outcome(future, name)

@@ -5,6 +5,7 @@ import matplotlib
 
 matplotlib.use("Agg")  # files only, no display
 import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
 
 ORDER = ("mhe", "knode-mhe", "ukf", "knode-ukf")
 
@@ -21,4 +22,33 @@ def mse_boxplot(report: dict, path, title: str | None = None) -> None:
     ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def residual_before_after(diagnosis: dict, path) -> None:
+    """Bar chart of the residual RMS per channel before and after the effects were added, and the
+    median MSE of each estimator before/after."""
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    channels = diagnosis.get("channels", {})
+    names = list(channels)
+    before = [np.sqrt(channels[c]["rss_before"]) for c in names]
+    after = [np.sqrt(channels[c]["rss_after"]) for c in names]
+    x = np.arange(len(names))
+    axes[0].bar(x - 0.2, before, 0.4, label="before")
+    axes[0].bar(x + 0.2, after, 0.4, label="after")
+    axes[0].set_xticks(x, names)
+    axes[0].set_ylabel("√RSS of the whitened residual")
+    axes[0].set_title("residual, before and after the effects")
+    axes[0].legend()
+    methods = list(diagnosis.get("before", {}))
+    x = np.arange(len(methods))
+    axes[1].bar(x - 0.2, [diagnosis["before"][m] for m in methods], 0.4, label="original model")
+    axes[1].bar(x + 0.2, [diagnosis["after"][m] for m in methods], 0.4, label="with effects")
+    axes[1].set_xticks(x, [m.upper() for m in methods])
+    axes[1].set_ylabel("MSE (held-out data)")
+    axes[1].set_yscale("log")
+    axes[1].set_title(", ".join(e["id"] for e in diagnosis["effects"]) or "no effect found")
+    axes[1].legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -124,7 +124,7 @@ def reserve_version(session: Session, name: str, *, job_id: int, flight: Flight,
     return row
 
 
-def fail_versions_of_jobs(session: Session, job_ids: list[int], reason: str = "server restarted") -> None:
+def fail_versions_of_jobs(session: Session, job_ids: list[int], reason: str) -> None:
     """A training job that died leaves its reserved version "failed" with the reason, never "training"."""
     if not job_ids:
         return

@@ -256,3 +256,24 @@ def test_openapi_docs_are_served(tmp_path):
         paths = client.get("/openapi.json").json()["paths"]
         assert {"/flights", "/flights/{flight_id}/data", "/models", "/jobs/{job_id}", "/evaluations",
                 "/evaluations/{evaluation_id}/report.html", "/models/{name}/aliases/{alias}"} <= set(paths)
+
+
+SAMPLE_LOGS = Path(__file__).resolve().parents[1] / "sample_logs"
+
+
+@pytest.mark.skipif(not (SAMPLE_LOGS / "pair_circle_vicon.csv").is_file(), reason="sample_logs/ not present")
+def test_every_sample_log_format_uploads(tmp_path):
+    pair = [SAMPLE_LOGS / "pair_circle_vicon.csv", SAMPLE_LOGS / "pair_circle_cfclient.csv"]
+    singles = [p for p in sorted(SAMPLE_LOGS.iterdir()) if p.is_file() and p not in pair and p.suffix != ".md"]
+    with running_app(tmp_path / "home") as client:
+        lone = upload(client, pair[0])
+        assert lone.status_code == 422 and lone.json()["detail"].startswith("pair_circle_vicon.csv: ")
+        both = upload(client, *pair)
+        assert both.status_code == 201 and both.json()["adapter"] == "vicon+cfclient"
+        assert both.json()["clock_offset_s"] is not None and len(both.json()["sources"]) == 2
+        adapters = {upload(client, path).json()["adapter"] for path in singles}
+        assert {"nanobench", "usd"} <= adapters and any(a.startswith("mcap") for a in adapters)
+        assert client.get("/flights").json()["total"] == len(singles) + 1
+        raw = client.get(f"/flights/{both.json()['id']}/raw")
+        with zipfile.ZipFile(io.BytesIO(raw.content)) as bundle:
+            assert sorted(bundle.namelist()) == sorted(p.name for p in pair)

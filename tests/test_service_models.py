@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from service.registry import load_model_ref, parse_ref
-from test_service_support import (EPOCHS, data_dir, flight_csv, running_app, settings_for, train, upload,  # noqa: F401
-                                  wait_for_job)
+from test_service_support import (EPOCHS, data_dir, flight_csv, flight_table, running_app, settings_for,  # noqa: F401
+                                  train, upload, wait_for_job)
 
 
 def test_training_registers_versions_and_aliases(tmp_path, data_dir):
@@ -92,10 +92,9 @@ def test_version_numbers_are_reserved_at_request_time(tmp_path, data_dir):
         assert {v["status"] for v in client.get("/models/race").json()["versions"]} == {"ready"}
 
 
-def test_quality_failures_and_unready_versions_are_refused(tmp_path, data_dir):
+def test_training_on_a_flight_that_failed_quality_needs_include_bad(tmp_path, data_dir):
     table_path = data_dir / "hover.csv"
-    # a hover only 3 s long fails the quality checks (flying part < 5 s)
-    from test_service_support import flight_table
+    # a 6 s recording has a flying part < 5 s: it fails the quality checks
     flight_table(2, seconds=6.0).to_csv(table_path, index=False, float_format="%.9f")
     with running_app(tmp_path / "home") as client:
         bad = upload(client, table_path).json()
@@ -104,12 +103,9 @@ def test_quality_failures_and_unready_versions_are_refused(tmp_path, data_dir):
         assert refused.status_code == 422 and "quality" in refused.json()["detail"]
         assert client.get("/flights", params={"quality": "bad"}).json()["total"] == 1
 
-        good = upload(client, flight_csv(data_dir, 3)).json()
-        accepted = client.post("/models", json={"name": "m", "flight_id": good["id"], "epochs": 1}).json()
-        # the reserved version cannot carry an alias or be evaluated before it is ready (or it already is)
-        alias = client.put("/models/m/aliases/production", json={"version": accepted["version"]})
-        assert alias.status_code in (200, 409)
-        wait_for_job(client, accepted["job_id"])
+        forced = client.post("/models", json={"name": "m", "flight_id": bad["id"], "epochs": 1, "include_bad": True})
+        assert forced.status_code == 202
+        assert wait_for_job(client, forced.json()["job_id"])["state"] == "succeeded"
 
 
 def test_model_references_parse():

@@ -2,7 +2,6 @@
 `alembic` command line (alembic.ini at the repository root) uses LEARNEST_DATABASE_URL or the SQLite file
 under LEARNEST_HOME, exactly like the app."""
 from alembic import context
-from sqlalchemy import create_engine
 
 from service.db import Base, Settings
 

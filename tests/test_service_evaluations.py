@@ -1,0 +1,173 @@
+"""HTTP service, /evaluations: batch evaluation as a job equals service.experiment.evaluate_flights, the
+results cache, the HTML report, the scheduler (and `learnest evaluate --new`), and the Dask executor."""
+import dataclasses
+import json
+
+import pytest
+from sqlalchemy import delete, select
+
+from ingest.flight import Flight as CanonicalFlight
+from service.blobs import BlobStore
+from service.cli import main as cli_main
+from service.db import Database, Flight, Result
+from service.executors import DaskExecutor
+from service.experiment import evaluate_flights
+from service.jobs import EstimatorSettings, JobRunner
+from service.registry import load_model_ref
+from service.scheduler import Scheduler
+from test_service_support import (FAST_METHODS, evaluate, flight_csv, running_app, settings_for, train, upload,
+                                  without_timing)
+
+
+@pytest.fixture(scope="module")
+def registry_home(tmp_path_factory):
+    """Three clean flights, quad:1 trained on the first one and aliased production."""
+    root = tmp_path_factory.mktemp("evaluations")
+    home, logs = root / "home", root / "logs"
+    logs.mkdir()
+    with running_app(home) as client:
+        ids = [upload(client, flight_csv(logs, seed)).json()["id"] for seed in (0, 1, 2)]
+        train(client, "quad", ids[0])
+        assert client.put("/models/quad/aliases/production", json={"version": 1}).status_code == 200
+    return {"home": home, "logs": logs, "ids": ids, "training": ids[0]}
+
+
+def stored_flights(home, ids) -> list[CanonicalFlight]:
+    database, blobs = Database(settings_for(home).url), BlobStore(home / "blobs")
+    with database.transaction() as session:
+        rows = {row.id: row.flight_blob for row in session.scalars(select(Flight).where(Flight.id.in_(ids)))}
+    database.dispose()
+    return [CanonicalFlight.from_bytes(blobs.read_bytes(rows[i])) for i in ids]
+
+
+def assert_same_numbers(report: dict, expected: dict) -> None:
+    assert [f["flight"] for f in report["flights"]] == [f["flight"] for f in expected["flights"]]
+    for got, want in zip(report["flights"], expected["flights"]):
+        assert got["excluded"] == want["excluded"] and got["reason"] == want["reason"]
+        assert got["mse"] == pytest.approx(want["mse"], rel=1e-9, abs=1e-15)
+        for method in want["groups"]:
+            assert got["groups"][method] == pytest.approx(want["groups"][method], rel=1e-9, abs=1e-15)
+    assert report["median"] == pytest.approx(expected["median"], rel=1e-9)
+    assert report["improvement_pct"] == pytest.approx(expected["improvement_pct"], rel=1e-6, abs=1e-9)
+    assert report["flights_scored"] == expected["flights_scored"]
+
+
+def test_report_equals_evaluate_flights_and_is_cached(registry_home):
+    home, ids = registry_home["home"], registry_home["ids"]
+    with running_app(home) as client:
+        accepted, report = evaluate(client, "quad@production", "all-other")
+        assert set(report) >= {"model", "flights", "median", "improvement_pct"}
+        assert report["model"] == "quad:1" and len(report["flights"]) == 2
+        assert set(report["flights"][0]) >= {"flight", "excluded", "reason", "mse", "groups"}
+
+        model = load_model_ref("quad:1", settings_for(home))
+        direct = json.loads(json.dumps(evaluate_flights(model, stored_flights(home, ids[1:]), FAST_METHODS)))
+        assert_same_numbers(report, direct)
+
+        # asking again: answered from the results table, the job is done in the 202 itself
+        again = client.post("/evaluations", json={"model": "quad:1", "flights": ids[1:], "methods": FAST_METHODS})
+        assert again.status_code == 202 and again.json()["state"] == "succeeded"
+        cached = client.get(f"/evaluations/{again.json()['evaluation_id']}").json()
+        assert cached["flights"] == report["flights"]           # same entries, ms_per_step included
+        assert client.get(f"/jobs/{again.json()['job_id']}").json()["result"]["computed"] == 0
+
+        # the training flight is never scored on its own data; only uncached flights are computed
+        _, with_training = evaluate(client, "quad:1", ids, methods=FAST_METHODS)
+        assert with_training["flights"][0]["excluded"] is True
+        assert with_training["flights"][0]["reason"].startswith("training flight")
+        assert with_training["flights"][1:] == report["flights"]
+
+        html = client.get(f"/evaluations/{accepted['evaluation_id']}/report.html")
+        assert html.status_code == 200 and html.headers["content-type"].startswith("text/html")
+        assert "data:image/png;base64," in html.text and report["flights"][0]["flight"] in html.text
+
+
+def test_mhe_numbers_equal_evaluate_flights(registry_home):
+    home, flight_id = registry_home["home"], registry_home["ids"][1]
+    methods = ["mhe", "knode-mhe"]
+    with running_app(home) as client:
+        _, report = evaluate(client, "quad:1", [flight_id], methods=methods, horizon=10)
+    model = load_model_ref("quad:1", settings_for(home))
+    direct = evaluate_flights(model, stored_flights(home, [flight_id]), methods, horizon=10)
+    assert_same_numbers(report, json.loads(json.dumps(direct)))
+
+
+def test_dask_executor_gives_the_local_pool_numbers(registry_home):
+    home, ids = registry_home["home"], registry_home["ids"]
+    request = {"model": "quad:1", "flights": ids[1:], "methods": FAST_METHODS, "horizon": 7}
+    with running_app(home) as client:
+        local = evaluate(client, request["model"], request["flights"], horizon=7)[1]
+    database = Database(settings_for(home).url)
+    with database.transaction() as session:  # forget the cache so Dask really computes
+        session.execute(delete(Result))
+    database.dispose()
+    executor = DaskExecutor(processes=False, n_workers=1, threads_per_worker=1)
+    try:
+        with running_app(home, executor=executor) as client:
+            assert client.get("/health").json()["executor"]["name"] == "dask"
+            accepted = client.post("/evaluations", json=request).json()
+            assert accepted["state"] == "queued"   # computed, not cached
+            dask_report = evaluate(client, request["model"], request["flights"], horizon=7)[1]
+    finally:
+        executor.shutdown()
+    assert without_timing(dask_report) == without_timing(local)
+
+
+def test_scheduler_evaluates_new_flights_once(registry_home, monkeypatch, capsys):
+    home, logs = registry_home["home"], registry_home["logs"]
+    fast = EstimatorSettings(tuple(FAST_METHODS))
+    with running_app(home) as client:
+        services = client.app.state.services
+        scheduler = Scheduler(services, interval_s=3600, alias="production", settings=fast)
+        first = scheduler.tick()
+        assert len(first) == 1 and first[0]["model"] == "quad:1" and first[0]["state"] == "succeeded"
+        assert first[0]["flights"] == registry_home["ids"]            # nothing had these settings yet
+        assert scheduler.tick() == []                                   # ... and now everything has
+
+        # only one process schedules: another owner cannot take the lease while it is held
+        rival = Scheduler(dataclasses.replace(services, runner=JobRunner(services.db)), 3600, settings=fast)
+        assert rival.tick() is None
+
+        # two new flights, one of which cannot be evaluated (its stored flight is corrupt)
+        new_ok = upload(client, flight_csv(logs, 7)).json()
+        broken = upload(client, flight_csv(logs, 8)).json()
+        blobs = services.blobs
+        database = services.db
+        with database.transaction() as session:
+            blob = session.get(Flight, broken["id"]).flight_blob
+        blobs.path(blob).write_bytes(b"not a flight any more")
+        second = scheduler.tick()
+        assert len(second) == 1 and second[0]["flights"] == [new_ok["id"], broken["id"]]
+        assert second[0]["state"] == "succeeded" and second[0]["failed"] == 1
+        report = client.get(f"/evaluations/{second[0]['evaluation_id']}").json()
+        ok_entry, failed_entry = report["flights"]
+        assert ok_entry["excluded"] is False and set(ok_entry["mse"]) == set(FAST_METHODS)
+        assert failed_entry["excluded"] is True and failed_entry["reason"].startswith("failed: ")
+        with database.transaction() as session:
+            states = {r.flight_id: r.state for r in session.scalars(select(Result))}
+        assert states[new_ok["id"]] == "succeeded" and states[broken["id"]] == "failed"
+        assert scheduler.tick() == []                  # a recorded failure is not retried every interval
+        scheduler.stop()
+
+        # `learnest evaluate --new` (cron) does one round the same way
+        assert client.delete(f"/flights/{broken['id']}").status_code == 204
+        newest = upload(client, flight_csv(logs, 9)).json()
+    monkeypatch.setenv("LEARNEST_HOME", str(home))
+    monkeypatch.setenv("LEARNEST_POOL_WORKERS", "1")
+    monkeypatch.delenv("LEARNEST_DATABASE_URL", raising=False)
+    capsys.readouterr()
+    assert cli_main(["evaluate", "--new", "--methods", ",".join(FAST_METHODS), "--json"]) == 0
+    rounds = json.loads(capsys.readouterr().out)["evaluations"]
+    assert [(r["model"], r["flights"], r["state"]) for r in rounds] == [("quad:1", [newest["id"]], "succeeded")]
+
+
+def test_cli_evaluate_new_output(registry_home, monkeypatch, capsys):
+    """Runs after the scheduler test: the CLI already evaluated the newest flight, so nothing is left."""
+    monkeypatch.setenv("LEARNEST_HOME", str(registry_home["home"]))
+    monkeypatch.delenv("LEARNEST_DATABASE_URL", raising=False)
+    assert cli_main(["evaluate", "--new", "--methods", ",".join(FAST_METHODS), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out == {"alias": "production", "busy": False, "evaluations": []}
+    assert cli_main(["evaluate", "--new", "--alias", "nobody-has-this", "--methods", "ukf"]) == 0
+    assert "nothing new" in capsys.readouterr().out
+    assert cli_main(["evaluate", "--model", "x"]) == 2   # the old form still needs files
