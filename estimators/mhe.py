@@ -41,11 +41,14 @@ class MHE:
     """
 
     def __init__(self, model, dt, Q, R, P0, horizon: int = 20, arrival: str = "ekf",
-                 warm_start: bool = True, ipopt_options: dict | None = None):
+                 warm_start: bool = True, hessian: str = "cost", ipopt_options: dict | None = None):
         if int(horizon) != horizon or horizon < 1:
             raise ValueError(f"horizon must be a positive integer, got {horizon}")
         if arrival not in ("fixed", "ekf"):
             raise ValueError(f"arrival must be 'fixed' or 'ekf', got {arrival!r}")
+        if hessian not in ("cost", "exact"):
+            raise ValueError(f"hessian must be 'cost' or 'exact', got {hessian!r}")
+        self.hessian = hessian
         self.model, self.dt, self.horizon = model, check_dt(dt), int(horizon)
         self.n, self.p, self.m = model.n, model.system.p, model.system.m
         self.Q = check_covariance("Q", Q, self.n)
@@ -90,9 +93,24 @@ class MHE:
             cost += ca.sum2(ca.sum1(W * (Q_inv @ W)))
             predicted = self.step_fn.map(length - 1)(X[:, :-1], U[:, :-1])
             constraints = [ca.vec(X[:, 1:] - predicted - W)]
-        nlp = {"x": ca.vertcat(ca.vec(X), ca.vec(W)), "p": ca.vertcat(ca.vec(Y), ca.vec(U), x_bar, ca.vec(P_inv)),
-               "f": cost, "g": ca.vertcat(*constraints) if constraints else ca.SX(0, 1)}
-        return _Window(ca.nlpsol(f"mhe_{length}", "ipopt", nlp, self.options), length)
+        z = ca.vertcat(ca.vec(X), ca.vec(W))
+        p = ca.vertcat(ca.vec(Y), ca.vec(U), x_bar, ca.vec(P_inv))
+        g = ca.vertcat(*constraints) if constraints else ca.SX(0, 1)
+        options = dict(self.options)
+        if self.hessian == "cost":
+            options["hess_lag"] = self._cost_hessian(z, p, cost, g.shape[0])
+        return _Window(ca.nlpsol(f"mhe_{length}", "ipopt", {"x": z, "p": p, "f": cost, "g": g}, options), length)
+
+    @staticmethod
+    def _cost_hessian(z, p, cost, n_constraints):
+        """The Lagrangian's Hessian without the dynamics' curvature (λᵀ∇²g): a Gauss-Newton-type choice.
+        The cost is a sum of squares, so this is positive semi-definite; for a KNODE it avoids second
+        derivatives of the network through RK4, which dominate the exact Hessian's cost.  The optimum is
+        the same; only IPOPT's path to it changes."""
+        lam_f, lam_g = ca.SX.sym("lam_f"), ca.SX.sym("lam_g", n_constraints)
+        hess = ca.triu(lam_f * ca.hessian(cost, z)[0])
+        return ca.Function("hess_lag", [z, p, lam_f, lam_g], [hess],
+                           ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
 
     # -- estimation ---------------------------------------------------------------------------------
     def run(self, y, u, x0, progress=None) -> np.ndarray:

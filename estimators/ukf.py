@@ -25,11 +25,14 @@ def robust_sqrt(P: np.ndarray) -> np.ndarray:
 
 
 def _make_spd(P: np.ndarray, floor: float = 1e-15) -> np.ndarray:
+    """Symmetrise; if a Cholesky factorisation fails, lift the spectrum just above zero."""
     P = 0.5 * (P + P.T)
-    eigval = np.linalg.eigvalsh(P)
-    if eigval[0] <= floor * max(1.0, eigval[-1]):
-        P = P + np.eye(len(P)) * (floor * max(1.0, eigval[-1]) - eigval[0])
-    return P
+    try:
+        np.linalg.cholesky(P)  # the cheap test, passes on almost every step
+        return P
+    except np.linalg.LinAlgError:
+        eigval = np.linalg.eigvalsh(P)
+        return P + np.eye(len(P)) * (floor * max(1.0, eigval[-1]) - eigval[0])
 
 
 class BatchedUKF(UnscentedKalmanFilter):

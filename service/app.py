@@ -15,6 +15,7 @@ from fastapi import FastAPI, HTTPException, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
+from service import web
 from service.db import Conflict, Invalid, NotFound, Settings
 from service.executors import Executor
 from service.jobs import open_services
@@ -53,6 +54,7 @@ def create_app(settings: Settings | None = None, *, executor: Executor | None = 
     install_error_handlers(app)
     for router in (flights.router, models.router, jobs.router, evaluations.router):
         app.include_router(router)
+    app.include_router(web.router)  # the HTML pages for people (/, /ui/...): see service/web.py
 
     @app.get("/health", tags=["service"])
     def health(request: Request) -> dict:

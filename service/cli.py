@@ -45,27 +45,28 @@ def _ingest(args) -> int:
 
 
 def _train(args) -> int:
-    from models.training import TrainingConfig
-    from service.experiment import CRAZYFLIE_TRAINING, train_on_flight
-    from service.store import save_model
+    """Store the flight and register the next version of NAME in the registry (service.store)."""
+    from service.experiment import CRAZYFLIE_TRAINING
+    from service.store import train
 
-    flights = _read(args.files, args.rate)
-    if len(flights) != 1:
-        raise ValueError(f"train takes the log file(s) of exactly one flight; these make {len(flights)} flights")
-    flight = flights[0]
-    if not flight.quality["ok"] and not args.include_bad:
-        raise ValueError(f"{flight.name} failed the quality checks ({'; '.join(flight.quality['issues'])}); "
-                         "pass --include-bad to train on it anyway")
-    config = TrainingConfig(**{**CRAZYFLIE_TRAINING.as_dict(), **({"epochs": args.epochs} if args.epochs else {})})
-    with tqdm(total=config.epochs, desc=f"training {args.name}", unit="epoch", file=sys.stderr) as bar:
-        result = train_on_flight(flight, config, progress=lambda _e, loss: (bar.update(1), bar.set_postfix(loss=f"{loss:.3g}")))
-    path = save_model(result["model"], args.name)
-    out = {"name": args.name, "path": str(path), "training_flight": flight.name, "epochs": config.epochs,
-           "best_epoch": result["model"].meta.get("best_epoch"), "final_loss": result["losses"][-1],
-           "seconds": result["seconds"]}
+    _registry_grid(args.rate)
+    with tqdm(total=args.epochs or CRAZYFLIE_TRAINING.epochs, desc=f"training {args.name}", unit="epoch",
+              file=sys.stderr) as bar:
+        out = train(args.files, args.name, epochs=args.epochs, include_bad=args.include_bad, progress=_advance(bar))
     print(json.dumps(out, indent=2) if args.json else
-          f"trained {args.name} on {flight.name} in {result['seconds']:.1f} s -> {path}")
+          f"registered {out['ref']}: trained on {out['training_flight']} (flight {out['flight_id']}) "
+          f"in {out['seconds']:.1f} s; registry in {out['home']}")
     return 0
+
+
+def _advance(bar):
+    """A job's progress (0..1) -> a tqdm bar counting epochs."""
+    return lambda fraction: bar.update(max(0, round(fraction * bar.total) - bar.n))
+
+
+def _registry_grid(rate: float) -> None:
+    if rate != 100.0:
+        raise ValueError("--rate: flights in the model registry are on the service's 100 Hz grid")
 
 
 def _evaluate(args) -> int:
@@ -77,14 +78,14 @@ def _evaluate(args) -> int:
     if args.new:
         return _evaluate_new(args)
     if not args.model or not args.files:
-        raise ValueError("evaluate needs --model NAME and FILE..., or --new [--alias ALIAS]")
+        raise ValueError("evaluate needs --model REF and FILE..., or --new [--alias ALIAS]")
     methods = parse_methods(args.methods)
     model = load_model(args.model)
     flights = _read(args.files, args.rate)
     with tqdm(total=len(flights), desc="evaluating", unit="flight", file=sys.stderr) as bar:
         report = evaluate_flights(model, flights, methods, include_bad=args.include_bad, horizon=args.horizon,
                                   progress=lambda _f: bar.update(1))
-    report["model"] = args.model
+    report["model"] = model.meta.get("ref", args.model)  # name:version, whatever form was asked for
     if args.plot:
         mse_boxplot(report, args.plot)
     if args.json:
@@ -130,10 +131,11 @@ def _demo(args) -> int:
     """ingest -> train on one flight -> evaluate on every other flight of a folder."""
     from estimators.evaluate import parse_methods
     from ingest import IngestError, detect
-    from service.experiment import CRAZYFLIE_TRAINING, evaluate_flights, train_on_flight
+    from service.experiment import CRAZYFLIE_TRAINING, evaluate_flights
     from service.plots import mse_boxplot
-    from service.store import save_model
+    from service.store import load_model, train
 
+    _registry_grid(args.rate)
     folder = Path(args.folder)
     if not folder.is_dir():
         raise ValueError(f"{folder}: not a folder")
@@ -155,12 +157,12 @@ def _demo(args) -> int:
         raise ValueError(f"no clean flight named {args.train!r} in {folder}")
     with tqdm(total=CRAZYFLIE_TRAINING.epochs, desc=f"training on {chosen[0].name}", unit="epoch",
               file=sys.stderr) as bar:
-        trained = train_on_flight(chosen[0], progress=lambda *_: bar.update(1))
-    save_model(trained["model"], args.name)
+        trained = train([source["path"] for source in chosen[0].meta["sources"]], args.name, progress=_advance(bar))
+    print(f"registered {trained['ref']} in {trained['home']}")
     with tqdm(total=len(flights), desc="evaluating", unit="flight", file=sys.stderr) as bar:
-        report = evaluate_flights(trained["model"], flights, parse_methods(args.methods), horizon=args.horizon,
-                                  progress=lambda _f: bar.update(1))
-    report["model"] = args.name
+        report = evaluate_flights(load_model(trained["ref"]), flights, parse_methods(args.methods),
+                                  horizon=args.horizon, progress=lambda _f: bar.update(1))
+    report["model"] = trained["ref"]
     print(format_report(report))
     if args.plot:
         mse_boxplot(report, args.plot)
@@ -230,18 +232,20 @@ def build_parser() -> argparse.ArgumentParser:
     ing.add_argument("--rate", type=float, default=100.0, help="grid rate in Hz (default 100)")
     ing.set_defaults(func=_ingest)
 
-    tr = sub.add_parser("train", help="train a KNODE on one flight (Algorithm 1) and store it")
+    tr = sub.add_parser("train", help="train a KNODE on one flight (Algorithm 1) and register it as the next "
+                                      "version of NAME (the flight is stored too, as by an upload)")
     tr.add_argument("files", nargs="+", help="the log file(s) of one flight")
-    tr.add_argument("--name", required=True)
+    tr.add_argument("--name", required=True, help="registered model name")
     tr.add_argument("--epochs", type=int, default=None, help="default 150 (Sec. V-C)")
     tr.add_argument("--json", action="store_true")
-    tr.add_argument("--rate", type=float, default=100.0)
+    tr.add_argument("--rate", type=float, default=100.0, help="grid rate in Hz (the registry keeps 100)")
     tr.add_argument("--include-bad", action="store_true", help="train even if the flight fails quality checks")
     tr.set_defaults(func=_train)
 
     ev = sub.add_parser("evaluate", help="run UKF/MHE/KNODE-UKF/KNODE-MHE on flights and score them")
     ev.add_argument("files", nargs="*")
-    ev.add_argument("--model", help="a stored model name (required unless --new)")
+    ev.add_argument("--model", metavar="REF", help="a registered model: NAME (its latest ready version), "
+                    "NAME:VERSION or NAME@ALIAS (required unless --new)")
     ev.add_argument("--methods", default="ukf,mhe,knode-ukf,knode-mhe")
     ev.add_argument("--json", action="store_true")
     ev.add_argument("--plot", metavar="PNG", help="write a Fig. 3-style box plot")
@@ -268,7 +272,8 @@ def build_parser() -> argparse.ArgumentParser:
     dia.add_argument("--simulate", metavar="NAME=VALUE,...", default=None,
                      help="simulated systems: the true system's parameters/effects (hidden from the diagnosis)")
     dia.add_argument("--seed", type=int, default=0)
-    dia.add_argument("--model", help="a stored KNODE to analyse (default: train one on the fitting flight)")
+    dia.add_argument("--model", metavar="REF", help="a registered KNODE to analyse: NAME, NAME:VERSION or "
+                     "NAME@ALIAS (default: train one on the fitting flight)")
     dia.add_argument("--methods", default="ukf,knode-ukf", help="estimators scored before and after")
     dia.add_argument("--epochs", type=int, default=None)
     dia.add_argument("--json", action="store_true")
@@ -279,7 +284,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo = sub.add_parser("demo", help="ingest, train on one flight and evaluate the others, for a folder")
     demo.add_argument("folder")
     demo.add_argument("--train", help="name of the training flight (default: the first clean one)")
-    demo.add_argument("--name", default="demo", help="name to store the model under")
+    demo.add_argument("--name", default="demo", help="registered model name (each run adds a version)")
     demo.add_argument("--methods", default="ukf,mhe,knode-ukf,knode-mhe")
     demo.add_argument("--plot", metavar="PNG", default=None)
     demo.add_argument("--horizon", type=int, default=20)

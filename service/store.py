@@ -1,36 +1,147 @@
-"""A simple file store for trained models under LEARNEST_HOME (the registry replaces it later)."""
+"""The CLI's way into the model registry, without HTTP.
+
+It uses the same database and blob folder as `learnest serve` (LEARNEST_HOME, or LEARNEST_DATABASE_URL), so a
+model trained by `learnest train` is `name:version` for the API and the web pages too, and the reverse.  This
+replaces the plain file store of the ingest issue (home/models/NAME.json files are no longer read).
+
+- `add_flight`: store a flight's log file(s) as POST /flights does (raw files + normalized flight as blobs, one
+  row, deduplicated by sha256).
+- `train`: register the next version of a model trained on that flight, as POST /models does (a training job
+  on a one-process local pool, with the same provenance), and wait for it.
+- `load_model`: "NAME" (its latest ready version), "NAME:VERSION" or "NAME@ALIAS" -> HybridModel, through
+  service.registry.load_model_ref; a reference that names nothing is a ValueError listing the known models.
+"""
 from __future__ import annotations
 
-import os
-import re
+import dataclasses
+import time
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
+from typing import BinaryIO, Callable, Iterator
+
+from sqlalchemy import select
 
 from models.knode import HybridModel
-
-NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
-
-
-def home() -> Path:
-    return Path(os.environ.get("LEARNEST_HOME", ".learnest"))
+from service import registry
+from service.db import Conflict, Database, Flight, Job, NotFound, RegisteredModel, Settings
+from service.jobs import ACTIVE, Services, open_services, start_training
 
 
-def _model_path(name: str) -> Path:
-    if not NAME_PATTERN.fullmatch(name or ""):  # names never become arbitrary paths
-        raise ValueError(f"model name {name!r} must be 1-100 letters, digits, '.', '_' or '-'")
-    return home() / "models" / f"{name}.json"
+class TrainingFailed(ValueError):
+    """The training job failed; a ValueError so that the CLI prints the reason on one line (exit code 2)."""
 
 
-def save_model(model: HybridModel, name: str) -> Path:
-    path = _model_path(name)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    model.meta["name"] = name
-    model.save(path)
-    return path
+def cli_settings() -> Settings:
+    """The LEARNEST_* settings, except that the CLI trains in one local worker process (never on Dask)."""
+    return dataclasses.replace(Settings.from_env(), dask_address=None, pool_workers=1, schedule_seconds=0.0)
 
 
-def load_model(name: str) -> HybridModel:
-    path = _model_path(name)
-    if not path.exists():
-        known = sorted(p.stem for p in (home() / "models").glob("*.json"))
-        raise ValueError(f"no model named {name!r} in {home()} (known: {', '.join(known) or 'none'})")
-    return HybridModel.load(path)
+@contextmanager
+def local_services(settings: Settings | None = None) -> Iterator[Services]:
+    services = open_services(settings or cli_settings())
+    try:
+        yield services
+    finally:
+        services.close()
+
+
+# -- flights -----------------------------------------------------------------------------------------------
+@dataclasses.dataclass
+class LocalFile:
+    """A file on disk in the shape of an uploaded file (what the upload code reads)."""
+
+    filename: str
+    file: BinaryIO
+
+
+def flight_files(paths) -> list[Path]:
+    """The given files plus, for a NanoBench CSV, the *_metadata.yaml next to it (the reader would use it)."""
+    files: dict[Path, Path] = {}
+    for path in map(Path, paths):
+        if not path.is_file():
+            raise ValueError(f"{path}: no such file")
+        files.setdefault(path.resolve(), path)
+        sidecar = path.with_name(f"{path.stem}_metadata.yaml")
+        if path.suffix.lower() == ".csv" and sidecar.is_file():
+            files.setdefault(sidecar.resolve(), sidecar)
+    return list(files.values())
+
+
+def add_flight(services: Services, paths) -> tuple[Flight, bool]:
+    """Store the log file(s) of one flight exactly as an upload would.  -> (row, created); created is False
+    when the same content was stored before (its existing row)."""
+    from service.routers.flights import (content_sha256, find_by_sha, read_uploaded_flight, stage_uploads,
+                                         store_flight)
+
+    files = flight_files(paths)
+    with ExitStack() as stack, services.blobs.temp_dir() as directory:
+        uploads = [LocalFile(path.name, stack.enter_context(open(path, "rb"))) for path in files]
+        staged = stage_uploads(uploads, directory)
+        sha = content_sha256(staged)
+        row = find_by_sha(services.db, sha)
+        if row is not None:
+            return row, False
+        flight = read_uploaded_flight(staged)   # Invalid (a ValueError) names the file it cannot read
+        return store_flight(services.db, services.blobs, staged, flight, sha, None, None)
+
+
+# -- training ----------------------------------------------------------------------------------------------
+def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = False,
+          progress: Callable[[float], None] | None = None, settings: Settings | None = None) -> dict:
+    """Store the flight, train the next version of `name` on it and wait; `progress(fraction)` while it trains.
+    Returns what `learnest train --json` prints."""
+    registry.check_name(name)  # before any work
+    settings = settings or cli_settings()
+    with local_services(settings) as services:
+        row, created = add_flight(services, paths)
+        if not row.quality_ok and not include_bad:  # checked here too, to name the CLI's flag
+            raise ValueError(f"{row.name} failed the quality checks ({'; '.join(row.quality.get('issues', []))}); "
+                             "pass --include-bad to train on it anyway")
+        job, version = start_training(services, name, row.id, {"epochs": epochs}, include_bad=include_bad)
+        job = wait_for_job(services, job.id, progress)
+        with services.db.transaction() as session:
+            version = registry.get_version(session, name, version.version)
+    if job.state != "succeeded":
+        raise TrainingFailed(f"training {name}:{version.version} on {row.name} failed: {job.error}")
+    return {"name": name, "version": version.version, "ref": f"{name}:{version.version}",
+            "training_flight": row.name, "flight_id": row.id, "flight_stored": "new" if created else "existing",
+            "epochs": version.hyperparameters["epochs"], "best_epoch": (version.metrics or {}).get("best_epoch"),
+            "final_loss": version.losses[-1] if version.losses else None, "seconds": version.training_seconds,
+            "home": str(settings.home)}
+
+
+def wait_for_job(services: Services, job_id: int, progress: Callable[[float], None] | None = None,
+                 poll_s: float = 0.25) -> Job:
+    """Poll the job row (the worker writes its progress there) until it is finished."""
+    while True:
+        with services.db.transaction() as session:
+            job = session.get(Job, job_id)
+        if progress:
+            progress(job.progress)
+        if job.state not in ACTIVE:
+            return job
+        time.sleep(poll_s)
+
+
+# -- loading -----------------------------------------------------------------------------------------------
+def load_model(ref: str, settings: Settings | None = None) -> HybridModel:
+    """The model a reference names; ValueError (with the known models) when it names nothing usable."""
+    parsed = registry.parse_ref(ref)  # Invalid (a ValueError) says which forms are accepted
+    settings = settings or Settings.from_env()
+    # no database yet: say so instead of creating an empty one (Settings.url puts SQLite at home/learnest.db)
+    if settings.database_url is None and not (settings.home / "learnest.db").is_file():
+        raise ValueError(f"no model {ref!r}: nothing is registered under {settings.home} (LEARNEST_HOME); "
+                         "`learnest train FILE... --name NAME` registers one")
+    try:
+        return registry.load_model_ref(str(parsed), settings)
+    except (NotFound, Conflict) as err:
+        raise ValueError(f"{err} (registered models: {', '.join(known_models(settings)) or 'none'})") from None
+
+
+def known_models(settings: Settings) -> list[str]:
+    database = Database(settings.url)
+    try:
+        with database.transaction() as session:
+            return list(session.scalars(select(RegisteredModel.name).order_by(RegisteredModel.name)))
+    finally:
+        database.dispose()

@@ -33,7 +33,8 @@ def test_train_then_evaluate_scores_other_flights_and_never_the_training_one(tmp
     train = NANOBENCH / "B2_circle_slow_rep1.csv"
     assert main(["train", str(train), "--name", "circle", "--epochs", "5", "--json"]) == 0
     trained = json.loads(capsys.readouterr().out)
-    assert trained["training_flight"] == "B2_circle_slow_rep1" and Path(trained["path"]).is_file()
+    assert trained["training_flight"] == "B2_circle_slow_rep1"
+    assert trained["version"] == 1 and trained["ref"] == "circle:1"   # registered, loadable by reference
     files = [train, NANOBENCH / "B2_circle_slow_rep2.csv", NANOBENCH / "B2_circle_medium_rep3.csv"]
     plot = tmp_path / "box.png"
     assert main(["evaluate", "--model", "circle", *map(str, files), "--methods", "ukf,knode-ukf", "--json",

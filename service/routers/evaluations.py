@@ -7,7 +7,7 @@ import html
 import io
 import threading
 
-from fastapi import APIRouter, Depends, Response
+from fastapi import APIRouter, Depends, Query, Response
 from fastapi.responses import HTMLResponse, JSONResponse
 
 from service.db import Conflict, Database, Evaluation, Job, NotFound
@@ -52,12 +52,17 @@ def evaluation_report(evaluation_id: int, db: Database = Depends(get_db)):
 
 
 @router.get("/{evaluation_id}/report.html", response_class=HTMLResponse)
-def evaluation_html(evaluation_id: int, db: Database = Depends(get_db)):
+def evaluation_html(evaluation_id: int, flight: int | None = Query(None, description="flight id of the velocity "
+                                                                   "plot (default: the first scored flight)"),
+                    db: Database = Depends(get_db), services: Services = Depends(get_services)):
+    from service.web import report_extras  # the web pages import this module
+
     evaluation, job = _finished(db, evaluation_id)
     if job.state != "succeeded":
         return HTMLResponse(f"<p>evaluation {evaluation.id}: {html.escape(job.state)} "
                             f"({job.progress:.0%})</p>", status_code=202)
-    return HTMLResponse(render_report(evaluation.id, evaluation.report, evaluation.settings))
+    return HTMLResponse(render_report(evaluation.id, evaluation.report, evaluation.settings,
+                                      extra=report_extras(services, evaluation, flight)))
 
 
 def _boxplot_png(report: dict) -> str | None:
@@ -71,7 +76,8 @@ def _boxplot_png(report: dict) -> str | None:
     return base64.b64encode(buffer.getvalue()).decode()
 
 
-def render_report(evaluation_id: int, report: dict, settings: dict) -> str:
+def render_report(evaluation_id: int, report: dict, settings: dict, extra: str = "") -> str:
+    """`extra`: ready HTML appended to the page (the velocity plot of service.web.report_extras)."""
     esc = html.escape
     methods = list(report.get("median", {}))
     header = "".join(f"<th>{esc(m)}</th>" for m in methods)
@@ -104,4 +110,5 @@ references, &times; 1e-3.</p>
 {''.join(rows)}
 <tr><td><b>median</b></td>{median}</tr></table>
 <ul>{improvements}</ul>
+{extra}
 </body></html>"""

@@ -1,0 +1,119 @@
+"""`learnest train / evaluate / diagnose` on the model registry (service.store): the CLI registers versions
+under LEARNEST_HOME like the API does, and takes NAME, NAME:VERSION and NAME@ALIAS; a reference that names
+nothing is exit code 2 with a one-line reason."""
+import contextlib
+import io
+import json
+from pathlib import Path
+
+import pytest
+from sqlalchemy import func, select
+
+from service import registry
+from service.cli import main
+from service.db import Database, Flight, FlightFile, Settings
+from test_service_support import running_app
+
+SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
+TRAIN, OTHER = SAMPLES / "circle_rep1.csv", SAMPLES / "circle_rep2.csv"
+
+
+def use_home(monkeypatch, home: Path) -> None:
+    monkeypatch.setenv("LEARNEST_HOME", str(home))
+    for name in ("LEARNEST_DATABASE_URL", "LEARNEST_DASK", "LEARNEST_API_KEY"):
+        monkeypatch.delenv(name, raising=False)
+
+
+def run_json(capsys, *argv) -> dict:
+    capsys.readouterr()
+    assert main([*argv, "--json"]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """circle:1 and circle:2, both trained (2 epochs) on circle_rep1 by `learnest train`."""
+    home = tmp_path_factory.mktemp("cli-registry") / "home"
+    outputs = []
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        use_home(monkeypatch, home)
+        for _ in range(2):
+            buffer = io.StringIO()  # capsys is function-scoped: catch stdout here
+            with contextlib.redirect_stdout(buffer):
+                assert main(["train", str(TRAIN), "--name", "circle", "--epochs", "2", "--json"]) == 0
+            outputs.append(json.loads(buffer.getvalue()))
+    return {"home": home, "outputs": outputs}
+
+
+def test_train_twice_registers_versions_1_and_2_on_one_stored_flight(trained):
+    first, second = trained["outputs"]
+    assert (first["version"], first["ref"], second["version"], second["ref"]) == (1, "circle:1", 2, "circle:2")
+    assert first["training_flight"] == second["training_flight"] == "circle_rep1"
+    assert (first["flight_stored"], second["flight_stored"]) == ("new", "existing")   # deduplicated by sha256
+    assert first["epochs"] == 2 and first["final_loss"] is not None
+    database = Database(Settings(home=trained["home"]).url)
+    with database.transaction() as session:
+        assert session.scalar(select(func.count(Flight.id))) == 1
+        assert session.scalar(select(FlightFile.original_name)) == "circle_rep1.csv"
+    database.dispose()
+    # the same registry through the HTTP API
+    with running_app(trained["home"]) as client:
+        versions = client.get("/models/circle").json()["versions"]
+        assert [(v["version"], v["status"]) for v in versions] == [(1, "ready"), (2, "ready")]
+        assert versions[0]["training_flight"]["name"] == "circle_rep1"
+
+
+def test_evaluate_by_version_alias_and_bare_name(trained, monkeypatch, capsys):
+    use_home(monkeypatch, trained["home"])
+    database = Database(Settings(home=trained["home"]).url)
+    with database.transaction() as session:  # PUT alias, through the Python registry API
+        registry.set_alias(session, "circle", "production", 1)
+    database.dispose()
+    common = [str(TRAIN), str(OTHER), "--methods", "ukf,knode-ukf"]
+    by_version = run_json(capsys, "evaluate", "--model", "circle:1", *common)
+    by_alias = run_json(capsys, "evaluate", "--model", "circle@production", *common)
+    latest = run_json(capsys, "evaluate", "--model", "circle", *common)
+    assert (by_version["model"], by_alias["model"], latest["model"]) == ("circle:1", "circle:1", "circle:2")
+    assert by_alias["flights"][1]["mse"] == by_version["flights"][1]["mse"]
+    for report in (by_version, by_alias, latest):
+        training, other = report["flights"]
+        assert training["excluded"] and training["reason"].startswith("training flight")
+        assert not other["excluded"] and set(other["mse"]) == {"ukf", "knode-ukf"}
+
+
+@pytest.mark.parametrize("ref, message", [
+    ("nope", "no registered model named 'nope'"),
+    ("circle:9", "model 'circle' has no version 9"),
+    ("circle@staging", "model 'circle' has no alias 'staging'"),
+    ("../circle", "must be 'name:version', 'name@alias' or 'name'"),
+])
+def test_unknown_reference_is_exit_code_2_with_the_reason(trained, monkeypatch, capsys, ref, message):
+    use_home(monkeypatch, trained["home"])
+    capsys.readouterr()
+    assert main(["evaluate", "--model", ref, str(OTHER)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    if ":" not in ref and "@" not in ref and "/" not in ref:
+        assert "registered models: circle" in err
+    assert main(["diagnose", "--model", ref, str(OTHER)]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_no_registry_yet_is_a_clear_error_and_creates_nothing(tmp_path, monkeypatch, capsys):
+    home = tmp_path / "empty"
+    use_home(monkeypatch, home)
+    assert main(["evaluate", "--model", "circle", str(OTHER)]) == 2
+    assert "nothing is registered under" in capsys.readouterr().err
+    assert not home.exists()
+
+
+def test_training_on_an_unreadable_file_registers_nothing(tmp_path, monkeypatch, capsys):
+    junk = tmp_path / "junk.bin"
+    junk.write_bytes(b"\x00\xff" * 100)
+    use_home(monkeypatch, tmp_path / "home")
+    assert main(["train", str(junk), "--name", "x", "--epochs", "1"]) == 2
+    assert "junk.bin" in capsys.readouterr().err
+    assert main(["train", str(TRAIN), "--name", "x", "--rate", "50"]) == 2
+    assert "100 Hz" in capsys.readouterr().err
+    with running_app(tmp_path / "home") as client:
+        assert client.get("/models").json()["total"] == 0 and client.get("/flights").json()["total"] == 0

@@ -1,0 +1,248 @@
+"""The web pages (service/web.py) end to end in a real browser, plus quick checks of escaping and the API key.
+
+The browser test starts `learnest serve` (python -m service.cli serve) on a free loopback port with its own
+LEARNEST_HOME and an API key, and drives Debian's headless Chromium through chromedriver with selenium:
+upload two sample logs with the upload form, train a model from the flight page (3 epochs), wait for the
+job page, evaluate from the model page, wait, and read the report (box plot, per-flight table, velocity
+plot).  It is skipped, with the reason, when selenium, /usr/bin/chromium or /usr/bin/chromedriver is
+missing (CI installs them: see .ci/run).  Selenium is given the driver's path and Selenium Manager is
+disabled, so nothing is ever downloaded.
+"""
+from __future__ import annotations
+
+import os
+import re
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+from test_service_support import running_app, wait_for_job
+
+REPO = Path(__file__).resolve().parents[1]
+SAMPLES = REPO / "sample_logs"
+CHROMIUM, CHROMEDRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
+API_KEY = "e2e-secret"
+CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                  "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                  "--disable-dev-shm-usage", "--window-size=1280,1000"]
+
+
+# -- a real server ------------------------------------------------------------------------------------
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_until_up(url: str, process: subprocess.Popen, log: Path, timeout: float = 90.0) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if process.poll() is not None:
+            pytest.fail(f"learnest serve exited with {process.returncode}:\n{log.read_text()[-3000:]}")
+        try:
+            with urllib.request.urlopen(url + "/health", timeout=2) as answer:
+                if answer.status == 200:
+                    return
+        except OSError:
+            time.sleep(0.2)
+    pytest.fail(f"learnest serve did not answer within {timeout} s:\n{log.read_text()[-3000:]}")
+
+
+@pytest.fixture
+def server(tmp_path):
+    port, log = free_port(), tmp_path / "server.log"
+    env = {**os.environ, "LEARNEST_HOME": str(tmp_path / "home"), "LEARNEST_API_KEY": API_KEY,
+           "LEARNEST_POOL_WORKERS": "1", "NO_PROXY": "127.0.0.1,localhost"}
+    for name in ("LEARNEST_DATABASE_URL", "LEARNEST_DASK", "LEARNEST_SCHEDULE_SECONDS"):
+        env.pop(name, None)
+    with open(log, "wb") as output:
+        process = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--host", "127.0.0.1",
+                                    "--port", str(port)], cwd=REPO, env=env, stdout=output, stderr=subprocess.STDOUT)
+    url = f"http://127.0.0.1:{port}"
+    try:
+        wait_until_up(url, process, log)
+        yield url
+    finally:
+        process.terminate()  # uvicorn shuts down cleanly on SIGTERM (and stops its worker process)
+        try:
+            process.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+
+
+# -- a headless browser ---------------------------------------------------------------------------------
+@pytest.fixture
+def browser(tmp_path, monkeypatch):
+    webdriver = pytest.importorskip("selenium.webdriver", reason="selenium is not installed (pip install selenium)")
+    for path in (CHROMIUM, CHROMEDRIVER):
+        if not os.access(path, os.X_OK):
+            pytest.skip(f"{path} not found: apt-get install chromium chromium-driver")
+    from selenium.webdriver.common.selenium_manager import SeleniumManager
+
+    def no_manager(*_args, **_kwargs):
+        raise AssertionError("Selenium Manager must not run (it may download drivers)")
+    monkeypatch.setattr(SeleniumManager, "binary_paths", no_manager)
+
+    options = webdriver.ChromeOptions()
+    options.binary_location = str(CHROMIUM)
+    for flag in CHROMIUM_FLAGS + [f"--user-data-dir={tmp_path / 'chromium-profile'}"]:
+        options.add_argument(flag)
+    service = webdriver.ChromeService(executable_path=str(CHROMEDRIVER),
+                                      log_output=str(tmp_path / "chromedriver.log"))
+    driver = webdriver.Chrome(options=options, service=service)
+    driver.set_page_load_timeout(60)
+    try:
+        yield driver
+    finally:
+        driver.quit()
+
+
+def by_css(driver, selector: str):
+    from selenium.webdriver.common.by import By
+
+    return driver.find_element(By.CSS_SELECTOR, selector)
+
+
+def image_loaded(driver, selector: str) -> bool:
+    return bool(driver.execute_script("const i = document.querySelector(arguments[0]);"
+                                      "return i !== null && i.complete && i.naturalWidth > 0;", selector))
+
+
+def wait_for_url(driver, pattern: str, timeout: float = 60.0) -> None:
+    """A click does not wait for the page it leads to: wait for its address and for it to be loaded."""
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    WebDriverWait(driver, timeout, poll_frequency=0.1).until(
+        lambda d: re.search(pattern, d.current_url)
+        and d.execute_script("return document.readyState") == "complete")
+
+
+def upload_in_browser(driver, base: str, path: Path) -> None:
+    driver.get(base + "/")
+    form = by_css(driver, "#upload-form")
+    form.find_element("name", "files").send_keys(str(path))
+    keys = form.find_elements("name", "api_key")
+    if keys:  # only until the first accepted write: the key is then remembered in a cookie
+        keys[0].send_keys(API_KEY)
+    form.find_element("css selector", "button[type=submit]").click()
+    wait_for_url(driver, r"/ui/flights/\d+$")
+
+
+def wait_for_job_page(driver, timeout: float = 120.0) -> str:
+    """The job page reloads itself (meta refresh) until the job is done; -> its final state."""
+    from selenium.common.exceptions import NoSuchElementException, StaleElementReferenceException
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    def finished(d):
+        state = by_css(d, "#job-state").text
+        return state if state in ("succeeded", "failed") else False
+    return WebDriverWait(driver, timeout, poll_frequency=0.3, ignored_exceptions=(
+        NoSuchElementException, StaleElementReferenceException)).until(finished)
+
+
+def test_upload_train_evaluate_and_report_in_chromium(server, browser):
+    started = time.monotonic()
+    # upload two flights through the form (the first one with the API key)
+    upload_in_browser(browser, server, SAMPLES / "circle_rep1.csv")
+    assert "circle_rep1" in by_css(browser, "h1").text and image_loaded(browser, "#trajectory")
+    assert "ok" in by_css(browser, "#flight-facts").text
+    first_flight = browser.current_url
+    upload_in_browser(browser, server, SAMPLES / "circle_rep2.csv")
+    assert "circle_rep2" in by_css(browser, "h1").text
+    browser.get(server + "/")
+    listing = by_css(browser, "#flights").text
+    assert "circle_rep1" in listing and "circle_rep2" in listing
+
+    # train from the first flight's page, follow the job page until it is done
+    browser.get(first_flight)
+    form = by_css(browser, "#train-form")
+    form.find_element("name", "name").send_keys("e2e")
+    form.find_element("name", "epochs").send_keys("3")
+    form.find_element("css selector", "button[type=submit]").click()
+    wait_for_url(browser, r"/ui/jobs/\d+$")
+    assert wait_for_job_page(browser) == "succeeded"
+    browser.find_element("link text", "model e2e").click()
+    wait_for_url(browser, r"/ui/models/e2e$")
+    assert by_css(browser, "h1").text == "Model e2e" and image_loaded(browser, "#loss-curve")
+    assert "ready" in by_css(browser, "#versions").text
+
+    # evaluate every other flight with the UKFs only (the MHEs are covered by the service tests)
+    form = by_css(browser, "#evaluate-form")
+    for method in ("mhe", "knode-mhe"):
+        form.find_element("css selector", f"input[name=methods][value={method}]").click()
+    form.find_element("css selector", "button[type=submit]").click()
+    wait_for_url(browser, r"/ui/jobs/\d+$")
+    assert wait_for_job_page(browser) == "succeeded"
+    by_css(browser, "#report-link").click()
+    wait_for_url(browser, r"/evaluations/\d+/report\.html")
+
+    # the report: box plot, per-flight table, velocity of the chosen flight
+    assert "Evaluation" in by_css(browser, "h1").text
+    assert image_loaded(browser, "img[alt='MSE box plot']")
+    table = by_css(browser, "table").text
+    assert "circle_rep2" in table and "knode-ukf" in table and "median" in table
+    assert image_loaded(browser, "#velocity-plot")
+    assert "circle_rep2" in by_css(browser, "select[name=flight]").text
+    assert time.monotonic() - started < 90
+
+
+# -- quick checks without a browser ---------------------------------------------------------------------
+def post_upload(client, name: str, data: dict | None = None, **kwargs):
+    files = [("files", (name, (SAMPLES / "circle_rep1.csv").read_bytes()))]
+    return client.post("/ui/flights", files=files, data=data or {}, follow_redirects=False, **kwargs)
+
+
+def test_user_text_is_escaped_everywhere(tmp_path):
+    hostile = "<script>alert(1)</script>"
+    with running_app(tmp_path / "home") as client:
+        answer = post_upload(client, "<img src=x onerror=alert(2)>.csv", {"vehicle": hostile, "notes": hostile})
+        assert answer.status_code == 303
+        page = client.get(answer.headers["location"]).text
+        assert "<script>alert" not in page and "<img src=x" not in page
+        assert "&lt;script&gt;alert(1)&lt;/script&gt;" in page and "&lt;img src=x onerror=alert(2)&gt;.csv" in page
+        listing = client.get("/").text
+        assert "<script>alert" not in listing and "&lt;script&gt;" in listing
+        bad = client.post("/ui/models", data={"name": "<b>x</b>", "flight_id": "1"})
+        assert bad.status_code == 422 and "<b>x</b>" not in bad.text and "name:" in bad.text
+
+
+def test_form_writes_need_the_api_key_pages_do_not(tmp_path):
+    with running_app(tmp_path / "home", api_key="s3cret") as client:
+        assert client.get("/").status_code == 200 and "name='api_key'" in client.get("/").text
+        for key in (None, "wrong"):
+            refused = post_upload(client, "a.csv", {"api_key": key} if key else {})
+            assert refused.status_code == 401 and "API key" in refused.text
+        accepted = post_upload(client, "a.csv", {"api_key": "s3cret"})
+        assert accepted.status_code == 303
+        cookie = accepted.headers["set-cookie"].lower()
+        assert "learnest_api_key=s3cret" in cookie and "httponly" in cookie and "samesite=strict" in cookie
+        # the browser (here: the test client's cookie jar) sends the key from now on
+        assert "name='api_key'" not in client.get("/").text
+        train = client.post("/ui/models", data={"name": "q", "flight_id": "1", "epochs": "1"}, follow_redirects=False)
+        assert train.status_code == 303 and train.headers["location"].startswith("/ui/jobs/")
+        job_id = int(train.headers["location"].rsplit("/", 1)[1])
+        assert wait_for_job(client, job_id)["state"] == "succeeded"
+        client.cookies.clear()
+        assert client.post("/ui/models/q/aliases", data={"alias": "production", "version": "1"}).status_code == 401
+        # the JSON API still takes the header
+        assert client.put("/models/q/aliases/production", json={"version": 1},
+                          headers={"X-API-Key": "s3cret"}).status_code == 200
+
+
+def test_missing_things_and_bad_forms_are_html_error_pages(tmp_path):
+    with running_app(tmp_path / "home") as client:
+        for url in ("/ui/flights/42", "/ui/models/nobody", "/ui/jobs/42"):
+            answer = client.get(url)
+            assert answer.status_code == 404 and answer.headers["content-type"].startswith("text/html")
+        junk = client.post("/ui/flights", files=[("files", ("junk.bin", b"\x00\x01" * 100))])
+        assert junk.status_code == 422 and "junk.bin" in junk.text and "text/html" in junk.headers["content-type"]
+        nothing = client.post("/ui/flights", files=[("files", ("", b""))])
+        assert nothing.status_code == 422 and "choose the log file" in nothing.text
+        unknown = client.post("/ui/evaluations", data={"model": "nobody", "methods": ["ukf"]})
+        assert unknown.status_code == 404 and "nobody" in unknown.text
