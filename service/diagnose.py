@@ -186,6 +186,9 @@ def diagnose_flights(flights: list[Flight], knode: HybridModel | None = None,
             "before": {m: float(np.median(v)) for m, v in before.items()},
             "after": {m: float(np.median(v)) for m, v in after.items()},
             "per_flight": per_flight, "split": split,
+            # a median can hide an effect that does not transfer: count the flights it helped
+            "improved_flights": {m: f"{sum(p['after'][m] < p['before'][m] for p in per_flight)}/{len(per_flight)}"
+                                 for m in methods},
             "residuals": _residual_summary(fitting, fixed_fitting, accel, dynamics, knode_before),
             "channels": {"accelerometer": _channel(accel), "translational dynamics": _channel(dynamics)}}
 
@@ -258,7 +261,10 @@ def format_diagnosis(result: dict) -> str:
             lines.append(f"    not pinned down by this data: {', '.join(shaky)}")
     for c in result["confounded"]:
         lines.append(f"  cannot tell apart: {c['note']}")
-    lines.append("  MSE on held-out data   before        after")
+    median = " (median over flights)" if result.get("per_flight") else ""
+    lines.append(f"  MSE on held-out data{median}   before        after")
     for m in result["before"]:
-        lines.append(f"    {m:<20}{result['before'][m]:>10.4g}  {result['after'][m]:>10.4g}")
+        helped = result.get("improved_flights", {}).get(m)
+        lines.append(f"    {m:<20}{result['before'][m]:>10.4g}  {result['after'][m]:>10.4g}"
+                     + (f"   better on {helped} flights" if helped else ""))
     return "\n".join(lines)
