@@ -21,7 +21,10 @@ class NumpyOps:
 
     @staticmethod
     def stack(items):
-        return np.stack(np.broadcast_arrays(*items), axis=-1)
+        try:
+            return np.stack(items, axis=-1)  # the common case: every item has the batch shape
+        except ValueError:
+            return np.stack(np.broadcast_arrays(*items), axis=-1)
 
     @staticmethod
     def concat(items):

@@ -53,6 +53,13 @@ def evaluate_flight(knode: HybridModel, flight: Flight, methods, horizon: int = 
     return {"results": results, "reference": reference if keep_estimates else None}
 
 
+def _is_training_flight(knode: HybridModel, flight: Flight) -> bool:
+    """By content (sha256 of the source files) when the model recorded it, else by name."""
+    trained_on = set(knode.meta.get("training_flight_sha256") or [])
+    sources = {s.get("sha256") for s in flight.meta.get("sources", [])}
+    return bool(trained_on & sources) or flight.name == knode.meta.get("training_flight")
+
+
 def evaluate_flights(knode: HybridModel, flights: list[Flight], methods, include_bad: bool = False,
                      horizon: int = 20, progress=None) -> dict:
     """The report of `learnest evaluate --json`: per flight, median, improvement %."""
@@ -62,7 +69,7 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods, include
         quality = flight.quality
         if not quality["ok"] and not include_bad:
             entry.update(excluded=True, reason="quality: " + "; ".join(quality["issues"]))
-        elif flight.name == knode.meta.get("training_flight"):
+        elif _is_training_flight(knode, flight):
             entry.update(excluded=True, reason="training flight (never scored on its own training data)")
         else:
             results = evaluate_flight(knode, flight, methods, horizon)["results"]
