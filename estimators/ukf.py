@@ -34,6 +34,15 @@ def _make_spd(P: np.ndarray, floor: float = 1e-15) -> np.ndarray:
         return P + np.eye(len(P)) * (floor * max(1.0, eigval[-1]) - eigval[0])
 
 
+class VectorizedMerwePoints(MerweScaledSigmaPoints):
+    """filterpy's scaled sigma points (same weights, same sqrt), built without a Python loop over n."""
+
+    def sigma_points(self, x, P):
+        x = np.atleast_1d(np.asarray(x, dtype=float))
+        U = self.sqrt(self.alpha**2 * (self.n + self.kappa) * P)  # (λ + n) P, λ = α²(n + κ) - n
+        return np.vstack([x, x + U, x - U])
+
+
 class BatchedUKF(UnscentedKalmanFilter):
     """filterpy's UKF with fx(sigmas (2n+1, n), dt, u) and hx(sigmas, u) evaluated in one call each."""
 
@@ -62,7 +71,7 @@ class BatchedUKF(UnscentedKalmanFilter):
 
 def make_ukf(model, dt, Q, R, x0, P0, alpha: float = 1e-3, beta: float = 2.0, kappa: float = 0.0):
     n = model.n
-    points = MerweScaledSigmaPoints(n, alpha=alpha, beta=beta, kappa=kappa, sqrt_method=robust_sqrt)
+    points = VectorizedMerwePoints(n, alpha=alpha, beta=beta, kappa=kappa, sqrt_method=robust_sqrt)
     ukf = BatchedUKF(dim_x=n, dim_z=R.shape[0], dt=dt, points=points, sqrt_fn=robust_sqrt,
                      fx=lambda sigmas, dt, u: model.step(sigmas, np.broadcast_to(u, (len(sigmas), len(u))), dt),
                      hx=lambda sigmas, u: model.h(sigmas, np.broadcast_to(u, (len(sigmas), len(u)))))

@@ -32,8 +32,8 @@ class NumpyOps:
 
     @staticmethod
     def linear(z, weight, bias):
-        """weight (out, in), bias (out,): y = W z + b for each row of z."""
-        return z @ np.asarray(weight).T + np.asarray(bias)
+        """weight (out, in), bias (out,) numpy arrays: y = W z + b for each row of z."""
+        return z @ weight.T + bias
 
     @staticmethod
     def zeros_like_first(x):
