@@ -26,6 +26,9 @@ class TrainingConfig:
     # the weights of the epoch that predicted it best: an observer's artefacts are what a long run
     # overfits, and they do not repeat in the held-out block
     validation_fraction: float = 0.2
+    # where the held-out time lies: "tail" (the last part) or "spread" (two blocks, at 30-40 % and 80-90 %
+    # of the record, so a record that ends in hover is not validated on the hover alone)
+    validation_layout: str = "tail"
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -63,6 +66,23 @@ class _MLP(torch.nn.Module):
                           self.output_layer.bias.detach().numpy().copy())])
 
 
+def _split_rows(pairs: int, fraction: float, layout: str):
+    """(fit rows, validation rows) as index tensors; validation is contiguous time, never random samples."""
+    if layout not in ("tail", "spread"):
+        raise ValueError(f"validation_layout must be 'tail' or 'spread', got {layout!r}")
+    held = np.zeros(pairs, dtype=bool)
+    n_val = int(round(fraction * pairs))
+    if n_val:
+        if layout == "tail":
+            held[pairs - n_val:] = True
+        else:
+            half = n_val // 2
+            for centre in (0.35, 0.85):
+                start = int(centre * pairs) - half // 2
+                held[start:start + half] = True
+    return torch.as_tensor(np.flatnonzero(~held)), torch.as_tensor(np.flatnonzero(held))
+
+
 def train_knode(system: System, zeta, u, dt: float, config: TrainingConfig | None = None,
                 progress: Callable[[int, float], None] | None = None) -> TrainingResult:
     """Fit Δθ so that one RK4 step of f_prior + Δθ from ζ_i lands on ζ_{i+1} (eqs. 7-8)."""
@@ -78,8 +98,9 @@ def train_knode(system: System, zeta, u, dt: float, config: TrainingConfig | Non
     mlp = _MLP(features.shape[1], system.n, config.hidden, features.mean(axis=0), np.where(std > 1e-9, std, 1.0))
 
     pairs = len(zeta) - 1
-    n_val = int(round(config.validation_fraction * pairs)) if pairs >= 10 else 0
-    n_fit = pairs - n_val
+    fit_rows, val_rows = _split_rows(pairs, config.validation_fraction if pairs >= 10 else 0.0,
+                                     config.validation_layout)
+    n_fit, n_val = len(fit_rows), len(val_rows)
     z_now, z_next = torch.as_tensor(zeta[:-1]), torch.as_tensor(zeta[1:])
     u_now = torch.as_tensor(u[:-1])
     t_span = torch.tensor([0.0, dt], dtype=torch.float64)
@@ -100,10 +121,10 @@ def train_knode(system: System, zeta, u, dt: float, config: TrainingConfig | Non
     best = (float("inf"), None, -1)
     if n_val:  # epoch -1 is the prior itself (Δθ starts at zero): training must beat it on held-out data
         with torch.no_grad():
-            best = (one_step_loss(torch.arange(n_fit, pairs)).item(),
+            best = (one_step_loss(val_rows).item(),
                     {k: v.clone() for k, v in mlp.state_dict().items()}, -1)
     for epoch in range(config.epochs):
-        order = torch.randperm(n_fit, generator=generator) if batch < n_fit else torch.arange(n_fit)
+        order = fit_rows[torch.randperm(n_fit, generator=generator)] if batch < n_fit else fit_rows
         epoch_loss = 0.0
         for start in range(0, n_fit, batch):
             idx = order[start:start + batch]
@@ -115,7 +136,7 @@ def train_knode(system: System, zeta, u, dt: float, config: TrainingConfig | Non
         losses.append(epoch_loss / n_fit)
         if n_val:
             with torch.no_grad():
-                val_losses.append(one_step_loss(torch.arange(n_fit, pairs)).item())
+                val_losses.append(one_step_loss(val_rows).item())
             if val_losses[-1] < best[0]:
                 best = (val_losses[-1], {k: v.clone() for k, v in mlp.state_dict().items()}, epoch)
         if progress:

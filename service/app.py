@@ -19,7 +19,7 @@ from service import web
 from service.db import Conflict, Invalid, NotFound, Settings
 from service.executors import Executor
 from service.jobs import open_services
-from service.routers import evaluations, flights, jobs, models
+from service.routers import diagnoses, evaluations, flights, jobs, models
 from service.scheduler import Scheduler
 
 log = logging.getLogger("learnest.app")
@@ -52,7 +52,7 @@ def create_app(settings: Settings | None = None, *, executor: Executor | None = 
                               "the X-API-Key header when the server has LEARNEST_API_KEY set.")
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
     install_error_handlers(app)
-    for router in (flights.router, models.router, jobs.router, evaluations.router):
+    for router in (flights.router, models.router, jobs.router, evaluations.router, diagnoses.router):
         app.include_router(router)
     app.include_router(web.router)  # the HTML pages for people (/, /ui/...): see service/web.py
 

@@ -179,6 +179,8 @@ def _diagnose(args) -> int:
     if args.simulate is not None or args.system in ("cartpole", "robot"):
         if args.files:
             raise ValueError("give flight files or --simulate, not both")
+        if args.register:
+            raise ValueError("--register registers a repaired Crazyflie model: give flight files, not --simulate")
         result = diagnose_simulated(args.system, args.simulate or "", seed=args.seed, methods=methods,
                                     epochs=args.epochs)
     else:
@@ -188,11 +190,24 @@ def _diagnose(args) -> int:
         if args.model:
             from service.store import load_model
             model = load_model(args.model)
-        result = diagnose_flights(_read(args.files, args.rate), knode=model, methods=methods,
-                                  epochs=args.epochs or 150)
+        if args.register:
+            from service.registry import check_name
+            _registry_grid(args.rate)
+            check_name(args.register)  # before the work
+        flights = _read(args.files, args.rate)
+        result, repaired = diagnose_flights(flights, knode=model, methods=methods, epochs=args.epochs or 150,
+                                            return_model=True)
+        if args.register:
+            from service.store import register_repaired
+            result["registered"] = register_repaired(args.register, repaired, flights, result,
+                                                     epochs=args.epochs or 150,
+                                                     parent=model.meta.get("ref") if model else None)
     if args.plot:
         residual_before_after(result, args.plot)
     print(json.dumps(result, indent=2, default=float) if args.json else format_diagnosis(result))
+    if result.get("registered") and not args.json:
+        r = result["registered"]
+        print(f"registered {r['name']}:{r['version']} (parent {r['parent'] or 'none'})")
     return 0
 
 
@@ -274,6 +289,8 @@ def build_parser() -> argparse.ArgumentParser:
     dia.add_argument("--seed", type=int, default=0)
     dia.add_argument("--model", metavar="REF", help="a registered KNODE to analyse: NAME, NAME:VERSION or "
                      "NAME@ALIAS (default: train one on the fitting flight)")
+    dia.add_argument("--register", metavar="NAME", help="register the repaired model (flight files only) as the "
+                     "next version of NAME, with --model's version as its parent")
     dia.add_argument("--methods", default="ukf,knode-ukf", help="estimators scored before and after")
     dia.add_argument("--epochs", type=int, default=None)
     dia.add_argument("--json", action="store_true")

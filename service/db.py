@@ -213,6 +213,22 @@ class Evaluation(Base):
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
 
 
+class Diagnosis(Base):
+    """A `learnest diagnose` run as a job: its report and, when asked for, the version it registered."""
+
+    __tablename__ = "diagnoses"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id"))
+    flight_ids: Mapped[list] = mapped_column(JSON)               # the first is the fitting flight
+    model_ref: Mapped[str | None] = mapped_column(String(220))   # "name:version" analysed (None: trained here)
+    register_as: Mapped[str | None] = mapped_column(String(100))
+    settings: Mapped[dict] = mapped_column(JSON)                 # methods, epochs
+    report: Mapped[dict | None] = mapped_column(JSON)
+    registered: Mapped[dict | None] = mapped_column(JSON)        # {"name", "version", "parent"}
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+
+
 class Result(Base):
     """Per-flight evaluation cache: one row per (flight content, model version, estimator settings)."""
 

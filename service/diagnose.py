@@ -18,8 +18,7 @@ from ingest.baseline import sg_references
 from ingest.flight import Flight
 from models.backend import rk4_step
 from models.diagnosis import ResidualProblem, select_effects
-from models.effects import (LIBRARY, correct_acc_body, dynamics_params, effects_for, predict_acc_body,
-                            specific_force_body, world_from_body)
+from models.effects import LIBRARY, dynamics_params, effects_for, predict_acc_body, specific_force_body
 from models.knode import HybridModel
 from models.observers import pretraining_observer
 from models.systems import make_system
@@ -128,14 +127,6 @@ def _score_simulated(system, zeta, train, test, methods, config):
 
 
 # -- Crazyflie flights -----------------------------------------------------------------------------
-def corrected_flight(flight: Flight, values: dict) -> Flight:
-    """The flight with the accelerometer model's effects removed (the measurement model, repaired)."""
-    acc_body = correct_acc_body(flight.channels["acc_body"], flight.t, values)
-    channels = {**flight.channels, "acc_body": acc_body}
-    return Flight(flight.t, flight.p, world_from_body(acc_body, flight.quat), flight.quat, channels,
-                  dict(flight.meta))
-
-
 def _split_for_fitting(flights: list[Flight]):
     """Fit on the first flight and score on the others; one flight: fit on its first 60 %, score the rest."""
     if len(flights) > 1:
@@ -146,8 +137,11 @@ def _split_for_fitting(flights: list[Flight]):
 
 
 def diagnose_flights(flights: list[Flight], knode: HybridModel | None = None,
-                     methods=("ukf", "knode-ukf"), epochs: int = 150) -> dict:
-    from service.experiment import CRAZYFLIE_TRAINING, evaluate_flight, quadrotor_for, train_on_flight
+                     methods=("ukf", "knode-ukf"), epochs: int = 150, return_model: bool = False):
+    """The diagnosis report; with return_model, also the repaired model (prior + dynamics effects,
+    measurement effects in its meta, KNODE retrained on top) ready to be registered as a new version."""
+    from service.experiment import (CRAZYFLIE_TRAINING, corrected_flight, evaluate_flight, quadrotor_for,
+                                    train_on_flight)
 
     flights = [f for f in flights if f.quality["ok"]] or flights
     fitting, scoring, split = _split_for_fitting(flights)
@@ -172,17 +166,25 @@ def diagnose_flights(flights: list[Flight], knode: HybridModel | None = None,
                                       np.zeros((len(fixed_fitting[0].t), 0)), fixed_fitting[0].dt)
     knode_after = train_knode(repaired_system, zeta_after, np.zeros((len(zeta_after), 0)),
                               repaired_system.dt, config).model
+    chosen_meas = [LIBRARY[e["id"]] for e in accel["effects"]]
+    knode_after.meta.update({
+        "measurement_effects": {p.name: accel["values"][p.name] for e in chosen_meas for p in e.params
+                                if p.name in accel["values"]},
+        "effects": [e["id"] for e in accel["effects"] + dynamics["effects"]],
+        "training_flight": fitting[0].name,
+        "training_flight_sha256": [s["sha256"] for s in fitting[0].meta.get("sources", [])],
+        "parent": knode_before.meta.get("name")})
     before, after, per_flight = {m: [] for m in methods}, {m: [] for m in methods}, []
     for flight in scoring:
         b = evaluate_flight(knode_before, flight, methods)["results"]
-        a = _evaluate_repaired(knode_after, corrected_flight(flight, accel["values"]), flight, new_prior, methods)
+        a = evaluate_flight(knode_after, flight, methods)["results"]
         per_flight.append({"flight": flight.name, "before": {m: b[m]["mse"] for m in methods},
-                           "after": {m: a[m] for m in methods}})
+                           "after": {m: a[m]["mse"] for m in methods}})
         for m in methods:
             before[m].append(b[m]["mse"])
-            after[m].append(a[m])
+            after[m].append(a[m]["mse"])
     effects = sorted(accel_public(accel) + accel_public(dynamics), key=lambda e: -e["explained_fraction"])
-    return {"system": "quadrotor", "effects": effects, "confounded": accel["confounded"] + dynamics["confounded"],
+    report = {"system": "quadrotor", "effects": effects, "confounded": accel["confounded"] + dynamics["confounded"],
             "before": {m: float(np.median(v)) for m, v in before.items()},
             "after": {m: float(np.median(v)) for m, v in after.items()},
             "per_flight": per_flight, "split": split,
@@ -191,21 +193,7 @@ def diagnose_flights(flights: list[Flight], knode: HybridModel | None = None,
                                  for m in methods},
             "residuals": _residual_summary(fitting, fixed_fitting, accel, dynamics, knode_before),
             "channels": {"accelerometer": _channel(accel), "translational dynamics": _channel(dynamics)}}
-
-
-def _evaluate_repaired(knode_after, fixed: Flight, original: Flight, prior_params, methods):
-    """Estimates from the repaired measurement + prior, scored against the original flight's references."""
-    from estimators.evaluate import score
-    from ingest.baseline import references
-    from service.experiment import initial_state, quadrotor_for
-
-    system = replace(quadrotor_for(fixed), prior_params=prior_params)
-    knode = HybridModel(replace(knode_after.system, dt=fixed.dt, prior_params=prior_params), "knode",
-                        knode_after.residual)
-    results = evaluate_sequence(methods, HybridModel(system, "prior"), knode, fixed.measurements(),
-                                np.zeros((len(fixed.t), 0)), fixed.dt, system.Q, system.R, initial_state(fixed),
-                                system.P0, references(original))
-    return {m: r["mse"] for m, r in results.items()}
+    return (report, knode_after) if return_model else report
 
 
 def _residual_summary(fitting, fixed_fitting, accel, dynamics, knode):

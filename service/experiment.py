@@ -9,13 +9,15 @@ import numpy as np
 from estimators.evaluate import evaluate_sequence, summarize
 from ingest.baseline import references
 from ingest.flight import Flight
+from models.effects import correct_acc_body, world_from_body
 from models.knode import HybridModel
 from models.observers import pretraining_observer
 from models.systems import Quadrotor, make_system
 from models.training import TrainingConfig, train_knode
 
 # Sec. V-C: 2 layers x 16 tanh, 150 epochs, KF pre-training observer
-CRAZYFLIE_TRAINING = TrainingConfig(hidden=16, epochs=150, lr=1e-3, validation_fraction=0.2)
+CRAZYFLIE_TRAINING = TrainingConfig(hidden=16, epochs=150, lr=1e-3, validation_fraction=0.2,
+                                    validation_layout="spread")
 
 
 def quadrotor_for(flight: Flight) -> Quadrotor:
@@ -40,15 +42,30 @@ def train_on_flight(flight: Flight, config: TrainingConfig = CRAZYFLIE_TRAINING,
     return {"model": result.model, "losses": result.losses, "seconds": result.seconds}
 
 
+def corrected_flight(flight: Flight, values: dict) -> Flight:
+    """The flight with accelerometer effects (bias, scale, delay, misalignment) removed: the measurement
+    model a diagnosis repaired, applied to the data."""
+    acc_body = correct_acc_body(flight.channels["acc_body"], flight.t, values)
+    return Flight(flight.t, flight.p, world_from_body(acc_body, flight.quat), flight.quat,
+                  {**flight.channels, "acc_body": acc_body}, dict(flight.meta))
+
+
 def evaluate_flight(knode: HybridModel, flight: Flight, methods, horizon: int = 20, sg_window: int = 150,
                     keep_estimates: bool = False) -> dict:
-    """Scores of every method on one flight, against SG references of its mocap position."""
-    system = quadrotor_for(flight)
+    """Scores of every method on one flight, against SG references of its mocap position.
+
+    The prior-only rows use the model's own prior (which a diagnosis may have extended), and a model
+    that carries measurement effects sees the flight with them corrected; the references always come
+    from the original mocap position."""
+    system = replace(quadrotor_for(flight), prior_params=dict(knode.system.prior_params))
     knode = HybridModel(replace(knode.system, dt=flight.dt), knode.kind, knode.residual, knode.meta)
     prior = HybridModel(system, "prior")
     reference = references(flight, window=sg_window)
-    results = evaluate_sequence(methods, prior, knode, flight.measurements(), np.zeros((len(flight.t), 0)),
-                                flight.dt, system.Q, system.R, initial_state(flight), system.P0, reference,
+    measured = flight
+    if knode.meta.get("measurement_effects"):
+        measured = corrected_flight(flight, knode.meta["measurement_effects"])
+    results = evaluate_sequence(methods, prior, knode, measured.measurements(), np.zeros((len(flight.t), 0)),
+                                flight.dt, system.Q, system.R, initial_state(measured), system.P0, reference,
                                 horizon=horizon, keep_estimates=keep_estimates)
     return {"results": results, "reference": reference if keep_estimates else None}
 

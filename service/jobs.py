@@ -30,7 +30,7 @@ from sqlalchemy.orm import Session
 
 from service import registry
 from service.blobs import BlobStore
-from service.db import (Database, Evaluation, Flight, Invalid, Job, Lease, ModelVersion, NotFound, Result,
+from service.db import (Database, Diagnosis, Evaluation, Flight, Invalid, Job, Lease, ModelVersion, NotFound, Result,
                         Settings, acquire_lease, release_lease, utcnow)
 from service.executors import Executor, init_worker, make_executor
 
@@ -559,3 +559,90 @@ def flights_without_results(session: Session, version_id: int, key: str) -> list
     """Every stored flight with no result (succeeded or failed) for this model version and settings."""
     done = select(Result.flight_sha256).where(Result.model_version_id == version_id, Result.settings_key == key)
     return list(session.scalars(select(Flight.id).where(Flight.sha256.not_in(done)).order_by(Flight.id)))
+
+
+# -- diagnosis jobs ------------------------------------------------------------------------------------
+def diagnose_task(flights_bytes: list[bytes], model_json: bytes | None, methods: list[str], epochs: int) -> dict:
+    """service.diagnose.diagnose_flights on stored flights; the report as plain JSON, the repaired model as
+    HybridModel JSON."""
+    from service.diagnose import diagnose_flights
+
+    init_worker()
+    knode = registry.model_from_json(model_json) if model_json is not None else None
+    report, repaired = diagnose_flights([_flight_from_bytes(b) for b in flights_bytes], knode=knode,
+                                        methods=tuple(methods), epochs=epochs, return_model=True)
+    return {"report": plain_json(report), "model_json": registry.model_to_json(repaired),
+            "fitting_flight": repaired.meta.get("training_flight")}
+
+
+def plain_json(value):
+    """numpy scalars/arrays and tuples -> JSON types (the report goes into a JSON column)."""
+    return json.loads(json.dumps(value, default=lambda o: o.tolist() if hasattr(o, "tolist") else float(o)))
+
+
+def diagnosis_metrics(model, report: dict) -> dict:
+    """What a version made by a diagnosis records besides its weights: training metrics and before/after."""
+    return {**{key: model.meta.get(key) for key in ("final_loss", "best_epoch", "best_validation_loss")},
+            "diagnosis": {"effects": [e["id"] for e in report["effects"]], "before": report["before"],
+                          "after": report["after"]}}
+
+
+def start_diagnosis(services: Services, flight_ids: list[int], model_ref: str | None, register: str | None,
+                    methods: list[str], epochs: int) -> tuple[int, int]:
+    """Create the diagnosis and its job and launch it.  -> (job id, diagnosis id)"""
+    if register is not None:
+        registry.check_name(register)
+    ids = list(dict.fromkeys(int(i) for i in flight_ids))
+    if not ids:
+        raise Invalid("flights: give at least one flight id (the first is the fitting flight)")
+    with services.db.transaction() as session:
+        found = _flights_by_id(session, ids)
+        missing = [i for i in ids if i not in found]
+        if missing:
+            raise NotFound(f"flight(s) not found: {', '.join(map(str, missing))}")
+        if model_ref is not None:
+            version = registry.resolve(session, model_ref)
+            model_ref = f"{version.name}:{version.version}"
+        settings = {"methods": list(methods), "epochs": epochs}
+        job = services.runner.create(session, "diagnosis", {"flights": ids, "model": model_ref,
+                                                            "register": register, **settings})
+        diagnosis = Diagnosis(job_id=job.id, flight_ids=ids, model_ref=model_ref, register_as=register,
+                              settings=settings, created_at=utcnow())
+        session.add(diagnosis)
+        session.flush()
+        job_id, diagnosis_id = job.id, diagnosis.id
+    services.runner.launch(job_id, lambda ctx: run_diagnosis(services, ctx, diagnosis_id))
+    return job_id, diagnosis_id
+
+
+def run_diagnosis(services: Services, ctx: JobContext, diagnosis_id: int) -> None:
+    with services.db.transaction() as session:
+        diagnosis = session.get(Diagnosis, diagnosis_id)
+        flights = _flights_by_id(session, diagnosis.flight_ids)
+        if len(flights) != len(diagnosis.flight_ids):
+            raise Invalid("a flight of this diagnosis was deleted before it started")
+        blobs = [flights[i].flight_blob for i in diagnosis.flight_ids]
+        weights = None
+        if diagnosis.model_ref is not None:
+            weights = registry.resolve(session, diagnosis.model_ref).weights_blob
+        settings, model_ref, register = dict(diagnosis.settings), diagnosis.model_ref, diagnosis.register_as
+    out = services.executor.submit(diagnose_task, [services.blobs.read_bytes(b) for b in blobs],
+                                   services.blobs.read_bytes(weights) if weights else None,
+                                   settings["methods"], settings["epochs"]).result()
+    ctx.progress(0.95)
+    registered = None
+    if register is not None:
+        model = registry.model_from_json(out["model_json"])
+        # the fitting flight: diagnose_flights skips flights that fail the quality checks, so go by name
+        fitting = next((f for f in flights.values() if f.name == out["fitting_flight"]),
+                       flights[diagnosis.flight_ids[0]])
+        row = registry.register_model(services.db, services.blobs, register, model, flight=fitting,
+                                      hyperparameters=training_config({"epochs": settings["epochs"]}),
+                                      parent=model_ref, job_id=ctx.job_id,
+                                      metrics=diagnosis_metrics(model, out["report"]))
+        registered = {"name": row.name, "version": row.version, "parent": row.parent}
+    with services.db.transaction() as session:
+        diagnosis = session.get(Diagnosis, diagnosis_id)
+        diagnosis.report, diagnosis.registered = out["report"], registered
+        ctx.complete(session, {"diagnosis_id": diagnosis_id, "effects": [e["id"] for e in out["report"]["effects"]],
+                               "registered": registered})

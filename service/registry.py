@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from sqlalchemy import func, select
+from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from models.knode import HybridModel
@@ -106,7 +107,7 @@ def aliases_of(session: Session, name: str) -> dict[str, int]:
 
 
 # -- writes -------------------------------------------------------------------------------------------
-def reserve_version(session: Session, name: str, *, job_id: int, flight: Flight, hyperparameters: dict,
+def reserve_version(session: Session, name: str, *, job_id: int | None, flight: Flight, hyperparameters: dict,
                     parent: str | None) -> ModelVersion:
     """Take the next version number of `name` (status "training").  Two concurrent requests may pick the
     same number: the unique (name, version) constraint rejects one, and the caller retries."""
@@ -122,6 +123,35 @@ def reserve_version(session: Session, name: str, *, job_id: int, flight: Flight,
     session.add(row)
     session.flush()
     return row
+
+
+def register_model(db: Database, blobs: BlobStore, name: str, model: HybridModel, *, flight: Flight,
+                   hyperparameters: dict, parent: str | None = None, job_id: int | None = None,
+                   metrics: dict | None = None) -> ModelVersion:
+    """Store a model made outside a training job (a diagnosis' repaired model) as the next ready version of
+    `name`: weights, prior (its prior params plus the measurement effects and effect ids in its meta),
+    training flight, hyperparameters, parent ("name:version" it was derived from) and provenance."""
+    check_name(name)
+    model_json = model_to_json(model)
+    prior = {**prior_of(model_json), "measurement_effects": model.meta.get("measurement_effects") or {},
+             "effects": model.meta.get("effects") or []}
+    with blobs.writing():  # the weights blob exists before the row that names it commits
+        weights = blobs.put_bytes(model_json)
+        for attempt in range(20):  # another request may take the same version number first
+            try:
+                with db.transaction() as session:
+                    if parent is not None:
+                        resolved = resolve(session, parent)
+                        parent = f"{resolved.name}:{resolved.version}"
+                    row = reserve_version(session, name, job_id=job_id, flight=flight,
+                                          hyperparameters=hyperparameters, parent=parent)
+                    row.status, row.weights_blob, row.ready_at, row.prior = "ready", weights, utcnow(), prior
+                    row.metrics = metrics
+                    row.code_version, row.library_versions = code_version(), library_versions()
+                return row
+            except IntegrityError:
+                if attempt == 19:
+                    raise
 
 
 def fail_versions_of_jobs(session: Session, job_ids: list[int], reason: str) -> None:

@@ -174,3 +174,33 @@ class EvaluationPending(BaseModel):
     job_id: int
     state: str
     progress: float
+
+
+# -- diagnoses ----------------------------------------------------------------------------------------
+class DiagnosisRequest(Strict):
+    flights: list[int] = Field(min_length=1, description="flight ids; the first is the fitting flight, the "
+                               "others are scored (one flight: fit on its first 60 %, score the rest)")
+    model: str | None = Field(None, description='the KNODE analysed, "name:version" or "name@alias" (default: '
+                              "one trained on the fitting flight)")
+    register_as: str | None = Field(None, alias="register", pattern=NAME_REGEX, description="register the repaired model as the next "
+                                 "version of this name (parent: `model`)")
+    methods: list[str] = Field(default_factory=lambda: ["ukf", "knode-ukf"],
+                               description="estimators scored before and after")
+    epochs: int = Field(150, ge=1, le=100_000, description="KNODE training epochs (Sec. V-C: 150)")
+
+    @field_validator("methods")
+    @classmethod
+    def known_methods(cls, methods: list[str]) -> list[str]:
+        return parse_methods(",".join(methods))
+
+
+class DiagnosisAccepted(BaseModel):
+    job_id: int
+    diagnosis_id: int
+
+
+class DiagnosisPending(BaseModel):
+    diagnosis_id: int
+    job_id: int
+    state: str
+    progress: float

@@ -8,6 +8,8 @@ replaces the plain file store of the ingest issue (home/models/NAME.json files a
   row, deduplicated by sha256).
 - `train`: register the next version of a model trained on that flight, as POST /models does (a training job
   on a one-process local pool, with the same provenance), and wait for it.
+- `register_repaired`: register a diagnosis' repaired model as the next version of a name (its fitting flight
+  stored as by an upload), as POST /diagnoses with "register" does.
 - `load_model`: "NAME" (its latest ready version), "NAME:VERSION" or "NAME@ALIAS" -> HybridModel, through
   service.registry.load_model_ref; a reference that names nothing is a ValueError listing the known models.
 """
@@ -24,7 +26,7 @@ from sqlalchemy import select
 from models.knode import HybridModel
 from service import registry
 from service.db import Conflict, Database, Flight, Job, NotFound, RegisteredModel, Settings
-from service.jobs import ACTIVE, Services, open_services, start_training
+from service.jobs import ACTIVE, Services, diagnosis_metrics, open_services, start_training, training_config
 
 
 class TrainingFailed(ValueError):
@@ -121,6 +123,21 @@ def wait_for_job(services: Services, job_id: int, progress: Callable[[float], No
         if job.state not in ACTIVE:
             return job
         time.sleep(poll_s)
+
+
+# -- diagnosis -----------------------------------------------------------------------------------------------
+def register_repaired(name: str, model: HybridModel, flights, report: dict, *, epochs: int,
+                      parent: str | None = None, settings: Settings | None = None) -> dict:
+    """Store the fitting flight (the one model.meta["training_flight"] names) and register `model` (from
+    diagnose_flights(..., return_model=True)) as the next version of `name`.  -> {"name", "version", "parent"}"""
+    registry.check_name(name)
+    fitting = next((f for f in flights if f.name == model.meta.get("training_flight")), flights[0])
+    with local_services(settings or cli_settings()) as services:
+        row, _ = add_flight(services, [source["path"] for source in fitting.meta["sources"]])
+        version = registry.register_model(services.db, services.blobs, name, model, flight=row,
+                                          hyperparameters=training_config({"epochs": epochs}), parent=parent,
+                                          metrics=diagnosis_metrics(model, report))
+    return {"name": version.name, "version": version.version, "parent": version.parent}
 
 
 # -- loading -----------------------------------------------------------------------------------------------

@@ -1,0 +1,40 @@
+"""/diagnoses: `learnest diagnose` on stored flights as a job; the report is service.diagnose.diagnose_flights'
+JSON, plus "registered" when the repaired model was registered as a new version."""
+from __future__ import annotations
+
+from fastapi import APIRouter, Depends, Response
+from fastapi.responses import JSONResponse
+
+from service.db import Conflict, Database, Diagnosis, Job, NotFound
+from service.jobs import Services, start_diagnosis
+from service.routers.deps import get_db, get_services, require_api_key
+from service.schemas import DiagnosisAccepted, DiagnosisPending, DiagnosisRequest
+
+router = APIRouter(prefix="/diagnoses", tags=["diagnoses"])
+
+
+@router.post("", status_code=202, response_model=DiagnosisAccepted, dependencies=[Depends(require_api_key)])
+def create_diagnosis(body: DiagnosisRequest, response: Response, services: Services = Depends(get_services)):
+    """Trace the residual to named effects, add them, retrain the KNODE on top and score before/after; with
+    `register`, the repaired model becomes the next version of that name (parent: `model`)."""
+    job_id, diagnosis_id = start_diagnosis(services, body.flights, body.model, body.register_as, body.methods,
+                                           body.epochs)
+    response.headers["Location"] = f"/diagnoses/{diagnosis_id}"
+    return {"job_id": job_id, "diagnosis_id": diagnosis_id}
+
+
+@router.get("/{diagnosis_id}", responses={200: {"description": "the report (diagnose_flights' JSON)"},
+                                          202: {"model": DiagnosisPending, "description": "not finished yet"},
+                                          409: {"description": "the diagnosis job failed"}})
+def diagnosis_report(diagnosis_id: int, db: Database = Depends(get_db)):
+    with db.transaction() as session:
+        diagnosis = session.get(Diagnosis, diagnosis_id)
+        if diagnosis is None:
+            raise NotFound(f"diagnosis {diagnosis_id} not found")
+        job = session.get(Job, diagnosis.job_id)
+    if job.state == "failed":
+        raise Conflict(f"diagnosis {diagnosis_id} failed: {job.error}")
+    if job.state != "succeeded":
+        return JSONResponse({"diagnosis_id": diagnosis.id, "job_id": job.id, "state": job.state,
+                             "progress": job.progress}, status_code=202)
+    return {**diagnosis.report, "registered": diagnosis.registered}

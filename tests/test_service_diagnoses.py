@@ -1,0 +1,111 @@
+"""POST /diagnoses runs `learnest diagnose` as a job and registers the repaired model as a new version;
+`learnest diagnose --model REF --register NAME` does the same from the CLI (parent: REF's version).
+
+Two small simulated NanoBench flights with a declared accelerometer bias: the diagnosis must find it."""
+import contextlib
+import io
+import json
+
+import pytest
+from sqlalchemy import select
+
+from ingest.flight import Flight as CanonicalFlight
+from ingest.simulator import RandomWaypoints, SensorModel, simulate, write_flight
+from service.blobs import BlobStore
+from service.cli import main
+from service.db import Database, Flight
+from service.experiment import evaluate_flight
+from service.registry import load_model_ref
+from test_service_support import FAST_METHODS, evaluate, running_app, settings_for, upload, wait_for_job
+
+BIAS = (0.3, -0.2, 0.25)
+EPOCHS = 3
+
+
+@pytest.fixture(scope="module")
+def biased_logs(tmp_path_factory):
+    directory = tmp_path_factory.mktemp("diagnoses-logs")
+    paths = []
+    for seed in (0, 1):
+        sim = simulate(RandomWaypoints(count=8, speed=0.8, seed=seed), sensors=SensorModel(bias=BIAS), seed=seed)
+        paths.append(write_flight(sim, "nanobench", directory, f"biased{seed}"))
+    return paths
+
+
+def stored_flight(home, flight_id) -> CanonicalFlight:
+    database = Database(settings_for(home).url)
+    with database.transaction() as session:
+        blob = session.scalar(select(Flight.flight_blob).where(Flight.id == flight_id))
+    database.dispose()
+    return CanonicalFlight.from_bytes(BlobStore(home / "blobs").read_bytes(blob))
+
+
+def assert_bias_found(report: dict) -> None:
+    top = report["effects"][0]
+    assert top["id"] == "accel_bias", [e["id"] for e in report["effects"]]
+    assert top["params"]["bias_x"] == pytest.approx(BIAS[0], rel=0.2)
+
+
+def test_post_diagnoses_registers_the_repaired_model(tmp_path, biased_logs):
+    home = tmp_path / "home"
+    with running_app(home, api_key="secret") as client:
+        key = {"X-API-Key": "secret"}
+        ids = [upload(client, *paths, headers=key).json()["id"] for paths in biased_logs]
+        body = {"flights": ids, "register": "cf", "epochs": EPOCHS}
+        assert client.post("/diagnoses", json=body).status_code == 401
+        assert client.post("/diagnoses", json={**body, "flights": []}, headers=key).status_code == 422
+        assert client.post("/diagnoses", json={**body, "flights": [999]}, headers=key).status_code == 404
+        assert client.post("/diagnoses", json={**body, "model": "nope:1"}, headers=key).status_code == 404
+        assert client.get("/diagnoses/999").status_code == 404
+
+        client.headers.update(key)
+        accepted = client.post("/diagnoses", json=body)
+        assert accepted.status_code == 202, accepted.text
+        job = wait_for_job(client, accepted.json()["job_id"])
+        assert job["state"] == "succeeded", job
+        report = client.get(f"/diagnoses/{accepted.json()['diagnosis_id']}").json()
+        assert_bias_found(report)
+        assert report["registered"] == {"name": "cf", "version": 1, "parent": None}
+        assert set(report["before"]) == set(report["after"]) == set(FAST_METHODS)
+
+        version = client.get("/models/cf/versions/1").json()
+        assert version["status"] == "ready" and version["training_flight"]["id"] == ids[0]
+        assert version["hyperparameters"]["epochs"] == EPOCHS and version["code_version"]["package"] == "learnest"
+        assert version["prior"]["measurement_effects"]["bias_x"] == pytest.approx(BIAS[0], rel=0.2)
+        assert "accel_bias" in version["prior"]["effects"]
+
+        model = load_model_ref("cf:1", settings_for(home))
+        assert model.meta["measurement_effects"] == version["prior"]["measurement_effects"]
+        assert "accel_bias" in model.meta["effects"]
+        # evaluating with it applies the correction: the job's numbers are evaluate_flight's
+        _, evaluation = evaluate(client, "cf:1", [ids[1]])
+        direct = evaluate_flight(model, stored_flight(home, ids[1]), FAST_METHODS)["results"]
+        assert evaluation["flights"][0]["mse"]["knode-ukf"] == pytest.approx(direct["knode-ukf"]["mse"], rel=1e-9)
+        model.meta["measurement_effects"] = {}
+        uncorrected = evaluate_flight(model, stored_flight(home, ids[1]), ["knode-ukf"])["results"]
+        assert uncorrected["knode-ukf"]["mse"] != pytest.approx(direct["knode-ukf"]["mse"], rel=1e-6)
+
+
+def test_cli_diagnose_registers_a_child_version(tmp_path, biased_logs, monkeypatch):
+    monkeypatch.setenv("LEARNEST_HOME", str(tmp_path / "home"))
+    for name in ("LEARNEST_DATABASE_URL", "LEARNEST_DASK", "LEARNEST_API_KEY"):
+        monkeypatch.delenv(name, raising=False)
+    files = [str(p) for paths in biased_logs for p in paths]
+
+    def run(*argv) -> dict:
+        buffer = io.StringIO()
+        with contextlib.redirect_stdout(buffer):
+            assert main([*argv, "--json"]) == 0
+        return json.loads(buffer.getvalue())
+
+    assert run("train", files[0], "--name", "cf", "--epochs", "2")["ref"] == "cf:1"
+    report = run("diagnose", *files, "--model", "cf:1", "--register", "cf", "--epochs", str(EPOCHS))
+    assert_bias_found(report)
+    assert report["registered"] == {"name": "cf", "version": 2, "parent": "cf:1"}
+    model = load_model_ref("cf:2")
+    assert "accel_bias" in model.meta["effects"] and model.meta["measurement_effects"]
+    with running_app(tmp_path / "home") as client:
+        versions = client.get("/models/cf").json()["versions"]
+        assert [(v["version"], v["parent"]) for v in versions] == [(1, None), (2, "cf:1")]
+        assert versions[0]["training_flight"] == versions[1]["training_flight"]   # the same stored flight
+        assert client.get("/flights").json()["total"] == 1
