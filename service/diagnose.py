@@ -183,7 +183,7 @@ def diagnose_flights(flights: list[Flight], knode: HybridModel | None = None,
         for m in methods:
             before[m].append(b[m]["mse"])
             after[m].append(a[m]["mse"])
-    effects = sorted(accel_public(accel) + accel_public(dynamics), key=lambda e: -e["explained_fraction"])
+    effects = sorted(_public_effects(accel) + _public_effects(dynamics), key=lambda e: -e["explained_fraction"])
     report = {"system": "quadrotor", "effects": effects, "confounded": accel["confounded"] + dynamics["confounded"],
             "before": {m: float(np.median(v)) for m, v in before.items()},
             "after": {m: float(np.median(v)) for m, v in after.items()},
@@ -219,12 +219,13 @@ def _channel(selection):
     return {"rss_before": selection["rss_before"], "rss_after": selection["rss_after"], "trace": selection["trace"]}
 
 
-def accel_public(selection):
-    return [{k: v for k, v in e.items()} | {"channel": selection["channel"]} for e in selection["effects"]]
+def _public_effects(selection):
+    """The chosen effects as reported, each tagged with the residual channel it explains."""
+    return [{**e, "channel": selection["channel"]} for e in selection["effects"]]
 
 
 def _public(selection):
-    return {"effects": accel_public(selection), "confounded": selection["confounded"],
+    return {"effects": _public_effects(selection), "confounded": selection["confounded"],
             "channels": {selection["channel"]: _channel(selection)}}
 
 
