@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ingest.flight import GRAVITY, quat_to_matrix
+from ingest.flight import GRAVITY, quat_to_matrix, world_acceleration
 
 
 @dataclass(frozen=True)
@@ -147,5 +147,5 @@ def specific_force_body(a_world: np.ndarray, quat: np.ndarray) -> np.ndarray:
 
 
 def world_from_body(acc_body: np.ndarray, quat: np.ndarray) -> np.ndarray:
-    """a_meas = R acc_body - g ẑ (the Flight's convention)."""
-    return np.einsum("tij,tj->ti", quat_to_matrix(quat), acc_body) - np.array([0.0, 0.0, GRAVITY])
+    """a_meas = R acc_body - g ẑ from a body-frame reading in m/s² (the Flight's convention)."""
+    return world_acceleration(acc_body / GRAVITY, quat)

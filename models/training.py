@@ -22,9 +22,9 @@ class TrainingConfig:
     lr: float = 1e-2
     batch_size: int = 0        # 0 = full batch (one Adam step per epoch)
     seed: int = 0
-    # hold out the last part of the record (a time block, never random samples of one series) and keep
-    # the weights of the epoch that predicted it best: an observer's artefacts are what a long run
-    # overfits, and they do not repeat in the held-out block
+    # hold out part of the record (time blocks, never random samples of one series) and keep the
+    # weights of the epoch that predicted it best: an observer's artefacts are what a long run
+    # overfits, and they do not repeat in the held-out blocks
     validation_fraction: float = 0.2
     # where the held-out time lies: "tail" (the last part) or "spread" (two blocks, at 30-40 % and 80-90 %
     # of the record, so a record that ends in hover is not validated on the hover alone)
@@ -92,6 +92,8 @@ def train_knode(system: System, zeta, u, dt: float, config: TrainingConfig | Non
     if len(zeta) < 3:
         raise ValueError(f"training needs at least 3 state observations, got {len(zeta)}")
     dt = check_dt(dt)
+    if config.epochs < 1:
+        raise ValueError(f"epochs must be at least 1, got {config.epochs}")
     torch.manual_seed(config.seed)
     features = np.concatenate([zeta, u], axis=1)
     std = features.std(axis=0)

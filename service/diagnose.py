@@ -22,7 +22,7 @@ from models.effects import LIBRARY, dynamics_params, effects_for, predict_acc_bo
 from models.knode import HybridModel
 from models.observers import pretraining_observer
 from models.systems import make_system
-from models.training import TrainingConfig, train_knode
+from models.training import train_knode
 
 # a quadrotor's accelerometer sees horizontal (body x/y) specific force only through rotor drag; below
 # this rms the x/y scale factors cannot be separated from reference errors and are held at 1
@@ -147,25 +147,21 @@ def diagnose_flights(flights: list[Flight], knode: HybridModel | None = None,
     fitting, scoring, split = _split_for_fitting(flights)
     accel = select_effects(accelerometer_problem(fitting))
     fixed_fitting = [corrected_flight(f, accel["values"]) for f in fitting]
-    dyn_effects = effects_for("quadrotor", "dynamics")
-    dyn_channels = []
-    for f in fixed_fitting:
-        system = quadrotor_for(f)
-        zeta = pretraining_observer(system, f.measurements(), np.zeros((len(f.t), 0)), f.dt)
-        dyn_channels.append((system, zeta))
-    system, zeta = dyn_channels[0]
-    dynamics = select_effects(dynamics_problem(system, zeta, np.zeros((len(zeta), 0)), system.dt, dyn_effects,
+    # the fitting data is one flight (or the first 60 % of one): trace the jerk residual on its states
+    fitting_flight = fixed_fitting[0]
+    system = quadrotor_for(fitting_flight)
+    no_input = np.zeros((len(fitting_flight.t), 0))
+    zeta = pretraining_observer(system, fitting_flight.measurements(), no_input, system.dt)
+    dynamics = select_effects(dynamics_problem(system, zeta, no_input, system.dt, effects_for("quadrotor", "dynamics"),
                                                components=[6, 7, 8], name="translational dynamics"))
     chosen_dyn = [LIBRARY[e["id"]] for e in dynamics["effects"]]
     new_prior = dynamics_params(system, dynamics["values"], chosen_dyn)
 
     config = replace(CRAZYFLIE_TRAINING, epochs=epochs)
     knode_before = knode or train_on_flight(fitting[0], config)["model"]
-    repaired_system = replace(quadrotor_for(fixed_fitting[0]), prior_params=new_prior)
-    zeta_after = pretraining_observer(repaired_system, fixed_fitting[0].measurements(),
-                                      np.zeros((len(fixed_fitting[0].t), 0)), fixed_fitting[0].dt)
-    knode_after = train_knode(repaired_system, zeta_after, np.zeros((len(zeta_after), 0)),
-                              repaired_system.dt, config).model
+    repaired_system = replace(system, prior_params=new_prior)
+    zeta_after = pretraining_observer(repaired_system, fitting_flight.measurements(), no_input, system.dt)
+    knode_after = train_knode(repaired_system, zeta_after, no_input, system.dt, config).model
     chosen_meas = [LIBRARY[e["id"]] for e in accel["effects"]]
     knode_after.meta.update({
         "measurement_effects": {p.name: accel["values"][p.name] for e in chosen_meas for p in e.params
@@ -184,15 +180,16 @@ def diagnose_flights(flights: list[Flight], knode: HybridModel | None = None,
             before[m].append(b[m]["mse"])
             after[m].append(a[m]["mse"])
     effects = sorted(_public_effects(accel) + _public_effects(dynamics), key=lambda e: -e["explained_fraction"])
-    report = {"system": "quadrotor", "effects": effects, "confounded": accel["confounded"] + dynamics["confounded"],
-            "before": {m: float(np.median(v)) for m, v in before.items()},
-            "after": {m: float(np.median(v)) for m, v in after.items()},
-            "per_flight": per_flight, "split": split,
-            # a median can hide an effect that does not transfer: count the flights it helped
-            "improved_flights": {m: f"{sum(p['after'][m] < p['before'][m] for p in per_flight)}/{len(per_flight)}"
-                                 for m in methods},
-            "residuals": _residual_summary(fitting, fixed_fitting, accel, dynamics, knode_before),
-            "channels": {"accelerometer": _channel(accel), "translational dynamics": _channel(dynamics)}}
+    report = {
+        "system": "quadrotor", "effects": effects, "confounded": accel["confounded"] + dynamics["confounded"],
+        "before": {m: float(np.median(v)) for m, v in before.items()},
+        "after": {m: float(np.median(v)) for m, v in after.items()},
+        "per_flight": per_flight, "split": split,
+        # a median can hide an effect that does not transfer: count the flights it helped
+        "improved_flights": {m: f"{sum(p['after'][m] < p['before'][m] for p in per_flight)}/{len(per_flight)}"
+                             for m in methods},
+        "residuals": _residual_summary(fitting, fixed_fitting, accel, dynamics, knode_before),
+        "channels": {"accelerometer": _channel(accel), "translational dynamics": _channel(dynamics)}}
     return (report, knode_after) if return_model else report
 
 

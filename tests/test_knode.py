@@ -78,6 +78,12 @@ def test_training_rejects_bad_arrays(bad, match):
         train_knode(system, bad, np.zeros((10, 1)), 0.01)
 
 
+def test_training_rejects_zero_epochs():
+    system = make_system("cartpole")
+    with pytest.raises(ValueError, match="epochs"):
+        train_knode(system, np.zeros((10, 4)), np.zeros((10, 1)), 0.01, TrainingConfig(epochs=0))
+
+
 def test_knode_model_needs_a_residual():
     with pytest.raises(ValueError, match="residual"):
         HybridModel(make_system("cartpole"), "knode")
