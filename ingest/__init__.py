@@ -51,9 +51,9 @@ def group_files(paths) -> list[tuple[str, list[Path]]]:
         (roles[kind] if kind in roles else singles).append((kind, [path]))
     vicon, cfclient = sorted(roles["vicon"]), sorted(roles["cfclient"])
     if len(vicon) != len(cfclient):
-        lonely = (vicon or cfclient)[len(min(vicon, cfclient, key=len)):]
-        missing = "cfclient log" if len(vicon) > len(cfclient) else "Vicon export"
-        raise IngestError(lonely[0][1][0], f"needs a {missing} of the same flight given with it")
+        longer, shorter = (vicon, cfclient) if len(vicon) > len(cfclient) else (cfclient, vicon)
+        missing = "cfclient log" if longer is vicon else "Vicon export"
+        raise IngestError(longer[len(shorter)][1][0], f"needs a {missing} of the same flight given with it")
     pairs = [("vicon+cfclient", [v[1][0], c[1][0]]) for v, c in zip(vicon, cfclient)]
     return singles + pairs
 

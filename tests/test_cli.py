@@ -61,3 +61,19 @@ def test_bad_input_is_one_clear_line_without_traceback(tmp_path, capsys):
     assert main(["evaluate", "--model", "nope", str(junk)]) == 2
     assert main(["evaluate", "--model", "../etc/passwd", str(junk)]) == 2
     assert "must be" in capsys.readouterr().err
+
+
+def test_a_lone_half_of_a_vicon_cfclient_pair_is_named(tmp_path, capsys):
+    """One Vicon export with two cfclient logs: the second log has no partner, and the error says so."""
+    import numpy as np
+
+    from ingest.vicon_csv import write_cfclient_csv, write_vicon_csv
+    t = np.arange(200) / 100.0
+    write_vicon_csv(tmp_path / "a_vicon.csv", t, np.tile([0.0, 0.0, 1.0], (200, 1)),
+                    np.tile([0.0, 0.0, 0.0, 1.0], (200, 1)), 100.0)
+    for name in ("a_cf.csv", "b_cf.csv"):
+        write_cfclient_csv(tmp_path / name, t + 5.0, np.tile([0.0, 0.0, 1.0], (200, 1)))
+    files = [str(tmp_path / n) for n in ("a_vicon.csv", "a_cf.csv", "b_cf.csv")]
+    assert main(["ingest", *files]) == 2
+    err = capsys.readouterr().err
+    assert "b_cf.csv" in err and "needs a Vicon export" in err and "Traceback" not in err
