@@ -52,11 +52,6 @@ def parse_ref(text: str) -> ModelRef:
     return ModelRef(match["name"], int(version) if version else None, match["alias"])
 
 
-def is_registry_ref(text: str) -> bool:
-    """True for "name:version" / "name@alias" (what the CLI sends to the registry, not the file store)."""
-    return (":" in text or "@" in text) and REF_PATTERN.fullmatch(text.strip()) is not None
-
-
 def check_name(name: str, what: str = "model name") -> str:
     if not NAME_PATTERN.fullmatch(name or ""):
         raise Invalid(f"{what} {name!r} must be 1-100 letters, digits, '.', '_' or '-' (starting with a "
