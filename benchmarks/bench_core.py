@@ -38,6 +38,17 @@ def timed(fn, repeats):
     return statistics.median(times), result
 
 
+def timed_side_by_side(fn_a, fn_b, repeats):
+    """Medians of a and b run alternately, so a slow spell of a shared machine hits both alike."""
+    times, results = ([], []), [None, None]
+    for _ in range(repeats):
+        for i, fn in enumerate((fn_a, fn_b)):
+            start = time.perf_counter()
+            results[i] = fn()
+            times[i].append(time.perf_counter() - start)
+    return statistics.median(times[0]), statistics.median(times[1]), *results
+
+
 def plain_filterpy_ukf(model, y, u, dt, Q, R, x0, P0):
     """Textbook filterpy usage: fx and hx called once per sigma point."""
     points = MerweScaledSigmaPoints(model.n, alpha=1e-3, beta=2.0, kappa=0.0)
@@ -89,8 +100,7 @@ def main():
     model = result.model
     args = (model, test.y[:1000], test.u[:1000], system.dt, system.Q, system.R, test.x_noisy[0], system.P0)
 
-    ours_s, ours = timed(lambda: run_ukf(*args), 3)
-    plain_s, plain = timed(lambda: plain_filterpy_ukf(*args), 3)
+    ours_s, plain_s, ours, plain = timed_side_by_side(lambda: run_ukf(*args), lambda: plain_filterpy_ukf(*args), 5)
     ukf_max_diff = float(np.abs(ours - plain).max())
     # the Crazyflie setting: 9 states, 19 sigma points, a 16-unit KNODE
     quad = make_system("quadrotor")
@@ -98,8 +108,8 @@ def main():
     quad_zeta = pretraining_observer(quad, quad_run.y, quad_run.u, quad.dt)
     quad_model = train_knode(quad, quad_zeta, quad_run.u, quad.dt, TrainingConfig(hidden=16, epochs=50)).model
     quad_args = (quad_model, quad_run.y, quad_run.u, quad.dt, quad.Q, quad.R, quad_run.x_noisy[0], quad.P0)
-    quad_ours_s, quad_ours = timed(lambda: run_ukf(*quad_args), 3)
-    quad_plain_s, quad_plain = timed(lambda: plain_filterpy_ukf(*quad_args), 3)
+    quad_ours_s, quad_plain_s, quad_ours, quad_plain = timed_side_by_side(
+        lambda: run_ukf(*quad_args), lambda: plain_filterpy_ukf(*quad_args), 5)
     quad_steps = len(quad_run.y)
 
     steps = 200

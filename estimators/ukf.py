@@ -1,81 +1,122 @@
 """UKF (eq. 3) on filterpy's UnscentedKalmanFilter and MerweScaledSigmaPoints.
 
-Two changes to the textbook loop, both for models that are neural networks: every sigma point goes
-through the model in one batched call (filterpy calls fx once per point), and the covariance is kept
-symmetric positive definite so that long runs never die in a Cholesky factorisation.
+Three changes to the textbook loop, all for models that are neural networks: every sigma point goes
+through the model in one batched call (filterpy calls fx once per point); the covariance is kept
+symmetric positive definite so that long runs never die in a Cholesky factorisation; and each covariance
+is factorised once, with the factor kept for the next sigma points (filterpy factorises it twice more).
 """
 from __future__ import annotations
 
 import numpy as np
-from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter, unscented_transform
+from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+from scipy.linalg import lapack
 
 from estimators.checks import check_covariance, check_dt, check_sequence, check_vector
 
 
+def spd_factor(P: np.ndarray, floor: float = 1e-15) -> tuple[np.ndarray, np.ndarray]:
+    """Symmetrise P and return (P, L) with L Lᵀ = P.
+
+    If Cholesky fails, the spectrum is lifted just above zero; if even that fails (a spread of
+    eigenvalues beyond double precision), L is a clipped eigen square root instead of a triangle.
+    LAPACK's potrf is called directly: numpy's wrapper costs four times more on a 9x9 matrix.
+    """
+    P = 0.5 * (P + P.T)
+    L, info = lapack.dpotrf(P, lower=1)
+    if info == 0:
+        return P, L
+    eigval, eigvec = np.linalg.eigh(P)
+    P = P + np.eye(len(P)) * (floor * max(1.0, eigval[-1]) - eigval[0])
+    L, info = lapack.dpotrf(P, lower=1)
+    if info == 0:
+        return P, L
+    return P, eigvec * np.sqrt(np.maximum(eigval, floor * max(1.0, eigval[-1])))
+
+
 def robust_sqrt(P: np.ndarray) -> np.ndarray:
-    """Upper factor U with UᵀU = P; falls back to a clipped eigen-decomposition if Cholesky fails."""
-    P = 0.5 * (P + P.T)
-    try:
-        return np.linalg.cholesky(P).T  # numpy's is several times cheaper than scipy's on tiny matrices
-    except np.linalg.LinAlgError:
-        eigval, eigvec = np.linalg.eigh(P)
-        floor = 1e-12 * max(eigval.max(), 1e-12)
-        return (eigvec * np.sqrt(np.maximum(eigval, floor))).T
-
-
-def _make_spd(P: np.ndarray, floor: float = 1e-15) -> np.ndarray:
-    """Symmetrise; if a Cholesky factorisation fails, lift the spectrum just above zero."""
-    P = 0.5 * (P + P.T)
-    try:
-        np.linalg.cholesky(P)  # the cheap test, passes on almost every step
-        return P
-    except np.linalg.LinAlgError:
-        eigval = np.linalg.eigvalsh(P)
-        return P + np.eye(len(P)) * (floor * max(1.0, eigval[-1]) - eigval[0])
+    """Upper factor U with UᵀU = P (filterpy's sqrt convention), via spd_factor."""
+    return spd_factor(P)[1].T
 
 
 class VectorizedMerwePoints(MerweScaledSigmaPoints):
     """filterpy's scaled sigma points (same weights, same sqrt), built without a Python loop over n."""
 
     def sigma_points(self, x, P):
-        x = np.atleast_1d(np.asarray(x, dtype=float))
-        U = self.sqrt(self.alpha**2 * (self.n + self.kappa) * P)  # (λ + n) P, λ = α²(n + κ) - n
-        return np.vstack([x, x + U, x - U])
+        return self.from_factor(np.atleast_1d(np.asarray(x, dtype=float)), spd_factor(P)[1])
+
+    def from_factor(self, x: np.ndarray, L: np.ndarray) -> np.ndarray:
+        """Points x, x ± columns of sqrt(λ + n)·L, where L Lᵀ = P and λ + n = α²(n + κ)."""
+        spread = np.sqrt(self.alpha**2 * (self.n + self.kappa)) * L.T
+        return np.concatenate([x[None], x + spread, x - spread])
 
 
 class BatchedUKF(UnscentedKalmanFilter):
-    """filterpy's UKF with fx(sigmas (2n+1, n), dt, u) and hx(sigmas, u) evaluated in one call each."""
+    """filterpy's UKF with fx(sigmas (2n+1, n), dt, u) and hx(sigmas, u) evaluated in one call each.
 
-    def compute_process_sigmas(self, dt, fx=None, **fx_args):
-        sigmas = self.points_fn.sigma_points(self.x, self.P)
-        self.sigmas_f = np.asarray((fx or self.fx)(sigmas, dt, **fx_args))
+    The same algorithm as filterpy's predict/update (sigma points re-drawn after the prediction, so the
+    update sees Q), written without the duplicate factorisations. Covariances it stores are read-only:
+    an in-place edit would silently outdate the kept factor, so assign a new P instead.
+    """
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._factored = (None, None)  # (P, L) for the covariance last factorised
+
+    def _sigmas(self) -> np.ndarray:
+        P, L = self._factored
+        if P is not self.P:  # P was assigned from outside (e.g. P0)
+            self._set_covariance(self.P)
+        return self.points_fn.from_factor(self.x, self._factored[1])
+
+    def _set_covariance(self, P: np.ndarray) -> None:
+        P, L = spd_factor(np.asarray(P, dtype=float))
+        P.flags.writeable = False
+        self.P, self._factored = P, (P, L)
+
+    def _transform(self, sigmas: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The unscented transform: weighted mean and covariance of the points, plus the noise."""
+        mean = self.Wm @ sigmas
+        spread = sigmas - mean
+        return mean, (spread.T * self.Wc) @ spread + noise
 
     def predict(self, dt=None, UT=None, fx=None, **fx_args):
-        super().predict(dt, UT, fx, **fx_args)
-        self.P = self.P_prior = _make_spd(self.P)
+        dt = self._dt if dt is None else dt
+        self.sigmas_f = np.asarray((fx or self.fx)(self._sigmas(), dt, **fx_args))
+        self.x, P = self._transform(self.sigmas_f, self.Q)
+        self._set_covariance(P)
+        self.sigmas_f = self._sigmas()  # re-drawn from the predicted covariance, as filterpy does
+        self.x_prior, self.P_prior = self.x, self.P
 
     def update(self, z, R=None, UT=None, hx=None, **hx_args):
         R = self.R if R is None else R
         self.sigmas_h = np.asarray((hx or self.hx)(self.sigmas_f, **hx_args))
-        zp, self.S = unscented_transform(self.sigmas_h, self.Wm, self.Wc, R)
+        zp, self.S = self._transform(self.sigmas_h, R)
         self.SI = np.linalg.inv(self.S)
-        dx, dz = self.sigmas_f - self.x, self.sigmas_h - zp
-        Pxz = (dx * self.Wc[:, None]).T @ dz
+        Pxz = ((self.sigmas_f - self.x).T * self.Wc) @ (self.sigmas_h - zp)
         self.K = Pxz @ self.SI
         self.y = z - zp
         self.x = self.x + self.K @ self.y
-        self.P = _make_spd(self.P - self.K @ self.S @ self.K.T)
+        self._set_covariance(self.P - self.K @ self.S @ self.K.T)
         self.z = np.array(z, copy=True)
-        self.x_post, self.P_post = self.x.copy(), self.P.copy()
+        self.x_post, self.P_post = self.x, self.P
+        self._log_likelihood = self._likelihood = self._mahalanobis = None  # filterpy recomputes on read
+
+
+def _rows(u: np.ndarray, count: int) -> np.ndarray:
+    """u repeated for each sigma point (np.broadcast_to costs several times more on these sizes)."""
+    out = np.empty((count, len(u)))
+    out[:] = u
+    return out
 
 
 def make_ukf(model, dt, Q, R, x0, P0, alpha: float = 1e-3, beta: float = 2.0, kappa: float = 0.0):
     n = model.n
     points = VectorizedMerwePoints(n, alpha=alpha, beta=beta, kappa=kappa, sqrt_method=robust_sqrt)
     ukf = BatchedUKF(dim_x=n, dim_z=R.shape[0], dt=dt, points=points, sqrt_fn=robust_sqrt,
-                     fx=lambda sigmas, dt, u: model.step(sigmas, np.broadcast_to(u, (len(sigmas), len(u))), dt),
-                     hx=lambda sigmas, u: model.h(sigmas, np.broadcast_to(u, (len(sigmas), len(u)))))
-    ukf.x, ukf.P, ukf.Q, ukf.R = x0.copy(), P0.copy(), Q, R
+                     fx=lambda sigmas, dt, u: model.step(sigmas, _rows(u, len(sigmas)), dt),
+                     hx=lambda sigmas, u: model.h(sigmas, _rows(u, len(sigmas))))
+    ukf.x, ukf.Q, ukf.R = x0.copy(), Q, R
+    ukf._set_covariance(P0)
     return ukf
 
 
@@ -87,7 +128,7 @@ def run_ukf(model, y, u, dt, Q, R, x0, P0, alpha: float = 1e-3, return_innovatio
     Q, R = check_covariance("Q", Q, n, allow_singular=True), check_covariance("R", R, y.shape[1])
     x0, P0 = check_vector("x0", x0, n), check_covariance("P0", P0, n)
     ukf = make_ukf(model, dt, Q, R, x0, P0, alpha=alpha)
-    ukf.sigmas_f = ukf.points_fn.sigma_points(ukf.x, ukf.P)
+    ukf.sigmas_f = ukf._sigmas()
     estimates, innovations = np.empty((len(y), n)), np.empty(y.shape)
     for k in range(len(y)):
         if k:
