@@ -63,8 +63,7 @@ class BatchedUKF(UnscentedKalmanFilter):
         self._factored = (None, None)  # (P, L) for the covariance last factorised
 
     def _sigmas(self) -> np.ndarray:
-        P, L = self._factored
-        if P is not self.P:  # P was assigned from outside (e.g. P0)
+        if self._factored[0] is not self.P:  # P was assigned from outside (e.g. P0)
             self._set_covariance(self.P)
         return self.points_fn.from_factor(self.x, self._factored[1])
 
@@ -85,7 +84,7 @@ class BatchedUKF(UnscentedKalmanFilter):
         self.x, P = self._transform(self.sigmas_f, self.Q)
         self._set_covariance(P)
         self.sigmas_f = self._sigmas()  # re-drawn from the predicted covariance, as filterpy does
-        self.x_prior, self.P_prior = self.x, self.P
+        self.x_prior, self.P_prior = self.x.copy(), self.P  # P is read-only: no copy needed
 
     def update(self, z, R=None, UT=None, hx=None, **hx_args):
         R = self.R if R is None else R
@@ -98,7 +97,7 @@ class BatchedUKF(UnscentedKalmanFilter):
         self.x = self.x + self.K @ self.y
         self._set_covariance(self.P - self.K @ self.S @ self.K.T)
         self.z = np.array(z, copy=True)
-        self.x_post, self.P_post = self.x, self.P
+        self.x_post, self.P_post = self.x.copy(), self.P
         self._log_likelihood = self._likelihood = self._mahalanobis = None  # filterpy recomputes on read
 
 
