@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from sqlalchemy import (JSON, BigInteger, Boolean, DateTime, Float, ForeignKey, Integer, String, Text,
-                        UniqueConstraint, create_engine, event, select, text, update)
+                        UniqueConstraint, create_engine, event, exists, or_, select, text, update)
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, relationship, sessionmaker
 
@@ -255,6 +255,21 @@ class Lease(Base):
     name: Mapped[str] = mapped_column(String(200), primary_key=True)
     owner: Mapped[str] = mapped_column(String(200))
     expires_at: Mapped[float] = mapped_column(Float)              # unix time
+
+
+# -- which blobs the rows name ------------------------------------------------------------------------
+def referenced_blobs(db: Database) -> set[str]:
+    """Every blob sha a row names: normalized flights, their raw files, model weights."""
+    with db.transaction() as session:
+        return {sha for column in (Flight.flight_blob, FlightFile.sha256, ModelVersion.weights_blob)
+                for sha in session.scalars(select(column).where(column.is_not(None)))}
+
+
+def blob_is_referenced(db: Database, sha: str) -> bool:
+    with db.transaction() as session:
+        return bool(session.scalar(select(or_(exists().where(Flight.flight_blob == sha),
+                                              exists().where(FlightFile.sha256 == sha),
+                                              exists().where(ModelVersion.weights_blob == sha)))))
 
 
 # -- the database handle ------------------------------------------------------------------------------

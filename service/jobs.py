@@ -31,7 +31,7 @@ from sqlalchemy.orm import Session
 from service import registry
 from service.blobs import BlobStore
 from service.db import (Database, Diagnosis, Evaluation, Flight, Invalid, Job, Lease, ModelVersion, NotFound, Result,
-                        Settings, acquire_lease, release_lease, utcnow)
+                        Settings, acquire_lease, blob_is_referenced, referenced_blobs, release_lease, utcnow)
 from service.executors import Executor, init_worker, make_executor
 
 log = logging.getLogger("learnest.jobs")
@@ -239,12 +239,25 @@ def open_services(settings: Settings, executor: Executor | None = None) -> Servi
     db = Database(settings.url)
     db.migrate()
     blobs = BlobStore(settings.home / "blobs")
+    sweep_orphan_blobs(db, blobs)
     runner = JobRunner(db)
     runner.on_stale.append(registry.fail_versions_of_jobs)
     runner.start()
     owns = executor is None
     executor = executor or make_executor(settings.dask_address, settings.pool_workers)
     return Services(settings, db, blobs, executor, runner, owns_executor=owns)
+
+
+def sweep_orphan_blobs(db: Database, blobs: BlobStore) -> list[str]:
+    """Delete blobs no row names: a crash between a blob's write and its row's commit leaves one behind.
+    Safe beside a running server: writers hold the store's shared lock until their row is committed,
+    and `collect` checks each candidate again under the exclusive lock."""
+    referenced = referenced_blobs(db)
+    removed = blobs.collect([sha for sha in blobs.all_blobs() if sha not in referenced],
+                            lambda sha: blob_is_referenced(db, sha))
+    if removed:
+        log.warning("removed %d orphaned blob(s) left by an interrupted write", len(removed))
+    return removed
 
 
 # -- worker-side tasks (run in executor processes / Dask workers) --------------------------------------

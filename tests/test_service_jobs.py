@@ -1,5 +1,5 @@
-"""Service internals that HTTP alone cannot provoke: jobs left behind by a crashed server, leases (one
-scheduler, job ownership across uvicorn workers), migrations, failing training jobs."""
+"""Service internals that HTTP alone cannot provoke: jobs and blobs left behind by a crashed server, leases
+(one scheduler, job ownership across uvicorn workers), migrations, failing training jobs."""
 import socket
 import subprocess
 import sys
@@ -13,7 +13,8 @@ from sqlalchemy import inspect
 from service.db import (Base, Database, Evaluation, Flight, Job, Lease, ModelVersion, RegisteredModel, acquire_lease, lease_holder,
                         release_lease)
 from service.jobs import JobRunner
-from test_service_support import data_dir, flight_csv, running_app, settings_for, upload, wait_for_job  # noqa: F401
+from test_service_support import (blob_files, data_dir, flight_csv, running_app, settings_for, upload,  # noqa: F401
+                                  wait_for_job)
 
 
 def database_for(home) -> Database:
@@ -61,6 +62,20 @@ def test_jobs_left_running_by_a_crashed_server_are_failed_at_startup(tmp_path):
         assert refused.status_code == 409 and "failed" in refused.json()["detail"]
         listed = client.get("/jobs", params={"state": "failed"}).json()
         assert listed["total"] == 3
+
+
+def test_blobs_orphaned_by_an_interrupted_write_are_swept_at_startup_and_stored_ones_kept(tmp_path, data_dir):
+    home = tmp_path / "home"
+    with running_app(home) as client:
+        flight = upload(client, flight_csv(data_dir, 0)).json()
+        stored = blob_files(home)
+        # a crash after the blob's fsync+rename but before its row's commit
+        orphan = client.app.state.services.blobs.put_bytes(b"an upload whose row never committed")
+    assert blob_files(home) == stored | {orphan}
+    with running_app(home) as client:
+        assert blob_files(home) == stored
+        assert client.get(f"/flights/{flight['id']}/data").status_code == 200
+        assert client.get(f"/flights/{flight['id']}/raw").status_code == 200
 
 
 def test_a_failing_training_job_fails_its_version_with_the_reason(tmp_path, data_dir):

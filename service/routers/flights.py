@@ -21,14 +21,15 @@ from typing import Literal
 import numpy as np
 from fastapi import APIRouter, Depends, File, Form, Query, Response, UploadFile
 from fastapi.responses import FileResponse
-from sqlalchemy import delete, exists, func, or_, select
+from sqlalchemy import delete, func, select
 from sqlalchemy.exc import IntegrityError
 from starlette.background import BackgroundTask
 
 from ingest import IngestError, group_files, read_group
 from ingest.flight import Flight as CanonicalFlight
 from service.blobs import CHUNK, BlobStore
-from service.db import Conflict, Database, Flight, FlightFile, Invalid, ModelVersion, NotFound, Result, utcnow
+from service.db import (Conflict, Database, Flight, FlightFile, Invalid, NotFound, Result, blob_is_referenced,
+                        utcnow)
 from service.routers.deps import get_blobs, get_db, require_api_key
 from service.schemas import FlightDetail, FlightOut, FlightPage
 
@@ -219,13 +220,6 @@ def flight_out(row: Flight, detail: bool = False) -> dict:
     if detail:
         out["meta"] = row.meta
     return out
-
-
-def blob_is_referenced(db: Database, sha: str) -> bool:
-    with db.transaction() as session:
-        return bool(session.scalar(select(or_(exists().where(Flight.flight_blob == sha),
-                                              exists().where(FlightFile.sha256 == sha),
-                                              exists().where(ModelVersion.weights_blob == sha)))))
 
 
 # -- routes -------------------------------------------------------------------------------------------
