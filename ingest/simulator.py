@@ -97,8 +97,8 @@ def _minimum_jerk(t, start, stop, duration):
 class Trajectory:
     """A path p(s) in the nominal time s.  Flown over `duration_s`: the speed ds/dt ramps smoothly from
     0 to 1 over ramp_s, stays at 1, and ramps down over the last ramp_s, so s runs over [0, s_end]."""
-    duration_s: float
-    ramp_s: float
+    duration_s: float = 10.0
+    ramp_s: float = 1.5
 
     @property
     def s_end(self) -> float:
@@ -131,8 +131,6 @@ class Circle(Trajectory):
     speed: float = 0.5
     altitude: float = 1.0
     center: tuple = (0.0, 0.0)
-    duration_s: float = 10.0
-    ramp_s: float = 1.5
 
     def path(self, s):
         w = self.speed / self.radius
@@ -152,8 +150,6 @@ class Figure8(Trajectory):
     period: float = 6.0
     altitude: float = 1.0
     center: tuple = (0.0, 0.0)
-    duration_s: float = 10.0
-    ramp_s: float = 1.5
 
     def path(self, s):
         w = 2 * np.pi / self.period
@@ -175,8 +171,7 @@ class RandomWaypoints(Trajectory):
     box: tuple = ((-0.8, 0.8), (-0.8, 0.8), (0.6, 1.3))
     speed: float = 0.5
     seed: int = 0
-    duration_s: float = field(init=False, default=0.0)
-    ramp_s: float = 1.5
+    duration_s: float = field(init=False, default=0.0)  # follows from the path
 
     def __post_init__(self):
         rng = np.random.default_rng(self.seed)

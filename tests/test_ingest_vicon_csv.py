@@ -335,16 +335,6 @@ BAD_VICON = {
 }
 
 
-@pytest.mark.parametrize("case", BAD_VICON)
-def test_bad_vicon_files_raise_ingest_error_naming_the_file(tmp_path, case):
-    content, reason = BAD_VICON[case]
-    path = tmp_path / "bad_vicon.csv"
-    path.write_text(content)
-    with pytest.raises(IngestError, match=reason) as info:
-        vicon_csv.read_vicon_csv(path)
-    assert info.value.path == str(path) and str(path) in str(info.value)
-
-
 CF_HEAD = "Timestamp,acc.x,acc.y,acc.z\n"
 CF_ROWS = "".join(f"{10000 + 10 * k},0.01,-0.02,1.0\n" for k in range(500))
 BAD_CFCLIENT = {
@@ -359,14 +349,18 @@ BAD_CFCLIENT = {
 }
 
 
-@pytest.mark.parametrize("case", BAD_CFCLIENT)
-def test_bad_cfclient_files_raise_ingest_error_naming_the_file(tmp_path, case):
-    content, reason = BAD_CFCLIENT[case]
-    path = tmp_path / "bad_cfclient.csv"
+BAD_FILES = {**{f"vicon, {case}": (vicon_csv.read_vicon_csv, *bad) for case, bad in BAD_VICON.items()},
+             **{f"cfclient, {case}": (vicon_csv.read_cfclient_csv, *bad) for case, bad in BAD_CFCLIENT.items()}}
+
+
+@pytest.mark.parametrize("case", BAD_FILES)
+def test_bad_files_raise_ingest_error_naming_the_file(tmp_path, case):
+    reader, content, reason = BAD_FILES[case]
+    path = tmp_path / "bad.csv"
     path.write_text(content)
     with pytest.raises(IngestError, match=reason) as info:
-        vicon_csv.read_cfclient_csv(path)
-    assert info.value.path == str(path)
+        reader(path)
+    assert info.value.path == str(path) and str(path) in str(info.value)
 
 
 def test_no_overlap_after_alignment_names_the_cfclient_file(scenario):
