@@ -80,14 +80,16 @@ def build_flight(path, *, t_mocap, p, quat, t_acc, acc_body_g, channels=None, ra
     extra = {name: resample(ts, vals, grid)[0] for name, (ts, vals) in (channels or {}).items()}
     extra["acc_body"] = acc_grid * 9.80665
     meta = dict(meta or {})
-    meta.setdefault("gaps", {"mocap_samples_in_gaps": int(mocap_gap.sum()),
-                             "acc_samples_in_gaps": int(acc_gap.sum())})
     meta["rate_hz"] = rate_hz
     meta["t0_source_s"] = float(t0)
     flight = Flight(grid - grid[0], p_grid, world_acceleration(acc_grid, q_grid), q_grid, extra, meta)
+    start, stop = 0, len(grid)
     if cut:
         start, stop, rule = flying_window(flight.t, flight.p[:, 2], rate_hz)
         flight = flight.slice(start, stop)
         flight.meta["flying_window"] = {"start_s": float(grid[start] - grid[0]),
                                         "stop_s": float(grid[stop - 1] - grid[0]), "rule": rule}
+    # counted on the rows kept: gaps while the vehicle sits on the ground are not the flight's
+    flight.meta["gaps"] = {"mocap_samples_in_gaps": int(mocap_gap[start:stop].sum()),
+                           "acc_samples_in_gaps": int(acc_gap[start:stop].sum())}
     return flight

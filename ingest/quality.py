@@ -164,7 +164,7 @@ def _check_gaps(flight) -> list[str]:
         if longest > MAX_GAP_S:
             issues.append(f"{stream} stream missing for {longest:.2f} s in flight (longest gap; allowed "
                           f"{MAX_GAP_S:g} s) — link lost or occluded")
-        in_gaps = gaps.get(f"{stream}_samples_in_gaps", 0)   # counted by build_flight before the cut
+        in_gaps = gaps.get(f"{stream}_samples_in_gaps", 0)   # counted by build_flight on the rows kept
         fraction = in_gaps / max(len(flight.t), 1)
         if fraction > MAX_GAP_FRACTION:
             issues.append(f"{stream}: {in_gaps} samples ({fraction:.0%}) fall into gaps "

@@ -125,6 +125,14 @@ def test_many_short_gaps_as_a_fraction(raw):
     assert_flags(flight, "acc:", "fall into gaps")
 
 
+def test_gaps_while_sitting_on_the_ground_do_not_count_against_the_flight(raw):
+    keep = ~(raw["t_mocap"] < 1.8)                               # mocap starts late, before take-off at 2 s
+    keep[:1] = True                                              # one early sample: the grid still starts at 0
+    flight = build(raw, t_mocap=raw["t_mocap"][keep], p=raw["p"][keep], quat=raw["quat"][keep])
+    assert flight.meta["gaps"]["mocap_samples_in_gaps"] == 0     # the cut removed the ground time
+    assert issues_of(flight) == issues_of(build(raw))
+
+
 def test_gap_reported_by_adapter_meta(clean):
     flight = dataclasses.replace(clean, meta={**clean.meta, "gaps": {**clean.meta["gaps"],
                                                                     "acc_longest_gap_airborne_s": 6.9}})
