@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 GRAVITY = 9.80665
 
@@ -104,6 +105,13 @@ class Flight:
             return cls.from_bytes(Path(path).read_bytes())
         except (OSError, ValueError, KeyError) as err:
             raise IngestError(path, f"not a saved learnest flight ({err})") from None
+
+
+
+def imu_misalignment(roll: float, pitch: float) -> Rotation:
+    """Rotation body <- IMU of an accelerometer mounted tilted by roll (about x), then pitch (about y):
+    it reads R⁻¹ f for the body-frame specific force f.  The simulator and the diagnosis share it."""
+    return Rotation.from_euler("ZYX", [0.0, pitch, roll])
 
 
 def sha256_file(path) -> str:

@@ -45,7 +45,7 @@ from scipy.signal import lfilter, lfilter_zi
 from scipy.spatial.transform import Rotation
 
 from ingest import mcap_log, nanobench, usd
-from ingest.flight import GRAVITY, Flight
+from ingest.flight import GRAVITY, Flight, imu_misalignment
 from ingest.vicon_csv import write_cfclient_csv, write_vicon_csv
 
 SIM_RATE_HZ = 1000.0
@@ -391,8 +391,7 @@ class SensorModel:
         return {name: value for name, value in vars(self).items() if value != getattr(nominal, name)}
 
     def misalignment_rotation(self) -> Rotation:
-        roll, pitch = self.misalignment
-        return Rotation.from_euler("ZYX", [0.0, pitch, roll])     # body <- IMU
+        return imu_misalignment(*self.misalignment)     # body <- IMU
 
 
 @dataclass

@@ -212,15 +212,16 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3) -> dict:
     intervals = bootstrap_ci(problem, current)
     results = []
     for effect in chosen:
-        without = fit(problem, [e for e in chosen if e is not effect]) if len(chosen) > 1 else fit(problem, [])
+        without_rss = fit(problem, [e for e in chosen if e is not effect]).rss if len(chosen) > 1 else baseline_rss
         results.append({"id": effect.id, "target": effect.target,
                         "params": {p.name: current.values.get(p.name, p.nominal) for p in effect.params},
                         "held_nominal": {p.name: problem.frozen[p.name] for p in effect.params
                                          if p.name in problem.frozen},
                         "units": {p.name: p.unit for p in effect.params},
-                        "ci95": {p.name: intervals.get(p.name) for p in effect.params},
+                        # only fitted parameters have one: held-nominal ones are listed above
+                        "ci95": {p.name: intervals[p.name] for p in effect.params if p.name in intervals},
                         "determined": {p.name: _determined(p, intervals.get(p.name)) for p in effect.params},
-                        "explained_fraction": float((without.rss - current.rss) / baseline_rss),
+                        "explained_fraction": float((without_rss - current.rss) / baseline_rss),
                         "equation": effect.equation({**effect.nominal(), **current.values})})
     results.sort(key=lambda r: -r["explained_fraction"])
     confounded = confounded_pairs(problem, chosen, current.values, near_ties)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ingest.flight import GRAVITY, quat_to_matrix, world_acceleration
+from ingest.flight import GRAVITY, imu_misalignment, quat_to_matrix, world_acceleration
 
 
 @dataclass(frozen=True)
@@ -103,8 +103,8 @@ def dynamics_params(system, values: dict, effects) -> dict:
 
 # -- the accelerometer model -----------------------------------------------------------------------------
 def tilt_matrix(roll: float, pitch: float) -> np.ndarray:
-    cr, sr, cp, sp = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch)
-    return np.array([[cp, sp * sr, sp * cr], [0.0, cr, -sr], [-sp, cp * sr, cp * cr]])
+    """R (body <- IMU); with forces as rows, f @ R is what the tilted IMU reads and g @ R.T undoes it."""
+    return imu_misalignment(roll, pitch).as_matrix()
 
 
 def delayed(values: np.ndarray, dt: float, delay: float) -> np.ndarray:
@@ -127,7 +127,7 @@ def delayed(values: np.ndarray, dt: float, delay: float) -> np.ndarray:
 def predict_acc_body(f_body: np.ndarray, t: np.ndarray, values: dict) -> np.ndarray:
     """What the accelerometer reads (m/s², IMU frame) for true specific force f_body (T, 3) at times t."""
     shifted = delayed(f_body, float(t[1] - t[0]), values.get("delay_s", 0.0))
-    tilted = shifted @ tilt_matrix(values.get("roll_rad", 0.0), values.get("pitch_rad", 0.0)).T
+    tilted = shifted @ tilt_matrix(values.get("roll_rad", 0.0), values.get("pitch_rad", 0.0))
     scale = np.array([values.get(f"scale_{a}", 1.0) for a in "xyz"])
     bias = np.array([values.get(f"bias_{a}", 0.0) for a in "xyz"])
     return tilted * scale + bias
@@ -137,7 +137,7 @@ def correct_acc_body(acc_body: np.ndarray, t: np.ndarray, values: dict) -> np.nd
     """Invert the accelerometer model: the specific force the IMU would have read were it ideal."""
     scale = np.array([values.get(f"scale_{a}", 1.0) for a in "xyz"])
     bias = np.array([values.get(f"bias_{a}", 0.0) for a in "xyz"])
-    untilted = ((acc_body - bias) / scale) @ tilt_matrix(values.get("roll_rad", 0.0), values.get("pitch_rad", 0.0))
+    untilted = ((acc_body - bias) / scale) @ tilt_matrix(values.get("roll_rad", 0.0), values.get("pitch_rad", 0.0)).T
     return delayed(untilted, float(t[1] - t[0]), -values.get("delay_s", 0.0))
 
 

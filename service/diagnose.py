@@ -236,7 +236,7 @@ def format_diagnosis(result: dict) -> str:
         lines.append("  no effect explains the residual better than noise: the model is not missing anything "
                      "these candidates describe")
     for e in result["effects"]:
-        cis = ", ".join(f"{k} in [{lo:.4g}, {hi:.4g}]" for k, (lo, hi) in e["ci95"].items() if (lo, hi) != (None, None))
+        cis = ", ".join(f"{k} in [{lo:.4g}, {hi:.4g}]" for k, (lo, hi) in e["ci95"].items())
         shaky = [k for k, ok in e.get("determined", {}).items() if not ok]
         lines.append(f"  {e['equation']}  ({e['channel']}; explains {100 * e['explained_fraction']:.1f} % of the "
                      f"residual; 95 % CI {cis})")

@@ -9,7 +9,8 @@ from ingest import read_flights
 from ingest.simulator import Circle, RandomWaypoints, SensorModel, simulate, write_flight
 from service.cli import main
 from service.diagnose import accelerometer_problem, diagnose_flights, diagnose_simulated
-from models.diagnosis import select_effects
+from models.diagnosis import fit, select_effects
+from models.effects import LIBRARY
 
 
 def _flights(tmp_path, sensors, trajectory=lambda seed: RandomWaypoints(count=8, speed=0.8, seed=seed), n=2):
@@ -59,6 +60,16 @@ def test_crazyflie_accelerometer_scale_error_is_found(tmp_path):
     assert found["params"]["scale_z"] == pytest.approx(1.1, rel=0.2)
     assert abs(found["params"]["scale_z"] - 1.1) < 0.01
     assert result["after"]["ukf"] < result["before"]["ukf"]
+
+
+def test_accelerometer_model_reads_what_the_simulated_tilted_imu_reads(tmp_path):
+    """The diagnosis' accelerometer model and the simulator share one misalignment convention: fitted on
+    a tilted IMU's flights, roll and pitch come back with their signs."""
+    tilt = (0.03, -0.02)
+    problem = accelerometer_problem(_flights(tmp_path, SensorModel.ideal(misalignment=tilt)))
+    values = fit(problem, [LIBRARY["accel_misalignment"]]).values
+    assert values["roll_rad"] == pytest.approx(tilt[0], abs=1e-3)
+    assert values["pitch_rad"] == pytest.approx(tilt[1], abs=1e-3)
 
 
 def test_clean_crazyflie_flights_claim_no_effect(tmp_path):
