@@ -108,8 +108,13 @@ def train_knode(system: System, zeta, u, dt: float, config: TrainingConfig | Non
     u_now = torch.as_tensor(u[:-1])
     t_span = torch.tensor([0.0, dt], dtype=torch.float64)
 
-    def one_step_loss(idx):
-        x0, u0, target = z_now[idx], u_now[idx], z_next[idx]
+    def rows(idx):
+        return z_now[idx], u_now[idx], z_next[idx]
+
+    fit_data, val_data = rows(fit_rows), rows(val_rows)  # gathered once, not every epoch
+
+    def one_step_loss(data):
+        x0, u0, target = data
 
         def vector_field(_t, x):
             return system.f_prior(x, u0) + mlp(torch.cat([x, u0], dim=-1))
@@ -124,22 +129,21 @@ def train_knode(system: System, zeta, u, dt: float, config: TrainingConfig | Non
     best = (float("inf"), None, -1)
     if n_val:  # epoch -1 is the prior itself (Δθ starts at zero): training must beat it on held-out data
         with torch.no_grad():
-            best = (one_step_loss(val_rows).item(),
+            best = (one_step_loss(val_data).item(),
                     {k: v.clone() for k, v in mlp.state_dict().items()}, -1)
     for epoch in range(config.epochs):
-        order = fit_rows[torch.randperm(n_fit, generator=generator)] if batch < n_fit else fit_rows
+        order = fit_rows[torch.randperm(n_fit, generator=generator)] if batch < n_fit else None
         epoch_loss = 0.0
         for start in range(0, n_fit, batch):
-            idx = order[start:start + batch]
-            loss = one_step_loss(idx)
+            loss = one_step_loss(fit_data if order is None else rows(order[start:start + batch]))
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
-            epoch_loss += loss.item() * len(idx)
+            epoch_loss += loss.item() * min(batch, n_fit - start)
         losses.append(epoch_loss / n_fit)
         if n_val:
             with torch.no_grad():
-                val_losses.append(one_step_loss(val_rows).item())
+                val_losses.append(one_step_loss(val_data).item())
             if val_losses[-1] < best[0]:
                 best = (val_losses[-1], {k: v.clone() for k, v in mlp.state_dict().items()}, epoch)
         if progress:
@@ -149,5 +153,7 @@ def train_knode(system: System, zeta, u, dt: float, config: TrainingConfig | Non
     seconds = time.perf_counter() - started
     model = HybridModel(system, "knode", mlp.export(),
                         meta={"training": config.as_dict(), "final_loss": losses[-1], "seconds": seconds,
-                              "best_epoch": best[2], "best_validation_loss": best[0] if n_val else None})
+                              # the epoch whose weights are kept: the last one when nothing is held out
+                              "best_epoch": best[2] if n_val else config.epochs - 1,
+                              "best_validation_loss": best[0] if n_val else None})
     return TrainingResult(model, losses, seconds, val_losses)
