@@ -33,20 +33,19 @@ def spd_factor(P: np.ndarray, floor: float = 1e-15) -> tuple[np.ndarray, np.ndar
     return P, eigvec * np.sqrt(np.maximum(eigval, floor * max(1.0, eigval[-1])))
 
 
-def robust_sqrt(P: np.ndarray) -> np.ndarray:
-    """Upper factor U with UᵀU = P (filterpy's sqrt convention), via spd_factor."""
-    return spd_factor(P)[1].T
-
-
 class VectorizedMerwePoints(MerweScaledSigmaPoints):
-    """filterpy's scaled sigma points (same weights, same sqrt), built without a Python loop over n."""
+    """filterpy's scaled sigma points (same weights), built from a Cholesky factor without a Python loop."""
+
+    def __init__(self, n, alpha, beta, kappa=0.0):
+        super().__init__(n, alpha, beta, kappa)
+        self._scale = np.sqrt(alpha**2 * (n + kappa))  # sqrt(λ + n), λ = α²(n + κ) − n
 
     def sigma_points(self, x, P):
         return self.from_factor(np.atleast_1d(np.asarray(x, dtype=float)), spd_factor(P)[1])
 
     def from_factor(self, x: np.ndarray, L: np.ndarray) -> np.ndarray:
-        """Points x, x ± columns of sqrt(λ + n)·L, where L Lᵀ = P and λ + n = α²(n + κ)."""
-        spread = np.sqrt(self.alpha**2 * (self.n + self.kappa)) * L.T
+        """Points x, x ± columns of sqrt(λ + n)·L, where L Lᵀ = P."""
+        spread = self._scale * L.T
         return np.concatenate([x[None], x + spread, x - spread])
 
 
@@ -110,8 +109,8 @@ def _rows(u: np.ndarray, count: int) -> np.ndarray:
 
 def make_ukf(model, dt, Q, R, x0, P0, alpha: float = 1e-3, beta: float = 2.0, kappa: float = 0.0):
     n = model.n
-    points = VectorizedMerwePoints(n, alpha=alpha, beta=beta, kappa=kappa, sqrt_method=robust_sqrt)
-    ukf = BatchedUKF(dim_x=n, dim_z=R.shape[0], dt=dt, points=points, sqrt_fn=robust_sqrt,
+    points = VectorizedMerwePoints(n, alpha=alpha, beta=beta, kappa=kappa)
+    ukf = BatchedUKF(dim_x=n, dim_z=R.shape[0], dt=dt, points=points,
                      fx=lambda sigmas, dt, u: model.step(sigmas, _rows(u, len(sigmas)), dt),
                      hx=lambda sigmas, u: model.h(sigmas, _rows(u, len(sigmas))))
     ukf.x, ukf.Q, ukf.R = x0.copy(), Q, R
