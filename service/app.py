@@ -18,7 +18,7 @@ from fastapi.responses import JSONResponse
 from service import web
 from service.db import Conflict, Invalid, NotFound, Settings
 from service.executors import Executor
-from service.jobs import open_services
+from service.jobs import open_services, sweep_orphan_blobs
 from service.routers import diagnoses, evaluations, flights, jobs, models
 from service.scheduler import Scheduler
 
@@ -34,6 +34,7 @@ def create_app(settings: Settings | None = None, *, executor: Executor | None = 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         services = open_services(settings, executor)
+        sweep_orphan_blobs(services.db, services.blobs)  # the server's start, not every CLI call's
         app.state.services = services
         app.state.scheduler = None
         if scheduler and settings.schedule_seconds > 0:

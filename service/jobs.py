@@ -239,7 +239,6 @@ def open_services(settings: Settings, executor: Executor | None = None) -> Servi
     db = Database(settings.url)
     db.migrate()
     blobs = BlobStore(settings.home / "blobs")
-    sweep_orphan_blobs(db, blobs)
     runner = JobRunner(db)
     runner.on_stale.append(registry.fail_versions_of_jobs)
     runner.start()
