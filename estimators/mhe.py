@@ -103,10 +103,11 @@ class MHE:
 
     @staticmethod
     def _cost_hessian(z, p, cost, n_constraints):
-        """The Lagrangian's Hessian without the dynamics' curvature (λᵀ∇²g): a Gauss-Newton-type choice.
-        The cost is a sum of squares, so this is positive semi-definite; for a KNODE it avoids second
-        derivatives of the network through RK4, which dominate the exact Hessian's cost.  The optimum is
-        the same; only IPOPT's path to it changes."""
+        """The Lagrangian's Hessian without the dynamics' curvature (λᵀ∇²g): the cost's exact Hessian only.
+        For a KNODE it avoids second derivatives of the network through RK4, which dominate the exact
+        Hessian's cost.  It is positive semi-definite when h is linear (the quadrotor, the cartpole); with
+        the robot's range sensors it need not be, and IPOPT's inertia correction handles that.  The optimum
+        is the same; only IPOPT's path to it changes."""
         lam_f, lam_g = ca.SX.sym("lam_f"), ca.SX.sym("lam_g", n_constraints)
         hess = ca.triu(lam_f * ca.hessian(cost, z)[0])
         return ca.Function("hess_lag", [z, p, lam_f, lam_g], [hess],
