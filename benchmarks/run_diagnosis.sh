@@ -15,4 +15,5 @@ done
 start=$(date +%s.%N)
 .venv/bin/learnest diagnose "$DATA/B3_figure8_fast_rep2.csv" --json > "$OUT/diagnosis_one_flight.json"
 end=$(date +%s.%N)
+.venv/bin/python -c "import json, sys; from service.diagnose import format_diagnosis; print(format_diagnosis(json.load(open(sys.argv[1]))))" "$OUT/diagnosis_one_flight.json" > "$OUT/diagnosis_one_flight.txt"
 echo "one-flight diagnosis (B3_figure8_fast_rep2, ukf + knode-ukf before/after): $(echo "$end - $start" | bc) s wall, $(nproc) cores shared with other runs, $(date -u +%FT%TZ)" > "$OUT/wall_time.txt"
