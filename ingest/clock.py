@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import butter, correlate, savgol_filter, sosfiltfilt
 
+from ingest.align import resample, uniform_grid
 from ingest.flight import GRAVITY
 
 DEFAULT_MAX_LAG_S = 30.0
@@ -85,10 +86,11 @@ def estimate_clock_offset(t_ref, a_ref, t_other, a_other, max_lag_s: float = DEF
 
 
 def align_signals(t_ref, a_ref, t_other, a_other, max_lag_s: float = DEFAULT_MAX_LAG_S,
-                  rate_hz: float = 100.0) -> ClockAlignment:
-    """As `estimate_clock_offset`, with the diagnostics.  Signals need not be uniformly sampled."""
-    grid_ref, x = _uniform(t_ref, a_ref, rate_hz, "reference")
-    grid_other, y = _uniform(t_other, a_other, rate_hz, "other")
+                  rate_hz: float = 100.0, names: tuple[str, str] = ("reference", "other")) -> ClockAlignment:
+    """As `estimate_clock_offset`, with the diagnostics.  Signals need not be uniformly sampled; errors
+    about one signal start with its name."""
+    grid_ref, x = _uniform(t_ref, a_ref, rate_hz, names[0])
+    grid_other, y = _uniform(t_other, a_other, rate_hz, names[1])
     x, y = _band_limited(x, rate_hz), _band_limited(y, rate_hz)
     lags, ncc = _normalised_correlation(x, y)
     start_offset = grid_ref[0] - grid_other[0]     # lag 0 pairs the first samples of both grids
@@ -113,7 +115,7 @@ def _uniform(t, values, rate_hz: float, name: str) -> tuple[np.ndarray, np.ndarr
         raise ValueError(f"{name}: needs at least 2 finite samples with increasing times")
     if t[-1] - t[0] < MIN_SIGNAL_S:
         raise ValueError(f"{name}: {t[-1] - t[0]:.2f} s is too short to align clocks (needs {MIN_SIGNAL_S:g} s)")
-    grid = t[0] + np.arange(int(np.floor((t[-1] - t[0]) * rate_hz)) + 1) / rate_hz
+    grid = uniform_grid(t[0], t[-1], rate_hz)
     return grid, np.interp(grid, t, values)
 
 
@@ -175,9 +177,9 @@ def mocap_specific_force(t, p, rate_hz: float = 100.0) -> tuple[np.ndarray, np.n
     correlation as long as gaps are a small part of the flight.
     """
     t, p = np.asarray(t, dtype=float), np.asarray(p, dtype=float)
-    grid = t[0] + np.arange(int(np.floor((t[-1] - t[0]) * rate_hz)) + 1) / rate_hz
+    grid = uniform_grid(t[0], t[-1], rate_hz)
     window = _odd_window(SG_WINDOW_S * rate_hz, len(grid))
-    p_grid = np.column_stack([np.interp(grid, t, p[:, j]) for j in range(3)])
+    p_grid = resample(t, p, grid)[0]
     acc = savgol_filter(p_grid, window, SG_ORDER, deriv=2, delta=1.0 / rate_hz, axis=0, mode="interp")
     return grid, np.linalg.norm(acc + [0.0, 0.0, GRAVITY], axis=1)
 
@@ -202,4 +204,4 @@ def align_mocap_and_accelerometer(t_mocap, p, t_acc, acc_g, max_lag_s: float = D
         raise ValueError("mocap: needs at least 2 frames")
     grid, mocap_norm = mocap_specific_force(t_mocap, p, rate_hz)
     return align_signals(grid, mocap_norm, t_acc, accelerometer_specific_force(acc_g),
-                         max_lag_s=max_lag_s, rate_hz=rate_hz)
+                         max_lag_s=max_lag_s, rate_hz=rate_hz, names=("mocap", "accelerometer"))

@@ -497,7 +497,9 @@ def _estimate_offset(vicon_path, cfclient_path, track, log, max_lag_s, rate_hz) 
     try:
         return clock.align_mocap_and_accelerometer(track.t, track.p, log.t, log.acc_g, max_lag_s=max_lag_s,
                                                    rate_hz=rate_hz)
-    except ValueError as err:
+    except ValueError as err:  # blame the file whose signal failed; a failed search is the pair's
+        if str(err).startswith("mocap"):
+            raise IngestError(vicon_path, f"cannot align its clock with {cfclient_path.name}: {err}") from None
         raise IngestError(cfclient_path, f"cannot align its clock with {vicon_path.name}: {err}") from None
 
 

@@ -377,6 +377,15 @@ def test_log_too_short_to_align_is_an_ingest_error(tmp_path, scenario):
     assert info.value.path == str(short)
 
 
+def test_vicon_export_too_short_to_align_names_the_vicon_file(tmp_path, scenario):
+    lines = scenario.vicon.read_text().splitlines(keepends=True)
+    short = tmp_path / "short_vicon.csv"
+    short.write_text("".join(lines[:len(VICON_HEAD.splitlines()) + 150]))          # 1.5 s of frames
+    with pytest.raises(IngestError, match="cannot align its clock .* mocap: .* too short") as info:
+        vicon_csv.read_pair(short, scenario.cfclient)
+    assert info.value.path == str(short)
+
+
 def test_truncated_last_row_is_dropped_with_a_warning(tmp_path, scenario):
     text = scenario.vicon.read_text()
     cut = tmp_path / "cut_vicon.csv"
