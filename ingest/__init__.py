@@ -21,10 +21,7 @@ PAIR_ROLES = {"vicon": ("ingest.vicon_csv", "sniff_vicon"), "cfclient": ("ingest
 
 
 def _sniffer(module: str, function: str):
-    try:
-        return getattr(importlib.import_module(module), function)
-    except (ImportError, AttributeError):  # an adapter not installed in this build
-        return None
+    return getattr(importlib.import_module(module), function)  # imported on first use: CLI start stays fast
 
 
 def detect(path) -> str:
@@ -36,7 +33,7 @@ def detect(path) -> str:
         raise IngestError(path, "file is empty")
     for name, (module, function) in {**SINGLE_FILE_ADAPTERS, **PAIR_ROLES}.items():
         sniff = _sniffer(module, function)
-        if sniff is not None and sniff(path):
+        if sniff(path):
             return name
     raise IngestError(path, "unrecognised format (expected a NanoBench CSV, a Crazyflie uSD log, an MCAP "
                             "file, or a Vicon CSV export together with a cfclient CSV log)")

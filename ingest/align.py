@@ -21,6 +21,11 @@ def uniform_grid(t_start: float, t_end: float, rate_hz: float) -> np.ndarray:
     return t_start + np.arange(n) / rate_hz
 
 
+def samples_per_second(t) -> float | None:
+    """Samples per second over a stream's span (None for fewer than 2 samples or no span)."""
+    return float((len(t) - 1) / (t[-1] - t[0])) if len(t) >= 2 and t[-1] > t[0] else None
+
+
 def resample(t_src, values, t_grid, max_gap_s: float | None = None):
     """Linear interpolation of (N, k) values onto t_grid; returns (values, mask of grid points that fell
     into a gap longer than max_gap_s, where interpolation would invent data)."""

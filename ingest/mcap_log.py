@@ -64,7 +64,7 @@ from mcap.writer import Writer as McapWriter
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer as Ros2McapWriter
 
-from ingest.align import build_flight
+from ingest.align import build_flight, samples_per_second
 from ingest.flight import GRAVITY, Flight, IngestError, sha256_file
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -641,10 +641,6 @@ def _check_acc_magnitude(path: Path, topic: str, acc_g: np.ndarray) -> None:
                                 f"{hint} (expected body-frame specific force, gravity included)")
 
 
-def _rate_hz(t: np.ndarray) -> float | None:
-    return float((len(t) - 1) / (t[-1] - t[0])) if len(t) >= 2 and t[-1] > t[0] else None
-
-
 # -- topic choice ------------------------------------------------------------------------------------------
 
 ROLE_WORDS = {"pose": ("motion-capture pose", "pose_topic",
@@ -755,7 +751,7 @@ def read(path, pose_topic: str | None = None, accel_topic: str | None = None, ra
         "adapter": {frozenset({"cdr"}): "mcap-ros2", frozenset({"json"}): "mcap-json"}.get(
             frozenset(encodings), "mcap-ros2+json"),
         "sources": [{"path": str(path), "sha256": sha256_file(path)}],
-        "original_rates": {"mocap": _rate_hz(t_pose), "acc": _rate_hz(t_acc)},
+        "original_rates": {"mocap": samples_per_second(t_pose), "acc": samples_per_second(t_acc)},
         "clock_offset_s": None,     # one recorder clock for every topic in a bag
         "mcap": {"pose_topic": pose_channels[0].topic, "accel_topic": accel_channels[0].topic,
                  "pose_type": pose_channels[0].schema_name, "accel_type": accel_channels[0].schema_name,

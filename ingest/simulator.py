@@ -449,7 +449,8 @@ def _sample_mocap(truth: States, sensors: SensorModel, seed: int) -> Mocap:
 
 
 def _first_order_lowpass(values: np.ndarray, cutoff_hz: float, rate_hz: float) -> np.ndarray:
-    """Exact discretisation of 1/(τs + 1), started in steady state at the first value."""
+    """1/(τs + 1) as the pole-matched recursion y[k] = α x[k] + (1 − α) y[k−1], started in steady state at
+    the first value.  It uses x[k], not the zero-order hold's x[k−1], so it leads that by one 1-kHz step."""
     alpha = 1.0 - math.exp(-2 * math.pi * cutoff_hz / rate_hz)
     b, a = [alpha], [1.0, alpha - 1.0]
     zi = lfilter_zi(b, a)[:, None] * values[:1]

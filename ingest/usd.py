@@ -24,8 +24,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
-from ingest.align import build_flight, resample_quaternions
+from ingest.align import build_flight, resample_quaternions, samples_per_second
 from ingest.flight import Flight, IngestError, sha256_file
 
 MAGIC = 0xBC
@@ -329,10 +330,7 @@ def _after_first_frame(pose: _Stream) -> _Stream:
 
 def rpy_to_quat(rpy) -> np.ndarray:
     """(N, 3) roll, pitch, yaw in rad (Z-Y-X, the firmware's quat2rpy) -> (N, 4) scalar-last quaternions."""
-    half = np.asarray(rpy, dtype=float).reshape(-1, 3) / 2.0
-    (cr, cp, cy), (sr, sp, sy) = np.cos(half).T, np.sin(half).T
-    return np.column_stack([sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
-                            cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy])
+    return Rotation.from_euler("ZYX", np.asarray(rpy, dtype=float).reshape(-1, 3)[:, ::-1]).as_quat()
 
 
 def _attitude(log: UsdLog, pose: _Stream, window, notes: list[str]) -> tuple[_Stream, np.ndarray, str]:
@@ -369,11 +367,6 @@ def _optional_channels(log: UsdLog, window) -> dict:
     return channels
 
 
-def _rate_hz(t: np.ndarray) -> float | None:
-    """Samples per second over the stream's span (for mocap: distinct frames per second)."""
-    return float((len(t) - 1) / (t[-1] - t[0])) if len(t) >= 2 and t[-1] > t[0] else None
-
-
 def read(path, rate_hz: float = 100.0) -> Flight:
     """A uSD log as a Flight.
 
@@ -402,7 +395,7 @@ def read(path, rate_hz: float = 100.0) -> Flight:
     meta = {
         "adapter": "usd",
         "sources": [{"path": str(path), "sha256": sha256_file(path)}],
-        "original_rates": {"acc": _rate_hz(acc.t), "mocap": _rate_hz(pose.t)},
+        "original_rates": {"acc": samples_per_second(acc.t), "mocap": samples_per_second(pose.t)},
         "clock_offset_s": None,
         "attitude_source": attitude_source,
         "usd": {"version": log.version, "crc_ok": log.crc_ok, "warnings": notes,

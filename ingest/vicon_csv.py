@@ -30,7 +30,7 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from ingest import clock
-from ingest.align import build_flight
+from ingest.align import build_flight, samples_per_second
 from ingest.flight import Flight, IngestError, sha256_file
 from ingest.usd import OPTIONAL_SOURCES   # the same firmware log variables, whichever tool logged them
 
@@ -473,7 +473,7 @@ def read_pair(vicon_path, cfclient_path, rate_hz: float = 100.0, *, clock_offset
         "adapter": "vicon+cfclient",
         "sources": [{"path": str(vicon_path), "sha256": sha256_file(vicon_path)},
                     {"path": str(cfclient_path), "sha256": sha256_file(cfclient_path)}],
-        "original_rates": {"mocap": track.rate_hz, "acc": _rate_hz(log.t)},
+        "original_rates": {"mocap": track.rate_hz, "acc": samples_per_second(log.t)},
         "clock_offset_s": float(clock_offset_s),
         "clock_offset_score": None if alignment is None else alignment.score,
         "clock_alignment": {"method": "given" if alignment is None else
@@ -524,8 +524,6 @@ def _require_overlap(vicon_path: Path, cfclient_path: Path, t_mocap, t_acc, rate
                                          f"{t_acc[0]:.2f}..{t_acc[-1]:.2f} s on the Vicon clock")
 
 
-def _rate_hz(t: np.ndarray) -> float | None:
-    return float((len(t) - 1) / (t[-1] - t[0])) if len(t) >= 2 and t[-1] > t[0] else None
 
 
 # -- writers (simulator and tests) ----------------------------------------------------------------------
