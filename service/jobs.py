@@ -430,11 +430,11 @@ def start_evaluation(services: Services, model_ref: str, flights, settings: Esti
                                 settings=settings.as_dict(), created_at=utcnow())
         session.add(evaluation)
         session.flush()
-        entries = cached_entries(session, version.id, settings.key,
-                                 [f.sha256 for f in _flights_by_id(session, flight_ids).values()])
+        by_id = _flights_by_id(session, flight_ids)
+        shas = [by_id[i].sha256 for i in flight_ids]
+        entries = cached_entries(session, version.id, settings.key, shas)
         if len(entries) == len(flight_ids):  # everything cached: no job to run
-            evaluation.report = assemble_report(evaluation.model_ref, [entries[sha] for sha in
-                                                                       _shas_in_order(session, flight_ids)])
+            evaluation.report = assemble_report(evaluation.model_ref, [entries[sha] for sha in shas])
             job.state, job.progress, job.started_at, job.finished_at = "succeeded", 1.0, utcnow(), utcnow()
             job.result = {"evaluation_id": evaluation.id, "flights": len(flight_ids), "computed": 0}
             return job.id, evaluation.id, job.state
@@ -560,11 +560,6 @@ def _flight_ids(session: Session, flights, version: ModelVersion) -> list[int]:
 
 def _flights_by_id(session: Session, ids) -> dict[int, Flight]:
     return {f.id: f for f in session.scalars(select(Flight).where(Flight.id.in_(list(ids))))}
-
-
-def _shas_in_order(session: Session, ids) -> list[str]:
-    flights = _flights_by_id(session, ids)
-    return [flights[i].sha256 for i in ids]
 
 
 def flights_without_results(session: Session, version_id: int, key: str) -> list[int]:

@@ -17,7 +17,7 @@ from sqlalchemy import select
 
 from estimators.evaluate import parse_methods
 from service import registry
-from service.db import Job, ModelAlias, Settings, acquire_lease, lease_holder, release_lease
+from service.db import Job, ModelAlias, Settings, acquire_lease, release_lease
 from service.jobs import EstimatorSettings, Services, flights_without_results, open_services, start_evaluation
 
 log = logging.getLogger("learnest.scheduler")
@@ -112,5 +112,4 @@ class Scheduler:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=5)
-        if lease_holder(self.services.db, LEASE_NAME) == self.services.runner.owner:
-            release_lease(self.services.db, LEASE_NAME, self.services.runner.owner)
+        release_lease(self.services.db, LEASE_NAME, self.services.runner.owner)  # only if it is still ours

@@ -1,1 +1,1 @@
-"""HTTP routers, one per resource: flights, models, jobs, evaluations."""
+"""HTTP routers, one per resource: flights, models, jobs, evaluations, diagnoses."""

@@ -3,11 +3,10 @@ JSON, plus "registered" when the repaired model was registered as a new version.
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Response
-from fastapi.responses import JSONResponse
 
-from service.db import Conflict, Database, Diagnosis, Job, NotFound
+from service.db import Database, Diagnosis
 from service.jobs import Services, start_diagnosis
-from service.routers.deps import get_db, get_services, require_api_key
+from service.routers.deps import get_db, get_services, pending, require_api_key, row_and_job
 from service.schemas import DiagnosisAccepted, DiagnosisPending, DiagnosisRequest
 
 router = APIRouter(prefix="/diagnoses", tags=["diagnoses"])
@@ -27,14 +26,7 @@ def create_diagnosis(body: DiagnosisRequest, response: Response, services: Servi
                                           202: {"model": DiagnosisPending, "description": "not finished yet"},
                                           409: {"description": "the diagnosis job failed"}})
 def diagnosis_report(diagnosis_id: int, db: Database = Depends(get_db)):
-    with db.transaction() as session:
-        diagnosis = session.get(Diagnosis, diagnosis_id)
-        if diagnosis is None:
-            raise NotFound(f"diagnosis {diagnosis_id} not found")
-        job = session.get(Job, diagnosis.job_id)
-    if job.state == "failed":
-        raise Conflict(f"diagnosis {diagnosis_id} failed: {job.error}")
+    diagnosis, job = row_and_job(db, Diagnosis, diagnosis_id, "diagnosis")
     if job.state != "succeeded":
-        return JSONResponse({"diagnosis_id": diagnosis.id, "job_id": job.id, "state": job.state,
-                             "progress": job.progress}, status_code=202)
+        return pending("diagnosis", diagnosis, job)
     return {**diagnosis.report, "registered": diagnosis.registered}

@@ -8,11 +8,11 @@ import io
 import threading
 
 from fastapi import APIRouter, Depends, Query, Response
-from fastapi.responses import HTMLResponse, JSONResponse
+from fastapi.responses import HTMLResponse
 
-from service.db import Conflict, Database, Evaluation, Job, NotFound
+from service.db import Database, Evaluation
 from service.jobs import EstimatorSettings, Services, start_evaluation
-from service.routers.deps import get_db, get_services, require_api_key
+from service.routers.deps import get_db, get_services, pending, require_api_key, row_and_job
 from service.schemas import EvaluationAccepted, EvaluationPending, EvaluationRequest
 
 router = APIRouter(prefix="/evaluations", tags=["evaluations"])
@@ -29,25 +29,13 @@ def create_evaluation(body: EvaluationRequest, response: Response, services: Ser
     return {"job_id": job_id, "evaluation_id": evaluation_id, "state": state}
 
 
-def _finished(db: Database, evaluation_id: int) -> tuple[Evaluation, Job]:
-    with db.transaction() as session:
-        evaluation = session.get(Evaluation, evaluation_id)
-        if evaluation is None:
-            raise NotFound(f"evaluation {evaluation_id} not found")
-        job = session.get(Job, evaluation.job_id)
-    if job.state == "failed":
-        raise Conflict(f"evaluation {evaluation_id} failed: {job.error}")
-    return evaluation, job
-
-
 @router.get("/{evaluation_id}", responses={200: {"description": "the report (evaluate_flights' JSON)"},
                                            202: {"model": EvaluationPending, "description": "not finished yet"},
                                            409: {"description": "the evaluation job failed"}})
 def evaluation_report(evaluation_id: int, db: Database = Depends(get_db)):
-    evaluation, job = _finished(db, evaluation_id)
+    evaluation, job = row_and_job(db, Evaluation, evaluation_id, "evaluation")
     if job.state != "succeeded":
-        return JSONResponse({"evaluation_id": evaluation.id, "job_id": job.id, "state": job.state,
-                             "progress": job.progress}, status_code=202)
+        return pending("evaluation", evaluation, job)
     return evaluation.report
 
 
@@ -57,7 +45,7 @@ def evaluation_html(evaluation_id: int, flight: int | None = Query(None, descrip
                     db: Database = Depends(get_db), services: Services = Depends(get_services)):
     from service.web import report_extras  # the web pages import this module
 
-    evaluation, job = _finished(db, evaluation_id)
+    evaluation, job = row_and_job(db, Evaluation, evaluation_id, "evaluation")
     if job.state != "succeeded":
         return HTMLResponse(f"<p>evaluation {evaluation.id}: {html.escape(job.state)} "
                             f"({job.progress:.0%})</p>", status_code=202)

@@ -1,4 +1,4 @@
-"""/jobs: the state, progress and result of long work (training, evaluations)."""
+"""/jobs: the state, progress and result of long work (training, evaluations, diagnoses)."""
 from __future__ import annotations
 
 from typing import Literal
