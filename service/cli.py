@@ -311,10 +311,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    import torch
-
-    torch.set_num_threads(1)  # the networks are tiny: extra threads only add contention
     args = build_parser().parse_args(argv)
+    if args.func not in (_ingest, _serve):  # the rest run the networks here; --help and ingest skip torch
+        from service.executors import init_worker
+
+        init_worker()  # the networks are tiny: extra threads only add contention
     try:
         return args.func(args)
     except ValueError as err:  # bad input (IngestError included): one clear line, no traceback
