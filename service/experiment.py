@@ -51,7 +51,7 @@ def corrected_flight(flight: Flight, values: dict) -> Flight:
 
 
 def evaluate_flight(knode: HybridModel, flight: Flight, methods, horizon: int = 20, sg_window: int = 150,
-                    keep_estimates: bool = False) -> dict:
+                    keep_estimates: bool = False, mhe_cache: dict | None = None) -> dict:
     """Scores of every method on one flight, against SG references of its mocap position.
 
     The prior-only rows use the model's own prior (which a diagnosis may have extended), and a model
@@ -66,7 +66,7 @@ def evaluate_flight(knode: HybridModel, flight: Flight, methods, horizon: int = 
         measured = corrected_flight(flight, knode.meta["measurement_effects"])
     results = evaluate_sequence(methods, prior, knode, measured.measurements(), np.zeros((len(flight.t), 0)),
                                 flight.dt, system.Q, system.R, initial_state(measured), system.P0, reference,
-                                horizon=horizon, keep_estimates=keep_estimates)
+                                horizon=horizon, keep_estimates=keep_estimates, mhe_cache=mhe_cache)
     return {"results": results, "reference": reference if keep_estimates else None}
 
 
@@ -80,7 +80,7 @@ def _is_training_flight(knode: HybridModel, flight: Flight) -> bool:
 def evaluate_flights(knode: HybridModel, flights: list[Flight], methods, include_bad: bool = False,
                      horizon: int = 20, progress=None) -> dict:
     """The report of `learnest evaluate --json`: per flight, median, improvement %."""
-    reports = []
+    reports, mhe_cache = [], {}
     for flight in flights:
         entry = {"flight": flight.name, "excluded": False, "reason": None, "mse": {}, "groups": {}}
         quality = flight.quality
@@ -89,7 +89,7 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods, include
         elif _is_training_flight(knode, flight):
             entry.update(excluded=True, reason="training flight (never scored on its own training data)")
         else:
-            results = evaluate_flight(knode, flight, methods, horizon)["results"]
+            results = evaluate_flight(knode, flight, methods, horizon, mhe_cache=mhe_cache)["results"]
             entry["mse"] = {m: r["mse"] for m, r in results.items()}
             entry["groups"] = {m: r["groups"] for m, r in results.items()}
             entry["ms_per_step"] = {m: r["ms_per_step"] for m, r in results.items()}
