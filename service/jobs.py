@@ -299,7 +299,7 @@ def train_task(flight_bytes: bytes, config: dict, progress_target=None, meta: di
     return {"model_json": registry.model_to_json(model), "losses": [float(x) for x in result["losses"]],
             "seconds": float(result["seconds"]), "library_versions": registry.library_versions(),
             "code_version": registry.code_version(),
-            "metrics": {key: model.meta.get(key) for key in ("final_loss", "best_epoch", "best_validation_loss")}}
+            "metrics": training_metrics(model)}
 
 
 def _flight_from_bytes(data: bytes):
@@ -587,9 +587,14 @@ def plain_json(value):
     return json.loads(json.dumps(value, default=lambda o: o.tolist() if hasattr(o, "tolist") else float(o)))
 
 
+def training_metrics(model) -> dict:
+    """What the registry keeps of a training run besides its weights and losses."""
+    return {key: model.meta.get(key) for key in ("final_loss", "best_epoch", "best_validation_loss")}
+
+
 def diagnosis_metrics(model, report: dict) -> dict:
     """What a version made by a diagnosis records besides its weights: training metrics and before/after."""
-    return {**{key: model.meta.get(key) for key in ("final_loss", "best_epoch", "best_validation_loss")},
+    return {**training_metrics(model),
             "diagnosis": {"effects": [e["id"] for e in report["effects"]], "before": report["before"],
                           "after": report["after"]}}
 
