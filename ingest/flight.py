@@ -18,7 +18,21 @@ from scipy.spatial.transform import Rotation
 GRAVITY = 9.80665
 
 REQUIRED = ("t", "p", "a_meas", "quat")
-OPTIONAL = ("gyro", "motors", "vbat", "setpoint", "v_onboard", "p_onboard", "acc_body")
+OPTIONAL = ("gyro", "motors", "vbat", "rotor_speed", "thrust_cmd", "thrust_si", "setpoint", "v_onboard",
+            "p_onboard", "acc_body")
+# The unit every optional channel is stored in, whatever the format wrote (converters: ingest.units).
+CHANNEL_UNITS = {
+    "gyro": "rad/s, body frame",
+    "motors": "PWM duty of motors 1..4 as the firmware logs it, 0..65535 (after battery compensation)",
+    "vbat": "V, battery",
+    "rotor_speed": "rad/s, rotors 1..4",
+    "thrust_cmd": "collective thrust command of the controller, firmware units 0..65535",
+    "thrust_si": "collective thrust command, N",
+    "setpoint": "m, world frame",
+    "v_onboard": "m/s, world frame",
+    "p_onboard": "m, world frame",
+    "acc_body": "m/s², body frame specific force",
+}
 
 
 class IngestError(ValueError):

@@ -10,9 +10,10 @@ from estimators.evaluate import evaluate_sequence, summarize
 from ingest.baseline import references
 from ingest.flight import Flight
 from models.effects import correct_acc_body, world_from_body
+from models.inputs import system_inputs
 from models.knode import HybridModel
 from models.observers import pretraining_observer
-from models.systems import Quadrotor, make_system
+from models.systems import System, make_system
 from models.training import TrainingConfig, train_knode
 
 # Sec. V-C: 2 layers x 16 tanh, 150 epochs, KF pre-training observer
@@ -20,9 +21,21 @@ CRAZYFLIE_TRAINING = TrainingConfig(hidden=16, epochs=150, lr=1e-3, validation_f
                                     validation_layout="spread")
 
 
-def quadrotor_for(flight: Flight) -> Quadrotor:
-    """The quadrotor system on this flight's grid; noise settings are the Quadrotor defaults."""
-    return make_system("quadrotor", dt=flight.dt, n_samples=len(flight.t))
+# Systems a model of a real flight may use: the paper's kinematic chain, or the Crazyflie prior driven by
+# the motors and the battery (needs those channels in the flight).
+FLIGHT_SYSTEMS = ("quadrotor", "crazyflie")
+
+
+def system_for(flight: Flight, name: str = "quadrotor") -> System:
+    """The named flight system on this flight's grid; noise settings are the system's defaults."""
+    if name not in FLIGHT_SYSTEMS:
+        raise ValueError(f"system {name!r} does not model a flight; choose one of {', '.join(FLIGHT_SYSTEMS)}")
+    return make_system(name, dt=flight.dt, n_samples=len(flight.t))
+
+
+def quadrotor_for(flight: Flight) -> System:
+    """The paper's kinematic quadrotor on this flight's grid."""
+    return system_for(flight, "quadrotor")
 
 
 def initial_state(flight: Flight) -> np.ndarray:
@@ -31,13 +44,16 @@ def initial_state(flight: Flight) -> np.ndarray:
     return np.concatenate([flight.p[0], velocity, flight.a_meas[0]])
 
 
-def train_on_flight(flight: Flight, config: TrainingConfig = CRAZYFLIE_TRAINING, progress=None) -> dict:
-    """Algorithm 1 on one flight; returns {"model", "losses", "seconds"}."""
-    system = quadrotor_for(flight)
-    y, u = flight.measurements(), np.zeros((len(flight.t), 0))
+def train_on_flight(flight: Flight, config: TrainingConfig = CRAZYFLIE_TRAINING, progress=None,
+                    system: str = "quadrotor") -> dict:
+    """Algorithm 1 on one flight with the named prior; returns {"model", "losses", "seconds"}.
+
+    Raises `models.inputs.MissingInputs` when the prior needs inputs the flight does not carry."""
+    system = system_for(flight, system)
+    y, u = flight.measurements(), system_inputs(flight, system)
     zeta = pretraining_observer(system, y, u, system.dt)
     result = train_knode(system, zeta, u, system.dt, config, progress=progress)
-    result.model.meta.update({"training_flight": flight.name,
+    result.model.meta.update({"system": system.name, "training_flight": flight.name,
                               "training_flight_sha256": [s["sha256"] for s in flight.meta.get("sources", [])]})
     return {"model": result.model, "losses": result.losses, "seconds": result.seconds}
 
@@ -57,14 +73,14 @@ def evaluate_flight(knode: HybridModel, flight: Flight, methods, horizon: int = 
     The prior-only rows use the model's own prior (which a diagnosis may have extended), and a model
     that carries measurement effects sees the flight with them corrected; the references always come
     from the original mocap position."""
-    system = replace(quadrotor_for(flight), prior_params=dict(knode.system.prior_params))
+    system = replace(system_for(flight, knode.system.name), prior_params=dict(knode.system.prior_params))
     knode = HybridModel(replace(knode.system, dt=flight.dt), knode.kind, knode.residual, knode.meta)
     prior = HybridModel(system, "prior")
     reference = references(flight, window=sg_window)
     measured = flight
     if knode.meta.get("measurement_effects"):
         measured = corrected_flight(flight, knode.meta["measurement_effects"])
-    results = evaluate_sequence(methods, prior, knode, measured.measurements(), np.zeros((len(flight.t), 0)),
+    results = evaluate_sequence(methods, prior, knode, measured.measurements(), system_inputs(flight, system),
                                 flight.dt, system.Q, system.R, initial_state(measured), system.P0, reference,
                                 horizon=horizon, keep_estimates=keep_estimates, mhe_cache=mhe_cache)
     return {"results": results, "reference": reference if keep_estimates else None}
