@@ -112,4 +112,4 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods, include
         reports.append(entry)
         if progress:
             progress(entry)
-    return {"model": knode.meta.get("name"), "flights": reports, **summarize(reports)}
+    return {"model": knode.meta.get("name"), "system": knode.system.name, "flights": reports, **summarize(reports)}

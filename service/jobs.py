@@ -293,7 +293,10 @@ def train_task(flight_bytes: bytes, config: dict, progress_target=None, meta: di
             last[0] = time.monotonic()
             report_progress(progress_target, 0.99 * (epoch + 1) / config["epochs"])
 
-    result = train_on_flight(_flight_from_bytes(flight_bytes), TrainingConfig(**config), progress=on_epoch)
+    hyper = dict(config)
+    system = hyper.pop("system", "quadrotor")
+    result = train_on_flight(_flight_from_bytes(flight_bytes), TrainingConfig(**hyper), progress=on_epoch,
+                             system=system)
     model = result["model"]
     model.meta.update(meta or {})
     return {"model_json": registry.model_to_json(model), "losses": [float(x) for x in result["losses"]],
@@ -327,7 +330,10 @@ def evaluate_task(model_json: bytes, flight_bytes: bytes, settings: dict) -> dic
 def training_config(overrides: dict) -> dict:
     from service.experiment import CRAZYFLIE_TRAINING
 
-    return {**CRAZYFLIE_TRAINING.as_dict(), **{k: v for k, v in overrides.items() if v is not None}}
+    # "system" is the prior the KNODE is built on (service.experiment.FLIGHT_SYSTEMS); kept with the
+    # training hyperparameters so the registry shows it and a retraining reuses it
+    return {**CRAZYFLIE_TRAINING.as_dict(), "system": "quadrotor",
+            **{k: v for k, v in overrides.items() if v is not None}}
 
 
 def start_training(services: Services, name: str, flight_id: int, overrides: dict, parent: str | None = None,

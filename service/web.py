@@ -341,12 +341,13 @@ def versions_table(versions: list[ModelVersion], aliases: dict[str, int]) -> str
         loss = metrics.get("final_loss")
         status = esc(v.status) + (f": <span class='bad'>{esc(v.error)}</span>" if v.error else "")
         weights = link(f"/models/{v.name}/versions/{v.version}/weights", "weights") if v.status == "ready" else ""
-        rows.append([str(v.version), status, flight, esc((v.hyperparameters or {}).get("epochs")),
+        rows.append([str(v.version), status, flight, esc((v.hyperparameters or {}).get("system", "quadrotor")),
+                     esc((v.hyperparameters or {}).get("epochs")),
                      "" if loss is None else f"{loss:.4g}", esc(metrics.get("best_epoch")),
                      "" if v.training_seconds is None else f"{v.training_seconds:.1f} s",
                      esc(", ".join("@" + a for a, n in aliases.items() if n == v.version)), esc(v.parent),
                      when(v.created_at), weights])
-    return table(["version", "status", "training flight", "epochs", "final loss", "best epoch", "training time",
+    return table(["version", "status", "training flight", "prior", "epochs", "final loss", "best epoch", "training time",
                   "aliases", "parent", "created (UTC)", ""], rows, "versions")
 
 
