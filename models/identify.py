@@ -73,11 +73,12 @@ def flight_arrays(flight: Flight) -> FlightArrays:
 
 
 def first_order_lag(x: np.ndarray, tau: float, dt: float) -> np.ndarray:
-    """Exact discretisation of τ ẏ = x − y with x held over each step, started at y = x[0]."""
+    """Exact discretisation of τ ẏ = x − y with x held over each step (y[k+1] from x[k], as the system
+    integrates it), started at y = x[0]."""
     if tau <= 1e-6:
         return x
     a = np.exp(-dt / tau)
-    return lfilter([1.0 - a], [1.0, -a], x - x[0], axis=0) + x[0]
+    return lfilter([0.0, 1.0 - a], [1.0, -a], x - x[0], axis=0) + x[0]
 
 
 def predict_body_force(arrays: FlightArrays, params: dict) -> np.ndarray:
