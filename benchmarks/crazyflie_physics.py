@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ingest import read_flights
-from models.crazyflie import BOUNDS, IDENTIFIED, PUBLIC, UNITS, V_REF
-from models.identify import (FULL, LOWPASS_HZ, VARIANTS, fit_k_xy, fit_z, flight_arrays, predict_body_force,
+from learnest.ingest import read_flights
+from learnest.models.crazyflie import BOUNDS, IDENTIFIED, PUBLIC, UNITS, V_REF
+from learnest.models.identify import (FULL, LOWPASS_HZ, VARIANTS, fit_k_xy, fit_z, flight_arrays, predict_body_force,
                              r2_z, rmse_constant, rmse_z)
 
 DATA = Path("../shared/data")

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from estimators.evaluate import METHODS
-from ingest import read_flights
-from service.experiment import evaluate_flights, train_on_flight
+from learnest.models.presets import METHODS
+from learnest.ingest import read_flights
+from learnest.service.experiments.flights import evaluate_flights, train_on_flight
 
 DATA = Path("../shared/data/nanobench")
 TRAIN = {"circle": "B2_circle_medium_rep2", "figure8": "B3_figure8_medium_rep2"}
@@ -93,9 +93,9 @@ def main(argv=None) -> int:
         for system in SYSTEMS:
             t0 = time.perf_counter()
             trained = train_on_flight(by_name[TRAIN[family]], system=system)
-            report = evaluate_flights(trained["model"], test, METHODS)
+            report = evaluate_flights(trained.model, test, METHODS)
             runs[direction][system] = {"report": report, "gains": gains(report), "median_groups": median_groups(report),
-                                       "train_seconds": trained["seconds"], "seconds": time.perf_counter() - t0}
+                                       "train_seconds": trained.seconds, "seconds": time.perf_counter() - t0}
             print(f"{direction} / {system}: medians {report['median']} improvement {report['improvement_pct']}",
                   file=sys.stderr, flush=True)
             partial = {"command": "python benchmarks/crazyflie_transfer.py " + " ".join(argv or sys.argv[1:]),

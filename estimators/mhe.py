@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from estimators.checks import check_covariance, check_dt, check_sequence, check_vector
+from learnest.models.checks import check_covariance, check_dt, check_sequence, check_vector
 
 IPOPT_OPTIONS = {
     "ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",

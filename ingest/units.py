@@ -1,6 +1,6 @@
 """Unit converters for the Crazyflie log variables that become Flight channels (one per unit).
 
-Each converter takes the values as logged and returns them in the unit of `ingest.flight.CHANNEL_UNITS`;
+Each converter takes the values as logged and returns them in the unit of `ingest.flight.UNITS`;
 the adapters' source tables name the converter, never a bare factor, so a unit is converted in one place.
 """
 from __future__ import annotations

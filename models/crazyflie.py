@@ -26,9 +26,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from models.backend import ops_for
+from learnest.ingest.frames import GRAVITY
 
-GRAVITY = 9.80665  # m/s², the same constant ingest uses for a_meas
+from .backend import ops_for
+
 
 # -- published values ----------------------------------------------------------------------------------
 # J. Förster, "System Identification of the Crazyflie 2.0 Nano Quadrocopter", BSc thesis, ETH Zürich,

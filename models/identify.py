@@ -17,8 +17,10 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.signal import butter, lfilter, sosfiltfilt
 
-from ingest.flight import Flight, quat_to_matrix
-from models.crazyflie import BOUNDS, GRAVITY, PUBLIC, specific_force_body
+from learnest.ingest.flight import Flight
+from learnest.ingest.frames import quat_to_matrix
+
+from .crazyflie import BOUNDS, GRAVITY, PUBLIC, specific_force_body
 
 LOWPASS_HZ = 5.0
 EDGE_S = 0.5

@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ingest.flight import Flight
-from models.systems import System
+from learnest.errors import InvalidInput
+from learnest.ingest.flight import Flight
+
+from .systems import System
 
 # channel -> what carries it in each supported format (for the error message)
 CHANNEL_SOURCES = {
@@ -20,7 +22,7 @@ CHANNEL_SOURCES = {
 NEEDED = {"crazyflie": ("motors", "vbat")}
 
 
-class MissingInputs(ValueError):
+class MissingInputs(InvalidInput):
     """A flight without the channels a system's inputs come from."""
 
 

@@ -8,16 +8,16 @@ import numpy as np
 import pytest
 import torch
 
-from estimators.mhe import MHE
-from estimators.ukf import run_ukf
-from ingest import units
-from ingest.flight import Flight
-from models import crazyflie as cf
-from models.inputs import MissingInputs, system_inputs
-from models.knode import HybridModel
-from models.observers import pretraining_observer
-from models.systems import make_system
-from models.training import TrainingConfig, train_knode
+from learnest.estimators.mhe import MHE
+from learnest.estimators.ukf import run_ukf
+from learnest.ingest import units
+from learnest.ingest.flight import Flight
+from learnest.models import crazyflie as cf
+from learnest.models.inputs import MissingInputs, system_inputs
+from learnest.models.knode import HybridModel
+from learnest.estimators.observers import pretraining_observer
+from learnest.models.systems import make_system
+from learnest.models.training import TrainingConfig, train_knode
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 NANOBENCH = DATA / "nanobench"
@@ -37,7 +37,7 @@ def test_three_backends_agree_for_prior_and_knode():
     x[:, 2] = rng.uniform(0.02, 2.0, 6)          # heights on both sides of the ground-effect clamp
     u = random_inputs(rng, 6)
     layers = [(rng.normal(size=(8, 18)) * 1e-5, rng.normal(size=8)), (rng.normal(size=(9, 8)), rng.normal(size=9))]
-    from models.knode import Residual
+    from learnest.models.knode import Residual
     for model in (HybridModel(system, "prior"), HybridModel(system, "knode", Residual(layers))):
         f_np = model.step(x, u, 0.01)
         f_torch = model.step(torch.as_tensor(x), torch.as_tensor(u), 0.01).numpy()
@@ -104,7 +104,7 @@ def test_a_flight_without_motor_inputs_names_them_and_the_kinematic_prior_still_
 
 @needs_data
 def test_inputs_read_from_nanobench_in_their_units():
-    from ingest import read_flights
+    from learnest.ingest import read_flights
     flight = read_flights([NANOBENCH / "B2_circle_medium_rep2.csv"])[0]
     u = system_inputs(flight, make_system("crazyflie"))
     assert u.shape == (len(flight.t), 9)
@@ -127,7 +127,7 @@ def test_ukf_and_mhe_with_the_crazyflie_prior_track_a_simulated_flight_better_th
     errors = {}
     for label, model, u in (("crazyflie", HybridModel(truth, "prior"), run.u),
                             ("quadrotor", HybridModel(kinematic, "prior"), np.zeros((len(run.t), 0)))):
-        est = run_ukf(model, run.y, u, truth.dt, truth.Q, truth.R, x0, truth.P0)
+        est = run_ukf(model, run.y, u, dt=truth.dt, Q=truth.Q, R=truth.R, x0=x0, P0=truth.P0).means
         errors[label] = np.mean((est[:, 3:] - run.x[:, 3:]) ** 2)
     # same Q, R, P0 for both (the kinematic defaults): the gain comes from the model alone
     assert errors["crazyflie"] < 0.7 * errors["quadrotor"]

@@ -6,19 +6,17 @@ from dataclasses import replace
 
 import numpy as np
 
-from estimators.evaluate import evaluate_sequence, summarize
-from ingest.baseline import references
-from ingest.flight import Flight
-from models.effects import correct_acc_body, world_from_body
-from models.inputs import system_inputs
-from models.knode import HybridModel
-from models.observers import pretraining_observer
-from models.systems import System, make_system
-from models.training import TrainingConfig, train_knode
-
-# Sec. V-C: 2 layers x 16 tanh, 150 epochs, KF pre-training observer
-CRAZYFLIE_TRAINING = TrainingConfig(hidden=16, epochs=150, lr=1e-3, validation_fraction=0.2,
-                                    validation_layout="spread")
+from learnest.errors import InvalidInput
+from learnest.estimators.evaluate import evaluate_sequence, summarize
+from learnest.estimators.observers import pretraining_observer
+from learnest.ingest.baseline import references
+from learnest.ingest.flight import Flight
+from learnest.models.effects import correct_acc_body, world_from_body
+from learnest.models.inputs import system_inputs
+from learnest.models.knode import HybridModel
+from learnest.models.presets import CRAZYFLIE_TRAINING, MHE_HORIZON, SG_WINDOW, TrainingConfig
+from learnest.models.systems import System, make_system
+from learnest.models.training import TrainingResult, train_knode
 
 
 # Systems a model of a real flight may use: the paper's kinematic chain, or the Crazyflie prior driven by
@@ -29,7 +27,7 @@ FLIGHT_SYSTEMS = ("quadrotor", "crazyflie")
 def system_for(flight: Flight, name: str = "quadrotor") -> System:
     """The named flight system on this flight's grid; noise settings are the system's defaults."""
     if name not in FLIGHT_SYSTEMS:
-        raise ValueError(f"system {name!r} does not model a flight; choose one of {', '.join(FLIGHT_SYSTEMS)}")
+        raise InvalidInput(f"system {name!r} does not model a flight; choose one of {', '.join(FLIGHT_SYSTEMS)}")
     return make_system(name, dt=flight.dt, n_samples=len(flight.t))
 
 
@@ -45,17 +43,17 @@ def initial_state(flight: Flight) -> np.ndarray:
 
 
 def train_on_flight(flight: Flight, config: TrainingConfig = CRAZYFLIE_TRAINING, progress=None,
-                    system: str = "quadrotor") -> dict:
-    """Algorithm 1 on one flight with the named prior; returns {"model", "losses", "seconds"}.
-
-    Raises `models.inputs.MissingInputs` when the prior needs inputs the flight does not carry."""
+                    system: str = "quadrotor") -> TrainingResult:
+    """Algorithm 1 on one flight with the named prior (`FLIGHT_SYSTEMS`): the KF pre-training observer on
+    its measurements, then `train_knode`.  The model records the training flight (name and source sha256)
+    in its meta.  Raises `models.inputs.MissingInputs` when the prior needs inputs the flight lacks."""
     system = system_for(flight, system)
     y, u = flight.measurements(), system_inputs(flight, system)
     zeta = pretraining_observer(system, y, u, system.dt)
     result = train_knode(system, zeta, u, system.dt, config, progress=progress)
     result.model.meta.update({"system": system.name, "training_flight": flight.name,
                               "training_flight_sha256": [s["sha256"] for s in flight.meta.get("sources", [])]})
-    return {"model": result.model, "losses": result.losses, "seconds": result.seconds}
+    return result
 
 
 def corrected_flight(flight: Flight, values: dict) -> Flight:
@@ -66,7 +64,7 @@ def corrected_flight(flight: Flight, values: dict) -> Flight:
                   {**flight.channels, "acc_body": acc_body}, dict(flight.meta))
 
 
-def evaluate_flight(knode: HybridModel, flight: Flight, methods, horizon: int = 20, sg_window: int = 150,
+def evaluate_flight(knode: HybridModel, flight: Flight, methods, horizon: int = MHE_HORIZON, sg_window: int = SG_WINDOW,
                     keep_estimates: bool = False, mhe_cache: dict | None = None) -> dict:
     """Scores of every method on one flight, against SG references of its mocap position.
 
@@ -94,7 +92,7 @@ def _is_training_flight(knode: HybridModel, flight: Flight) -> bool:
 
 
 def evaluate_flights(knode: HybridModel, flights: list[Flight], methods, include_bad: bool = False,
-                     horizon: int = 20, progress=None) -> dict:
+                     horizon: int = MHE_HORIZON, progress=None) -> dict:
     """The report of `learnest evaluate --json`: per flight, median, improvement %."""
     reports, mhe_cache = [], {}
     for flight in flights:
