@@ -61,7 +61,7 @@ def markdown(result: dict) -> str:
         for system, run in by_system.items():
             lines.append(f"- {system}: median MSE by state group (p, v, a) — "
                          + "; ".join(f"{m}: " + ", ".join(f"{g} {v:.5f}" for g, v in run["median_groups"][m].items())
-                                     for m in METHODS))
+                                     for m in METHODS if m in run["median_groups"]))
         lines += [""]
     return "\n".join(lines)
 
@@ -77,6 +77,8 @@ def main(argv=None) -> int:
     parser.add_argument("--data", type=Path, default=DATA)
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/crazyflie_transfer"))
     parser.add_argument("--directions", default="circle,figure8", help="families to train on")
+    parser.add_argument("--methods", default=",".join(METHODS), help="estimators to score (MHE dominates the time)")
+    parser.add_argument("--tag", default="", help="suffix of the result files (transfer<tag>.json/.md)")
     args = parser.parse_args(argv)
     started = time.perf_counter()
     paths = sorted(args.data.glob("B*.csv"))
@@ -85,7 +87,9 @@ def main(argv=None) -> int:
     flights = read_flights(paths)
     by_name = {f.name: f for f in flights}
     runs = {}
+    methods = [m for m in args.methods.split(",") if m]
     args.out.mkdir(parents=True, exist_ok=True)
+    stem = f"transfer{args.tag}"
     for family in args.directions.split(","):
         test = [f for f in flights if OTHER[family] in f.name]   # quality-failed flights are excluded by evaluate
         direction = f"trained on {TRAIN[family]}, scored on the {OTHER[family]}s"
@@ -93,18 +97,18 @@ def main(argv=None) -> int:
         for system in SYSTEMS:
             t0 = time.perf_counter()
             trained = train_on_flight(by_name[TRAIN[family]], system=system)
-            report = evaluate_flights(trained.model, test, METHODS)
+            report = evaluate_flights(trained.model, test, methods)
             runs[direction][system] = {"report": report, "gains": gains(report), "median_groups": median_groups(report),
                                        "train_seconds": trained.seconds, "seconds": time.perf_counter() - t0}
             print(f"{direction} / {system}: medians {report['median']} improvement {report['improvement_pct']}",
                   file=sys.stderr, flush=True)
             partial = {"command": "python benchmarks/crazyflie_transfer.py " + " ".join(argv or sys.argv[1:]),
                        "runs": runs, "seconds": time.perf_counter() - started}
-            (args.out / "transfer.json").write_text(json.dumps(partial, indent=1))
+            (args.out / f"{stem}.json").write_text(json.dumps(partial, indent=1))
     result = {"command": "python benchmarks/crazyflie_transfer.py " + " ".join(argv if argv is not None else sys.argv[1:]),
               "runs": runs, "seconds": time.perf_counter() - started}
-    (args.out / "transfer.json").write_text(json.dumps(result, indent=1))
-    (args.out / "transfer.md").write_text(markdown(result))
+    (args.out / f"{stem}.json").write_text(json.dumps(result, indent=1))
+    (args.out / f"{stem}.md").write_text(markdown(result))
     print(markdown(result))
     return 0
 
