@@ -108,6 +108,17 @@ BOUNDS = {
 UNITS = {"m_kg": "kg", "gamma": "1", "q_pwm2": "1", "k_xy": "1/s", "k_z": "1/s", "r_m": "m", "tau_s": "s",
          "v_ref": "V"}
 
+# Issue 14's effect contract: effect id -> its parameters and the one-line equation it adds to the prior.
+# Nominal values: PUBLIC (published) and IDENTIFIED (NanoBench); ranges: BOUNDS; units: UNITS.
+EFFECTS = {
+    "mass": {"params": ("m_kg",), "equation": "v̇ = R(q)·[0, 0, Σ T_i]ᵀ / m_kg − g e₃  (a payload raises m_kg)"},
+    "battery_thrust": {"params": ("gamma",),
+                       "equation": "T_i = (q_pwm2·a2·p_i² + a1·p_i + a0)·(V / V_ref)^gamma, V_ref = 3.7 V"},
+    "rotor_drag": {"params": ("k_xy", "k_z"), "equation": "f_b −= diag(k_xy, k_xy, k_z)·Rᵀ v"},
+    "ground_effect": {"params": ("r_m",), "equation": "Σ T_i /= 1 − (r_m / (4 z))²  (Cheeseman–Bennett)"},
+    "motor_lag": {"params": ("tau_s",), "equation": "ȧ = (a_cmd(v, z, u) − a) / tau_s"},
+}
+
 # The inputs the prior needs, in order: mocap attitude (scalar last), 4 motor PWM, battery voltage.
 INPUT_NAMES = ("qx", "qy", "qz", "qw", "pwm1", "pwm2", "pwm3", "pwm4", "vbat")
 
