@@ -65,8 +65,9 @@ from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer as Ros2McapWriter
 
 from .align import build_flight, samples_per_second
-from .flight import Flight, IngestError, sha256_file
+from .flight import Flight, IngestError, existing_file, sha256_file
 from .frames import GRAVITY
+from .limits import QUATERNION_NORM_TOLERANCE
 
 MAGIC = b"\x89MCAP0\r\n"
 DEFAULT_START_NS = 1_700_000_000 * 10**9     # writers: an epoch time, like a real bag
@@ -78,7 +79,6 @@ MAX_CHUNK_BYTES = 1 << 30
 # Crazyflie battery lasts minutes); the bound also caps the memory of the resampled grid.
 MAX_DURATION_S = 3600.0
 # Mocap quaternions further than this from unit length are not attitudes (lost object, zeros).
-QUATERNION_NORM_TOLERANCE = 0.1
 # A flight's median specific force is ≈ 1 g (hover or rest); outside these bounds the unit is wrong.
 PLAUSIBLE_MEDIAN_ACC_G = (0.25, 4.0)
 
@@ -321,10 +321,7 @@ def _check_file(path: Path) -> None:
         inside = sorted(p.name for p in path.glob("*.mcap"))
         hint = f" (a rosbag2 folder? pass the .mcap file inside: {', '.join(inside)})" if inside else ""
         raise IngestError(path, f"is a directory, not an MCAP file{hint}")
-    if not path.is_file():
-        raise IngestError(path, "no such file")
-    if path.stat().st_size == 0:
-        raise IngestError(path, "empty file, not an MCAP recording")
+    existing_file(path, "MCAP recording")
     with open(path, "rb") as handle:
         start = handle.read(len(MAGIC))
     if start != MAGIC:

@@ -68,6 +68,14 @@ class HybridModel:
     def n(self) -> int:
         return self.system.n
 
+    @property
+    def n_inputs(self) -> int:
+        return self.system.n_inputs
+
+    @property
+    def n_meas(self) -> int:
+        return self.system.n_meas
+
     def f_c(self, x, u):
         base = self.system.f_true(x, u) if self.kind == "true" else self.system.f_prior(x, u)
         return base + self.residual(x, u) if self.residual is not None else base

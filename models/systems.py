@@ -17,7 +17,7 @@ from .backend import NumpyOps, ops_for
 
 
 @dataclass(frozen=True)
-class Trajectory:
+class SimulatedRun:
     """A simulated run: true states, inputs, measurements and noisy full-state observations."""
 
     t: np.ndarray        # (T,)
@@ -53,11 +53,11 @@ class System:
         return len(self.state_names)
 
     @property
-    def p(self) -> int:
+    def n_inputs(self) -> int:
         return len(self.input_names)
 
     @property
-    def m(self) -> int:
+    def n_meas(self) -> int:
         return len(self.meas_names)
 
     # -- models ------------------------------------------------------------------------------------
@@ -100,7 +100,7 @@ class System:
         """The input actually applied at a sample (default: the open-loop excitation)."""
         return u_excitation
 
-    def simulate(self, seed: int, n_samples: int | None = None) -> Trajectory:
+    def simulate(self, seed: int, n_samples: int | None = None) -> SimulatedRun:
         """Integrate the true system with RK45 between samples (input held), then add sensor noise."""
         rng = np.random.default_rng(seed)
         n_samples = n_samples or self.n_samples
@@ -114,9 +114,9 @@ class System:
                             method="RK45", rtol=1e-9, atol=1e-11)
             x[k + 1] = sol.y[:, -1]
         u[-1] = self.feedback(x[-1], u[-1])
-        y = self.h(x, u) + rng.normal(size=(n_samples, self.m)) * np.asarray(self.meas_noise_std)
+        y = self.h(x, u) + rng.normal(size=(n_samples, self.n_meas)) * np.asarray(self.meas_noise_std)
         x_noisy = x + rng.normal(size=x.shape) * np.asarray(self.state_noise_std)
-        return Trajectory(t=t, x=x, u=u, y=y, x_noisy=x_noisy)
+        return SimulatedRun(t=t, x=x, u=u, y=y, x_noisy=x_noisy)
 
 
 def _sum_of_sines(rng, t, amplitudes, freqs_hz):
@@ -285,5 +285,5 @@ def make_system(name: str, **overrides) -> System:
     return cls(**overrides)
 
 
-__all__ = ["System", "Cartpole", "GroundRobot", "Quadrotor", "Trajectory", "make_system", "SYSTEMS",
+__all__ = ["System", "Cartpole", "GroundRobot", "Quadrotor", "SimulatedRun", "make_system", "SYSTEMS",
            "NumpyOps"]

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import fcntl
 import json
-import math
 import time
 from contextlib import contextmanager
 from datetime import datetime, timezone
@@ -37,6 +36,8 @@ from sqlalchemy import (
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, relationship, sessionmaker
 
+from learnest.ingest.flight import json_compatible
+
 MIGRATIONS = Path(__file__).resolve().parent / "migrations"
 
 
@@ -45,19 +46,8 @@ def utcnow() -> datetime:
     return datetime.now(timezone.utc).replace(tzinfo=None)
 
 
-def json_safe(value):
-    """NaN/inf -> None: PostgreSQL's json type (rightly) rejects them, json.dumps would write them."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {str(k): json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_safe(v) for v in value]
-    return value
-
-
 def _json_dumps(value) -> str:
-    return json.dumps(json_safe(value))
+    return json.dumps(json_compatible(value))
 
 
 # -- tables -------------------------------------------------------------------------------------------

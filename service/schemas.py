@@ -9,7 +9,9 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from learnest.estimators.evaluate import parse_methods
 from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON
 
-NAME_REGEX = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$"
+from .registry import NAME
+
+NAME_REGEX = rf"^{NAME}$"  # registry.NAME: one definition of a valid name
 
 
 class Strict(BaseModel):
