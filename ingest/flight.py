@@ -76,7 +76,7 @@ class Flight:
         """y = [p, a_meas] (T, 6), the quadrotor's measurement vector (Sec. V-C)."""
         return np.column_stack([self.p, self.a_meas])
 
-    def slice(self, start: int, stop: int) -> "Flight":
+    def slice(self, start: int, stop: int) -> Flight:
         """Rows [start, stop) with time restarted at zero."""
         t = self.t[start:stop]
         return Flight(t - t[0], self.p[start:stop], self.a_meas[start:stop], self.quat[start:stop],
@@ -116,7 +116,7 @@ class Flight:
         return frame
 
     @classmethod
-    def from_dataframe(cls, frame, meta: dict | None = None) -> "Flight":
+    def from_dataframe(cls, frame, meta: dict | None = None) -> Flight:
         """Rebuild a Flight from `to_dataframe`'s layout (or any frame with those column names).
 
         Parameters
@@ -159,7 +159,7 @@ class Flight:
         return buffer.getvalue()
 
     @classmethod
-    def from_bytes(cls, data: bytes) -> "Flight":
+    def from_bytes(cls, data: bytes) -> Flight:
         with np.load(io.BytesIO(data), allow_pickle=False) as npz:
             meta = json.loads(npz["meta"].tobytes().decode())
             channels = {k[len("channel__"):]: npz[k] for k in npz.files if k.startswith("channel__")}
@@ -172,7 +172,7 @@ class Flight:
         tmp.replace(path)  # atomic: never a half-written flight on disk
 
     @classmethod
-    def load(cls, path) -> "Flight":
+    def load(cls, path) -> Flight:
         try:
             return cls.from_bytes(Path(path).read_bytes())
         except (OSError, ValueError, KeyError) as err:

@@ -251,10 +251,10 @@ class _Stream:
     t: np.ndarray           # (N,) s
     values: np.ndarray      # (N, k)
 
-    def select(self, mask) -> "_Stream":
+    def select(self, mask) -> _Stream:
         return _Stream(self.event, self.t[mask], self.values[mask])
 
-    def within(self, window: tuple[float, float]) -> "_Stream":
+    def within(self, window: tuple[float, float]) -> _Stream:
         return self.select((self.t >= window[0]) & (self.t <= window[1]))
 
 

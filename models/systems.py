@@ -73,7 +73,7 @@ class System:
     def h(self, x, u=None):  # pragma: no cover - abstract
         raise NotImplementedError
 
-    def with_true_params(self, **params) -> "System":
+    def with_true_params(self, **params) -> System:
         return replace(self, true_params={**self.true_params, **params})
 
     # -- noise settings as matrices ----------------------------------------------------------------
@@ -150,14 +150,14 @@ class Cartpole(System):
 
     def dynamics(self, x, u, params):
         ops = ops_for(x)
-        m_c, m_p, l, g, b = (params[k] for k in ("m_c", "m_p", "l", "g", "b"))
+        m_c, m_p, length, g, b = (params[k] for k in ("m_c", "m_p", "l", "g", "b"))
         _, p_dot, alpha, alpha_dot = ops.unstack(x)
         force = ops.unstack(u)[0] - b * p_dot  # viscous cart friction b (0 in the paper's setting)
         total = m_c + m_p
         sin_a, cos_a = ops.sin(alpha), ops.cos(alpha)
-        temp = (force + m_p * l * alpha_dot**2 * sin_a) / total
-        alpha_ddot = (g * sin_a - cos_a * temp) / (l * (4.0 / 3.0 - m_p * cos_a**2 / total))
-        p_ddot = temp - m_p * l * alpha_ddot * cos_a / total
+        temp = (force + m_p * length * alpha_dot**2 * sin_a) / total
+        alpha_ddot = (g * sin_a - cos_a * temp) / (length * (4.0 / 3.0 - m_p * cos_a**2 / total))
+        p_ddot = temp - m_p * length * alpha_ddot * cos_a / total
         return ops.stack([p_dot, p_ddot, alpha_dot, alpha_ddot])
 
     def h(self, x, u=None):

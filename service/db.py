@@ -9,10 +9,10 @@ from __future__ import annotations
 import fcntl
 import json
 import time
+from collections.abc import Iterator
 from contextlib import contextmanager
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
-from typing import Iterator
 
 from sqlalchemy import (
     JSON,
@@ -43,7 +43,7 @@ MIGRATIONS = Path(__file__).resolve().parent / "migrations"
 
 def utcnow() -> datetime:
     """Naive UTC: SQLite drops time zones, so every timestamp is stored as UTC without one."""
-    return datetime.now(timezone.utc).replace(tzinfo=None)
+    return datetime.now(UTC).replace(tzinfo=None)
 
 
 def _json_dumps(value) -> str:
@@ -73,7 +73,7 @@ class Flight(Base):
     flight_blob: Mapped[str] = mapped_column(String(64))          # Flight.to_bytes of the normalized flight
     meta: Mapped[dict] = mapped_column(JSON)
     created_at: Mapped[datetime] = mapped_column(DateTime, index=True, default=utcnow)
-    files: Mapped[list["FlightFile"]] = relationship(order_by="FlightFile.position", cascade="all, delete-orphan",
+    files: Mapped[list[FlightFile]] = relationship(order_by="FlightFile.position", cascade="all, delete-orphan",
                                                      lazy="selectin")
 
 

@@ -20,9 +20,9 @@ import socket
 import threading
 import time
 import uuid
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Callable
 
 from sqlalchemy import select, update
 from sqlalchemy.exc import IntegrityError
@@ -74,7 +74,7 @@ class JobContext:
     """What a job's work function gets: progress reporting and the transactional completion."""
 
     job_id: int
-    runner: "JobRunner"
+    runner: JobRunner
     on_progress: Callable[[], None] | None = None   # e.g. the scheduler renewing its lease
     completed: bool = False
 
