@@ -31,8 +31,8 @@ def missing_inputs(flight: Flight, system_name: str) -> list[str]:
 
 
 def system_inputs(flight: Flight, system: System) -> np.ndarray:
-    """u (T, system.p) for this flight: empty for input-free systems, [quat, PWM x4, vbat] for crazyflie."""
-    if system.p == 0:
+    """u (T, system.n_inputs) for this flight: empty for input-free systems, [quat, PWM x4, vbat] for crazyflie."""
+    if system.n_inputs == 0:
         return np.zeros((len(flight.t), 0))
     if system.name not in NEEDED:
         raise ValueError(f"no rule for the inputs of system {system.name!r} on a Flight")
@@ -44,7 +44,7 @@ def system_inputs(flight: Flight, system: System) -> np.ndarray:
     columns = [flight.quat] + [np.asarray(flight.channels[name], float).reshape(len(flight.t), -1)
                                for name in NEEDED[system.name]]
     u = np.column_stack(columns)
-    if u.shape[1] != system.p:
-        raise MissingInputs(f"{flight.name}: expected {system.p} input columns for {system.name!r}, got "
+    if u.shape[1] != system.n_inputs:
+        raise MissingInputs(f"{flight.name}: expected {system.n_inputs} input columns for {system.name!r}, got "
                             f"{u.shape[1]} (channels {', '.join(NEEDED[system.name])})")
     return u

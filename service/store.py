@@ -17,13 +17,15 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
-from typing import BinaryIO, Callable, Iterator
+from typing import BinaryIO
 
 from sqlalchemy import select
 
 from learnest.errors import Conflict, InvalidInput, LearnestError, NotFound
+from learnest.ingest.flight import existing_file
 from learnest.models.knode import HybridModel
 
 from . import registry
@@ -65,8 +67,7 @@ def flight_files(paths) -> list[Path]:
     """The given files plus, for a NanoBench CSV, the *_metadata.yaml next to it (the reader would use it)."""
     files: dict[Path, Path] = {}
     for path in map(Path, paths):
-        if not path.is_file():
-            raise InvalidInput(f"{path}: no such file")
+        existing_file(path, "flight log")
         files.setdefault(path.resolve(), path)
         sidecar = path.with_name(f"{path.stem}_metadata.yaml")
         if path.suffix.lower() == ".csv" and sidecar.is_file():

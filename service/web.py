@@ -26,7 +26,7 @@ import html
 import io
 import json
 import logging
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 from fastapi import APIRouter, Depends, File, Form, Query, Request, Response, UploadFile
