@@ -78,6 +78,8 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/crazyflie_transfer"))
     parser.add_argument("--directions", default="circle,figure8", help="families to train on")
     parser.add_argument("--methods", default=",".join(METHODS), help="estimators to score (MHE dominates the time)")
+    parser.add_argument("--flights", default="", help="comma-separated names: score only these flights of the "
+                                                           "other family (default: all of them)")
     parser.add_argument("--tag", default="", help="suffix of the result files (transfer<tag>.json/.md)")
     args = parser.parse_args(argv)
     started = time.perf_counter()
@@ -92,6 +94,8 @@ def main(argv=None) -> int:
     stem = f"transfer{args.tag}"
     for family in args.directions.split(","):
         test = [f for f in flights if OTHER[family] in f.name]   # quality-failed flights are excluded by evaluate
+        if args.flights:
+            test = [f for f in test if f.name in args.flights.split(",")]
         direction = f"trained on {TRAIN[family]}, scored on the {OTHER[family]}s"
         runs[direction] = {}
         for system in SYSTEMS:
