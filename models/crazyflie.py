@@ -83,13 +83,13 @@ PUBLIC = {
 # *effective* mass relative to Förster's map: NanoBench's vehicle carries markers and maybe a deck, and
 # its motors/propellers are not Förster's, so mass and thrust gain are one number here.
 IDENTIFIED = {
-    "m_kg": 0.0191,
+    "m_kg": 0.0190,
     "gamma": 0.42,
-    "q_pwm2": -0.15,
+    "q_pwm2": -0.153,
     "k_xy": 0.40,
-    "k_z": 0.097,
+    "k_z": 0.108,
     "r_m": BITCRAZE_ROTOR_RADIUS_M,   # not identifiable at 1 m flying height: the public value is kept
-    "tau_s": 0.068,
+    "tau_s": 0.061,
     "v_ref": V_REF,
 }
 
