@@ -71,9 +71,12 @@ SMOOTHING_WINDOW = 150   # as the SG references (paper Sec. VI)
 
 def assess(flight) -> dict:
     """{"ok": bool, "issues": [reason, ...]} for a canonical Flight."""
-    issues: list[str] = []
-    for check in (_check_time, _check_finite, _check_plausible, _check_duration, _check_position_units,
-                  _check_acc_level,
+    # broken time or impossible numbers make the statistics below meaningless (and overflow): stop there
+    for stage in ((_check_time, _check_finite, _check_position_units), (_check_plausible,)):
+        issues = [issue for check in stage for issue in check(flight)]
+        if issues:
+            return {"ok": False, "issues": issues}
+    for check in (_check_duration, _check_acc_level,
                   _check_saturation, _check_spikes, _check_gaps, _check_frozen_mocap, _check_acc_vs_mocap):
         issues.extend(check(flight))
     return {"ok": not issues, "issues": issues}
