@@ -20,13 +20,17 @@ from .db import Database, Evaluation, Flight, Job, ModelVersion, RegisteredModel
 
 
 # -- flights ---------------------------------------------------------------------------------------------
+def _get(db: Database, table, row_id: int, what: str):
+    with db.transaction() as session:
+        row = session.get(table, row_id)
+    if row is None:
+        raise NotFound(f"{what} {row_id} not found")
+    return row
+
+
 def get_flight(db: Database, flight_id: int) -> Flight:
     """The flight row with its files; NotFound when there is none."""
-    with db.transaction() as session:
-        row = session.get(Flight, flight_id)
-    if row is None:
-        raise NotFound(f"flight {flight_id} not found")
-    return row
+    return _get(db, Flight, flight_id, "flight")
 
 
 def list_flights(db: Database, *conditions: ColumnElement[bool], limit: int, offset: int = 0,
@@ -91,11 +95,7 @@ def _latest_ready(session, name: str) -> int | None:
 
 def get_version_by_id(db: Database, version_id: int) -> ModelVersion:
     """A model version by its row id (what evaluations keep); NotFound when there is none."""
-    with db.transaction() as session:
-        version = session.get(ModelVersion, version_id)
-    if version is None:
-        raise NotFound(f"model version {version_id} not found")
-    return version
+    return _get(db, ModelVersion, version_id, "model version")
 
 
 def set_alias(db: Database, name: str, alias: str, version: int) -> None:
@@ -107,11 +107,7 @@ def set_alias(db: Database, name: str, alias: str, version: int) -> None:
 # -- jobs and the results they make ------------------------------------------------------------------------
 def get_job(db: Database, job_id: int) -> Job:
     """The job row; NotFound when there is none."""
-    with db.transaction() as session:
-        job = session.get(Job, job_id)
-    if job is None:
-        raise NotFound(f"job {job_id} not found")
-    return job
+    return _get(db, Job, job_id, "job")
 
 
 def list_jobs(db: Database, *conditions: ColumnElement[bool], limit: int, offset: int = 0) -> tuple[int, list[Job]]:
