@@ -12,6 +12,7 @@ from scipy.signal import savgol_filter
 
 from .baseline import sg_references
 from .frames import GRAVITY
+from .limits import MAX_ROOM_M
 
 # -- thresholds (each with why) -------------------------------------------------------------------------
 # Shorter than this, the 1.5 s reference filter and any estimator warm-up leave too little to evaluate.
@@ -53,7 +54,6 @@ MAX_GAP_FRACTION = 0.25
 FROZEN_MOCAP_S = 0.1
 
 # Unit mix-up for positions: a motion-capture room is < 20 m across.
-MAX_POSITION_M = 20.0
 
 # Mocap vs accelerometer: correlation of the SG second derivative of p with the equally smoothed a_meas
 # (per-axis means removed, axes pooled).  Clean NanoBench flights: 0.94-0.99.  Swapped axes, a wrong
@@ -108,8 +108,8 @@ def _check_duration(flight) -> list[str]:
 # -- units ----------------------------------------------------------------------------------------------
 def _check_position_units(flight) -> list[str]:
     median_p = _nanmedian(np.linalg.norm(flight.p, axis=1))
-    if median_p > MAX_POSITION_M:
-        return [f"positions look like millimetres: median |p| = {median_p:.4g} m (room < {MAX_POSITION_M:g} m)"]
+    if median_p > MAX_ROOM_M:
+        return [f"positions look like millimetres: median |p| = {median_p:.4g} m (room < {MAX_ROOM_M:g} m)"]
     return []
 
 

@@ -201,7 +201,8 @@ def _diagnose(args) -> int:
             _registry_grid(args.rate)
             check_name(args.register)  # before the work
         flights = _read(args.files, args.rate)
-        result, repaired = diagnose_flights(flights, knode=model, methods=methods, epochs=args.epochs or CRAZYFLIE_TRAINING.epochs,
+        epochs = args.epochs or CRAZYFLIE_TRAINING.epochs
+        result, repaired = diagnose_flights(flights, knode=model, methods=methods, epochs=epochs,
                                             return_model=True)
         if args.register:
             from .local_registry import register_repaired
@@ -241,7 +242,8 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--task", choices=["cartpole", "robot"], required=True)
     rep.add_argument("--seeds", type=int, default=15)
     rep.add_argument("--json", metavar="FILE", help="also write the results as JSON")
-    rep.add_argument("--samples", type=int, default=None, help="evaluation trajectory length in samples (default: the paper's)")
+    rep.add_argument("--samples", type=int, default=None,
+                     help="evaluation trajectory length in samples (default: the paper's)")
     rep.add_argument("--epochs", type=int, default=None, help="training epochs (default: the paper's)")
     rep.add_argument("--horizon", type=int, default=MHE_HORIZON, help=f"MHE horizon N (default {MHE_HORIZON})")
     rep.add_argument("--workers", type=int, default=1, help="processes to spread the seeds over")
@@ -275,7 +277,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--include-bad", action="store_true", help="also score flights that fail quality checks")
     ev.add_argument("--new", action="store_true", help="evaluate every stored flight that has no result yet "
                     "for the registry model holding --alias (one scheduler round, for cron)")
-    ev.add_argument("--alias", default=PRODUCTION_ALIAS, help=f"with --new: the alias to evaluate (default {PRODUCTION_ALIAS})")
+    ev.add_argument("--alias", default=PRODUCTION_ALIAS,
+                    help=f"with --new: the alias to evaluate (default {PRODUCTION_ALIAS})")
     ev.set_defaults(func=_evaluate)
 
     srv = sub.add_parser("serve", help="run the HTTP service (uvicorn; OpenAPI docs at /docs)")

@@ -8,12 +8,11 @@ from __future__ import annotations
 
 import fcntl
 import json
-import math
 import time
+from collections.abc import Iterator
 from contextlib import contextmanager
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
-from typing import Iterator
 
 from sqlalchemy import (
     JSON,
@@ -37,27 +36,18 @@ from sqlalchemy import (
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, relationship, sessionmaker
 
+from learnest.ingest.flight import json_compatible
+
 MIGRATIONS = Path(__file__).resolve().parent / "migrations"
 
 
 def utcnow() -> datetime:
     """Naive UTC: SQLite drops time zones, so every timestamp is stored as UTC without one."""
-    return datetime.now(timezone.utc).replace(tzinfo=None)
-
-
-def json_safe(value):
-    """NaN/inf -> None: PostgreSQL's json type (rightly) rejects them, json.dumps would write them."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {str(k): json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_safe(v) for v in value]
-    return value
+    return datetime.now(UTC).replace(tzinfo=None)
 
 
 def _json_dumps(value) -> str:
-    return json.dumps(json_safe(value))
+    return json.dumps(json_compatible(value))
 
 
 # -- tables -------------------------------------------------------------------------------------------
@@ -83,7 +73,7 @@ class Flight(Base):
     flight_blob: Mapped[str] = mapped_column(String(64))          # Flight.to_bytes of the normalized flight
     meta: Mapped[dict] = mapped_column(JSON)
     created_at: Mapped[datetime] = mapped_column(DateTime, index=True, default=utcnow)
-    files: Mapped[list["FlightFile"]] = relationship(order_by="FlightFile.position", cascade="all, delete-orphan",
+    files: Mapped[list[FlightFile]] = relationship(order_by="FlightFile.position", cascade="all, delete-orphan",
                                                      lazy="selectin")
 
 

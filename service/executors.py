@@ -14,8 +14,9 @@ import concurrent.futures
 import multiprocessing
 import threading
 from abc import ABC, abstractmethod
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures.process import BrokenProcessPool
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any
 
 
 def init_worker() -> None:

@@ -23,6 +23,7 @@ from pathlib import Path
 from sqlalchemy import select
 
 from learnest.errors import Conflict, InvalidInput, LearnestError, NotFound
+from learnest.ingest.flight import existing_file
 from learnest.models.knode import HybridModel
 
 from . import registry
@@ -58,8 +59,7 @@ def flight_files(paths) -> list[Path]:
     """The given files plus, for a NanoBench CSV, the *_metadata.yaml next to it (the reader would use it)."""
     files: dict[Path, Path] = {}
     for path in map(Path, paths):
-        if not path.is_file():
-            raise InvalidInput(f"{path}: no such file")
+        existing_file(path, "flight log")
         files.setdefault(path.resolve(), path)
         sidecar = path.with_name(f"{path.stem}_metadata.yaml")
         if path.suffix.lower() == ".csv" and sidecar.is_file():
