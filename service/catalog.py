@@ -133,6 +133,8 @@ def row_and_job(db: Database, table, row_id: int, what: str):
         if row is None:
             raise NotFound(f"{what} {row_id} not found")
         job = session.get(Job, row.job_id)
+    if job is None:  # the foreign key forbids it; said rather than an AttributeError if a database lies
+        raise NotFound(f"{what} {row_id} has no job")
     if job.state == "failed":
         raise Conflict(f"{what} {row_id} failed: {job.error}")
     return row, job

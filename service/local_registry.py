@@ -26,7 +26,7 @@ from learnest.errors import Conflict, InvalidInput, LearnestError, NotFound
 from learnest.ingest.flight import existing_file
 from learnest.models.knode import HybridModel
 
-from . import registry
+from . import catalog, registry
 from .config import Settings
 from .db import Database, Flight, Job, RegisteredModel
 from .jobs import ACTIVE, Services, diagnosis_metrics, open_services, start_training, training_config
@@ -104,8 +104,7 @@ def wait_for_job(services: Services, job_id: int, progress: Callable[[float], No
                  poll_s: float = 0.25) -> Job:
     """Poll the job row (the worker writes its progress there) until it is finished."""
     while True:
-        with services.db.transaction() as session:
-            job = session.get(Job, job_id)
+        job = catalog.get_job(services.db, job_id)
         if progress:
             progress(job.progress)
         if job.state not in ACTIVE:

@@ -35,8 +35,11 @@ SIDECAR_SUFFIXES = ("_metadata.yaml", "_metadata.yml")   # NanoBench: <stem>_met
 class Upload(Protocol):
     """What the upload code reads of a file: FastAPI's UploadFile, or a LocalFile."""
 
-    filename: str | None
-    file: BinaryIO
+    @property
+    def filename(self) -> str | None: ...
+
+    @property
+    def file(self) -> BinaryIO: ...
 
 
 @dataclass

@@ -39,8 +39,9 @@ def require_api_key(x_api_key: str | None = Header(None, description="required f
 
 def key_matches(settings: Settings, key: str | None) -> bool:
     """True when the server needs no API key, or `key` is it (compared in constant time)."""
-    return settings.api_key is None or (
-        bool(key) and hmac.compare_digest(key.encode(), settings.api_key.encode()))
+    if settings.api_key is None:
+        return True
+    return bool(key) and hmac.compare_digest(str(key).encode(), settings.api_key.encode())
 
 
 def pending(what: str, row, job: Job) -> JSONResponse:
