@@ -55,7 +55,7 @@ class Base(DeclarativeBase):
     pass
 
 
-class Flight(Base):
+class FlightRecord(Base):
     __tablename__ = "flights"
     __table_args__ = {"sqlite_autoincrement": True}  # an id is never handed out twice (see 0003)
 
@@ -217,13 +217,13 @@ class Lease(Base):
 def referenced_blobs(db: Database) -> set[str]:
     """Every blob sha a row names: normalized flights, their raw files, model weights."""
     with db.transaction() as session:
-        return {sha for column in (Flight.flight_blob, FlightFile.sha256, ModelVersion.weights_blob)
+        return {sha for column in (FlightRecord.flight_blob, FlightFile.sha256, ModelVersion.weights_blob)
                 for sha in session.scalars(select(column).where(column.is_not(None)))}
 
 
 def blob_is_referenced(db: Database, sha: str) -> bool:
     with db.transaction() as session:
-        return bool(session.scalar(select(or_(exists().where(Flight.flight_blob == sha),
+        return bool(session.scalar(select(or_(exists().where(FlightRecord.flight_blob == sha),
                                               exists().where(FlightFile.sha256 == sha),
                                               exists().where(ModelVersion.weights_blob == sha)))))
 

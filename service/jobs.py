@@ -39,7 +39,7 @@ from .db import (
     Database,
     Diagnosis,
     Evaluation,
-    Flight,
+    FlightRecord,
     Job,
     Lease,
     ModelVersion,
@@ -382,7 +382,7 @@ def start_training(services: Services, name: str, flight_id: int, overrides: dic
 def run_training(services: Services, ctx: JobContext, version_id: int) -> None:
     with services.db.transaction() as session:
         version = session.get(ModelVersion, version_id)
-        flight = session.get(Flight, version.training_flight_id)
+        flight = session.get(FlightRecord, version.training_flight_id)
         if flight is None:
             raise InvalidInput(f"training flight {version.training_flight_id} was deleted")
         meta = {"name": version.name, "version": version.version, "training_flight_id": flight.id}
@@ -409,8 +409,8 @@ def _fail_version(session: Session, version_id: int, message: str) -> None:
         version.status, version.error = "failed", message
 
 
-def _flight(session: Session, flight_id: int) -> Flight:
-    flight = session.get(Flight, flight_id)
+def _flight(session: Session, flight_id: int) -> FlightRecord:
+    flight = session.get(FlightRecord, flight_id)
     if flight is None:
         raise NotFound(f"flight {flight_id} not found")
     return flight
@@ -559,9 +559,9 @@ def store_result(db: Database, sha: str, version_id: int, key: str, flight_id: i
 
 def _flight_ids(session: Session, flights, version: ModelVersion) -> list[int]:
     if flights == "all-other":
-        query = select(Flight.id).order_by(Flight.id)
+        query = select(FlightRecord.id).order_by(FlightRecord.id)
         if version.training_flight_id is not None:
-            query = query.where(Flight.id != version.training_flight_id)
+            query = query.where(FlightRecord.id != version.training_flight_id)
         ids = list(session.scalars(query))
         if not ids:
             raise InvalidInput("no flights other than the model's training flight are stored")
@@ -569,21 +569,22 @@ def _flight_ids(session: Session, flights, version: ModelVersion) -> list[int]:
     ids = list(dict.fromkeys(int(i) for i in flights))
     if not ids:
         raise InvalidInput("flights: give at least one flight id, or \"all-other\"")
-    found = set(session.scalars(select(Flight.id).where(Flight.id.in_(ids))))
+    found = set(session.scalars(select(FlightRecord.id).where(FlightRecord.id.in_(ids))))
     missing = [i for i in ids if i not in found]
     if missing:
         raise NotFound(f"flight(s) not found: {', '.join(map(str, missing))}")
     return ids
 
 
-def _flights_by_id(session: Session, ids) -> dict[int, Flight]:
-    return {f.id: f for f in session.scalars(select(Flight).where(Flight.id.in_(list(ids))))}
+def _flights_by_id(session: Session, ids) -> dict[int, FlightRecord]:
+    return {f.id: f for f in session.scalars(select(FlightRecord).where(FlightRecord.id.in_(list(ids))))}
 
 
 def flights_without_results(session: Session, version_id: int, key: str) -> list[int]:
     """Every stored flight with no result (succeeded or failed) for this model version and settings."""
     done = select(Result.flight_sha256).where(Result.model_version_id == version_id, Result.settings_key == key)
-    return list(session.scalars(select(Flight.id).where(Flight.sha256.not_in(done)).order_by(Flight.id)))
+    query = select(FlightRecord.id).where(FlightRecord.sha256.not_in(done)).order_by(FlightRecord.id)
+    return list(session.scalars(query))
 
 
 # -- diagnosis jobs ------------------------------------------------------------------------------------

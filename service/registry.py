@@ -24,7 +24,7 @@ from learnest.models.knode import HybridModel
 
 from .blobs import BlobStore
 from .config import Settings
-from .db import Database, Flight, ModelAlias, ModelVersion, RegisteredModel, utcnow
+from .db import Database, FlightRecord, ModelAlias, ModelVersion, RegisteredModel, utcnow
 
 NAME = r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}"
 NAME_PATTERN = re.compile(rf"^{NAME}$")
@@ -103,7 +103,7 @@ def aliases_of(session: Session, name: str) -> dict[str, int]:
 
 
 # -- writes -------------------------------------------------------------------------------------------
-def reserve_version(session: Session, name: str, *, job_id: int | None, flight: Flight, hyperparameters: dict,
+def reserve_version(session: Session, name: str, *, job_id: int | None, flight: FlightRecord, hyperparameters: dict,
                     parent: str | None) -> ModelVersion:
     """Take the next version number of `name` (status "training").  Two concurrent requests may pick the
     same number: the unique (name, version) constraint rejects one, and the caller retries."""
@@ -121,7 +121,7 @@ def reserve_version(session: Session, name: str, *, job_id: int | None, flight: 
     return row
 
 
-def register_model(db: Database, blobs: BlobStore, name: str, model: HybridModel, *, flight: Flight,
+def register_model(db: Database, blobs: BlobStore, name: str, model: HybridModel, *, flight: FlightRecord,
                    hyperparameters: dict, parent: str | None = None, job_id: int | None = None,
                    metrics: dict | None = None) -> ModelVersion:
     """Store a model made outside a training job (a diagnosis' repaired model) as the next ready version of
