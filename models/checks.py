@@ -7,7 +7,13 @@ from learnest.errors import InvalidInput
 
 
 def check_sequence(name: str, array, rows: int | None = None, cols: int | None = None) -> np.ndarray:
-    """A (T, k) finite float array; a 1-D array is read as one channel."""
+    """A (T, k) finite float array; a 1-D array is read as one channel.
+
+    Raises
+    ------
+    InvalidInput
+        If it is not 2-D, has the wrong number of rows or columns, or holds NaN/inf.
+    """
     arr = np.asarray(array, dtype=float)
     if arr.ndim == 1 and cols in (None, 1):
         arr = arr[:, None]
@@ -36,6 +42,7 @@ def check_inputs(u, rows: int, cols: int) -> np.ndarray:
 
 
 def check_vector(name: str, vector, size: int) -> np.ndarray:
+    """``vector`` flattened to a finite float array of shape (size,); else `InvalidInput`."""
     vec = np.asarray(vector, dtype=float).reshape(-1)
     if vec.shape != (size,):
         raise InvalidInput(f"{name} must have {size} entries, got shape {np.shape(vector)}")
@@ -60,7 +67,8 @@ def check_covariance(name: str, matrix, size: int, allow_singular: bool = False)
     return mat
 
 
-def check_dt(dt) -> float:
+def check_dt(dt: float) -> float:
+    """``dt`` (s) as a float if it is finite and positive; else `InvalidInput`."""
     if not (np.isfinite(dt) and dt > 0):
         raise InvalidInput(f"dt must be a positive finite number of seconds, got {dt}")
     return float(dt)
