@@ -8,8 +8,8 @@ is factorised once, with the factor kept for the next sigma points (filterpy fac
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import ArrayLike
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+from numpy.typing import ArrayLike
 from scipy.linalg import lapack
 
 from learnest.models.checks import check_covariance, check_dt, check_inputs, check_sequence, check_vector

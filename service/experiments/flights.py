@@ -53,8 +53,8 @@ def corrected_flight(flight: Flight, values: dict) -> Flight:
                   {**flight.channels, "acc_body": acc_body}, dict(flight.meta))
 
 
-def evaluate_flight(knode: HybridModel, flight: Flight, methods: Sequence[str], horizon: int = MHE_HORIZON, sg_window: int = SG_WINDOW,
-                    keep_estimates: bool = False, mhe_cache: dict | None = None) -> dict:
+def evaluate_flight(knode: HybridModel, flight: Flight, methods: Sequence[str], horizon: int = MHE_HORIZON,
+                    sg_window: int = SG_WINDOW, keep_estimates: bool = False, mhe_cache: dict | None = None) -> dict:
     """Scores of every method on one flight, against SG references of its mocap position.
 
     The prior-only rows use the model's own prior (which a diagnosis may have extended), and a model
