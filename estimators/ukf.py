@@ -7,6 +7,9 @@ is factorised once, with the factor kept for the next sigma points (filterpy fac
 """
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 from numpy.typing import ArrayLike
@@ -82,7 +85,8 @@ class BatchedUKF(UnscentedKalmanFilter):
         spread = sigmas - mean
         return mean, (spread.T * self.Wc) @ spread + noise
 
-    def predict(self, dt: float | None = None, UT=None, fx=None, **fx_args) -> None:
+    def predict(self, dt: float | None = None, UT: Callable | None = None, fx: Callable | None = None,
+                **fx_args: Any) -> None:
         """Propagate the sigma points through ``fx`` in one call; sets x, P and x_prior, P_prior.
 
         ``UT`` is accepted for filterpy compatibility and ignored.
@@ -94,7 +98,8 @@ class BatchedUKF(UnscentedKalmanFilter):
         self.sigmas_f = self._sigmas()  # re-drawn from the predicted covariance, as filterpy does
         self.x_prior, self.P_prior = self.x.copy(), self.P  # P is read-only: no copy needed
 
-    def update(self, z: np.ndarray, R: np.ndarray | None = None, UT=None, hx=None, **hx_args) -> None:
+    def update(self, z: np.ndarray, R: np.ndarray | None = None, UT: Callable | None = None,
+               hx: Callable | None = None, **hx_args: Any) -> None:
         """Measurement update with z (m,); sets x, P, the innovation y, S, K and x_post, P_post.
 
         ``UT`` is accepted for filterpy compatibility and ignored.

@@ -88,30 +88,33 @@ class CasadiOps:
     sin, cos, tan, arctan, tanh, sqrt = ca.sin, ca.cos, ca.tan, ca.atan, ca.tanh, ca.sqrt
 
     @staticmethod
-    def unstack(x):
+    def unstack(x: Any) -> list:
         """Rows of a column vector (n, 1) -> n scalar expressions."""
         return [x[i] for i in range(x.shape[0])]
 
     @staticmethod
-    def stack(items: list):
+    def stack(items: list) -> Any:
         """Scalar expressions -> a column vector (vertcat)."""
         return ca.vertcat(*items)
 
     @staticmethod
-    def concat(items: list):
+    def concat(items: list) -> Any:
         """Join column vectors (vertcat)."""
         return ca.vertcat(*items)
 
     @staticmethod
-    def linear(z, weight: np.ndarray, bias: np.ndarray):
+    def linear(z: Any, weight: np.ndarray, bias: np.ndarray) -> Any:
         """y = W z + b for a column vector z; weight (out, in), bias (out,) numpy arrays as constants."""
         return ca.DM(np.asarray(weight)) @ z + ca.DM(np.asarray(bias))
 
     @staticmethod
-    def zeros_like_first(x) -> float:
+    def zeros_like_first(x: Any) -> float:
         """0.0 (a CasADi state is never batched)."""
         return 0.0
 
+
+#: A state or input in any namespace: numpy ndarray (..., n), torch Tensor (..., n) or CasADi SX/MX/DM (n, 1).
+Array = Any
 
 OPS = {"numpy": NumpyOps, "torch": TorchOps, "casadi": CasadiOps}
 
@@ -125,7 +128,7 @@ def ops_for(x: Any) -> type[NumpyOps] | type[TorchOps] | type[CasadiOps]:
     return NumpyOps
 
 
-def rk4_step(f: Callable, x, u, dt: float):
+def rk4_step(f: Callable[[Array, Array], Array], x: Array, u: Array, dt: float) -> Array:
     """One explicit RK4 step of x' = f(x, u) with u held over the step; works in every namespace.
 
     Parameters

@@ -2,11 +2,12 @@
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from learnest.errors import InvalidInput
 
 
-def check_sequence(name: str, array, rows: int | None = None, cols: int | None = None) -> np.ndarray:
+def check_sequence(name: str, array: ArrayLike, rows: int | None = None, cols: int | None = None) -> np.ndarray:
     """A (T, k) finite float array; a 1-D array is read as one channel.
 
     Raises
@@ -29,7 +30,7 @@ def check_sequence(name: str, array, rows: int | None = None, cols: int | None =
     return arr
 
 
-def check_inputs(u, rows: int, cols: int) -> np.ndarray:
+def check_inputs(u: ArrayLike | None, rows: int, cols: int) -> np.ndarray:
     """Inputs as a (rows, cols) array; None (or an empty array) means "no inputs" for a model with none."""
     if u is None or (np.size(u) == 0 and cols == 0):
         if cols:
@@ -41,7 +42,7 @@ def check_inputs(u, rows: int, cols: int) -> np.ndarray:
     return check_sequence("u", u, rows=rows, cols=cols)
 
 
-def check_vector(name: str, vector, size: int) -> np.ndarray:
+def check_vector(name: str, vector: ArrayLike, size: int) -> np.ndarray:
     """``vector`` flattened to a finite float array of shape (size,); else `InvalidInput`."""
     vec = np.asarray(vector, dtype=float).reshape(-1)
     if vec.shape != (size,):
@@ -51,7 +52,7 @@ def check_vector(name: str, vector, size: int) -> np.ndarray:
     return vec
 
 
-def check_covariance(name: str, matrix, size: int, allow_singular: bool = False) -> np.ndarray:
+def check_covariance(name: str, matrix: ArrayLike, size: int, allow_singular: bool = False) -> np.ndarray:
     """Square, finite, symmetric and positive (semi-)definite; the message says which test failed."""
     mat = np.asarray(matrix, dtype=float)
     if mat.shape != (size, size):

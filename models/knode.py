@@ -16,7 +16,7 @@ import torch
 
 from learnest.errors import InvalidInput
 
-from .backend import CasadiOps, TorchOps, ops_for, rk4_step
+from .backend import Array, CasadiOps, TorchOps, ops_for, rk4_step
 from .systems import System, make_system
 
 
@@ -30,7 +30,7 @@ class Residual:
 
     layers: list
 
-    def __call__(self, x, u):
+    def __call__(self, x: Array, u: Array | None) -> Array:
         """Δθ([x, u]) in the namespace of ``x``: numpy (B, n) -> (B, n), torch likewise, CasADi (n, 1).
 
         ``u`` is left out when it is None or has width 0.
@@ -83,7 +83,7 @@ class HybridModel:
     """
 
     def __init__(self, system: System, kind: str = "prior", residual: Residual | None = None,
-                 meta: dict | None = None):
+                 meta: dict | None = None) -> None:
         if kind not in ("prior", "true", "knode"):
             raise InvalidInput(f"model kind must be 'prior', 'true' or 'knode', not {kind!r}")
         if kind == "knode" and residual is None:
@@ -105,17 +105,17 @@ class HybridModel:
         """Number of measurements."""
         return self.system.n_meas
 
-    def f_c(self, x, u):
+    def f_c(self, x: Array, u: Array) -> Array:
         """Continuous vector field dx/dt: the prior (or the true field for ``"true"``), plus the residual
         if there is one.  Same namespace and shape as ``x``."""
         base = self.system.f_true(x, u) if self.kind == "true" else self.system.f_prior(x, u)
         return base + self.residual(x, u) if self.residual is not None else base
 
-    def step(self, x, u, dt):
+    def step(self, x: Array, u: Array, dt: float) -> Array:
         """Discrete model f_h(x, u) = RK4(f_h,c) over ``dt`` s; x may be a batch (B, n) of sigma points."""
         return rk4_step(self.f_c, x, u, dt)
 
-    def h(self, x, u=None):
+    def h(self, x: Array, u: Array | None = None) -> Array:
         """Predicted measurement(s) of the system: (n,) -> (m,), (B, n) -> (B, m)."""
         return self.system.h(x, u)
 

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
+from numpy.typing import ArrayLike
 from torchdiffeq import odeint
 
 from learnest.errors import InvalidInput
@@ -82,7 +83,7 @@ def _split_rows(pairs: int, fraction: float, layout: str):
     return torch.as_tensor(np.flatnonzero(~held)), torch.as_tensor(np.flatnonzero(held))
 
 
-def train_knode(system: System, zeta, u, dt: float, config: TrainingConfig | None = None,
+def train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, config: TrainingConfig | None = None,
                 progress: Callable[[int, float], None] | None = None) -> TrainingResult:
     """Fit Δθ so that one RK4 step of f_prior + Δθ from ζ_i lands on ζ_{i+1} (eqs. 7-8).
 
