@@ -65,7 +65,7 @@ class BatchedUKF(UnscentedKalmanFilter):
     an in-place edit would silently outdate the kept factor, so assign a new P instead.
     """
 
-    def __init__(self, *args, **kwargs) -> None:
+    def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self._factored = (None, None)  # (P, L) for the covariance last factorised
 

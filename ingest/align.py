@@ -5,6 +5,7 @@ resampling, rotation into the world frame, gravity removal and the take-off/land
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +27,7 @@ def uniform_grid(t_start: float, t_end: float, rate_hz: float) -> np.ndarray:
     return t_start + np.arange(n) / rate_hz
 
 
-def samples_per_second(t: ArrayLike) -> float | None:
+def samples_per_second(t: np.ndarray | Sequence[float]) -> float | None:
     """Samples per second over a stream's span (None for fewer than 2 samples or no span)."""
     return float((len(t) - 1) / (t[-1] - t[0])) if len(t) >= 2 and t[-1] > t[0] else None
 

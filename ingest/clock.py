@@ -34,6 +34,7 @@ manoeuvres and take-offs give sharper correlation peaks than slow, level motion.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -236,7 +237,7 @@ def _odd_window(samples: float, n: int) -> int:
     return window
 
 
-def align_mocap_and_accelerometer(t_mocap: ArrayLike, p: ArrayLike, t_acc: ArrayLike, acc_g: ArrayLike,
+def align_mocap_and_accelerometer(t_mocap: np.ndarray | Sequence[float], p: ArrayLike, t_acc: ArrayLike, acc_g: ArrayLike,
                                   max_lag_s: float = DEFAULT_MAX_LAG_S,
                                   rate_hz: float = 100.0) -> ClockAlignment:
     """Offset with t_mocap = t_acc + offset_s, from the specific-force magnitude (module docstring).

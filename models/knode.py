@@ -30,7 +30,7 @@ class Residual:
 
     layers: list
 
-    def __call__(self, x: Array, u: Array | None) -> Array:
+    def __call__(self, x, u):
         """Δθ([x, u]) in the namespace of ``x``: numpy (B, n) -> (B, n), torch likewise, CasADi (n, 1).
 
         ``u`` is left out when it is None or has width 0.

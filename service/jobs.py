@@ -77,7 +77,7 @@ class JobContext:
 
     job_id: int
     runner: JobRunner
-    on_progress: Callable[[], None] | None = None   # e.g. the scheduler renewing its lease
+    on_progress: Callable[[], object] | None = None   # e.g. the scheduler renewing its lease
     completed: bool = False
 
     def progress(self, fraction: float) -> None:
@@ -171,7 +171,7 @@ class JobRunner:
 
     def run(self, job_id: int, work: Callable[[JobContext], dict | None],
             on_failure: Callable[[Session, str], None] | None = None,
-            on_progress: Callable[[], None] | None = None) -> None:
+            on_progress: Callable[[], object] | None = None) -> None:
         """Run the job here and now (the scheduler and the CLI call this directly).
 
         Does nothing unless the job is still queued.  ``work``'s result completes the job unless it did so
@@ -505,7 +505,7 @@ class EstimatorSettings:
 
 
 def start_evaluation(services: Services, model_ref: str, flights: Iterable[int] | str, settings: EstimatorSettings,
-                     wait: bool = False, on_progress: Callable[[], None] | None = None) -> tuple[int, int, str]:
+                     wait: bool = False, on_progress: Callable[[], object] | None = None) -> tuple[int, int, str]:
     """Create the evaluation and its job; answer from the cache at once when every flight has a result,
     otherwise run it (in the background, or here when wait=True).  -> (job id, evaluation id, state)
 

@@ -35,7 +35,7 @@ def schedule_settings(services: Services) -> EstimatorSettings:
 
 
 def evaluate_new(services: Services, alias: str = PRODUCTION_ALIAS, settings: EstimatorSettings | None = None,
-                 on_progress: Callable[[], None] | None = None) -> list[dict]:
+                 on_progress: Callable[[], object] | None = None) -> list[dict]:
     """One round, in this thread: for every model with `alias`, evaluate the flights without a result.
     Returns [{"model", "evaluation_id", "job_id", "flights", "state", "failed", "error"}] (empty when
     nothing was new); ``on_progress`` is called as each flight finishes."""

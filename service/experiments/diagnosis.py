@@ -187,9 +187,10 @@ def _split_for_fitting(flights: list[Flight]):
 
 def diagnose_flights(flights: list[Flight], knode: HybridModel | None = None,
                      methods: Sequence[str] = ("ukf", "knode-ukf"), epochs: int = CRAZYFLIE_TRAINING.epochs,
-                     return_model: bool = False) -> dict | tuple[dict, HybridModel]:
+                     return_model: bool = False):
     """The diagnosis report; with return_model, also the repaired model (prior + dynamics effects,
-    measurement effects in its meta, KNODE retrained on top) ready to be registered as a new version.
+    measurement effects in its meta, KNODE retrained on top) ready to be registered as a new version:
+    ``report`` or ``(report, model)``.
 
     Flights failing the quality checks are left out unless all fail.  See `diagnose` for the report.
     """
