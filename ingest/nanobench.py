@@ -19,6 +19,7 @@ from .align import FLYING_HEIGHT_M, build_flight
 from .flight import Flight, IngestError, existing_file, json_compatible, sha256_file
 from .frames import GRAVITY
 from .limits import MAX_ROOM_M, QUATERNION_NORM_TOLERANCE
+from .sidecar import SidecarTooLarge, read_sidecar
 
 MOCAP_COLUMNS = ("px", "py", "pz", "qx", "qy", "qz", "qw")
 ACC_COLUMNS = ("imu_acc_x", "imu_acc_y", "imu_acc_z")
@@ -228,9 +229,11 @@ def _read_metadata(path: Path, warnings: list[str]) -> dict | None:
     if not yaml_path.is_file():
         return None
     try:
-        metadata = yaml.safe_load(yaml_path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
-        warnings.append(f"{yaml_path.name} unreadable ({type(err).__name__}): ignored")
+        metadata = read_sidecar(yaml_path)
+    except SidecarTooLarge:
+        raise  # an expansion bomb is refused with the flight, never stored
+    except IngestError as err:
+        warnings.append(f"{yaml_path.name} {err.problem}: ignored")
         return None
     if not isinstance(metadata, dict):
         warnings.append(f"{yaml_path.name} is not a mapping: ignored")

@@ -15,7 +15,7 @@ from scipy.signal import savgol_filter
 
 from .baseline import sg_references
 from .frames import GRAVITY
-from .limits import MAX_ROOM_M
+from .limits import MAX_ACCELERATION_G, MAX_ROOM_M
 
 if TYPE_CHECKING:
     from .flight import Flight
@@ -78,11 +78,16 @@ SMOOTHING_WINDOW = 150   # as the SG references (paper Sec. VI)
 def assess(flight: Flight) -> dict:
     """{"ok": bool, "issues": [reason, ...]} for a canonical Flight.
 
-    Checks time stamps, finiteness, duration, position units, accelerometer level, saturation, spikes,
-    gaps, frozen mocap, and the agreement of a_meas with the mocap's second derivative.
+    Checks time stamps, finiteness and position units first, then physical plausibility; if either stage
+    finds a problem, its issues are returned alone.  Otherwise: duration, accelerometer level, saturation,
+    spikes, gaps, frozen mocap, and the agreement of a_meas with the mocap's second derivative.
     """
-    issues: list[str] = []
-    for check in (_check_time, _check_finite, _check_duration, _check_position_units, _check_acc_level,
+    # broken time or impossible numbers make the statistics below meaningless (and overflow): stop there
+    for stage in ((_check_time, _check_finite, _check_position_units), (_check_plausible,)):
+        issues = [issue for check in stage for issue in check(flight)]
+        if issues:
+            return {"ok": False, "issues": issues}
+    for check in (_check_duration, _check_acc_level,
                   _check_saturation, _check_spikes, _check_gaps, _check_frozen_mocap, _check_acc_vs_mocap):
         issues.extend(check(flight))
     return {"ok": not issues, "issues": issues}
@@ -106,6 +111,21 @@ def _check_finite(flight) -> list[str]:
            (("p", flight.p), ("a_meas", flight.a_meas), ("quat", flight.quat))}
     bad = {name: count for name, count in bad.items() if count}
     return [f"non-finite values: {bad}"] if bad else []
+
+
+def _check_plausible(flight) -> list[str]:
+    """Per sample, not only on the median: one row in seven at |p| = 1e308 m must not pass as a flight."""
+    issues = []
+    outside = np.abs(flight.p) > MAX_ROOM_M
+    if np.any(outside):
+        rows = int(np.sum(np.any(outside, axis=1)))
+        issues.append(f"physically impossible positions: {rows} sample(s) beyond {MAX_ROOM_M:g} m "
+                      f"(largest |p| component {np.nanmax(np.abs(flight.p)):.3g} m)")
+    too_fast = np.abs(flight.a_meas) > MAX_ACCELERATION_G * GRAVITY
+    if np.any(too_fast):
+        rows = int(np.sum(np.any(too_fast, axis=1)))
+        issues.append(f"physically impossible accelerations: {rows} sample(s) beyond {MAX_ACCELERATION_G:g} g")
+    return issues
 
 
 def _check_duration(flight) -> list[str]:

@@ -63,6 +63,7 @@ class Flight(Base):
     """
 
     __tablename__ = "flights"
+    __table_args__ = {"sqlite_autoincrement": True}  # an id is never handed out twice (see 0003)
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     sha256: Mapped[str] = mapped_column(String(64), unique=True)   # of the raw file(s): the dedupe key
@@ -109,7 +110,8 @@ class ModelVersion(Base):
     """Immutable once "ready"; "training" and "failed" rows hold the reserved number and the reason."""
 
     __tablename__ = "model_versions"
-    __table_args__ = (UniqueConstraint("name", "version", name="uq_model_versions_name_version"),)
+    __table_args__ = (UniqueConstraint("name", "version", name="uq_model_versions_name_version"),
+                      {"sqlite_autoincrement": True})
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     name: Mapped[str] = mapped_column(ForeignKey("registered_models.name"), index=True)
@@ -150,6 +152,7 @@ class Job(Base):
     failed, ``progress`` 0..1, ``owner`` the server process running it."""
 
     __tablename__ = "jobs"
+    __table_args__ = {"sqlite_autoincrement": True}  # an id is never handed out twice (see 0003)
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     kind: Mapped[str] = mapped_column(String(20))
@@ -168,6 +171,7 @@ class Evaluation(Base):
     """An evaluation of one model version on stored flights; ``report`` has `evaluate_flights`' shape."""
 
     __tablename__ = "evaluations"
+    __table_args__ = {"sqlite_autoincrement": True}  # an id is never handed out twice (see 0003)
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id"))
@@ -183,6 +187,7 @@ class Diagnosis(Base):
     """A `learnest diagnose` run as a job: its report and, when asked for, the version it registered."""
 
     __tablename__ = "diagnoses"
+    __table_args__ = {"sqlite_autoincrement": True}  # an id is never handed out twice (see 0003)
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id"))
@@ -200,7 +205,7 @@ class Result(Base):
 
     __tablename__ = "results"
     __table_args__ = (UniqueConstraint("flight_sha256", "model_version_id", "settings_key",
-                                       name="uq_results_flight_model_settings"),)
+                                       name="uq_results_flight_model_settings"), {"sqlite_autoincrement": True})
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     flight_sha256: Mapped[str] = mapped_column(String(64))
@@ -287,11 +292,23 @@ class Database:
 
         config = Config()
         config.set_main_option("script_location", str(MIGRATIONS))
-        with self._migration_lock(), self.engine.begin() as connection:
-            if not self.is_sqlite:  # PostgreSQL: held until this transaction ends
-                connection.execute(text("SELECT pg_advisory_xact_lock(7261034)"))
-            config.attributes["connection"] = connection
-            command.upgrade(config, "head")
+        with self._migration_lock(), self.engine.connect() as connection:
+            if self.is_sqlite:
+                # A migration may rebuild a table (SQLite cannot ALTER it): with foreign keys enforced,
+                # dropping the old copy would cascade-delete the rows that point at it.  The pragma only
+                # takes effect outside a transaction, so it is set on the driver's connection first.
+                connection.connection.driver_connection.execute("PRAGMA foreign_keys=OFF")
+            try:
+                with connection.begin():
+                    if not self.is_sqlite:  # PostgreSQL: held until this transaction ends
+                        connection.execute(text("SELECT pg_advisory_xact_lock(7261034)"))
+                    config.attributes["connection"] = connection
+                    command.upgrade(config, "head")
+                    if self.is_sqlite and connection.exec_driver_sql("PRAGMA foreign_key_check").first():
+                        raise RuntimeError("migration left rows whose foreign keys point nowhere")
+            finally:
+                if self.is_sqlite:
+                    connection.connection.driver_connection.execute("PRAGMA foreign_keys=ON")
 
     @contextmanager
     def _migration_lock(self):
