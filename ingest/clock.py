@@ -238,7 +238,8 @@ def _odd_window(samples: float, n: int) -> int:
 
 
 def align_mocap_and_accelerometer(t_mocap: np.ndarray | Sequence[float], p: ArrayLike, t_acc: ArrayLike,
-                                  acc_g: ArrayLike, max_lag_s: float = DEFAULT_MAX_LAG_S, rate_hz: float = 100.0) -> ClockAlignment:
+                                  acc_g: ArrayLike, max_lag_s: float = DEFAULT_MAX_LAG_S,
+                                  rate_hz: float = 100.0) -> ClockAlignment:
     """Offset with t_mocap = t_acc + offset_s, from the specific-force magnitude (module docstring).
 
     ``t_mocap`` (N,) s, ``p`` (N, 3) m, ``t_acc`` (M,) s, ``acc_g`` (M, 3) g.  Raises ValueError as

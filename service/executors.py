@@ -20,7 +20,6 @@ from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
-
 PARENT_CHECK_S = 0.5  # how often a pool worker checks that the server that started it is alive
 
 
