@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .flight import Flight, IngestError
-from .frames import world_acceleration
+from .frames import GRAVITY, world_acceleration
 
 # The flying part: from TAKEOFF_SETTLE_S after the vehicle first rises FLYING_HEIGHT_M above its resting
 # height, to LANDING_SETTLE_S before it last comes down below that height.
@@ -134,7 +134,7 @@ def build_flight(path: str | Path, *, t_mocap: ArrayLike, p: ArrayLike, quat: Ar
     q_grid = resample_quaternions(t_mocap, quat, grid)
     acc_grid, acc_gap = resample(t_acc, acc_body_g, grid, max_gap_s=5.0 / rate_hz)
     extra = {name: resample(ts, vals, grid)[0] for name, (ts, vals) in (channels or {}).items()}
-    extra["acc_body"] = acc_grid * 9.80665
+    extra["acc_body"] = acc_grid * GRAVITY
     meta = dict(meta or {})
     meta["rate_hz"] = rate_hz
     meta["t0_source_s"] = float(t0)

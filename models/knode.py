@@ -86,8 +86,8 @@ class HybridModel:
                  meta: dict | None = None) -> None:
         if kind not in ("prior", "true", "knode"):
             raise InvalidInput(f"model kind must be 'prior', 'true' or 'knode', not {kind!r}")
-        if kind == "knode" and residual is None:
-            raise InvalidInput("a 'knode' model needs a trained residual")
+        if (kind == "knode") != (residual is not None):
+            raise InvalidInput("a 'knode' model needs a trained residual, and only a 'knode' model has one")
         self.system, self.kind, self.residual, self.meta = system, kind, residual, dict(meta or {})
 
     @property
@@ -107,7 +107,7 @@ class HybridModel:
 
     def f_c(self, x: Array, u: Array) -> Array:
         """Continuous vector field dx/dt: the prior (or the true field for ``"true"``), plus the residual
-        if there is one.  Same namespace and shape as ``x``."""
+        of a ``"knode"`` model.  Same namespace and shape as ``x``."""
         base = self.system.f_true(x, u) if self.kind == "true" else self.system.f_prior(x, u)
         return base + self.residual(x, u) if self.residual is not None else base
 

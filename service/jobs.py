@@ -619,7 +619,7 @@ def cached_entries(session: Session, version_id: int, key: str, shas: Iterable[s
 def store_result(db: Database, sha: str, version_id: int, key: str, flight_id: int, entry: dict,
                  error: str | None) -> None:
     """Insert or update the result of one flight (failed when ``error`` is given); retried on a concurrent
-    insert, and given up silently after three conflicts."""
+    insert; after three conflicts the result is not cached (logged: the evaluation's report still has it)."""
     state = "failed" if error else "succeeded"
     for _ in range(3):  # two evaluations may store the same flight at once: the second updates
         try:
@@ -635,6 +635,8 @@ def store_result(db: Database, sha: str, version_id: int, key: str, flight_id: i
             return
         except IntegrityError:
             continue
+    log.warning("result of flight %s (version %s) not cached: three concurrent inserts conflicted", flight_id,
+                version_id)
 
 
 def _flight_ids(session: Session, flights, version: ModelVersion) -> list[int]:
