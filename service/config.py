@@ -20,8 +20,7 @@ from pathlib import Path
 from pydantic import AliasChoices, Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from learnest.estimators.evaluate import parse_methods
-from learnest.models.presets import METHODS, PRODUCTION_ALIAS
+from learnest.models.presets import METHODS, PRODUCTION_ALIAS, parse_methods
 
 DEFAULT_METHODS = ",".join(METHODS)
 
@@ -55,8 +54,10 @@ class Settings(BaseSettings):
 
     @property
     def url(self) -> str:
+        """The SQLAlchemy URL: ``database_url``, else the SQLite file ``home/learnest.db``."""
         return self.database_url or f"sqlite:///{(self.home / 'learnest.db').resolve()}"
 
     @property
     def max_upload_bytes(self) -> int:
+        """``max_upload_mb`` in bytes (MiB, 1024²)."""
         return int(self.max_upload_mb * 1024 * 1024)
