@@ -7,6 +7,7 @@ WORKDIR /app
 # CPU build of torch first, from PyTorch's CPU index, so no CUDA packages are pulled in
 RUN pip install --no-cache-dir torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu
 COPY pyproject.toml constraints.txt README.md ./
+COPY learnest ./learnest
 COPY ingest ./ingest
 COPY models ./models
 COPY estimators ./estimators

@@ -20,13 +20,17 @@ import numpy as np
 import torch
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
-from estimators.mhe import MHE
-from estimators.ukf import run_ukf
-from models.observers import pretraining_observer
-from models.systems import make_system
-from models.training import TrainingConfig, train_knode
+from learnest.estimators.mhe import MHE
+from learnest.estimators.observers import pretraining_observer
+from learnest.estimators.ukf import run_ukf
+from learnest.models.systems import make_system
+from learnest.models.training import TrainingConfig, train_knode
 
 OUT = Path(__file__).parent / "results"
+
+
+def ukf_means(model, y, u, dt, Q, R, x0, P0):
+    return run_ukf(model, y, u, dt=dt, Q=Q, R=R, x0=x0, P0=P0).means
 
 
 def timed(fn, repeats):
@@ -100,7 +104,7 @@ def main():
     model = result.model
     args = (model, test.y[:1000], test.u[:1000], system.dt, system.Q, system.R, test.x_noisy[0], system.P0)
 
-    ours_s, plain_s, ours, plain = timed_side_by_side(lambda: run_ukf(*args), lambda: plain_filterpy_ukf(*args), 5)
+    ours_s, plain_s, ours, plain = timed_side_by_side(lambda: ukf_means(*args), lambda: plain_filterpy_ukf(*args), 5)
     ukf_max_diff = float(np.abs(ours - plain).max())
     # the Crazyflie setting: 9 states, 19 sigma points, a 16-unit KNODE
     quad = make_system("quadrotor")
@@ -109,7 +113,7 @@ def main():
     quad_model = train_knode(quad, quad_zeta, quad_run.u, quad.dt, TrainingConfig(hidden=16, epochs=50)).model
     quad_args = (quad_model, quad_run.y, quad_run.u, quad.dt, quad.Q, quad.R, quad_run.x_noisy[0], quad.P0)
     quad_ours_s, quad_plain_s, quad_ours, quad_plain = timed_side_by_side(
-        lambda: run_ukf(*quad_args), lambda: plain_filterpy_ukf(*quad_args), 5)
+        lambda: ukf_means(*quad_args), lambda: plain_filterpy_ukf(*quad_args), 5)
     quad_steps = len(quad_run.y)
 
     steps = 200

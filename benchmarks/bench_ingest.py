@@ -20,10 +20,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ingest import read_flights
-from ingest.usd import write as write_usd
-from service.experiment import evaluate_flight, train_on_flight
-from models.training import TrainingConfig
+from learnest.ingest import read_flights
+from learnest.ingest.usd import write as write_usd
+from learnest.models.presets import TrainingConfig
+from learnest.service.experiments.flights import evaluate_flight, train_on_flight
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 OUT = Path(__file__).parent / "results"
@@ -68,7 +68,7 @@ def main():
         seconds, peak = measure(lambda: read_flights([usd]))
         report["usd_60s_500hz"] = {"bytes": usd.stat().st_size, "median_s": seconds, "peak_mb": peak / 2**20}
     flights = read_flights([DATA / "nanobench" / "B2_circle_medium_rep2.csv", DATA / "nanobench" / "B2_circle_fast_rep2.csv"])
-    model = train_on_flight(flights[0], TrainingConfig(hidden=16, epochs=50, lr=1e-3))["model"]
+    model = train_on_flight(flights[0], TrainingConfig(hidden=16, epochs=50, lr=1e-3)).model
     results = evaluate_flight(model, flights[1], ["ukf", "mhe", "knode-ukf", "knode-mhe"])["results"]
     report["evaluation"] = {"flight": flights[1].name, "steps": len(flights[1].t),
                             "ms_per_step": {m: r["ms_per_step"] for m, r in results.items()}}

@@ -36,9 +36,10 @@ sys.path.insert(0, str(REPO))
 
 from sqlalchemy import delete, select  # noqa: E402
 
-from service.db import Database, Evaluation, Flight, Result, Settings  # noqa: E402
-from service.executors import DaskExecutor, LocalPoolExecutor  # noqa: E402
-from service.jobs import EstimatorSettings, open_services, start_evaluation, start_training  # noqa: E402
+from learnest.service.config import Settings
+from learnest.service.db import Database, Evaluation, Flight, Result  # noqa: E402
+from learnest.service.executors import DaskExecutor, LocalPoolExecutor  # noqa: E402
+from learnest.service.jobs import EstimatorSettings, open_services, start_evaluation, start_training  # noqa: E402
 
 OUT = REPO / "benchmarks" / "results"
 N_FLIGHTS = 16
@@ -51,7 +52,7 @@ COMMAND = ".venv/bin/python benchmarks/bench_service.py"
 # -- flights ---------------------------------------------------------------------------------------------
 def make_flights(directory: Path, count: int) -> list[Path]:
     """`count` distinct short NanoBench CSVs (different circle, speed and noise seed each)."""
-    from ingest.simulator import Circle, simulate, write_flight
+    from learnest.ingest.simulator import Circle, simulate, write_flight
 
     paths = []
     for k in range(count):
@@ -78,7 +79,7 @@ class Server:
         for name in ("LEARNEST_DATABASE_URL", "LEARNEST_DASK", "LEARNEST_API_KEY", "LEARNEST_SCHEDULE_SECONDS"):
             env.pop(name, None)
         self.log = open(home.parent / f"server-{self.port}.log", "wb")
-        self.process = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--port", str(self.port),
+        self.process = subprocess.Popen([sys.executable, "-m", "learnest.service.cli", "serve", "--port", str(self.port),
                                          "--workers", str(workers)], cwd=REPO, env=env, stdout=self.log,
                                         stderr=subprocess.STDOUT)
         self._wait_until_up()
@@ -142,7 +143,7 @@ def bench_uploads(root: Path, paths: list[Path]) -> dict:
 # -- batch evaluation ------------------------------------------------------------------------------------
 def warm_up() -> int:
     """Import what an evaluation needs, and stay busy a moment so that each worker gets one of these."""
-    import service.experiment  # noqa: F401  (torch, filterpy, CasADi)
+    import learnest.service.experiments.flights  # noqa: F401  (torch, filterpy, CasADi)
 
     time.sleep(1.0)
     return os.getpid()
@@ -156,7 +157,7 @@ def warm(executor, workers: int) -> None:
 
 def train_model(home: Path, training_flight: Path) -> None:
     """bench:1 on the 17th flight, stored (as by an upload) next to the other 16 under `home`."""
-    from service.store import add_flight, local_services, wait_for_job
+    from learnest.service.store import add_flight, local_services, wait_for_job
 
     with local_services(Settings(home=home, pool_workers=1)) as services:
         row, _ = add_flight(services, [training_flight])
@@ -210,7 +211,7 @@ def flight_samples(home: Path) -> dict[str, int]:
 
 
 def bench_evaluation(home: Path, flight_names: list[str]) -> dict:
-    from estimators.evaluate import summarize  # noqa: F401  (imported before the clock starts, as in a server)
+    from learnest.estimators.evaluate import summarize  # noqa: F401  (imported before the clock starts, as in a server)
 
     steps = flight_samples(home)
     runs, reports = {}, {}

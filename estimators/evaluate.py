@@ -10,11 +10,13 @@ import time
 
 import numpy as np
 
-from estimators.checks import check_sequence
-from estimators.mhe import MHE
-from estimators.ukf import run_ukf
+from learnest.errors import InvalidInput
+from learnest.models.checks import check_sequence
+from learnest.models.presets import METHODS, MHE_HORIZON
 
-METHODS = ("ukf", "mhe", "knode-ukf", "knode-mhe")
+from .mhe import MHE
+from .ukf import run_ukf
+
 STATE_GROUPS = {"p": slice(0, 3), "v": slice(3, 6), "a": slice(6, 9)}
 
 
@@ -22,7 +24,7 @@ def parse_methods(text: str) -> list[str]:
     methods = [m.strip().lower() for m in text.split(",") if m.strip()]
     unknown = sorted(set(methods) - set(METHODS))
     if unknown or not methods:
-        raise ValueError(f"unknown method(s) {unknown or text!r}; choose from {', '.join(METHODS)}")
+        raise InvalidInput(f"unknown method(s) {unknown or text!r}; choose from {', '.join(METHODS)}")
     return methods
 
 
@@ -47,7 +49,7 @@ def score(estimates, reference, groups=None) -> dict:
     return {"mse": float(err2.mean()), "groups": {name: float(err2[:, cols].mean()) for name, cols in groups.items()}}
 
 
-def evaluate_sequence(methods, prior_model, knode_model, y, u, dt, Q, R, x0, P0, reference, horizon=20,
+def evaluate_sequence(methods, prior_model, knode_model, y, u, dt, Q, R, x0, P0, reference, horizon=MHE_HORIZON,
                       keep_estimates: bool = False, mhe_cache: dict | None = None) -> dict:
     """{method: {"mse", "groups", "ms_per_step"[, "estimates"]}} for one flight; pass one `mhe_cache`
     dict for all flights of a batch so each MHE is built once."""
@@ -57,7 +59,7 @@ def evaluate_sequence(methods, prior_model, knode_model, y, u, dt, Q, R, x0, P0,
         model = knode_model if method.startswith("knode-") else prior_model
         mhe = None if method.endswith("ukf") else _mhe_for(mhe_cache, model, dt, Q, R, P0, horizon)
         started = time.perf_counter()
-        estimates = run_ukf(model, y, u, dt, Q, R, x0, P0) if mhe is None else mhe.run(y, u, x0)
+        estimates = run_ukf(model, y, u, dt=dt, Q=Q, R=R, x0=x0, P0=P0).means if mhe is None else mhe.run(y, u, x0)
         results[method] = {**score(estimates, reference),
                            "ms_per_step": 1e3 * (time.perf_counter() - started) / len(y)}
         if keep_estimates:

@@ -10,7 +10,9 @@ import casadi as ca
 import numpy as np
 from filterpy.kalman import KalmanFilter
 
-from estimators.checks import check_covariance, check_dt, check_sequence, check_vector
+from learnest.models.checks import check_covariance, check_dt, check_sequence, check_vector
+
+from .results import FilterResult
 
 
 def linearize(model, dt: float, x_op=None):
@@ -28,26 +30,49 @@ def _filter(F, H, Q, R, x0, P0, y, smooth: bool):
     kf = KalmanFilter(dim_x=F.shape[0], dim_z=H.shape[0])
     kf.F, kf.H, kf.Q, kf.R, kf.x, kf.P = F, H, Q, R, x0.copy(), P0.copy()
     means, covs = np.empty((len(y), len(x0))), np.empty((len(y), len(x0), len(x0)))
+    innovations = np.empty(y.shape)
     for k, measurement in enumerate(y):
         if k:
             kf.predict()
         kf.update(measurement)
-        means[k], covs[k] = kf.x, kf.P
+        means[k], covs[k], innovations[k] = kf.x, kf.P, kf.y
     if smooth:
         means, covs, _, _ = kf.rts_smoother(means, covs)
-    return means, covs
+    return means, covs, innovations
 
 
-def run_kf(model, y, u, dt, Q, R, x0, P0, smooth: bool = False) -> np.ndarray:
-    """KF over a whole sequence with the (linear) model's exact discretisation; returns (T, n)."""
+def run_kf(model, y, u=None, *, dt: float, Q, R, x0, P0, smooth: bool = False) -> FilterResult:
+    """Kalman filter (or RTS smoother) of a whole sequence with the linear model's exact discretisation.
+
+    Parameters
+    ----------
+    model : HybridModel
+        A model that is linear in x (its Jacobians at 0 are used), without inputs.
+    y : array_like, shape (T, m)
+        Measurements.
+    u : None
+        Unused (the linear models here have no inputs); accepted for the estimators' common signature.
+    dt : float
+        Sample time, s.
+    Q, R, x0, P0
+        Process noise per step (n, n), measurement noise (m, m), first state's mean (n,) and
+        covariance (n, n).
+    smooth : bool
+        Return the fixed-interval (RTS) smoothed estimates x̂_{k|T} instead of x̂_{k|k}.
+
+    Returns
+    -------
+    FilterResult
+        ``t = k * dt``, means (T, n), covariances (T, n, n), innovations (T, m) of the forward pass.
+    """
     dt = check_dt(dt)
     n = model.n
     y = check_sequence("y", y, cols=model.system.m)
     Q, R = check_covariance("Q", Q, n, allow_singular=True), check_covariance("R", R, y.shape[1])
     x0, P0 = check_vector("x0", x0, n), check_covariance("P0", P0, n)
     F, H = linearize(model, dt)
-    means, _ = _filter(F, H, Q, R, x0, P0, y, smooth)
-    return means
+    means, covariances, innovations = _filter(F, H, Q, R, x0, P0, y, smooth)
+    return FilterResult(dt * np.arange(len(y)), means, covariances, innovations)
 
 
 def kinematic_smoother(positions, dt, meas_std, accel_std: float = 1.0, jerk_std: float = 50.0):
@@ -67,6 +92,6 @@ def kinematic_smoother(positions, dt, meas_std, accel_std: float = 1.0, jerk_std
     for j in range(positions.shape[1]):
         x0 = np.array([positions[0, j], 0.0, 0.0])
         P0 = np.diag([std[j] ** 2, 10.0, accel_std**2 * 100])
-        means, _ = _filter(F, H, Q, np.array([[std[j] ** 2]]), x0, P0, positions[:, j:j + 1], smooth=True)
+        means = _filter(F, H, Q, np.array([[std[j] ** 2]]), x0, P0, positions[:, j:j + 1], smooth=True)[0]
         out[:, j] = means
     return out[..., 0], out[..., 1], out[..., 2]

@@ -22,8 +22,9 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from estimators.checks import check_covariance, check_dt, check_sequence, check_vector
-from estimators.mhe_gn import GaussNewtonWindowSolver
+from learnest.models.checks import check_covariance, check_dt, check_sequence, check_vector
+
+from .mhe_gn import GaussNewtonWindowSolver
 
 IPOPT_OPTIONS = {
     "ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",

@@ -42,7 +42,7 @@ from pathlib import Path
 
 from scipy.linalg.lapack import dpbtrf, dpbtrs
 
-from estimators.codegen import compiled, load_source
+from .codegen import compiled, load_source
 
 
 class GaussNewtonWindowSolver:

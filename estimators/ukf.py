@@ -11,7 +11,9 @@ import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 from scipy.linalg import lapack
 
-from estimators.checks import check_covariance, check_dt, check_sequence, check_vector
+from learnest.models.checks import check_covariance, check_dt, check_inputs, check_sequence, check_vector
+
+from .results import FilterResult
 
 
 def spd_factor(P: np.ndarray, floor: float = 1e-15) -> tuple[np.ndarray, np.ndarray]:
@@ -118,19 +120,47 @@ def make_ukf(model, dt, Q, R, x0, P0, alpha: float = 1e-3, beta: float = 2.0, ka
     return ukf
 
 
-def run_ukf(model, y, u, dt, Q, R, x0, P0, alpha: float = 1e-3, return_innovations: bool = False):
-    """Filter a whole sequence: update with y[0] at x0, then predict with u[k-1] and update with y[k]."""
+def run_ukf(model, y, u=None, *, dt: float, Q, R, x0, P0, alpha: float = 1e-3) -> FilterResult:
+    """Filter a whole sequence: update with y[0] at x0, then predict with u[k-1] and update with y[k].
+
+    Parameters
+    ----------
+    model : HybridModel
+        Discrete model (``n``, ``step(x, u, dt)``, ``h(x, u)``, ``system.m``, ``system.p``).
+    y : array_like, shape (T, m)
+        Measurements.
+    u : array_like, shape (T, p), optional
+        Inputs held over [t_k, t_k+1); None for a model without inputs.
+    dt : float
+        Sample time, s.
+    Q : array_like, shape (n, n)
+        Process noise covariance per step (may be singular).
+    R : array_like, shape (m, m)
+        Measurement noise covariance.
+    x0 : array_like, shape (n,)
+        Prior mean of the first state.
+    P0 : array_like, shape (n, n)
+        Its covariance.
+    alpha : float
+        Merwe sigma-point spread.
+
+    Returns
+    -------
+    FilterResult
+        Means, covariances and innovations; ``t = k * dt``.
+    """
     dt, n = check_dt(dt), model.n
     y = check_sequence("y", y, cols=model.system.m)
-    u = check_sequence("u", np.asarray(u, dtype=float).reshape(len(y), -1), rows=len(y), cols=model.system.p)
+    u = check_inputs(u, len(y), model.system.p)
     Q, R = check_covariance("Q", Q, n, allow_singular=True), check_covariance("R", R, y.shape[1])
     x0, P0 = check_vector("x0", x0, n), check_covariance("P0", P0, n)
     ukf = make_ukf(model, dt, Q, R, x0, P0, alpha=alpha)
     ukf.sigmas_f = ukf._sigmas()
-    estimates, innovations = np.empty((len(y), n)), np.empty(y.shape)
+    means, innovations = np.empty((len(y), n)), np.empty(y.shape)
+    covariances = np.empty((len(y), n, n))
     for k in range(len(y)):
         if k:
             ukf.predict(u=u[k - 1])
         ukf.update(y[k], u=u[k])
-        estimates[k], innovations[k] = ukf.x, ukf.y
-    return (estimates, innovations) if return_innovations else estimates
+        means[k], innovations[k], covariances[k] = ukf.x, ukf.y, ukf.P
+    return FilterResult(dt * np.arange(len(y)), means, covariances, innovations)

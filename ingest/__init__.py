@@ -9,19 +9,19 @@ from __future__ import annotations
 import importlib
 from pathlib import Path
 
-from ingest.flight import Flight, IngestError
+from .flight import Flight, IngestError
 
 # adapter name -> (module, sniff function); order matters only for speed (cheap binary magic first)
 SINGLE_FILE_ADAPTERS = {
-    "usd": ("ingest.usd", "sniff"),
-    "mcap": ("ingest.mcap_log", "sniff"),
-    "nanobench": ("ingest.nanobench", "sniff"),
+    "usd": (".usd", "sniff"),
+    "mcap": (".mcap_log", "sniff"),
+    "nanobench": (".nanobench", "sniff"),
 }
-PAIR_ROLES = {"vicon": ("ingest.vicon_csv", "sniff_vicon"), "cfclient": ("ingest.vicon_csv", "sniff_cfclient")}
+PAIR_ROLES = {"vicon": (".vicon_csv", "sniff_vicon"), "cfclient": (".vicon_csv", "sniff_cfclient")}
 
 
 def _sniffer(module: str, function: str):
-    return getattr(importlib.import_module(module), function)  # imported on first use: CLI start stays fast
+    return getattr(importlib.import_module(module, __name__), function)  # imported on first use: CLI start stays fast
 
 
 def detect(path) -> str:
@@ -56,13 +56,13 @@ def group_files(paths) -> list[tuple[str, list[Path]]]:
 
 
 def read_group(adapter: str, files: list[Path], rate_hz: float = 100.0) -> Flight:
-    from ingest.quality import assess
+    from .quality import assess
 
     if adapter == "vicon+cfclient":
-        from ingest.vicon_csv import read_pair
+        from .vicon_csv import read_pair
         flight = read_pair(files[0], files[1], rate_hz=rate_hz)
     else:
-        module = importlib.import_module(SINGLE_FILE_ADAPTERS[adapter][0])
+        module = importlib.import_module(SINGLE_FILE_ADAPTERS[adapter][0], __name__)
         flight = module.read(files[0], rate_hz=rate_hz)
     # the adapter may already know of problems (e.g. an ambiguous clock alignment): keep them
     earlier = flight.meta.get("quality", {}).get("issues", [])

@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ingest.flight import Flight, IngestError, world_acceleration
+from .flight import Flight, IngestError
+from .frames import world_acceleration
 
 # The flying part: from TAKEOFF_SETTLE_S after the vehicle first rises FLYING_HEIGHT_M above its resting
 # height, to LANDING_SETTLE_S before it last comes down below that height.

@@ -16,6 +16,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.signal import savgol_filter
 
+from learnest.errors import InvalidInput
+
 PAPER_WINDOW = 150
 PAPER_ORDER = 2
 
@@ -30,23 +32,23 @@ def _validated_series(p) -> np.ndarray:
     try:
         series = np.asarray(p, dtype=float)
     except (TypeError, ValueError):
-        raise ValueError("positions must be numeric") from None
+        raise InvalidInput("positions must be numeric") from None
     if series.ndim not in (1, 2):
-        raise ValueError(f"positions must be (T,) or (T, k), got shape {series.shape}")
+        raise InvalidInput(f"positions must be (T,) or (T, k), got shape {series.shape}")
     if not np.all(np.isfinite(series)):
-        raise ValueError(f"positions contain {int(np.sum(~np.isfinite(series)))} NaN/inf value(s); "
+        raise InvalidInput(f"positions contain {int(np.sum(~np.isfinite(series)))} NaN/inf value(s); "
                          "fill or cut the gaps before differentiating")
     return series
 
 
 def _validated_window(window, order, n_samples: int) -> int:
     if int(window) != window or int(order) != order or window < 1 or order < 0:
-        raise ValueError(f"window ({window}) must be a positive integer and order ({order}) a non-negative one")
+        raise InvalidInput(f"window ({window}) must be a positive integer and order ({order}) a non-negative one")
     if order >= window:
-        raise ValueError(f"polynomial order {order} must be smaller than the window ({window} samples)")
+        raise InvalidInput(f"polynomial order {order} must be smaller than the window ({window} samples)")
     used = centred_window(window)
     if used > n_samples:
-        raise ValueError(f"window of {used} samples is longer than the series ({n_samples} samples)")
+        raise InvalidInput(f"window of {used} samples is longer than the series ({n_samples} samples)")
     return used
 
 
@@ -59,7 +61,7 @@ def sg_references(p, dt: float, window: int = PAPER_WINDOW, order: int = PAPER_O
     """
     series = _validated_series(p)
     if not (np.isfinite(dt) and dt > 0):
-        raise ValueError(f"dt must be a positive number of seconds, got {dt}")
+        raise InvalidInput(f"dt must be a positive number of seconds, got {dt}")
     used = _validated_window(window, order, len(series))
     smooth = {name: savgol_filter(series, used, int(order), deriv=deriv, delta=dt, axis=0, mode="interp")
               for name, deriv in (("p", 0), ("v", 1), ("a", 2))}

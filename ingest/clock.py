@@ -39,8 +39,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import butter, correlate, savgol_filter, sosfiltfilt
 
-from ingest.align import resample, uniform_grid
-from ingest.flight import GRAVITY
+from .align import resample, uniform_grid
+from .frames import GRAVITY
 
 DEFAULT_MAX_LAG_S = 30.0
 # Tracking manoeuvres of a quadrotor live below a few Hz; above this, mocap p̈ is mostly differentiated

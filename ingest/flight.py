@@ -13,15 +13,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-GRAVITY = 9.80665
+from learnest.errors import InvalidInput
 
 REQUIRED = ("t", "p", "a_meas", "quat")
 OPTIONAL = ("gyro", "motors", "vbat", "setpoint", "v_onboard", "p_onboard", "acc_body")
+# units of every array a Flight may carry (DataFrame export, API, reports); a channel not listed has none
+UNITS = {"t": "s", "p": "m", "a_meas": "m/s^2", "quat": "1", "gyro": "rad/s", "motors": "PWM (0-65535)",
+         "vbat": "V", "setpoint": "m", "v_onboard": "m/s", "p_onboard": "m", "acc_body": "m/s^2"}
+_AXES = {3: ("x", "y", "z"), 4: ("x", "y", "z", "w")}
 
 
-class IngestError(ValueError):
+class IngestError(InvalidInput):
     """A file that cannot become a Flight; the message names the file and the problem."""
 
     def __init__(self, path, problem: str):
@@ -43,10 +46,10 @@ class Flight:
         for name in ("p", "a_meas", "quat"):
             arr = getattr(self, name)
             if len(arr) != T:
-                raise ValueError(f"Flight.{name} has {len(arr)} rows but t has {T}")
+                raise InvalidInput(f"Flight.{name} has {len(arr)} rows but t has {T}")
         for name, arr in self.channels.items():
             if len(arr) != T:
-                raise ValueError(f"Flight channel {name!r} has {len(arr)} rows but t has {T}")
+                raise InvalidInput(f"Flight channel {name!r} has {len(arr)} rows but t has {T}")
 
     @property
     def rate_hz(self) -> float:
@@ -78,6 +81,74 @@ class Flight:
         return Flight(t - t[0], self.p[start:stop], self.a_meas[start:stop], self.quat[start:stop],
                       {k: v[start:stop] for k, v in self.channels.items()}, dict(self.meta))
 
+    def __repr__(self) -> str:
+        state = "ok" if self.quality.get("ok", True) else "FAILED quality"
+        channels = ", ".join(sorted(self.channels)) or "none"
+        return (f"Flight({self.name!r}, {self.duration_s:.1f} s, {len(self.t)} samples at {self.rate_hz:.0f} Hz, "
+                f"adapter={self.meta.get('adapter')!r}, channels: {channels}, quality {state})")
+
+    # -- pandas ------------------------------------------------------------------------------------
+    def to_dataframe(self):
+        """The flight as a pandas DataFrame, one row per sample.
+
+        Columns are ``t`` (s) and one column per array axis: ``p_x, p_y, p_z`` (m), ``a_meas_x..z``
+        (m/s², world, gravity removed), ``quat_x..w`` and each channel (``gyro_x..z``, ``vbat``, ...;
+        a channel of other width k gives ``name_0..name_{k-1}``).  ``df.attrs`` holds ``units``
+        ({column: unit}) and ``meta`` (the flight's metadata), so `from_dataframe` restores the flight.
+
+        Returns
+        -------
+        pandas.DataFrame, shape (T, 1 + 10 + channel columns)
+        """
+        import pandas as pd
+
+        columns, units = {"t": self.t}, {"t": UNITS["t"]}
+        arrays = {"p": self.p, "a_meas": self.a_meas, "quat": self.quat, **self.channels}
+        for name, values in arrays.items():
+            for column, series in _split_columns(name, np.asarray(values)).items():
+                columns[column] = series
+                units[column] = UNITS.get(name, "")
+        frame = pd.DataFrame(columns)
+        frame.attrs.update(units=units, meta=json.loads(json.dumps(self.meta)),
+                           channels={k: (np.asarray(v).shape[1] if np.ndim(v) == 2 else 0)
+                                     for k, v in self.channels.items()})
+        return frame
+
+    @classmethod
+    def from_dataframe(cls, frame, meta: dict | None = None) -> "Flight":
+        """Rebuild a Flight from `to_dataframe`'s layout (or any frame with those column names).
+
+        Parameters
+        ----------
+        frame : pandas.DataFrame
+            Needs ``t`` (s, uniform), ``p_x..z`` (m), ``a_meas_x..z`` (m/s²) and ``quat_x..w``; other
+            column groups ``name_x..``/``name_0..`` or single columns become channels.
+        meta : dict, optional
+            Metadata; default ``frame.attrs["meta"]``.
+        """
+        names = list(frame.columns)
+        missing = [c for c in ("t", "p_x", "p_y", "p_z", "a_meas_x", "a_meas_y", "a_meas_z",
+                               "quat_x", "quat_y", "quat_z", "quat_w") if c not in names]
+        if missing:
+            raise IngestError("DataFrame", f"missing column(s) {', '.join(missing)}")
+        grouped: dict[str, list[str]] = {}
+        for column in names:
+            if column == "t":
+                continue
+            base, _, suffix = column.rpartition("_")
+            if base and (suffix in ("x", "y", "z", "w") or suffix.isdigit()):
+                grouped.setdefault(base, []).append(column)
+            else:
+                grouped.setdefault(column, []).append(column)
+        widths = frame.attrs.get("channels", {})
+        arrays = {}
+        for name, group in grouped.items():
+            values = frame[group].to_numpy(dtype=float)
+            arrays[name] = values[:, 0] if len(group) == 1 and widths.get(name, 0) == 0 else values
+        core = {k: arrays.pop(k) for k in ("p", "a_meas", "quat")}
+        return cls(frame["t"].to_numpy(dtype=float), core["p"], core["a_meas"], core["quat"], arrays,
+                   dict(meta if meta is not None else frame.attrs.get("meta", {})))
+
     # -- persistence: one .npz, arrays exact, metadata as JSON inside --------------------------------
     def to_bytes(self) -> bytes:
         buffer = io.BytesIO()
@@ -108,10 +179,11 @@ class Flight:
 
 
 
-def imu_misalignment(roll: float, pitch: float) -> Rotation:
-    """Rotation body <- IMU of an accelerometer mounted tilted by roll (about x), then pitch (about y):
-    it reads R⁻¹ f for the body-frame specific force f.  The simulator and the diagnosis share it."""
-    return Rotation.from_euler("ZYX", [0.0, pitch, roll])
+def _split_columns(name: str, values: np.ndarray) -> dict:
+    if values.ndim == 1:
+        return {name: values}
+    axes = _AXES.get(values.shape[1], tuple(str(i) for i in range(values.shape[1])))
+    return {f"{name}_{axis}": values[:, i] for i, axis in enumerate(axes)}
 
 
 def sha256_file(path) -> str:
@@ -120,21 +192,3 @@ def sha256_file(path) -> str:
         for chunk in iter(lambda: handle.read(1 << 20), b""):
             digest.update(chunk)
     return digest.hexdigest()
-
-
-def quat_to_matrix(quat: np.ndarray) -> np.ndarray:
-    """(T, 4) scalar-last unit quaternions -> (T, 3, 3) body-to-world rotation matrices."""
-    q = np.asarray(quat, dtype=float)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-    ], -2)
-
-
-def world_acceleration(acc_body_g: np.ndarray, quat: np.ndarray) -> np.ndarray:
-    """Body-frame specific force in g -> world-frame acceleration in m/s² with gravity removed."""
-    specific_force = np.einsum("tij,tj->ti", quat_to_matrix(quat), np.asarray(acc_body_g) * GRAVITY)
-    return specific_force - np.array([0.0, 0.0, GRAVITY])

@@ -16,8 +16,9 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from ingest.align import FLYING_HEIGHT_M, build_flight
-from ingest.flight import GRAVITY, Flight, IngestError, sha256_file
+from .align import FLYING_HEIGHT_M, build_flight
+from .flight import Flight, IngestError, sha256_file
+from .frames import GRAVITY
 
 MOCAP_COLUMNS = ("px", "py", "pz", "qx", "qy", "qz", "qw")
 ACC_COLUMNS = ("imu_acc_x", "imu_acc_y", "imu_acc_z")

@@ -10,8 +10,8 @@ import numpy as np
 from scipy.ndimage import median_filter
 from scipy.signal import savgol_filter
 
-from ingest.baseline import sg_references
-from ingest.flight import GRAVITY
+from .baseline import sg_references
+from .frames import GRAVITY
 
 # -- thresholds (each with why) -------------------------------------------------------------------------
 # Shorter than this, the 1.5 s reference filter and any estimator warm-up leave too little to evaluate.

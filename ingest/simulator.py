@@ -44,9 +44,10 @@ from scipy.interpolate import CubicSpline
 from scipy.signal import lfilter, lfilter_zi
 from scipy.spatial.transform import Rotation
 
-from ingest import mcap_log, nanobench, usd
-from ingest.flight import GRAVITY, Flight, imu_misalignment
-from ingest.vicon_csv import write_cfclient_csv, write_vicon_csv
+from . import mcap_log, nanobench, usd
+from .flight import Flight
+from .frames import GRAVITY, imu_misalignment
+from .vicon_csv import write_cfclient_csv, write_vicon_csv
 
 SIM_RATE_HZ = 1000.0
 CRAZYFLIE_MASS_KG = 0.032

@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ingest.align import build_flight, resample_quaternions, samples_per_second
-from ingest.flight import Flight, IngestError, sha256_file
+from .align import build_flight, resample_quaternions, samples_per_second
+from .flight import Flight, IngestError, sha256_file
 
 MAGIC = 0xBC
 FIXED_FREQUENCY = "fixedFrequency"

@@ -29,10 +29,10 @@ import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
-from ingest import clock
-from ingest.align import build_flight, samples_per_second
-from ingest.flight import Flight, IngestError, sha256_file
-from ingest.usd import OPTIONAL_SOURCES   # the same firmware log variables, whichever tool logged them
+from . import clock
+from .align import build_flight, samples_per_second
+from .flight import Flight, IngestError, sha256_file
+from .usd import OPTIONAL_SOURCES  # the same firmware log variables, whichever tool logged them
 
 POSE_COLUMNS = ("RX", "RY", "RZ", "TX", "TY", "TZ")
 FRAME_COLUMNS = ("Frame", "Sub Frame")

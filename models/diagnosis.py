@@ -19,8 +19,6 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import least_squares
 
-from models.effects import Effect
-
 DELTA_BIC = 10.0          # "very strong" evidence on Kass & Raftery's scale
 MIN_CV_GAIN = 0.0         # and it must not raise the held-out (blocked CV) error: it has to transfer
 BOOTSTRAP_REPLICATES = 60

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ingest.flight import GRAVITY, imu_misalignment, quat_to_matrix, world_acceleration
+from learnest.errors import InvalidInput
+from learnest.ingest.frames import GRAVITY, imu_misalignment, quat_to_matrix, world_acceleration
 
 
 @dataclass(frozen=True)
@@ -88,7 +89,7 @@ LIBRARY = {e.id: e for e in [
 def effects_for(system: str, target: str | None = None) -> list[Effect]:
     found = [e for e in LIBRARY.values() if e.system == system and (target is None or e.target == target)]
     if not found:
-        raise ValueError(f"no effects known for system {system!r}")
+        raise InvalidInput(f"no effects known for system {system!r}")
     return found
 
 

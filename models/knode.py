@@ -14,8 +14,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from models.backend import CasadiOps, TorchOps, ops_for, rk4_step
-from models.systems import System, make_system
+from learnest.errors import InvalidInput
+
+from .backend import CasadiOps, TorchOps, ops_for, rk4_step
+from .systems import System, make_system
 
 
 @dataclass
@@ -57,9 +59,9 @@ class HybridModel:
     def __init__(self, system: System, kind: str = "prior", residual: Residual | None = None,
                  meta: dict | None = None):
         if kind not in ("prior", "true", "knode"):
-            raise ValueError(f"model kind must be 'prior', 'true' or 'knode', not {kind!r}")
+            raise InvalidInput(f"model kind must be 'prior', 'true' or 'knode', not {kind!r}")
         if kind == "knode" and residual is None:
-            raise ValueError("a 'knode' model needs a trained residual")
+            raise InvalidInput("a 'knode' model needs a trained residual")
         self.system, self.kind, self.residual, self.meta = system, kind, residual, dict(meta or {})
 
     @property
@@ -95,9 +97,9 @@ class HybridModel:
         try:
             data = json.loads(Path(path).read_text())
         except (OSError, json.JSONDecodeError) as err:
-            raise ValueError(f"{path}: not a readable learnest model ({err})") from None
+            raise InvalidInput(f"{path}: not a readable learnest model ({err})") from None
         if data.get("format") != "learnest-model/1":
-            raise ValueError(f"{path}: not a learnest model file (format {data.get('format')!r})")
+            raise InvalidInput(f"{path}: not a learnest model file (format {data.get('format')!r})")
         system = make_system(data["system"], prior_params=data["prior_params"],
                              true_params=data["true_params"])
         residual = Residual.from_dict(data["residual"]) if data["residual"] else None

@@ -11,7 +11,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from models.backend import NumpyOps, ops_for
+from learnest.errors import InvalidInput
+
+from .backend import NumpyOps, ops_for
 
 
 @dataclass(frozen=True)
@@ -279,7 +281,7 @@ def make_system(name: str, **overrides) -> System:
     try:
         cls = SYSTEMS[name]
     except KeyError:
-        raise ValueError(f"unknown system {name!r}; choose one of {sorted(SYSTEMS)}") from None
+        raise InvalidInput(f"unknown system {name!r}; choose one of {sorted(SYSTEMS)}") from None
     return cls(**overrides)
 
 

@@ -10,29 +10,12 @@ import numpy as np
 import torch
 from torchdiffeq import odeint
 
-from estimators.checks import check_dt, check_sequence
-from models.knode import HybridModel, Residual
-from models.systems import System
+from learnest.errors import InvalidInput
 
-
-@dataclass
-class TrainingConfig:
-    hidden: int = 8            # neurons between the two layers (paper: 8 cartpole/robot, 16 quadrotor)
-    epochs: int = 250
-    lr: float = 1e-2
-    batch_size: int = 0        # 0 = full batch (one Adam step per epoch)
-    seed: int = 0
-    # hold out part of the record (time blocks, never random samples of one series) and keep the
-    # weights of the epoch that predicted it best: an observer's artefacts are what a long run
-    # overfits, and they do not repeat in the held-out blocks
-    validation_fraction: float = 0.2
-    # where the held-out time lies: "spread" (two blocks, at 30-40 % and 80-90 % of the record) or "tail"
-    # (the last part). Spread is the default: one block covers one stretch of the motion (a flight's final
-    # hover, one part of a lap), and artefacts learned there pass its test (benchmarks/README.md, robot)
-    validation_layout: str = "spread"
-
-    def as_dict(self) -> dict:
-        return dict(self.__dict__)
+from .checks import check_dt, check_sequence
+from .knode import HybridModel, Residual
+from .presets import TrainingConfig
+from .systems import System
 
 
 @dataclass
@@ -70,7 +53,7 @@ class _MLP(torch.nn.Module):
 def _split_rows(pairs: int, fraction: float, layout: str):
     """(fit rows, validation rows) as index tensors; validation is contiguous time, never random samples."""
     if layout not in ("tail", "spread"):
-        raise ValueError(f"validation_layout must be 'tail' or 'spread', got {layout!r}")
+        raise InvalidInput(f"validation_layout must be 'tail' or 'spread', got {layout!r}")
     held = np.zeros(pairs, dtype=bool)
     n_val = int(round(fraction * pairs))
     if n_val:
@@ -91,10 +74,10 @@ def train_knode(system: System, zeta, u, dt: float, config: TrainingConfig | Non
     zeta = check_sequence("zeta", zeta, cols=system.n)
     u = check_sequence("u", np.asarray(u, dtype=float).reshape(len(zeta), -1), rows=len(zeta), cols=system.p)
     if len(zeta) < 3:
-        raise ValueError(f"training needs at least 3 state observations, got {len(zeta)}")
+        raise InvalidInput(f"training needs at least 3 state observations, got {len(zeta)}")
     dt = check_dt(dt)
     if config.epochs < 1:
-        raise ValueError(f"epochs must be at least 1, got {config.epochs}")
+        raise InvalidInput(f"epochs must be at least 1, got {config.epochs}")
     torch.manual_seed(config.seed)
     features = np.concatenate([zeta, u], axis=1)
     std = features.std(axis=0)

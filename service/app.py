@@ -15,12 +15,14 @@ from fastapi import FastAPI, HTTPException, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
-from service import web
-from service.db import Conflict, Invalid, NotFound, Settings
-from service.executors import Executor
-from service.jobs import open_services, sweep_orphan_blobs
-from service.routers import diagnoses, evaluations, flights, jobs, models
-from service.scheduler import Scheduler
+from learnest.errors import LearnestError
+
+from . import web
+from .config import Settings
+from .executors import Executor
+from .jobs import open_services, sweep_orphan_blobs
+from .routers import diagnoses, evaluations, flights, jobs, models
+from .scheduler import Scheduler
 
 log = logging.getLogger("learnest.app")
 
@@ -29,7 +31,7 @@ def create_app(settings: Settings | None = None, *, executor: Executor | None = 
                scheduler: bool = True) -> FastAPI:
     """`executor`: an already running executor to share (not shut down with the app); None: make one from
     the settings.  `scheduler=False` never starts the scheduler thread (tests drive `Scheduler.tick`)."""
-    settings = settings or Settings.from_env()
+    settings = settings or Settings()
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -116,17 +118,9 @@ def install_error_handlers(app: FastAPI) -> None:
         detail = "; ".join(f"{e['field']}: {e['message']}" if e["field"] else e["message"] for e in errors)
         return JSONResponse({"detail": detail, "errors": errors}, status_code=422)
 
-    @app.exception_handler(NotFound)
-    async def not_found(_request: Request, err: NotFound):
-        return JSONResponse({"detail": str(err)}, status_code=404)
-
-    @app.exception_handler(Conflict)
-    async def conflict(_request: Request, err: Conflict):
-        return JSONResponse({"detail": str(err)}, status_code=409)
-
-    @app.exception_handler(Invalid)
-    async def invalid(_request: Request, err: Invalid):
-        return JSONResponse({"detail": str(err)}, status_code=422)
+    @app.exception_handler(LearnestError)
+    async def learnest_error(_request: Request, err: LearnestError):
+        return JSONResponse({"detail": str(err)}, status_code=err.status)
 
     @app.exception_handler(Exception)
     async def unexpected(request: Request, err: Exception):

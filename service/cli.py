@@ -8,9 +8,12 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from learnest.errors import InvalidInput, LearnestError
+from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON, PRODUCTION_ALIAS
+
 
 def _reproduce(args) -> int:
-    from service.reproduce import ReproduceSettings, format_table, reproduce
+    from .experiments.table1 import ReproduceSettings, format_table, reproduce
 
     settings = ReproduceSettings(task=args.task, eval_samples=args.samples, epochs=args.epochs, horizon=args.horizon)
     with tqdm(total=args.seeds, desc=f"Table I {args.task}", unit="seed", file=sys.stderr) as bar:
@@ -23,13 +26,13 @@ def _reproduce(args) -> int:
 
 
 def _read(paths, rate_hz):
-    from ingest import read_flights
+    from learnest.ingest import read_flights
 
     return read_flights(paths, rate_hz=rate_hz)
 
 
 def _ingest(args) -> int:
-    from ingest import summary
+    from learnest.ingest import summary
 
     flights = _read(args.files, args.rate)
     if args.json:
@@ -46,8 +49,7 @@ def _ingest(args) -> int:
 
 def _train(args) -> int:
     """Store the flight and register the next version of NAME in the registry (service.store)."""
-    from service.experiment import CRAZYFLIE_TRAINING
-    from service.store import train
+    from .store import train
 
     _registry_grid(args.rate)
     with tqdm(total=args.epochs or CRAZYFLIE_TRAINING.epochs, desc=f"training {args.name}", unit="epoch",
@@ -66,19 +68,20 @@ def _advance(bar):
 
 def _registry_grid(rate: float) -> None:
     if rate != 100.0:
-        raise ValueError("--rate: flights in the model registry are on the service's 100 Hz grid")
+        raise InvalidInput("--rate: flights in the model registry are on the service's 100 Hz grid")
 
 
 def _evaluate(args) -> int:
-    from estimators.evaluate import parse_methods
-    from service.experiment import evaluate_flights
-    from service.plots import mse_boxplot
-    from service.store import load_model
+    from learnest.estimators.evaluate import parse_methods
+
+    from .experiments.flights import evaluate_flights
+    from .plots import mse_boxplot
+    from .store import load_model
 
     if args.new:
         return _evaluate_new(args)
     if not args.model or not args.files:
-        raise ValueError("evaluate needs --model REF and FILE..., or --new [--alias ALIAS]")
+        raise InvalidInput("evaluate needs --model REF and FILE..., or --new [--alias ALIAS]")
     methods = parse_methods(args.methods)
     model = load_model(args.model)
     flights = _read(args.files, args.rate)
@@ -97,9 +100,10 @@ def _evaluate(args) -> int:
 
 def _evaluate_new(args) -> int:
     """One scheduler round (for cron): evaluate every stored flight without a result for name@alias."""
-    from estimators.evaluate import parse_methods
-    from service.jobs import EstimatorSettings
-    from service.scheduler import evaluate_new_once
+    from learnest.estimators.evaluate import parse_methods
+
+    from .jobs import EstimatorSettings
+    from .scheduler import evaluate_new_once
 
     settings = EstimatorSettings(tuple(parse_methods(args.methods)), args.horizon, args.include_bad)
     rounds = evaluate_new_once(args.alias, settings)
@@ -123,22 +127,23 @@ def _serve(args) -> int:
 
     if args.dask:  # the app reads its settings from the environment, in every worker process
         os.environ["LEARNEST_DASK"] = args.dask
-    uvicorn.run("service.app:create_app", factory=True, host=args.host, port=args.port, workers=args.workers)
+    uvicorn.run("learnest.service.app:create_app", factory=True, host=args.host, port=args.port, workers=args.workers)
     return 0
 
 
 def _demo(args) -> int:
     """ingest -> train on one flight -> evaluate on every other flight of a folder."""
-    from estimators.evaluate import parse_methods
-    from ingest import IngestError, detect
-    from service.experiment import CRAZYFLIE_TRAINING, evaluate_flights
-    from service.plots import mse_boxplot
-    from service.store import load_model, train
+    from learnest.estimators.evaluate import parse_methods
+    from learnest.ingest import IngestError, detect
+
+    from .experiments.flights import evaluate_flights
+    from .plots import mse_boxplot
+    from .store import load_model, train
 
     _registry_grid(args.rate)
     folder = Path(args.folder)
     if not folder.is_dir():
-        raise ValueError(f"{folder}: not a folder")
+        raise InvalidInput(f"{folder}: not a folder")
     logs = []
     documents = {".md", ".txt", ".yaml", ".yml"}  # READMEs and sidecar metadata, not logs
     for path in sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() not in documents):
@@ -151,10 +156,10 @@ def _demo(args) -> int:
     print(f"ingested {len(flights)} flights from {len(logs)} files in {folder}")
     clean = [f for f in flights if f.quality["ok"]]
     if len(clean) < 2:
-        raise ValueError(f"{folder}: need at least two flights that pass the quality checks, found {len(clean)}")
+        raise InvalidInput(f"{folder}: need at least two flights that pass the quality checks, found {len(clean)}")
     chosen = [f for f in clean if f.name == args.train] if args.train else clean[:1]
     if not chosen:
-        raise ValueError(f"no clean flight named {args.train!r} in {folder}")
+        raise InvalidInput(f"no clean flight named {args.train!r} in {folder}")
     with tqdm(total=CRAZYFLIE_TRAINING.epochs, desc=f"training on {chosen[0].name}", unit="epoch",
               file=sys.stderr) as bar:
         trained = train([source["path"] for source in chosen[0].meta["sources"]], args.name, progress=_advance(bar))
@@ -171,36 +176,37 @@ def _demo(args) -> int:
 
 
 def _diagnose(args) -> int:
-    from estimators.evaluate import parse_methods
-    from service.diagnose import diagnose_flights, diagnose_simulated, format_diagnosis
-    from service.plots import residual_before_after
+    from learnest.estimators.evaluate import parse_methods
+
+    from .experiments.diagnosis import diagnose_flights, diagnose_simulated, format_diagnosis
+    from .plots import residual_before_after
 
     methods = parse_methods(args.methods)
     if args.simulate is not None or args.system in ("cartpole", "robot"):
         if args.files:
-            raise ValueError("give flight files or --simulate, not both")
+            raise InvalidInput("give flight files or --simulate, not both")
         if args.register:
-            raise ValueError("--register registers a repaired Crazyflie model: give flight files, not --simulate")
+            raise InvalidInput("--register registers a repaired Crazyflie model: give flight files, not --simulate")
         result = diagnose_simulated(args.system, args.simulate or "", seed=args.seed, methods=methods,
                                     epochs=args.epochs)
     else:
         if not args.files:
-            raise ValueError("diagnose needs flight files (or --system cartpole|robot --simulate ...)")
+            raise InvalidInput("diagnose needs flight files (or --system cartpole|robot --simulate ...)")
         model = None
         if args.model:
-            from service.store import load_model
+            from .store import load_model
             model = load_model(args.model)
         if args.register:
-            from service.registry import check_name
+            from .registry import check_name
             _registry_grid(args.rate)
             check_name(args.register)  # before the work
         flights = _read(args.files, args.rate)
-        result, repaired = diagnose_flights(flights, knode=model, methods=methods, epochs=args.epochs or 150,
+        result, repaired = diagnose_flights(flights, knode=model, methods=methods, epochs=args.epochs or CRAZYFLIE_TRAINING.epochs,
                                             return_model=True)
         if args.register:
-            from service.store import register_repaired
+            from .store import register_repaired
             result["registered"] = register_repaired(args.register, repaired, flights, result,
-                                                     epochs=args.epochs or 150,
+                                                     epochs=args.epochs or CRAZYFLIE_TRAINING.epochs,
                                                      parent=model.meta.get("ref") if model else None)
     if args.plot:
         residual_before_after(result, args.plot)
@@ -237,7 +243,7 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--json", metavar="FILE", help="also write the results as JSON")
     rep.add_argument("--samples", type=int, default=None, help="evaluation trajectory length in samples (default: the paper's)")
     rep.add_argument("--epochs", type=int, default=None, help="training epochs (default: the paper's)")
-    rep.add_argument("--horizon", type=int, default=20, help="MHE horizon N (default 20)")
+    rep.add_argument("--horizon", type=int, default=MHE_HORIZON, help=f"MHE horizon N (default {MHE_HORIZON})")
     rep.add_argument("--workers", type=int, default=1, help="processes to spread the seeds over")
     rep.set_defaults(func=_reproduce)
 
@@ -251,7 +257,7 @@ def build_parser() -> argparse.ArgumentParser:
                                       "version of NAME (the flight is stored too, as by an upload)")
     tr.add_argument("files", nargs="+", help="the log file(s) of one flight")
     tr.add_argument("--name", required=True, help="registered model name")
-    tr.add_argument("--epochs", type=int, default=None, help="default 150 (Sec. V-C)")
+    tr.add_argument("--epochs", type=int, default=None, help=f"default {CRAZYFLIE_TRAINING.epochs} (Sec. V-C)")
     tr.add_argument("--json", action="store_true")
     tr.add_argument("--rate", type=float, default=100.0, help="grid rate in Hz (the registry keeps 100)")
     tr.add_argument("--include-bad", action="store_true", help="train even if the flight fails quality checks")
@@ -261,15 +267,15 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("files", nargs="*")
     ev.add_argument("--model", metavar="REF", help="a registered model: NAME (its latest ready version), "
                     "NAME:VERSION or NAME@ALIAS (required unless --new)")
-    ev.add_argument("--methods", default="ukf,mhe,knode-ukf,knode-mhe")
+    ev.add_argument("--methods", default=",".join(METHODS))
     ev.add_argument("--json", action="store_true")
     ev.add_argument("--plot", metavar="PNG", help="write a Fig. 3-style box plot")
-    ev.add_argument("--horizon", type=int, default=20, help="MHE horizon N")
+    ev.add_argument("--horizon", type=int, default=MHE_HORIZON, help="MHE horizon N")
     ev.add_argument("--rate", type=float, default=100.0)
     ev.add_argument("--include-bad", action="store_true", help="also score flights that fail quality checks")
     ev.add_argument("--new", action="store_true", help="evaluate every stored flight that has no result yet "
                     "for the registry model holding --alias (one scheduler round, for cron)")
-    ev.add_argument("--alias", default="production", help="with --new: the alias to evaluate (default production)")
+    ev.add_argument("--alias", default=PRODUCTION_ALIAS, help=f"with --new: the alias to evaluate (default {PRODUCTION_ALIAS})")
     ev.set_defaults(func=_evaluate)
 
     srv = sub.add_parser("serve", help="run the HTTP service (uvicorn; OpenAPI docs at /docs)")
@@ -302,9 +308,9 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("folder")
     demo.add_argument("--train", help="name of the training flight (default: the first clean one)")
     demo.add_argument("--name", default="demo", help="registered model name (each run adds a version)")
-    demo.add_argument("--methods", default="ukf,mhe,knode-ukf,knode-mhe")
+    demo.add_argument("--methods", default=",".join(METHODS))
     demo.add_argument("--plot", metavar="PNG", default=None)
-    demo.add_argument("--horizon", type=int, default=20)
+    demo.add_argument("--horizon", type=int, default=MHE_HORIZON)
     demo.add_argument("--rate", type=float, default=100.0)
     demo.set_defaults(func=_demo)
     return parser
@@ -313,12 +319,12 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     if args.func not in (_ingest, _serve):  # the rest run the networks here; --help and ingest skip torch
-        from service.executors import init_worker
+        from .executors import init_worker
 
         init_worker()  # the networks are tiny: extra threads only add contention
     try:
         return args.func(args)
-    except ValueError as err:  # bad input (IngestError included): one clear line, no traceback
+    except LearnestError as err:  # bad input, unknown model, failed training: one clear line, no traceback
         print(f"learnest: error: {err}", file=sys.stderr)
         return 2
 

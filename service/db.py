@@ -9,79 +9,40 @@ from __future__ import annotations
 import fcntl
 import json
 import math
-import os
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Iterator
 
-from sqlalchemy import (JSON, BigInteger, Boolean, DateTime, Float, ForeignKey, Integer, String, Text,
-                        UniqueConstraint, create_engine, event, exists, or_, select, text, update)
+from sqlalchemy import (
+    JSON,
+    BigInteger,
+    Boolean,
+    DateTime,
+    Float,
+    ForeignKey,
+    Integer,
+    String,
+    Text,
+    UniqueConstraint,
+    create_engine,
+    event,
+    exists,
+    or_,
+    select,
+    text,
+    update,
+)
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, relationship, sessionmaker
 
 MIGRATIONS = Path(__file__).resolve().parent / "migrations"
-DEFAULT_METHODS = "ukf,mhe,knode-ukf,knode-mhe"
-
-
-# -- settings -----------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Settings:
-    """Every knob of the service, from LEARNEST_* environment variables (see `from_env`)."""
-
-    home: Path = Path(".learnest")
-    database_url: str | None = None          # None: SQLite file home/learnest.db
-    max_upload_mb: float = 200.0
-    api_key: str | None = None               # None: writes need no key
-    schedule_seconds: float = 0.0            # 0: scheduler off
-    schedule_alias: str = "production"
-    schedule_methods: str = DEFAULT_METHODS
-    dask_address: str | None = None          # None: local process pool
-    pool_workers: int = field(default_factory=lambda: max(1, min(2, os.cpu_count() or 1)))
-
-    @classmethod
-    def from_env(cls, **overrides) -> "Settings":
-        env = os.environ
-        values: dict[str, Any] = {
-            "home": Path(env.get("LEARNEST_HOME", ".learnest")),
-            "database_url": env.get("LEARNEST_DATABASE_URL") or None,
-            "max_upload_mb": float(env.get("LEARNEST_MAX_UPLOAD_MB", 200)),
-            "api_key": env.get("LEARNEST_API_KEY") or None,
-            "schedule_seconds": float(env.get("LEARNEST_SCHEDULE_SECONDS", 0)),
-            "schedule_alias": env.get("LEARNEST_SCHEDULE_ALIAS", "production"),
-            "schedule_methods": env.get("LEARNEST_SCHEDULE_METHODS", DEFAULT_METHODS),
-            "dask_address": env.get("LEARNEST_DASK") or None,
-        }
-        if env.get("LEARNEST_POOL_WORKERS"):
-            values["pool_workers"] = int(env["LEARNEST_POOL_WORKERS"])
-        return cls(**{**values, **overrides})
-
-    @property
-    def url(self) -> str:
-        return self.database_url or f"sqlite:///{(self.home / 'learnest.db').resolve()}"
-
-    @property
-    def max_upload_bytes(self) -> int:
-        return int(self.max_upload_mb * 1024 * 1024)
 
 
 def utcnow() -> datetime:
     """Naive UTC: SQLite drops time zones, so every timestamp is stored as UTC without one."""
     return datetime.now(timezone.utc).replace(tzinfo=None)
-
-
-class NotFound(LookupError):
-    """An id, name, version or alias that does not exist (HTTP 404)."""
-
-
-class Conflict(RuntimeError):
-    """The request is valid but the resource is not in a state that allows it (HTTP 409)."""
-
-
-class Invalid(ValueError):
-    """A request the caller can fix (HTTP 422); the message says how."""
 
 
 def json_safe(value):

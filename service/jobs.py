@@ -28,11 +28,28 @@ from sqlalchemy import select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from service import registry
-from service.blobs import BlobStore
-from service.db import (Database, Diagnosis, Evaluation, Flight, Invalid, Job, Lease, ModelVersion, NotFound, Result,
-                        Settings, acquire_lease, blob_is_referenced, referenced_blobs, release_lease, utcnow)
-from service.executors import Executor, init_worker, make_executor
+from learnest.errors import InvalidInput, NotFound
+from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON
+
+from . import registry
+from .blobs import BlobStore
+from .config import Settings
+from .db import (
+    Database,
+    Diagnosis,
+    Evaluation,
+    Flight,
+    Job,
+    Lease,
+    ModelVersion,
+    Result,
+    acquire_lease,
+    blob_is_referenced,
+    referenced_blobs,
+    release_lease,
+    utcnow,
+)
+from .executors import Executor, init_worker, make_executor
 
 log = logging.getLogger("learnest.jobs")
 
@@ -279,9 +296,10 @@ def report_progress(target: tuple[str, int] | None, fraction: float) -> None:
 
 
 def train_task(flight_bytes: bytes, config: dict, progress_target=None, meta: dict | None = None) -> dict:
-    """Algorithm 1 on one flight (service.experiment.train_on_flight); the model comes back as JSON."""
-    from models.training import TrainingConfig
-    from service.experiment import train_on_flight
+    """Algorithm 1 on one flight (service.experiments.flights.train_on_flight); the model comes back as JSON."""
+    from learnest.models.training import TrainingConfig
+
+    from .experiments.flights import train_on_flight
 
     init_worker()
     last, parent = [0.0], os.getppid()
@@ -294,26 +312,26 @@ def train_task(flight_bytes: bytes, config: dict, progress_target=None, meta: di
             report_progress(progress_target, 0.99 * (epoch + 1) / config["epochs"])
 
     result = train_on_flight(_flight_from_bytes(flight_bytes), TrainingConfig(**config), progress=on_epoch)
-    model = result["model"]
+    model = result.model
     model.meta.update(meta or {})
-    return {"model_json": registry.model_to_json(model), "losses": [float(x) for x in result["losses"]],
-            "seconds": float(result["seconds"]), "library_versions": registry.library_versions(),
+    return {"model_json": registry.model_to_json(model), "losses": [float(x) for x in result.losses],
+            "seconds": float(result.seconds), "library_versions": registry.library_versions(),
             "code_version": registry.code_version(),
             "metrics": training_metrics(model)}
 
 
 def _flight_from_bytes(data: bytes):
-    from ingest.flight import Flight as CanonicalFlight
+    from learnest.ingest.flight import Flight as CanonicalFlight
 
     try:
         return CanonicalFlight.from_bytes(data)
     except (OSError, ValueError, KeyError) as err:
-        raise ValueError(f"the stored normalized flight is unreadable ({type(err).__name__})") from None
+        raise InvalidInput(f"the stored normalized flight is unreadable ({type(err).__name__})") from None
 
 
 def evaluate_task(model_json: bytes, flight_bytes: bytes, settings: dict) -> dict:
     """One flight's entry of service.experiment.evaluate_flights' report."""
-    from service.experiment import evaluate_flights
+    from .experiments.flights import evaluate_flights
 
     init_worker()
     model = registry.model_from_json(model_json)
@@ -325,7 +343,6 @@ def evaluate_task(model_json: bytes, flight_bytes: bytes, settings: dict) -> dic
 
 # -- training jobs -------------------------------------------------------------------------------------
 def training_config(overrides: dict) -> dict:
-    from service.experiment import CRAZYFLIE_TRAINING
 
     return {**CRAZYFLIE_TRAINING.as_dict(), **{k: v for k, v in overrides.items() if v is not None}}
 
@@ -337,7 +354,7 @@ def start_training(services: Services, name: str, flight_id: int, overrides: dic
     with services.db.transaction() as session:
         flight = _flight(session, flight_id)
         if not flight.quality_ok and not include_bad:
-            raise Invalid(f"flight {flight_id} ({flight.name}) failed the quality checks "
+            raise InvalidInput(f"flight {flight_id} ({flight.name}) failed the quality checks "
                           f"({'; '.join(flight.quality.get('issues', []))}); pass include_bad to train on it anyway")
         if parent is not None:
             resolved = registry.resolve(session, parent)
@@ -366,7 +383,7 @@ def run_training(services: Services, ctx: JobContext, version_id: int) -> None:
         version = session.get(ModelVersion, version_id)
         flight = session.get(Flight, version.training_flight_id)
         if flight is None:
-            raise Invalid(f"training flight {version.training_flight_id} was deleted")
+            raise InvalidInput(f"training flight {version.training_flight_id} was deleted")
         meta = {"name": version.name, "version": version.version, "training_flight_id": flight.id}
         config, blob = dict(version.hyperparameters), flight.flight_blob
     out = services.executor.submit(train_task, services.blobs.read_bytes(blob), config, ctx.progress_target,
@@ -401,8 +418,8 @@ def _flight(session: Session, flight_id: int) -> Flight:
 # -- evaluation jobs -----------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class EstimatorSettings:
-    methods: tuple[str, ...] = ("ukf", "mhe", "knode-ukf", "knode-mhe")
-    horizon: int = 20
+    methods: tuple[str, ...] = METHODS
+    horizon: int = MHE_HORIZON
     include_bad: bool = False
 
     def as_dict(self) -> dict:
@@ -507,7 +524,7 @@ def _missing_entry(flight_id: int) -> dict:
 
 def assemble_report(model_ref: str, entries: list[dict]) -> dict:
     """The same shape and numbers as service.experiment.evaluate_flights."""
-    from estimators.evaluate import summarize
+    from learnest.estimators.evaluate import summarize
 
     return {"model": model_ref, "flights": entries, **summarize(entries)}
 
@@ -546,11 +563,11 @@ def _flight_ids(session: Session, flights, version: ModelVersion) -> list[int]:
             query = query.where(Flight.id != version.training_flight_id)
         ids = list(session.scalars(query))
         if not ids:
-            raise Invalid("no flights other than the model's training flight are stored")
+            raise InvalidInput("no flights other than the model's training flight are stored")
         return ids
     ids = list(dict.fromkeys(int(i) for i in flights))
     if not ids:
-        raise Invalid("flights: give at least one flight id, or \"all-other\"")
+        raise InvalidInput("flights: give at least one flight id, or \"all-other\"")
     found = set(session.scalars(select(Flight.id).where(Flight.id.in_(ids))))
     missing = [i for i in ids if i not in found]
     if missing:
@@ -572,7 +589,7 @@ def flights_without_results(session: Session, version_id: int, key: str) -> list
 def diagnose_task(flights_bytes: list[bytes], model_json: bytes | None, methods: list[str], epochs: int) -> dict:
     """service.diagnose.diagnose_flights on stored flights; the report as plain JSON, the repaired model as
     HybridModel JSON."""
-    from service.diagnose import diagnose_flights
+    from .experiments.diagnosis import diagnose_flights
 
     init_worker()
     knode = registry.model_from_json(model_json) if model_json is not None else None
@@ -606,7 +623,7 @@ def start_diagnosis(services: Services, flight_ids: list[int], model_ref: str | 
         registry.check_name(register)
     ids = list(dict.fromkeys(int(i) for i in flight_ids))
     if not ids:
-        raise Invalid("flights: give at least one flight id (the first is the fitting flight)")
+        raise InvalidInput("flights: give at least one flight id (the first is the fitting flight)")
     with services.db.transaction() as session:
         found = _flights_by_id(session, ids)
         missing = [i for i in ids if i not in found]
@@ -632,7 +649,7 @@ def run_diagnosis(services: Services, ctx: JobContext, diagnosis_id: int) -> Non
         diagnosis = session.get(Diagnosis, diagnosis_id)
         flights = _flights_by_id(session, diagnosis.flight_ids)
         if len(flights) != len(diagnosis.flight_ids):
-            raise Invalid("a flight of this diagnosis was deleted before it started")
+            raise InvalidInput("a flight of this diagnosis was deleted before it started")
         blobs = [flights[i].flight_blob for i in diagnosis.flight_ids]
         weights = None
         if diagnosis.model_ref is not None:

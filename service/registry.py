@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import importlib.metadata
 import json
-import os
 import platform
 import re
 import tempfile
@@ -20,10 +19,12 @@ from sqlalchemy import func, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from models.knode import HybridModel
-from service.blobs import BlobStore
-from service.db import (Conflict, Database, Flight, Invalid, ModelAlias, ModelVersion, NotFound, RegisteredModel,
-                        Settings, utcnow)
+from learnest.errors import Conflict, InvalidInput, NotFound
+from learnest.models.knode import HybridModel
+
+from .blobs import BlobStore
+from .config import Settings
+from .db import Database, Flight, ModelAlias, ModelVersion, RegisteredModel, utcnow
 
 NAME = r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}"
 NAME_PATTERN = re.compile(rf"^{NAME}$")
@@ -46,7 +47,7 @@ class ModelRef:
 def parse_ref(text: str) -> ModelRef:
     match = REF_PATTERN.fullmatch((text or "").strip())
     if match is None:
-        raise Invalid(f"model reference {text!r} must be 'name:version', 'name@alias' or 'name' (names: "
+        raise InvalidInput(f"model reference {text!r} must be 'name:version', 'name@alias' or 'name' (names: "
                       "1-100 letters, digits, '.', '_' or '-')")
     version = match["version"]
     return ModelRef(match["name"], int(version) if version else None, match["alias"])
@@ -54,7 +55,7 @@ def parse_ref(text: str) -> ModelRef:
 
 def check_name(name: str, what: str = "model name") -> str:
     if not NAME_PATTERN.fullmatch(name or ""):
-        raise Invalid(f"{what} {name!r} must be 1-100 letters, digits, '.', '_' or '-' (starting with a "
+        raise InvalidInput(f"{what} {name!r} must be 1-100 letters, digits, '.', '_' or '-' (starting with a "
                       "letter or digit)")
     return name
 
@@ -209,7 +210,7 @@ def load_version(blobs: BlobStore, row: ModelVersion) -> HybridModel:
 def load_model_ref(ref: str, settings: Settings | None = None) -> HybridModel:
     """The model a registry reference names, from the service's database and blob folder (LEARNEST_HOME,
     LEARNEST_DATABASE_URL).  model.meta carries "name", "version" and "ref"."""
-    settings = settings or Settings.from_env()
+    settings = settings or Settings()
     database = Database(settings.url)
     try:
         database.migrate()
@@ -231,7 +232,7 @@ def code_version() -> dict:
     except importlib.metadata.PackageNotFoundError:
         version = None
     return {"package": "learnest", "version": version,
-            "git_commit": os.environ.get("LEARNEST_GIT_COMMIT") or _git_head(Path(__file__).resolve().parents[1])}
+            "git_commit": Settings().git_commit or _git_head(Path(__file__).resolve().parents[1])}
 
 
 def _git_head(repo: Path) -> str | None:

@@ -15,10 +15,13 @@ import threading
 
 from sqlalchemy import select
 
-from estimators.evaluate import parse_methods
-from service import registry
-from service.db import Job, ModelAlias, Settings, acquire_lease, release_lease
-from service.jobs import EstimatorSettings, Services, flights_without_results, open_services, start_evaluation
+from learnest.estimators.evaluate import parse_methods
+from learnest.models.presets import PRODUCTION_ALIAS
+
+from . import registry
+from .config import Settings
+from .db import Job, ModelAlias, acquire_lease, release_lease
+from .jobs import EstimatorSettings, Services, flights_without_results, open_services, start_evaluation
 
 log = logging.getLogger("learnest.scheduler")
 
@@ -29,7 +32,7 @@ def schedule_settings(services: Services) -> EstimatorSettings:
     return EstimatorSettings(tuple(parse_methods(services.settings.schedule_methods)))
 
 
-def evaluate_new(services: Services, alias: str = "production", settings: EstimatorSettings | None = None,
+def evaluate_new(services: Services, alias: str = PRODUCTION_ALIAS, settings: EstimatorSettings | None = None,
                  on_progress=None) -> list[dict]:
     """One round, in this thread: for every model with `alias`, evaluate the flights without a result.
     Returns [{"model", "evaluation_id", "job_id", "flights"}] (empty when nothing was new)."""
@@ -55,7 +58,7 @@ def evaluate_new(services: Services, alias: str = "production", settings: Estima
     return rounds
 
 
-def run_once(services: Services, alias: str = "production", settings: EstimatorSettings | None = None,
+def run_once(services: Services, alias: str = PRODUCTION_ALIAS, settings: EstimatorSettings | None = None,
              lease_s: float = 600.0) -> list[dict] | None:
     """evaluate_new under the scheduler lease; None when another process holds it."""
     owner = services.runner.owner
@@ -68,10 +71,10 @@ def run_once(services: Services, alias: str = "production", settings: EstimatorS
         release_lease(services.db, LEASE_NAME, owner)
 
 
-def evaluate_new_once(alias: str = "production", settings: EstimatorSettings | None = None,
+def evaluate_new_once(alias: str = PRODUCTION_ALIAS, settings: EstimatorSettings | None = None,
                       app_settings: Settings | None = None) -> list[dict] | None:
     """`learnest evaluate --new`: one round with the service's storage (LEARNEST_* environment)."""
-    services = open_services(app_settings or Settings.from_env())
+    services = open_services(app_settings or Settings())
     try:
         return run_once(services, alias, settings)
     finally:
@@ -81,7 +84,7 @@ def evaluate_new_once(alias: str = "production", settings: EstimatorSettings | N
 class Scheduler:
     """A daemon thread per server process; only the lease holder's ticks do anything."""
 
-    def __init__(self, services: Services, interval_s: float, alias: str = "production",
+    def __init__(self, services: Services, interval_s: float, alias: str = PRODUCTION_ALIAS,
                  settings: EstimatorSettings | None = None):
         self.services, self.interval_s, self.alias = services, interval_s, alias
         self.settings = settings or schedule_settings(services)

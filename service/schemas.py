@@ -6,7 +6,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from estimators.evaluate import METHODS, parse_methods
+from learnest.estimators.evaluate import parse_methods
+from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON
 
 NAME_REGEX = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$"
 
@@ -154,7 +155,7 @@ class EvaluationRequest(Strict):
     flights: list[int] | Literal["all-other"] = Field(
         description='flight ids, or "all-other": every stored flight except the model\'s training flight')
     methods: list[str] = Field(default_factory=lambda: list(METHODS), description=f"any of {', '.join(METHODS)}")
-    horizon: int = Field(20, ge=1, le=500, description="MHE horizon N")
+    horizon: int = Field(MHE_HORIZON, ge=1, le=500, description="MHE horizon N")
     include_bad: bool = Field(False, description="also score flights that fail the quality checks")
 
     @field_validator("methods")
@@ -186,7 +187,8 @@ class DiagnosisRequest(Strict):
                                  "version of this name (parent: `model`)")
     methods: list[str] = Field(default_factory=lambda: ["ukf", "knode-ukf"],
                                description="estimators scored before and after")
-    epochs: int = Field(150, ge=1, le=100_000, description="KNODE training epochs (Sec. V-C: 150)")
+    epochs: int = Field(CRAZYFLIE_TRAINING.epochs, ge=1, le=100_000,
+                        description=f"KNODE training epochs (Sec. V-C: {CRAZYFLIE_TRAINING.epochs})")
 
     @field_validator("methods")
     @classmethod

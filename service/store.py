@@ -23,19 +23,24 @@ from typing import BinaryIO, Callable, Iterator
 
 from sqlalchemy import select
 
-from models.knode import HybridModel
-from service import registry
-from service.db import Conflict, Database, Flight, Job, NotFound, RegisteredModel, Settings
-from service.jobs import ACTIVE, Services, diagnosis_metrics, open_services, start_training, training_config
+from learnest.errors import Conflict, InvalidInput, LearnestError, NotFound
+from learnest.models.knode import HybridModel
+
+from . import registry
+from .config import Settings
+from .db import Database, Flight, Job, RegisteredModel
+from .jobs import ACTIVE, Services, diagnosis_metrics, open_services, start_training, training_config
 
 
-class TrainingFailed(ValueError):
-    """The training job failed; a ValueError so that the CLI prints the reason on one line (exit code 2)."""
+class TrainingFailed(LearnestError):
+    """The training job failed (the job's error says why)."""
+
+    status = 422
 
 
 def cli_settings() -> Settings:
     """The LEARNEST_* settings, except that the CLI trains in one local worker process (never on Dask)."""
-    return dataclasses.replace(Settings.from_env(), dask_address=None, pool_workers=1, schedule_seconds=0.0)
+    return Settings().model_copy(update={"dask_address": None, "pool_workers": 1, "schedule_seconds": 0.0})
 
 
 @contextmanager
@@ -61,7 +66,7 @@ def flight_files(paths) -> list[Path]:
     files: dict[Path, Path] = {}
     for path in map(Path, paths):
         if not path.is_file():
-            raise ValueError(f"{path}: no such file")
+            raise InvalidInput(f"{path}: no such file")
         files.setdefault(path.resolve(), path)
         sidecar = path.with_name(f"{path.stem}_metadata.yaml")
         if path.suffix.lower() == ".csv" and sidecar.is_file():
@@ -72,8 +77,7 @@ def flight_files(paths) -> list[Path]:
 def add_flight(services: Services, paths) -> tuple[Flight, bool]:
     """Store the log file(s) of one flight exactly as an upload would.  -> (row, created); created is False
     when the same content was stored before (its existing row)."""
-    from service.routers.flights import (content_sha256, find_by_sha, read_uploaded_flight, stage_uploads,
-                                         store_flight)
+    from .routers.flights import content_sha256, find_by_sha, read_uploaded_flight, stage_uploads, store_flight
 
     files = flight_files(paths)
     with ExitStack() as stack, services.blobs.temp_dir() as directory:
@@ -83,7 +87,7 @@ def add_flight(services: Services, paths) -> tuple[Flight, bool]:
         row = find_by_sha(services.db, sha)
         if row is not None:
             return row, False
-        flight = read_uploaded_flight(staged)   # Invalid (a ValueError) names the file it cannot read
+        flight = read_uploaded_flight(staged)   # InvalidInput (a ValueError) names the file it cannot read
         return store_flight(services.db, services.blobs, staged, flight, sha, None, None)
 
 
@@ -97,7 +101,7 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
     with local_services(settings) as services:
         row, created = add_flight(services, paths)
         if not row.quality_ok and not include_bad:  # checked here too, to name the CLI's flag
-            raise ValueError(f"{row.name} failed the quality checks ({'; '.join(row.quality.get('issues', []))}); "
+            raise InvalidInput(f"{row.name} failed the quality checks ({'; '.join(row.quality.get('issues', []))}); "
                              "pass --include-bad to train on it anyway")
         job, version = start_training(services, name, row.id, {"epochs": epochs}, include_bad=include_bad)
         job = wait_for_job(services, job.id, progress)
@@ -143,16 +147,16 @@ def register_repaired(name: str, model: HybridModel, flights, report: dict, *, e
 # -- loading -----------------------------------------------------------------------------------------------
 def load_model(ref: str, settings: Settings | None = None) -> HybridModel:
     """The model a reference names; ValueError (with the known models) when it names nothing usable."""
-    parsed = registry.parse_ref(ref)  # Invalid (a ValueError) says which forms are accepted
-    settings = settings or Settings.from_env()
+    parsed = registry.parse_ref(ref)  # InvalidInput (a ValueError) says which forms are accepted
+    settings = settings or Settings()
     # no database yet: say so instead of creating an empty one (Settings.url puts SQLite at home/learnest.db)
     if settings.database_url is None and not (settings.home / "learnest.db").is_file():
-        raise ValueError(f"no model {ref!r}: nothing is registered under {settings.home} (LEARNEST_HOME); "
+        raise NotFound(f"no model {ref!r}: nothing is registered under {settings.home} (LEARNEST_HOME); "
                          "`learnest train FILE... --name NAME` registers one")
     try:
         return registry.load_model_ref(str(parsed), settings)
     except (NotFound, Conflict) as err:
-        raise ValueError(f"{err} (registered models: {', '.join(known_models(settings)) or 'none'})") from None
+        raise type(err)(f"{err} (registered models: {', '.join(known_models(settings)) or 'none'})") from None
 
 
 def known_models(settings: Settings) -> list[str]:

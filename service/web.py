@@ -35,17 +35,19 @@ from matplotlib.figure import Figure  # the object API: no pyplot global state s
 from pydantic import ValidationError
 from sqlalchemy import func, select
 
-from estimators.evaluate import METHODS
-from ingest.flight import Flight as CanonicalFlight
-from service import registry
-from service.db import (Conflict, Evaluation, Flight, Invalid, Job, ModelVersion, NotFound, RegisteredModel,
-                        Settings)
-from service.jobs import ACTIVE, Services
-from service.routers import evaluations as evaluation_routes
-from service.routers import flights as flight_routes
-from service.routers import models as model_routes
-from service.routers.deps import get_services
-from service.schemas import AliasIn, EvaluationRequest, TrainRequest
+from learnest.errors import InvalidInput, LearnestError, NotFound
+from learnest.estimators.evaluate import METHODS
+from learnest.ingest.flight import Flight as CanonicalFlight
+
+from . import registry
+from .config import Settings
+from .db import Evaluation, Flight, Job, ModelVersion, RegisteredModel
+from .jobs import ACTIVE, Services
+from .routers import evaluations as evaluation_routes
+from .routers import flights as flight_routes
+from .routers import models as model_routes
+from .routers.deps import get_services
+from .schemas import AliasIn, EvaluationRequest, TrainRequest
 
 log = logging.getLogger("learnest.web")
 router = APIRouter(include_in_schema=False)
@@ -156,12 +158,8 @@ def html_errors(handler: Callable) -> Callable:
             return handler(*args, **kwargs)
         except ValidationError as err:
             return error_page(422, "; ".join(_validation_message(e) for e in err.errors()))
-        except NotFound as err:
-            return error_page(404, str(err))
-        except Conflict as err:
-            return error_page(409, str(err))
-        except Invalid as err:
-            return error_page(422, str(err))
+        except LearnestError as err:
+            return error_page(err.status, str(err))
     return wrapper
 
 
@@ -221,9 +219,9 @@ def upload_flight_form(request: Request, files: list[UploadFile | str] = File(de
         return denied
     chosen = [f for f in files if not isinstance(f, str) and f.filename]  # no file chosen: a nameless empty part
     if not chosen:
-        raise Invalid("choose the log file(s) of one flight to upload")
+        raise InvalidInput("choose the log file(s) of one flight to upload")
     if len(vehicle) > 200 or len(notes) > 10_000:
-        raise Invalid("vehicle: at most 200 characters; notes: at most 10000")
+        raise InvalidInput("vehicle: at most 200 characters; notes: at most 10000")
     flight = flight_routes.upload_flight(Response(), chosen, _optional(vehicle), _optional(notes),
                                          services.db, services.blobs)
     return redirect(f"/ui/flights/{flight['id']}", services.settings, api_key)
@@ -419,7 +417,7 @@ def evaluate_form_post(request: Request, model: str = Form(""), flights: list[st
     if denied:
         return denied
     if not methods:
-        raise Invalid("choose at least one estimator")
+        raise InvalidInput("choose at least one estimator")
     body = EvaluationRequest.model_validate({"model": model, "flights": flights or "all-other", "methods": methods,
                                              "horizon": horizon, "include_bad": include_bad is not None})
     accepted = evaluation_routes.create_evaluation(body, Response(), services)
@@ -517,7 +515,7 @@ def velocity_section_image(services: Services, version_id: int, flight_id: int) 
 
 @functools.lru_cache(maxsize=32)  # the same plot is asked for again on every reload of the report
 def _velocity_img(blobs, weights_sha: str, flight_sha: str, title: str) -> str:
-    from service.experiment import evaluate_flight
+    from .experiments.flights import evaluate_flight
 
     model = registry.model_from_json(blobs.read_bytes(weights_sha))
     flight = CanonicalFlight.from_bytes(blobs.read_bytes(flight_sha))

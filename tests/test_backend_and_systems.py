@@ -5,8 +5,8 @@ import pytest
 import torch
 from scipy.linalg import expm
 
-from models.backend import rk4_step
-from models.systems import make_system
+from learnest.models.backend import rk4_step
+from learnest.models.systems import make_system
 
 
 def test_rk4_matches_matrix_exponential_with_fourth_order_convergence():

@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 from scipy.signal import savgol_filter
 
-from ingest.align import build_flight
-from ingest.baseline import centred_window, references, sg_references
+from learnest.ingest.align import build_flight
+from learnest.ingest.baseline import centred_window, references, sg_references
 
 DT = 0.01
 

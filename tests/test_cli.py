@@ -4,11 +4,11 @@ from pathlib import Path
 
 import pytest
 
-from service.cli import main
+from learnest.service.cli import main
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 NANOBENCH = DATA / "nanobench"
-needs_data = pytest.mark.skipif(not NANOBENCH.is_dir(), reason="../shared/data/nanobench not present")
+needs_data = pytest.mark.data  # skipped by conftest.py when ../shared/data is absent
 
 
 @needs_data
@@ -52,22 +52,28 @@ def test_train_then_evaluate_scores_other_flights_and_never_the_training_one(tmp
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_bad_input_is_one_clear_line_without_traceback(tmp_path, capsys):
+def test_bad_input_is_one_clear_line_without_traceback(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("LEARNEST_HOME", str(tmp_path / "home"))
     junk = tmp_path / "junk.bin"
     junk.write_bytes(b"\x00\xff" * 100)
     assert main(["ingest", str(junk)]) == 2
     err = capsys.readouterr().err
     assert "junk.bin" in err and "unrecognised format" in err and "Traceback" not in err
+    # an unknown model and a malformed reference are each named for what they are (the flight file is
+    # never reached: the reference is checked first)
     assert main(["evaluate", "--model", "nope", str(junk)]) == 2
+    err = capsys.readouterr().err
+    assert "no model 'nope'" in err and "junk.bin" not in err and "Traceback" not in err
     assert main(["evaluate", "--model", "../etc/passwd", str(junk)]) == 2
-    assert "must be" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "model reference '../etc/passwd' must be" in err and "junk.bin" not in err
 
 
 def test_a_lone_half_of_a_vicon_cfclient_pair_is_named(tmp_path, capsys):
     """One Vicon export with two cfclient logs: the second log has no partner, and the error says so."""
     import numpy as np
 
-    from ingest.vicon_csv import write_cfclient_csv, write_vicon_csv
+    from learnest.ingest.vicon_csv import write_cfclient_csv, write_vicon_csv
     t = np.arange(200) / 100.0
     write_vicon_csv(tmp_path / "a_vicon.csv", t, np.tile([0.0, 0.0, 1.0], (200, 1)),
                     np.tile([0.0, 0.0, 0.0, 1.0], (200, 1)), 100.0)

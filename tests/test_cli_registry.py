@@ -8,11 +8,12 @@ from pathlib import Path
 
 import pytest
 from sqlalchemy import func, select
+from utils.service import running_app
 
-from service import registry
-from service.cli import main
-from service.db import Database, Flight, FlightFile, Settings
-from test_service_support import running_app
+from learnest.service import registry
+from learnest.service.cli import main
+from learnest.service.config import Settings
+from learnest.service.db import Database, Flight, FlightFile
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
 TRAIN, OTHER = SAMPLES / "circle_rep1.csv", SAMPLES / "circle_rep2.csv"

@@ -2,15 +2,14 @@
 the truth, the error lower after the effect is added; and no effect claimed where there is none."""
 import json
 
-import numpy as np
 import pytest
 
-from ingest import read_flights
-from ingest.simulator import Circle, RandomWaypoints, SensorModel, simulate, write_flight
-from service.cli import main
-from service.diagnose import accelerometer_problem, diagnose_flights, diagnose_simulated
-from models.diagnosis import fit, select_effects
-from models.effects import LIBRARY
+from learnest.ingest import read_flights
+from learnest.ingest.simulator import Circle, RandomWaypoints, SensorModel, simulate, write_flight
+from learnest.models.diagnosis import fit, select_effects
+from learnest.models.effects import LIBRARY
+from learnest.service.cli import main
+from learnest.service.experiments.diagnosis import accelerometer_problem, diagnose_flights, diagnose_simulated
 
 
 def _flights(tmp_path, sensors, trajectory=lambda seed: RandomWaypoints(count=8, speed=0.8, seed=seed), n=2):

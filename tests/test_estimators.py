@@ -3,11 +3,11 @@ import numpy as np
 import pytest
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
-from estimators.kf import linearize, run_kf
-from estimators.mhe import MHE
-from estimators.ukf import make_ukf, run_ukf, spd_factor
-from models.knode import HybridModel
-from models.systems import make_system
+from learnest.estimators.kf import linearize, run_kf
+from learnest.estimators.mhe import MHE
+from learnest.estimators.ukf import make_ukf, run_ukf, spd_factor
+from learnest.models.knode import HybridModel
+from learnest.models.systems import make_system
 
 
 @pytest.fixture(scope="module")
@@ -22,11 +22,11 @@ def linear_case():
 def test_ukf_equals_kf_on_a_linear_gaussian_system(linear_case):
     system, model, run = linear_case
     x0 = run.x_noisy[0]
-    kf = run_kf(model, run.y, run.u, system.dt, system.Q, system.R, x0, system.P0)
-    ukf = run_ukf(model, run.y, run.u, system.dt, system.Q, system.R, x0, system.P0)
+    kf = run_kf(model, run.y, run.u, dt=system.dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0).means
+    ukf = run_ukf(model, run.y, run.u, dt=system.dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0).means
     # alpha = 1e-3 puts weights of order 1e6 on the sigma points: ~1e-7 relative is the floor there
     np.testing.assert_allclose(ukf, kf, rtol=0, atol=1e-7)
-    wide = run_ukf(model, run.y, run.u, system.dt, system.Q, system.R, x0, system.P0, alpha=1.0)
+    wide = run_ukf(model, run.y, run.u, dt=system.dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0, alpha=1.0).means
     np.testing.assert_allclose(wide, kf, rtol=0, atol=1e-10)
 
 
@@ -36,7 +36,7 @@ def test_mhe_with_a_long_horizon_is_the_full_information_estimate(linear_case):
     system, model, run = linear_case
     T = 40
     y, u, x0 = run.y[:T], run.u[:T], run.x_noisy[0]
-    kf = run_kf(model, y, u, system.dt, system.Q, system.R, x0, system.P0)
+    kf = run_kf(model, y, u, dt=system.dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0).means
     mhe = MHE(model, system.dt, system.Q, system.R, system.P0, horizon=T + 5).run(y, u, x0)
     np.testing.assert_allclose(mhe, kf, rtol=0, atol=1e-6 * np.abs(kf).max())
     # and the last node equals an independent dense batch least-squares solution
@@ -68,7 +68,7 @@ def test_mhe_warm_start_and_arrival_options_give_the_same_estimates_on_a_linear_
     # a propagated P_k summarises the data that left the window better than a constant P0 does; the KF
     # (optimal here) bounds both from below
     mse = {name: np.mean((est - run.x[:60]) ** 2) for name, est in
-           [("ekf", warm), ("fixed", fixed), ("kf", run_kf(model, y, u, system.dt, system.Q, system.R, x0, system.P0))]}
+           [("ekf", warm), ("fixed", fixed), ("kf", run_kf(model, y, u, dt=system.dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0).means)]}
     assert mse["kf"] <= mse["ekf"] < mse["fixed"]
 
 
@@ -115,8 +115,8 @@ def test_ukf_survives_ten_thousand_steps_with_a_singular_process_noise():
     system = make_system("robot")
     run = system.simulate(1, n_samples=10_000)
     model = HybridModel(system, "true")
-    estimates = run_ukf(model, run.y, run.u, system.dt, np.zeros((4, 4)), system.R * 1e-6,
-                        run.x[0], system.P0 * 1e-6)
+    estimates = run_ukf(model, run.y, run.u, dt=system.dt, Q=np.zeros((4, 4)), R=system.R * 1e-6,
+                        x0=run.x[0], P0=system.P0 * 1e-6).means
     assert np.all(np.isfinite(estimates))
     assert np.sqrt(np.mean((estimates - run.x) ** 2)) < 0.05
 

@@ -8,8 +8,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from ingest import mcap_log
-from ingest.flight import GRAVITY, IngestError, quat_to_matrix, sha256_file
+from learnest.ingest import mcap_log
+from learnest.ingest.flight import IngestError, sha256_file
+from learnest.ingest.frames import GRAVITY, quat_to_matrix
 
 # -- the simulated flight: a circle at 1 m height, attitude from the thrust direction, varying yaw ----------
 
@@ -426,8 +427,8 @@ def test_damaged_files_raise_only_ingest_errors(fuzz_path, data):
 
 
 def test_ingest_package_detects_reads_and_saves_mcap(tmp_path):
-    import ingest
-    from ingest.flight import Flight
+    import learnest.ingest as ingest
+    from learnest.ingest.flight import Flight
 
     write_flight(tmp_path / "flight.bag", "TransformStamped+LogDataGeneric")
     assert ingest.detect(tmp_path / "flight.bag") == "mcap"

@@ -9,8 +9,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ingest import usd
-from ingest.flight import GRAVITY, IngestError, quat_to_matrix, sha256_file
+from learnest.ingest import usd
+from learnest.ingest.flight import IngestError, sha256_file
+from learnest.ingest.frames import GRAVITY, quat_to_matrix
 
 USD_DATA = Path(__file__).parents[1].parent / "shared" / "data" / "crazyswarm2-tools"
 REAL_LOGS = ["log182", "log183", "log184"]

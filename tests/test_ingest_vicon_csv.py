@@ -8,8 +8,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from ingest import clock, vicon_csv
-from ingest.flight import GRAVITY, Flight, IngestError, sha256_file
+from learnest.ingest import clock, vicon_csv
+from learnest.ingest.flight import Flight, IngestError, sha256_file
+from learnest.ingest.frames import GRAVITY
 
 # -- the simulated flight -------------------------------------------------------------------------------
 # One simulation clock τ.  The cfclient log runs from τ = 0 and stamps rows with the Crazyflie's boot

@@ -1,12 +1,14 @@
 """KNODE: exporters agree, models persist, and Algorithm 1 recovers a known residual."""
+import json
+
 import casadi as ca
 import numpy as np
 import pytest
 import torch
 
-from models.knode import HybridModel, Residual
-from models.systems import make_system
-from models.training import _MLP, TrainingConfig, train_knode
+from learnest.models.knode import HybridModel, Residual
+from learnest.models.systems import make_system
+from learnest.models.training import _MLP, TrainingConfig, train_knode
 
 
 def _random_mlp(n_in, n_out, hidden, seed=0):
@@ -87,4 +89,11 @@ def test_training_rejects_zero_epochs():
 def test_knode_model_needs_a_residual():
     with pytest.raises(ValueError, match="residual"):
         HybridModel(make_system("cartpole"), "knode")
-    assert isinstance(Residual.from_dict(_random_mlp(5, 4, 8).export().to_dict()), Residual)
+    # a residual survives its JSON round trip exactly: same layers, same outputs
+    residual = _random_mlp(5, 4, 8).export()
+    restored = Residual.from_dict(json.loads(json.dumps(residual.to_dict())))
+    for (w, b), (w2, b2) in zip(residual.layers, restored.layers, strict=True):
+        np.testing.assert_array_equal(w, w2)
+        np.testing.assert_array_equal(b, b2)
+    x, u = np.random.default_rng(0).normal(size=(7, 4)), np.random.default_rng(1).normal(size=(7, 1))
+    np.testing.assert_array_equal(restored(x, u), residual(x, u))

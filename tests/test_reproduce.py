@@ -1,7 +1,7 @@
 """Quick Table I (2 seeds, short trajectories): the paper's finding must hold on both tasks."""
 import pytest
 
-from service.reproduce import ReproduceSettings, reproduce
+from learnest.service.experiments.table1 import ReproduceSettings, reproduce
 
 
 @pytest.mark.slow

@@ -8,15 +8,15 @@ import json
 
 import pytest
 from sqlalchemy import select
+from utils.service import FAST_METHODS, evaluate, running_app, settings_for, upload, wait_for_job
 
-from ingest.flight import Flight as CanonicalFlight
-from ingest.simulator import RandomWaypoints, SensorModel, simulate, write_flight
-from service.blobs import BlobStore
-from service.cli import main
-from service.db import Database, Flight
-from service.experiment import evaluate_flight
-from service.registry import load_model_ref
-from test_service_support import FAST_METHODS, evaluate, running_app, settings_for, upload, wait_for_job
+from learnest.ingest.flight import Flight as CanonicalFlight
+from learnest.ingest.simulator import RandomWaypoints, SensorModel, simulate, write_flight
+from learnest.service.blobs import BlobStore
+from learnest.service.cli import main
+from learnest.service.db import Database, Flight
+from learnest.service.experiments.flights import evaluate_flight
+from learnest.service.registry import load_model_ref
 
 BIAS = (0.3, -0.2, 0.25)
 EPOCHS = 3

@@ -5,18 +5,26 @@ import json
 
 import pytest
 from sqlalchemy import delete, select
+from utils.service import (
+    FAST_METHODS,
+    evaluate,
+    flight_csv,
+    running_app,
+    settings_for,
+    train,
+    upload,
+    without_timing,
+)
 
-from ingest.flight import Flight as CanonicalFlight
-from service.blobs import BlobStore
-from service.cli import main as cli_main
-from service.db import Database, Flight, Result
-from service.executors import DaskExecutor
-from service.experiment import evaluate_flights
-from service.jobs import EstimatorSettings, JobRunner
-from service.registry import load_model_ref
-from service.scheduler import Scheduler
-from test_service_support import (FAST_METHODS, evaluate, flight_csv, running_app, settings_for, train, upload,
-                                  without_timing)
+from learnest.ingest.flight import Flight as CanonicalFlight
+from learnest.service.blobs import BlobStore
+from learnest.service.cli import main as cli_main
+from learnest.service.db import Database, Flight, Result
+from learnest.service.executors import DaskExecutor
+from learnest.service.experiments.flights import evaluate_flights
+from learnest.service.jobs import EstimatorSettings, JobRunner
+from learnest.service.registry import load_model_ref
+from learnest.service.scheduler import Scheduler
 
 
 @pytest.fixture(scope="module")

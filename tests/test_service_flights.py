@@ -11,12 +11,11 @@ import pytest
 import yaml
 from fastapi.testclient import TestClient
 from sqlalchemy import create_engine, func, select
+from utils.service import blob_files, flight_csv, running_app, settings_for, shared_pool, upload
 
-from ingest import read_flights
-from service.app import create_app
-from service.db import Flight, FlightFile
-from test_service_support import (blob_files, data_dir, flight_csv, running_app, settings_for, shared_pool,  # noqa: F401
-                                  upload)
+from learnest.ingest import read_flights
+from learnest.service.app import create_app
+from learnest.service.db import Flight, FlightFile
 
 
 def count_rows(home: Path, table=Flight) -> int:
@@ -237,7 +236,7 @@ def test_delete_removes_row_and_blobs(tmp_path, data_dir):
 
 
 def test_unexpected_errors_show_no_traceback(tmp_path, data_dir, monkeypatch):
-    import service.routers.flights as flights_router
+    import learnest.service.routers.flights as flights_router
 
     def explode(_staged):
         raise RuntimeError("secret internals /srv/path")

@@ -9,12 +9,22 @@ import time
 from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
 from sqlalchemy import inspect
+from utils.service import blob_files, flight_csv, running_app, settings_for, upload, wait_for_job
 
-from service.db import (Base, Database, Evaluation, Flight, Job, Lease, ModelVersion, RegisteredModel, acquire_lease, lease_holder,
-                        release_lease)
-from service.jobs import JobRunner
-from test_service_support import (blob_files, data_dir, flight_csv, running_app, settings_for, upload,  # noqa: F401
-                                  wait_for_job)
+from learnest.service.db import (
+    Base,
+    Database,
+    Evaluation,
+    Flight,
+    Job,
+    Lease,
+    ModelVersion,
+    RegisteredModel,
+    acquire_lease,
+    lease_holder,
+    release_lease,
+)
+from learnest.service.jobs import JobRunner
 
 
 def database_for(home) -> Database:

@@ -5,10 +5,18 @@ import threading
 
 import numpy as np
 import pytest
+from utils.service import (
+    EPOCHS,
+    flight_csv,
+    flight_table,
+    running_app,
+    settings_for,
+    train,
+    upload,
+    wait_for_job,
+)
 
-from service.registry import load_model_ref, parse_ref
-from test_service_support import (EPOCHS, data_dir, flight_csv, flight_table, running_app, settings_for,  # noqa: F401
-                                  train, upload, wait_for_job)
+from learnest.service.registry import load_model_ref, parse_ref
 
 
 def test_training_registers_versions_and_aliases(tmp_path, data_dir):

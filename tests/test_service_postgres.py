@@ -10,8 +10,9 @@ import tempfile
 from pathlib import Path
 
 import pytest
+from utils.service import evaluate, flight_csv, running_app, train, upload
 
-from test_service_support import data_dir, evaluate, flight_csv, running_app, train, upload  # noqa: F401
+pytestmark = pytest.mark.postgres
 
 
 def _postgres_bin() -> Path | None:

@@ -6,10 +6,21 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ingest import nanobench, read_flights
-from ingest.flight import GRAVITY
-from ingest.simulator import (CFCLIENT_CLOCK_OFFSET_S, FORMATS, SAMPLE_FLIGHTS, Circle, Figure8, RandomWaypoints,
-                              SensorModel, sample_flight, sim_times, simulate, write_flight)
+from learnest.ingest import nanobench, read_flights
+from learnest.ingest.frames import GRAVITY
+from learnest.ingest.simulator import (
+    CFCLIENT_CLOCK_OFFSET_S,
+    FORMATS,
+    SAMPLE_FLIGHTS,
+    Circle,
+    Figure8,
+    RandomWaypoints,
+    SensorModel,
+    sample_flight,
+    sim_times,
+    simulate,
+    write_flight,
+)
 
 SAMPLE_LOGS = Path(__file__).resolve().parents[1] / "sample_logs"
 MOCAP_RATE_HZ = 100.0

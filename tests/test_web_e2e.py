@@ -20,8 +20,9 @@ import urllib.request
 from pathlib import Path
 
 import pytest
+from utils.service import running_app, wait_for_job
 
-from test_service_support import running_app, wait_for_job
+pytestmark = pytest.mark.browser
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "sample_logs"
@@ -61,7 +62,7 @@ def server(tmp_path):
     for name in ("LEARNEST_DATABASE_URL", "LEARNEST_DASK", "LEARNEST_SCHEDULE_SECONDS"):
         env.pop(name, None)
     with open(log, "wb") as output:
-        process = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--host", "127.0.0.1",
+        process = subprocess.Popen([sys.executable, "-m", "learnest.service.cli", "serve", "--host", "127.0.0.1",
                                     "--port", str(port)], cwd=REPO, env=env, stdout=output, stderr=subprocess.STDOUT)
     url = f"http://127.0.0.1:{port}"
     try:
@@ -147,7 +148,6 @@ def wait_for_job_page(driver, timeout: float = 120.0) -> str:
 
 
 def test_upload_train_evaluate_and_report_in_chromium(server, browser):
-    started = time.monotonic()
     # upload two flights through the form (the first one with the API key)
     upload_in_browser(browser, server, SAMPLES / "circle_rep1.csv")
     assert "circle_rep1" in by_css(browser, "h1").text and image_loaded(browser, "#trajectory")
@@ -189,7 +189,6 @@ def test_upload_train_evaluate_and_report_in_chromium(server, browser):
     assert "circle_rep2" in table and "knode-ukf" in table and "median" in table
     assert image_loaded(browser, "#velocity-plot")
     assert "circle_rep2" in by_css(browser, "select[name=flight]").text
-    assert time.monotonic() - started < 90
 
 
 # -- quick checks without a browser ---------------------------------------------------------------------

@@ -3,14 +3,15 @@
 under LEARNEST_HOME, exactly like the app."""
 from alembic import context
 
-from service.db import Base, Settings
+from learnest.service.config import Settings
+from learnest.service.db import Base
 
 config = context.config
 target_metadata = Base.metadata
 
 
 def _url() -> str:
-    return config.get_main_option("sqlalchemy.url") or Settings.from_env().url
+    return config.get_main_option("sqlalchemy.url") or Settings().url
 
 
 def run_offline() -> None:
@@ -31,7 +32,7 @@ def run_online() -> None:
     if connection is not None:
         _run(connection)
         return
-    from service.db import Database  # the same engine setup (pragmas, BEGIN IMMEDIATE) as the app
+    from ..db import Database  # the same engine setup (pragmas, BEGIN IMMEDIATE) as the app
 
     database = Database(_url())
     with database.engine.begin() as connection:

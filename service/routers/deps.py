@@ -7,9 +7,12 @@ import hmac
 from fastapi import Depends, Header, HTTPException, Request
 from fastapi.responses import JSONResponse
 
-from service.blobs import BlobStore
-from service.db import Conflict, Database, Job, NotFound, Settings
-from service.jobs import Services
+from learnest.errors import Conflict, NotFound
+
+from ..blobs import BlobStore
+from ..config import Settings
+from ..db import Database, Job
+from ..jobs import Services
 
 
 def get_services(request: Request) -> Services:

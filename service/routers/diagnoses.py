@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Response
 
-from service.db import Database, Diagnosis
-from service.jobs import Services, start_diagnosis
-from service.routers.deps import get_db, get_services, pending, require_api_key, row_and_job
-from service.schemas import DiagnosisAccepted, DiagnosisPending, DiagnosisRequest
+from ..db import Database, Diagnosis
+from ..jobs import Services, start_diagnosis
+from ..schemas import DiagnosisAccepted, DiagnosisPending, DiagnosisRequest
+from .deps import get_db, get_services, pending, require_api_key, row_and_job
 
 router = APIRouter(prefix="/diagnoses", tags=["diagnoses"])
 

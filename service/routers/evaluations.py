@@ -10,10 +10,10 @@ import threading
 from fastapi import APIRouter, Depends, Query, Response
 from fastapi.responses import HTMLResponse
 
-from service.db import Database, Evaluation
-from service.jobs import EstimatorSettings, Services, start_evaluation
-from service.routers.deps import get_db, get_services, pending, require_api_key, row_and_job
-from service.schemas import EvaluationAccepted, EvaluationPending, EvaluationRequest
+from ..db import Database, Evaluation
+from ..jobs import EstimatorSettings, Services, start_evaluation
+from ..schemas import EvaluationAccepted, EvaluationPending, EvaluationRequest
+from .deps import get_db, get_services, pending, require_api_key, row_and_job
 
 router = APIRouter(prefix="/evaluations", tags=["evaluations"])
 _plot_lock = threading.Lock()  # matplotlib's pyplot state is global
@@ -43,7 +43,7 @@ def evaluation_report(evaluation_id: int, db: Database = Depends(get_db)):
 def evaluation_html(evaluation_id: int, flight: int | None = Query(None, description="flight id of the velocity "
                                                                    "plot (default: the first scored flight)"),
                     db: Database = Depends(get_db), services: Services = Depends(get_services)):
-    from service.web import report_extras  # the web pages import this module
+    from ..web import report_extras  # the web pages import this module
 
     evaluation, job = row_and_job(db, Evaluation, evaluation_id, "evaluation")
     if job.state != "succeeded":
@@ -54,7 +54,7 @@ def evaluation_html(evaluation_id: int, flight: int | None = Query(None, descrip
 
 
 def _boxplot_png(report: dict) -> str | None:
-    from service.plots import mse_boxplot
+    from ..plots import mse_boxplot
 
     if not any(not f.get("excluded") and f.get("mse") for f in report["flights"]):
         return None

@@ -25,13 +25,14 @@ from sqlalchemy import delete, func, select
 from sqlalchemy.exc import IntegrityError
 from starlette.background import BackgroundTask
 
-from ingest import IngestError, group_files, read_group
-from ingest.flight import Flight as CanonicalFlight
-from service.blobs import CHUNK, BlobStore
-from service.db import (Conflict, Database, Flight, FlightFile, Invalid, NotFound, Result, blob_is_referenced,
-                        utcnow)
-from service.routers.deps import get_blobs, get_db, require_api_key
-from service.schemas import FlightDetail, FlightOut, FlightPage
+from learnest.errors import Conflict, InvalidInput, NotFound
+from learnest.ingest import IngestError, group_files, read_group
+from learnest.ingest.flight import Flight as CanonicalFlight
+
+from ..blobs import CHUNK, BlobStore
+from ..db import Database, Flight, FlightFile, Result, blob_is_referenced, utcnow
+from ..schemas import FlightDetail, FlightOut, FlightPage
+from .deps import get_blobs, get_db, require_api_key
 
 log = logging.getLogger("learnest.flights")
 router = APIRouter(prefix="/flights", tags=["flights"])
@@ -112,24 +113,24 @@ def content_sha256(staged: list[StagedFile]) -> str:
 
 # -- reading ------------------------------------------------------------------------------------------
 def read_uploaded_flight(staged: list[StagedFile]) -> CanonicalFlight:
-    """The adapters decide the format; every failure is Invalid naming the client's file."""
+    """The adapters decide the format; every failure is InvalidInput naming the client's file."""
     originals = {str(f.path): f.original_name for f in staged}
     logs = [f.path for f in staged if f.role == "log"]
     try:
         groups = group_files(logs)
         if len(groups) != 1:
-            raise Invalid(f"one flight per upload: {', '.join(originals.values())} make {len(groups)} flights; "
+            raise InvalidInput(f"one flight per upload: {', '.join(originals.values())} make {len(groups)} flights; "
                           "upload each flight's file(s) separately")
         adapter, files = groups[0]
         flight = read_group(adapter, files)
     except IngestError as err:
         name = originals.get(err.path, Path(err.path).name)
-        raise Invalid(f"{name}: {_scrub(err.problem, originals)}") from None
-    except Invalid:
+        raise InvalidInput(f"{name}: {_scrub(err.problem, originals)}") from None
+    except InvalidInput:
         raise
     except Exception as err:  # an adapter bug on odd input is still "this file cannot be read"
         log.exception("ingest failed unexpectedly")
-        raise Invalid(f"{', '.join(originals.values())}: could not be read ({type(err).__name__})") from None
+        raise InvalidInput(f"{', '.join(originals.values())}: could not be read ({type(err).__name__})") from None
     _rename_sources(flight, originals)
     flight.meta["name"] = safe_stem(originals[str(files[0])])
     return flight

@@ -6,9 +6,11 @@ from typing import Literal
 from fastapi import APIRouter, Depends, Query
 from sqlalchemy import func, select
 
-from service.db import Database, Job, NotFound
-from service.routers.deps import get_db
-from service.schemas import JobOut
+from learnest.errors import NotFound
+
+from ..db import Database, Job
+from ..schemas import JobOut
+from .deps import get_db
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 

@@ -5,12 +5,12 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, Response
 from sqlalchemy import func, select
 
-from service import registry
-from service.blobs import BlobStore
-from service.db import Database, ModelVersion, RegisteredModel
-from service.jobs import Services, start_training
-from service.routers.deps import get_blobs, get_db, get_services, require_api_key
-from service.schemas import AliasIn, AliasOut, ModelOut, ModelPage, TrainAccepted, TrainRequest, VersionOut
+from .. import registry
+from ..blobs import BlobStore
+from ..db import Database, ModelVersion, RegisteredModel
+from ..jobs import Services, start_training
+from ..schemas import AliasIn, AliasOut, ModelOut, ModelPage, TrainAccepted, TrainRequest, VersionOut
+from .deps import get_blobs, get_db, get_services, require_api_key
 
 router = APIRouter(prefix="/models", tags=["models"])
 

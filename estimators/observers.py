@@ -7,10 +7,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimators.kf import kinematic_smoother, run_kf
-from estimators.ukf import run_ukf
-from models.knode import HybridModel
-from models.systems import GroundRobot, System
+from learnest.models.knode import HybridModel
+from learnest.models.systems import GroundRobot, System
+
+from .kf import kinematic_smoother, run_kf
+from .ukf import run_ukf
 
 
 def observe_cartpole(system: System, y, u, dt):
@@ -43,7 +44,7 @@ def observe_robot(system: GroundRobot, y, u, dt):
     x0 = _trilaterate(system, y[0])
     Q = np.diag([1e-6, 1e-6, 4e-4, 4e-4, 1e-4])
     P0 = np.diag([1.0, 1.0, 4.0, 4.0, 0.1])
-    forward = run_ukf(kinematics, y, np.zeros((len(y), 0)), dt, Q, system.R, x0, P0)
+    forward = run_ukf(kinematics, y, dt=dt, Q=Q, R=system.R, x0=x0, P0=P0).means
     planar = np.column_stack([forward[:, 0], forward[:, 1], forward[:, 4]])
     pos, vel, _ = kinematic_smoother(planar, dt, meas_std=[0.03, 0.03, np.deg2rad(0.5)], jerk_std=5.0)
     speed = np.hypot(vel[:, 0], vel[:, 1])
@@ -64,7 +65,7 @@ def observe_quadrotor(system: System, y, u, dt):
     """The prior is linear (p, v, a kinematic chain), so the observer is a KF + RTS on that prior."""
     model = HybridModel(system, "prior")
     x0 = np.concatenate([y[0, :3], np.zeros(3), y[0, 3:]])
-    return run_kf(model, y, u, dt, system.Q, system.R, x0, system.P0, smooth=True)
+    return run_kf(model, y, dt=dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0, smooth=True).means
 
 
 OBSERVERS = {"cartpole": observe_cartpole, "robot": observe_robot, "quadrotor": observe_quadrotor}

@@ -12,17 +12,27 @@ from dataclasses import replace
 
 import numpy as np
 
-from estimators.evaluate import evaluate_sequence
-from estimators.ukf import run_ukf
-from ingest.baseline import sg_references
-from ingest.flight import Flight
-from models.backend import rk4_step
-from models.diagnosis import ResidualProblem, select_effects
-from models.effects import LIBRARY, dynamics_params, effects_for, predict_acc_body, specific_force_body
-from models.knode import HybridModel
-from models.observers import pretraining_observer
-from models.systems import make_system
-from models.training import train_knode
+from learnest.errors import InvalidInput
+from learnest.estimators.evaluate import evaluate_sequence
+from learnest.estimators.observers import pretraining_observer
+from learnest.estimators.ukf import run_ukf
+from learnest.ingest.baseline import sg_references
+from learnest.ingest.flight import Flight
+from learnest.models.backend import rk4_step
+from learnest.models.diagnosis import ResidualProblem, select_effects
+from learnest.models.effects import LIBRARY, dynamics_params, effects_for, predict_acc_body, specific_force_body
+from learnest.models.knode import HybridModel
+from learnest.models.presets import CRAZYFLIE_TRAINING, PAPER_TRAINING
+from learnest.models.systems import make_system
+from learnest.models.training import train_knode
+
+from .flights import (
+    corrected_flight,
+    evaluate_flight,
+    initial_state,
+    quadrotor_for,
+    train_on_flight,
+)
 
 # a quadrotor's accelerometer sees horizontal (body x/y) specific force only through rotor drag; below
 # this rms the x/y scale factors cannot be separated from reference errors and are held at 1
@@ -86,18 +96,18 @@ def parse_simulate(system_name: str, spec: str) -> dict:
         param = by_name.get(name.strip()) or by_effect.get(name.strip())
         if not sep or param is None:
             known = sorted(set(by_name) | set(by_effect))
-            raise ValueError(f"--simulate: {item!r} is not NAME=VALUE with NAME one of {', '.join(known)}")
+            raise InvalidInput(f"--simulate: {item!r} is not NAME=VALUE with NAME one of {', '.join(known)}")
         try:
             out[param.key] = float(value)
         except ValueError:
-            raise ValueError(f"--simulate: {item!r}: {value!r} is not a number") from None
+            raise InvalidInput(f"--simulate: {item!r}: {value!r} is not a number") from None
     return out
 
 
 def diagnose_simulated(system_name: str, simulate: str = "", seed: int = 0, methods=("ukf", "knode-ukf"),
                        epochs: int | None = None, eval_samples: int | None = None) -> dict:
     if system_name not in ("cartpole", "robot"):
-        raise ValueError("--simulate works for the paper's simulated systems: cartpole or robot")
+        raise InvalidInput("--simulate works for the paper's simulated systems: cartpole or robot")
     system = make_system(system_name)
     system = system.with_true_params(**parse_simulate(system_name, simulate))
     train, test = system.simulate(10_000 + seed), system.simulate(20_000 + seed, eval_samples)
@@ -107,10 +117,9 @@ def diagnose_simulated(system_name: str, simulate: str = "", seed: int = 0, meth
     chosen = [LIBRARY[e["id"]] for e in selection["effects"]]
     repaired = replace(system, prior_params=dynamics_params(system, selection["values"], chosen))
 
-    from service.reproduce import TRAINING   # the paper's network settings per task
     # retrain on top with a held-out block: once the prior is right there may be nothing left to learn,
     # and then the KNODE should stay the prior rather than fit the observer's noise
-    config = replace(TRAINING[system_name], validation_fraction=0.2, **({"epochs": epochs} if epochs else {}))
+    config = replace(PAPER_TRAINING[system_name], validation_fraction=0.2, **({"epochs": epochs} if epochs else {}))
     before = _score_simulated(system, zeta, train, test, methods, config)
     after = _score_simulated(repaired, zeta, train, test, methods, config)
     return {"system": system_name, "simulated_truth": {k: system.true_params[k] for k in system.true_params},
@@ -137,12 +146,9 @@ def _split_for_fitting(flights: list[Flight]):
 
 
 def diagnose_flights(flights: list[Flight], knode: HybridModel | None = None,
-                     methods=("ukf", "knode-ukf"), epochs: int = 150, return_model: bool = False):
+                     methods=("ukf", "knode-ukf"), epochs: int = CRAZYFLIE_TRAINING.epochs, return_model: bool = False):
     """The diagnosis report; with return_model, also the repaired model (prior + dynamics effects,
     measurement effects in its meta, KNODE retrained on top) ready to be registered as a new version."""
-    from service.experiment import (CRAZYFLIE_TRAINING, corrected_flight, evaluate_flight, quadrotor_for,
-                                    train_on_flight)
-
     flights = [f for f in flights if f.quality["ok"]] or flights
     fitting, scoring, split = _split_for_fitting(flights)
     accel = select_effects(accelerometer_problem(fitting))
@@ -158,7 +164,7 @@ def diagnose_flights(flights: list[Flight], knode: HybridModel | None = None,
     new_prior = dynamics_params(system, dynamics["values"], chosen_dyn)
 
     config = replace(CRAZYFLIE_TRAINING, epochs=epochs)
-    knode_before = knode or train_on_flight(fitting[0], config)["model"]
+    knode_before = knode or train_on_flight(fitting[0], config).model
     repaired_system = replace(system, prior_params=new_prior)
     zeta_after = pretraining_observer(repaired_system, fitting_flight.measurements(), no_input, system.dt)
     knode_after = train_knode(repaired_system, zeta_after, no_input, system.dt, config).model
@@ -202,10 +208,9 @@ def _residual_summary(fitting, fixed_fitting, accel, dynamics, knode):
     zeta = pretraining_observer(system, flight.measurements(), np.zeros((len(flight.t), 0)), flight.dt)
     learned = knode.residual(zeta, np.zeros((len(zeta), 0))) if knode.residual else np.zeros_like(zeta)
     out = {"knode_residual_rms": dict(zip(system.state_names, np.sqrt((learned**2).mean(0)).round(5).tolist()))}
-    from service.experiment import initial_state
     for label, f in (("before", flight), ("after", fixed)):
-        _, innovations = run_ukf(HybridModel(system, "prior"), f.measurements(), np.zeros((len(f.t), 0)), f.dt,
-                                 system.Q, system.R, initial_state(f), system.P0, return_innovations=True)
+        innovations = run_ukf(HybridModel(system, "prior"), f.measurements(), dt=f.dt, Q=system.Q, R=system.R,
+                              x0=initial_state(f), P0=system.P0).innovations
         a_ref = sg_references(f.p, f.dt, window=DIAGNOSIS_SG_WINDOW, order=3)["a"]
         out[f"innovation_rms_{label}"] = dict(zip(system.meas_names, np.sqrt((innovations**2).mean(0)).round(5).tolist()))
         out[f"a_meas_minus_a_ref_rms_{label}"] = np.sqrt(((f.a_meas - a_ref) ** 2).mean(0)).round(4).tolist()
@@ -255,3 +260,29 @@ def format_diagnosis(result: dict) -> str:
         lines.append(f"    {m:<20}{result['before'][m]:>10.4g}  {result['after'][m]:>10.4g}"
                      + (f"   better on {helped} flights" if helped else ""))
     return "\n".join(lines)
+
+
+def diagnose(flights: list[Flight], model: HybridModel | None = None, methods=("ukf", "knode-ukf"),
+             epochs: int = CRAZYFLIE_TRAINING.epochs) -> dict:
+    """Trace what the model lacks on real flights, add it, and score before and after.
+
+    Parameters
+    ----------
+    flights : list of Flight
+        The first (clean) flight is fitted; the others are scored.  One flight: fitted on its first 60 %,
+        scored on the rest.
+    model : HybridModel, optional
+        The KNODE to diagnose; default: one trained on the fitting flight.
+    methods : sequence of str
+        Estimators scored before and after.
+    epochs : int
+        Training epochs of the KNODEs trained here.
+
+    Returns
+    -------
+    dict
+        ``effects`` (each with ``id``, ``params`` in SI units, ``interval`` and ``explained_fraction``),
+        ``confounded``, ``before``/``after`` median MSE per method, ``per_flight``, ``split``,
+        ``improved_flights``, ``residuals`` and ``channels`` (the JSON of `learnest diagnose --json`).
+    """
+    return diagnose_flights(list(flights), knode=model, methods=methods, epochs=epochs)

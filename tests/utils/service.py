@@ -1,4 +1,4 @@
-"""Helpers for the service tests (imported by tests/test_service_*.py; holds no tests itself).
+"""Helpers for the service tests: a running app, uploads, jobs, small simulated NanoBench flights.
 
 Flights are small simulated NanoBench CSVs that pass the quality checks (11 s, ~6 s of flying part), so
 every test drives the real app, the real adapters and the real estimators in seconds.
@@ -12,15 +12,14 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import pytest
 import torch
 from fastapi.testclient import TestClient
 
-from ingest import nanobench
-from ingest.flight import GRAVITY, quat_to_matrix
-from service.app import create_app
-from service.db import Settings
-from service.executors import LocalPoolExecutor
+from learnest.ingest import nanobench
+from learnest.ingest.frames import GRAVITY, quat_to_matrix
+from learnest.service.app import create_app
+from learnest.service.config import Settings
+from learnest.service.executors import LocalPoolExecutor
 
 torch.set_num_threads(1)
 FAST_METHODS = ["ukf", "knode-ukf"]   # the MHE adds seconds per flight; one test runs it
@@ -127,10 +126,3 @@ def without_timing(report: dict) -> dict:
 def blob_files(home: Path) -> set[str]:
     root = Path(home) / "blobs"
     return {p.parent.name + p.name for p in root.glob("??/*") if p.is_file()}
-
-
-@pytest.fixture
-def data_dir(tmp_path):
-    directory = tmp_path / "logs"
-    directory.mkdir()
-    return directory

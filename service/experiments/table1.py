@@ -12,12 +12,14 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from estimators.mhe import MHE
-from estimators.ukf import run_ukf
-from models.knode import HybridModel
-from models.observers import full_state_observer, pretraining_observer
-from models.systems import make_system
-from models.training import TrainingConfig, train_knode
+from learnest.errors import InvalidInput
+from learnest.estimators.mhe import MHE
+from learnest.estimators.observers import full_state_observer, pretraining_observer
+from learnest.estimators.ukf import run_ukf
+from learnest.models.knode import HybridModel
+from learnest.models.presets import MHE_HORIZON, PAPER_TRAINING, TrainingConfig
+from learnest.models.systems import make_system
+from learnest.models.training import train_knode
 
 ROWS = ["MHE", "KNODE-MHE", "KNODE-MHE (full state)", "MHE (true dynamics)",
         "UKF", "KNODE-UKF", "KNODE-UKF (full state)", "UKF (true dynamics)"]
@@ -32,14 +34,6 @@ PAPER = {
               "KNODE-UKF (full state)": (0.365, 0.0257), "UKF (true dynamics)": (0.285, 0.0266)},
 }
 
-TRAINING = {  # Sec. V: 2 layers x 8 tanh; 250 epochs (cartpole), 10000 epochs (robot)
-    # 250 full-batch epochs cannot overfit the cartpole record, so it trains on all of it, as the paper;
-    # 10000 epochs on the robot fit the range observer's artefacts unless a held-out block stops them.
-    # Two held-out blocks beat one tail block on fresh seeds 15-29 (KNODE-UKF median 0.98e-3 vs 1.71e-3):
-    # one block covers one stretch of the lap, whose artefacts the network may share
-    "cartpole": TrainingConfig(hidden=8, epochs=250, lr=2e-2, validation_fraction=0.0),
-    "robot": TrainingConfig(hidden=8, epochs=10000, lr=5e-3, validation_fraction=0.2, validation_layout="spread"),
-}
 
 
 @dataclass(frozen=True)
@@ -48,7 +42,7 @@ class ReproduceSettings:
     eval_samples: int | None = None  # evaluation length; None: the paper's (5000 cartpole, 2500 robot).
     # Training always uses the paper's full record: it is cheap, and a short record under-determines Δθ.
     epochs: int | None = None      # None: the paper's epochs
-    horizon: int = 20              # MHE window N
+    horizon: int = MHE_HORIZON              # MHE window N
 
 
 def run_seed(settings: ReproduceSettings, seed: int) -> dict:
@@ -57,7 +51,7 @@ def run_seed(settings: ReproduceSettings, seed: int) -> dict:
     system = make_system(settings.task)
     train = system.simulate(10_000 + seed)
     test = system.simulate(20_000 + seed, settings.eval_samples)
-    config = TRAINING[settings.task]
+    config = PAPER_TRAINING[settings.task]
     if settings.epochs:
         config = TrainingConfig(**{**config.as_dict(), "epochs": settings.epochs})
     config = TrainingConfig(**{**config.as_dict(), "seed": seed})
@@ -77,7 +71,7 @@ def run_seed(settings: ReproduceSettings, seed: int) -> dict:
             row = f"{prefix}{estimator}{suffix}"
             started = time.perf_counter()
             if estimator == "UKF":
-                xh = run_ukf(model, test.y, test.u, system.dt, system.Q, system.R, x0, system.P0)
+                xh = run_ukf(model, test.y, test.u, dt=system.dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0).means
             else:
                 xh = MHE(model, system.dt, system.Q, system.R, system.P0, horizon=settings.horizon).run(
                     test.y, test.u, x0)
@@ -88,10 +82,10 @@ def run_seed(settings: ReproduceSettings, seed: int) -> dict:
 
 def reproduce(settings: ReproduceSettings, seeds: int, workers: int = 1, progress=None) -> dict:
     """Run every seed (in a process pool when workers > 1) and summarise μ, σ per row."""
-    if settings.task not in TRAINING:
-        raise ValueError(f"unknown task {settings.task!r}; choose one of {sorted(TRAINING)}")
+    if settings.task not in PAPER_TRAINING:
+        raise InvalidInput(f"unknown task {settings.task!r}; choose one of {sorted(PAPER_TRAINING)}")
     if seeds < 1:
-        raise ValueError(f"seeds must be at least 1, got {seeds}")
+        raise InvalidInput(f"seeds must be at least 1, got {seeds}")
     started = time.perf_counter()
     results = []
     if workers > 1:

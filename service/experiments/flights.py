@@ -6,18 +6,15 @@ from dataclasses import replace
 
 import numpy as np
 
-from estimators.evaluate import evaluate_sequence, summarize
-from ingest.baseline import references
-from ingest.flight import Flight
-from models.effects import correct_acc_body, world_from_body
-from models.knode import HybridModel
-from models.observers import pretraining_observer
-from models.systems import Quadrotor, make_system
-from models.training import TrainingConfig, train_knode
-
-# Sec. V-C: 2 layers x 16 tanh, 150 epochs, KF pre-training observer
-CRAZYFLIE_TRAINING = TrainingConfig(hidden=16, epochs=150, lr=1e-3, validation_fraction=0.2,
-                                    validation_layout="spread")
+from learnest.estimators.evaluate import evaluate_sequence, summarize
+from learnest.estimators.observers import pretraining_observer
+from learnest.ingest.baseline import references
+from learnest.ingest.flight import Flight
+from learnest.models.effects import correct_acc_body, world_from_body
+from learnest.models.knode import HybridModel
+from learnest.models.presets import CRAZYFLIE_TRAINING, MHE_HORIZON, SG_WINDOW, TrainingConfig
+from learnest.models.systems import Quadrotor, make_system
+from learnest.models.training import TrainingResult, train_knode
 
 
 def quadrotor_for(flight: Flight) -> Quadrotor:
@@ -31,15 +28,16 @@ def initial_state(flight: Flight) -> np.ndarray:
     return np.concatenate([flight.p[0], velocity, flight.a_meas[0]])
 
 
-def train_on_flight(flight: Flight, config: TrainingConfig = CRAZYFLIE_TRAINING, progress=None) -> dict:
-    """Algorithm 1 on one flight; returns {"model", "losses", "seconds"}."""
+def train_on_flight(flight: Flight, config: TrainingConfig = CRAZYFLIE_TRAINING, progress=None) -> TrainingResult:
+    """Algorithm 1 on one flight: the KF pre-training observer on its measurements, then `train_knode`.
+    The model records the training flight (name and source sha256) in its meta."""
     system = quadrotor_for(flight)
     y, u = flight.measurements(), np.zeros((len(flight.t), 0))
     zeta = pretraining_observer(system, y, u, system.dt)
     result = train_knode(system, zeta, u, system.dt, config, progress=progress)
     result.model.meta.update({"training_flight": flight.name,
                               "training_flight_sha256": [s["sha256"] for s in flight.meta.get("sources", [])]})
-    return {"model": result.model, "losses": result.losses, "seconds": result.seconds}
+    return result
 
 
 def corrected_flight(flight: Flight, values: dict) -> Flight:
@@ -50,7 +48,7 @@ def corrected_flight(flight: Flight, values: dict) -> Flight:
                   {**flight.channels, "acc_body": acc_body}, dict(flight.meta))
 
 
-def evaluate_flight(knode: HybridModel, flight: Flight, methods, horizon: int = 20, sg_window: int = 150,
+def evaluate_flight(knode: HybridModel, flight: Flight, methods, horizon: int = MHE_HORIZON, sg_window: int = SG_WINDOW,
                     keep_estimates: bool = False, mhe_cache: dict | None = None) -> dict:
     """Scores of every method on one flight, against SG references of its mocap position.
 
@@ -78,7 +76,7 @@ def _is_training_flight(knode: HybridModel, flight: Flight) -> bool:
 
 
 def evaluate_flights(knode: HybridModel, flights: list[Flight], methods, include_bad: bool = False,
-                     horizon: int = 20, progress=None) -> dict:
+                     horizon: int = MHE_HORIZON, progress=None) -> dict:
     """The report of `learnest evaluate --json`: per flight, median, improvement %."""
     reports, mhe_cache = [], {}
     for flight in flights:

@@ -1,0 +1,27 @@
+"""What the estimators return: named tuples with named fields (dynamax's habit), never bare tuples."""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+
+class FilterResult(NamedTuple):
+    """A filtered sequence (dynamax/filterpy habit: means AND covariances).
+
+    Attributes
+    ----------
+    t : ndarray, shape (T,)
+        Time of each estimate, s.
+    means : ndarray, shape (T, n)
+        Filtered state estimates x̂_{k|k}, in the model's state units.
+    covariances : ndarray, shape (T, n, n)
+        Their covariances P_{k|k}.
+    innovations : ndarray, shape (T, m)
+        Measurement innovations y_k - h(x̂_{k|k-1}), in the measurement units.
+    """
+
+    t: np.ndarray
+    means: np.ndarray
+    covariances: np.ndarray
+    innovations: np.ndarray

@@ -1,0 +1,62 @@
+"""The service's one settings object: every knob, read from LEARNEST_* environment variables (or a
+``.env`` file) and validated once, at start.  Nothing else in learnest reads the environment.
+
+    LEARNEST_HOME               folder of the SQLite database and the blobs (default ./.learnest)
+    LEARNEST_DATABASE_URL       PostgreSQL (or any SQLAlchemy URL) instead of the SQLite file
+    LEARNEST_API_KEY            when set, every write needs the header X-API-Key
+    LEARNEST_MAX_UPLOAD_MB      upload size limit (default 200)
+    LEARNEST_SCHEDULE_SECONDS   evaluate new flights with the aliased model on this interval (0 = off)
+    LEARNEST_SCHEDULE_ALIAS     ... with the version holding this alias (default production)
+    LEARNEST_SCHEDULE_METHODS   ... and these estimators (default all four)
+    LEARNEST_DASK               address of a Dask scheduler (default: a local process pool)
+    LEARNEST_POOL_WORKERS       local pool size (default min(2, cores))
+    LEARNEST_GIT_COMMIT         code version recorded in the registry when the install has no git
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from pydantic import AliasChoices, Field, field_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from learnest.estimators.evaluate import parse_methods
+from learnest.models.presets import METHODS, PRODUCTION_ALIAS
+
+DEFAULT_METHODS = ",".join(METHODS)
+
+
+class Settings(BaseSettings):
+    """Every knob of the service; ``Settings()`` reads the environment, keyword arguments override it."""
+
+    model_config = SettingsConfigDict(env_prefix="LEARNEST_", env_file=".env", extra="ignore", frozen=True,
+                                      populate_by_name=True)
+
+    home: Path = Path(".learnest")
+    database_url: str | None = None          # None: SQLite file home/learnest.db
+    max_upload_mb: float = Field(200.0, gt=0)
+    api_key: str | None = None               # None: writes need no key
+    schedule_seconds: float = Field(0.0, ge=0)   # 0: scheduler off
+    schedule_alias: str = PRODUCTION_ALIAS
+    schedule_methods: str = DEFAULT_METHODS
+    dask_address: str | None = Field(None, validation_alias=AliasChoices("dask_address", "LEARNEST_DASK"))
+    pool_workers: int = Field(default_factory=lambda: max(1, min(2, os.cpu_count() or 1)), ge=1)
+    git_commit: str | None = None
+
+    @field_validator("database_url", "api_key", "dask_address", "git_commit", mode="before")
+    @classmethod
+    def _empty_is_unset(cls, value):
+        return None if isinstance(value, str) and not value.strip() else value
+
+    @field_validator("schedule_methods")
+    @classmethod
+    def _known_methods(cls, value: str) -> str:
+        return ",".join(parse_methods(value))  # names the unknown ones
+
+    @property
+    def url(self) -> str:
+        return self.database_url or f"sqlite:///{(self.home / 'learnest.db').resolve()}"
+
+    @property
+    def max_upload_bytes(self) -> int:
+        return int(self.max_upload_mb * 1024 * 1024)

@@ -1,0 +1,136 @@
+"""Estimators and evaluation on Flights: what `learnest.ukf`, `learnest.mhe` and `learnest.evaluate` run.
+
+The estimators themselves (`learnest.estimators`) work on arrays; this layer supplies what a Flight
+implies: its measurements y = [p, a_meas], its grid, the system's noise settings and the first state.
+"""
+from __future__ import annotations
+
+import warnings
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+
+from learnest.errors import InvalidInput, NumericalWarning
+from learnest.estimators.covariance import linearized_covariances
+from learnest.estimators.evaluate import parse_methods
+from learnest.estimators.mhe import MHE
+from learnest.estimators.results import FilterResult
+from learnest.estimators.ukf import run_ukf
+from learnest.ingest.flight import Flight
+from learnest.models.knode import HybridModel
+from learnest.models.presets import METHODS, MHE_HORIZON
+
+from .flights import evaluate_flights, initial_state, quadrotor_for
+
+
+class MHEResult(NamedTuple):
+    """A moving-horizon estimate of a whole flight.
+
+    Attributes
+    ----------
+    t : ndarray, shape (T,)
+        Time of each estimate, s from the flight's start.
+    means : ndarray, shape (T, n)
+        x̂_{k|k}, the last node of each window.
+    covariances : ndarray, shape (T, n, n)
+        Their covariances, from the EKF recursion linearised along the estimates (exact for a linear
+        model, where MHE with the Kalman arrival cost equals the Kalman filter).
+    solver_failures : int
+        Windows whose NLP solver reported failure (also raised as a `NumericalWarning`).
+    """
+
+    t: np.ndarray
+    means: np.ndarray
+    covariances: np.ndarray
+    solver_failures: int
+
+
+def _checked(model: HybridModel, flight: Flight):
+    if not isinstance(flight, Flight):
+        raise InvalidInput(f"expected a Flight (learnest.read_flights), got {type(flight).__name__}")
+    if model.system.name != "quadrotor":
+        raise InvalidInput(f"a {model.system.name!r} model cannot run on a flight; flights need a quadrotor model")
+    system = quadrotor_for(flight)
+    return system, flight.measurements(), np.zeros((len(flight.t), 0))
+
+
+def ukf(model: HybridModel, flight: Flight, alpha: float = 1e-3) -> FilterResult:
+    """Unscented Kalman filter of one flight with ``model`` (a KNODE's ``model_`` or a prior).
+
+    Parameters
+    ----------
+    model : HybridModel
+        Discrete 9-state quadrotor model, x = [p (m), v (m/s), a (m/s²)].
+    flight : Flight
+        Measurements y = [p, a_meas] on the flight's grid.
+    alpha : float
+        Merwe sigma-point spread.
+
+    Returns
+    -------
+    FilterResult
+        ``t`` (T,) s, ``means`` (T, 9), ``covariances`` (T, 9, 9), ``innovations`` (T, 6).
+    """
+    system, y, u = _checked(model, flight)
+    result = run_ukf(model, y, u, dt=flight.dt, Q=system.Q, R=system.R, x0=initial_state(flight), P0=system.P0,
+                     alpha=alpha)
+    return result._replace(t=np.asarray(flight.t, dtype=float))
+
+
+def mhe(model: HybridModel, flight: Flight, horizon: int = MHE_HORIZON) -> MHEResult:
+    """Moving horizon estimate (eq. 2) of one flight with ``model``.
+
+    Parameters
+    ----------
+    model : HybridModel
+        Discrete 9-state quadrotor model, x = [p (m), v (m/s), a (m/s²)].
+    flight : Flight
+        Measurements y = [p, a_meas] on the flight's grid.
+    horizon : int
+        Window length N, samples.
+
+    Returns
+    -------
+    MHEResult
+        ``t`` (T,) s, ``means`` (T, 9), ``covariances`` (T, 9, 9), ``solver_failures``.
+    """
+    system, y, u = _checked(model, flight)
+    estimator = MHE(model, flight.dt, system.Q, system.R, system.P0, horizon=horizon)
+    means = estimator.run(y, u, initial_state(flight))
+    failures = int(estimator.stats.get("failures", 0))
+    if failures:
+        warnings.warn(f"{flight.name}: the MHE solver failed on {failures} of {estimator.stats['solves']} windows; "
+                      "those estimates are the solver's last iterate", NumericalWarning, stacklevel=2)
+    covariances = linearized_covariances(model, means, u, dt=flight.dt, Q=system.Q, R=system.R, P0=system.P0)
+    return MHEResult(np.asarray(flight.t, dtype=float), means, covariances, failures)
+
+
+def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[str] = METHODS,
+             horizon: int = MHE_HORIZON, include_bad: bool = False, progress=None) -> dict:
+    """Score the estimators on flights against Savitzky–Golay references of their mocap position.
+
+    Parameters
+    ----------
+    model : HybridModel
+        The KNODE (its prior runs the "ukf"/"mhe" rows).  Its own training flight is never scored.
+    flights : sequence of Flight
+    methods : sequence of str
+        Any of ``"ukf", "mhe", "knode-ukf", "knode-mhe"``.
+    horizon : int
+        MHE window N, samples.
+    include_bad : bool
+        Also score flights that fail the quality checks.
+    progress : callable, optional
+        Called with each flight's entry as it is done.
+
+    Returns
+    -------
+    dict
+        ``flights``: per flight ``mse`` {method: MSE over [p, v, a] in SI units²}, ``groups`` (per p, v,
+        a), ``ms_per_step``, ``excluded`` and ``reason``; ``median`` {method: MSE};
+        ``improvement_pct`` {"knode-ukf_vs_ukf": %, ...}; ``flights_scored``.
+    """
+    methods = parse_methods(",".join(methods)) if not isinstance(methods, str) else parse_methods(methods)
+    return evaluate_flights(model, list(flights), methods, include_bad=include_bad, horizon=horizon,
+                            progress=progress)

@@ -1,0 +1,94 @@
+"""`KNODE`: Algorithm 1 as an estimator object a notebook user fits (pysindy/scikit-learn habit).
+
+Hyperparameters go to the constructor, `fit(flight)` runs the pre-training observer and the training and
+returns ``self``; what was learned ends in ``_``.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+from learnest.errors import InvalidInput
+from learnest.ingest.flight import Flight
+from learnest.models.presets import CRAZYFLIE_TRAINING
+
+from .flights import train_on_flight
+
+FLIGHT_SYSTEMS = ("quadrotor",)  # systems a Flight can be fitted with
+
+
+class KNODE:
+    """A knowledge-based neural ODE, f = f_prior + Δθ, trained on one flight (paper Algorithm 1).
+
+    Parameters
+    ----------
+    system : str
+        The prior: ``"quadrotor"`` (the paper's kinematic chain x = [p, v, a], 9 states).
+    hidden : int
+        Neurons of the residual's hidden tanh layer (Sec. V-C: 16).
+    epochs : int
+        Full-batch Adam epochs (Sec. V-C: 150).
+    lr : float
+        Adam learning rate.
+    validation_fraction : float
+        Share of the record held out in time blocks; the weights of the epoch that predicts it best
+        are kept.
+    seed : int
+        Seed of the network's initial weights.
+
+    Attributes
+    ----------
+    model_ : HybridModel
+        The trained discrete model (prior + residual, RK4), ready for `learnest.ukf` / `learnest.mhe`.
+    losses_ : list of float
+        Training loss (eq. 8) per epoch.
+    validation_losses_ : list of float
+        Held-out loss per epoch (empty when nothing is held out).
+    seconds_ : float
+        Wall time of the epochs, s.
+
+    Examples
+    --------
+    >>> import learnest as le
+    >>> flights = le.read_flights(["sample_logs/circle_rep1.csv", "sample_logs/circle_rep2.csv"])
+    >>> knode = le.KNODE(epochs=20).fit(flights[0])
+    >>> knode.model_
+    HybridModel(quadrotor, knode)
+    """
+
+    def __init__(self, system: str = "quadrotor", hidden: int = CRAZYFLIE_TRAINING.hidden,
+                 epochs: int = CRAZYFLIE_TRAINING.epochs, lr: float = CRAZYFLIE_TRAINING.lr,
+                 validation_fraction: float = CRAZYFLIE_TRAINING.validation_fraction, seed: int = 0):
+        self.system, self.hidden, self.epochs, self.lr = system, hidden, epochs, lr
+        self.validation_fraction, self.seed = validation_fraction, seed
+
+    def fit(self, flight: Flight, progress=None) -> KNODE:
+        """Train on one flight.
+
+        Parameters
+        ----------
+        flight : Flight
+            The training flight (its position and world-frame acceleration are the measurements).
+        progress : callable, optional
+            Called with each epoch's record while training runs.
+
+        Returns
+        -------
+        KNODE
+            ``self``, with the fitted attributes set.
+        """
+        if self.system not in FLIGHT_SYSTEMS:
+            raise InvalidInput(f"system {self.system!r} cannot be fitted on a flight; choose one of "
+                               f"{', '.join(FLIGHT_SYSTEMS)}")
+        if not isinstance(flight, Flight):
+            raise InvalidInput(f"fit needs a Flight (learnest.read_flights), got {type(flight).__name__}")
+        config = replace(CRAZYFLIE_TRAINING, hidden=self.hidden, epochs=self.epochs, lr=self.lr,
+                         validation_fraction=self.validation_fraction, seed=self.seed)
+        result = train_on_flight(flight, config, progress=progress)
+        self.model_ = result.model
+        self.losses_, self.validation_losses_ = result.losses, result.validation_losses
+        self.seconds_ = result.seconds
+        return self
+
+    def __repr__(self) -> str:
+        return (f"KNODE(system={self.system!r}, hidden={self.hidden}, epochs={self.epochs}, lr={self.lr}, "
+                f"validation_fraction={self.validation_fraction}, seed={self.seed})")

@@ -1,0 +1,157 @@
+"""The notebook API (`import learnest as le`) and the installed package, as a user meets them."""
+import importlib.metadata
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import learnest as le
+from learnest.estimators.covariance import linearized_covariances
+from learnest.estimators.kf import run_kf
+from learnest.estimators.ukf import run_ukf
+from learnest.models.knode import HybridModel
+from learnest.models.systems import make_system
+
+REPO = Path(__file__).resolve().parents[1]
+SAMPLES = REPO / "sample_logs"
+
+
+def test_the_distribution_installs_one_top_level_name():
+    files = importlib.metadata.files("learnest")
+    tops = {f.parts[0] for f in files if f.suffix == ".py" and len(f.parts) > 1}
+    assert tops == {"learnest"}, tops
+    # and the tests use the installed copy, not the checkout (unless it is an editable install)
+    assert "site-packages" in le.__file__ or _editable(), le.__file__
+
+
+def _editable() -> bool:
+    direct = importlib.metadata.distribution("learnest").read_text("direct_url.json") or "{}"
+    return json.loads(direct).get("dir_info", {}).get("editable", False)
+
+
+def test_import_learnest_is_light():
+    """`import learnest` and its errors load no torch, CasADi, FastAPI or SQLAlchemy."""
+    code = ("import sys, learnest; heavy = [m for m in ('torch', 'casadi', 'fastapi', 'sqlalchemy', 'filterpy') "
+            "if m in sys.modules]; print(','.join(heavy))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd="/")
+    assert out.stdout.strip() == ""
+
+
+def test_science_layers_import_without_the_service_stack():
+    code = ("import sys; import learnest.service.experiments.estimation, learnest.service.experiments.diagnosis, "
+            "learnest.service.experiments.table1, learnest.service.experiments.knode; "
+            "print(','.join(m for m in ('fastapi', 'sqlalchemy', 'starlette', 'alembic') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd="/")
+    assert out.stdout.strip() == ""
+
+
+def test_public_names_resolve_and_unknown_names_fail():
+    for name in le.__all__:
+        assert getattr(le, name) is not None, name
+    with pytest.raises(AttributeError, match="no attribute 'nonsense'"):
+        le.nonsense  # noqa: B018
+
+
+def test_errors_carry_their_http_status():
+    assert (le.InvalidInput.status, le.NotFound.status, le.Conflict.status) == (422, 404, 409)
+    assert issubclass(le.IngestError, le.InvalidInput) and issubclass(le.InvalidInput, ValueError)
+
+
+def test_flight_dataframe_round_trip_keeps_arrays_units_and_meta():
+    [flight] = le.read_flights([SAMPLES / "circle_rep1.csv"])
+    frame = flight.to_dataframe()
+    assert len(frame) == len(flight.t)
+    assert frame.attrs["units"]["p_x"] == "m" and frame.attrs["units"]["a_meas_z"] == "m/s^2"
+    np.testing.assert_array_equal(frame[["p_x", "p_y", "p_z"]].to_numpy(), flight.p)
+    back = le.Flight.from_dataframe(frame)
+    for name in ("t", "p", "a_meas", "quat"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(flight, name))
+    assert back.channels.keys() == flight.channels.keys()
+    for name, values in flight.channels.items():
+        np.testing.assert_array_equal(back.channels[name], values)
+    assert back.meta == json.loads(json.dumps(flight.meta))
+    with pytest.raises(le.InvalidInput, match="missing column"):
+        le.Flight.from_dataframe(frame.drop(columns=["p_y"]))
+
+
+def test_flight_repr_is_one_line_summary():
+    [flight] = le.read_flights([SAMPLES / "circle_rep1.csv"])
+    text = repr(flight)
+    assert "\n" not in text and len(text) < 300 and "circle_rep1" in text and "Hz" in text
+
+
+@pytest.fixture(scope="module")
+def linear_case():
+    system = make_system("quadrotor")
+    return system, HybridModel(system, "prior"), system.simulate(3, n_samples=200)
+
+
+def test_ukf_result_has_covariances_equal_to_the_kalman_filter(linear_case):
+    """On a linear-Gaussian model the UKF is the KF: means and covariances, step for step."""
+    system, model, run = linear_case
+    kw = dict(dt=system.dt, Q=system.Q, R=system.R, x0=run.x_noisy[0], P0=system.P0)
+    kf = run_kf(model, run.y, **kw)
+    ukf = run_ukf(model, run.y, alpha=1.0, **kw)       # u=None: a model without inputs
+    assert ukf.covariances.shape == (200, 9, 9) and ukf.innovations.shape == (200, 6)
+    np.testing.assert_allclose(ukf.covariances, kf.covariances, rtol=1e-8, atol=1e-14)
+    np.testing.assert_allclose(ukf.innovations, kf.innovations, atol=1e-9)
+    np.testing.assert_allclose(ukf.t, system.dt * np.arange(200))
+
+
+def test_linearized_covariances_equal_the_kalman_filter_on_a_linear_model(linear_case):
+    system, model, run = linear_case
+    kw = dict(dt=system.dt, Q=system.Q, R=system.R, P0=system.P0)
+    kf = run_kf(model, run.y, x0=run.x_noisy[0], **kw)
+    covariances = linearized_covariances(model, kf.means, **kw)
+    np.testing.assert_allclose(covariances, kf.covariances, rtol=1e-9, atol=1e-15)
+
+
+def test_inputs_required_by_a_model_are_asked_for():
+    system = make_system("cartpole")
+    run = system.simulate(1, n_samples=20)
+    with pytest.raises(le.InvalidInput, match="u is required"):
+        run_ukf(HybridModel(system, "true"), run.y, None, dt=system.dt, Q=system.Q, R=system.R,
+                x0=run.x[0], P0=system.P0)
+
+
+def test_notebook_workflow_on_sample_flights():
+    flights = le.read_flights([SAMPLES / "circle_rep1.csv", SAMPLES / "circle_rep2.csv"])
+    knode = le.KNODE(epochs=5, seed=1).fit(flights[0])
+    assert knode is not None and len(knode.losses_) == 5 and knode.seconds_ > 0
+    assert knode.model_.meta["training_flight"] == "circle_rep1"
+    post = le.ukf(knode.model_, flights[1])
+    T = len(flights[1].t)
+    assert post.means.shape == (T, 9) and post.covariances.shape == (T, 9, 9)
+    np.testing.assert_array_equal(post.t, flights[1].t)
+    # the filter tracks the mocap position to within its noise level
+    assert np.sqrt(np.mean((post.means[:, :3] - flights[1].p) ** 2)) < 0.01
+    assert np.all(np.linalg.eigvalsh(post.covariances) > 0)
+    window = flights[1].slice(0, 120)
+    mhe = le.mhe(knode.model_, window, horizon=5)
+    assert mhe.means.shape == (120, 9) and mhe.solver_failures == 0
+    assert np.sqrt(np.mean((mhe.means[:, :3] - window.p) ** 2)) < 0.01
+    report = le.evaluate(knode.model_, flights, methods=("ukf", "knode-ukf"))
+    [trained, scored] = report["flights"]
+    assert trained["excluded"] and "training flight" in trained["reason"]
+    assert set(scored["mse"]) == {"ukf", "knode-ukf"} and report["flights_scored"] == 1
+    with pytest.raises(le.InvalidInput, match="unknown method"):
+        le.evaluate(knode.model_, flights, methods=("ukf", "kalman"))
+    with pytest.raises(le.InvalidInput, match="choose one of"):
+        le.KNODE(system="cartpole").fit(flights[0])
+
+
+def test_readme_example_runs(tmp_path):
+    """The README's notebook example, run as written from the repository root."""
+    text = (REPO / "README.md").read_text()
+    [example] = re.findall(r"```python\n(.*?)```", text, re.S)
+    assert "import learnest as le" in example
+    assert "epochs=150" in example
+    # from the repository root, as a user's notebook there: the checkout comes first on sys.path
+    run = subprocess.run([sys.executable, "-c", example.replace("epochs=150", "epochs=3")], cwd=REPO,
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr
+    assert "(9,)" not in run.stdout and "knode-ukf_vs_ukf" in run.stdout
