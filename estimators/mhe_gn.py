@@ -40,12 +40,13 @@ from __future__ import annotations
 
 import ctypes
 import warnings
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
-from pathlib import Path
-
 from scipy.linalg.lapack import dpbtrf, dpbtrs
+
+from learnest.errors import NumericalWarning
 
 from .codegen import compiled, load_source
 
@@ -221,7 +222,7 @@ class GaussNewtonWindowSolver:
                 progress(k)
         if self.stats["failures"]:
             warnings.warn(f"MHE Gauss-Newton: {self.stats['failures']} of {self.stats['solves']} windows did not "
-                          "converge", RuntimeWarning, stacklevel=3)
+                          "converge", NumericalWarning, stacklevel=3)
         return estimates
 
 

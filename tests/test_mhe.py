@@ -97,3 +97,17 @@ def test_mhe_rejects_an_unknown_solver():
         MHE(model, 0.01, system.Q, system.R, system.P0, solver="newton")
     with pytest.raises(ValueError, match="max_iter"):
         MHE(model, 0.01, system.Q, system.R, system.P0, max_iter=0)
+
+
+def test_the_quadrotor_observer_batch_solve_equals_the_kalman_rts_smoother():
+    """The pre-training observer solves the smoothing problem in one block-tridiagonal solve; the RTS
+    smoother (filterpy) computes the same means recursively."""
+    from learnest.estimators.observers import observe_quadrotor
+    system = make_system("quadrotor")
+    run = system.simulate(2, n_samples=400)
+    model = HybridModel(system, "prior")
+    x0 = np.concatenate([run.y[0, :3], np.zeros(3), run.y[0, 3:]])
+    rts = run_kf(model, run.y, dt=system.dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0, smooth=True).means
+    ours = observe_quadrotor(system, run.y, run.u, system.dt)
+    np.testing.assert_allclose(ours, rts, rtol=0, atol=1e-9 * np.abs(rts).max())
+    assert np.abs(ours - run.x).mean() < np.abs(run.y[:, 3:] - run.x[:, 6:]).mean()  # it does smooth
