@@ -18,10 +18,10 @@ from .results import FilterResult
 def linearize(model, dt: float, x_op=None):
     """(F, H): exact Jacobians of the discrete model step (RK4 of f_c, as every estimator here uses)
     and of h at x_op (default 0).  For a linear prior they are the model, not an approximation."""
-    x, u = ca.SX.sym("x", model.n), ca.SX.sym("u", model.system.p)
+    x, u = ca.SX.sym("x", model.n), ca.SX.sym("u", model.n_inputs)
     jacobians = ca.Function("FH", [x, u], [ca.jacobian(model.step(x, u, dt), x), ca.jacobian(model.h(x, u), x)])
     x_op = np.zeros(model.n) if x_op is None else x_op
-    F, H = jacobians(x_op, np.zeros(model.system.p))
+    F, H = jacobians(x_op, np.zeros(model.n_inputs))
     return np.array(F), np.array(H)
 
 
@@ -67,7 +67,7 @@ def run_kf(model, y, u=None, *, dt: float, Q, R, x0, P0, smooth: bool = False) -
     """
     dt = check_dt(dt)
     n = model.n
-    y = check_sequence("y", y, cols=model.system.m)
+    y = check_sequence("y", y, cols=model.n_meas)
     Q, R = check_covariance("Q", Q, n, allow_singular=True), check_covariance("R", R, y.shape[1])
     x0, P0 = check_vector("x0", x0, n), check_covariance("P0", P0, n)
     F, H = linearize(model, dt)

@@ -86,7 +86,7 @@ class MHE:
             raise ValueError(f"max_iter must be a positive integer or None, got {max_iter}")
         self.hessian, self.solver = hessian, solver
         self.model, self.dt, self.horizon = model, check_dt(dt), int(horizon)
-        self.n, self.p, self.m = model.n, model.system.p, model.system.m
+        self.n, self.p, self.m = model.n, model.n_inputs, model.n_meas
         self.Q = check_covariance("Q", Q, self.n)
         self.R = check_covariance("R", R, self.m)
         self.P0 = check_covariance("P0", P0, self.n)

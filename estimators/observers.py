@@ -26,8 +26,7 @@ class _PlanarKinematics:
     """Constant-velocity point in the plane with a slowly varying heading, seen by the robot's sensors."""
 
     def __init__(self, robot: GroundRobot):
-        self.robot, self.n = robot, 5
-        self.system = type("S", (), {"m": robot.m, "p": 0})()
+        self.robot, self.n, self.n_inputs, self.n_meas = robot, 5, 0, robot.n_meas
 
     def step(self, x, u, dt):
         out = np.array(x, dtype=float, copy=True)

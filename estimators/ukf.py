@@ -125,8 +125,8 @@ def run_ukf(model, y, u=None, *, dt: float, Q, R, x0, P0, alpha: float = 1e-3) -
 
     Parameters
     ----------
-    model : HybridModel
-        Discrete model (``n``, ``step(x, u, dt)``, ``h(x, u)``, ``system.m``, ``system.p``).
+    model : StateSpaceModel
+        Discrete model (`StateSpaceModel`: ``n``, ``n_inputs``, ``n_meas``, ``step``, ``h``).
     y : array_like, shape (T, m)
         Measurements.
     u : array_like, shape (T, p), optional
@@ -150,8 +150,8 @@ def run_ukf(model, y, u=None, *, dt: float, Q, R, x0, P0, alpha: float = 1e-3) -
         Means, covariances and innovations; ``t = k * dt``.
     """
     dt, n = check_dt(dt), model.n
-    y = check_sequence("y", y, cols=model.system.m)
-    u = check_inputs(u, len(y), model.system.p)
+    y = check_sequence("y", y, cols=model.n_meas)
+    u = check_inputs(u, len(y), model.n_inputs)
     Q, R = check_covariance("Q", Q, n, allow_singular=True), check_covariance("R", R, y.shape[1])
     x0, P0 = check_vector("x0", x0, n), check_covariance("P0", P0, n)
     ukf = make_ukf(model, dt, Q, R, x0, P0, alpha=alpha)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import importlib
 from pathlib import Path
 
-from .flight import Flight, IngestError
+from .flight import Flight, IngestError, existing_file
 
 # adapter name -> (module, sniff function); order matters only for speed (cheap binary magic first)
 SINGLE_FILE_ADAPTERS = {
@@ -26,11 +26,7 @@ def _sniffer(module: str, function: str):
 
 def detect(path) -> str:
     """The adapter (or pair role) that reads this file, decided from its content."""
-    path = Path(path)
-    if not path.is_file():
-        raise IngestError(path, "no such file")
-    if path.stat().st_size == 0:
-        raise IngestError(path, "file is empty")
+    path = existing_file(path, "flight log")
     for name, (module, function) in {**SINGLE_FILE_ADAPTERS, **PAIR_ROLES}.items():
         sniff = _sniffer(module, function)
         if sniff(path):

@@ -9,6 +9,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -75,7 +76,7 @@ class Flight:
         """y = [p, a_meas] (T, 6), the quadrotor's measurement vector (Sec. V-C)."""
         return np.column_stack([self.p, self.a_meas])
 
-    def slice(self, start: int, stop: int) -> "Flight":
+    def slice(self, start: int, stop: int) -> Flight:
         """Rows [start, stop) with time restarted at zero."""
         t = self.t[start:stop]
         return Flight(t - t[0], self.p[start:stop], self.a_meas[start:stop], self.quat[start:stop],
@@ -115,7 +116,7 @@ class Flight:
         return frame
 
     @classmethod
-    def from_dataframe(cls, frame, meta: dict | None = None) -> "Flight":
+    def from_dataframe(cls, frame, meta: dict | None = None) -> Flight:
         """Rebuild a Flight from `to_dataframe`'s layout (or any frame with those column names).
 
         Parameters
@@ -158,7 +159,7 @@ class Flight:
         return buffer.getvalue()
 
     @classmethod
-    def from_bytes(cls, data: bytes) -> "Flight":
+    def from_bytes(cls, data: bytes) -> Flight:
         with np.load(io.BytesIO(data), allow_pickle=False) as npz:
             meta = json.loads(npz["meta"].tobytes().decode())
             channels = {k[len("channel__"):]: npz[k] for k in npz.files if k.startswith("channel__")}
@@ -171,7 +172,7 @@ class Flight:
         tmp.replace(path)  # atomic: never a half-written flight on disk
 
     @classmethod
-    def load(cls, path) -> "Flight":
+    def load(cls, path) -> Flight:
         try:
             return cls.from_bytes(Path(path).read_bytes())
         except (OSError, ValueError, KeyError) as err:
@@ -184,6 +185,43 @@ def _split_columns(name: str, values: np.ndarray) -> dict:
         return {name: values}
     axes = _AXES.get(values.shape[1], tuple(str(i) for i in range(values.shape[1])))
     return {f"{name}_{axis}": values[:, i] for i, axis in enumerate(axes)}
+
+
+def json_compatible(value):
+    """``value`` with only JSON types: numpy arrays and scalars become lists and numbers, NaN and ±inf
+    become None (PostgreSQL's json type rejects them; json.dumps would write them), tuples become lists,
+    keys become strings, and anything else (a YAML date, ...) its string.  One definition for flight
+    metadata, stored reports and job results."""
+    if isinstance(value, dict):
+        return {str(k): json_compatible(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_compatible(v) for v in value]
+    if hasattr(value, "tolist"):  # numpy array or scalar
+        return json_compatible(value.tolist())
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if value is None or isinstance(value, (bool, int, str)):
+        return value
+    return str(value)
+
+
+def existing_file(path, kind: str) -> Path:
+    """``path`` as a Path if it is a non-empty regular file; otherwise the IngestError every reader gives.
+
+    Parameters
+    ----------
+    path : str or Path
+    kind : str
+        What the file should have been ("NanoBench CSV", "MCAP recording", ...), for the message.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise IngestError(path, f"is a directory, not a {kind}")
+    if not path.is_file():
+        raise IngestError(path, "no such file")
+    if path.stat().st_size == 0:
+        raise IngestError(path, f"empty file, not a {kind}")
+    return path
 
 
 def sha256_file(path) -> str:

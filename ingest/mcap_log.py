@@ -48,10 +48,11 @@ import json
 import math
 import struct
 from collections import Counter, defaultdict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import lz4.frame
 import numpy as np
@@ -65,20 +66,30 @@ from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer as Ros2McapWriter
 
 from .align import build_flight, samples_per_second
-from .flight import Flight, IngestError, sha256_file
+from .flight import Flight, IngestError, existing_file, sha256_file
 from .frames import GRAVITY
+from .limits import QUATERNION_NORM_TOLERANCE
 
 MAGIC = b"\x89MCAP0\r\n"
 DEFAULT_START_NS = 1_700_000_000 * 10**9     # writers: an epoch time, like a real bag
 DEFAULT_CHUNK_SIZE = 1 << 20                 # the mcap library's default
 
 # A single chunk bigger than this is a damaged size field, not a recording (rosbag2 writes ~1 MiB chunks).
-MAX_CHUNK_BYTES = 1 << 30
+MAX_CHUNK_BYTES = 256 << 20
+# Decompression budget of a whole file (a "zip bomb" guard): what its chunks may expand to in total is at
+# most MAX_EXPANSION x the file's size (sensor data compresses 2-10x; zeros compress 10^5x) and never more
+# than MAX_DECOMPRESSED_BYTES.  Checked against each chunk's declared size BEFORE it is decompressed, so
+# a bomb is refused in the time it takes to read its headers, and the parsing work (pure Python, per
+# record) stays proportional to what the uploader sent.
+MAX_EXPANSION = 100
+MAX_DECOMPRESSED_BYTES = 4 << 30
+# Payloads of messages whose channel is not declared yet are kept (the declaration may come later, in
+# the summary) only up to this many bytes; past it they are counted and dropped.
+MAX_PENDING_BYTES = 32 << 20
 # A recording whose pose and acceleration overlap for longer than this has corrupt time stamps (a
 # Crazyflie battery lasts minutes); the bound also caps the memory of the resampled grid.
 MAX_DURATION_S = 3600.0
 # Mocap quaternions further than this from unit length are not attitudes (lost object, zeros).
-QUATERNION_NORM_TOLERANCE = 0.1
 # A flight's median specific force is ≈ 1 g (hover or rest); outside these bounds the unit is wrong.
 PLAUSIBLE_MEDIAN_ACC_G = (0.25, 4.0)
 
@@ -233,11 +244,17 @@ class _ClampedFile:
         return data
 
 
+class DecompressionLimit(ValueError):
+    """A file whose chunks would expand past the decompression budget (see MAX_EXPANSION)."""
+
+
 class _Collector:
     """Schemas, channels and messages as the stream reader meets them.  Schema and channel records
-    appear twice (data section and summary): the first copy wins."""
+    appear twice (data section and summary): the first copy wins.  ``budget`` is how many bytes the
+    chunks may decompress to in total."""
 
-    def __init__(self):
+    def __init__(self, budget: int = MAX_DECOMPRESSED_BYTES):
+        self.budget, self.decompressed, self.pending_bytes = budget, 0, 0
         self.schemas: dict[int, Schema] = {}
         self.channels: dict[int, Channel] = {}
         self.counts: Counter = Counter()
@@ -253,10 +270,15 @@ class _Collector:
             self.channels.setdefault(record.id, record)
         elif isinstance(record, Message):
             self.counts[record.channel_id] += 1
-            if self._may_be_read(record.channel_id):
+            if self._may_be_read(record.channel_id, len(record.data)):
                 self.messages[record.channel_id].append((record.log_time, record.data))
 
     def _add_chunk(self, chunk: Chunk) -> None:
+        self.decompressed += chunk.uncompressed_size
+        if self.decompressed > self.budget:  # not a FRAMING_ERROR: the whole file is refused
+            raise DecompressionLimit(
+                f"chunks expand to more than {self.budget} bytes (the cap is {MAX_EXPANSION}x the file's size, "
+                f"at most {MAX_DECOMPRESSED_BYTES >> 30} GiB): a decompression bomb or not a flight recording")
         try:
             records = _chunk_records(chunk)
         except FRAMING_ERRORS as err:
@@ -265,12 +287,13 @@ class _Collector:
         for record in records:
             self.add(record)
 
-    def _may_be_read(self, channel_id: int) -> bool:
+    def _may_be_read(self, channel_id: int, size: int) -> bool:
         # Keep payloads of pose/acceleration candidates only (a bag may hold GBs of images).  A channel
         # not declared yet keeps its payloads: its declaration may be in the summary (first chunk damaged).
         channel = self.channels.get(channel_id)
         if channel is None:
-            return True
+            self.pending_bytes += size
+            return self.pending_bytes <= MAX_PENDING_BYTES
         schema = self.schemas.get(channel.schema_id)
         return _is_candidate_schema(channel.message_encoding, schema.name if schema else "")
 
@@ -321,10 +344,7 @@ def _check_file(path: Path) -> None:
         inside = sorted(p.name for p in path.glob("*.mcap"))
         hint = f" (a rosbag2 folder? pass the .mcap file inside: {', '.join(inside)})" if inside else ""
         raise IngestError(path, f"is a directory, not an MCAP file{hint}")
-    if not path.is_file():
-        raise IngestError(path, "no such file")
-    if path.stat().st_size == 0:
-        raise IngestError(path, "empty file, not an MCAP recording")
+    existing_file(path, "MCAP recording")
     with open(path, "rb") as handle:
         start = handle.read(len(MAGIC))
     if start != MAGIC:
@@ -338,14 +358,16 @@ def scan(path) -> McapContent:
     back.  Damage ends the reading (cut-off file) or skips one chunk; both become warnings."""
     path = Path(path)
     _check_file(path)
-    collector, warnings = _Collector(), []
     size = path.stat().st_size
+    collector, warnings = _Collector(budget=min(MAX_DECOMPRESSED_BYTES, MAX_EXPANSION * size)), []
     with open(path, "rb") as handle:
         clamped = _ClampedFile(handle, size)
         reader = StreamReader(clamped, emit_chunks=True, record_size_limit=size)
         try:
             for record in reader.records:
                 collector.add(record)
+        except DecompressionLimit as err:
+            raise IngestError(path, str(err)) from None
         except FRAMING_ERRORS as err:
             detail = f"{type(err).__name__}{': ' + str(err) if str(err) else ''}"[:200]
             warnings.append(f"file cut off or damaged at byte {clamped.position} of {size} ({detail}): "

@@ -9,7 +9,6 @@ tail).  Units and the cut into the flying part are handled by `ingest.align.buil
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -17,8 +16,10 @@ import pandas as pd
 import yaml
 
 from .align import FLYING_HEIGHT_M, build_flight
-from .flight import Flight, IngestError, sha256_file
+from .flight import Flight, IngestError, existing_file, json_compatible, sha256_file
 from .frames import GRAVITY
+from .limits import MAX_ROOM_M, QUATERNION_NORM_TOLERANCE
+from .sidecar import SidecarTooLarge, read_sidecar
 
 MOCAP_COLUMNS = ("px", "py", "pz", "qx", "qy", "qz", "qw")
 ACC_COLUMNS = ("imu_acc_x", "imu_acc_y", "imu_acc_z")
@@ -44,12 +45,10 @@ FILLED_ABS_TOL = 1e-8
 FILLED_REL_TOL = 1e-12
 
 # A Vicon volume is a room (< 20 m across); a median |p| beyond that means the file is in millimetres.
-MAX_PLAUSIBLE_POSITION_M = 20.0
 # No quadrotor sustains > 4 g of specific force for most of a flight; a median |acc| above that is m/s²
 # (≈ 9.8) rather than g (≈ 1).
 MAX_PLAUSIBLE_MEDIAN_ACC_G = 4.0
 # Mocap attitude must be a unit quaternion; exporters write zeros when the object is lost.
-QUATERNION_NORM_TOL = 0.1
 
 # A recording whose time span needs more than 20 grid points per row is > 95 % interpolation (or its t
 # is not in seconds, e.g. milliseconds); refusing it also bounds the memory of the resampled grid.
@@ -76,10 +75,7 @@ def sniff(path) -> bool:
 # -- parsing --------------------------------------------------------------------------------------------
 def _check_file(path: Path) -> list[str]:
     """Fail early on files that cannot be NanoBench; return the header's columns."""
-    if not path.is_file():
-        raise IngestError(path, "no such file")
-    if path.stat().st_size == 0:
-        raise IngestError(path, "empty file")
+    existing_file(path, "NanoBench CSV")
     try:
         columns = _header_columns(path)
     except OSError as err:
@@ -197,7 +193,7 @@ def clean_stream(name: str, t: np.ndarray, values: np.ndarray) -> tuple[np.ndarr
     finite = np.all(np.isfinite(values), axis=1)
     if name == "mocap":  # a lost Vicon object is often written as a zero / non-unit quaternion
         with np.errstate(invalid="ignore", over="ignore"):
-            finite &= np.abs(np.linalg.norm(values[:, 3:7], axis=1) - 1.0) <= QUATERNION_NORM_TOL
+            finite &= np.abs(np.linalg.norm(values[:, 3:7], axis=1) - 1.0) <= QUATERNION_NORM_TOLERANCE
     t, values = t[finite], values[finite]
     stale = _stale_repeats(values) if name in NOISY_STREAMS else np.zeros(len(t), dtype=bool)
     t_live, v_live = t[~stale], values[~stale]
@@ -213,9 +209,9 @@ def clean_stream(name: str, t: np.ndarray, values: np.ndarray) -> tuple[np.ndarr
 # -- unit sanity ----------------------------------------------------------------------------------------
 def _check_units(path: Path, p: np.ndarray, acc_g: np.ndarray) -> None:
     median_p = float(np.median(np.linalg.norm(p, axis=1))) if len(p) else 0.0
-    if median_p > MAX_PLAUSIBLE_POSITION_M:
+    if median_p > MAX_ROOM_M:
         raise IngestError(path, f"positions look like millimetres (median |p| = {median_p:.4g}, a "
-                                f"motion-capture room is < {MAX_PLAUSIBLE_POSITION_M:g} m); convert to metres")
+                                f"motion-capture room is < {MAX_ROOM_M:g} m); convert to metres")
     median_acc = float(np.median(np.linalg.norm(acc_g, axis=1))) if len(acc_g) else 1.0
     if median_acc > MAX_PLAUSIBLE_MEDIAN_ACC_G:
         hint = " — looks like m/s² instead of g" if abs(median_acc - GRAVITY) < 0.5 * GRAVITY else ""
@@ -233,9 +229,11 @@ def _read_metadata(path: Path, warnings: list[str]) -> dict | None:
     if not yaml_path.is_file():
         return None
     try:
-        metadata = yaml.safe_load(yaml_path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
-        warnings.append(f"{yaml_path.name} unreadable ({type(err).__name__}): ignored")
+        metadata = read_sidecar(yaml_path)
+    except SidecarTooLarge:
+        raise  # an expansion bomb is refused with the flight, never stored
+    except IngestError as err:
+        warnings.append(f"{yaml_path.name} {err.problem}: ignored")
         return None
     if not isinstance(metadata, dict):
         warnings.append(f"{yaml_path.name} is not a mapping: ignored")
@@ -279,7 +277,7 @@ def read(path, rate_hz: float = 100.0, cut: bool = True) -> Flight:
         "original_rates": {name: _stream_rate(name, ts, metadata) for name, ts in times.items()},
         "clock_offset_s": None,
         "vehicle": (metadata or {}).get("crazyflie_id"),
-        "nanobench": _json_safe(metadata),
+        "nanobench": json_compatible(metadata),
         "streams": {name: {**reports[name], **_span(times.get(name), t[0])} for name in reports},
         "warnings": warnings,
     }
@@ -336,11 +334,6 @@ def _airborne_gaps(t_mocap, z, times: dict) -> dict:
     return gaps
 
 
-def _json_safe(metadata):
-    # Flight.save stores meta as JSON; YAML may hold dates or other non-JSON scalars.
-    return None if metadata is None else json.loads(json.dumps(metadata, default=str))
-
-
 
 # -- writer (simulator and tests) -----------------------------------------------------------------------
 # Optional streams in the column order of the NanoBench files.
@@ -373,4 +366,4 @@ def write(path, t, p, quat_xyzw, acc_body_g, *, gyro=None, motors=None, p_onboar
         np.savetxt(handle, np.hstack(blocks), fmt=f"%.{decimals}f", delimiter=",", header=",".join(header),
                    comments="")
     if metadata is not None:
-        _metadata_path(path).write_text(yaml.safe_dump(_json_safe(metadata), sort_keys=True), encoding="utf-8")
+        _metadata_path(path).write_text(yaml.safe_dump(json_compatible(metadata), sort_keys=True), encoding="utf-8")

@@ -12,6 +12,7 @@ from scipy.signal import savgol_filter
 
 from .baseline import sg_references
 from .frames import GRAVITY
+from .limits import MAX_ACCELERATION_G, MAX_ROOM_M
 
 # -- thresholds (each with why) -------------------------------------------------------------------------
 # Shorter than this, the 1.5 s reference filter and any estimator warm-up leave too little to evaluate.
@@ -53,7 +54,6 @@ MAX_GAP_FRACTION = 0.25
 FROZEN_MOCAP_S = 0.1
 
 # Unit mix-up for positions: a motion-capture room is < 20 m across.
-MAX_POSITION_M = 20.0
 
 # Mocap vs accelerometer: correlation of the SG second derivative of p with the equally smoothed a_meas
 # (per-axis means removed, axes pooled).  Clean NanoBench flights: 0.94-0.99.  Swapped axes, a wrong
@@ -71,8 +71,12 @@ SMOOTHING_WINDOW = 150   # as the SG references (paper Sec. VI)
 
 def assess(flight) -> dict:
     """{"ok": bool, "issues": [reason, ...]} for a canonical Flight."""
-    issues: list[str] = []
-    for check in (_check_time, _check_finite, _check_duration, _check_position_units, _check_acc_level,
+    # broken time or impossible numbers make the statistics below meaningless (and overflow): stop there
+    for stage in ((_check_time, _check_finite, _check_position_units), (_check_plausible,)):
+        issues = [issue for check in stage for issue in check(flight)]
+        if issues:
+            return {"ok": False, "issues": issues}
+    for check in (_check_duration, _check_acc_level,
                   _check_saturation, _check_spikes, _check_gaps, _check_frozen_mocap, _check_acc_vs_mocap):
         issues.extend(check(flight))
     return {"ok": not issues, "issues": issues}
@@ -98,6 +102,21 @@ def _check_finite(flight) -> list[str]:
     return [f"non-finite values: {bad}"] if bad else []
 
 
+def _check_plausible(flight) -> list[str]:
+    """Per sample, not only on the median: one row in seven at |p| = 1e308 m must not pass as a flight."""
+    issues = []
+    outside = np.abs(flight.p) > MAX_ROOM_M
+    if np.any(outside):
+        rows = int(np.sum(np.any(outside, axis=1)))
+        issues.append(f"physically impossible positions: {rows} sample(s) beyond {MAX_ROOM_M:g} m "
+                      f"(largest |p| component {np.nanmax(np.abs(flight.p)):.3g} m)")
+    too_fast = np.abs(flight.a_meas) > MAX_ACCELERATION_G * GRAVITY
+    if np.any(too_fast):
+        rows = int(np.sum(np.any(too_fast, axis=1)))
+        issues.append(f"physically impossible accelerations: {rows} sample(s) beyond {MAX_ACCELERATION_G:g} g")
+    return issues
+
+
 def _check_duration(flight) -> list[str]:
     duration = flight.duration_s
     if duration < MIN_FLYING_S:
@@ -108,8 +127,8 @@ def _check_duration(flight) -> list[str]:
 # -- units ----------------------------------------------------------------------------------------------
 def _check_position_units(flight) -> list[str]:
     median_p = _nanmedian(np.linalg.norm(flight.p, axis=1))
-    if median_p > MAX_POSITION_M:
-        return [f"positions look like millimetres: median |p| = {median_p:.4g} m (room < {MAX_POSITION_M:g} m)"]
+    if median_p > MAX_ROOM_M:
+        return [f"positions look like millimetres: median |p| = {median_p:.4g} m (room < {MAX_ROOM_M:g} m)"]
     return []
 
 

@@ -349,7 +349,7 @@ class States:
     quat: np.ndarray
     omega: np.ndarray
 
-    def at(self, t) -> "States":
+    def at(self, t) -> States:
         """Linear interpolation (normalised for quaternions); exact at the simulation's own steps."""
         t = np.asarray(t, float)
 
@@ -381,7 +381,7 @@ class SensorModel:
     lowpass_hz: float | None = None          # first-order, on the accelerometer
 
     @classmethod
-    def ideal(cls, **changes) -> "SensorModel":
+    def ideal(cls, **changes) -> SensorModel:
         """No noise and no effects (then only the file formats' quantisation separates files from truth)."""
         return cls(**{"mocap_position_noise_m": 0.0, "mocap_attitude_noise_rad": 0.0, "acc_noise_g": 0.0,
                       "gyro_noise_rad_s": 0.0, **changes})

@@ -28,6 +28,7 @@ from scipy.spatial.transform import Rotation
 
 from .align import build_flight, resample_quaternions, samples_per_second
 from .flight import Flight, IngestError, sha256_file
+from .limits import QUATERNION_NORM_TOLERANCE
 
 MAGIC = 0xBC
 FIXED_FREQUENCY = "fixedFrequency"
@@ -52,7 +53,6 @@ OPTIONAL_SOURCES = (
     ("motors", ("motor.m1", "motor.m2", "motor.m3", "motor.m4"), 1.0),
     ("vbat", ("pm.vbat",), 1.0),
 )
-QUAT_NORM_TOLERANCE = 0.1      # locSrv quaternions further than this from unit length are not attitudes
 EDGE_GAP_S = 0.5               # a pause this long in the accelerometer stream splits the recording ...
 EDGE_FRAGMENT_S = 1.0          # ... and a piece shorter than this before the first/after the last split is dropped
 MAX_DURATION_S = 3600.0        # longer means corrupt timestamps (a Crazyflie battery lasts minutes)
@@ -251,10 +251,10 @@ class _Stream:
     t: np.ndarray           # (N,) s
     values: np.ndarray      # (N, k)
 
-    def select(self, mask) -> "_Stream":
+    def select(self, mask) -> _Stream:
         return _Stream(self.event, self.t[mask], self.values[mask])
 
-    def within(self, window: tuple[float, float]) -> "_Stream":
+    def within(self, window: tuple[float, float]) -> _Stream:
         return self.select((self.t >= window[0]) & (self.t <= window[1]))
 
 
@@ -339,7 +339,7 @@ def _attitude(log: UsdLog, pose: _Stream, window, notes: list[str]) -> tuple[_St
     Position-only mocap (Crazyswarm2 sending extpos, as in the real logs) leaves locSrv's quaternion at
     zero; then the onboard attitude estimate (ctrlLee.rpy*) is interpolated to the mocap frames.
     """
-    unit = np.abs(np.linalg.norm(pose.values[:, 3:], axis=1) - 1.0) < QUAT_NORM_TOLERANCE
+    unit = np.abs(np.linalg.norm(pose.values[:, 3:], axis=1) - 1.0) < QUATERNION_NORM_TOLERANCE
     if unit.any():
         if not unit.all():
             notes.append(f"dropped {int((~unit).sum())} mocap frames whose locSrv quaternion is not unit length")

@@ -31,7 +31,8 @@ from scipy.spatial.transform import Rotation
 
 from . import clock
 from .align import build_flight, samples_per_second
-from .flight import Flight, IngestError, sha256_file
+from .flight import Flight, IngestError, existing_file, sha256_file
+from .limits import MAX_ROOM_M
 from .usd import OPTIONAL_SOURCES  # the same firmware log variables, whichever tool logged them
 
 POSE_COLUMNS = ("RX", "RY", "RZ", "TX", "TY", "TZ")
@@ -44,7 +45,6 @@ ACC_COLUMNS = ("acc.x", "acc.y", "acc.z")
 # Without a units line the magnitude decides: a capture volume is < 20 m across, so a median |p| up to
 # 20 is metres; a flight in millimetres sits >= 0.2 m from the origin most of the time (it is airborne,
 # z ~ 1000), so 200 or more is millimetres.  In between neither reading is plausible: refuse.
-MAX_ROOM_M = 20.0
 MIN_MEDIAN_MM = 200.0
 # A helical rotation vector has norm <= π (some exporters use up to 2π); larger values are degrees.
 MAX_ROTVEC_RAD = 2 * np.pi + 1e-6
@@ -93,8 +93,7 @@ class CfclientLog:
 # -- text helpers ---------------------------------------------------------------------------------------
 def _read_lines(path: Path) -> tuple[list[str], bool]:
     """The file's lines (CRLF, CR or LF) and whether it ends with a line break."""
-    if not path.is_file():
-        raise IngestError(path, "no such file")
+    existing_file(path, "CSV log")
     try:
         data = path.read_bytes()
     except OSError as err:

@@ -45,7 +45,7 @@ class Residual:
         return {"layers": [[w.tolist(), b.tolist()] for w, b in self.layers]}
 
     @classmethod
-    def from_dict(cls, data: dict) -> "Residual":
+    def from_dict(cls, data: dict) -> Residual:
         return cls([(np.asarray(w, dtype=float), np.asarray(b, dtype=float)) for w, b in data["layers"]])
 
 
@@ -67,6 +67,14 @@ class HybridModel:
     @property
     def n(self) -> int:
         return self.system.n
+
+    @property
+    def n_inputs(self) -> int:
+        return self.system.n_inputs
+
+    @property
+    def n_meas(self) -> int:
+        return self.system.n_meas
 
     def f_c(self, x, u):
         base = self.system.f_true(x, u) if self.kind == "true" else self.system.f_prior(x, u)
@@ -93,7 +101,7 @@ class HybridModel:
         tmp.replace(path)  # atomic: a crash never leaves half a model behind
 
     @classmethod
-    def load(cls, path: str | Path) -> "HybridModel":
+    def load(cls, path: str | Path) -> HybridModel:
         try:
             data = json.loads(Path(path).read_text())
         except (OSError, json.JSONDecodeError) as err:

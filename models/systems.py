@@ -17,7 +17,7 @@ from .backend import NumpyOps, ops_for
 
 
 @dataclass(frozen=True)
-class Trajectory:
+class SimulatedRun:
     """A simulated run: true states, inputs, measurements and noisy full-state observations."""
 
     t: np.ndarray        # (T,)
@@ -53,11 +53,11 @@ class System:
         return len(self.state_names)
 
     @property
-    def p(self) -> int:
+    def n_inputs(self) -> int:
         return len(self.input_names)
 
     @property
-    def m(self) -> int:
+    def n_meas(self) -> int:
         return len(self.meas_names)
 
     # -- models ------------------------------------------------------------------------------------
@@ -73,7 +73,7 @@ class System:
     def h(self, x, u=None):  # pragma: no cover - abstract
         raise NotImplementedError
 
-    def with_true_params(self, **params) -> "System":
+    def with_true_params(self, **params) -> System:
         return replace(self, true_params={**self.true_params, **params})
 
     # -- noise settings as matrices ----------------------------------------------------------------
@@ -100,7 +100,7 @@ class System:
         """The input actually applied at a sample (default: the open-loop excitation)."""
         return u_excitation
 
-    def simulate(self, seed: int, n_samples: int | None = None) -> Trajectory:
+    def simulate(self, seed: int, n_samples: int | None = None) -> SimulatedRun:
         """Integrate the true system with RK45 between samples (input held), then add sensor noise."""
         rng = np.random.default_rng(seed)
         n_samples = n_samples or self.n_samples
@@ -114,9 +114,9 @@ class System:
                             method="RK45", rtol=1e-9, atol=1e-11)
             x[k + 1] = sol.y[:, -1]
         u[-1] = self.feedback(x[-1], u[-1])
-        y = self.h(x, u) + rng.normal(size=(n_samples, self.m)) * np.asarray(self.meas_noise_std)
+        y = self.h(x, u) + rng.normal(size=(n_samples, self.n_meas)) * np.asarray(self.meas_noise_std)
         x_noisy = x + rng.normal(size=x.shape) * np.asarray(self.state_noise_std)
-        return Trajectory(t=t, x=x, u=u, y=y, x_noisy=x_noisy)
+        return SimulatedRun(t=t, x=x, u=u, y=y, x_noisy=x_noisy)
 
 
 def _sum_of_sines(rng, t, amplitudes, freqs_hz):
@@ -150,14 +150,14 @@ class Cartpole(System):
 
     def dynamics(self, x, u, params):
         ops = ops_for(x)
-        m_c, m_p, l, g, b = (params[k] for k in ("m_c", "m_p", "l", "g", "b"))
+        m_c, m_p, length, g, b = (params[k] for k in ("m_c", "m_p", "l", "g", "b"))
         _, p_dot, alpha, alpha_dot = ops.unstack(x)
         force = ops.unstack(u)[0] - b * p_dot  # viscous cart friction b (0 in the paper's setting)
         total = m_c + m_p
         sin_a, cos_a = ops.sin(alpha), ops.cos(alpha)
-        temp = (force + m_p * l * alpha_dot**2 * sin_a) / total
-        alpha_ddot = (g * sin_a - cos_a * temp) / (l * (4.0 / 3.0 - m_p * cos_a**2 / total))
-        p_ddot = temp - m_p * l * alpha_ddot * cos_a / total
+        temp = (force + m_p * length * alpha_dot**2 * sin_a) / total
+        alpha_ddot = (g * sin_a - cos_a * temp) / (length * (4.0 / 3.0 - m_p * cos_a**2 / total))
+        p_ddot = temp - m_p * length * alpha_ddot * cos_a / total
         return ops.stack([p_dot, p_ddot, alpha_dot, alpha_ddot])
 
     def h(self, x, u=None):
@@ -285,5 +285,5 @@ def make_system(name: str, **overrides) -> System:
     return cls(**overrides)
 
 
-__all__ = ["System", "Cartpole", "GroundRobot", "Quadrotor", "Trajectory", "make_system", "SYSTEMS",
+__all__ = ["System", "Cartpole", "GroundRobot", "Quadrotor", "SimulatedRun", "make_system", "SYSTEMS",
            "NumpyOps"]

@@ -3,8 +3,8 @@ with torchdiffeq's RK4 -> loss (8) -> Adam -> discrete hybrid model f_h = RK4(f_
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 import torch
@@ -72,7 +72,7 @@ def train_knode(system: System, zeta, u, dt: float, config: TrainingConfig | Non
     """Fit Δθ so that one RK4 step of f_prior + Δθ from ζ_i lands on ζ_{i+1} (eqs. 7-8)."""
     config = config or TrainingConfig()
     zeta = check_sequence("zeta", zeta, cols=system.n)
-    u = check_sequence("u", np.asarray(u, dtype=float).reshape(len(zeta), -1), rows=len(zeta), cols=system.p)
+    u = check_sequence("u", np.asarray(u, dtype=float).reshape(len(zeta), -1), rows=len(zeta), cols=system.n_inputs)
     if len(zeta) < 3:
         raise InvalidInput(f"training needs at least 3 state observations, got {len(zeta)}")
     dt = check_dt(dt)

@@ -14,15 +14,16 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI, HTTPException, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from fastapi.staticfiles import StaticFiles
 
 from learnest.errors import LearnestError
 
-from . import web
 from .config import Settings
 from .executors import Executor
 from .jobs import open_services, sweep_orphan_blobs
 from .routers import diagnoses, evaluations, flights, jobs, models
 from .scheduler import Scheduler
+from .web import pages
 
 log = logging.getLogger("learnest.app")
 
@@ -57,7 +58,8 @@ def create_app(settings: Settings | None = None, *, executor: Executor | None = 
     install_error_handlers(app)
     for router in (flights.router, models.router, jobs.router, evaluations.router, diagnoses.router):
         app.include_router(router)
-    app.include_router(web.router)  # the HTML pages for people (/, /ui/...): see service/web.py
+    app.include_router(pages.router)  # the HTML pages for people (/, /ui/..., report.html): service/web/
+    app.mount("/static", StaticFiles(packages=[("learnest.service.web", "static")]), name="static")
 
     @app.get("/health", tags=["service"])
     def health(request: Request) -> dict:

@@ -19,9 +19,11 @@ import re
 import shutil
 import tempfile
 import time
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Callable, Iterable, Iterator
+
+from learnest.ingest.flight import sha256_file
 
 SHA256 = re.compile(r"^[0-9a-f]{64}$")
 CHUNK = 1 << 20
@@ -77,7 +79,7 @@ class BlobStore:
 
     def put_file(self, source: Path, sha: str | None = None) -> str:
         """Move `source` (on this file system) into the store; returns its sha256."""
-        sha = sha or file_sha256(source)
+        sha = sha or sha256_file(source)
         with open(source, "rb") as handle:
             os.fsync(handle.fileno())
         target = self.path(sha)
@@ -122,14 +124,6 @@ class BlobStore:
                 yield
             finally:
                 fcntl.flock(handle, fcntl.LOCK_UN)
-
-
-def file_sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for chunk in iter(lambda: handle.read(CHUNK), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
 
 
 def _fsync_dir(directory: Path) -> None:

@@ -48,8 +48,8 @@ def _ingest(args) -> int:
 
 
 def _train(args) -> int:
-    """Store the flight and register the next version of NAME in the registry (service.store)."""
-    from .store import train
+    """Store the flight and register the next version of NAME in the registry (service.local_registry)."""
+    from .local_registry import train
 
     _registry_grid(args.rate)
     with tqdm(total=args.epochs or CRAZYFLIE_TRAINING.epochs, desc=f"training {args.name}", unit="epoch",
@@ -75,8 +75,8 @@ def _evaluate(args) -> int:
     from learnest.estimators.evaluate import parse_methods
 
     from .experiments.flights import evaluate_flights
-    from .plots import mse_boxplot
-    from .store import load_model
+    from .local_registry import load_model
+    from .web.figures import mse_boxplot, save_figure
 
     if args.new:
         return _evaluate_new(args)
@@ -90,7 +90,7 @@ def _evaluate(args) -> int:
                                   progress=lambda _f: bar.update(1))
     report["model"] = model.meta.get("ref", args.model)  # name:version, whatever form was asked for
     if args.plot:
-        mse_boxplot(report, args.plot)
+        save_figure(mse_boxplot(report), args.plot, dpi=120)
     if args.json:
         print(json.dumps(report, indent=2))
     else:
@@ -137,8 +137,8 @@ def _demo(args) -> int:
     from learnest.ingest import IngestError, detect
 
     from .experiments.flights import evaluate_flights
-    from .plots import mse_boxplot
-    from .store import load_model, train
+    from .local_registry import load_model, train
+    from .web.figures import mse_boxplot, save_figure
 
     _registry_grid(args.rate)
     folder = Path(args.folder)
@@ -170,7 +170,7 @@ def _demo(args) -> int:
     report["model"] = trained["ref"]
     print(format_report(report))
     if args.plot:
-        mse_boxplot(report, args.plot)
+        save_figure(mse_boxplot(report), args.plot, dpi=120)
         print(f"box plot: {args.plot}")
     return 0
 
@@ -179,7 +179,7 @@ def _diagnose(args) -> int:
     from learnest.estimators.evaluate import parse_methods
 
     from .experiments.diagnosis import diagnose_flights, diagnose_simulated, format_diagnosis
-    from .plots import residual_before_after
+    from .web.figures import residual_before_after, save_figure
 
     methods = parse_methods(args.methods)
     if args.simulate is not None or args.system in ("cartpole", "robot"):
@@ -194,22 +194,23 @@ def _diagnose(args) -> int:
             raise InvalidInput("diagnose needs flight files (or --system cartpole|robot --simulate ...)")
         model = None
         if args.model:
-            from .store import load_model
+            from .local_registry import load_model
             model = load_model(args.model)
         if args.register:
             from .registry import check_name
             _registry_grid(args.rate)
             check_name(args.register)  # before the work
         flights = _read(args.files, args.rate)
-        result, repaired = diagnose_flights(flights, knode=model, methods=methods, epochs=args.epochs or CRAZYFLIE_TRAINING.epochs,
+        epochs = args.epochs or CRAZYFLIE_TRAINING.epochs
+        result, repaired = diagnose_flights(flights, knode=model, methods=methods, epochs=epochs,
                                             return_model=True)
         if args.register:
-            from .store import register_repaired
+            from .local_registry import register_repaired
             result["registered"] = register_repaired(args.register, repaired, flights, result,
                                                      epochs=args.epochs or CRAZYFLIE_TRAINING.epochs,
                                                      parent=model.meta.get("ref") if model else None)
     if args.plot:
-        residual_before_after(result, args.plot)
+        save_figure(residual_before_after(result), args.plot, dpi=110)
     print(json.dumps(result, indent=2, default=float) if args.json else format_diagnosis(result))
     if result.get("registered") and not args.json:
         r = result["registered"]
@@ -241,7 +242,8 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--task", choices=["cartpole", "robot"], required=True)
     rep.add_argument("--seeds", type=int, default=15)
     rep.add_argument("--json", metavar="FILE", help="also write the results as JSON")
-    rep.add_argument("--samples", type=int, default=None, help="evaluation trajectory length in samples (default: the paper's)")
+    rep.add_argument("--samples", type=int, default=None,
+                     help="evaluation trajectory length in samples (default: the paper's)")
     rep.add_argument("--epochs", type=int, default=None, help="training epochs (default: the paper's)")
     rep.add_argument("--horizon", type=int, default=MHE_HORIZON, help=f"MHE horizon N (default {MHE_HORIZON})")
     rep.add_argument("--workers", type=int, default=1, help="processes to spread the seeds over")
@@ -275,7 +277,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--include-bad", action="store_true", help="also score flights that fail quality checks")
     ev.add_argument("--new", action="store_true", help="evaluate every stored flight that has no result yet "
                     "for the registry model holding --alias (one scheduler round, for cron)")
-    ev.add_argument("--alias", default=PRODUCTION_ALIAS, help=f"with --new: the alias to evaluate (default {PRODUCTION_ALIAS})")
+    ev.add_argument("--alias", default=PRODUCTION_ALIAS,
+                    help=f"with --new: the alias to evaluate (default {PRODUCTION_ALIAS})")
     ev.set_defaults(func=_evaluate)
 
     srv = sub.add_parser("serve", help="run the HTTP service (uvicorn; OpenAPI docs at /docs)")

@@ -8,12 +8,11 @@ from __future__ import annotations
 
 import fcntl
 import json
-import math
 import time
+from collections.abc import Iterator
 from contextlib import contextmanager
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
-from typing import Iterator
 
 from sqlalchemy import (
     JSON,
@@ -37,27 +36,18 @@ from sqlalchemy import (
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, relationship, sessionmaker
 
+from learnest.ingest.flight import json_compatible
+
 MIGRATIONS = Path(__file__).resolve().parent / "migrations"
 
 
 def utcnow() -> datetime:
     """Naive UTC: SQLite drops time zones, so every timestamp is stored as UTC without one."""
-    return datetime.now(timezone.utc).replace(tzinfo=None)
-
-
-def json_safe(value):
-    """NaN/inf -> None: PostgreSQL's json type (rightly) rejects them, json.dumps would write them."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {str(k): json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_safe(v) for v in value]
-    return value
+    return datetime.now(UTC).replace(tzinfo=None)
 
 
 def _json_dumps(value) -> str:
-    return json.dumps(json_safe(value))
+    return json.dumps(json_compatible(value))
 
 
 # -- tables -------------------------------------------------------------------------------------------
@@ -67,6 +57,7 @@ class Base(DeclarativeBase):
 
 class Flight(Base):
     __tablename__ = "flights"
+    __table_args__ = {"sqlite_autoincrement": True}  # an id is never handed out twice (see 0003)
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     sha256: Mapped[str] = mapped_column(String(64), unique=True)   # of the raw file(s): the dedupe key
@@ -83,7 +74,7 @@ class Flight(Base):
     flight_blob: Mapped[str] = mapped_column(String(64))          # Flight.to_bytes of the normalized flight
     meta: Mapped[dict] = mapped_column(JSON)
     created_at: Mapped[datetime] = mapped_column(DateTime, index=True, default=utcnow)
-    files: Mapped[list["FlightFile"]] = relationship(order_by="FlightFile.position", cascade="all, delete-orphan",
+    files: Mapped[list[FlightFile]] = relationship(order_by="FlightFile.position", cascade="all, delete-orphan",
                                                      lazy="selectin")
 
 
@@ -111,7 +102,8 @@ class ModelVersion(Base):
     """Immutable once "ready"; "training" and "failed" rows hold the reserved number and the reason."""
 
     __tablename__ = "model_versions"
-    __table_args__ = (UniqueConstraint("name", "version", name="uq_model_versions_name_version"),)
+    __table_args__ = (UniqueConstraint("name", "version", name="uq_model_versions_name_version"),
+                      {"sqlite_autoincrement": True})
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     name: Mapped[str] = mapped_column(ForeignKey("registered_models.name"), index=True)
@@ -147,6 +139,7 @@ class ModelAlias(Base):
 
 class Job(Base):
     __tablename__ = "jobs"
+    __table_args__ = {"sqlite_autoincrement": True}  # an id is never handed out twice (see 0003)
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     kind: Mapped[str] = mapped_column(String(20))
@@ -163,6 +156,7 @@ class Job(Base):
 
 class Evaluation(Base):
     __tablename__ = "evaluations"
+    __table_args__ = {"sqlite_autoincrement": True}  # an id is never handed out twice (see 0003)
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id"))
@@ -178,6 +172,7 @@ class Diagnosis(Base):
     """A `learnest diagnose` run as a job: its report and, when asked for, the version it registered."""
 
     __tablename__ = "diagnoses"
+    __table_args__ = {"sqlite_autoincrement": True}  # an id is never handed out twice (see 0003)
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id"))
@@ -195,7 +190,7 @@ class Result(Base):
 
     __tablename__ = "results"
     __table_args__ = (UniqueConstraint("flight_sha256", "model_version_id", "settings_key",
-                                       name="uq_results_flight_model_settings"),)
+                                       name="uq_results_flight_model_settings"), {"sqlite_autoincrement": True})
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     flight_sha256: Mapped[str] = mapped_column(String(64))
@@ -278,11 +273,23 @@ class Database:
 
         config = Config()
         config.set_main_option("script_location", str(MIGRATIONS))
-        with self._migration_lock(), self.engine.begin() as connection:
-            if not self.is_sqlite:  # PostgreSQL: held until this transaction ends
-                connection.execute(text("SELECT pg_advisory_xact_lock(7261034)"))
-            config.attributes["connection"] = connection
-            command.upgrade(config, "head")
+        with self._migration_lock(), self.engine.connect() as connection:
+            if self.is_sqlite:
+                # A migration may rebuild a table (SQLite cannot ALTER it): with foreign keys enforced,
+                # dropping the old copy would cascade-delete the rows that point at it.  The pragma only
+                # takes effect outside a transaction, so it is set on the driver's connection first.
+                connection.connection.driver_connection.execute("PRAGMA foreign_keys=OFF")
+            try:
+                with connection.begin():
+                    if not self.is_sqlite:  # PostgreSQL: held until this transaction ends
+                        connection.execute(text("SELECT pg_advisory_xact_lock(7261034)"))
+                    config.attributes["connection"] = connection
+                    command.upgrade(config, "head")
+                    if self.is_sqlite and connection.exec_driver_sql("PRAGMA foreign_key_check").first():
+                        raise RuntimeError("migration left rows whose foreign keys point nowhere")
+            finally:
+                if self.is_sqlite:
+                    connection.connection.driver_connection.execute("PRAGMA foreign_keys=ON")
 
     @contextmanager
     def _migration_lock(self):

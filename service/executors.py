@@ -12,17 +12,38 @@ from __future__ import annotations
 
 import concurrent.futures
 import multiprocessing
+import os
 import threading
+import time
 from abc import ABC, abstractmethod
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures.process import BrokenProcessPool
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any
 
 
-def init_worker() -> None:
-    """The networks are tiny: one torch thread per worker avoids oversubscribing the cores."""
+PARENT_CHECK_S = 0.5  # how often a pool worker checks that the server that started it is alive
+
+
+def init_worker(parent_pid: int | None = None) -> None:
+    """Set up a worker process (or the CLI's own process, with no parent to watch).
+
+    The networks are tiny: one torch thread per worker avoids oversubscribing the cores.  With
+    ``parent_pid``, a daemon thread ends the worker as soon as that process is gone: a server killed with
+    ``kill -9`` cannot shut its pool down, and its workers would otherwise keep computing, then block
+    forever on their pipe holding memory and the database's files.  (Linux's PR_SET_PDEATHSIG is not used:
+    it fires when the parent *thread* that spawned the worker ends, which for a pool is any request thread.)
+    """
     import torch
 
     torch.set_num_threads(1)
+    if parent_pid is not None:
+        threading.Thread(target=_exit_with_parent, args=(parent_pid,), name="parent-watch", daemon=True).start()
+
+
+def _exit_with_parent(parent_pid: int) -> None:
+    while os.getppid() == parent_pid:
+        time.sleep(PARENT_CHECK_S)
+    os._exit(1)  # re-parented: the server is gone; nothing of this process's work can be delivered
 
 
 class Executor(ABC):
@@ -54,7 +75,8 @@ class LocalPoolExecutor(Executor):
 
     def _new_pool(self):
         return concurrent.futures.ProcessPoolExecutor(
-            max_workers=self.max_workers, mp_context=multiprocessing.get_context("spawn"), initializer=init_worker)
+            max_workers=self.max_workers, mp_context=multiprocessing.get_context("spawn"), initializer=init_worker,
+            initargs=(os.getpid(),))
 
     def submit(self, fn, *args):
         with self._lock:

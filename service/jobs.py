@@ -20,15 +20,16 @@ import socket
 import threading
 import time
 import uuid
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Callable
 
 from sqlalchemy import select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from learnest.errors import InvalidInput, NotFound
+from learnest.ingest.flight import json_compatible
 from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON
 
 from . import registry
@@ -73,7 +74,7 @@ class JobContext:
     """What a job's work function gets: progress reporting and the transactional completion."""
 
     job_id: int
-    runner: "JobRunner"
+    runner: JobRunner
     on_progress: Callable[[], None] | None = None   # e.g. the scheduler renewing its lease
     completed: bool = False
 
@@ -595,13 +596,8 @@ def diagnose_task(flights_bytes: list[bytes], model_json: bytes | None, methods:
     knode = registry.model_from_json(model_json) if model_json is not None else None
     report, repaired = diagnose_flights([_flight_from_bytes(b) for b in flights_bytes], knode=knode,
                                         methods=tuple(methods), epochs=epochs, return_model=True)
-    return {"report": plain_json(report), "model_json": registry.model_to_json(repaired),
+    return {"report": json_compatible(report), "model_json": registry.model_to_json(repaired),
             "fitting_flight": repaired.meta.get("training_flight")}
-
-
-def plain_json(value):
-    """numpy scalars/arrays and tuples -> JSON types (the report goes into a JSON column)."""
-    return json.loads(json.dumps(value, default=lambda o: o.tolist() if hasattr(o, "tolist") else float(o)))
 
 
 def training_metrics(model) -> dict:

@@ -9,7 +9,9 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from learnest.estimators.evaluate import parse_methods
 from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON
 
-NAME_REGEX = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$"
+from .registry import NAME
+
+NAME_REGEX = rf"^{NAME}$"  # registry.NAME: one definition of a valid name
 
 
 class Strict(BaseModel):
@@ -183,8 +185,9 @@ class DiagnosisRequest(Strict):
                                "others are scored (one flight: fit on its first 60 %, score the rest)")
     model: str | None = Field(None, description='the KNODE analysed, "name:version" or "name@alias" (default: '
                               "one trained on the fitting flight)")
-    register_as: str | None = Field(None, alias="register", pattern=NAME_REGEX, description="register the repaired model as the next "
-                                 "version of this name (parent: `model`)")
+    register_as: str | None = Field(None, alias="register", pattern=NAME_REGEX,
+                                    description="register the repaired model as the next version of this name "
+                                                "(parent: `model`)")
     methods: list[str] = Field(default_factory=lambda: ["ukf", "knode-ukf"],
                                description="estimators scored before and after")
     epochs: int = Field(CRAZYFLIE_TRAINING.epochs, ge=1, le=100_000,

@@ -28,8 +28,8 @@ def test_prior_true_and_h_agree_in_numpy_torch_and_casadi(name):
     system = make_system(name)
     rng = np.random.default_rng(0)
     x = rng.normal(size=(7, system.n)) + system.initial_state(rng)
-    u = rng.normal(size=(7, system.p))
-    xs, us = ca.SX.sym("x", system.n), ca.SX.sym("u", system.p)
+    u = rng.normal(size=(7, system.n_inputs))
+    xs, us = ca.SX.sym("x", system.n), ca.SX.sym("u", system.n_inputs)
     for fn in (system.f_prior, system.f_true, system.h):
         batched = fn(x, u)
         symbolic = ca.Function("f", [xs, us], [fn(xs, us)])

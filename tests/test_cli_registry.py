@@ -1,4 +1,4 @@
-"""`learnest train / evaluate / diagnose` on the model registry (service.store): the CLI registers versions
+"""`learnest train / evaluate / diagnose` on the model registry (service.local_registry): the CLI registers versions
 under LEARNEST_HOME like the API does, and takes NAME, NAME:VERSION and NAME@ALIAS; a reference that names
 nothing is exit code 2 with a one-line reason."""
 import contextlib

@@ -437,3 +437,48 @@ def test_ingest_package_detects_reads_and_saves_mcap(tmp_path):
     restored = Flight.from_bytes(flight.to_bytes())              # meta is plain JSON
     assert restored.meta["mcap"] == flight.meta["mcap"]
     np.testing.assert_array_equal(restored.p, flight.p)
+
+
+def _bomb(path: Path, chunks: int, uncompressed: int, compression: str = "zstd") -> Path:
+    """A valid MCAP header followed by chunks of zeros that each expand to `uncompressed` bytes."""
+    import zlib
+
+    import lz4.frame
+    import zstandard
+    from mcap.data_stream import RecordBuilder
+    from mcap.records import Chunk, Header
+
+    zeros = bytes(uncompressed)
+    data = zstandard.ZstdCompressor().compress(zeros) if compression == "zstd" else lz4.frame.compress(zeros)
+    builder = RecordBuilder()
+    Header(profile="ros2", library="bomb").write(builder)
+    for _ in range(chunks):
+        Chunk(compression=compression, data=data, message_start_time=0, message_end_time=0,
+              uncompressed_crc=zlib.crc32(zeros), uncompressed_size=uncompressed).write(builder)
+    path.write_bytes(mcap_log.MAGIC + builder.end())
+    return path
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4"])
+def test_a_decompression_bomb_is_refused_before_it_is_decompressed(tmp_path, compression):
+    """64 MiB of zeros in a few kB: past the 100x expansion cap, refused from the chunk headers alone."""
+    import tracemalloc
+
+    path = _bomb(tmp_path / "bomb.mcap", chunks=4, uncompressed=16 << 20, compression=compression)
+    assert path.stat().st_size < 1 << 20  # 64 MiB of zeros in < 1 MiB (zstd: kB)
+    tracemalloc.start()
+    with pytest.raises(IngestError, match=r"bomb.mcap: chunks expand to more than \d+ bytes \(the cap is 100x"):
+        mcap_log.read(path)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    # memory is bounded by the budget (100 x the file's size), not by the 64 MiB the chunks claim
+    budget = mcap_log.MAX_EXPANSION * path.stat().st_size
+    assert peak < 2 * budget + (4 << 20), (peak, budget)
+
+
+def test_chunks_within_the_expansion_cap_are_read(tmp_path):
+    """A well-compressing but honest recording (the simulator's, zstd) stays well inside the cap."""
+    path = tmp_path / "flight.mcap"
+    write_flight(path, "PoseStamped+Imu")
+    content = mcap_log.scan(path)
+    assert content.warnings == [] and content.channels

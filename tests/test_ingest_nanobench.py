@@ -336,3 +336,22 @@ def test_lost_imu_tail_of_medium_rep3_is_not_data(flights):
     assert acc["rows_extrapolated"] > 1000 and acc["t_last_s"] == pytest.approx(31.3, abs=0.05)
     assert np.abs(flight.channels["acc_body"]).max() < 2 * 9.80665
     assert np.abs(flight.channels["gyro"]).max() < 10
+
+
+def _laughs(levels: int) -> str:
+    """The "billion laughs": each level is a list of ten aliases of the one before (10^levels leaves)."""
+    lines = ["a0: &a0 [lol]"]
+    lines += [f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 10)}]" for i in range(1, levels + 1)]
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize("sidecar,cap", [
+    (_laughs(9), "YAML aliases are not accepted"),                      # 10^9 leaves from ~400 bytes
+    ("\n".join(f"k{i}: {i}" for i in range(60_000)) + "\n", "more than 100000 YAML nodes"),
+    ("x: '" + "y" * (2 << 20) + "'\n", "the cap is 1048576 bytes"),
+])
+def test_an_expanding_metadata_sidecar_refuses_the_flight(csv_path, sidecar, cap):
+    yaml_path = csv_path.with_name("synthetic_metadata.yaml")
+    yaml_path.write_text(sidecar)
+    with pytest.raises(IngestError, match=f"synthetic_metadata.yaml: .*{cap}"):
+        nanobench.read(csv_path)

@@ -23,15 +23,15 @@ def _random_mlp(n_in, n_out, hidden, seed=0):
 @pytest.mark.parametrize("name,hidden", [("cartpole", 8), ("robot", 8), ("quadrotor", 16)])
 def test_torch_numpy_and_casadi_evaluations_agree_to_1e9(name, hidden):
     system = make_system(name)
-    mlp = _random_mlp(system.n + system.p, system.n, hidden)
+    mlp = _random_mlp(system.n + system.n_inputs, system.n, hidden)
     model = HybridModel(system, "knode", mlp.export())
     rng = np.random.default_rng(1)
-    x, u = rng.normal(size=(13, system.n)), rng.normal(size=(13, system.p))
+    x, u = rng.normal(size=(13, system.n)), rng.normal(size=(13, system.n_inputs))
     with torch.no_grad():
         xt, ut = torch.as_tensor(x), torch.as_tensor(u)
         from_torch = (system.f_prior(xt, ut) + mlp(torch.cat([xt, ut], -1))).numpy()
     from_numpy = model.f_c(x, u)  # one batched call for all 13 rows
-    xs, us = ca.SX.sym("x", system.n), ca.SX.sym("u", system.p)
+    xs, us = ca.SX.sym("x", system.n), ca.SX.sym("u", system.n_inputs)
     f_sym = ca.Function("f", [xs, us], [model.f_c(xs, us)])
     from_casadi = np.vstack([np.asarray(f_sym(x[i], u[i])).ravel() for i in range(13)])
     np.testing.assert_allclose(from_numpy, from_torch, rtol=0, atol=1e-9)

@@ -18,8 +18,6 @@ def graph():
     return grimp.build_graph("learnest", cache_dir=None)
 
 
-@pytest.mark.xfail(strict=True, reason="service.web <-> service.routers.evaluations: the report page still calls "
-                   "into the web module; the Jinja2 pages split removes it (strict: passes -> remove this mark)")
 def test_no_import_cycles_between_modules(graph):
     cycles = sorted({tuple(sorted((module, imported)))
                      for module in graph.modules for imported in graph.find_modules_directly_imported_by(module)

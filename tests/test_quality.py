@@ -91,6 +91,20 @@ def test_implausible_mean_acc(raw):
     assert_flags(flight, "implausible accelerometer", "0.6")
 
 
+def test_impossible_values_on_some_rows_fail_the_flight(clean):
+    """pz = 1e308 on every 7th row: the median looks fine, the rows do not."""
+    from learnest.ingest.flight import Flight
+
+    p = clean.p.copy()
+    p[::7, 2] = 1e308
+    flight = Flight(clean.t, p, clean.a_meas, clean.quat, clean.channels, dict(clean.meta))
+    assert_flags(flight, "physically impossible positions", f"{len(p[::7])} sample(s)", "1e+308")
+    a = clean.a_meas.copy()
+    a[100, 0] = 400.0                                  # 41 g
+    flight = Flight(clean.t, clean.p, a, clean.quat, clean.channels, dict(clean.meta))
+    assert_flags(flight, "physically impossible accelerations", "1 sample(s)")
+
+
 def test_saturation_repeated_rail(raw):
     acc = raw["acc_body_g"].copy()
     acc[1500:1506, 0] = 2.5           # stuck at a ±2.5 g rail for 60 ms

@@ -236,11 +236,11 @@ def test_delete_removes_row_and_blobs(tmp_path, data_dir):
 
 
 def test_unexpected_errors_show_no_traceback(tmp_path, data_dir, monkeypatch):
-    import learnest.service.routers.flights as flights_router
+    import learnest.service.uploads as uploads
 
     def explode(_staged):
         raise RuntimeError("secret internals /srv/path")
-    monkeypatch.setattr(flights_router, "read_uploaded_flight", explode)
+    monkeypatch.setattr(uploads, "read_uploaded_flight", explode)
     app = create_app(settings_for(tmp_path / "home"), executor=shared_pool(), scheduler=False)
     with TestClient(app, raise_server_exceptions=False) as client:
         response = upload(client, flight_csv(data_dir, 32))

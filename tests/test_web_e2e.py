@@ -1,4 +1,4 @@
-"""The web pages (service/web.py) end to end in a real browser, plus quick checks of escaping and the API key.
+"""The web pages (service/web/) end to end in a real browser, plus quick checks of escaping and the API key.
 
 The browser test starts `learnest serve` (python -m service.cli serve) on a free loopback port with its own
 LEARNEST_HOME and an API key, and drives Debian's headless Chromium through chromedriver with selenium:
@@ -182,8 +182,9 @@ def test_upload_train_evaluate_and_report_in_chromium(server, browser):
     by_css(browser, "#report-link").click()
     wait_for_url(browser, r"/evaluations/\d+/report\.html")
 
-    # the report: box plot, per-flight table, velocity of the chosen flight
-    assert "Evaluation" in by_css(browser, "h1").text
+    # the report (on the site's template: its nav and stylesheet): box plot, per-flight table, velocity plot
+    assert "Evaluation" in by_css(browser, "h1").text and "models" in by_css(browser, "nav").text
+    assert browser.execute_script("return getComputedStyle(document.querySelector('nav')).borderBottomStyle") == "solid"
     assert image_loaded(browser, "img[alt='MSE box plot']")
     table = by_css(browser, "table").text
     assert "circle_rep2" in table and "knode-ukf" in table and "median" in table
@@ -195,6 +196,17 @@ def test_upload_train_evaluate_and_report_in_chromium(server, browser):
 def post_upload(client, name: str, data: dict | None = None, **kwargs):
     files = [("files", (name, (SAMPLES / "circle_rep1.csv").read_bytes()))]
     return client.post("/ui/flights", files=files, data=data or {}, follow_redirects=False, **kwargs)
+
+
+def test_every_page_extends_the_base_template_and_links_the_one_stylesheet(tmp_path):
+    with running_app(tmp_path / "home") as client:
+        assert post_upload(client, "a.csv").status_code == 303
+        css = client.get("/static/style.css")
+        assert css.status_code == 200 and css.headers["content-type"].startswith("text/css") and "nav" in css.text
+        for url in ("/", "/ui/flights/1", "/ui/models", "/ui/jobs", "/ui/flights/42"):
+            page = client.get(url).text
+            assert page.count("<link rel='stylesheet' href='/static/style.css'>") == 1, url
+            assert "<style" not in page and page.count("<nav>") == 1, url
 
 
 def test_user_text_is_escaped_everywhere(tmp_path):

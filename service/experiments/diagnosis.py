@@ -212,7 +212,8 @@ def _residual_summary(fitting, fixed_fitting, accel, dynamics, knode):
         innovations = run_ukf(HybridModel(system, "prior"), f.measurements(), dt=f.dt, Q=system.Q, R=system.R,
                               x0=initial_state(f), P0=system.P0).innovations
         a_ref = sg_references(f.p, f.dt, window=DIAGNOSIS_SG_WINDOW, order=3)["a"]
-        out[f"innovation_rms_{label}"] = dict(zip(system.meas_names, np.sqrt((innovations**2).mean(0)).round(5).tolist()))
+        rms = np.sqrt((innovations**2).mean(0)).round(5).tolist()
+        out[f"innovation_rms_{label}"] = dict(zip(system.meas_names, rms))
         out[f"a_meas_minus_a_ref_rms_{label}"] = np.sqrt(((f.a_meas - a_ref) ** 2).mean(0)).round(4).tolist()
         out[f"a_meas_minus_a_ref_mean_{label}"] = (f.a_meas - a_ref).mean(0).round(4).tolist()
     return out

@@ -32,7 +32,7 @@ def run_online() -> None:
     if connection is not None:
         _run(connection)
         return
-    from ..db import Database  # the same engine setup (pragmas, BEGIN IMMEDIATE) as the app
+    from learnest.service.db import Database  # the same engine setup (pragmas, BEGIN IMMEDIATE) as the app
 
     database = Database(_url())
     with database.engine.begin() as connection:

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Response
 
+from ..catalog import row_and_job
 from ..db import Database, Diagnosis
 from ..jobs import Services, start_diagnosis
 from ..schemas import DiagnosisAccepted, DiagnosisPending, DiagnosisRequest
-from .deps import get_db, get_services, pending, require_api_key, row_and_job
+from .deps import get_db, get_services, pending, require_api_key
 
 router = APIRouter(prefix="/diagnoses", tags=["diagnoses"])
 

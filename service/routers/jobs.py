@@ -4,10 +4,8 @@ from __future__ import annotations
 from typing import Literal
 
 from fastapi import APIRouter, Depends, Query
-from sqlalchemy import func, select
 
-from learnest.errors import NotFound
-
+from .. import catalog
 from ..db import Database, Job
 from ..schemas import JobOut
 from .deps import get_db
@@ -23,11 +21,7 @@ def job_out(job: Job) -> dict:
 
 @router.get("/{job_id}", response_model=JobOut)
 def job_detail(job_id: int, db: Database = Depends(get_db)):
-    with db.transaction() as session:
-        job = session.get(Job, job_id)
-    if job is None:
-        raise NotFound(f"job {job_id} not found")
-    return job_out(job)
+    return job_out(catalog.get_job(db, job_id))
 
 
 @router.get("", response_model=dict)
@@ -37,7 +31,5 @@ def list_jobs(state: Literal["queued", "running", "succeeded", "failed"] | None 
     """Newest first."""
     conditions = [c for c in (Job.state == state if state else None, Job.kind == kind if kind else None)
                   if c is not None]
-    with db.transaction() as session:
-        total = session.scalar(select(func.count(Job.id)).where(*conditions))
-        jobs = session.scalars(select(Job).where(*conditions).order_by(Job.id.desc()).limit(limit).offset(offset))
-        return {"items": [JobOut(**job_out(j)).model_dump(mode="json") for j in jobs], "total": total}
+    total, jobs = catalog.list_jobs(db, *conditions, limit=limit, offset=offset)
+    return {"items": [JobOut(**job_out(j)).model_dump(mode="json") for j in jobs], "total": total}

@@ -3,11 +3,10 @@ weights.  MLflow's concepts: registered model -> immutable integer versions -> m
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Response
-from sqlalchemy import func, select
 
-from .. import registry
+from .. import catalog, registry
 from ..blobs import BlobStore
-from ..db import Database, ModelVersion, RegisteredModel
+from ..db import Database, ModelVersion
 from ..jobs import Services, start_training
 from ..schemas import AliasIn, AliasOut, ModelOut, ModelPage, TrainAccepted, TrainRequest, VersionOut
 from .deps import get_blobs, get_db, get_services, require_api_key
@@ -42,31 +41,17 @@ def train_model(body: TrainRequest, response: Response, services: Services = Dep
 
 @router.get("", response_model=ModelPage)
 def list_models(db: Database = Depends(get_db)):
-    with db.transaction() as session:
-        models = session.scalars(select(RegisteredModel).order_by(RegisteredModel.name)).all()
-        items = [{"name": m.name, "created_at": m.created_at, "aliases": registry.aliases_of(session, m.name),
-                  "latest_version": _latest_ready(session, m.name),
-                  "version_count": session.scalar(select(func.count(ModelVersion.id))
-                                                  .where(ModelVersion.name == m.name))}
-                 for m in models]
+    items = [{"name": m.model.name, "created_at": m.model.created_at, "aliases": m.aliases,
+              "latest_version": m.latest_version, "version_count": m.version_count} for m in catalog.list_models(db)]
     return {"items": items, "total": len(items)}
-
-
-def _latest_ready(session, name: str) -> int | None:
-    return session.scalar(select(func.max(ModelVersion.version))
-                          .where(ModelVersion.name == name, ModelVersion.status == "ready"))
 
 
 @router.get("/{name}", response_model=ModelOut)
 def model_detail(name: str, db: Database = Depends(get_db)):
-    with db.transaction() as session:
-        model = registry.get_model(session, name)
-        aliases = registry.aliases_of(session, name)
-        versions = session.scalars(select(ModelVersion).where(ModelVersion.name == name)
-                                   .order_by(ModelVersion.version)).all()
-        return {"name": model.name, "created_at": model.created_at, "aliases": aliases,
-                "latest_version": _latest_ready(session, name),
-                "versions": [version_out(v, aliases, full=False) for v in versions]}
+    model = catalog.get_model(db, name)
+    return {"name": model.model.name, "created_at": model.model.created_at, "aliases": model.aliases,
+            "latest_version": model.latest_version,
+            "versions": [version_out(v, model.aliases, full=False) for v in model.versions]}
 
 
 @router.get("/{name}/versions/{version}", response_model=VersionOut)
@@ -96,9 +81,8 @@ def alias_detail(name: str, alias: str, db: Database = Depends(get_db)):
 
 @router.put("/{name}/aliases/{alias}", response_model=AliasOut, dependencies=[Depends(require_api_key)])
 def put_alias(name: str, alias: str, body: AliasIn, db: Database = Depends(get_db)):
-    with db.transaction() as session:
-        row = registry.set_alias(session, name, alias, body.version)
-        return {"name": row.name, "alias": row.alias, "version": row.version}
+    catalog.set_alias(db, name, alias, body.version)
+    return {"name": name, "alias": alias, "version": body.version}
 
 
 @router.delete("/{name}/aliases/{alias}", status_code=204, dependencies=[Depends(require_api_key)])

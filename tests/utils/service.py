@@ -10,18 +10,18 @@ import time
 from contextlib import contextmanager
 from pathlib import Path
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import pandas as pd
-import torch
-from fastapi.testclient import TestClient
 
 from learnest.ingest import nanobench
 from learnest.ingest.frames import GRAVITY, quat_to_matrix
-from learnest.service.app import create_app
 from learnest.service.config import Settings
 from learnest.service.executors import LocalPoolExecutor
 
-torch.set_num_threads(1)
+if TYPE_CHECKING:  # the app (torch, filterpy, matplotlib) is imported when a test first runs one
+    from fastapi.testclient import TestClient
 FAST_METHODS = ["ukf", "knode-ukf"]   # the MHE adds seconds per flight; one test runs it
 EPOCHS = 3
 
@@ -77,6 +77,12 @@ def settings_for(home: Path, **changes) -> Settings:
 @contextmanager
 def running_app(home: Path, executor=None, **changes):
     """The real app (lifespan included: migrations, job runner) on a SQLite file under `home`."""
+    from fastapi.testclient import TestClient
+
+    from learnest.service.app import create_app
+    from learnest.service.executors import init_worker
+
+    init_worker()  # this process trains too (CLI paths): one torch thread, as in the workers
     app = create_app(settings_for(home, **changes), executor=executor or shared_pool(), scheduler=False)
     with TestClient(app) as client:
         yield client

@@ -1,11 +1,11 @@
-"""The CLI's way into the model registry, without HTTP.
+"""The model registry and flight store used in process, without HTTP: what the CLI's commands do.
 
 It uses the same database and blob folder as `learnest serve` (LEARNEST_HOME, or LEARNEST_DATABASE_URL), so a
 model trained by `learnest train` is `name:version` for the API and the web pages too, and the reverse.  This
 replaces the plain file store of the ingest issue (home/models/NAME.json files are no longer read).
 
-- `add_flight`: store a flight's log file(s) as POST /flights does (raw files + normalized flight as blobs, one
-  row, deduplicated by sha256).
+- `add_flight`: store a flight's log file(s) as POST /flights does (service.uploads.add_flight: raw files +
+  normalized flight as blobs, one row, deduplicated by sha256).
 - `train`: register the next version of a model trained on that flight, as POST /models does (a training job
   on a one-process local pool, with the same provenance), and wait for it.
 - `register_repaired`: register a diagnosis' repaired model as the next version of a name (its fitting flight
@@ -15,21 +15,23 @@ replaces the plain file store of the ingest issue (home/models/NAME.json files a
 """
 from __future__ import annotations
 
-import dataclasses
 import time
+from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
-from typing import BinaryIO, Callable, Iterator
 
 from sqlalchemy import select
 
 from learnest.errors import Conflict, InvalidInput, LearnestError, NotFound
+from learnest.ingest.flight import existing_file
 from learnest.models.knode import HybridModel
 
-from . import registry
+from . import catalog, registry
 from .config import Settings
 from .db import Database, Flight, Job, RegisteredModel
 from .jobs import ACTIVE, Services, diagnosis_metrics, open_services, start_training, training_config
+from .uploads import LocalFile
+from .uploads import add_flight as add_uploaded_flight
 
 
 class TrainingFailed(LearnestError):
@@ -53,20 +55,11 @@ def local_services(settings: Settings | None = None) -> Iterator[Services]:
 
 
 # -- flights -----------------------------------------------------------------------------------------------
-@dataclasses.dataclass
-class LocalFile:
-    """A file on disk in the shape of an uploaded file (what the upload code reads)."""
-
-    filename: str
-    file: BinaryIO
-
-
 def flight_files(paths) -> list[Path]:
     """The given files plus, for a NanoBench CSV, the *_metadata.yaml next to it (the reader would use it)."""
     files: dict[Path, Path] = {}
     for path in map(Path, paths):
-        if not path.is_file():
-            raise InvalidInput(f"{path}: no such file")
+        existing_file(path, "flight log")
         files.setdefault(path.resolve(), path)
         sidecar = path.with_name(f"{path.stem}_metadata.yaml")
         if path.suffix.lower() == ".csv" and sidecar.is_file():
@@ -77,18 +70,9 @@ def flight_files(paths) -> list[Path]:
 def add_flight(services: Services, paths) -> tuple[Flight, bool]:
     """Store the log file(s) of one flight exactly as an upload would.  -> (row, created); created is False
     when the same content was stored before (its existing row)."""
-    from .routers.flights import content_sha256, find_by_sha, read_uploaded_flight, stage_uploads, store_flight
-
-    files = flight_files(paths)
-    with ExitStack() as stack, services.blobs.temp_dir() as directory:
-        uploads = [LocalFile(path.name, stack.enter_context(open(path, "rb"))) for path in files]
-        staged = stage_uploads(uploads, directory)
-        sha = content_sha256(staged)
-        row = find_by_sha(services.db, sha)
-        if row is not None:
-            return row, False
-        flight = read_uploaded_flight(staged)   # InvalidInput (a ValueError) names the file it cannot read
-        return store_flight(services.db, services.blobs, staged, flight, sha, None, None)
+    with ExitStack() as stack:
+        uploads = [LocalFile(path.name, stack.enter_context(open(path, "rb"))) for path in flight_files(paths)]
+        return add_uploaded_flight(services.db, services.blobs, uploads)
 
 
 # -- training ----------------------------------------------------------------------------------------------
@@ -120,8 +104,7 @@ def wait_for_job(services: Services, job_id: int, progress: Callable[[float], No
                  poll_s: float = 0.25) -> Job:
     """Poll the job row (the worker writes its progress there) until it is finished."""
     while True:
-        with services.db.transaction() as session:
-            job = session.get(Job, job_id)
+        job = catalog.get_job(services.db, job_id)
         if progress:
             progress(job.progress)
         if job.state not in ACTIVE:

@@ -1,0 +1,246 @@
+"""Uploads: the log file(s) of one flight -> staged, deduplicated, read and stored (blobs + one row).
+
+The one way a flight gets in, whoever brings it: POST /flights, the upload form of the web pages and the
+CLI's `learnest train FILE...` all call `add_flight`.  One upload is one flight: its files (a NanoBench CSV
+[+ its *_metadata.yaml], a uSD log, an MCAP file, or a Vicon export + cfclient log) must make exactly one
+flight, otherwise InvalidInput (422) - several flights are several uploads, so each gets its own id, dedupe
+key and error.  Client file names are metadata only: files are staged under names of ours, and messages
+name the client's file, never our temp paths.
+"""
+from __future__ import annotations
+
+import hashlib
+import logging
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import BinaryIO, Protocol
+
+from sqlalchemy import select
+from sqlalchemy.exc import IntegrityError
+
+from learnest.errors import Conflict, InvalidInput
+from learnest.ingest import IngestError, group_files, read_group
+from learnest.ingest.flight import Flight as CanonicalFlight
+
+from .blobs import CHUNK, BlobStore
+from .db import Database, Flight, FlightFile, utcnow
+
+log = logging.getLogger("learnest.uploads")
+
+SIDECAR_SUFFIXES = ("_metadata.yaml", "_metadata.yml")   # NanoBench: <stem>_metadata.yaml next to <stem>.csv
+
+
+class Upload(Protocol):
+    """What the upload code reads of a file: FastAPI's UploadFile, or a LocalFile."""
+
+    @property
+    def filename(self) -> str | None: ...
+
+    @property
+    def file(self) -> BinaryIO: ...
+
+
+@dataclass
+class LocalFile:
+    """A file on disk in the shape of an uploaded file (the CLI's uploads)."""
+
+    filename: str
+    file: BinaryIO
+
+
+def add_flight(db: Database, blobs: BlobStore, uploads: Sequence[Upload], vehicle: str | None = None,
+               notes: str | None = None) -> tuple[Flight, bool]:
+    """Store the log file(s) of one flight, unless the same content is stored already.
+
+    Parameters
+    ----------
+    db, blobs
+        Where the row and the files go.
+    uploads
+        The file(s) of ONE flight (see the module docstring for what makes one flight).
+    vehicle, notes
+        Free text kept on the row; the vehicle defaults to what the log itself says.
+
+    Returns
+    -------
+    (row, created)
+        ``created`` is False when identical content was uploaded before: ``row`` is then that upload's row,
+        and nothing is read or written.
+
+    Raises
+    ------
+    InvalidInput
+        A file cannot be read, or the files make no flight or several (the message names the file).
+    """
+    with blobs.temp_dir() as directory:
+        staged = stage_uploads(uploads, directory)
+        sha = content_sha256(staged)
+        row = find_by_sha(db, sha)
+        if row is not None:
+            return row, False
+        flight = read_uploaded_flight(staged)
+        return store_flight(db, blobs, staged, flight, sha, vehicle, notes)
+
+
+# -- staging uploads ----------------------------------------------------------------------------------
+@dataclass
+class StagedFile:
+    original_name: str      # the client's name: metadata only
+    path: Path              # our name for it in the private temp folder
+    sha256: str
+    size: int
+    role: str               # "log" or "sidecar"
+
+
+def original_basename(filename: str | None, index: int) -> str:
+    """The client's file name without any directory part or control characters (for display only)."""
+    name = re.split(r"[/\\]", filename or "")[-1]
+    name = "".join(ch for ch in name if ch.isprintable()).strip()[:255]
+    return name if name not in ("", ".", "..") else f"file{index + 1}"
+
+
+def safe_stem(name: str) -> str:
+    stem = re.sub(r"[^A-Za-z0-9._-]+", "_", Path(name).stem).strip("._-")[:100]
+    return stem or "flight"
+
+
+def _safe_suffix(name: str) -> str:
+    suffix = Path(name).suffix
+    return suffix.lower() if re.fullmatch(r"\.[A-Za-z0-9]{1,10}", suffix) else ""
+
+
+def _sidecar_owner(name: str, log_stems: dict[str, int]) -> int | None:
+    for suffix in SIDECAR_SUFFIXES:
+        if name.endswith(suffix) and name[:-len(suffix)] in log_stems:
+            return log_stems[name[:-len(suffix)]]
+    return None
+
+
+def stage_uploads(uploads: Sequence[Upload], directory: Path) -> list[StagedFile]:
+    """Copy the uploads to `directory` as upload_<i><.ext> (never the client's name), hashing on the way.
+    A NanoBench metadata YAML uploaded with its CSV is staged where the reader looks for it."""
+    names = [original_basename(upload.filename, i) for i, upload in enumerate(uploads)]
+    log_stems = {Path(name).stem: i for i, name in enumerate(names)
+                 if not name.endswith(SIDECAR_SUFFIXES)}
+    staged = []
+    for i, (upload, name) in enumerate(zip(uploads, names, strict=True)):
+        owner = _sidecar_owner(name, log_stems)
+        if owner is not None:
+            path, role = directory / f"upload_{owner}_metadata.yaml", "sidecar"
+        else:
+            path, role = directory / f"upload_{i}{_safe_suffix(name)}", "log"
+        sha, size = _copy_and_hash(upload.file, path)
+        staged.append(StagedFile(name, path, sha, size, role))
+    return staged
+
+
+def _copy_and_hash(source, target: Path) -> tuple[str, int]:
+    digest, size = hashlib.sha256(), 0
+    source.seek(0)
+    with open(target, "wb") as handle:
+        for chunk in iter(lambda: source.read(CHUNK), b""):
+            digest.update(chunk)
+            size += len(chunk)
+            handle.write(chunk)
+    return digest.hexdigest(), size
+
+
+def content_sha256(staged: list[StagedFile]) -> str:
+    """The dedupe key: a single file's own sha256, else the sha256 of the sorted sha256s (one per line)."""
+    if len(staged) == 1:
+        return staged[0].sha256
+    return hashlib.sha256("\n".join(sorted(f.sha256 for f in staged)).encode()).hexdigest()
+
+
+# -- reading ------------------------------------------------------------------------------------------
+def read_uploaded_flight(staged: list[StagedFile]) -> CanonicalFlight:
+    """The adapters decide the format; every failure is InvalidInput naming the client's file."""
+    originals = {str(f.path): f.original_name for f in staged}
+    logs = [f.path for f in staged if f.role == "log"]
+    try:
+        groups = group_files(logs)
+        if len(groups) != 1:
+            raise InvalidInput(f"one flight per upload: {', '.join(originals.values())} make {len(groups)} flights; "
+                          "upload each flight's file(s) separately")
+        adapter, files = groups[0]
+        flight = read_group(adapter, files)
+    except IngestError as err:
+        name = originals.get(err.path, Path(err.path).name)
+        raise InvalidInput(f"{name}: {_scrub(err.problem, originals)}") from None
+    except InvalidInput:
+        raise
+    except Exception as err:  # an adapter bug on odd input is still "this file cannot be read"
+        log.exception("ingest failed unexpectedly")
+        raise InvalidInput(f"{', '.join(originals.values())}: could not be read ({type(err).__name__})") from None
+    _rename_sources(flight, originals)
+    flight.meta["name"] = safe_stem(originals[str(files[0])])
+    return flight
+
+
+def _scrub(value, originals: dict[str, str]):
+    """Replace our temp paths by the client's names anywhere in a message or metadata."""
+    if isinstance(value, str):
+        for path, name in originals.items():
+            value = value.replace(path, name)
+        return value
+    if isinstance(value, dict):
+        return {k: _scrub(v, originals) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_scrub(v, originals) for v in value]
+    return value
+
+
+def _rename_sources(flight: CanonicalFlight, originals: dict[str, str]) -> None:
+    for source in flight.meta.get("sources", []):
+        source["path"] = originals.get(source["path"], Path(source["path"]).name)
+    flight.meta.update(_scrub(dict(flight.meta), originals))
+
+
+# -- storing ------------------------------------------------------------------------------------------
+def store_flight(db: Database, blobs: BlobStore, staged: list[StagedFile], flight: CanonicalFlight, sha: str,
+                 vehicle: str | None, notes: str | None) -> tuple[Flight, bool]:
+    """Blobs first (fsync + rename), then the row; -> (row, created).  A concurrent upload of the same
+    content makes our insert fail on the unique sha256: we answer with its row.  Names are unique (the
+    evaluation matches a model's training flight by name): a taken name gets the content hash appended."""
+    base = flight.meta["name"]
+    for name in (base, f"{base}-{sha[:8]}"):
+        flight.meta["name"] = name
+        with blobs.writing():
+            flight_blob = blobs.put_bytes(flight.to_bytes())
+            for f in staged:
+                if f.path.exists():
+                    blobs.put_file(f.path, f.sha256)
+            try:
+                with db.transaction() as session:
+                    row = _flight_row(flight, sha, flight_blob, staged, vehicle, notes)
+                    session.add(row)
+                return row, True
+            except IntegrityError:
+                existing = find_by_sha(db, sha)
+                if existing is not None:
+                    return existing, False
+    raise Conflict(f"a flight named {base!r} already exists and so does {base}-{sha[:8]}")
+
+
+def _flight_row(flight: CanonicalFlight, sha: str, flight_blob: str, staged: list[StagedFile],
+                vehicle: str | None, notes: str | None) -> Flight:
+    meta = flight.meta
+    return Flight(sha256=sha, name=meta["name"], adapter=meta.get("adapter") or "unknown",
+                  vehicle=vehicle or _text_or_none(meta.get("vehicle")), notes=notes,
+                  duration_s=flight.duration_s, rate_hz=flight.rate_hz, samples=len(flight.t),
+                  quality_ok=bool(flight.quality["ok"]), quality=flight.quality,
+                  clock_offset_s=meta.get("clock_offset_s"), flight_blob=flight_blob, meta=meta,
+                  created_at=utcnow(),
+                  files=[FlightFile(position=i, original_name=f.original_name, sha256=f.sha256, size_bytes=f.size,
+                                    role=f.role) for i, f in enumerate(staged)])
+
+
+def _text_or_none(value) -> str | None:
+    return None if value is None else str(value)[:200]
+
+
+def find_by_sha(db: Database, sha: str) -> Flight | None:
+    with db.transaction() as session:
+        return session.scalar(select(Flight).where(Flight.sha256 == sha))

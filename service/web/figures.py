@@ -1,0 +1,158 @@
+"""Figures: matplotlib's object API (`Figure`), never pyplot.
+
+pyplot keeps one global "current figure" per process, which the server's request threads would share; a
+`Figure` made here belongs to the call that made it, so no lock is needed and nothing has to be closed.
+Each builder returns the Figure; `png_data_uri` embeds it in a page, `save_figure` writes it to a file (the
+CLI's --plot).
+"""
+from __future__ import annotations
+
+import base64
+import functools
+import io
+import os
+from typing import IO
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from learnest.ingest.flight import Flight as CanonicalFlight
+
+from ..blobs import BlobStore
+from ..db import ModelVersion
+
+BOX_ORDER = ("mhe", "knode-mhe", "ukf", "knode-ukf")   # the order of the paper's Fig. 3
+VELOCITY_METHODS = ("ukf", "knode-ukf")                # the velocity plot's estimators: quick to run on a request
+
+
+# -- output ------------------------------------------------------------------------------------------------
+def save_figure(fig: Figure, target: str | os.PathLike | IO[bytes], dpi: int = 100) -> None:
+    """Write the figure to a path (its extension picks the format, .png, .svg, .pdf ...) or, as PNG, to a
+    binary file object."""
+    fig.savefig(target, dpi=dpi, format="png" if hasattr(target, "write") else None)
+
+
+def png_data_uri(fig: Figure, dpi: int = 100) -> str:
+    """The figure as a ``data:image/png;base64,...`` URI for an ``<img src>`` (a page needs no second request)."""
+    buffer = io.BytesIO()
+    save_figure(fig, buffer, dpi)
+    return "data:image/png;base64," + base64.b64encode(buffer.getvalue()).decode()
+
+
+# -- figures of stored things ---------------------------------------------------------------------------------
+def trajectory(flight: CanonicalFlight, name: str) -> Figure:
+    """Top view (x-y, equal axes) and height over time of a flight's mocap position."""
+    fig = Figure(figsize=(10, 4), layout="constrained")
+    top, height = fig.subplots(1, 2, width_ratios=[1, 1.6])
+    top.plot(flight.p[:, 0], flight.p[:, 1], lw=1)
+    top.set(xlabel="x (m)", ylabel="y (m)", title=f"{name}: top view", aspect="equal")
+    height.plot(flight.t, flight.p[:, 2], lw=1)
+    height.set(xlabel="t (s)", ylabel="z (m)", title="height")
+    for ax in (top, height):
+        ax.grid(alpha=0.3)
+    return fig
+
+
+def training_losses(versions: list[ModelVersion]) -> Figure:
+    """Training loss per epoch of each version (log scale); a None loss (a diverged epoch) is a gap."""
+    fig = Figure(figsize=(7, 3.5), layout="constrained")
+    ax = fig.subplots()
+    for v in versions:
+        losses = np.array([np.nan if x is None else x for x in (v.losses or [])], float)
+        if len(losses):
+            ax.plot(np.arange(1, len(losses) + 1), losses, marker="." if len(losses) < 30 else None,
+                    label=f"version {v.version}")
+    ax.set(xlabel="epoch", ylabel="training loss", yscale="log")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize="small")
+    return fig
+
+
+def velocity(t: np.ndarray, reference: np.ndarray, estimates: dict[str, np.ndarray], title: str) -> Figure:
+    """vx, vy, vz (state columns 3-5, m/s) of each estimator against the Savitzky-Golay reference.
+
+    Parameters
+    ----------
+    t : (T,) array, s
+    reference : (T, 9) array
+        The SG reference states [p, v, a].
+    estimates : dict of method -> (T, 9) array
+    title : str
+    """
+    fig = Figure(figsize=(10, 7), layout="constrained")
+    axes = fig.subplots(3, 1, sharex=True)
+    for k, (ax, label) in enumerate(zip(axes, ("vx", "vy", "vz"), strict=True)):
+        ax.plot(t, reference[:, 3 + k], color="black", lw=1.5, label="SG reference")
+        for method, values in estimates.items():
+            ax.plot(t, values[:, 3 + k], lw=1, label=method.upper())
+        ax.set_ylabel(f"{label} (m/s)")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize="small", ncol=len(estimates) + 1)
+    axes[0].set_title(title)
+    axes[-1].set_xlabel("t (s)")
+    return fig
+
+
+@functools.lru_cache(maxsize=32)  # the same plot is asked for again on every reload of the report
+def velocity_png(blobs: BlobStore, weights_sha: str, flight_sha: str, title: str) -> str:
+    """The velocity figure of a stored model on a stored flight, as a data URI.
+
+    Runs the UKF and KNODE-UKF on the flight (about a second), so the answer is cached by content hash.
+    """
+    from learnest.service.experiments.flights import evaluate_flight  # torch: only when a report asks
+    from learnest.service.registry import model_from_json
+
+    model = model_from_json(blobs.read_bytes(weights_sha))
+    flight = CanonicalFlight.from_bytes(blobs.read_bytes(flight_sha))
+    out = evaluate_flight(model, flight, list(VELOCITY_METHODS), keep_estimates=True)
+    estimates = {m: r["estimates"] for m, r in out["results"].items()}
+    return png_data_uri(velocity(flight.t, out["reference"], estimates, title))
+
+
+# -- evaluation and diagnosis reports -------------------------------------------------------------------------
+def has_scores(report: dict) -> bool:
+    """True when an evaluation report has at least one scored flight (something to box-plot)."""
+    return any(not f.get("excluded") and f.get("mse") for f in report["flights"])
+
+
+def mse_boxplot(report: dict, title: str | None = None) -> Figure:
+    """The Fig. 3-style box plot of per-flight overall MSE by method (an evaluation report's scored flights)."""
+    scored = [f for f in report["flights"] if not f.get("excluded")]
+    methods = [m for m in BOX_ORDER if any(m in f["mse"] for f in scored)]
+    data = [[f["mse"][m] for f in scored if m in f["mse"]] for m in methods]
+    fig = Figure(figsize=(6, 4), layout="tight")
+    ax = fig.subplots()
+    ax.boxplot(data, tick_labels=[m.upper() for m in methods],
+               medianprops={"color": "tab:orange", "linewidth": 2})
+    ax.set_ylabel("overall MSE over [p, v, a]")
+    ax.set_title(title or f"model {report.get('model')}: {len(scored)} flights")
+    ax.grid(axis="y", alpha=0.3)
+    return fig
+
+
+def residual_before_after(diagnosis: dict) -> Figure:
+    """Residual RMS per channel before and after the effects were added, and each estimator's median MSE
+    before and after (a diagnosis report)."""
+    fig = Figure(figsize=(10, 4), layout="tight")
+    axes = fig.subplots(1, 2)
+    channels = diagnosis.get("channels", {})
+    names = list(channels)
+    before = [np.sqrt(channels[c]["rss_before"]) for c in names]
+    after = [np.sqrt(channels[c]["rss_after"]) for c in names]
+    x = np.arange(len(names))
+    axes[0].bar(x - 0.2, before, 0.4, label="before")
+    axes[0].bar(x + 0.2, after, 0.4, label="after")
+    axes[0].set_xticks(x, names)
+    axes[0].set_ylabel("√RSS of the whitened residual")
+    axes[0].set_title("residual, before and after the effects")
+    axes[0].legend()
+    methods = list(diagnosis.get("before", {}))
+    x = np.arange(len(methods))
+    axes[1].bar(x - 0.2, [diagnosis["before"][m] for m in methods], 0.4, label="original model")
+    axes[1].bar(x + 0.2, [diagnosis["after"][m] for m in methods], 0.4, label="with effects")
+    axes[1].set_xticks(x, [m.upper() for m in methods])
+    axes[1].set_ylabel("MSE (held-out data)")
+    axes[1].set_yscale("log")
+    axes[1].set_title(", ".join(e["id"] for e in diagnosis["effects"]) or "no effect found")
+    axes[1].legend()
+    return fig

@@ -1,0 +1,115 @@
+"""Form posts: fields -> the JSON API's request models, and the API key of form writes.
+
+A form sends every field as text and an empty field for "not given"; the parsers here turn that into the
+same pydantic request models the JSON routes take, so a form and a JSON body are checked by the same rules
+and fail with the same messages (a pydantic ValidationError, which the pages show as a 422 page).
+
+API key: with LEARNEST_API_KEY set, a form write needs the key, typed into the form's "API key" field; the
+answer then stores it in an HttpOnly, SameSite=Strict cookie (`learnest_api_key`, for the browser session),
+so later forms need not ask again.  SameSite=Strict keeps other sites' forms from using that cookie.  Pages
+themselves (GET) need no key, as in the JSON API.
+"""
+from __future__ import annotations
+
+from typing import Literal
+
+from fastapi import Request, UploadFile
+from fastapi.responses import RedirectResponse
+from pydantic import ValidationError
+
+from learnest.errors import InvalidInput, LearnestError
+
+from ..config import Settings
+from ..routers.deps import key_matches
+from ..schemas import AliasIn, EvaluationRequest, TrainRequest
+
+COOKIE = "learnest_api_key"
+MAX_VEHICLE, MAX_NOTES = 200, 10_000   # the JSON upload's Form(max_length=...) limits
+
+
+class MissingKey(LearnestError):
+    """A form write without the right API key."""
+
+    status = 401
+
+
+# -- API key ---------------------------------------------------------------------------------------------
+def key_state(request: Request, settings: Settings) -> Literal["open", "remembered", "ask"]:
+    """What a form shows for the key: nothing ("open": no key configured), a note that the browser's cookie
+    holds it ("remembered"), or a field to type it into ("ask")."""
+    if settings.api_key is None:
+        return "open"
+    return "remembered" if key_matches(settings, request.cookies.get(COOKIE)) else "ask"
+
+
+def require_key(request: Request, settings: Settings, form_key: str) -> None:
+    """Let a form write go ahead: no key configured, or the right one in the form or in the cookie.
+
+    Raises
+    ------
+    MissingKey
+        (401) Neither holds the right key.
+    """
+    if not key_matches(settings, form_key or request.cookies.get(COOKIE)):
+        raise MissingKey("missing or wrong API key: type it into the form's API key field")
+
+
+def redirect(url: str, settings: Settings, form_key: str) -> RedirectResponse:
+    """303 to the page of what a form made (a reload then never posts twice); a key typed into the form is
+    kept in the cookie from now on."""
+    response = RedirectResponse(url, status_code=303)
+    if settings.api_key is not None and form_key:
+        response.set_cookie(COOKIE, form_key, httponly=True, samesite="strict", path="/")
+    return response
+
+
+# -- fields -> request models ------------------------------------------------------------------------------
+def optional(text: str | None) -> str | None:
+    """An empty form field means "not given" (the API's default)."""
+    text = (text or "").strip()
+    return text or None
+
+
+def chosen_files(files: list[UploadFile | str]) -> list[UploadFile]:
+    """The files of an upload form; InvalidInput when none was chosen."""
+    chosen = [f for f in files if not isinstance(f, str) and f.filename]  # no file chosen: a nameless empty part
+    if not chosen:
+        raise InvalidInput("choose the log file(s) of one flight to upload")
+    return chosen
+
+
+def upload_text(vehicle: str, notes: str) -> tuple[str | None, str | None]:
+    """(vehicle, notes) of an upload form, None when empty; InvalidInput when one is too long."""
+    if len(vehicle) > MAX_VEHICLE or len(notes) > MAX_NOTES:
+        raise InvalidInput(f"vehicle: at most {MAX_VEHICLE} characters; notes: at most {MAX_NOTES}")
+    return optional(vehicle), optional(notes)
+
+
+def train_request(name: str, flight_id: str, epochs: str, include_bad: str | None) -> TrainRequest:
+    """The train form as POST /models' body (ValidationError names the bad field)."""
+    return TrainRequest.model_validate({"name": name.strip(), "flight_id": flight_id, "epochs": optional(epochs),
+                                        "include_bad": include_bad is not None})
+
+
+def alias_version(version: str) -> int:
+    """The alias form's version, checked as PUT /models/{name}/aliases/{alias}'s body."""
+    return AliasIn.model_validate({"version": version}).version
+
+
+def evaluation_request(model: str, flights: list[str], methods: list[str], horizon: str,
+                       include_bad: str | None) -> EvaluationRequest:
+    """The evaluate form as POST /evaluations' body; no flight checked means "all-other"."""
+    if not methods:
+        raise InvalidInput("choose at least one estimator")
+    return EvaluationRequest.model_validate({"model": model, "flights": flights or "all-other", "methods": methods,
+                                             "horizon": horizon, "include_bad": include_bad is not None})
+
+
+def validation_message(err: ValidationError) -> str:
+    """One line naming each bad field, as the JSON API's 422 detail does."""
+    return "; ".join(_field_message(e) for e in err.errors())
+
+
+def _field_message(error) -> str:
+    field = ".".join(str(part) for part in error.get("loc", ()))
+    return f"{field}: {error.get('msg', 'invalid')}" if field else error.get("msg", "invalid")

@@ -1,0 +1,272 @@
+"""The web pages' routes: server-rendered HTML for people, on the same app as the JSON API (no JavaScript).
+
+Pages   /                       flights (newest first) and the upload form
+        /ui/flights/{id}        metadata, quality, trajectory plot (x-y, z-t), models trained on it, train form
+        /ui/models              registered models
+        /ui/models/{name}       versions, aliases (+ form), loss curves, evaluations, evaluate form
+        /ui/jobs, /ui/jobs/{id} state and progress; a job page reloads itself every second until it is done
+        /evaluations/{id}/report.html
+                                the Fig. 3-style box plot, per-flight MSE table, estimated vs reference velocity
+                                of one chosen flight (documented in the OpenAPI schema with the JSON report)
+Forms   POST /ui/flights, /ui/models, /ui/evaluations, /ui/models/{name}/aliases take the same request models
+        as the JSON routes (service.web.forms), call the same service functions (service.uploads,
+        service.jobs, service.catalog) and answer 303 to the page of what they made, or an HTML error page
+        with the API's status code and message.
+
+Every page is a Jinja2 template extending templates/base.html with autoescaping on, so text from users
+(names, notes, file names, error messages) is escaped unless a template says otherwise - and none does.
+"""
+from __future__ import annotations
+
+import functools
+import json
+import logging
+from collections.abc import Callable
+
+from fastapi import APIRouter, Depends, File, Form, Query, Request, UploadFile
+from fastapi.responses import HTMLResponse
+from jinja2 import Environment, PackageLoader, StrictUndefined, select_autoescape
+from pydantic import ValidationError
+
+from learnest.errors import LearnestError
+from learnest.ingest.flight import Flight as CanonicalFlight
+from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON
+
+from .. import catalog, registry
+from ..db import Evaluation, Flight, Job
+from ..jobs import ACTIVE, EstimatorSettings, Services, start_evaluation, start_training
+from ..routers.deps import get_services
+from ..uploads import add_flight
+from . import figures, forms
+
+log = logging.getLogger("learnest.web")
+
+PAGE_SIZE = 100
+EVALUATIONS_SHOWN = 20   # on a model's page
+
+
+# -- rendering ---------------------------------------------------------------------------------------------
+def _when(moment) -> str:
+    return moment.strftime("%Y-%m-%d %H:%M:%S") if moment else ""
+
+
+TEMPLATES = Environment(loader=PackageLoader("learnest.service.web", "templates"),
+                        autoescape=select_autoescape(default=True, default_for_string=True),
+                        undefined=StrictUndefined,          # a misspelt variable fails the page (and the tests)
+                        finalize=lambda value: "" if value is None else value,  # None shows as nothing
+                        trim_blocks=True, lstrip_blocks=True)
+TEMPLATES.filters["when"] = _when
+TEMPLATES.globals.update(NAME_PATTERN=registry.NAME, METHODS=METHODS, MHE_HORIZON=MHE_HORIZON,
+                         VELOCITY_METHODS=figures.VELOCITY_METHODS, MAX_VEHICLE=forms.MAX_VEHICLE,
+                         MAX_NOTES=forms.MAX_NOTES, PAGE_SIZE=PAGE_SIZE,
+                         DEFAULT_EPOCHS=CRAZYFLIE_TRAINING.epochs)
+
+
+def page(template: str, title: str, status: int = 200, refresh_s: float | None = None, **context) -> HTMLResponse:
+    """Render templates/`template` (which extends base.html) as a response.
+
+    Parameters
+    ----------
+    template : str
+        File name under templates/.
+    title : str
+        The page's <title> and <h1> (escaped).
+    status : int
+        HTTP status of the answer.
+    refresh_s : float, optional
+        Reload the page after this many seconds (pages of running jobs).
+    **context
+        The template's variables.
+    """
+    html = TEMPLATES.get_template(template).render(title=title, refresh_s=refresh_s, **context)
+    return HTMLResponse(html, status_code=status)
+
+
+def error_page(status: int, message: str) -> HTMLResponse:
+    """The API's status code and message as a page (a form post never gets JSON back)."""
+    return page("error.html", f"Error {status}", status, message=message)
+
+
+def html_errors(handler: Callable) -> Callable:
+    """Show the service's errors (LearnestError: its status) and bad form fields (422) as an error page."""
+    @functools.wraps(handler)
+    def wrapper(*args, **kwargs):
+        try:
+            return handler(*args, **kwargs)
+        except ValidationError as err:
+            return error_page(422, forms.validation_message(err))
+        except LearnestError as err:
+            return error_page(err.status, str(err))
+    return wrapper
+
+
+pages = APIRouter(include_in_schema=False)
+
+
+# -- flights ---------------------------------------------------------------------------------------------
+@pages.get("/", response_class=HTMLResponse)
+def flights_page(request: Request, offset: int = Query(0, ge=0), services: Services = Depends(get_services)):
+    total, rows = catalog.list_flights(services.db, limit=PAGE_SIZE, offset=offset, newest_first=True)
+    return page("flights.html", "Flights", flights=rows, total=total, offset=offset,
+                key=forms.key_state(request, services.settings))
+
+
+@pages.post("/ui/flights")
+@html_errors
+def upload_flight_form(request: Request, files: list[UploadFile | str] = File(default=[]),
+                       vehicle: str = Form(""), notes: str = Form(""), api_key: str = Form(""),
+                       services: Services = Depends(get_services)):
+    forms.require_key(request, services.settings, api_key)
+    chosen = forms.chosen_files(files)
+    row, _created = add_flight(services.db, services.blobs, chosen, *forms.upload_text(vehicle, notes))
+    return forms.redirect(f"/ui/flights/{row.id}", services.settings, api_key)
+
+
+@pages.get("/ui/flights/{flight_id}", response_class=HTMLResponse)
+@html_errors
+def flight_page(request: Request, flight_id: int, services: Services = Depends(get_services)):
+    row = catalog.get_flight(services.db, flight_id)
+    return page("flight.html", f"Flight {row.id}: {row.name}", flight=row,
+                trained=catalog.versions_trained_on(services.db, flight_id),
+                trajectory=_trajectory(services, row), key=forms.key_state(request, services.settings),
+                metadata=json.dumps(row.meta, indent=1))
+
+
+def _trajectory(services: Services, row: Flight) -> dict:
+    """{"png": data URI} or {"error": why}: a missing or damaged blob is said, the rest of the page shown."""
+    try:
+        flight = CanonicalFlight.from_bytes(services.blobs.read_bytes(row.flight_blob))
+    except (OSError, ValueError, KeyError) as err:
+        return {"error": type(err).__name__}
+    return {"png": figures.png_data_uri(figures.trajectory(flight, row.name))}
+
+
+# -- models ----------------------------------------------------------------------------------------------
+@pages.post("/ui/models")
+@html_errors
+def train_model_form(request: Request, name: str = Form(""), flight_id: str = Form(""), epochs: str = Form(""),
+                     include_bad: str | None = Form(None), api_key: str = Form(""),
+                     services: Services = Depends(get_services)):
+    forms.require_key(request, services.settings, api_key)
+    body = forms.train_request(name, flight_id, epochs, include_bad)
+    job, _version = start_training(services, body.name, body.flight_id, {"epochs": body.epochs},
+                                   include_bad=body.include_bad)
+    return forms.redirect(f"/ui/jobs/{job.id}", services.settings, api_key)
+
+
+@pages.get("/ui/models", response_class=HTMLResponse)
+def models_page(services: Services = Depends(get_services)):
+    return page("models.html", "Models", models=catalog.list_models(services.db))
+
+
+@pages.get("/ui/models/{name}", response_class=HTMLResponse)
+@html_errors
+def model_page(request: Request, name: str, services: Services = Depends(get_services)):
+    model = catalog.get_model(services.db, name)
+    ready = [v for v in model.versions if v.status == "ready"]
+    _total, flights = catalog.list_flights(services.db, limit=PAGE_SIZE, newest_first=True)
+    return page("model.html", f"Model {name}", name=name, model=model, ready=ready, flights=flights,
+                evaluations=catalog.evaluations_of(services.db, model.versions, EVALUATIONS_SHOWN),
+                losses=figures.png_data_uri(figures.training_losses(ready)) if ready else None,
+                key=forms.key_state(request, services.settings))
+
+
+@pages.post("/ui/models/{name}/aliases")
+@html_errors
+def alias_form_post(request: Request, name: str, alias: str = Form(""), version: str = Form(""),
+                    api_key: str = Form(""), services: Services = Depends(get_services)):
+    forms.require_key(request, services.settings, api_key)
+    catalog.set_alias(services.db, name, alias.strip(), forms.alias_version(version))
+    return forms.redirect(f"/ui/models/{name}", services.settings, api_key)
+
+
+@pages.post("/ui/evaluations")
+@html_errors
+def evaluate_form_post(request: Request, model: str = Form(""), flights: list[str] = Form(default=[]),
+                       methods: list[str] = Form(default=[]), horizon: str = Form(str(MHE_HORIZON)),
+                       include_bad: str | None = Form(None), api_key: str = Form(""),
+                       services: Services = Depends(get_services)):
+    forms.require_key(request, services.settings, api_key)
+    body = forms.evaluation_request(model, flights, methods, horizon, include_bad)
+    settings = EstimatorSettings(tuple(body.methods), body.horizon, body.include_bad)
+    job_id, _evaluation_id, _state = start_evaluation(services, body.model, body.flights, settings)
+    return forms.redirect(f"/ui/jobs/{job_id}", services.settings, api_key)
+
+
+# -- jobs ------------------------------------------------------------------------------------------------
+@pages.get("/ui/jobs", response_class=HTMLResponse)
+def jobs_page(services: Services = Depends(get_services)):
+    _total, jobs = catalog.list_jobs(services.db, limit=PAGE_SIZE)
+    running = any(j.state in ACTIVE for j in jobs)
+    return page("jobs.html", "Jobs", refresh_s=2 if running else None,
+                jobs=[(j, job_subject(j)) for j in jobs])
+
+
+@pages.get("/ui/jobs/{job_id}", response_class=HTMLResponse)
+@html_errors
+def job_page(job_id: int, services: Services = Depends(get_services)):
+    job = catalog.get_job(services.db, job_id)
+    evaluation = catalog.evaluation_of_job(services.db, job_id)
+    active = job.state in ACTIVE
+    return page("job.html", f"Job {job.id}", refresh_s=1 if active else None, job=job, active=active,
+                subject=job_subject(job), evaluation=evaluation,
+                model_name=evaluation.model_ref.split(":", 1)[0] if evaluation else None,
+                result=json.dumps(job.result, indent=1) if job.result else None)
+
+
+def job_subject(job: Job) -> str:
+    """What a job works on, in a few words ("quad on flight 3", "quad:1 on 4 flight(s)")."""
+    payload = job.payload or {}
+    if job.kind == "training":
+        return f"{payload.get('name')} on flight {payload.get('flight_id')}"
+    return f"{payload.get('model')} on {len(payload.get('flights') or [])} flight(s)"
+
+
+# -- the evaluation report ---------------------------------------------------------------------------------
+# A page of its own API path (/evaluations/...), documented next to the JSON report; its errors stay the
+# API's JSON ones (404 unknown, 409 failed), as before it joined the site template.
+reports = APIRouter(tags=["evaluations"])
+
+
+@reports.get("/evaluations/{evaluation_id}/report.html", response_class=HTMLResponse,
+             responses={202: {"description": "not finished yet (the page reloads itself)"},
+                        409: {"description": "the evaluation job failed"}})
+def evaluation_report_page(evaluation_id: int,
+                           flight: int | None = Query(None, description="flight id of the velocity plot "
+                                                                        "(default: the first scored flight)"),
+                           services: Services = Depends(get_services)):
+    """The evaluation report for people: box plot, per-flight MSE table, velocity of one flight."""
+    evaluation, job = catalog.row_and_job(services.db, Evaluation, evaluation_id, "evaluation")
+    if job.state != "succeeded":
+        return page("report_pending.html", f"Evaluation {evaluation.id}", status=202, refresh_s=2, job=job)
+    report = evaluation.report
+    title = f"Evaluation {evaluation.id}: model {report.get('model')}"
+    scored = [(fid, entry["flight"]) for fid, entry in zip(evaluation.flight_ids, report["flights"], strict=True)
+              if not entry.get("excluded")]
+    chosen = flight if flight in {fid for fid, _ in scored} else (scored[0][0] if scored else None)
+    return page("report.html", title, evaluation=evaluation, report=report,
+                methods=list(report.get("median", {})), settings=evaluation.settings,
+                boxplot=figures.png_data_uri(figures.mse_boxplot(report), dpi=120) if figures.has_scores(report)
+                else None,
+                scored=scored, chosen=chosen, velocity=_velocity(services, evaluation, chosen),
+                model_name=evaluation.model_ref.split(":", 1)[0])
+
+
+def _velocity(services: Services, evaluation: Evaluation, flight_id: int | None) -> dict:
+    """{"png": data URI} or {"error": why}: a deleted or unreadable flight is said, the report still shown."""
+    if flight_id is None:
+        return {}
+    try:
+        version = catalog.get_version_by_id(services.db, evaluation.model_version_id)
+        row = catalog.get_flight(services.db, flight_id)
+        title = f"{version.name}:{version.version} on {row.name}"
+        return {"png": figures.velocity_png(services.blobs, version.weights_blob, row.flight_blob, title)}
+    except Exception as err:  # a broken plot must not break the report
+        log.warning("velocity plot of flight %s failed: %s", flight_id, err)
+        return {"error": str(err)}
+
+
+# One router for the app: the pages (left out of the OpenAPI schema) and the report (in it).
+router = APIRouter()
+router.include_router(pages)
+router.include_router(reports)

@@ -1,0 +1,59 @@
+"""Storage: ids are never handed out twice, on a new database and on one migrated from before the fix."""
+from alembic import command
+from alembic.config import Config
+from sqlalchemy import text
+from utils.service import flight_csv, running_app, upload
+
+from learnest.service.db import MIGRATIONS, Database
+
+
+def test_a_deleted_flights_id_is_never_given_to_the_next_upload(tmp_path, data_dir):
+    with running_app(tmp_path / "home") as client:
+        first = upload(client, flight_csv(data_dir, 40)).json()
+        deleted = upload(client, flight_csv(data_dir, 41)).json()
+        assert client.delete(f"/flights/{deleted['id']}").status_code == 204
+        new = upload(client, flight_csv(data_dir, 42)).json()
+        assert new["id"] > deleted["id"] > first["id"]
+        # a retried DELETE of the old id deletes nothing else
+        assert client.delete(f"/flights/{deleted['id']}").status_code == 404
+        assert client.get(f"/flights/{new['id']}").status_code == 200
+
+
+def _upgrade(database: Database, revision: str) -> None:
+    config = Config()
+    config.set_main_option("script_location", str(MIGRATIONS))
+    with database.engine.begin() as connection:
+        config.attributes["connection"] = connection
+        command.upgrade(config, revision)
+
+
+def _insert_flight(connection, name: str, flight_id: int | None = None) -> int:
+    columns = "sha256, name, adapter, duration_s, rate_hz, samples, quality_ok, quality, flight_blob, meta, created_at"
+    values = f"'{name:0>64}', '{name}', 'nanobench', 1.0, 100.0, 100, 1, '{{}}', 'b', '{{}}', '2026-01-01'"
+    if flight_id is not None:
+        columns, values = "id, " + columns, f"{flight_id}, " + values
+    connection.execute(text(f"INSERT INTO flights ({columns}) VALUES ({values})"))
+    return connection.execute(text(f"SELECT id FROM flights WHERE name = '{name}'")).scalar()
+
+
+def test_migrating_an_old_database_keeps_its_rows_and_stops_id_reuse(tmp_path):
+    database = Database(f"sqlite:///{tmp_path / 'old.db'}")
+    _upgrade(database, "0002")                      # the schema before ids were protected
+    with database.engine.begin() as connection:
+        for flight_id in (1, 2, 3):
+            _insert_flight(connection, f"f{flight_id}", flight_id)
+            connection.execute(text(
+                "INSERT INTO flight_files (flight_id, position, original_name, sha256, size_bytes, role) "
+                f"VALUES ({flight_id}, 0, 'f{flight_id}.csv', 'x', 10, 'log')"))
+        connection.execute(text("DELETE FROM flight_files WHERE flight_id = 3"))
+        connection.execute(text("DELETE FROM flights WHERE id = 3"))
+    database.migrate()                               # what the app does at start
+    with database.engine.begin() as connection:
+        assert connection.execute(text("SELECT count(*) FROM flight_files")).scalar() == 2  # nothing cascaded
+        assert "AUTOINCREMENT" in connection.execute(
+            text("SELECT sql FROM sqlite_master WHERE name = 'flights'")).scalar()
+        # the rebuild can only know the ids it kept: the next is 3, and from then on none is reused
+        assert _insert_flight(connection, "f4") == 3
+        connection.execute(text("DELETE FROM flights WHERE id = 3"))
+        assert _insert_flight(connection, "f5") == 4
+    database.dispose()
