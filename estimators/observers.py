@@ -69,7 +69,7 @@ def observe_quadrotor(system: System, y, u, dt):
     model = HybridModel(system, "prior")
     x0 = np.concatenate([y[0, :3], np.zeros(3), y[0, 3:]])
     F, H = linearize(model, check_dt(dt))
-    return batch_smoother(F, H, system.Q, system.R, x0, system.P0, check_sequence("y", y, cols=system.m))
+    return batch_smoother(F, H, system.Q, system.R, x0, system.P0, check_sequence("y", y, cols=system.n_meas))
 
 
 OBSERVERS = {"cartpole": observe_cartpole, "robot": observe_robot, "quadrotor": observe_quadrotor}

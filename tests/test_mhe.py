@@ -42,7 +42,7 @@ def test_gauss_newton_equals_ipopt_on_nonlinear_systems(name, kind):
     residual = None
     if kind == "knode":
         rng = np.random.default_rng(0)
-        n_in = system.n + system.p
+        n_in = system.n + system.n_inputs
         residual = Residual([(rng.normal(0, 0.5, (8, n_in)), rng.normal(0, 0.1, 8)),
                              (rng.normal(0, 0.2, (system.n, 8)), np.zeros(system.n))])
     model = HybridModel(system, kind, residual)
