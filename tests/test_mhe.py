@@ -111,3 +111,16 @@ def test_the_quadrotor_observer_batch_solve_equals_the_kalman_rts_smoother():
     ours = observe_quadrotor(system, run.y, run.u, system.dt)
     np.testing.assert_allclose(ours, rts, rtol=0, atol=1e-9 * np.abs(rts).max())
     assert np.abs(ours - run.x).mean() < np.abs(run.y[:, 3:] - run.x[:, 6:]).mean()  # it does smooth
+
+
+def test_a_window_gauss_newton_cannot_solve_is_solved_by_ipopt():
+    """The fallback path: every window reported unconverged goes to IPOPT, from the same warm start,
+    arrival weight and data, so the recursion equals the IPOPT solver's."""
+    system = make_system("cartpole")
+    run = system.simulate(5, n_samples=40)
+    model = HybridModel(system, "true")
+    gn, _, ipopt = both(model, system, run, 40, horizon=6)
+    gn._gn._solve = lambda X, *args: (X, False)   # Gauss–Newton "fails" on every window
+    fallback = gn.run(run.y[:40], run.u[:40], run.x_noisy[0])
+    np.testing.assert_allclose(fallback, ipopt, rtol=0, atol=1e-6)
+    assert gn.stats["ipopt_fallbacks"] == 40
