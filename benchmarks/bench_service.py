@@ -37,7 +37,7 @@ sys.path.insert(0, str(REPO))
 from sqlalchemy import delete, select  # noqa: E402
 
 from learnest.service.config import Settings
-from learnest.service.db import Database, Evaluation, Flight, Result  # noqa: E402
+from learnest.service.db import Database, Evaluation, FlightRecord, Result  # noqa: E402
 from learnest.service.executors import DaskExecutor, LocalPoolExecutor  # noqa: E402
 from learnest.service.jobs import EstimatorSettings, open_services, start_evaluation, start_training  # noqa: E402
 
@@ -167,7 +167,7 @@ def train_model(home: Path, training_flight: Path) -> None:
 
 def _flight_id(services, name: str) -> int:
     with services.db.transaction() as session:
-        return session.scalar(select(Flight.id).where(Flight.name == name))
+        return session.scalar(select(FlightRecord.id).where(FlightRecord.name == name))
 
 
 def timed_evaluations(home: Path, executor, workers: int, flight_names: list[str]) -> tuple[list[float], dict]:
@@ -205,7 +205,7 @@ def estimator_seconds(report: dict, flights: dict[str, int]) -> float:
 def flight_samples(home: Path) -> dict[str, int]:
     database = Database(Settings(home=home).url)
     with database.transaction() as session:
-        samples = {row.name: row.samples for row in session.scalars(select(Flight))}
+        samples = {row.name: row.samples for row in session.scalars(select(FlightRecord))}
     database.dispose()
     return samples
 

@@ -9,11 +9,15 @@ from __future__ import annotations
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike
 
 from learnest.models.checks import check_covariance, check_dt, check_inputs, check_sequence
 
+from .protocols import StateSpaceModel
 
-def linearized_covariances(model, means, u=None, *, dt: float, Q, R, P0) -> np.ndarray:
+
+def linearized_covariances(model: StateSpaceModel, means: ArrayLike, u: ArrayLike | None = None, *, dt: float,
+                           Q: ArrayLike, R: ArrayLike, P0: ArrayLike) -> np.ndarray:
     """P_{k|k} of an EKF linearised along ``means`` (predict with u[k-1], update at y[k]).
 
     Parameters

@@ -9,15 +9,23 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 from filterpy.kalman import KalmanFilter
+from numpy.typing import ArrayLike
 
 from learnest.models.checks import check_covariance, check_dt, check_sequence, check_vector
 
+from .protocols import StateSpaceModel
 from .results import FilterResult
 
 
-def linearize(model, dt: float, x_op=None):
+def linearize(model: StateSpaceModel, dt: float, x_op: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(F, H): exact Jacobians of the discrete model step (RK4 of f_c, as every estimator here uses)
-    and of h at x_op (default 0).  For a linear prior they are the model, not an approximation."""
+    and of h at x_op (default 0), with u = 0.  For a linear prior they are the model, not an approximation.
+
+    Returns
+    -------
+    F : ndarray, shape (n, n)
+    H : ndarray, shape (m, n)
+    """
     x, u = ca.SX.sym("x", model.n), ca.SX.sym("u", model.n_inputs)
     jacobians = ca.Function("FH", [x, u], [ca.jacobian(model.step(x, u, dt), x), ca.jacobian(model.h(x, u), x)])
     x_op = np.zeros(model.n) if x_op is None else x_op
@@ -41,7 +49,8 @@ def _filter(F, H, Q, R, x0, P0, y, smooth: bool):
     return means, covs, innovations
 
 
-def run_kf(model, y, u=None, *, dt: float, Q, R, x0, P0, smooth: bool = False) -> FilterResult:
+def run_kf(model: StateSpaceModel, y: ArrayLike, u: None = None, *, dt: float, Q: ArrayLike, R: ArrayLike,
+           x0: ArrayLike, P0: ArrayLike, smooth: bool = False) -> FilterResult:
     """Kalman filter (or RTS smoother) of a whole sequence with the linear model's exact discretisation.
 
     Parameters
@@ -63,7 +72,13 @@ def run_kf(model, y, u=None, *, dt: float, Q, R, x0, P0, smooth: bool = False) -
     Returns
     -------
     FilterResult
-        ``t = k * dt``, means (T, n), covariances (T, n, n), innovations (T, m) of the forward pass.
+        ``t = k * dt``, means (T, n), covariances (T, n, n) (smoothed when ``smooth``), innovations
+        (T, m) of the forward pass.
+
+    Raises
+    ------
+    InvalidInput
+        On wrong shapes, non-finite values, a bad ``dt`` or a covariance that is not positive definite.
     """
     dt = check_dt(dt)
     n = model.n
@@ -75,11 +90,30 @@ def run_kf(model, y, u=None, *, dt: float, Q, R, x0, P0, smooth: bool = False) -
     return FilterResult(dt * np.arange(len(y)), means, covariances, innovations)
 
 
-def kinematic_smoother(positions, dt, meas_std, accel_std: float = 1.0, jerk_std: float = 50.0):
+def kinematic_smoother(positions: ArrayLike, dt: float, meas_std: ArrayLike, accel_std: float = 1.0,
+                       jerk_std: float = 50.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per-channel constant-acceleration KF + RTS: positions (T, k) -> (positions, velocities, accels).
 
     Used as the pre-training observer when only positions (or angles) of a nonlinear system are
     measured: it knows nothing of the system, only that its trajectories are smooth.
+
+    Parameters
+    ----------
+    positions : array_like, shape (T, k) or (T,)
+        Measured positions (or angles), one channel per column.
+    dt : float
+        Sample time, s.
+    meas_std : float or array_like, shape (k,)
+        Measurement noise standard deviation per channel, in the channel's unit.
+    accel_std : float
+        Sets the initial acceleration variance, 100·accel_std² (not a process noise).
+    jerk_std : float
+        White-jerk process noise standard deviation, channel unit per s³.
+
+    Returns
+    -------
+    positions, velocities, accelerations : ndarray, each shape (T, k)
+        RTS-smoothed, in the channel's unit, per s and per s².
     """
     dt = check_dt(dt)
     positions = check_sequence("positions", positions)

@@ -6,6 +6,7 @@ ground robot.  They run offline, so each ends with a Rauch-Tung-Striebel backwar
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from learnest.models.checks import check_dt, check_sequence
 from learnest.models.knode import HybridModel
@@ -16,8 +17,11 @@ from .kf import kinematic_smoother, linearize
 from .ukf import run_ukf
 
 
-def observe_cartpole(system: System, y, u, dt):
-    """Constant-acceleration KF + RTS on the measured position and angle gives their rates."""
+def observe_cartpole(system: System, y: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
+    """Constant-acceleration KF + RTS on the measured position and angle gives their rates.
+
+    y (T, 2) = [p (m), α (rad)] -> ζ (T, 4) = [p, ṗ, α, α̇]; ``u`` is unused.
+    """
     pos, vel, _ = kinematic_smoother(y, dt, meas_std=system.meas_noise_std, jerk_std=200.0)
     return np.column_stack([pos[:, 0], vel[:, 0], pos[:, 1], vel[:, 1]])
 
@@ -39,8 +43,11 @@ class _PlanarKinematics:
         return self.robot.h(state)
 
 
-def observe_robot(system: GroundRobot, y, u, dt):
-    """Precursory UKF (ranges + heading -> position, heading), then a linear KF for the speed."""
+def observe_robot(system: GroundRobot, y: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
+    """Precursory UKF (ranges + heading -> position, heading), then a linear KF for the speed.
+
+    y (T, 5) = [r1..r4 (m), ψ (rad)] -> ζ (T, 4) = [x (m), y (m), v (m/s), ψ (rad)]; ``u`` is unused.
+    """
     kinematics = _PlanarKinematics(system)
     x0 = _trilaterate(system, y[0])
     Q = np.diag([1e-6, 1e-6, 4e-4, 4e-4, 1e-4])
@@ -62,10 +69,13 @@ def _trilaterate(system: GroundRobot, ranges) -> np.ndarray:
     return np.array([xy[0], xy[1], 0.0, 0.0, ranges[-1]])
 
 
-def observe_quadrotor(system: System, y, u, dt):
+def observe_quadrotor(system: System, y: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
     """The prior is linear (p, v, a kinematic chain), so the observer is a KF + RTS on that prior, computed
     as the equal batch least-squares solve (`batch.batch_smoother`: 3e-11 from filterpy's KF + RTS on a
-    40-s flight, 15x faster)."""
+    40-s flight, 15x faster).
+
+    y (T, 6) = [p (m), a (m/s²)] -> ζ (T, 9) = [p, v (m/s), a]; the first velocity guess is 0; ``u`` is unused.
+    """
     model = HybridModel(system, "prior")
     x0 = np.concatenate([y[0, :3], np.zeros(3), y[0, 3:]])
     F, H = linearize(model, check_dt(dt))
@@ -75,14 +85,21 @@ def observe_quadrotor(system: System, y, u, dt):
 OBSERVERS = {"cartpole": observe_cartpole, "robot": observe_robot, "quadrotor": observe_quadrotor}
 
 
-def pretraining_observer(system: System, y, u, dt) -> np.ndarray:
-    """ζ_1..ζ_M = g(y_1..y_M, u_1..u_M), eq. (6)."""
+def pretraining_observer(system: System, y: ArrayLike, u: ArrayLike, dt: float) -> np.ndarray:
+    """ζ_1..ζ_M = g(y_1..y_M, u_1..u_M), eq. (6): y (T, m), u (T, p), dt s -> ζ (T, n).
+
+    Raises
+    ------
+    KeyError
+        If ``system.name`` has no observer (cartpole, robot and quadrotor have one).
+    """
     return OBSERVERS[system.name](system, np.asarray(y, float), np.asarray(u, float), dt)
 
 
-def full_state_observer(system: System, x_measured, dt) -> np.ndarray:
+def full_state_observer(system: System, x_measured: ArrayLike, dt: float) -> np.ndarray:
     """The "full state" variant of Algorithm 1: every state is measured (y = x + v, v ~ state noise);
-    the observer is then a per-channel constant-acceleration KF + RTS that only removes that noise."""
+    the observer is then a per-channel constant-acceleration KF + RTS that only removes that noise.
+    x_measured (T, n) -> smoothed states (T, n)."""
     pos, _, _ = kinematic_smoother(x_measured, dt, meas_std=system.state_noise_std,
                                    jerk_std=_JERK_STD[system.name])
     return pos

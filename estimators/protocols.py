@@ -5,7 +5,7 @@ Arrays: x (n,) or a batch (B, n) of sigma points; u (p,) or (B, p); y (m,) or (B
 """
 from __future__ import annotations
 
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 
 @runtime_checkable
@@ -24,8 +24,8 @@ class StateSpaceModel(Protocol):
     def n_meas(self) -> int:
         """Number of measurements."""
 
-    def step(self, x, u, dt: float):
+    def step(self, x: Any, u: Any, dt: float) -> Any:
         """Next state(s); works on numpy arrays (batched) and on CasADi symbols."""
 
-    def h(self, x, u=None):
+    def h(self, x: Any, u: Any = None) -> Any:
         """Predicted measurement(s)."""

@@ -18,7 +18,8 @@ class FilterResult(NamedTuple):
     covariances : ndarray, shape (T, n, n)
         Their covariances P_{k|k}.
     innovations : ndarray, shape (T, m)
-        Measurement innovations y_k - h(x̂_{k|k-1}), in the measurement units.
+        Measurement innovations y_k - ŷ_{k|k-1} (ŷ the predicted measurement; for the UKF the unscented
+        mean of h over the sigma points), in the measurement units.
     """
 
     t: np.ndarray

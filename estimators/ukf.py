@@ -7,12 +7,17 @@ is factorised once, with the factor kept for the next sigma points (filterpy fac
 """
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+from numpy.typing import ArrayLike
 from scipy.linalg import lapack
 
 from learnest.models.checks import check_covariance, check_dt, check_inputs, check_sequence, check_vector
 
+from .protocols import StateSpaceModel
 from .results import FilterResult
 
 
@@ -38,11 +43,12 @@ def spd_factor(P: np.ndarray, floor: float = 1e-15) -> tuple[np.ndarray, np.ndar
 class VectorizedMerwePoints(MerweScaledSigmaPoints):
     """filterpy's scaled sigma points (same weights), built from a Cholesky factor without a Python loop."""
 
-    def __init__(self, n, alpha, beta, kappa=0.0):
+    def __init__(self, n: int, alpha: float, beta: float, kappa: float = 0.0) -> None:
         super().__init__(n, alpha, beta, kappa)
         self._scale = np.sqrt(alpha**2 * (n + kappa))  # sqrt(λ + n), λ = α²(n + κ) − n
 
-    def sigma_points(self, x, P):
+    def sigma_points(self, x: np.ndarray, P: np.ndarray) -> np.ndarray:
+        """The 2n+1 sigma points of mean x (n,) and covariance P (n, n), shape (2n+1, n)."""
         return self.from_factor(np.atleast_1d(np.asarray(x, dtype=float)), spd_factor(P)[1])
 
     def from_factor(self, x: np.ndarray, L: np.ndarray) -> np.ndarray:
@@ -79,7 +85,12 @@ class BatchedUKF(UnscentedKalmanFilter):
         spread = sigmas - mean
         return mean, (spread.T * self.Wc) @ spread + noise
 
-    def predict(self, dt=None, UT=None, fx=None, **fx_args):
+    def predict(self, dt: float | None = None, UT: Callable | None = None, fx: Callable | None = None,
+                **fx_args: Any) -> None:
+        """Propagate the sigma points through ``fx`` in one call; sets x, P and x_prior, P_prior.
+
+        ``UT`` is accepted for filterpy compatibility and ignored.
+        """
         dt = self._dt if dt is None else dt
         self.sigmas_f = np.asarray((fx or self.fx)(self._sigmas(), dt, **fx_args))
         self.x, P = self._transform(self.sigmas_f, self.Q)
@@ -87,7 +98,12 @@ class BatchedUKF(UnscentedKalmanFilter):
         self.sigmas_f = self._sigmas()  # re-drawn from the predicted covariance, as filterpy does
         self.x_prior, self.P_prior = self.x.copy(), self.P  # P is read-only: no copy needed
 
-    def update(self, z, R=None, UT=None, hx=None, **hx_args):
+    def update(self, z: np.ndarray, R: np.ndarray | None = None, UT: Callable | None = None,
+               hx: Callable | None = None, **hx_args: Any) -> None:
+        """Measurement update with z (m,); sets x, P, the innovation y, S, K and x_post, P_post.
+
+        ``UT`` is accepted for filterpy compatibility and ignored.
+        """
         R = self.R if R is None else R
         self.sigmas_h = np.asarray((hx or self.hx)(self.sigmas_f, **hx_args))
         zp, self.S = self._transform(self.sigmas_h, R)
@@ -109,7 +125,13 @@ def _rows(u: np.ndarray, count: int) -> np.ndarray:
     return out
 
 
-def make_ukf(model, dt, Q, R, x0, P0, alpha: float = 1e-3, beta: float = 2.0, kappa: float = 0.0):
+def make_ukf(model: StateSpaceModel, dt: float, Q: np.ndarray, R: np.ndarray, x0: np.ndarray, P0: np.ndarray,
+             alpha: float = 1e-3, beta: float = 2.0, kappa: float = 0.0) -> BatchedUKF:
+    """A `BatchedUKF` for ``model`` with Merwe points (alpha, beta, kappa), x = x0 (n,), P = P0 (n, n).
+
+    Q (n, n) and R (m, m) are used as given (no validation here; `run_ukf` validates).  ``predict`` and
+    ``update`` take the input as the keyword ``u``, shape (p,).
+    """
     n = model.n
     points = VectorizedMerwePoints(n, alpha=alpha, beta=beta, kappa=kappa)
     ukf = BatchedUKF(dim_x=n, dim_z=R.shape[0], dt=dt, points=points,
@@ -120,7 +142,8 @@ def make_ukf(model, dt, Q, R, x0, P0, alpha: float = 1e-3, beta: float = 2.0, ka
     return ukf
 
 
-def run_ukf(model, y, u=None, *, dt: float, Q, R, x0, P0, alpha: float = 1e-3) -> FilterResult:
+def run_ukf(model: StateSpaceModel, y: ArrayLike, u: ArrayLike | None = None, *, dt: float, Q: ArrayLike,
+            R: ArrayLike, x0: ArrayLike, P0: ArrayLike, alpha: float = 1e-3) -> FilterResult:
     """Filter a whole sequence: update with y[0] at x0, then predict with u[k-1] and update with y[k].
 
     Parameters
@@ -147,7 +170,13 @@ def run_ukf(model, y, u=None, *, dt: float, Q, R, x0, P0, alpha: float = 1e-3) -
     Returns
     -------
     FilterResult
-        Means, covariances and innovations; ``t = k * dt``.
+        Means (T, n), covariances (T, n, n) and innovations (T, m); ``t = k * dt``.
+
+    Raises
+    ------
+    InvalidInput
+        On wrong shapes, non-finite values, a bad ``dt``, or a covariance that is not symmetric positive
+        definite (Q may be semi-definite).
     """
     dt, n = check_dt(dt), model.n
     y = check_sequence("y", y, cols=model.n_meas)

@@ -7,6 +7,7 @@ Flight per flight.  Every problem is an `IngestError` naming the file.
 from __future__ import annotations
 
 import importlib
+from collections.abc import Iterable
 from pathlib import Path
 
 from .flight import Flight, IngestError, existing_file
@@ -24,8 +25,19 @@ def _sniffer(module: str, function: str):
     return getattr(importlib.import_module(module, __name__), function)  # imported on first use: CLI start stays fast
 
 
-def detect(path) -> str:
-    """The adapter (or pair role) that reads this file, decided from its content."""
+def detect(path: str | Path) -> str:
+    """The adapter (or pair role) that reads this file, decided from its content.
+
+    Returns
+    -------
+    str
+        ``"usd"``, ``"mcap"``, ``"nanobench"``, ``"vicon"`` or ``"cfclient"``.
+
+    Raises
+    ------
+    IngestError
+        If the file is missing or empty, or no adapter recognises it.
+    """
     path = existing_file(path, "flight log")
     for name, (module, function) in {**SINGLE_FILE_ADAPTERS, **PAIR_ROLES}.items():
         sniff = _sniffer(module, function)
@@ -35,9 +47,15 @@ def detect(path) -> str:
                             "file, or a Vicon CSV export together with a cfclient CSV log)")
 
 
-def group_files(paths) -> list[tuple[str, list[Path]]]:
+def group_files(paths: Iterable[str | Path]) -> list[tuple[str, list[Path]]]:
     """[(adapter, [files])]: one entry per flight.  Vicon exports and cfclient logs given together are
-    paired in name order (each pair is one flight); every other file is a flight of its own."""
+    paired in name order (each pair is one flight); every other file is a flight of its own.
+
+    Raises
+    ------
+    IngestError
+        If a file is not recognised, or Vicon exports and cfclient logs do not come in equal numbers.
+    """
     singles, roles = [], {"vicon": [], "cfclient": []}
     for path in map(Path, paths):
         kind = detect(path)
@@ -52,6 +70,23 @@ def group_files(paths) -> list[tuple[str, list[Path]]]:
 
 
 def read_group(adapter: str, files: list[Path], rate_hz: float = 100.0) -> Flight:
+    """Read one flight with its adapter, resampled to ``rate_hz``, and run the quality checks.
+
+    Parameters
+    ----------
+    adapter : str
+        A key of ``SINGLE_FILE_ADAPTERS`` or ``"vicon+cfclient"`` (as `group_files` gives).
+    files : list of Path
+        The flight's file, or [Vicon export, cfclient log].
+    rate_hz : float
+        Grid rate of the Flight, Hz.
+
+    Returns
+    -------
+    Flight
+        With ``meta["quality"]`` = the adapter's issues plus `quality.assess`'s, and ``meta["name"]``
+        defaulting to the first file's stem.
+    """
     from .quality import assess
 
     if adapter == "vicon+cfclient":
@@ -69,12 +104,41 @@ def read_group(adapter: str, files: list[Path], rate_hz: float = 100.0) -> Fligh
     return flight
 
 
-def read_flights(paths, rate_hz: float = 100.0) -> list[Flight]:
+def read_flights(paths: Iterable[str | Path], rate_hz: float = 100.0) -> list[Flight]:
+    """Read flight logs of any supported format into Flights (the format is sniffed from the content).
+
+    Parameters
+    ----------
+    paths : iterable of str or Path
+        Log files: NanoBench CSV, Crazyflie uSD logs, MCAP recordings, or Vicon CSV exports given together
+        with as many cfclient CSV logs (paired in name order).
+    rate_hz : float
+        Rate of the uniform grid every flight is resampled to, Hz.
+
+    Returns
+    -------
+    list of Flight
+        One per flight: single files first, in the order given, then the Vicon/cfclient pairs.  A flight
+        that fails the quality checks is still returned, with ``flight.quality["ok"] == False``.
+
+    Raises
+    ------
+    IngestError
+        Naming the file, if one is missing, empty, unrecognised, unpaired or unreadable.
+
+    Examples
+    --------
+    >>> import learnest as le
+    >>> flights = le.read_flights(["sample_logs/circle_rep1.csv", "sample_logs/circle_rep2.csv"])
+    >>> flights[0].p.shape[1]
+    3
+    """
     return [read_group(adapter, files, rate_hz) for adapter, files in group_files(paths)]
 
 
 def summary(flight: Flight) -> dict:
-    """The per-flight record `learnest ingest --json` prints."""
+    """The per-flight record `learnest ingest --json` prints: sources, adapter, duration (s), rate (Hz),
+    samples, clock offset (s) and quality."""
     return {"source": [s["path"] for s in flight.meta.get("sources", [])], "adapter": flight.meta.get("adapter"),
             "duration_s": round(flight.duration_s, 3), "rate_hz": round(flight.rate_hz, 3),
             "samples": len(flight.t), "clock_offset_s": flight.meta.get("clock_offset_s"),

@@ -5,10 +5,14 @@ resampling, rotation into the world frame, gravity removal and the take-off/land
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
+from pathlib import Path
+
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .flight import Flight, IngestError
-from .frames import world_acceleration
+from .frames import GRAVITY, world_acceleration
 
 # The flying part: from TAKEOFF_SETTLE_S after the vehicle first rises FLYING_HEIGHT_M above its resting
 # height, to LANDING_SETTLE_S before it last comes down below that height.
@@ -18,18 +22,24 @@ LANDING_SETTLE_S = 1.0
 
 
 def uniform_grid(t_start: float, t_end: float, rate_hz: float) -> np.ndarray:
+    """Times t_start + k / rate_hz (s) up to and including t_end (within 1e-9 samples)."""
     n = int(np.floor((t_end - t_start) * rate_hz + 1e-9)) + 1
     return t_start + np.arange(n) / rate_hz
 
 
-def samples_per_second(t) -> float | None:
+def samples_per_second(t: np.ndarray | Sequence[float]) -> float | None:
     """Samples per second over a stream's span (None for fewer than 2 samples or no span)."""
     return float((len(t) - 1) / (t[-1] - t[0])) if len(t) >= 2 and t[-1] > t[0] else None
 
 
-def resample(t_src, values, t_grid, max_gap_s: float | None = None):
+def resample(t_src: ArrayLike, values: ArrayLike, t_grid: np.ndarray,
+             max_gap_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Linear interpolation of (N, k) values onto t_grid; returns (values, mask of grid points that fell
-    into a gap longer than max_gap_s, where interpolation would invent data)."""
+    into a gap longer than max_gap_s, where interpolation would invent data).
+
+    ``t_src`` (N,) s, increasing; ``values`` (N,) or (N, k); returns (len(t_grid), k) values and a
+    (len(t_grid),) bool mask.  Outside ``t_src`` the end values are held (``np.interp``).
+    """
     t_src = np.asarray(t_src, dtype=float)
     values = np.asarray(values, dtype=float)
     values = values[:, None] if values.ndim == 1 else values
@@ -41,9 +51,12 @@ def resample(t_src, values, t_grid, max_gap_s: float | None = None):
     return out, in_gap
 
 
-def resample_quaternions(t_src, quat, t_grid):
+def resample_quaternions(t_src: ArrayLike, quat: ArrayLike, t_grid: np.ndarray) -> np.ndarray:
     """Component-wise interpolation after making the sign continuous, then renormalised (fine at
-    mocap rates, where consecutive attitudes differ by far less than the nlerp/slerp discrepancy)."""
+    mocap rates, where consecutive attitudes differ by far less than the nlerp/slerp discrepancy).
+
+    ``quat`` (N, 4) scalar-last -> (len(t_grid), 4) unit quaternions, scalar-last.
+    """
     q = np.array(quat, dtype=float, copy=True)
     flips = np.cumsum(np.r_[0, np.sum(q[1:] * q[:-1], axis=1) < 0]) % 2 == 1
     q[flips] *= -1
@@ -51,8 +64,11 @@ def resample_quaternions(t_src, quat, t_grid):
     return out / np.linalg.norm(out, axis=1, keepdims=True)
 
 
-def flying_window(t, z, rate_hz) -> tuple[int, int, str]:
-    """Indices [start, stop) of the flying part and the rule that chose them."""
+def flying_window(t: np.ndarray, z: np.ndarray, rate_hz: float) -> tuple[int, int, str]:
+    """Indices [start, stop) of the flying part and the rule that chose them.
+
+    ``z`` (T,) is the height, m; the resting height is the median of its first 0.5 s.
+    """
     rest = np.median(z[: max(1, int(0.5 * rate_hz))])
     airborne = np.flatnonzero(z > rest + FLYING_HEIGHT_M)
     if airborne.size == 0:
@@ -66,12 +82,46 @@ def flying_window(t, z, rate_hz) -> tuple[int, int, str]:
     return int(start), int(stop), rule
 
 
-def build_flight(path, *, t_mocap, p, quat, t_acc, acc_body_g, channels=None, rate_hz: float = 100.0,
-                 meta=None, cut: bool = True) -> Flight:
+def build_flight(path: str | Path, *, t_mocap: ArrayLike, p: ArrayLike, quat: ArrayLike, t_acc: ArrayLike,
+                 acc_body_g: ArrayLike, channels: dict | None = None, rate_hz: float = 100.0,
+                 meta: dict | None = None, cut: bool = True) -> Flight:
     """Resample mocap (m, scalar-last quaternions) and accelerometer (g, body frame) onto one grid.
 
     `channels` maps name -> (t, values) for optional streams.  Times are seconds on one clock (the caller
     applies any clock offset first).  The grid covers the time where both streams exist.
+
+    Parameters
+    ----------
+    path : str or Path
+        The source file, named in errors.
+    t_mocap : array_like, shape (N,)
+        Mocap time stamps, s.
+    p : array_like, shape (N, 3)
+        Mocap position, m, world z-up.
+    quat : array_like, shape (N, 4)
+        Mocap attitude, scalar-last [qx, qy, qz, qw].
+    t_acc : array_like, shape (M,)
+        Accelerometer time stamps, s, same clock.
+    acc_body_g : array_like, shape (M, 3)
+        Body-frame specific force, g.
+    channels : dict, optional
+        name -> (t (K,) s, values (K,) or (K, k)), resampled without gap detection.
+    rate_hz : float
+        Grid rate, Hz.
+    meta : dict, optional
+        Metadata to start from (``rate_hz``, ``t0_source_s``, ``flying_window``, ``gaps`` are added).
+    cut : bool
+        Keep only the flying part (`flying_window`).
+
+    Returns
+    -------
+    Flight
+        With ``a_meas`` in m/s² (world, gravity removed) and the channel ``acc_body`` (m/s², body frame).
+
+    Raises
+    ------
+    IngestError
+        With fewer than 2 samples in a stream, or streams that overlap for less than two grid steps.
     """
     t_mocap, t_acc = np.asarray(t_mocap, float), np.asarray(t_acc, float)
     if len(t_mocap) < 2 or len(t_acc) < 2:
@@ -84,7 +134,7 @@ def build_flight(path, *, t_mocap, p, quat, t_acc, acc_body_g, channels=None, ra
     q_grid = resample_quaternions(t_mocap, quat, grid)
     acc_grid, acc_gap = resample(t_acc, acc_body_g, grid, max_gap_s=5.0 / rate_hz)
     extra = {name: resample(ts, vals, grid)[0] for name, (ts, vals) in (channels or {}).items()}
-    extra["acc_body"] = acc_grid * 9.80665
+    extra["acc_body"] = acc_grid * GRAVITY
     meta = dict(meta or {})
     meta["rate_hz"] = rate_hz
     meta["t0_source_s"] = float(t0)

@@ -13,10 +13,16 @@ length (150 -> 151) so the fit is centred on each sample; the length used is ret
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.signal import savgol_filter
 
 from learnest.errors import InvalidInput
+
+if TYPE_CHECKING:
+    from .flight import Flight
 
 PAPER_WINDOW = 150
 PAPER_ORDER = 2
@@ -52,12 +58,18 @@ def _validated_window(window, order, n_samples: int) -> int:
     return used
 
 
-def sg_references(p, dt: float, window: int = PAPER_WINDOW, order: int = PAPER_ORDER) -> dict:
+def sg_references(p: ArrayLike, dt: float, window: int = PAPER_WINDOW, order: int = PAPER_ORDER) -> dict:
     """Smoothed position, velocity and acceleration of a uniformly sampled position series.
 
     p: (T,) or (T, k) positions; dt: sample spacing in s.  Returns dict(p, v, a, window_used).
     Edges use scipy's mode="interp" (a polynomial fitted to the first/last window), so no padding is
     invented; derivatives are least-squares polynomial derivatives, scaled by dt.
+
+    Raises
+    ------
+    InvalidInput
+        For non-numeric or non-finite positions, a bad ``dt``, ``window`` or ``order``, or a window
+        longer than the series.
     """
     series = _validated_series(p)
     if not (np.isfinite(dt) and dt > 0):
@@ -68,7 +80,8 @@ def sg_references(p, dt: float, window: int = PAPER_WINDOW, order: int = PAPER_O
     return {**smooth, "window_used": used}
 
 
-def references(flight, window: int = PAPER_WINDOW, order: int = PAPER_ORDER) -> np.ndarray:
-    """(T, 9) reference states [p, v, a] of a Flight, matching the quadrotor state x = [p, ṗ, p̈]."""
+def references(flight: Flight, window: int = PAPER_WINDOW, order: int = PAPER_ORDER) -> np.ndarray:
+    """(T, 9) reference states [p (m), v (m/s), a (m/s²)] of a Flight, matching the quadrotor state
+    x = [p, ṗ, p̈]; SG of ``flight.p`` with ``window`` samples (see `sg_references`)."""
     ref = sg_references(flight.p, flight.dt, window, order)
     return np.column_stack([ref["p"], ref["v"], ref["a"]])

@@ -34,9 +34,11 @@ manoeuvres and take-offs give sharper correlation peaks than slow, level motion.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.signal import butter, correlate, savgol_filter, sosfiltfilt
 
 from .align import resample, uniform_grid
@@ -62,6 +64,22 @@ MAIN_LOBE_FRACTION = 0.5
 
 @dataclass
 class ClockAlignment:
+    """The result of `align_signals`, with the diagnostics a caller needs to trust it.
+
+    Attributes
+    ----------
+    offset_s : float
+        t_ref = t_other + offset_s, s.
+    score : float
+        Normalised correlation at the peak, in [-1, 1].
+    runner_up : float
+        Highest normalised correlation outside the peak's main lobe (periodic motion gives a high one).
+    excitation : float
+        rms of the band-limited reference signal, in its units.
+    start_offset_s : float
+        The offset that aligns the two starts (the centre of the search), s.
+    """
+
     offset_s: float          # t_ref = t_other + offset_s
     score: float             # normalised correlation at the peak, in [-1, 1]
     runner_up: float         # highest normalised correlation outside the peak's main lobe (periodic motion)
@@ -69,11 +87,13 @@ class ClockAlignment:
     start_offset_s: float    # the offset that aligns the two starts: the centre of the search
 
     def as_meta(self) -> dict:
+        """The fields as a dict of floats (for ``Flight.meta``)."""
         return {name: float(value) for name, value in vars(self).items()}
 
 
 # -- the generic estimator ------------------------------------------------------------------------------
-def estimate_clock_offset(t_ref, a_ref, t_other, a_other, max_lag_s: float = DEFAULT_MAX_LAG_S,
+def estimate_clock_offset(t_ref: ArrayLike, a_ref: ArrayLike, t_other: ArrayLike, a_other: ArrayLike,
+                          max_lag_s: float = DEFAULT_MAX_LAG_S,
                           rate_hz: float = 100.0) -> tuple[float, float]:
     """(offset_s, score) with t_ref = t_other + offset_s, for two scalar signals of one quantity.
 
@@ -85,10 +105,30 @@ def estimate_clock_offset(t_ref, a_ref, t_other, a_other, max_lag_s: float = DEF
     return alignment.offset_s, alignment.score
 
 
-def align_signals(t_ref, a_ref, t_other, a_other, max_lag_s: float = DEFAULT_MAX_LAG_S,
+def align_signals(t_ref: ArrayLike, a_ref: ArrayLike, t_other: ArrayLike, a_other: ArrayLike,
+                  max_lag_s: float = DEFAULT_MAX_LAG_S,
                   rate_hz: float = 100.0, names: tuple[str, str] = ("reference", "other")) -> ClockAlignment:
     """As `estimate_clock_offset`, with the diagnostics.  Signals need not be uniformly sampled; errors
-    about one signal start with its name."""
+    about one signal start with its name.
+
+    Parameters
+    ----------
+    t_ref, a_ref : array_like, shape (N,)
+        Reference times (s) and signal.
+    t_other, a_other : array_like, shape (M,)
+        The other stream's times (s, its own clock) and the same quantity.
+    max_lag_s : float
+        Search half-width around the start-aligned offset, s.
+    rate_hz : float
+        Rate both signals are resampled to before correlating, Hz.
+    names : tuple of str
+        Names of the two signals in error messages.
+
+    Raises
+    ------
+    ValueError
+        For signals too short or too flat to correlate, or that cannot overlap enough within the lag range.
+    """
     grid_ref, x = _uniform(t_ref, a_ref, rate_hz, names[0])
     grid_other, y = _uniform(t_other, a_other, rate_hz, names[1])
     x, y = _band_limited(x, rate_hz), _band_limited(y, rate_hz)
@@ -170,7 +210,7 @@ def _runner_up(ncc: np.ndarray, peak: int) -> float:
 
 
 # -- mocap vs accelerometer -----------------------------------------------------------------------------
-def mocap_specific_force(t, p, rate_hz: float = 100.0) -> tuple[np.ndarray, np.ndarray]:
+def mocap_specific_force(t: ArrayLike, p: ArrayLike, rate_hz: float = 100.0) -> tuple[np.ndarray, np.ndarray]:
     """(uniform times, |p̈ + g ẑ| in m/s²) from mocap positions (m, world z-up) at frame times `t`.
 
     Occlusion gaps are bridged linearly (p̈ = 0 inside, a short bump at the edges): harmless for the
@@ -184,8 +224,8 @@ def mocap_specific_force(t, p, rate_hz: float = 100.0) -> tuple[np.ndarray, np.n
     return grid, np.linalg.norm(acc + [0.0, 0.0, GRAVITY], axis=1)
 
 
-def accelerometer_specific_force(acc_g) -> np.ndarray:
-    """|acc| in m/s² from body-frame accelerometer samples in g."""
+def accelerometer_specific_force(acc_g: ArrayLike) -> np.ndarray:
+    """|acc| in m/s², shape (M,), from body-frame accelerometer samples in g, shape (M, 3)."""
     return np.linalg.norm(np.asarray(acc_g, dtype=float), axis=1) * GRAVITY
 
 
@@ -197,9 +237,14 @@ def _odd_window(samples: float, n: int) -> int:
     return window
 
 
-def align_mocap_and_accelerometer(t_mocap, p, t_acc, acc_g, max_lag_s: float = DEFAULT_MAX_LAG_S,
+def align_mocap_and_accelerometer(t_mocap: np.ndarray | Sequence[float], p: ArrayLike, t_acc: ArrayLike,
+                                  acc_g: ArrayLike, max_lag_s: float = DEFAULT_MAX_LAG_S,
                                   rate_hz: float = 100.0) -> ClockAlignment:
-    """Offset with t_mocap = t_acc + offset_s, from the specific-force magnitude (module docstring)."""
+    """Offset with t_mocap = t_acc + offset_s, from the specific-force magnitude (module docstring).
+
+    ``t_mocap`` (N,) s, ``p`` (N, 3) m, ``t_acc`` (M,) s, ``acc_g`` (M, 3) g.  Raises ValueError as
+    `align_signals` does, or for fewer than 2 mocap frames.
+    """
     if len(t_mocap) < 2:
         raise ValueError("mocap: needs at least 2 frames")
     grid, mocap_norm = mocap_specific_force(t_mocap, p, rate_hz)

@@ -12,10 +12,14 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from learnest.errors import InvalidInput
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 REQUIRED = ("t", "p", "a_meas", "quat")
 OPTIONAL = ("gyro", "motors", "vbat", "setpoint", "v_onboard", "p_onboard", "acc_body")
@@ -26,15 +30,54 @@ _AXES = {3: ("x", "y", "z"), 4: ("x", "y", "z", "w")}
 
 
 class IngestError(InvalidInput):
-    """A file that cannot become a Flight; the message names the file and the problem."""
+    """A file that cannot become a Flight; the message names the file and the problem.
 
-    def __init__(self, path, problem: str):
+    Attributes
+    ----------
+    path : str
+        The file at fault (or a stand-in such as ``"DataFrame"``).
+    problem : str
+        What is wrong with it; the message is ``f"{path}: {problem}"``.
+    """
+
+    def __init__(self, path: str | Path, problem: str) -> None:
         self.path, self.problem = str(path), problem
         super().__init__(f"{path}: {problem}")
 
 
 @dataclass
 class Flight:
+    """One flight on a uniform time grid, in SI units, world frame z-up.
+
+    Parameters
+    ----------
+    t : ndarray, shape (T,)
+        Time, s from the flight's start, uniform.
+    p : ndarray, shape (T, 3)
+        Mocap position, m, world frame z-up.
+    a_meas : ndarray, shape (T, 3)
+        Accelerometer specific force rotated into the world by the mocap attitude, gravity removed, m/s².
+    quat : ndarray, shape (T, 4)
+        Mocap attitude, body to world, scalar-last [qx, qy, qz, qw].
+    channels : dict of str to ndarray
+        Optional arrays with T rows each (names and units in ``OPTIONAL`` and ``UNITS``: ``gyro`` rad/s,
+        ``motors`` PWM, ``vbat`` V, ...).
+    meta : dict
+        Sources (path, sha256), adapter, original rates, clock offset, ``quality`` {"ok", "issues"}, ``name``.
+
+    Raises
+    ------
+    InvalidInput
+        If an array or channel does not have as many rows as ``t``.
+
+    Examples
+    --------
+    >>> import learnest as le
+    >>> flight = le.read_flights(["sample_logs/circle_rep1.csv"])[0]
+    >>> y = flight.measurements()      # (T, 6): p (m), a_meas (m/s²)
+    >>> df = flight.to_dataframe()     # and back: le.Flight.from_dataframe(df)
+    """
+
     t: np.ndarray                 # (T,) s from the flight's start, uniform
     p: np.ndarray                 # (T, 3) m, mocap position, world z-up
     a_meas: np.ndarray            # (T, 3) m/s², world frame, gravity removed
@@ -54,30 +97,35 @@ class Flight:
 
     @property
     def rate_hz(self) -> float:
+        """Sample rate, Hz (``1 / dt``)."""
         return 1.0 / self.dt
 
     @property
     def dt(self) -> float:
+        """Sample period, s: the median step of ``t`` (NaN with fewer than two samples)."""
         return float(np.median(np.diff(self.t))) if len(self.t) > 1 else float("nan")
 
     @property
     def duration_s(self) -> float:
+        """``t[-1] - t[0]``, s (0 for an empty flight)."""
         return float(self.t[-1] - self.t[0]) if len(self.t) else 0.0
 
     @property
     def name(self) -> str:
+        """``meta["name"]``, else the stem of the first source file, else ``"flight"``."""
         return self.meta.get("name") or Path(self.meta.get("sources", [{"path": "flight"}])[0]["path"]).stem
 
     @property
     def quality(self) -> dict:
+        """``meta["quality"]``: ``{"ok": bool, "issues": [str, ...]}`` (ok when never assessed)."""
         return self.meta.get("quality", {"ok": True, "issues": []})
 
     def measurements(self) -> np.ndarray:
-        """y = [p, a_meas] (T, 6), the quadrotor's measurement vector (Sec. V-C)."""
+        """y = [p (m), a_meas (m/s²)], shape (T, 6): the quadrotor's measurement vector (Sec. V-C)."""
         return np.column_stack([self.p, self.a_meas])
 
     def slice(self, start: int, stop: int) -> Flight:
-        """Rows [start, stop) with time restarted at zero."""
+        """Rows [start, stop) as a new Flight, time restarted at zero; ``meta`` is copied (shallowly)."""
         t = self.t[start:stop]
         return Flight(t - t[0], self.p[start:stop], self.a_meas[start:stop], self.quat[start:stop],
                       {k: v[start:stop] for k, v in self.channels.items()}, dict(self.meta))
@@ -89,7 +137,7 @@ class Flight:
                 f"adapter={self.meta.get('adapter')!r}, channels: {channels}, quality {state})")
 
     # -- pandas ------------------------------------------------------------------------------------
-    def to_dataframe(self):
+    def to_dataframe(self) -> pd.DataFrame:
         """The flight as a pandas DataFrame, one row per sample.
 
         Columns are ``t`` (s) and one column per array axis: ``p_x, p_y, p_z`` (m), ``a_meas_x..z``
@@ -116,7 +164,7 @@ class Flight:
         return frame
 
     @classmethod
-    def from_dataframe(cls, frame, meta: dict | None = None) -> Flight:
+    def from_dataframe(cls, frame: pd.DataFrame, meta: dict | None = None) -> Flight:
         """Rebuild a Flight from `to_dataframe`'s layout (or any frame with those column names).
 
         Parameters
@@ -126,6 +174,15 @@ class Flight:
             column groups ``name_x..``/``name_0..`` or single columns become channels.
         meta : dict, optional
             Metadata; default ``frame.attrs["meta"]``.
+
+        Returns
+        -------
+        Flight
+
+        Raises
+        ------
+        IngestError
+            If a required column is missing.
         """
         names = list(frame.columns)
         missing = [c for c in ("t", "p_x", "p_y", "p_z", "a_meas_x", "a_meas_y", "a_meas_z",
@@ -152,6 +209,7 @@ class Flight:
 
     # -- persistence: one .npz, arrays exact, metadata as JSON inside --------------------------------
     def to_bytes(self) -> bytes:
+        """The flight as a compressed ``.npz``: arrays exact, channels as ``channel__<name>``, meta as JSON."""
         buffer = io.BytesIO()
         arrays = {"t": self.t, "p": self.p, "a_meas": self.a_meas, "quat": self.quat}
         arrays.update({f"channel__{k}": v for k, v in self.channels.items()})
@@ -160,19 +218,28 @@ class Flight:
 
     @classmethod
     def from_bytes(cls, data: bytes) -> Flight:
+        """Inverse of `to_bytes`."""
         with np.load(io.BytesIO(data), allow_pickle=False) as npz:
             meta = json.loads(npz["meta"].tobytes().decode())
             channels = {k[len("channel__"):]: npz[k] for k in npz.files if k.startswith("channel__")}
             return cls(npz["t"], npz["p"], npz["a_meas"], npz["quat"], channels, meta)
 
-    def save(self, path) -> None:
+    def save(self, path: str | Path) -> None:
+        """Write `to_bytes` to ``path`` atomically (through ``path.tmp`` and a rename)."""
         path = Path(path)
         tmp = path.with_name(path.name + ".tmp")
         tmp.write_bytes(self.to_bytes())
         tmp.replace(path)  # atomic: never a half-written flight on disk
 
     @classmethod
-    def load(cls, path) -> Flight:
+    def load(cls, path: str | Path) -> Flight:
+        """Read a flight written by `save`.
+
+        Raises
+        ------
+        IngestError
+            If the file cannot be read or is not a saved flight.
+        """
         try:
             return cls.from_bytes(Path(path).read_bytes())
         except (OSError, ValueError, KeyError) as err:
@@ -187,7 +254,7 @@ def _split_columns(name: str, values: np.ndarray) -> dict:
     return {f"{name}_{axis}": values[:, i] for i, axis in enumerate(axes)}
 
 
-def json_compatible(value):
+def json_compatible(value: Any) -> Any:
     """``value`` with only JSON types: numpy arrays and scalars become lists and numbers, NaN and ±inf
     become None (PostgreSQL's json type rejects them; json.dumps would write them), tuples become lists,
     keys become strings, and anything else (a YAML date, ...) its string.  One definition for flight
@@ -205,7 +272,7 @@ def json_compatible(value):
     return str(value)
 
 
-def existing_file(path, kind: str) -> Path:
+def existing_file(path: str | Path, kind: str) -> Path:
     """``path`` as a Path if it is a non-empty regular file; otherwise the IngestError every reader gives.
 
     Parameters
@@ -213,6 +280,11 @@ def existing_file(path, kind: str) -> Path:
     path : str or Path
     kind : str
         What the file should have been ("NanoBench CSV", "MCAP recording", ...), for the message.
+
+    Raises
+    ------
+    IngestError
+        If ``path`` is a directory, does not exist or is empty.
     """
     path = Path(path)
     if path.is_dir():
@@ -224,7 +296,8 @@ def existing_file(path, kind: str) -> Path:
     return path
 
 
-def sha256_file(path) -> str:
+def sha256_file(path: str | Path) -> str:
+    """Hex SHA-256 digest of a file's bytes, read in 1 MiB chunks."""
     digest = hashlib.sha256()
     with open(path, "rb") as handle:
         for chunk in iter(lambda: handle.read(1 << 20), b""):

@@ -6,13 +6,19 @@ touchdown transients are not judged here.
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.ndimage import median_filter
 from scipy.signal import savgol_filter
 
 from .baseline import sg_references
 from .frames import GRAVITY
 from .limits import MAX_ACCELERATION_G, MAX_ROOM_M
+
+if TYPE_CHECKING:
+    from .flight import Flight
 
 # -- thresholds (each with why) -------------------------------------------------------------------------
 # Shorter than this, the 1.5 s reference filter and any estimator warm-up leave too little to evaluate.
@@ -69,8 +75,13 @@ MIN_EXCITATION_MS2 = 0.2
 SMOOTHING_WINDOW = 150   # as the SG references (paper Sec. VI)
 
 
-def assess(flight) -> dict:
-    """{"ok": bool, "issues": [reason, ...]} for a canonical Flight."""
+def assess(flight: Flight) -> dict:
+    """{"ok": bool, "issues": [reason, ...]} for a canonical Flight.
+
+    Checks time stamps, finiteness and position units first, then physical plausibility; if either stage
+    finds a problem, its issues are returned alone.  Otherwise: duration, accelerometer level, saturation,
+    spikes, gaps, frozen mocap, and the agreement of a_meas with the mocap's second derivative.
+    """
     # broken time or impossible numbers make the statistics below meaningless (and overflow): stop there
     for stage in ((_check_time, _check_finite, _check_position_units), (_check_plausible,)):
         issues = [issue for check in stage for issue in check(flight)]
@@ -191,7 +202,7 @@ def _check_gaps(flight) -> list[str]:
     return issues
 
 
-def interpolated_stretch_s(values, dt: float) -> float:
+def interpolated_stretch_s(values: ArrayLike, dt: float) -> float:
     """Longest stretch (s) over which a resampled stream is a straight line: build_flight interpolates
     linearly across missing samples, while measured data is never collinear to 1e-9 (sensor noise).
     A held (constant) stream counts too: it is a line of slope zero."""
@@ -228,7 +239,7 @@ def _runs(mask: np.ndarray):
 
 
 # -- mocap vs accelerometer -----------------------------------------------------------------------------
-def acc_mocap_correlation(flight, window: int = SMOOTHING_WINDOW) -> float | None:
+def acc_mocap_correlation(flight: Flight, window: int = SMOOTHING_WINDOW) -> float | None:
     """Pearson correlation of SG-smoothed a_meas with the SG second derivative of p, axes pooled after
     removing each axis' mean (a constant bias is a calibration matter, not misalignment).  None when the
     flight is too short for the window or too calm to tell."""

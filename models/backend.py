@@ -6,94 +6,120 @@ Convention: a state is the last axis in numpy/torch (shape (..., n)) and a colum
 """
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import casadi as ca
 import numpy as np
 import torch
 
 
 class NumpyOps:
+    """numpy namespace: a state is the last axis, shape (..., n); leading axes are a batch (sigma points)."""
+
     name = "numpy"
     sin, cos, tan, arctan, tanh, sqrt = np.sin, np.cos, np.tan, np.arctan, np.tanh, np.sqrt
 
     @staticmethod
-    def unstack(x):
+    def unstack(x: np.ndarray) -> list[np.ndarray]:
+        """Components of the last axis: (..., n) -> n arrays of shape (...)."""
         return [x[..., i] for i in range(x.shape[-1])]
 
     @staticmethod
-    def stack(items):
+    def stack(items: list) -> np.ndarray:
+        """Inverse of `unstack`: items of shape (...) (scalars broadcast) -> (..., len(items))."""
         try:
             return np.stack(items, axis=-1)  # the common case: every item has the batch shape
         except ValueError:
             return np.stack(np.broadcast_arrays(*items), axis=-1)
 
     @staticmethod
-    def concat(items):
+    def concat(items: list[np.ndarray]) -> np.ndarray:
+        """Join along the last (state) axis."""
         return np.concatenate(items, axis=-1)
 
     @staticmethod
-    def linear(z, weight, bias):
+    def linear(z: np.ndarray, weight: np.ndarray, bias: np.ndarray) -> np.ndarray:
         """weight (out, in), bias (out,) numpy arrays: y = W z + b for each row of z."""
         return z @ weight.T + bias
 
     @staticmethod
-    def zeros_like_first(x):
+    def zeros_like_first(x: np.ndarray) -> np.ndarray | float:
+        """A zero of one state component's shape: zeros(x.shape[:-1]) for a batch, 0.0 for one state."""
         return np.zeros(x.shape[:-1]) if x.ndim > 1 else 0.0
 
 
 class TorchOps:
+    """torch namespace (autograd for training): a state is the last axis, shape (..., n)."""
+
     name = "torch"
     sin, cos, tan, arctan, tanh, sqrt = torch.sin, torch.cos, torch.tan, torch.atan, torch.tanh, torch.sqrt
 
     @staticmethod
-    def unstack(x):
+    def unstack(x: torch.Tensor) -> list[torch.Tensor]:
+        """Components of the last axis: (..., n) -> n tensors of shape (...)."""
         return list(torch.unbind(x, dim=-1))
 
     @staticmethod
-    def stack(items):
+    def stack(items: list[torch.Tensor]) -> torch.Tensor:
+        """Inverse of `unstack`, broadcasting the items to one shape first."""
         return torch.stack(torch.broadcast_tensors(*items), dim=-1)
 
     @staticmethod
-    def concat(items):
+    def concat(items: list[torch.Tensor]) -> torch.Tensor:
+        """Join along the last (state) axis."""
         return torch.cat(items, dim=-1)
 
     @staticmethod
-    def linear(z, weight, bias):
+    def linear(z: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+        """y = z Wᵀ + b over the last axis; weight (out, in), bias (out,) tensors."""
         return torch.nn.functional.linear(z, weight, bias)
 
     @staticmethod
-    def zeros_like_first(x):
+    def zeros_like_first(x: torch.Tensor) -> torch.Tensor:
+        """Zeros of shape x.shape[:-1] and x's dtype."""
         return torch.zeros(x.shape[:-1], dtype=x.dtype)
 
 
 class CasadiOps:
+    """CasADi namespace (symbols for IPOPT): a state is a column vector, shape (n, 1)."""
+
     name = "casadi"
     sin, cos, tan, arctan, tanh, sqrt = ca.sin, ca.cos, ca.tan, ca.atan, ca.tanh, ca.sqrt
 
     @staticmethod
-    def unstack(x):
+    def unstack(x: Any) -> list:
+        """Rows of a column vector (n, 1) -> n scalar expressions."""
         return [x[i] for i in range(x.shape[0])]
 
     @staticmethod
-    def stack(items):
+    def stack(items: list) -> Any:
+        """Scalar expressions -> a column vector (vertcat)."""
         return ca.vertcat(*items)
 
     @staticmethod
-    def concat(items):
+    def concat(items: list) -> Any:
+        """Join column vectors (vertcat)."""
         return ca.vertcat(*items)
 
     @staticmethod
-    def linear(z, weight, bias):
+    def linear(z: Any, weight: np.ndarray, bias: np.ndarray) -> Any:
+        """y = W z + b for a column vector z; weight (out, in), bias (out,) numpy arrays as constants."""
         return ca.DM(np.asarray(weight)) @ z + ca.DM(np.asarray(bias))
 
     @staticmethod
-    def zeros_like_first(x):
+    def zeros_like_first(x: Any) -> float:
+        """0.0 (a CasADi state is never batched)."""
         return 0.0
 
+
+#: A state or input in any namespace: numpy ndarray (..., n), torch Tensor (..., n) or CasADi SX/MX/DM (n, 1).
+Array = Any
 
 OPS = {"numpy": NumpyOps, "torch": TorchOps, "casadi": CasadiOps}
 
 
-def ops_for(x):
+def ops_for(x: Any) -> type[NumpyOps] | type[TorchOps] | type[CasadiOps]:
     """Pick the namespace from the array type, so callers never pass it explicitly."""
     if isinstance(x, torch.Tensor):
         return TorchOps
@@ -102,8 +128,24 @@ def ops_for(x):
     return NumpyOps
 
 
-def rk4_step(f, x, u, dt):
-    """One explicit RK4 step of x' = f(x, u) with u held; works in every namespace."""
+def rk4_step(f: Callable[[Array, Array], Array], x: Array, u: Array, dt: float) -> Array:
+    """One explicit RK4 step of x' = f(x, u) with u held over the step; works in every namespace.
+
+    Parameters
+    ----------
+    f : callable
+        Continuous vector field f(x, u) -> dx/dt, same shape as x.
+    x : ndarray (..., n), Tensor (..., n) or CasADi (n, 1)
+        State(s) at the start of the step.
+    u : array or None
+        Input, held constant (zero-order hold).
+    dt : float
+        Step, s.
+
+    Returns
+    -------
+    Same type and shape as ``x``: the state after ``dt``.
+    """
     k1 = f(x, u)
     k2 = f(x + 0.5 * dt * k1, u)
     k3 = f(x + 0.5 * dt * k2, u)

@@ -2,12 +2,19 @@
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from learnest.errors import InvalidInput
 
 
-def check_sequence(name: str, array, rows: int | None = None, cols: int | None = None) -> np.ndarray:
-    """A (T, k) finite float array; a 1-D array is read as one channel."""
+def check_sequence(name: str, array: ArrayLike, rows: int | None = None, cols: int | None = None) -> np.ndarray:
+    """A (T, k) finite float array; a 1-D array is read as one channel.
+
+    Raises
+    ------
+    InvalidInput
+        If it is not 2-D, has the wrong number of rows or columns, or holds NaN/inf.
+    """
     arr = np.asarray(array, dtype=float)
     if arr.ndim == 1 and cols in (None, 1):
         arr = arr[:, None]
@@ -23,7 +30,7 @@ def check_sequence(name: str, array, rows: int | None = None, cols: int | None =
     return arr
 
 
-def check_inputs(u, rows: int, cols: int) -> np.ndarray:
+def check_inputs(u: ArrayLike | None, rows: int, cols: int) -> np.ndarray:
     """Inputs as a (rows, cols) array; None (or an empty array) means "no inputs" for a model with none."""
     if u is None or (np.size(u) == 0 and cols == 0):
         if cols:
@@ -35,7 +42,8 @@ def check_inputs(u, rows: int, cols: int) -> np.ndarray:
     return check_sequence("u", u, rows=rows, cols=cols)
 
 
-def check_vector(name: str, vector, size: int) -> np.ndarray:
+def check_vector(name: str, vector: ArrayLike, size: int) -> np.ndarray:
+    """``vector`` flattened to a finite float array of shape (size,); else `InvalidInput`."""
     vec = np.asarray(vector, dtype=float).reshape(-1)
     if vec.shape != (size,):
         raise InvalidInput(f"{name} must have {size} entries, got shape {np.shape(vector)}")
@@ -44,7 +52,7 @@ def check_vector(name: str, vector, size: int) -> np.ndarray:
     return vec
 
 
-def check_covariance(name: str, matrix, size: int, allow_singular: bool = False) -> np.ndarray:
+def check_covariance(name: str, matrix: ArrayLike, size: int, allow_singular: bool = False) -> np.ndarray:
     """Square, finite, symmetric and positive (semi-)definite; the message says which test failed."""
     mat = np.asarray(matrix, dtype=float)
     if mat.shape != (size, size):
@@ -60,7 +68,8 @@ def check_covariance(name: str, matrix, size: int, allow_singular: bool = False)
     return mat
 
 
-def check_dt(dt) -> float:
+def check_dt(dt: float) -> float:
+    """``dt`` (s) as a float if it is finite and positive; else `InvalidInput`."""
     if not (np.isfinite(dt) and dt > 0):
         raise InvalidInput(f"dt must be a positive finite number of seconds, got {dt}")
     return float(dt)

@@ -26,6 +26,25 @@ BOOTSTRAP_REPLICATES = 60
 
 @dataclass
 class ResidualProblem:
+    """One channel of data in regression form for effect selection.
+
+    Attributes
+    ----------
+    name : str
+        Channel name (``"accelerometer"``, ``"dynamics"``, ...), reported as ``channel``.
+    candidates : list of Effect
+        Effects the selection may choose from; all sit at their nominal values unless fitted.
+    residual : callable
+        ``residual(values, rows) -> ndarray (len(rows), k)``: observed minus predicted for parameter
+        ``values`` {name: value} on the given row indices.
+    n_rows : int
+        Number of rows.
+    blocks : list of ndarray
+        Held-out row blocks of the cross-validation (flights or time); default 5 contiguous blocks.
+    frozen : dict
+        Parameter name -> why the data cannot identify it; such parameters stay nominal.
+    """
+
     name: str
     candidates: list                       # [Effect]
     residual: Callable                     # (values: dict, rows: ndarray) -> (len(rows), k)
@@ -40,6 +59,23 @@ class ResidualProblem:
 
 @dataclass
 class Fit:
+    """A least-squares fit of some effects.
+
+    Attributes
+    ----------
+    effects : list of Effect
+    values : dict
+        Fitted parameter values {name: value} (frozen parameters are absent).
+    residual : ndarray, shape (n_rows, k)
+        The residual at those values.
+    rss : float
+        Residual sum of squares.
+    bic : float
+        BIC_eff (`bic_eff`).
+    tau : float
+        Integrated autocorrelation time of the residual, samples.
+    """
+
     effects: list
     values: dict
     residual: np.ndarray
@@ -69,7 +105,11 @@ def autocorrelation_time(residual: np.ndarray) -> float:
 
 
 def bic_eff(residual: np.ndarray, n_params: int) -> tuple[float, float]:
-    """BIC with the effective number of independent samples N/τ (see autocorrelation_time)."""
+    """BIC with the effective number of independent samples N/τ (see autocorrelation_time).
+
+    Returns ``(bic, tau)``: N_eff·log(mean r²) + n_params·log(N_eff), with N = residual.size, N_eff at
+    least n_params + 2, and τ in samples.
+    """
     tau = autocorrelation_time(residual)
     n_eff = max(residual.size / tau, n_params + 2.0)
     return n_eff * np.log(max(np.mean(residual**2), 1e-300)) + n_params * np.log(n_eff), tau
@@ -83,8 +123,13 @@ def _all_values(candidates, chosen_values=None):
     return values
 
 
-def fit(problem: ResidualProblem, effects: list, rows=None, offset=None) -> Fit:
-    """Least squares over the parameters of `effects`, every other candidate at its nominal value."""
+def fit(problem: ResidualProblem, effects: list, rows: np.ndarray | None = None,
+        offset: np.ndarray | None = None) -> Fit:
+    """Least squares over the parameters of `effects`, every other candidate at its nominal value.
+
+    Bounded trust-region fit (scipy ``least_squares``) starting at the nominal values, on ``rows``
+    (default all); ``offset`` (same shape as the residual) is added to the residual (bootstrap replicates).
+    """
     rows = np.arange(problem.n_rows) if rows is None else rows
     params = [p for e in effects for p in e.params if p.name not in problem.frozen]
     base = _all_values(problem.candidates)
@@ -131,7 +176,10 @@ def _sensitivity(problem, values, params, step=1e-5):
 
 def confounded_pairs(problem: ResidualProblem, chosen: list, values: dict, near_ties: list) -> list[dict]:
     """Chosen effects that another candidate explains about as well (BIC_eff within DELTA_BIC), with the
-    pair of parameters whose sensitivities are most nearly parallel as the reason."""
+    pair of parameters whose sensitivities are most nearly parallel as the reason.
+
+    ``near_ties`` is a list of (chosen effect, rival effect, ΔBIC_eff); ``chosen`` is not used.
+    """
     allv = _all_values(problem.candidates, values)
     out = []
     for a, b, delta_bic in near_ties:
@@ -149,8 +197,13 @@ def confounded_pairs(problem: ResidualProblem, chosen: list, values: dict, near_
     return out
 
 
-def bootstrap_ci(problem: ResidualProblem, final: Fit, replicates: int = BOOTSTRAP_REPLICATES, seed: int = 0):
-    """95 % intervals by a moving-block bootstrap of the residual rows (blocks keep the autocorrelation)."""
+def bootstrap_ci(problem: ResidualProblem, final: Fit, replicates: int = BOOTSTRAP_REPLICATES,
+                 seed: int = 0) -> dict[str, list[float]]:
+    """95 % intervals by a moving-block bootstrap of the residual rows (blocks keep the autocorrelation).
+
+    Returns {parameter name: [2.5 %, 97.5 %] percentile} for each fitted parameter of ``final``
+    (empty if it has no effects); the block length is 2τ, clipped to [5, n/5] rows.
+    """
     if not final.effects:
         return {}
     rng = np.random.default_rng(seed)
@@ -178,7 +231,16 @@ def _determined(param, interval) -> bool:
 
 def select_effects(problem: ResidualProblem, max_effects: int = 3) -> dict:
     """Forward selection; returns the chosen effects with values, intervals, explained fractions, the
-    confounded pairs and the selection trace."""
+    confounded pairs and the selection trace.
+
+    Returns
+    -------
+    dict
+        ``channel``; ``effects`` (per chosen effect: ``id``, ``target``, ``params``, ``held_nominal``,
+        ``units``, ``ci95``, ``determined``, ``explained_fraction`` of the baseline RSS, ``equation``), sorted
+        by explained fraction; ``confounded``; ``values``; ``rss_before``; ``rss_after``; ``trace``; ``fit``
+        (the final `Fit`).
+    """
     current = fit(problem, [])
     baseline_rss = current.rss
     current_cv = cv_error(problem, [])

@@ -9,16 +9,37 @@ with f_body = Rᵀ (p̈ + g ẑ) the true specific force in the mocap body frame
 """
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from learnest.errors import InvalidInput
 from learnest.ingest.frames import GRAVITY, imu_misalignment, quat_to_matrix, world_acceleration
 
+if TYPE_CHECKING:
+    from .systems import System
+
 
 @dataclass(frozen=True)
 class Param:
+    """One parameter of an effect.
+
+    Attributes
+    ----------
+    name : str
+        Name in fitted values (``"bias_x"``, ``"delay_s"``, ...).
+    unit : str
+        Its unit (``"m/s²"``, ``"s"``, ``"rad"``, ``""`` for a pure number).
+    nominal : float
+        The value that means "no effect" (what the prior or an ideal sensor assumes).
+    lower, upper : float
+        Bounds of the fit.
+    key : str
+        The system's dynamics parameter it sets (dynamics effects only).
+    """
+
     name: str
     unit: str
     nominal: float
@@ -29,6 +50,19 @@ class Param:
 
 @dataclass(frozen=True)
 class Effect:
+    """A named physical effect: parameters with units, added to a prior or to the accelerometer model.
+
+    Attributes
+    ----------
+    id : str
+        Key in ``LIBRARY`` (``"accel_bias"``, ``"cart_friction"``, ...).
+    system : str
+        The system it belongs to.
+    target : {"dynamics", "measurement"}
+    params : tuple of Param
+    description : str
+    """
+
     id: str
     system: str
     target: str             # "dynamics" or "measurement"
@@ -37,9 +71,11 @@ class Effect:
 
     @property
     def names(self) -> list[str]:
+        """The parameters' names."""
         return [p.name for p in self.params]
 
     def nominal(self) -> dict:
+        """{name: nominal value}: the effect switched off."""
         return {p.name: p.nominal for p in self.params}
 
     def equation(self, values: dict) -> str:
@@ -87,13 +123,20 @@ LIBRARY = {e.id: e for e in [
 
 
 def effects_for(system: str, target: str | None = None) -> list[Effect]:
+    """The library's effects of ``system``, optionally only ``"dynamics"`` or ``"measurement"`` ones.
+
+    Raises
+    ------
+    InvalidInput
+        If none is found.
+    """
     found = [e for e in LIBRARY.values() if e.system == system and (target is None or e.target == target)]
     if not found:
         raise InvalidInput(f"no effects known for system {system!r}")
     return found
 
 
-def dynamics_params(system, values: dict, effects) -> dict:
+def dynamics_params(system: System, values: dict, effects: Iterable[Effect]) -> dict:
     """The system's prior parameters with the fitted dynamics effects substituted."""
     params = dict(system.prior_params)
     for effect in effects:
@@ -126,7 +169,11 @@ def delayed(values: np.ndarray, dt: float, delay: float) -> np.ndarray:
 
 
 def predict_acc_body(f_body: np.ndarray, t: np.ndarray, values: dict) -> np.ndarray:
-    """What the accelerometer reads (m/s², IMU frame) for true specific force f_body (T, 3) at times t."""
+    """What the accelerometer reads (m/s², IMU frame) for true specific force f_body (T, 3) at times t (s).
+
+    ``values`` holds any of ``delay_s``, ``roll_rad``, ``pitch_rad``, ``scale_x..z``, ``bias_x..z`` (m/s²);
+    missing ones are nominal.  Returns shape (T, 3).
+    """
     shifted = delayed(f_body, float(t[1] - t[0]), values.get("delay_s", 0.0))
     tilted = shifted @ tilt_matrix(values.get("roll_rad", 0.0), values.get("pitch_rad", 0.0))
     scale = np.array([values.get(f"scale_{a}", 1.0) for a in "xyz"])
@@ -135,7 +182,10 @@ def predict_acc_body(f_body: np.ndarray, t: np.ndarray, values: dict) -> np.ndar
 
 
 def correct_acc_body(acc_body: np.ndarray, t: np.ndarray, values: dict) -> np.ndarray:
-    """Invert the accelerometer model: the specific force the IMU would have read were it ideal."""
+    """Invert the accelerometer model: the specific force the IMU would have read were it ideal.
+
+    acc_body (T, 3) m/s², t (T,) s, ``values`` as in `predict_acc_body`; returns (T, 3) m/s², body frame.
+    """
     scale = np.array([values.get(f"scale_{a}", 1.0) for a in "xyz"])
     bias = np.array([values.get(f"bias_{a}", 0.0) for a in "xyz"])
     untilted = ((acc_body - bias) / scale) @ tilt_matrix(values.get("roll_rad", 0.0), values.get("pitch_rad", 0.0)).T
@@ -143,10 +193,16 @@ def correct_acc_body(acc_body: np.ndarray, t: np.ndarray, values: dict) -> np.nd
 
 
 def specific_force_body(a_world: np.ndarray, quat: np.ndarray) -> np.ndarray:
-    """f_body = Rᵀ (a + g ẑ): what an ideal body-frame accelerometer reads for world acceleration a."""
+    """f_body = Rᵀ (a + g ẑ): what an ideal body-frame accelerometer reads for world acceleration a.
+
+    a_world (T, 3) m/s², quat (T, 4) scalar-last body-to-world -> (T, 3) m/s².
+    """
     return np.einsum("tji,tj->ti", quat_to_matrix(quat), a_world + np.array([0.0, 0.0, GRAVITY]))
 
 
 def world_from_body(acc_body: np.ndarray, quat: np.ndarray) -> np.ndarray:
-    """a_meas = R acc_body - g ẑ from a body-frame reading in m/s² (the Flight's convention)."""
+    """a_meas = R acc_body - g ẑ from a body-frame reading in m/s² (the Flight's convention).
+
+    acc_body (T, 3) m/s², quat (T, 4) scalar-last -> (T, 3) m/s², world frame.
+    """
     return world_acceleration(acc_body / GRAVITY, quat)

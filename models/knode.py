@@ -16,7 +16,7 @@ import torch
 
 from learnest.errors import InvalidInput
 
-from .backend import CasadiOps, TorchOps, ops_for, rk4_step
+from .backend import Array, CasadiOps, TorchOps, ops_for, rk4_step
 from .systems import System, make_system
 
 
@@ -31,6 +31,10 @@ class Residual:
     layers: list
 
     def __call__(self, x, u):
+        """Δθ([x, u]) in the namespace of ``x``: numpy (B, n) -> (B, n), torch likewise, CasADi (n, 1).
+
+        ``u`` is left out when it is None or has width 0.
+        """
         ops = ops_for(x)
         z = ops.concat([x, u]) if u is not None and _width(u) else x
         for i, (weight, bias) in enumerate(self.layers):
@@ -42,10 +46,12 @@ class Residual:
         return z
 
     def to_dict(self) -> dict:
+        """``{"layers": [[weight, bias], ...]}`` as nested lists (JSON)."""
         return {"layers": [[w.tolist(), b.tolist()] for w, b in self.layers]}
 
     @classmethod
     def from_dict(cls, data: dict) -> Residual:
+        """Inverse of `to_dict` (arrays as float64)."""
         return cls([(np.asarray(w, dtype=float), np.asarray(b, dtype=float)) for w, b in data["layers"]])
 
 
@@ -54,37 +60,63 @@ def _width(u) -> int:
 
 
 class HybridModel:
-    """Continuous vector field + RK4 discretisation + the system's measurement model."""
+    """Continuous vector field + RK4 discretisation + the system's measurement model.
+
+    Satisfies `learnest.estimators.protocols.StateSpaceModel`.
+
+    Parameters
+    ----------
+    system : System
+        The dynamics (prior and true vector fields, measurement model, noise settings).
+    kind : {"prior", "true", "knode"}
+        Which vector field the model holds: the first-principles prior, the simulator's true dynamics
+        (for reference runs), or prior + trained residual.
+    residual : Residual, optional
+        Required for ``"knode"``; when given it is added to the base field whatever the kind.
+    meta : dict, optional
+        Free metadata (training settings, losses, ...), saved with the model.
+
+    Raises
+    ------
+    InvalidInput
+        If ``kind`` is unknown, or ``"knode"`` comes without a residual.
+    """
 
     def __init__(self, system: System, kind: str = "prior", residual: Residual | None = None,
-                 meta: dict | None = None):
+                 meta: dict | None = None) -> None:
         if kind not in ("prior", "true", "knode"):
             raise InvalidInput(f"model kind must be 'prior', 'true' or 'knode', not {kind!r}")
-        if kind == "knode" and residual is None:
-            raise InvalidInput("a 'knode' model needs a trained residual")
+        if (kind == "knode") != (residual is not None):
+            raise InvalidInput("a 'knode' model needs a trained residual, and only a 'knode' model has one")
         self.system, self.kind, self.residual, self.meta = system, kind, residual, dict(meta or {})
 
     @property
     def n(self) -> int:
+        """Number of states (9 for the quadrotor: p (m), v (m/s), a (m/s²))."""
         return self.system.n
 
     @property
     def n_inputs(self) -> int:
+        """Number of inputs (0 for an autonomous system)."""
         return self.system.n_inputs
 
     @property
     def n_meas(self) -> int:
+        """Number of measurements."""
         return self.system.n_meas
 
-    def f_c(self, x, u):
+    def f_c(self, x: Array, u: Array) -> Array:
+        """Continuous vector field dx/dt: the prior (or the true field for ``"true"``), plus the residual
+        of a ``"knode"`` model.  Same namespace and shape as ``x``."""
         base = self.system.f_true(x, u) if self.kind == "true" else self.system.f_prior(x, u)
         return base + self.residual(x, u) if self.residual is not None else base
 
-    def step(self, x, u, dt):
-        """Discrete model f_h(x, u) = RK4(f_h,c); x may be a batch (B, n) of sigma points."""
+    def step(self, x: Array, u: Array, dt: float) -> Array:
+        """Discrete model f_h(x, u) = RK4(f_h,c) over ``dt`` s; x may be a batch (B, n) of sigma points."""
         return rk4_step(self.f_c, x, u, dt)
 
-    def h(self, x, u=None):
+    def h(self, x: Array, u: Array | None = None) -> Array:
+        """Predicted measurement(s) of the system: (n,) -> (m,), (B, n) -> (B, m)."""
         return self.system.h(x, u)
 
     def __repr__(self) -> str:
@@ -92,6 +124,7 @@ class HybridModel:
 
     # -- persistence: everything needed to rebuild the model, no pickle --------------------------
     def save(self, path: str | Path) -> None:
+        """Write the model as JSON (format ``learnest-model/1``, no pickle), atomically via ``path.tmp``."""
         data = {"format": "learnest-model/1", "system": self.system.name, "kind": self.kind,
                 "prior_params": self.system.prior_params, "true_params": self.system.true_params,
                 "residual": self.residual.to_dict() if self.residual else None, "meta": self.meta}
@@ -102,6 +135,13 @@ class HybridModel:
 
     @classmethod
     def load(cls, path: str | Path) -> HybridModel:
+        """Read a model written by `save`.
+
+        Raises
+        ------
+        InvalidInput
+            If the file cannot be read or is not a ``learnest-model/1`` file.
+        """
         try:
             data = json.loads(Path(path).read_text())
         except (OSError, json.JSONDecodeError) as err:

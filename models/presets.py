@@ -16,6 +16,27 @@ PRODUCTION_ALIAS = "production"  # the alias scheduled evaluations use
 
 @dataclass
 class TrainingConfig:
+    """Hyperparameters of Algorithm 1's training (`models.training.train_knode`).
+
+    Attributes
+    ----------
+    hidden : int
+        Neurons of the residual's one hidden tanh layer.
+    epochs : int
+        Adam epochs.
+    lr : float
+        Adam learning rate.
+    batch_size : int
+        One-step pairs per Adam step; 0 = full batch (one step per epoch).
+    seed : int
+        Seed of the initial weights and of the mini-batch order.
+    validation_fraction : float
+        Share of the one-step pairs held out (in time blocks); the weights of the epoch with the lowest
+        held-out loss are kept.  Ignored (nothing held out) for fewer than 10 pairs.
+    validation_layout : {"spread", "tail"}
+        Two blocks at about 30-40 % and 80-90 % of the record, or the last part.
+    """
+
     hidden: int = 8            # neurons between the two layers (paper: 8 cartpole/robot, 16 quadrotor)
     epochs: int = 250
     lr: float = 1e-2
@@ -31,6 +52,7 @@ class TrainingConfig:
     validation_layout: str = "spread"
 
     def as_dict(self) -> dict:
+        """The fields as a plain dict (stored in a trained model's meta)."""
         return dict(self.__dict__)
 
 

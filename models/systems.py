@@ -28,6 +28,7 @@ class SimulatedRun:
 
     @property
     def dt(self) -> float:
+        """Sample period, s (``t[1] - t[0]``)."""
         return float(self.t[1] - self.t[0])
 
 
@@ -50,50 +51,63 @@ class System:
 
     @property
     def n(self) -> int:
+        """Number of states."""
         return len(self.state_names)
 
     @property
     def n_inputs(self) -> int:
+        """Number of inputs (0 for the quadrotor)."""
         return len(self.input_names)
 
     @property
     def n_meas(self) -> int:
+        """Number of measurements."""
         return len(self.meas_names)
 
     # -- models ------------------------------------------------------------------------------------
     def f_prior(self, x, u):
+        """Continuous prior dx/dt = dynamics(x, u, prior_params); any namespace, shape of ``x``."""
         return self.dynamics(x, u, self.prior_params)
 
     def f_true(self, x, u):
+        """Continuous true dynamics dx/dt = dynamics(x, u, true_params) (simulation only)."""
         return self.dynamics(x, u, self.true_params)
 
     def dynamics(self, x, u, params):  # pragma: no cover - abstract
+        """dx/dt for states x (..., n) or CasADi (n, 1), inputs u, physical parameters ``params``."""
         raise NotImplementedError
 
     def h(self, x, u=None):  # pragma: no cover - abstract
+        """Noise-free measurement(s): x (..., n) -> (..., m)."""
         raise NotImplementedError
 
     def with_true_params(self, **params) -> System:
+        """A copy whose true parameters are updated with ``params`` (the prior is unchanged)."""
         return replace(self, true_params={**self.true_params, **params})
 
     # -- noise settings as matrices ----------------------------------------------------------------
     @property
     def Q(self) -> np.ndarray:
+        """Estimator process noise per step, (n, n): diag(process_noise_std²)."""
         return np.diag(np.square(self.process_noise_std))
 
     @property
     def R(self) -> np.ndarray:
+        """Measurement noise, (m, m): diag(meas_noise_std²)."""
         return np.diag(np.square(self.meas_noise_std))
 
     @property
     def P0(self) -> np.ndarray:
+        """Initial estimate covariance, (n, n): diag(initial_std²)."""
         return np.diag(np.square(self.initial_std))
 
     # -- simulation --------------------------------------------------------------------------------
     def excitation(self, rng: np.random.Generator, t: np.ndarray) -> np.ndarray:  # pragma: no cover
+        """Open-loop inputs, shape (T, n_inputs), for sample times ``t`` (s)."""
         raise NotImplementedError
 
     def initial_state(self, rng: np.random.Generator) -> np.ndarray:  # pragma: no cover
+        """A random true initial state, shape (n,)."""
         raise NotImplementedError
 
     def feedback(self, x: np.ndarray, u_excitation: np.ndarray) -> np.ndarray:
@@ -101,7 +115,20 @@ class System:
         return u_excitation
 
     def simulate(self, seed: int, n_samples: int | None = None) -> SimulatedRun:
-        """Integrate the true system with RK45 between samples (input held), then add sensor noise."""
+        """Integrate the true system with RK45 between samples (input held), then add sensor noise.
+
+        Parameters
+        ----------
+        seed : int
+            Seed of the excitation, the initial state and the noise.
+        n_samples : int, optional
+            Number of samples T; default ``self.n_samples``, spaced ``self.dt`` s.
+
+        Returns
+        -------
+        SimulatedRun
+            ``y`` adds Gaussian noise of ``meas_noise_std``, ``x_noisy`` of ``state_noise_std``.
+        """
         rng = np.random.default_rng(seed)
         n_samples = n_samples or self.n_samples
         t = np.arange(n_samples) * self.dt
@@ -149,6 +176,7 @@ class Cartpole(System):
     initial_std: tuple = (0.05, 0.5, 0.05, 0.5)
 
     def dynamics(self, x, u, params):
+        """x = [p (m), ṗ (m/s), α (rad), α̇ (rad/s)], u = [F (N)] -> dx/dt."""
         ops = ops_for(x)
         m_c, m_p, length, g, b = (params[k] for k in ("m_c", "m_p", "l", "g", "b"))
         _, p_dot, alpha, alpha_dot = ops.unstack(x)
@@ -161,20 +189,24 @@ class Cartpole(System):
         return ops.stack([p_dot, p_ddot, alpha_dot, alpha_ddot])
 
     def h(self, x, u=None):
+        """y = [p (m), α (rad)]."""
         ops = ops_for(x)
         p, _, alpha, _ = ops.unstack(x)
         return ops.stack([p, alpha])
 
     def excitation(self, rng, t):
+        """Cart force, N, shape (T, 1): a random sum of sines at 0.3, 0.7 and 1.5 Hz."""
         # a few Newtons at 0.2-1.5 Hz: moves the cart back and forth and keeps the pole swinging
         return _sum_of_sines(rng, t, [4.0, 3.0, 2.0], [0.3, 0.7, 1.5])[:, None]
 
     def feedback(self, x, u_excitation):
+        """Excitation minus a PD term on cart position and speed (keeps the cart near the middle)."""
         # the cart runs on a finite track: a soft PD loop (the lab's safety controller) keeps it near the
         # middle, so every run visits the same cart positions and speeds
         return u_excitation - 4.0 * x[0] - 3.0 * x[1]
 
     def initial_state(self, rng):
+        """Cart at rest at 0, pole at rest near hanging (α = π ± 0.6 rad)."""
         # the pole starts near hanging (alpha = pi; alpha = 0 is upright) and swings, never spins over
         return np.array([0.0, 0.0, np.pi + rng.uniform(-0.6, 0.6), 0.0])
 
@@ -204,6 +236,7 @@ class GroundRobot(System):
     initial_std: tuple = (0.2, 0.2, 0.2, 0.05)
 
     def dynamics(self, x, u, params):
+        """x = [x (m), y (m), v (m/s), ψ (rad)], u = [a (m/s²), δ (rad)] -> dx/dt."""
         ops = ops_for(x)
         l_f, l_r = params["l_f"], params["l_r"]
         _, _, v, psi = ops.unstack(x)
@@ -215,12 +248,14 @@ class GroundRobot(System):
                           v * ops.cos(beta) * ops.tan(delta) / (l_f + l_r)])
 
     def h(self, x, u=None):
+        """y = [r1, r2, r3, r4 (m, ranges to the corner sensors), ψ (rad)]."""
         ops = ops_for(x)
         px, py, _, psi = ops.unstack(x)
         ranges = [ops.sqrt((px - sx) ** 2 + (py - sy) ** 2) for sx, sy in self.sensors]
         return ops.stack(ranges + [psi])
 
     def excitation(self, rng, t):
+        """Inputs [a (m/s²), δ (rad)], shape (T, 2): constant offsets plus random sums of sines."""
         # one lap of a ~8 m loop inside the sensor square (25 s at ~2 m/s), with a random weave of
         # throttle and steering: every run covers the same arena, so train and test see the same states
         accel = 0.4 + _sum_of_sines(rng, t, [0.5, 0.3], [0.07, 0.19])
@@ -228,6 +263,7 @@ class GroundRobot(System):
         return np.stack([accel, delta], axis=1)
 
     def initial_state(self, rng):
+        """Near (0, -8) m, 2 m/s, heading near 0 rad."""
         return np.array([rng.normal(0.0, 0.3), -8.0 + rng.normal(0.0, 0.3), 2.0, rng.normal(0.0, 0.05)])
 
 
@@ -253,6 +289,7 @@ class Quadrotor(System):
     initial_std: tuple = (0.01,) * 3 + (0.1,) * 3 + (0.5,) * 3
 
     def dynamics(self, x, u, params):
+        """x = [p (m), v (m/s), a (m/s²)] -> [v, a, jerk (m/s³)]; ``u`` is unused (no inputs)."""
         ops = ops_for(x)
         _, _, _, vx, vy, vz, ax, ay, az = ops.unstack(x)
         # jerk: -ω² v in the plane (periodic flight), -k a (Singer: acceleration decays at rate k)
@@ -260,14 +297,17 @@ class Quadrotor(System):
         return ops.stack([vx, vy, vz, ax, ay, az, -w2 * vx - k * ax, -w2 * vy - k * ay, -k * az])
 
     def h(self, x, u=None):
+        """y = [p (m), a (m/s²)], shape (..., 6)."""
         ops = ops_for(x)
         s = ops.unstack(x)
         return ops.stack(s[0:3] + s[6:9])
 
     def excitation(self, rng, t):
+        """No inputs: shape (T, 0)."""
         return np.zeros((len(t), 0))
 
     def initial_state(self, rng):
+        """On a 0.5 m circle at 1 m height, random phase, moving with the true ω (rad/s)."""
         w, r = self.true_params["omega"], 0.5
         phase = rng.uniform(0, 2 * np.pi)
         c, s = np.cos(phase), np.sin(phase)
@@ -278,6 +318,13 @@ SYSTEMS = {"cartpole": Cartpole, "robot": GroundRobot, "quadrotor": Quadrotor}
 
 
 def make_system(name: str, **overrides) -> System:
+    """A system by name (``"cartpole"``, ``"robot"``, ``"quadrotor"``), its fields overridden by ``overrides``.
+
+    Raises
+    ------
+    InvalidInput
+        If ``name`` is unknown.
+    """
     try:
         cls = SYSTEMS[name]
     except KeyError:

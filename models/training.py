@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
+from numpy.typing import ArrayLike
 from torchdiffeq import odeint
 
 from learnest.errors import InvalidInput
@@ -20,6 +21,21 @@ from .systems import System
 
 @dataclass
 class TrainingResult:
+    """What `train_knode` returns.
+
+    Attributes
+    ----------
+    model : HybridModel
+        The ``"knode"`` model with the kept weights; its meta holds the config, final loss, seconds,
+        best epoch and best validation loss.
+    losses : list of float
+        Mean training loss (eq. 8) per epoch.
+    seconds : float
+        Wall time of the training loop, s.
+    validation_losses : list of float
+        Held-out loss per epoch (empty when nothing is held out).
+    """
+
     model: HybridModel
     losses: list = field(default_factory=list)
     seconds: float = 0.0
@@ -67,9 +83,35 @@ def _split_rows(pairs: int, fraction: float, layout: str):
     return torch.as_tensor(np.flatnonzero(~held)), torch.as_tensor(np.flatnonzero(held))
 
 
-def train_knode(system: System, zeta, u, dt: float, config: TrainingConfig | None = None,
+def train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, config: TrainingConfig | None = None,
                 progress: Callable[[int, float], None] | None = None) -> TrainingResult:
-    """Fit Δθ so that one RK4 step of f_prior + Δθ from ζ_i lands on ζ_{i+1} (eqs. 7-8)."""
+    """Fit Δθ so that one RK4 step of f_prior + Δθ from ζ_i lands on ζ_{i+1} (eqs. 7-8).
+
+    Parameters
+    ----------
+    system : System
+        Supplies the prior f_prior and the state size n.
+    zeta : array_like, shape (T, n)
+        State observations ζ (from a pre-training observer), in the system's state units.
+    u : array_like, shape (T, n_inputs)
+        Inputs, held over each step (may have width 0).
+    dt : float
+        Sample period, s.
+    config : TrainingConfig, optional
+        Default ``TrainingConfig()``.
+    progress : callable, optional
+        Called as ``progress(epoch, mean_training_loss)`` after every epoch.
+
+    Returns
+    -------
+    TrainingResult
+
+    Raises
+    ------
+    InvalidInput
+        On wrong shapes, non-finite values, fewer than 3 observations, a bad ``dt``, ``epochs < 1`` or an
+        unknown validation layout.
+    """
     config = config or TrainingConfig()
     zeta = check_sequence("zeta", zeta, cols=system.n)
     u = check_sequence("u", np.asarray(u, dtype=float).reshape(len(zeta), -1), rows=len(zeta), cols=system.n_inputs)

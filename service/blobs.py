@@ -30,11 +30,22 @@ CHUNK = 1 << 20
 
 
 def sha256_bytes(data: bytes) -> str:
+    """Hex SHA-256 digest of ``data``."""
     return hashlib.sha256(data).hexdigest()
 
 
 class BlobStore:
-    def __init__(self, root: Path):
+    """A content-addressed blob folder (module docstring): blobs named by the sha256 of their bytes.
+
+    Creating one makes ``root/.tmp`` and ``root/.lock`` if needed and removes temp files older than an hour.
+
+    Parameters
+    ----------
+    root : Path
+        The folder (LEARNEST_HOME/blobs in the service).
+    """
+
+    def __init__(self, root: Path) -> None:
         self.root = Path(root)
         self.tmp = self.root / ".tmp"
         self.tmp.mkdir(parents=True, exist_ok=True)
@@ -54,14 +65,17 @@ class BlobStore:
 
     # -- addressing -------------------------------------------------------------------------------------
     def path(self, sha: str) -> Path:
+        """Where blob ``sha`` lives (root/ab/cdef...); ValueError if ``sha`` is not 64 lower-case hex digits."""
         if not SHA256.fullmatch(sha or ""):  # never let anything else become a path
             raise ValueError(f"not a sha256: {sha!r}")
         return self.root / sha[:2] / sha[2:]
 
     def exists(self, sha: str) -> bool:
+        """Whether blob ``sha`` is stored."""
         return self.path(sha).is_file()
 
     def read_bytes(self, sha: str) -> bytes:
+        """The bytes of blob ``sha`` (FileNotFoundError if absent)."""
         return self.path(sha).read_bytes()
 
     # -- writing ----------------------------------------------------------------------------------------
@@ -72,13 +86,18 @@ class BlobStore:
             yield Path(directory)
 
     def put_bytes(self, data: bytes) -> str:
+        """Store ``data`` atomically; returns its sha256 (an existing blob with that content is kept)."""
         fd, name = tempfile.mkstemp(dir=self.tmp)
         with os.fdopen(fd, "wb") as handle:
             handle.write(data)
         return self.put_file(Path(name), sha256_bytes(data))
 
     def put_file(self, source: Path, sha: str | None = None) -> str:
-        """Move `source` (on this file system) into the store; returns its sha256."""
+        """Move `source` (on this file system) into the store; returns its sha256.
+
+        ``sha`` is trusted when given (computed from the file otherwise).  ``source`` is consumed either way:
+        renamed into place, or deleted when that content is already stored.
+        """
         sha = sha or sha256_file(source)
         with open(source, "rb") as handle:
             os.fsync(handle.fileno())
@@ -92,7 +111,7 @@ class BlobStore:
         return sha
 
     @contextmanager
-    def writing(self):
+    def writing(self) -> Iterator[None]:
         """Shared lock: held from the first blob written until the row naming it is committed."""
         with self._flock(fcntl.LOCK_SH):
             yield

@@ -16,7 +16,7 @@ from sqlalchemy import ColumnElement, func, select
 from learnest.errors import Conflict, NotFound
 
 from . import registry
-from .db import Database, Evaluation, Flight, Job, ModelVersion, RegisteredModel
+from .db import Database, Evaluation, FlightRecord, Job, ModelVersion, RegisteredModel
 
 
 # -- flights ---------------------------------------------------------------------------------------------
@@ -28,18 +28,19 @@ def _get(db: Database, table, row_id: int, what: str):
     return row
 
 
-def get_flight(db: Database, flight_id: int) -> Flight:
+def get_flight(db: Database, flight_id: int) -> FlightRecord:
     """The flight row with its files; NotFound when there is none."""
-    return _get(db, Flight, flight_id, "flight")
+    return _get(db, FlightRecord, flight_id, "flight")
 
 
 def list_flights(db: Database, *conditions: ColumnElement[bool], limit: int, offset: int = 0,
-                 newest_first: bool = False) -> tuple[int, list[Flight]]:
+                 newest_first: bool = False) -> tuple[int, list[FlightRecord]]:
     """(how many flights match `conditions`, one page of them), by id."""
-    order = Flight.id.desc() if newest_first else Flight.id
+    order = FlightRecord.id.desc() if newest_first else FlightRecord.id
     with db.transaction() as session:
-        total = session.scalar(select(func.count(Flight.id)).where(*conditions)) or 0
-        rows = session.scalars(select(Flight).where(*conditions).order_by(order).limit(limit).offset(offset)).all()
+        total = session.scalar(select(func.count(FlightRecord.id)).where(*conditions)) or 0
+        query = select(FlightRecord).where(*conditions).order_by(order).limit(limit).offset(offset)
+        rows = session.scalars(query).all()
     return total, list(rows)
 
 

@@ -55,8 +55,10 @@ class Settings(BaseSettings):
 
     @property
     def url(self) -> str:
+        """The SQLAlchemy URL: ``database_url``, else the SQLite file ``home/learnest.db``."""
         return self.database_url or f"sqlite:///{(self.home / 'learnest.db').resolve()}"
 
     @property
     def max_upload_bytes(self) -> int:
+        """``max_upload_mb`` in bytes (MiB, 1024²)."""
         return int(self.max_upload_mb * 1024 * 1024)

@@ -52,10 +52,16 @@ def _json_dumps(value) -> str:
 
 # -- tables -------------------------------------------------------------------------------------------
 class Base(DeclarativeBase):
-    pass
+    """Declarative base of the service's tables (Alembic migrations create them)."""
 
 
-class Flight(Base):
+class FlightRecord(Base):
+    """A stored flight (the row, not the data: ``flight_blob`` holds `learnest.Flight.to_bytes`).
+
+    ``sha256`` of the raw file(s) deduplicates uploads; ``name`` is unique; ``duration_s`` in s,
+    ``rate_hz`` in Hz, ``clock_offset_s`` in s; ``quality`` is {"ok", "issues"}.
+    """
+
     __tablename__ = "flights"
     __table_args__ = {"sqlite_autoincrement": True}  # an id is never handed out twice (see 0003)
 
@@ -92,6 +98,8 @@ class FlightFile(Base):
 
 
 class RegisteredModel(Base):
+    """A registered model name; its versions are `ModelVersion` rows."""
+
     __tablename__ = "registered_models"
 
     name: Mapped[str] = mapped_column(String(100), primary_key=True)
@@ -129,6 +137,8 @@ class ModelVersion(Base):
 
 
 class ModelAlias(Base):
+    """A movable alias (``production``, ...) of a model, pointing at one version number."""
+
     __tablename__ = "model_aliases"
 
     name: Mapped[str] = mapped_column(ForeignKey("registered_models.name"), primary_key=True)
@@ -138,6 +148,9 @@ class ModelAlias(Base):
 
 
 class Job(Base):
+    """A background job: ``kind`` training/evaluation/diagnosis, ``state`` queued -> running -> succeeded |
+    failed, ``progress`` 0..1, ``owner`` the server process running it."""
+
     __tablename__ = "jobs"
     __table_args__ = {"sqlite_autoincrement": True}  # an id is never handed out twice (see 0003)
 
@@ -155,6 +168,8 @@ class Job(Base):
 
 
 class Evaluation(Base):
+    """An evaluation of one model version on stored flights; ``report`` has `evaluate_flights`' shape."""
+
     __tablename__ = "evaluations"
     __table_args__ = {"sqlite_autoincrement": True}  # an id is never handed out twice (see 0003)
 
@@ -217,13 +232,14 @@ class Lease(Base):
 def referenced_blobs(db: Database) -> set[str]:
     """Every blob sha a row names: normalized flights, their raw files, model weights."""
     with db.transaction() as session:
-        return {sha for column in (Flight.flight_blob, FlightFile.sha256, ModelVersion.weights_blob)
+        return {sha for column in (FlightRecord.flight_blob, FlightFile.sha256, ModelVersion.weights_blob)
                 for sha in session.scalars(select(column).where(column.is_not(None)))}
 
 
 def blob_is_referenced(db: Database, sha: str) -> bool:
+    """Whether a flight, a raw file or a model version names blob ``sha``."""
     with db.transaction() as session:
-        return bool(session.scalar(select(or_(exists().where(Flight.flight_blob == sha),
+        return bool(session.scalar(select(or_(exists().where(FlightRecord.flight_blob == sha),
                                               exists().where(FlightFile.sha256 == sha),
                                               exists().where(ModelVersion.weights_blob == sha)))))
 
@@ -234,7 +250,7 @@ class Database:
     SQLite every transaction takes the write lock up front (BEGIN IMMEDIATE), so holding one while doing
     slow work would block every other writer."""
 
-    def __init__(self, url: str):
+    def __init__(self, url: str) -> None:
         self.url = url
         self.is_sqlite = url.startswith("sqlite")
         if self.is_sqlite:
@@ -253,16 +269,19 @@ class Database:
 
     @property
     def sqlite_path(self) -> Path | None:
+        """The SQLite file of a ``sqlite:///`` URL; None for in-memory SQLite and other databases."""
         prefix = "sqlite:///"
         if not self.url.startswith(prefix) or self.url == prefix or ":memory:" in self.url:
             return None
         return Path(self.url[len(prefix):].split("?", 1)[0])
 
     def session(self) -> Session:
+        """A new session (the caller commits and closes it); prefer `transaction`."""
         return self._sessions()
 
     @contextmanager
     def transaction(self) -> Iterator[Session]:
+        """A session in a transaction: committed on exit, rolled back on an exception."""
         with self._sessions.begin() as session:
             yield session
 
@@ -305,6 +324,7 @@ class Database:
                 fcntl.flock(handle, fcntl.LOCK_UN)
 
     def dispose(self) -> None:
+        """Close the engine's pooled connections."""
         self.engine.dispose()
 
 
@@ -344,11 +364,13 @@ def acquire_lease(db: Database, name: str, owner: str, ttl_s: float) -> bool:
 
 
 def release_lease(db: Database, name: str, owner: str) -> None:
+    """Drop lease ``name`` if ``owner`` holds it."""
     with db.transaction() as session:
         session.execute(Lease.__table__.delete().where(Lease.name == name, Lease.owner == owner))
 
 
 def lease_holder(db: Database, name: str) -> str | None:
+    """The owner of lease ``name`` if it has not expired, else None."""
     with db.transaction() as session:
         lease = session.scalar(select(Lease).where(Lease.name == name))
         return lease.owner if lease is not None and lease.expires_at >= time.time() else None

@@ -20,7 +20,6 @@ from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
-
 PARENT_CHECK_S = 0.5  # how often a pool worker checks that the server that started it is alive
 
 
@@ -47,10 +46,12 @@ def _exit_with_parent(parent_pid: int) -> None:
 
 
 class Executor(ABC):
+    """Where jobs' heavy tasks run: submit module-level functions, collect their futures."""
+
     name = "executor"
 
     @abstractmethod
-    def submit(self, fn: Callable, *args: Any):
+    def submit(self, fn: Callable, *args: Any) -> Any:
         """Schedule fn(*args); returns a future with .result()."""
 
     @abstractmethod
@@ -59,16 +60,20 @@ class Executor(ABC):
 
     @abstractmethod
     def shutdown(self) -> None:
-        ...
+        """Stop the back end (running tasks are abandoned)."""
 
     def describe(self) -> dict:
+        """What the status page shows about this executor."""
         return {"name": self.name}
 
 
 class LocalPoolExecutor(Executor):
+    """A ProcessPoolExecutor of ``max_workers`` spawned processes, one torch thread each; replaced by a
+    new pool when a worker dies."""
+
     name = "local-pool"
 
-    def __init__(self, max_workers: int = 2):
+    def __init__(self, max_workers: int = 2) -> None:
         self.max_workers = max_workers
         self._lock = threading.Lock()
         self._pool = self._new_pool()
@@ -78,7 +83,8 @@ class LocalPoolExecutor(Executor):
             max_workers=self.max_workers, mp_context=multiprocessing.get_context("spawn"), initializer=init_worker,
             initargs=(os.getpid(),))
 
-    def submit(self, fn, *args):
+    def submit(self, fn: Callable, *args: Any) -> concurrent.futures.Future:
+        """Schedule fn(*args) on the pool (a broken pool is replaced first)."""
         with self._lock:
             try:
                 return self._pool.submit(fn, *args)
@@ -87,10 +93,12 @@ class LocalPoolExecutor(Executor):
                 self._pool = self._new_pool()
                 return self._pool.submit(fn, *args)
 
-    def as_completed(self, futures):
+    def as_completed(self, futures: Iterable) -> Iterator:
+        """concurrent.futures.as_completed over ``futures``."""
         return concurrent.futures.as_completed(list(futures))
 
     def shutdown(self) -> None:
+        """Cancel pending tasks and terminate the worker processes without waiting for them."""
         # the jobs still running are already marked failed: stop their processes instead of waiting for them
         workers = list(getattr(self._pool, "_processes", {}).values())
         self._pool.shutdown(wait=False, cancel_futures=True)
@@ -98,13 +106,17 @@ class LocalPoolExecutor(Executor):
             process.terminate()
 
     def describe(self) -> dict:
+        """``name`` and ``workers``."""
         return {"name": self.name, "workers": self.max_workers}
 
 
 class DaskExecutor(Executor):
+    """A dask.distributed Client: to the scheduler at ``address``, or without one to a LocalCluster
+    (default: one in-process worker thread; ``cluster_options`` override LocalCluster's arguments)."""
+
     name = "dask"
 
-    def __init__(self, address: str | None = None, **cluster_options):
+    def __init__(self, address: str | None = None, **cluster_options: Any) -> None:
         from dask.distributed import Client, LocalCluster
 
         self.address = address
@@ -117,20 +129,24 @@ class DaskExecutor(Executor):
             self._cluster = LocalCluster(**options)
             self._client = Client(self._cluster)
 
-    def submit(self, fn, *args):
+    def submit(self, fn: Callable, *args: Any) -> Any:
+        """Client.submit with pure=False (two runs of a job are never merged); returns a Dask future."""
         return self._client.submit(fn, *args, pure=False)  # pure=False: never merge two runs of a job
 
-    def as_completed(self, futures):
+    def as_completed(self, futures: Iterable) -> Iterator:
+        """dask.distributed.as_completed over ``futures``."""
         from dask.distributed import as_completed
 
         return iter(as_completed(list(futures)))
 
     def shutdown(self) -> None:
+        """Close the client, and the LocalCluster if this executor started one."""
         self._client.close()
         if self._cluster is not None:
             self._cluster.close()
 
     def describe(self) -> dict:
+        """``name`` and the ``scheduler`` address."""
         return {"name": self.name, "scheduler": self._client.scheduler.address}
 
 

@@ -20,8 +20,8 @@ import socket
 import threading
 import time
 import uuid
-from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Iterable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 from sqlalchemy import select, update
@@ -30,6 +30,7 @@ from sqlalchemy.orm import Session
 
 from learnest.errors import InvalidInput, NotFound
 from learnest.ingest.flight import json_compatible
+from learnest.models.knode import HybridModel
 from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON
 
 from . import registry
@@ -39,7 +40,7 @@ from .db import (
     Database,
     Diagnosis,
     Evaluation,
-    Flight,
+    FlightRecord,
     Job,
     Lease,
     ModelVersion,
@@ -66,6 +67,7 @@ class JobAborted(RuntimeError):
 
 # -- the runner ---------------------------------------------------------------------------------------
 def make_owner_id() -> str:
+    """"host:pid:random8": names this server process as the owner of the jobs it runs."""
     return f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:8]}"
 
 
@@ -75,10 +77,11 @@ class JobContext:
 
     job_id: int
     runner: JobRunner
-    on_progress: Callable[[], None] | None = None   # e.g. the scheduler renewing its lease
+    on_progress: Callable[[], object] | None = None   # e.g. the scheduler renewing its lease
     completed: bool = False
 
     def progress(self, fraction: float) -> None:
+        """Record progress (clipped to 0..1) of a running job and call ``on_progress``."""
         self.runner.set_progress(self.job_id, fraction)
         if self.on_progress:
             self.on_progress()
@@ -95,7 +98,23 @@ class JobContext:
 
 
 class JobRunner:
-    def __init__(self, db: Database, threads: int = 4):
+    """Runs this server process's jobs in a thread pool and keeps its lease (module docstring).
+
+    Parameters
+    ----------
+    db : Database
+    threads : int
+        Jobs orchestrated at once; the heavy parts go to the Executor.
+
+    Attributes
+    ----------
+    owner : str
+        This process's owner id (`make_owner_id`).
+    on_stale : list of callable
+        Hooks ``hook(session, job_ids, reason)`` called in the transaction that fails jobs (sweep, shutdown).
+    """
+
+    def __init__(self, db: Database, threads: int = 4) -> None:
         self.db = db
         self.owner = make_owner_id()
         self._threads = ThreadPoolExecutor(threads, thread_name_prefix="learnest-job")
@@ -106,9 +125,12 @@ class JobRunner:
 
     @property
     def lease_name(self) -> str:
+        """"runner:<owner>", the lease this process renews every HEARTBEAT_S."""
         return f"runner:{self.owner}"
 
     def start(self) -> list[int]:
+        """Take the lease, fail the jobs of stopped servers (`sweep`) and start the heartbeat thread.
+        Returns the ids of the jobs failed."""
         acquire_lease(self.db, self.lease_name, self.owner, LEASE_S)
         stale = self.sweep()
         self._heartbeat = threading.Thread(target=self._beat, name="learnest-heartbeat", daemon=True)
@@ -124,6 +146,7 @@ class JobRunner:
                 log.exception("job heartbeat failed")
 
     def shutdown(self) -> None:
+        """Stop the heartbeat, cancel queued threads, fail this owner's active jobs and release the lease."""
         self._stop.set()
         self._threads.shutdown(wait=False, cancel_futures=True)
         reason = "server stopped before the job finished"
@@ -135,18 +158,25 @@ class JobRunner:
 
     # -- state changes ------------------------------------------------------------------------------------
     def create(self, session: Session, kind: str, payload: dict | None = None) -> Job:
+        """Add a queued job row owned by this process (flushed, so it has an id) in the caller's transaction."""
         job = Job(kind=kind, state="queued", progress=0.0, payload=payload, owner=self.owner, created_at=utcnow())
         session.add(job)
         session.flush()
         return job
 
-    def launch(self, job_id: int, work: Callable[[JobContext], dict | None], on_failure=None):
+    def launch(self, job_id: int, work: Callable[[JobContext], dict | None],
+               on_failure: Callable[[Session, str], None] | None = None) -> Future:
         """Run the job in a background thread of this process."""
         return self._threads.submit(self.run, job_id, work, on_failure)
 
-    def run(self, job_id: int, work: Callable[[JobContext], dict | None], on_failure=None,
-            on_progress=None) -> None:
-        """Run the job here and now (the scheduler and the CLI call this directly)."""
+    def run(self, job_id: int, work: Callable[[JobContext], dict | None],
+            on_failure: Callable[[Session, str], None] | None = None,
+            on_progress: Callable[[], object] | None = None) -> None:
+        """Run the job here and now (the scheduler and the CLI call this directly).
+
+        Does nothing unless the job is still queued.  ``work``'s result completes the job unless it did so
+        itself (`JobContext.complete`); an exception fails it with its message and calls ``on_failure``.
+        """
         if not self._mark_running(job_id):
             return
         context = JobContext(job_id, self, on_progress)
@@ -167,12 +197,15 @@ class JobRunner:
                                         .values(state="running", started_at=utcnow())).rowcount)
 
     def mark_succeeded(self, session: Session, job_id: int, result: dict) -> None:
+        """Set a running job succeeded with ``result`` in the caller's transaction; `JobAborted` if it is
+        no longer running."""
         job = session.get(Job, job_id, with_for_update=True)
         if job is None or job.state != "running":
             raise JobAborted(job_id)
         job.state, job.progress, job.result, job.finished_at = "succeeded", 1.0, result, utcnow()
 
-    def mark_failed(self, job_id: int, message: str, on_failure=None) -> None:
+    def mark_failed(self, job_id: int, message: str, on_failure: Callable[[Session, str], None] | None = None) -> None:
+        """Fail an active job with ``message`` and call ``on_failure(session, message)``; no-op otherwise."""
         with self.db.transaction() as session:
             job = session.get(Job, job_id, with_for_update=True)
             if job is None or job.state not in ACTIVE:
@@ -182,6 +215,7 @@ class JobRunner:
                 on_failure(session, message)
 
     def set_progress(self, job_id: int, fraction: float) -> None:
+        """Write a running job's progress, clipped to 0..1."""
         with self.db.transaction() as session:
             session.execute(update(Job).where(Job.id == job_id, Job.state == "running")
                             .values(progress=max(0.0, min(1.0, float(fraction)))))
@@ -237,6 +271,8 @@ def _message(err: BaseException) -> str:
 # -- the services a job needs --------------------------------------------------------------------------
 @dataclass
 class Services:
+    """What a job needs, opened once per process (`open_services`)."""
+
     settings: Settings
     db: Database
     blobs: BlobStore
@@ -245,6 +281,7 @@ class Services:
     owns_executor: bool = True
 
     def close(self) -> None:
+        """Shut the runner down, the executor too if these services created it, and dispose the database."""
         self.runner.shutdown()
         if self.owns_executor:
             self.executor.shutdown()
@@ -296,8 +333,14 @@ def report_progress(target: tuple[str, int] | None, fraction: float) -> None:
         log.debug("progress of job %s not written", job_id, exc_info=True)
 
 
-def train_task(flight_bytes: bytes, config: dict, progress_target=None, meta: dict | None = None) -> dict:
-    """Algorithm 1 on one flight (service.experiments.flights.train_on_flight); the model comes back as JSON."""
+def train_task(flight_bytes: bytes, config: dict, progress_target: tuple[str, int] | None = None,
+               meta: dict | None = None) -> dict:
+    """Algorithm 1 on one flight (service.experiments.flights.train_on_flight); the model comes back as JSON.
+
+    ``config`` holds `TrainingConfig`'s fields; ``meta`` is added to the model's meta.  Returns
+    ``model_json``, ``losses``, ``seconds``, ``library_versions``, ``code_version`` and ``metrics``.
+    The worker exits if its parent process dies.
+    """
     from learnest.models.training import TrainingConfig
 
     from .experiments.flights import train_on_flight
@@ -331,7 +374,10 @@ def _flight_from_bytes(data: bytes):
 
 
 def evaluate_task(model_json: bytes, flight_bytes: bytes, settings: dict) -> dict:
-    """One flight's entry of service.experiment.evaluate_flights' report."""
+    """One flight's entry of service.experiments.flights.evaluate_flights' report.
+
+    ``settings`` is `EstimatorSettings.as_dict()`.
+    """
     from .experiments.flights import evaluate_flights
 
     init_worker()
@@ -344,13 +390,23 @@ def evaluate_task(model_json: bytes, flight_bytes: bytes, settings: dict) -> dic
 
 # -- training jobs -------------------------------------------------------------------------------------
 def training_config(overrides: dict) -> dict:
-
+    """The Crazyflie training settings as a dict, with the non-None ``overrides`` applied."""
     return {**CRAZYFLIE_TRAINING.as_dict(), **{k: v for k, v in overrides.items() if v is not None}}
 
 
 def start_training(services: Services, name: str, flight_id: int, overrides: dict, parent: str | None = None,
                    include_bad: bool = False) -> tuple[Job, ModelVersion]:
-    """Reserve name's next version, create the job and launch it.  -> (job, version)"""
+    """Reserve name's next version, create the job and launch it.  -> (job, version)
+
+    Raises
+    ------
+    InvalidInput
+        For a bad name, or a flight that failed the quality checks without ``include_bad``.
+    NotFound
+        If the flight or the parent does not exist.
+    Conflict
+        If the parent version is not ready.
+    """
     registry.check_name(name)
     with services.db.transaction() as session:
         flight = _flight(session, flight_id)
@@ -380,9 +436,10 @@ def start_training(services: Services, name: str, flight_id: int, overrides: dic
 
 
 def run_training(services: Services, ctx: JobContext, version_id: int) -> None:
+    """The training job's work: train on the executor, store the weights, mark the version ready."""
     with services.db.transaction() as session:
         version = session.get(ModelVersion, version_id)
-        flight = session.get(Flight, version.training_flight_id)
+        flight = session.get(FlightRecord, version.training_flight_id)
         if flight is None:
             raise InvalidInput(f"training flight {version.training_flight_id} was deleted")
         meta = {"name": version.name, "version": version.version, "training_flight_id": flight.id}
@@ -409,8 +466,8 @@ def _fail_version(session: Session, version_id: int, message: str) -> None:
         version.status, version.error = "failed", message
 
 
-def _flight(session: Session, flight_id: int) -> Flight:
-    flight = session.get(Flight, flight_id)
+def _flight(session: Session, flight_id: int) -> FlightRecord:
+    flight = session.get(FlightRecord, flight_id)
     if flight is None:
         raise NotFound(f"flight {flight_id} not found")
     return flight
@@ -419,11 +476,24 @@ def _flight(session: Session, flight_id: int) -> Flight:
 # -- evaluation jobs -----------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class EstimatorSettings:
+    """Settings of an evaluation that change a flight's result (part of the result cache key).
+
+    Attributes
+    ----------
+    methods : tuple of str
+        Estimators to run.
+    horizon : int
+        MHE window N, samples.
+    include_bad : bool
+        Also score flights that failed the quality checks.
+    """
+
     methods: tuple[str, ...] = METHODS
     horizon: int = MHE_HORIZON
     include_bad: bool = False
 
     def as_dict(self) -> dict:
+        """The fields as JSON-able values."""
         return {"methods": list(self.methods), "horizon": self.horizon, "include_bad": self.include_bad}
 
     @property
@@ -434,10 +504,13 @@ class EstimatorSettings:
         return hashlib.sha256(canonical.encode()).hexdigest()
 
 
-def start_evaluation(services: Services, model_ref: str, flights, settings: EstimatorSettings,
-                     wait: bool = False, on_progress=None) -> tuple[int, int, str]:
+def start_evaluation(services: Services, model_ref: str, flights: Iterable[int] | str, settings: EstimatorSettings,
+                     wait: bool = False, on_progress: Callable[[], object] | None = None) -> tuple[int, int, str]:
     """Create the evaluation and its job; answer from the cache at once when every flight has a result,
-    otherwise run it (in the background, or here when wait=True).  -> (job id, evaluation id, state)"""
+    otherwise run it (in the background, or here when wait=True).  -> (job id, evaluation id, state)
+
+    ``flights`` is a list of flight ids or ``"all-other"`` (every stored flight but the training one).
+    """
     with services.db.transaction() as session:
         version = registry.resolve(session, model_ref)
         flight_ids = _flight_ids(session, flights, version)
@@ -469,6 +542,8 @@ def start_evaluation(services: Services, model_ref: str, flights, settings: Esti
 
 
 def run_evaluation(services: Services, ctx: JobContext, evaluation_id: int) -> None:
+    """The evaluation job's work: one executor task per flight without a cached result, each stored as
+    it finishes (a failed flight is recorded and does not stop the others), then the report."""
     with services.db.transaction() as session:
         evaluation = session.get(Evaluation, evaluation_id)
         version = session.get(ModelVersion, evaluation.model_version_id)
@@ -524,13 +599,16 @@ def _missing_entry(flight_id: int) -> dict:
 
 
 def assemble_report(model_ref: str, entries: list[dict]) -> dict:
-    """The same shape and numbers as service.experiment.evaluate_flights."""
+    """The same shape and numbers as service.experiments.flights.evaluate_flights."""
     from learnest.estimators.evaluate import summarize
 
     return {"model": model_ref, "flights": entries, **summarize(entries)}
 
 
-def cached_entries(session: Session, version_id: int, key: str, shas, include_failed: bool = False) -> dict:
+def cached_entries(session: Session, version_id: int, key: str, shas: Iterable[str],
+                   include_failed: bool = False) -> dict:
+    """{flight sha256: stored entry} of this model version and settings key (succeeded results only,
+    unless ``include_failed``)."""
     query = select(Result).where(Result.model_version_id == version_id, Result.settings_key == key,
                                  Result.flight_sha256.in_(list(shas)))
     if not include_failed:  # an explicit request retries flights that failed before
@@ -540,6 +618,8 @@ def cached_entries(session: Session, version_id: int, key: str, shas, include_fa
 
 def store_result(db: Database, sha: str, version_id: int, key: str, flight_id: int, entry: dict,
                  error: str | None) -> None:
+    """Insert or update the result of one flight (failed when ``error`` is given); retried on a concurrent
+    insert; after three conflicts the result is not cached (logged: the evaluation's report still has it)."""
     state = "failed" if error else "succeeded"
     for _ in range(3):  # two evaluations may store the same flight at once: the second updates
         try:
@@ -555,13 +635,15 @@ def store_result(db: Database, sha: str, version_id: int, key: str, flight_id: i
             return
         except IntegrityError:
             continue
+    log.warning("result of flight %s (version %s) not cached: three concurrent inserts conflicted", flight_id,
+                version_id)
 
 
 def _flight_ids(session: Session, flights, version: ModelVersion) -> list[int]:
     if flights == "all-other":
-        query = select(Flight.id).order_by(Flight.id)
+        query = select(FlightRecord.id).order_by(FlightRecord.id)
         if version.training_flight_id is not None:
-            query = query.where(Flight.id != version.training_flight_id)
+            query = query.where(FlightRecord.id != version.training_flight_id)
         ids = list(session.scalars(query))
         if not ids:
             raise InvalidInput("no flights other than the model's training flight are stored")
@@ -569,27 +651,28 @@ def _flight_ids(session: Session, flights, version: ModelVersion) -> list[int]:
     ids = list(dict.fromkeys(int(i) for i in flights))
     if not ids:
         raise InvalidInput("flights: give at least one flight id, or \"all-other\"")
-    found = set(session.scalars(select(Flight.id).where(Flight.id.in_(ids))))
+    found = set(session.scalars(select(FlightRecord.id).where(FlightRecord.id.in_(ids))))
     missing = [i for i in ids if i not in found]
     if missing:
         raise NotFound(f"flight(s) not found: {', '.join(map(str, missing))}")
     return ids
 
 
-def _flights_by_id(session: Session, ids) -> dict[int, Flight]:
-    return {f.id: f for f in session.scalars(select(Flight).where(Flight.id.in_(list(ids))))}
+def _flights_by_id(session: Session, ids) -> dict[int, FlightRecord]:
+    return {f.id: f for f in session.scalars(select(FlightRecord).where(FlightRecord.id.in_(list(ids))))}
 
 
 def flights_without_results(session: Session, version_id: int, key: str) -> list[int]:
     """Every stored flight with no result (succeeded or failed) for this model version and settings."""
     done = select(Result.flight_sha256).where(Result.model_version_id == version_id, Result.settings_key == key)
-    return list(session.scalars(select(Flight.id).where(Flight.sha256.not_in(done)).order_by(Flight.id)))
+    query = select(FlightRecord.id).where(FlightRecord.sha256.not_in(done)).order_by(FlightRecord.id)
+    return list(session.scalars(query))
 
 
 # -- diagnosis jobs ------------------------------------------------------------------------------------
 def diagnose_task(flights_bytes: list[bytes], model_json: bytes | None, methods: list[str], epochs: int) -> dict:
-    """service.diagnose.diagnose_flights on stored flights; the report as plain JSON, the repaired model as
-    HybridModel JSON."""
+    """service.experiments.diagnosis.diagnose_flights on stored flights; the report as plain JSON, the
+    repaired model as HybridModel JSON, and the name of the flight it was fitted on."""
     from .experiments.diagnosis import diagnose_flights
 
     init_worker()
@@ -600,12 +683,12 @@ def diagnose_task(flights_bytes: list[bytes], model_json: bytes | None, methods:
             "fitting_flight": repaired.meta.get("training_flight")}
 
 
-def training_metrics(model) -> dict:
+def training_metrics(model: HybridModel) -> dict:
     """What the registry keeps of a training run besides its weights and losses."""
     return {key: model.meta.get(key) for key in ("final_loss", "best_epoch", "best_validation_loss")}
 
 
-def diagnosis_metrics(model, report: dict) -> dict:
+def diagnosis_metrics(model: HybridModel, report: dict) -> dict:
     """What a version made by a diagnosis records besides its weights: training metrics and before/after."""
     return {**training_metrics(model),
             "diagnosis": {"effects": [e["id"] for e in report["effects"]], "before": report["before"],
@@ -614,7 +697,17 @@ def diagnosis_metrics(model, report: dict) -> dict:
 
 def start_diagnosis(services: Services, flight_ids: list[int], model_ref: str | None, register: str | None,
                     methods: list[str], epochs: int) -> tuple[int, int]:
-    """Create the diagnosis and its job and launch it.  -> (job id, diagnosis id)"""
+    """Create the diagnosis and its job and launch it.  -> (job id, diagnosis id)
+
+    Raises
+    ------
+    InvalidInput
+        For a bad ``register`` name or no flights.
+    NotFound
+        If a flight or the model does not exist.
+    Conflict
+        If the model version is not ready.
+    """
     if register is not None:
         registry.check_name(register)
     ids = list(dict.fromkeys(int(i) for i in flight_ids))
@@ -641,6 +734,8 @@ def start_diagnosis(services: Services, flight_ids: list[int], model_ref: str | 
 
 
 def run_diagnosis(services: Services, ctx: JobContext, diagnosis_id: int) -> None:
+    """The diagnosis job's work: diagnose on the executor, register the repaired model if asked, store the
+    report.  The fitting flight is found by name among the diagnosis' flights (first flight if none matches)."""
     with services.db.transaction() as session:
         diagnosis = session.get(Diagnosis, diagnosis_id)
         flights = _flights_by_id(session, diagnosis.flight_ids)

@@ -28,7 +28,7 @@ from learnest.models.knode import HybridModel
 
 from . import catalog, registry
 from .config import Settings
-from .db import Database, Flight, Job, RegisteredModel
+from .db import Database, FlightRecord, Job, RegisteredModel
 from .jobs import ACTIVE, Services, diagnosis_metrics, open_services, start_training, training_config
 from .uploads import LocalFile
 from .uploads import add_flight as add_uploaded_flight
@@ -67,7 +67,7 @@ def flight_files(paths) -> list[Path]:
     return list(files.values())
 
 
-def add_flight(services: Services, paths) -> tuple[Flight, bool]:
+def add_flight(services: Services, paths) -> tuple[FlightRecord, bool]:
     """Store the log file(s) of one flight exactly as an upload would.  -> (row, created); created is False
     when the same content was stored before (its existing row)."""
     with ExitStack() as stack:

@@ -24,7 +24,7 @@ from learnest.models.knode import HybridModel
 
 from .blobs import BlobStore
 from .config import Settings
-from .db import Database, Flight, ModelAlias, ModelVersion, RegisteredModel, utcnow
+from .db import Database, FlightRecord, ModelAlias, ModelVersion, RegisteredModel, utcnow
 
 NAME = r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}"
 NAME_PATTERN = re.compile(rf"^{NAME}$")
@@ -34,6 +34,18 @@ LIBRARIES = ("torch", "casadi", "filterpy", "numpy", "scipy", "torchdiffeq")
 
 @dataclass(frozen=True)
 class ModelRef:
+    """A parsed model reference; ``str()`` gives it back as "name:version", "name@alias" or "name".
+
+    Attributes
+    ----------
+    name : str
+        Registered model name.
+    version : int, optional
+        Explicit version number.
+    alias : str, optional
+        Alias name (only when no version is given).
+    """
+
     name: str
     version: int | None = None
     alias: str | None = None
@@ -45,6 +57,13 @@ class ModelRef:
 
 
 def parse_ref(text: str) -> ModelRef:
+    """Parse "name:version", "name@alias" or "name" (surrounding spaces ignored).
+
+    Raises
+    ------
+    InvalidInput
+        If ``text`` has none of these forms.
+    """
     match = REF_PATTERN.fullmatch((text or "").strip())
     if match is None:
         raise InvalidInput(f"model reference {text!r} must be 'name:version', 'name@alias' or 'name' (names: "
@@ -54,6 +73,8 @@ def parse_ref(text: str) -> ModelRef:
 
 
 def check_name(name: str, what: str = "model name") -> str:
+    """``name`` unchanged if it is 1-100 letters, digits, '.', '_' or '-' starting with a letter or digit;
+    else `InvalidInput` (``what`` names it in the message)."""
     if not NAME_PATTERN.fullmatch(name or ""):
         raise InvalidInput(f"{what} {name!r} must be 1-100 letters, digits, '.', '_' or '-' (starting with a "
                       "letter or digit)")
@@ -62,6 +83,7 @@ def check_name(name: str, what: str = "model name") -> str:
 
 # -- lookups ------------------------------------------------------------------------------------------
 def get_version(session: Session, name: str, version: int) -> ModelVersion:
+    """The row of ``name:version`` whatever its status; `NotFound` if there is none."""
     row = session.scalar(select(ModelVersion).where(ModelVersion.name == name, ModelVersion.version == version))
     if row is None:
         raise NotFound(f"model {name!r} has no version {version}")
@@ -69,6 +91,7 @@ def get_version(session: Session, name: str, version: int) -> ModelVersion:
 
 
 def get_model(session: Session, name: str) -> RegisteredModel:
+    """The registered model ``name``; `NotFound` if there is none."""
     model = session.get(RegisteredModel, name)
     if model is None:
         raise NotFound(f"no registered model named {name!r}")
@@ -98,12 +121,13 @@ def resolve(session: Session, ref: str | ModelRef) -> ModelVersion:
 
 
 def aliases_of(session: Session, name: str) -> dict[str, int]:
+    """{alias: version} of model ``name``, in alias order."""
     rows = session.scalars(select(ModelAlias).where(ModelAlias.name == name).order_by(ModelAlias.alias))
     return {row.alias: row.version for row in rows}
 
 
 # -- writes -------------------------------------------------------------------------------------------
-def reserve_version(session: Session, name: str, *, job_id: int | None, flight: Flight, hyperparameters: dict,
+def reserve_version(session: Session, name: str, *, job_id: int | None, flight: FlightRecord, hyperparameters: dict,
                     parent: str | None) -> ModelVersion:
     """Take the next version number of `name` (status "training").  Two concurrent requests may pick the
     same number: the unique (name, version) constraint rejects one, and the caller retries."""
@@ -121,7 +145,7 @@ def reserve_version(session: Session, name: str, *, job_id: int | None, flight: 
     return row
 
 
-def register_model(db: Database, blobs: BlobStore, name: str, model: HybridModel, *, flight: Flight,
+def register_model(db: Database, blobs: BlobStore, name: str, model: HybridModel, *, flight: FlightRecord,
                    hyperparameters: dict, parent: str | None = None, job_id: int | None = None,
                    metrics: dict | None = None) -> ModelVersion:
     """Store a model made outside a training job (a diagnosis' repaired model) as the next ready version of
@@ -160,6 +184,17 @@ def fail_versions_of_jobs(session: Session, job_ids: list[int], reason: str) -> 
 
 
 def set_alias(session: Session, name: str, alias: str, version: int) -> ModelAlias:
+    """Point ``alias`` of model ``name`` at ``version`` (creating or moving it).
+
+    Raises
+    ------
+    InvalidInput
+        If the alias is not a valid name.
+    NotFound
+        If the model or the version does not exist.
+    Conflict
+        If the version is not ready.
+    """
     check_name(alias, "alias")
     get_model(session, name)
     row = get_version(session, name, version)
@@ -175,6 +210,7 @@ def set_alias(session: Session, name: str, alias: str, version: int) -> ModelAli
 
 
 def delete_alias(session: Session, name: str, alias: str) -> None:
+    """Remove ``alias`` of model ``name``; `NotFound` if the model or the alias does not exist."""
     get_model(session, name)
     existing = session.get(ModelAlias, (name, alias))
     if existing is None:
@@ -192,6 +228,7 @@ def model_to_json(model: HybridModel) -> bytes:
 
 
 def model_from_json(data: bytes) -> HybridModel:
+    """Inverse of `model_to_json` (through a temporary file and `HybridModel.load`)."""
     with tempfile.TemporaryDirectory() as directory:
         path = Path(directory) / "model.json"
         path.write_bytes(data)
@@ -199,17 +236,31 @@ def model_from_json(data: bytes) -> HybridModel:
 
 
 def prior_of(model_json: bytes) -> dict:
+    """``system``, ``kind`` and ``prior_params`` of a serialised model."""
     data = json.loads(model_json)
     return {"system": data["system"], "kind": data["kind"], "prior_params": data["prior_params"]}
 
 
 def load_version(blobs: BlobStore, row: ModelVersion) -> HybridModel:
+    """The model stored in a version's weights blob."""
     return model_from_json(blobs.read_bytes(row.weights_blob))
 
 
 def load_model_ref(ref: str, settings: Settings | None = None) -> HybridModel:
     """The model a registry reference names, from the service's database and blob folder (LEARNEST_HOME,
-    LEARNEST_DATABASE_URL).  model.meta carries "name", "version" and "ref"."""
+    LEARNEST_DATABASE_URL).  model.meta carries "name", "version" and "ref".
+
+    Note that it runs the database migrations before reading (``Database.migrate``).
+
+    Raises
+    ------
+    InvalidInput
+        If ``ref`` does not parse.
+    NotFound
+        If the model, version or alias does not exist.
+    Conflict
+        If the version is not ready.
+    """
     settings = settings or Settings()
     database = Database(settings.url)
     try:
@@ -254,6 +305,7 @@ def _git_head(repo: Path) -> str | None:
 
 
 def library_versions() -> dict:
+    """{"python": version, library: installed version or None} for the numerical libraries in ``LIBRARIES``."""
     versions = {"python": platform.python_version()}
     for name in LIBRARIES:
         try:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import threading
+from collections.abc import Callable
 
 from sqlalchemy import select
 
@@ -29,13 +30,15 @@ LEASE_NAME = "scheduler"
 
 
 def schedule_settings(services: Services) -> EstimatorSettings:
+    """The estimator settings of scheduled rounds: LEARNEST_SCHEDULE_METHODS, default horizon, good flights."""
     return EstimatorSettings(tuple(parse_methods(services.settings.schedule_methods)))
 
 
 def evaluate_new(services: Services, alias: str = PRODUCTION_ALIAS, settings: EstimatorSettings | None = None,
-                 on_progress=None) -> list[dict]:
+                 on_progress: Callable[[], object] | None = None) -> list[dict]:
     """One round, in this thread: for every model with `alias`, evaluate the flights without a result.
-    Returns [{"model", "evaluation_id", "job_id", "flights"}] (empty when nothing was new)."""
+    Returns [{"model", "evaluation_id", "job_id", "flights", "state", "failed", "error"}] (empty when
+    nothing was new); ``on_progress`` is called as each flight finishes."""
     settings = settings or schedule_settings(services)
     with services.db.transaction() as session:
         holders = [(row.name, row.version) for row in
@@ -85,7 +88,7 @@ class Scheduler:
     """A daemon thread per server process; only the lease holder's ticks do anything."""
 
     def __init__(self, services: Services, interval_s: float, alias: str = PRODUCTION_ALIAS,
-                 settings: EstimatorSettings | None = None):
+                 settings: EstimatorSettings | None = None) -> None:
         self.services, self.interval_s, self.alias = services, interval_s, alias
         self.settings = settings or schedule_settings(services)
         self.lease_s = max(60.0, 3 * interval_s)
@@ -93,6 +96,7 @@ class Scheduler:
         self._thread: threading.Thread | None = None
 
     def start(self) -> None:
+        """Start the daemon thread: a `tick` every ``interval_s`` seconds until `stop`."""
         self._thread = threading.Thread(target=self._loop, name="learnest-scheduler", daemon=True)
         self._thread.start()
 
@@ -112,6 +116,7 @@ class Scheduler:
         return evaluate_new(self.services, self.alias, self.settings, on_progress=renew)
 
     def stop(self) -> None:
+        """Stop the thread (waiting up to 5 s) and release the lease if this process holds it."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=5)

@@ -25,7 +25,7 @@ from learnest.ingest import IngestError, group_files, read_group
 from learnest.ingest.flight import Flight as CanonicalFlight
 
 from .blobs import CHUNK, BlobStore
-from .db import Database, Flight, FlightFile, utcnow
+from .db import Database, FlightFile, FlightRecord, utcnow
 
 log = logging.getLogger("learnest.uploads")
 
@@ -51,7 +51,7 @@ class LocalFile:
 
 
 def add_flight(db: Database, blobs: BlobStore, uploads: Sequence[Upload], vehicle: str | None = None,
-               notes: str | None = None) -> tuple[Flight, bool]:
+               notes: str | None = None) -> tuple[FlightRecord, bool]:
     """Store the log file(s) of one flight, unless the same content is stored already.
 
     Parameters
@@ -200,7 +200,7 @@ def _rename_sources(flight: CanonicalFlight, originals: dict[str, str]) -> None:
 
 # -- storing ------------------------------------------------------------------------------------------
 def store_flight(db: Database, blobs: BlobStore, staged: list[StagedFile], flight: CanonicalFlight, sha: str,
-                 vehicle: str | None, notes: str | None) -> tuple[Flight, bool]:
+                 vehicle: str | None, notes: str | None) -> tuple[FlightRecord, bool]:
     """Blobs first (fsync + rename), then the row; -> (row, created).  A concurrent upload of the same
     content makes our insert fail on the unique sha256: we answer with its row.  Names are unique (the
     evaluation matches a model's training flight by name): a taken name gets the content hash appended."""
@@ -225,9 +225,9 @@ def store_flight(db: Database, blobs: BlobStore, staged: list[StagedFile], fligh
 
 
 def _flight_row(flight: CanonicalFlight, sha: str, flight_blob: str, staged: list[StagedFile],
-                vehicle: str | None, notes: str | None) -> Flight:
+                vehicle: str | None, notes: str | None) -> FlightRecord:
     meta = flight.meta
-    return Flight(sha256=sha, name=meta["name"], adapter=meta.get("adapter") or "unknown",
+    return FlightRecord(sha256=sha, name=meta["name"], adapter=meta.get("adapter") or "unknown",
                   vehicle=vehicle or _text_or_none(meta.get("vehicle")), notes=notes,
                   duration_s=flight.duration_s, rate_hz=flight.rate_hz, samples=len(flight.t),
                   quality_ok=bool(flight.quality["ok"]), quality=flight.quality,
@@ -241,6 +241,6 @@ def _text_or_none(value) -> str | None:
     return None if value is None else str(value)[:200]
 
 
-def find_by_sha(db: Database, sha: str) -> Flight | None:
+def find_by_sha(db: Database, sha: str) -> FlightRecord | None:
     with db.transaction() as session:
-        return session.scalar(select(Flight).where(Flight.sha256 == sha))
+        return session.scalar(select(FlightRecord).where(FlightRecord.sha256 == sha))

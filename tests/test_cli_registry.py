@@ -13,7 +13,7 @@ from utils.service import running_app
 from learnest.service import registry
 from learnest.service.cli import main
 from learnest.service.config import Settings
-from learnest.service.db import Database, Flight, FlightFile
+from learnest.service.db import Database, FlightFile, FlightRecord
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
 TRAIN, OTHER = SAMPLES / "circle_rep1.csv", SAMPLES / "circle_rep2.csv"
@@ -54,7 +54,7 @@ def test_train_twice_registers_versions_1_and_2_on_one_stored_flight(trained):
     assert first["epochs"] == 2 and first["final_loss"] is not None
     database = Database(Settings(home=trained["home"]).url)
     with database.transaction() as session:
-        assert session.scalar(select(func.count(Flight.id))) == 1
+        assert session.scalar(select(func.count(FlightRecord.id))) == 1
         assert session.scalar(select(FlightFile.original_name)) == "circle_rep1.csv"
     database.dispose()
     # the same registry through the HTTP API

@@ -14,7 +14,7 @@ from learnest.ingest.flight import Flight as CanonicalFlight
 from learnest.ingest.simulator import RandomWaypoints, SensorModel, simulate, write_flight
 from learnest.service.blobs import BlobStore
 from learnest.service.cli import main
-from learnest.service.db import Database, Flight
+from learnest.service.db import Database, FlightRecord
 from learnest.service.experiments.flights import evaluate_flight
 from learnest.service.registry import load_model_ref
 
@@ -35,7 +35,7 @@ def biased_logs(tmp_path_factory):
 def stored_flight(home, flight_id) -> CanonicalFlight:
     database = Database(settings_for(home).url)
     with database.transaction() as session:
-        blob = session.scalar(select(Flight.flight_blob).where(Flight.id == flight_id))
+        blob = session.scalar(select(FlightRecord.flight_blob).where(FlightRecord.id == flight_id))
     database.dispose()
     return CanonicalFlight.from_bytes(BlobStore(home / "blobs").read_bytes(blob))
 

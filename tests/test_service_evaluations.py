@@ -19,7 +19,7 @@ from utils.service import (
 from learnest.ingest.flight import Flight as CanonicalFlight
 from learnest.service.blobs import BlobStore
 from learnest.service.cli import main as cli_main
-from learnest.service.db import Database, Flight, Result
+from learnest.service.db import Database, FlightRecord, Result
 from learnest.service.executors import DaskExecutor
 from learnest.service.experiments.flights import evaluate_flights
 from learnest.service.jobs import EstimatorSettings, JobRunner
@@ -43,7 +43,8 @@ def registry_home(tmp_path_factory):
 def stored_flights(home, ids) -> list[CanonicalFlight]:
     database, blobs = Database(settings_for(home).url), BlobStore(home / "blobs")
     with database.transaction() as session:
-        rows = {row.id: row.flight_blob for row in session.scalars(select(Flight).where(Flight.id.in_(ids)))}
+        query = select(FlightRecord).where(FlightRecord.id.in_(ids))
+        rows = {row.id: row.flight_blob for row in session.scalars(query)}
     database.dispose()
     return [CanonicalFlight.from_bytes(blobs.read_bytes(rows[i])) for i in ids]
 
@@ -142,7 +143,7 @@ def test_scheduler_evaluates_new_flights_once(registry_home, monkeypatch, capsys
         blobs = services.blobs
         database = services.db
         with database.transaction() as session:
-            blob = session.get(Flight, broken["id"]).flight_blob
+            blob = session.get(FlightRecord, broken["id"]).flight_blob
         blobs.path(blob).write_bytes(b"not a flight any more")
         second = scheduler.tick()
         assert len(second) == 1 and second[0]["flights"] == [new_ok["id"], broken["id"]]

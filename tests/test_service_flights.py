@@ -15,10 +15,10 @@ from utils.service import blob_files, flight_csv, running_app, settings_for, sha
 
 from learnest.ingest import read_flights
 from learnest.service.app import create_app
-from learnest.service.db import Flight, FlightFile
+from learnest.service.db import FlightFile, FlightRecord
 
 
-def count_rows(home: Path, table=Flight) -> int:
+def count_rows(home: Path, table=FlightRecord) -> int:
     engine = create_engine(f"sqlite:///{home / 'learnest.db'}")
     with engine.connect() as connection:
         n = connection.scalar(select(func.count()).select_from(table))

@@ -15,7 +15,7 @@ from learnest.service.db import (
     Base,
     Database,
     Evaluation,
-    Flight,
+    FlightRecord,
     Job,
     Lease,
     ModelVersion,
@@ -93,7 +93,7 @@ def test_a_failing_training_job_fails_its_version_with_the_reason(tmp_path, data
         flight = upload(client, flight_csv(data_dir, 0)).json()
         services = client.app.state.services
         with services.db.transaction() as session:
-            blob = session.get(Flight, flight["id"]).flight_blob
+            blob = session.get(FlightRecord, flight["id"]).flight_blob
         services.blobs.path(blob).write_bytes(b"corrupt")
         accepted = client.post("/models", json={"name": "m", "flight_id": flight["id"], "epochs": 1}).json()
         job = wait_for_job(client, accepted["job_id"])

@@ -8,6 +8,7 @@ Everything is fitted on some data and scored on other data (flights or trajector
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -20,10 +21,10 @@ from learnest.ingest.baseline import sg_references
 from learnest.ingest.flight import Flight
 from learnest.models.backend import rk4_step
 from learnest.models.diagnosis import ResidualProblem, select_effects
-from learnest.models.effects import LIBRARY, dynamics_params, effects_for, predict_acc_body, specific_force_body
+from learnest.models.effects import LIBRARY, Effect, dynamics_params, effects_for, predict_acc_body, specific_force_body
 from learnest.models.knode import HybridModel
 from learnest.models.presets import CRAZYFLIE_TRAINING, PAPER_TRAINING
-from learnest.models.systems import make_system
+from learnest.models.systems import System, make_system
 from learnest.models.training import train_knode
 
 from .flights import (
@@ -42,8 +43,15 @@ EDGE_S = 0.5               # SG references are least reliable at the ends of a r
 
 
 # -- building the residual problems ------------------------------------------------------------------
-def dynamics_problem(system, zeta, u, dt, candidates, components=None, blocks=None, name="dynamics"):
-    """One-step prediction residual of the observer's states (eq. 7), whitened per state component."""
+def dynamics_problem(system: System, zeta: np.ndarray, u: np.ndarray, dt: float, candidates: list[Effect],
+                     components: list[int] | None = None, blocks: list[np.ndarray] | None = None,
+                     name: str = "dynamics") -> ResidualProblem:
+    """One-step prediction residual of the observer's states (eq. 7), whitened per state component.
+
+    Rows are the T-1 steps of ζ (T, n) with inputs u (T, p) and step ``dt`` (s); a row is
+    (ζ_{k+1} - RK4(ζ_k)) / dt for the chosen ``components`` (default all), divided by that component's
+    standard deviation at the candidates' nominal values.
+    """
     components = list(range(system.n)) if components is None else components
     x_now, x_next, u_now = zeta[:-1], zeta[1:], u[:-1]
 
@@ -59,7 +67,13 @@ def dynamics_problem(system, zeta, u, dt, candidates, components=None, blocks=No
 
 
 def accelerometer_problem(flights: list[Flight], window: int = DIAGNOSIS_SG_WINDOW) -> ResidualProblem:
-    """acc_body − predicted IMU reading of the SG-reference specific force, over the flights' middles."""
+    """acc_body − predicted IMU reading of the SG-reference specific force, over the flights' middles.
+
+    Rows are the samples of every flight without its first and last ``EDGE_S`` s, k = 3 columns (m/s²,
+    body frame); the flights are the cross-validation blocks when there are several.  The x/y scale
+    factors are frozen at 1 when that axis' specific force is below ``MIN_HORIZONTAL_FORCE_MS2`` rms.
+    Needs the ``acc_body`` channel.  ``window`` is the SG window, samples.
+    """
     pieces = []
     for flight in flights:
         edge = int(EDGE_S / flight.dt)
@@ -86,7 +100,15 @@ def accelerometer_problem(flights: list[Flight], window: int = DIAGNOSIS_SG_WIND
 
 # -- simulated systems -----------------------------------------------------------------------------
 def parse_simulate(system_name: str, spec: str) -> dict:
-    """"m_c=1.8,cart_friction=0.4" -> dynamics parameters of the true system."""
+    """"m_c=1.8,cart_friction=0.4" -> dynamics parameters of the true system.
+
+    Names are effect parameter names or single-parameter effect ids; returns {dynamics key: value}.
+
+    Raises
+    ------
+    InvalidInput
+        If an item is not NAME=VALUE with a known name and a number.
+    """
     effects = effects_for(system_name, "dynamics")
     by_name = {p.name: p for e in effects for p in e.params}
     by_effect = {e.id: e.params[0] for e in effects if len(e.params) == 1}
@@ -104,8 +126,26 @@ def parse_simulate(system_name: str, spec: str) -> dict:
     return out
 
 
-def diagnose_simulated(system_name: str, simulate: str = "", seed: int = 0, methods=("ukf", "knode-ukf"),
-                       epochs: int | None = None, eval_samples: int | None = None) -> dict:
+def diagnose_simulated(system_name: str, simulate: str = "", seed: int = 0,
+                       methods: Sequence[str] = ("ukf", "knode-ukf"), epochs: int | None = None,
+                       eval_samples: int | None = None) -> dict:
+    """Diagnose a simulated cartpole or robot whose true system has the ``simulate`` parameters.
+
+    Effects are selected on the observer's states of one simulated run (seed 10000 + ``seed``); a KNODE
+    is trained on top of the original and of the repaired prior, and both are scored (MSE against the
+    true states) on another run (seed 20000 + ``seed``, ``eval_samples`` samples).
+
+    Returns
+    -------
+    dict
+        ``system``, ``simulated_truth``, ``effects``, ``confounded``, ``channels``, ``before`` and
+        ``after`` {method: MSE}, ``prior_params_after``.
+
+    Raises
+    ------
+    InvalidInput
+        If ``system_name`` is not cartpole or robot, or ``simulate`` does not parse.
+    """
     if system_name not in ("cartpole", "robot"):
         raise InvalidInput("--simulate works for the paper's simulated systems: cartpole or robot")
     system = make_system(system_name)
@@ -146,9 +186,14 @@ def _split_for_fitting(flights: list[Flight]):
 
 
 def diagnose_flights(flights: list[Flight], knode: HybridModel | None = None,
-                     methods=("ukf", "knode-ukf"), epochs: int = CRAZYFLIE_TRAINING.epochs, return_model: bool = False):
+                     methods: Sequence[str] = ("ukf", "knode-ukf"), epochs: int = CRAZYFLIE_TRAINING.epochs,
+                     return_model: bool = False):
     """The diagnosis report; with return_model, also the repaired model (prior + dynamics effects,
-    measurement effects in its meta, KNODE retrained on top) ready to be registered as a new version."""
+    measurement effects in its meta, KNODE retrained on top) ready to be registered as a new version:
+    ``report`` or ``(report, model)``.
+
+    Flights failing the quality checks are left out unless all fail.  See `diagnose` for the report.
+    """
     flights = [f for f in flights if f.quality["ok"]] or flights
     fitting, scoring, split = _split_for_fitting(flights)
     accel = select_effects(accelerometer_problem(fitting))
@@ -235,7 +280,7 @@ def _public(selection):
 
 def format_diagnosis(result: dict) -> str:
     """The human-readable report: effects as equations, intervals, what could not be told apart, and
-    the estimators' error before and after."""
+    the estimators' error before and after.  ``result`` is `diagnose`'s or `diagnose_simulated`'s dict."""
     lines = [f"diagnosis of {result['system']}"]
     if result.get("simulated_truth"):
         lines.append(f"  (simulated; truth hidden from the diagnosis: {result['simulated_truth']})")
@@ -263,7 +308,7 @@ def format_diagnosis(result: dict) -> str:
     return "\n".join(lines)
 
 
-def diagnose(flights: list[Flight], model: HybridModel | None = None, methods=("ukf", "knode-ukf"),
+def diagnose(flights: list[Flight], model: HybridModel | None = None, methods: Sequence[str] = ("ukf", "knode-ukf"),
              epochs: int = CRAZYFLIE_TRAINING.epochs) -> dict:
     """Trace what the model lacks on real flights, add it, and score before and after.
 
@@ -282,8 +327,17 @@ def diagnose(flights: list[Flight], model: HybridModel | None = None, methods=("
     Returns
     -------
     dict
-        ``effects`` (each with ``id``, ``params`` in SI units, ``interval`` and ``explained_fraction``),
-        ``confounded``, ``before``/``after`` median MSE per method, ``per_flight``, ``split``,
-        ``improved_flights``, ``residuals`` and ``channels`` (the JSON of `learnest diagnose --json`).
+        ``effects`` (each with ``id``, ``target``, ``channel``, ``params`` and their ``units``, ``ci95``
+        95 % intervals, ``determined``, ``held_nominal``, ``explained_fraction`` and ``equation``), sorted
+        by explained fraction; ``confounded``; ``before``/``after`` median MSE per method; ``per_flight``;
+        ``split``; ``improved_flights``; ``residuals``; ``channels`` (the JSON of `learnest diagnose --json`).
+
+    Examples
+    --------
+    >>> import learnest as le
+    >>> flights = le.read_flights(["sample_logs/circle_rep1.csv", "sample_logs/circle_rep2.csv"])
+    >>> report = le.diagnose(flights, epochs=20)
+    >>> sorted(report["before"])
+    ['knode-ukf', 'ukf']
     """
     return diagnose_flights(list(flights), knode=model, methods=methods, epochs=epochs)

@@ -6,7 +6,7 @@ implies: its measurements y = [p, a_meas], its grid, the system's noise settings
 from __future__ import annotations
 
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -70,7 +70,23 @@ def ukf(model: HybridModel, flight: Flight, alpha: float = 1e-3) -> FilterResult
     Returns
     -------
     FilterResult
-        ``t`` (T,) s, ``means`` (T, 9), ``covariances`` (T, 9, 9), ``innovations`` (T, 6).
+        ``t`` (T,) s, ``means`` (T, 9), ``covariances`` (T, 9, 9), ``innovations`` (T, 6) in the units of
+        y = [p (m), a_meas (m/s²)].  Q, R and P0 are the Quadrotor defaults on the flight's grid; x0 is
+        `initial_state` (p[0], mean velocity over the first 5 steps, a_meas[0]).
+
+    Raises
+    ------
+    InvalidInput
+        If ``flight`` is not a Flight or ``model`` is not a quadrotor model.
+
+    Examples
+    --------
+    >>> import learnest as le
+    >>> flights = le.read_flights(["sample_logs/circle_rep1.csv", "sample_logs/circle_rep2.csv"])
+    >>> knode = le.KNODE(epochs=20).fit(flights[0])
+    >>> post = le.ukf(knode.model_, flights[1])
+    >>> post.means.shape == (len(flights[1].t), 9)
+    True
     """
     system, y, u = _checked(model, flight)
     result = run_ukf(model, y, u, dt=flight.dt, Q=system.Q, R=system.R, x0=initial_state(flight), P0=system.P0,
@@ -93,7 +109,27 @@ def mhe(model: HybridModel, flight: Flight, horizon: int = MHE_HORIZON) -> MHERe
     Returns
     -------
     MHEResult
-        ``t`` (T,) s, ``means`` (T, 9), ``covariances`` (T, 9, 9), ``solver_failures``.
+        ``t`` (T,) s, ``means`` (T, 9), ``covariances`` (T, 9, 9), ``solver_failures``.  Noise settings
+        and x0 as in `ukf`.
+
+    Raises
+    ------
+    InvalidInput
+        If ``flight`` is not a Flight or ``model`` is not a quadrotor model.
+
+    Warns
+    -----
+    NumericalWarning
+        If the NLP solver failed on some windows.
+
+    Examples
+    --------
+    >>> import learnest as le
+    >>> flight = le.read_flights(["sample_logs/circle_rep2.csv"])[0]
+    >>> prior = le.HybridModel(le.make_system("quadrotor"))
+    >>> result = le.mhe(prior, flight, horizon=20)
+    >>> result.covariances.shape[1:]
+    (9, 9)
     """
     system, y, u = _checked(model, flight)
     estimator = MHE(model, flight.dt, system.Q, system.R, system.P0, horizon=horizon)
@@ -107,7 +143,8 @@ def mhe(model: HybridModel, flight: Flight, horizon: int = MHE_HORIZON) -> MHERe
 
 
 def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[str] = METHODS,
-             horizon: int = MHE_HORIZON, include_bad: bool = False, progress=None) -> dict:
+             horizon: int = MHE_HORIZON, include_bad: bool = False,
+             progress: Callable[[dict], None] | None = None) -> dict:
     """Score the estimators on flights against Savitzky–Golay references of their mocap position.
 
     Parameters
@@ -115,6 +152,7 @@ def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[st
     model : HybridModel
         The KNODE (its prior runs the "ukf"/"mhe" rows).  Its own training flight is never scored.
     flights : sequence of Flight
+        Flights to score (each gets an entry, excluded ones with the reason).
     methods : sequence of str
         Any of ``"ukf", "mhe", "knode-ukf", "knode-mhe"``.
     horizon : int
@@ -129,7 +167,22 @@ def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[st
     dict
         ``flights``: per flight ``mse`` {method: MSE over [p, v, a] in SI units²}, ``groups`` (per p, v,
         a), ``ms_per_step``, ``excluded`` and ``reason``; ``median`` {method: MSE};
-        ``improvement_pct`` {"knode-ukf_vs_ukf": %, ...}; ``flights_scored``.
+        ``improvement_pct`` {"knode-ukf_vs_ukf": %, ...}; ``flights_scored``; ``model`` (the model's
+        meta name, None for an unregistered model).
+
+    Raises
+    ------
+    InvalidInput
+        If a method name is unknown.
+
+    Examples
+    --------
+    >>> import learnest as le
+    >>> flights = le.read_flights(["sample_logs/circle_rep1.csv", "sample_logs/circle_rep2.csv"])
+    >>> knode = le.KNODE(epochs=20).fit(flights[0])
+    >>> report = le.evaluate(knode.model_, flights, methods=("ukf", "knode-ukf"))
+    >>> report["flights_scored"]      # flights[0] is the training flight: never scored
+    1
     """
     methods = parse_methods(",".join(methods)) if not isinstance(methods, str) else parse_methods(methods)
     return evaluate_flights(model, list(flights), methods, include_bad=include_bad, horizon=horizon,

@@ -2,6 +2,7 @@
 UKF / MHE / KNODE-UKF / KNODE-MHE on others, score against Savitzky–Golay references."""
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -23,14 +24,18 @@ def quadrotor_for(flight: Flight) -> Quadrotor:
 
 
 def initial_state(flight: Flight) -> np.ndarray:
+    """First state estimate x0, shape (9,): p[0] (m), the mean velocity over the first (up to) 5 steps (m/s),
+    a_meas[0] (m/s²)."""
     k = min(5, len(flight.t) - 1)
     velocity = (flight.p[k] - flight.p[0]) / (k * flight.dt)
     return np.concatenate([flight.p[0], velocity, flight.a_meas[0]])
 
 
-def train_on_flight(flight: Flight, config: TrainingConfig = CRAZYFLIE_TRAINING, progress=None) -> TrainingResult:
+def train_on_flight(flight: Flight, config: TrainingConfig = CRAZYFLIE_TRAINING,
+                    progress: Callable[[int, float], None] | None = None) -> TrainingResult:
     """Algorithm 1 on one flight: the KF pre-training observer on its measurements, then `train_knode`.
-    The model records the training flight (name and source sha256) in its meta."""
+    The model records the training flight (name and source sha256) in its meta.  ``progress`` is called
+    as ``progress(epoch, mean_training_loss)``."""
     system = quadrotor_for(flight)
     y, u = flight.measurements(), np.zeros((len(flight.t), 0))
     zeta = pretraining_observer(system, y, u, system.dt)
@@ -48,13 +53,20 @@ def corrected_flight(flight: Flight, values: dict) -> Flight:
                   {**flight.channels, "acc_body": acc_body}, dict(flight.meta))
 
 
-def evaluate_flight(knode: HybridModel, flight: Flight, methods, horizon: int = MHE_HORIZON, sg_window: int = SG_WINDOW,
-                    keep_estimates: bool = False, mhe_cache: dict | None = None) -> dict:
+def evaluate_flight(knode: HybridModel, flight: Flight, methods: Sequence[str], horizon: int = MHE_HORIZON,
+                    sg_window: int = SG_WINDOW, keep_estimates: bool = False, mhe_cache: dict | None = None) -> dict:
     """Scores of every method on one flight, against SG references of its mocap position.
 
     The prior-only rows use the model's own prior (which a diagnosis may have extended), and a model
     that carries measurement effects sees the flight with them corrected; the references always come
-    from the original mocap position."""
+    from the original mocap position.
+
+    Returns
+    -------
+    dict
+        ``results`` {method: `evaluate_sequence`'s entry}; ``reference`` (the SG references) when
+        ``keep_estimates``, else None.
+    """
     system = replace(quadrotor_for(flight), prior_params=dict(knode.system.prior_params))
     knode = HybridModel(replace(knode.system, dt=flight.dt), knode.kind, knode.residual, knode.meta)
     prior = HybridModel(system, "prior")
@@ -75,9 +87,13 @@ def _is_training_flight(knode: HybridModel, flight: Flight) -> bool:
     return bool(trained_on & sources) or flight.name == knode.meta.get("training_flight")
 
 
-def evaluate_flights(knode: HybridModel, flights: list[Flight], methods, include_bad: bool = False,
-                     horizon: int = MHE_HORIZON, progress=None) -> dict:
-    """The report of `learnest evaluate --json`: per flight, median, improvement %."""
+def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequence[str], include_bad: bool = False,
+                     horizon: int = MHE_HORIZON, progress: Callable[[dict], None] | None = None) -> dict:
+    """The report of `learnest evaluate --json`: per flight, median, improvement %.
+
+    Flights that fail the quality checks (unless ``include_bad``) and the model's own training flight are
+    listed as excluded, with the reason, and not scored.  ``progress`` is called with each flight's entry.
+    """
     reports, mhe_cache = [], {}
     for flight in flights:
         entry = {"flight": flight.name, "excluded": False, "reason": None, "mse": {}, "groups": {}}

@@ -5,6 +5,7 @@ returns ``self``; what was learned ends in ``_``.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
 
 from learnest.errors import InvalidInput
@@ -57,11 +58,11 @@ class KNODE:
 
     def __init__(self, system: str = "quadrotor", hidden: int = CRAZYFLIE_TRAINING.hidden,
                  epochs: int = CRAZYFLIE_TRAINING.epochs, lr: float = CRAZYFLIE_TRAINING.lr,
-                 validation_fraction: float = CRAZYFLIE_TRAINING.validation_fraction, seed: int = 0):
+                 validation_fraction: float = CRAZYFLIE_TRAINING.validation_fraction, seed: int = 0) -> None:
         self.system, self.hidden, self.epochs, self.lr = system, hidden, epochs, lr
         self.validation_fraction, self.seed = validation_fraction, seed
 
-    def fit(self, flight: Flight, progress=None) -> KNODE:
+    def fit(self, flight: Flight, progress: Callable[[int, float], None] | None = None) -> KNODE:
         """Train on one flight.
 
         Parameters
@@ -69,12 +70,17 @@ class KNODE:
         flight : Flight
             The training flight (its position and world-frame acceleration are the measurements).
         progress : callable, optional
-            Called with each epoch's record while training runs.
+            Called as ``progress(epoch, mean_training_loss)`` after every epoch.
 
         Returns
         -------
         KNODE
             ``self``, with the fitted attributes set.
+
+        Raises
+        ------
+        InvalidInput
+            If ``system`` cannot be fitted on a flight, or ``flight`` is not a Flight.
         """
         if self.system not in FLIGHT_SYSTEMS:
             raise InvalidInput(f"system {self.system!r} cannot be fitted on a flight; choose one of "

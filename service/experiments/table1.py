@@ -6,6 +6,7 @@ initial state), so nothing is ever scored on the data it was trained on.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
@@ -38,6 +39,19 @@ PAPER = {
 
 @dataclass(frozen=True)
 class ReproduceSettings:
+    """Settings of a Table I reproduction.
+
+    Attributes
+    ----------
+    task : {"cartpole", "robot"}
+    eval_samples : int, optional
+        Length of each evaluation run, samples; None: the paper's (5000 cartpole, 2500 robot).
+    epochs : int, optional
+        Training epochs; None: the paper's.
+    horizon : int
+        MHE window N, samples.
+    """
+
     task: str
     eval_samples: int | None = None  # evaluation length; None: the paper's (5000 cartpole, 2500 robot).
     # Training always uses the paper's full record: it is cheap, and a short record under-determines Δθ.
@@ -46,7 +60,12 @@ class ReproduceSettings:
 
 
 def run_seed(settings: ReproduceSettings, seed: int) -> dict:
-    """All 8 rows for one seed: {row: mse}, plus timings."""
+    """All 8 rows for one seed: {row: mse}, plus timings.
+
+    Trains on a simulated run with seed 10000 + ``seed`` and scores on one with seed 20000 + ``seed``;
+    the MSE is over all states against the true states.  Returns ``{"seed", "mse": {row: MSE},
+    "seconds": {row: wall time of the estimator run, s (the MHE's construction included)}}``.
+    """
     torch.set_num_threads(1)  # tiny networks: threads only contend with the other worker processes
     system = make_system(settings.task)
     train = system.simulate(10_000 + seed)
@@ -80,8 +99,21 @@ def run_seed(settings: ReproduceSettings, seed: int) -> dict:
     return {"seed": seed, "mse": mse, "seconds": seconds}
 
 
-def reproduce(settings: ReproduceSettings, seeds: int, workers: int = 1, progress=None) -> dict:
-    """Run every seed (in a process pool when workers > 1) and summarise μ, σ per row."""
+def reproduce(settings: ReproduceSettings, seeds: int, workers: int = 1,
+              progress: Callable[[dict], None] | None = None) -> dict:
+    """Run every seed (in a process pool when workers > 1) and summarise μ, σ per row.
+
+    Returns
+    -------
+    dict
+        ``task``, ``seeds``, ``rows`` {row: {"mu", "sigma"}} (MSE; σ with ddof=1, 0 for one seed),
+        ``per_seed`` (`run_seed`'s dicts), ``wall_time_s``, ``settings``.  ``progress`` gets each seed's dict.
+
+    Raises
+    ------
+    InvalidInput
+        If the task is unknown or ``seeds < 1``.
+    """
     if settings.task not in PAPER_TRAINING:
         raise InvalidInput(f"unknown task {settings.task!r}; choose one of {sorted(PAPER_TRAINING)}")
     if seeds < 1:
@@ -109,6 +141,7 @@ def reproduce(settings: ReproduceSettings, seeds: int, workers: int = 1, progres
 
 
 def format_table(report: dict) -> str:
+    """`reproduce`'s report as a text table, MSE × 1e-3, beside the paper's μ and σ."""
     paper = PAPER[report["task"]]
     lines = [f"Table I — {report['task']}, {report['seeds']} seeds (MSE x 1e-3)",
              f"{'method':<26}{'mu':>12}{'sigma':>12}{'paper mu':>12}{'paper sigma':>13}"]

@@ -25,7 +25,7 @@ from learnest.ingest.flight import Flight as CanonicalFlight
 
 from .. import catalog
 from ..blobs import CHUNK, BlobStore
-from ..db import Database, Flight, Result, blob_is_referenced
+from ..db import Database, FlightRecord, Result, blob_is_referenced
 from ..schemas import FlightDetail, FlightOut, FlightPage
 from ..uploads import add_flight
 from .deps import get_blobs, get_db, require_api_key
@@ -36,7 +36,7 @@ CSV_COLUMNS = "t,px,py,pz,ax,ay,az,qx,qy,qz,qw"
 
 
 # -- JSON shapes ---------------------------------------------------------------------------------------
-def flight_out(row: Flight, detail: bool = False) -> dict:
+def flight_out(row: FlightRecord, detail: bool = False) -> dict:
     out = {"id": row.id, "name": row.name, "adapter": row.adapter, "vehicle": row.vehicle, "notes": row.notes,
            "duration_s": row.duration_s, "rate_hz": row.rate_hz, "samples": row.samples,
            "quality": row.quality, "clock_offset_s": row.clock_offset_s, "sha256": row.sha256,
@@ -75,13 +75,13 @@ def list_flights(vehicle: str | None = None,
                  db: Database = Depends(get_db)):
     conditions = []
     if vehicle is not None:
-        conditions.append(Flight.vehicle == vehicle)
+        conditions.append(FlightRecord.vehicle == vehicle)
     if quality is not None:
-        conditions.append(Flight.quality_ok == (quality == "ok"))
+        conditions.append(FlightRecord.quality_ok == (quality == "ok"))
     if since is not None:
-        conditions.append(Flight.created_at >= _naive_utc(since))
+        conditions.append(FlightRecord.created_at >= _naive_utc(since))
     if until is not None:
-        conditions.append(Flight.created_at < _naive_utc(until))
+        conditions.append(FlightRecord.created_at < _naive_utc(until))
     total, rows = catalog.list_flights(db, *conditions, limit=limit, offset=offset)
     return {"items": [flight_out(row) for row in rows], "total": total, "limit": limit, "offset": offset}
 
@@ -146,7 +146,7 @@ def delete_flight(flight_id: int, db: Database = Depends(get_db), blobs: BlobSto
     """Removes the flight, its cached results and its blobs (unless another row still uses them).
     Model versions trained on it keep its id and sha256 (lineage)."""
     with db.transaction() as session:
-        row = session.get(Flight, flight_id)
+        row = session.get(FlightRecord, flight_id)
         if row is None:
             raise NotFound(f"flight {flight_id} not found")
         candidates = [row.flight_blob] + [f.sha256 for f in row.files]

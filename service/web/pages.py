@@ -33,7 +33,7 @@ from learnest.ingest.flight import Flight as CanonicalFlight
 from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON
 
 from .. import catalog, registry
-from ..db import Evaluation, Flight, Job
+from ..db import Evaluation, FlightRecord, Job
 from ..jobs import ACTIVE, EstimatorSettings, Services, start_evaluation, start_training
 from ..routers.deps import get_services
 from ..uploads import add_flight
@@ -132,7 +132,7 @@ def flight_page(request: Request, flight_id: int, services: Services = Depends(g
                 metadata=json.dumps(row.meta, indent=1))
 
 
-def _trajectory(services: Services, row: Flight) -> dict:
+def _trajectory(services: Services, row: FlightRecord) -> dict:
     """{"png": data URI} or {"error": why}: a missing or damaged blob is said, the rest of the page shown."""
     try:
         flight = CanonicalFlight.from_bytes(services.blobs.read_bytes(row.flight_blob))
