@@ -11,30 +11,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from learnest.errors import InvalidInput
 from learnest.models.checks import check_sequence
-from learnest.models.presets import METHODS, MHE_HORIZON
+from learnest.models.presets import MHE_HORIZON
 
 from .mhe import MHE
 from .protocols import StateSpaceModel
 from .ukf import run_ukf
 
 STATE_GROUPS = {"p": slice(0, 3), "v": slice(3, 6), "a": slice(6, 9)}
-
-
-def parse_methods(text: str) -> list[str]:
-    """Comma-separated method names (case and spaces ignored) -> list of names from ``METHODS``.
-
-    Raises
-    ------
-    InvalidInput
-        If a name is unknown or none is given.
-    """
-    methods = [m.strip().lower() for m in text.split(",") if m.strip()]
-    unknown = sorted(set(methods) - set(METHODS))
-    if unknown or not methods:
-        raise InvalidInput(f"unknown method(s) {unknown or text!r}; choose from {', '.join(METHODS)}")
-    return methods
 
 
 def _mhe_for(cache: dict, model, dt, Q, R, P0, horizon: int) -> MHE:

@@ -6,12 +6,24 @@ Convention: a state is the last axis in numpy/torch (shape (..., n)) and a colum
 """
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable
-from typing import Any
+from types import ModuleType
+from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
-import torch
+
+if TYPE_CHECKING:
+    import torch
+
+
+def _torch() -> ModuleType:
+    # torch is imported on first use: reading flights, filtering with numpy and building CasADi problems
+    # never pay its ~2 s import (the CLI's ingest, the service's pages, a notebook's le.ukf)
+    import torch
+
+    return torch
 
 
 class NumpyOps:
@@ -53,32 +65,57 @@ class TorchOps:
     """torch namespace (autograd for training): a state is the last axis, shape (..., n)."""
 
     name = "torch"
-    sin, cos, tan, arctan, tanh, sqrt = torch.sin, torch.cos, torch.tan, torch.atan, torch.tanh, torch.sqrt
+
+    @staticmethod
+    def sin(x: torch.Tensor) -> torch.Tensor:
+        return _torch().sin(x)
+
+    @staticmethod
+    def cos(x: torch.Tensor) -> torch.Tensor:
+        return _torch().cos(x)
+
+    @staticmethod
+    def tan(x: torch.Tensor) -> torch.Tensor:
+        return _torch().tan(x)
+
+    @staticmethod
+    def arctan(x: torch.Tensor) -> torch.Tensor:
+        return _torch().atan(x)
+
+    @staticmethod
+    def tanh(x: torch.Tensor) -> torch.Tensor:
+        return _torch().tanh(x)
+
+    @staticmethod
+    def sqrt(x: torch.Tensor) -> torch.Tensor:
+        return _torch().sqrt(x)
 
     @staticmethod
     def unstack(x: torch.Tensor) -> list[torch.Tensor]:
         """Components of the last axis: (..., n) -> n tensors of shape (...)."""
-        return list(torch.unbind(x, dim=-1))
+        return list(_torch().unbind(x, dim=-1))
 
     @staticmethod
     def stack(items: list[torch.Tensor]) -> torch.Tensor:
         """Inverse of `unstack`, broadcasting the items to one shape first."""
+        torch = _torch()
         return torch.stack(torch.broadcast_tensors(*items), dim=-1)
 
     @staticmethod
     def concat(items: list[torch.Tensor]) -> torch.Tensor:
         """Join along the last (state) axis."""
-        return torch.cat(items, dim=-1)
+        return _torch().cat(items, dim=-1)
 
     @staticmethod
-    def linear(z: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
-        """y = z Wᵀ + b over the last axis; weight (out, in), bias (out,) tensors."""
-        return torch.nn.functional.linear(z, weight, bias)
+    def linear(z: torch.Tensor, weight: Any, bias: Any) -> torch.Tensor:
+        """y = z Wᵀ + b over the last axis; weight (out, in), bias (out,) tensors or float64 arrays."""
+        torch = _torch()
+        return torch.nn.functional.linear(z, torch.as_tensor(weight), torch.as_tensor(bias))
 
     @staticmethod
     def zeros_like_first(x: torch.Tensor) -> torch.Tensor:
         """Zeros of shape x.shape[:-1] and x's dtype."""
-        return torch.zeros(x.shape[:-1], dtype=x.dtype)
+        return _torch().zeros(x.shape[:-1], dtype=x.dtype)
 
 
 class CasadiOps:
@@ -121,7 +158,8 @@ OPS = {"numpy": NumpyOps, "torch": TorchOps, "casadi": CasadiOps}
 
 def ops_for(x: Any) -> type[NumpyOps] | type[TorchOps] | type[CasadiOps]:
     """Pick the namespace from the array type, so callers never pass it explicitly."""
-    if isinstance(x, torch.Tensor):
+    torch = sys.modules.get("torch")  # a tensor exists only once torch has been imported
+    if torch is not None and isinstance(x, torch.Tensor):
         return TorchOps
     if isinstance(x, (ca.SX, ca.MX, ca.DM)):
         return CasadiOps

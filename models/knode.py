@@ -12,11 +12,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from learnest.errors import InvalidInput
 
-from .backend import Array, CasadiOps, TorchOps, ops_for, rk4_step
+from .backend import Array, CasadiOps, ops_for, rk4_step
 from .systems import System, make_system
 
 
@@ -38,8 +37,6 @@ class Residual:
         ops = ops_for(x)
         z = ops.concat([x, u]) if u is not None and _width(u) else x
         for i, (weight, bias) in enumerate(self.layers):
-            if ops is TorchOps:
-                weight, bias = torch.as_tensor(weight), torch.as_tensor(bias)
             z = ops.linear(z, weight, bias)
             if i < len(self.layers) - 1:
                 z = ops.tanh(z)

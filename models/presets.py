@@ -8,10 +8,27 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from learnest.errors import InvalidInput
+
 MHE_HORIZON = 20                 # MHE window N (paper Sec. V)
 SG_WINDOW = 150                  # Savitzky–Golay reference window, samples (paper Sec. VI)
 METHODS = ("ukf", "mhe", "knode-ukf", "knode-mhe")   # the four estimators of the Crazyflie experiment
 PRODUCTION_ALIAS = "production"  # the alias scheduled evaluations use
+
+
+def parse_methods(text: str) -> list[str]:
+    """Comma-separated method names (case and spaces ignored) -> list of names from ``METHODS``.
+
+    Raises
+    ------
+    InvalidInput
+        If a name is unknown or none is given.
+    """
+    methods = [m.strip().lower() for m in text.split(",") if m.strip()]
+    unknown = sorted(set(methods) - set(METHODS))
+    if unknown or not methods:
+        raise InvalidInput(f"unknown method(s) {unknown or text!r}; choose from {', '.join(METHODS)}")
+    return methods
 
 
 @dataclass

@@ -9,7 +9,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from learnest.errors import InvalidInput
 
@@ -129,6 +128,8 @@ class System:
         SimulatedRun
             ``y`` adds Gaussian noise of ``meas_noise_std``, ``x_noisy`` of ``state_noise_std``.
         """
+        from scipy.integrate import solve_ivp  # only simulations need it: importing a model stays light
+
         rng = np.random.default_rng(seed)
         n_samples = n_samples or self.n_samples
         t = np.arange(n_samples) * self.dt

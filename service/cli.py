@@ -72,7 +72,7 @@ def _registry_grid(rate: float) -> None:
 
 
 def _evaluate(args) -> int:
-    from learnest.estimators.evaluate import parse_methods
+    from learnest.models.presets import parse_methods
 
     from .experiments.flights import evaluate_flights
     from .local_registry import load_model
@@ -100,7 +100,7 @@ def _evaluate(args) -> int:
 
 def _evaluate_new(args) -> int:
     """One scheduler round (for cron): evaluate every stored flight without a result for name@alias."""
-    from learnest.estimators.evaluate import parse_methods
+    from learnest.models.presets import parse_methods
 
     from .jobs import EstimatorSettings
     from .scheduler import evaluate_new_once
@@ -133,8 +133,8 @@ def _serve(args) -> int:
 
 def _demo(args) -> int:
     """ingest -> train on one flight -> evaluate on every other flight of a folder."""
-    from learnest.estimators.evaluate import parse_methods
     from learnest.ingest import IngestError, detect
+    from learnest.models.presets import parse_methods
 
     from .experiments.flights import evaluate_flights
     from .local_registry import load_model, train
@@ -176,7 +176,7 @@ def _demo(args) -> int:
 
 
 def _diagnose(args) -> int:
-    from learnest.estimators.evaluate import parse_methods
+    from learnest.models.presets import parse_methods
 
     from .experiments.diagnosis import diagnose_flights, diagnose_simulated, format_diagnosis
     from .web.figures import residual_before_after, save_figure

@@ -20,8 +20,7 @@ from pathlib import Path
 from pydantic import AliasChoices, Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from learnest.estimators.evaluate import parse_methods
-from learnest.models.presets import METHODS, PRODUCTION_ALIAS
+from learnest.models.presets import METHODS, PRODUCTION_ALIAS, parse_methods
 
 DEFAULT_METHODS = ",".join(METHODS)
 

@@ -15,6 +15,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, TypeVar, cast
 
+from alembic.config import Config
 from sqlalchemy import (
     JSON,
     BigInteger,
@@ -41,7 +42,7 @@ from sqlalchemy.engine import Result as QueryResult
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, relationship, sessionmaker
 
-from learnest.errors import NotFound
+from learnest.errors import Conflict, NotFound
 from learnest.ingest.flight import json_compatible
 
 MIGRATIONS = Path(__file__).resolve().parent / "migrations"
@@ -294,7 +295,6 @@ class Database:
     def migrate(self) -> None:
         """Alembic `upgrade head`, serialized across processes (several uvicorn workers start at once)."""
         from alembic import command
-        from alembic.config import Config
 
         config = Config()
         config.set_main_option("script_location", str(MIGRATIONS))
@@ -315,6 +315,24 @@ class Database:
             finally:
                 if self.is_sqlite:
                     _driver_connection(connection).execute("PRAGMA foreign_keys=ON")
+
+    def require_current_schema(self) -> None:
+        """Raise `Conflict` unless the schema is at the newest migration; reads never migrate.
+
+        Migrating is a write that belongs to whoever runs the service (`learnest serve` does it at start);
+        a read (loading a model for `learnest evaluate`) against an older schema says so instead.
+        """
+        from alembic.migration import MigrationContext
+        from alembic.script import ScriptDirectory
+
+        config = Config()
+        config.set_main_option("script_location", str(MIGRATIONS))
+        head = ScriptDirectory.from_config(config).get_current_head()
+        with self.engine.connect() as connection:
+            current = MigrationContext.configure(connection).get_current_revision()
+        if current != head:
+            raise Conflict(f"the database is at schema revision {current or 'none'} and this learnest needs {head}: "
+                           "start `learnest serve` once (it migrates) or run `alembic upgrade head`")
 
     @contextmanager
     def _migration_lock(self):

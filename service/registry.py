@@ -258,7 +258,7 @@ def load_model_ref(ref: str, settings: Settings | None = None) -> HybridModel:
     """The model a registry reference names, from the service's database and blob folder (LEARNEST_HOME,
     LEARNEST_DATABASE_URL).  model.meta carries "name", "version" and "ref".
 
-    Note that it runs the database migrations before reading (``Database.migrate``).
+    It never migrates: an older schema is a `Conflict` that says how to upgrade it.
 
     Raises
     ------
@@ -267,12 +267,12 @@ def load_model_ref(ref: str, settings: Settings | None = None) -> HybridModel:
     NotFound
         If the model, version or alias does not exist.
     Conflict
-        If the version is not ready.
+        If the version is not ready, or the database's schema is older than this learnest.
     """
     settings = settings or Settings()
     database = Database(settings.url)
     try:
-        database.migrate()
+        database.require_current_schema()
         with database.transaction() as session:
             row = resolve(session, ref)
         model = load_version(BlobStore(settings.home / "blobs"), row)

@@ -16,8 +16,7 @@ from collections.abc import Callable
 
 from sqlalchemy import select
 
-from learnest.estimators.evaluate import parse_methods
-from learnest.models.presets import PRODUCTION_ALIAS
+from learnest.models.presets import PRODUCTION_ALIAS, parse_methods
 
 from . import registry
 from .config import Settings

@@ -6,8 +6,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from learnest.estimators.evaluate import parse_methods
-from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON
+from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON, parse_methods
 
 from .registry import NAME
 

@@ -57,3 +57,22 @@ def test_migrating_an_old_database_keeps_its_rows_and_stops_id_reuse(tmp_path):
         connection.execute(text("DELETE FROM flights WHERE id = 3"))
         assert _insert_flight(connection, "f5") == 4
     database.dispose()
+
+
+def test_loading_a_model_never_migrates_an_older_database(tmp_path):
+    """A read (learnest evaluate --model) against an older schema says how to upgrade, and changes nothing."""
+    import pytest
+
+    from learnest.errors import Conflict
+    from learnest.service.config import Settings
+    from learnest.service.registry import load_model_ref
+
+    home = tmp_path / "home"
+    home.mkdir()
+    database = Database(Settings(home=home).url)
+    _upgrade(database, "0002")
+    with pytest.raises(Conflict, match="schema revision 0002 and this learnest needs 0003.*learnest serve"):
+        load_model_ref("demo:1", Settings(home=home))
+    with database.engine.connect() as connection:
+        assert connection.exec_driver_sql("SELECT version_num FROM alembic_version").scalar() == "0002"
+    database.dispose()

@@ -13,13 +13,12 @@ import numpy as np
 
 from learnest.errors import InvalidInput, NumericalWarning
 from learnest.estimators.covariance import linearized_covariances
-from learnest.estimators.evaluate import parse_methods
 from learnest.estimators.mhe import MHE
 from learnest.estimators.results import FilterResult
 from learnest.estimators.ukf import run_ukf
 from learnest.ingest.flight import Flight
 from learnest.models.knode import HybridModel
-from learnest.models.presets import METHODS, MHE_HORIZON
+from learnest.models.presets import METHODS, MHE_HORIZON, parse_methods
 
 from .flights import evaluate_flights, initial_state, quadrotor_for
 

@@ -11,10 +11,12 @@ import base64
 import functools
 import io
 import os
-from typing import IO
+from typing import IO, TYPE_CHECKING
 
 import numpy as np
-from matplotlib.figure import Figure
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 from learnest.ingest.flight import Flight as CanonicalFlight
 
@@ -23,6 +25,12 @@ from ..db import ModelVersion
 
 BOX_ORDER = ("mhe", "knode-mhe", "ukf", "knode-ukf")   # the order of the paper's Fig. 3
 VELOCITY_METHODS = ("ukf", "knode-ukf")                # the velocity plot's estimators: quick to run on a request
+
+
+def _figure(**options) -> Figure:
+    from matplotlib.figure import Figure  # imported when a figure is drawn: starting the app stays fast
+
+    return Figure(**options)
 
 
 # -- output ------------------------------------------------------------------------------------------------
@@ -42,7 +50,7 @@ def png_data_uri(fig: Figure, dpi: int = 100) -> str:
 # -- figures of stored things ---------------------------------------------------------------------------------
 def trajectory(flight: CanonicalFlight, name: str) -> Figure:
     """Top view (x-y, equal axes) and height over time of a flight's mocap position."""
-    fig = Figure(figsize=(10, 4), layout="constrained")
+    fig = _figure(figsize=(10, 4), layout="constrained")
     top, height = fig.subplots(1, 2, width_ratios=[1, 1.6])
     top.plot(flight.p[:, 0], flight.p[:, 1], lw=1)
     top.set(xlabel="x (m)", ylabel="y (m)", title=f"{name}: top view", aspect="equal")
@@ -55,7 +63,7 @@ def trajectory(flight: CanonicalFlight, name: str) -> Figure:
 
 def training_losses(versions: list[ModelVersion]) -> Figure:
     """Training loss per epoch of each version (log scale); a None loss (a diverged epoch) is a gap."""
-    fig = Figure(figsize=(7, 3.5), layout="constrained")
+    fig = _figure(figsize=(7, 3.5), layout="constrained")
     ax = fig.subplots()
     for v in versions:
         losses = np.array([np.nan if x is None else x for x in (v.losses or [])], float)
@@ -79,7 +87,7 @@ def velocity(t: np.ndarray, reference: np.ndarray, estimates: dict[str, np.ndarr
     estimates : dict of method -> (T, 9) array
     title : str
     """
-    fig = Figure(figsize=(10, 7), layout="constrained")
+    fig = _figure(figsize=(10, 7), layout="constrained")
     axes = fig.subplots(3, 1, sharex=True)
     for k, (ax, label) in enumerate(zip(axes, ("vx", "vy", "vz"), strict=True)):
         ax.plot(t, reference[:, 3 + k], color="black", lw=1.5, label="SG reference")
@@ -120,7 +128,7 @@ def mse_boxplot(report: dict, title: str | None = None) -> Figure:
     scored = [f for f in report["flights"] if not f.get("excluded")]
     methods = [m for m in BOX_ORDER if any(m in f["mse"] for f in scored)]
     data = [[f["mse"][m] for f in scored if m in f["mse"]] for m in methods]
-    fig = Figure(figsize=(6, 4), layout="tight")
+    fig = _figure(figsize=(6, 4), layout="tight")
     ax = fig.subplots()
     ax.boxplot(data, tick_labels=[m.upper() for m in methods],
                medianprops={"color": "tab:orange", "linewidth": 2})
@@ -133,7 +141,7 @@ def mse_boxplot(report: dict, title: str | None = None) -> Figure:
 def residual_before_after(diagnosis: dict) -> Figure:
     """Residual RMS per channel before and after the effects were added, and each estimator's median MSE
     before and after (a diagnosis report)."""
-    fig = Figure(figsize=(10, 4), layout="tight")
+    fig = _figure(figsize=(10, 4), layout="tight")
     axes = fig.subplots(1, 2)
     channels = diagnosis.get("channels", {})
     names = list(channels)
