@@ -22,10 +22,14 @@ if TYPE_CHECKING:
     import pandas as pd
 
 REQUIRED = ("t", "p", "a_meas", "quat")
-OPTIONAL = ("gyro", "motors", "vbat", "setpoint", "v_onboard", "p_onboard", "acc_body")
-# units of every array a Flight may carry (DataFrame export, API, reports); a channel not listed has none
+OPTIONAL = ("gyro", "motors", "vbat", "rotor_speed", "thrust_cmd", "thrust_si", "setpoint", "v_onboard",
+            "p_onboard", "acc_body")
+# units of every array a Flight may carry (DataFrame export, API, reports); a channel not listed has none.
+# Adapters convert to these with the converters of ingest.units.  "motors" is the duty cycle the firmware
+# logs (after its battery compensation); "thrust_cmd" the controller's collective command in firmware units.
 UNITS = {"t": "s", "p": "m", "a_meas": "m/s^2", "quat": "1", "gyro": "rad/s", "motors": "PWM (0-65535)",
-         "vbat": "V", "setpoint": "m", "v_onboard": "m/s", "p_onboard": "m", "acc_body": "m/s^2"}
+         "vbat": "V", "rotor_speed": "rad/s", "thrust_cmd": "firmware thrust units (0-65535)", "thrust_si": "N",
+         "setpoint": "m", "v_onboard": "m/s", "p_onboard": "m", "acc_body": "m/s^2"}
 _AXES = {3: ("x", "y", "z"), 4: ("x", "y", "z", "w")}
 
 

@@ -30,6 +30,7 @@ OPTIONAL_STREAMS = {
     "gyro": ("imu_gyro_x", "imu_gyro_y", "imu_gyro_z"),
     "motors": ("motor_motor_m1", "motor_motor_m2", "motor_motor_m3", "motor_motor_m4"),
     "vbat": ("pwr_pm_vbat",),
+    "thrust_cmd": ("pid_controller_cmd_thrust",),   # firmware units 0..65535 (before battery compensation)
     "setpoint": ("sp_ctrltarget_x", "sp_ctrltarget_y", "sp_ctrltarget_z"),
     "p_onboard": ("est_stateEstimate_x", "est_stateEstimate_y", "est_stateEstimate_z"),
     "v_onboard": ("est_stateEstimate_vx", "est_stateEstimate_vy", "est_stateEstimate_vz"),
@@ -296,6 +297,7 @@ def _sources(path: Path, metadata: dict | None) -> list[dict]:
 
 # NanoBench metadata counts the rows each onboard log block really delivered (before resampling).
 METADATA_ROW_COUNT_KEYS = {"mocap": "vicon", "acc": "imu", "gyro": "imu", "motors": "motor", "vbat": "power",
+                           "thrust_cmd": "pid_output",
                            "setpoint": "setpoint", "p_onboard": "estimator", "v_onboard": "estimator"}
 
 

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from . import units
 from .align import build_flight, resample_quaternions, samples_per_second
 from .flight import Flight, IngestError, sha256_file
 from .limits import QUATERNION_NORM_TOLERANCE
@@ -41,17 +42,24 @@ _VARIABLE_SPEC = re.compile(r"([^()]+)\((.)\)")
 ACC = ("acc.x", "acc.y", "acc.z")                                                   # g, body frame
 POSE = ("locSrv.x", "locSrv.y", "locSrv.z", "locSrv.qx", "locSrv.qy", "locSrv.qz", "locSrv.qw")
 ONBOARD_RPY = ("ctrlLee.rpyx", "ctrlLee.rpyy", "ctrlLee.rpyz")                      # rad, onboard estimate
-# Optional Flight channels: (channel, variables, factor to SI). The first source present wins.
+# Optional Flight channels: (channel, variables, converter to the channel's unit, ingest.units). The first
+# source present wins.  uSD-card and cfclient logs share the firmware's variable names, so this one table
+# serves both adapters.
 OPTIONAL_SOURCES = (
-    ("p_onboard", ("stateEstimate.x", "stateEstimate.y", "stateEstimate.z"), 1.0),
-    ("p_onboard", ("stateEstimateZ.x", "stateEstimateZ.y", "stateEstimateZ.z"), 1e-3),      # int16 mm
-    ("v_onboard", ("stateEstimate.vx", "stateEstimate.vy", "stateEstimate.vz"), 1.0),
-    ("v_onboard", ("stateEstimateZ.vx", "stateEstimateZ.vy", "stateEstimateZ.vz"), 1e-3),   # int16 mm/s
-    ("gyro", ("gyro.x", "gyro.y", "gyro.z"), np.pi / 180.0),                                # deg/s
-    ("setpoint", ("ctrltarget.x", "ctrltarget.y", "ctrltarget.z"), 1.0),
-    ("setpoint", ("ctrltargetZ.x", "ctrltargetZ.y", "ctrltargetZ.z"), 1e-3),                # int16 mm
-    ("motors", ("motor.m1", "motor.m2", "motor.m3", "motor.m4"), 1.0),
-    ("vbat", ("pm.vbat",), 1.0),
+    ("p_onboard", ("stateEstimate.x", "stateEstimate.y", "stateEstimate.z"), units.identity),
+    ("p_onboard", ("stateEstimateZ.x", "stateEstimateZ.y", "stateEstimateZ.z"), units.millimetres),  # int16 mm
+    ("v_onboard", ("stateEstimate.vx", "stateEstimate.vy", "stateEstimate.vz"), units.identity),
+    ("v_onboard", ("stateEstimateZ.vx", "stateEstimateZ.vy", "stateEstimateZ.vz"), units.millimetres),
+    ("gyro", ("gyro.x", "gyro.y", "gyro.z"), units.degrees_per_second),
+    ("setpoint", ("ctrltarget.x", "ctrltarget.y", "ctrltarget.z"), units.identity),
+    ("setpoint", ("ctrltargetZ.x", "ctrltargetZ.y", "ctrltargetZ.z"), units.millimetres),
+    ("motors", ("motor.m1", "motor.m2", "motor.m3", "motor.m4"), units.pwm_16bit),
+    ("motors", ("pwm.m1_pwm", "pwm.m2_pwm", "pwm.m3_pwm", "pwm.m4_pwm"), units.pwm_16bit),
+    ("vbat", ("pm.vbat",), units.identity),
+    ("vbat", ("pm.vbatMV",), units.millivolts),
+    ("rotor_speed", ("rpm.m1", "rpm.m2", "rpm.m3", "rpm.m4"), units.rpm),
+    ("thrust_cmd", ("controller.cmd_thrust",), units.identity),
+    ("thrust_si", ("ctrlLee.thrustSI",), units.identity),
 )
 EDGE_GAP_S = 0.5               # a pause this long in the accelerometer stream splits the recording ...
 EDGE_FRAGMENT_S = 1.0          # ... and a piece shorter than this before the first/after the last split is dropped
@@ -362,8 +370,11 @@ def _optional_channels(log: UsdLog, window) -> dict:
         stream = None if channel in channels else _find_stream(log, names)
         if stream is not None:
             stream = stream.within(window)
-            if len(stream.t) >= 2:
-                channels[channel] = (stream.t, stream.values * to_si)
+            values = to_si(stream.values)
+            values = values.reshape(len(stream.t), -1)
+            finite = np.all(np.isfinite(values), axis=1)
+            if finite.sum() >= 2:
+                channels[channel] = (stream.t[finite], values[finite])
     return channels
 
 

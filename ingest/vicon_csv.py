@@ -441,7 +441,7 @@ def _cfclient_channels(t: np.ndarray, numbers: dict, usable: np.ndarray) -> dict
     for channel, names, to_si in OPTIONAL_SOURCES:
         if channel in channels or not all(name in numbers for name in names):
             continue
-        values = np.column_stack([numbers[name] for name in names]) * to_si
+        values = to_si(np.column_stack([numbers[name] for name in names]))
         keep = usable & np.all(np.isfinite(values), axis=1)
         if keep.sum() >= 2:
             channels[channel] = (t[keep], values[keep])

@@ -357,7 +357,10 @@ def train_task(flight_bytes: bytes, config: dict, progress_target: tuple[str, in
             last[0] = time.monotonic()
             report_progress(progress_target, 0.99 * (epoch + 1) / config["epochs"])
 
-    result = train_on_flight(_flight_from_bytes(flight_bytes), TrainingConfig(**config), progress=on_epoch)
+    hyper = dict(config)
+    system = hyper.pop("system", "quadrotor")
+    result = train_on_flight(_flight_from_bytes(flight_bytes), TrainingConfig(**hyper), progress=on_epoch,
+                             system=system)
     model = result.model
     model.meta.update(meta or {})
     return {"model_json": registry.model_to_json(model), "losses": [float(x) for x in result.losses],
@@ -392,8 +395,11 @@ def evaluate_task(model_json: bytes, flight_bytes: bytes, settings: dict) -> dic
 
 # -- training jobs -------------------------------------------------------------------------------------
 def training_config(overrides: dict) -> dict:
-    """The Crazyflie training settings as a dict, with the non-None ``overrides`` applied."""
-    return {**CRAZYFLIE_TRAINING.as_dict(), **{k: v for k, v in overrides.items() if v is not None}}
+    """The Crazyflie training settings as a dict, with the non-None ``overrides`` applied; "system" is the
+    prior the KNODE is built on (service.experiments.flights.FLIGHT_SYSTEMS), kept with the training
+    hyperparameters so the registry shows it and a retraining reuses it."""
+    return {**CRAZYFLIE_TRAINING.as_dict(), "system": "quadrotor",
+            **{k: v for k, v in overrides.items() if v is not None}}
 
 
 def start_training(services: Services, name: str, flight_id: int, overrides: dict, parent: str | None = None,

@@ -77,7 +77,8 @@ def add_flight(services: Services, paths) -> tuple[FlightRecord, bool]:
 
 # -- training ----------------------------------------------------------------------------------------------
 def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = False,
-          progress: Callable[[float], None] | None = None, settings: Settings | None = None) -> dict:
+          progress: Callable[[float], None] | None = None, settings: Settings | None = None,
+          system: str = "quadrotor") -> dict:
     """Store the flight, train the next version of `name` on it and wait; `progress(fraction)` while it trains.
     Returns what `learnest train --json` prints."""
     registry.check_name(name)  # before any work
@@ -87,7 +88,8 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
         if not row.quality_ok and not include_bad:  # checked here too, to name the CLI's flag
             raise InvalidInput(f"{row.name} failed the quality checks ({'; '.join(row.quality.get('issues', []))}); "
                              "pass --include-bad to train on it anyway")
-        job, version = start_training(services, name, row.id, {"epochs": epochs}, include_bad=include_bad)
+        job, version = start_training(services, name, row.id, {"epochs": epochs, "system": system},
+                                      include_bad=include_bad)
         job = wait_for_job(services, job.id, progress)
         with services.db.transaction() as session:
             version = registry.get_version(session, name, version.version)
@@ -95,6 +97,7 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
         raise TrainingFailed(f"training {name}:{version.version} on {row.name} failed: {job.error}")
     return {"name": name, "version": version.version, "ref": f"{name}:{version.version}",
             "training_flight": row.name, "flight_id": row.id, "flight_stored": "new" if created else "existing",
+            "system": version.hyperparameters.get("system", "quadrotor"),
             "epochs": version.hyperparameters["epochs"], "best_epoch": (version.metrics or {}).get("best_epoch"),
             "final_loss": version.losses[-1] if version.losses else None, "seconds": version.training_seconds,
             "home": str(settings.home)}

@@ -66,6 +66,9 @@ class TrainRequest(Strict):
     epochs: int | None = Field(None, ge=1, le=100_000)
     hidden: int | None = Field(None, ge=1, le=4096)
     lr: float | None = Field(None, gt=0, le=1)
+    system: Literal["quadrotor", "crazyflie"] = Field(
+        "quadrotor", description="the prior: the paper's kinematic chain, or the Crazyflie driven by its motors "
+                                 "and battery (the flight must carry motor PWM and battery voltage)")
     parent: str | None = Field(None, description='"name:version" or "name@alias" this version derives from')
     include_bad: bool = Field(False, description="train even if the flight failed the quality checks")
 

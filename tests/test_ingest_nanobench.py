@@ -33,7 +33,8 @@ def synthetic_table(seconds=20.0, seed=0) -> pd.DataFrame:
     table.update(zip(("qx", "qy", "qz", "qw"), quat.T))
     acc = np.array([0.0, 0.0, 1.0]) + rng.normal(0, 0.01, (n, 3))
     table.update(zip(nanobench.ACC_COLUMNS, acc.T))
-    level_and_noise = {"gyro": (0, 0.05), "motors": (40000, 500), "vbat": (3.7, 0.01), "setpoint": (0, 0.01),
+    level_and_noise = {"gyro": (0, 0.05), "motors": (40000, 500), "vbat": (3.7, 0.01), "thrust_cmd": (40000, 500),
+                       "setpoint": (0, 0.01),
                        "p_onboard": (0, 0.01), "v_onboard": (0, 0.01)}
     for name, columns in nanobench.OPTIONAL_STREAMS.items():
         level, noise = level_and_noise[name]

@@ -122,3 +122,21 @@ def test_model_references_parse():
     for bad in ("", "quad:", "quad@", "../x:1", "a:b", "quad:1@x"):
         with pytest.raises(ValueError):
             parse_ref(bad)
+
+
+def test_training_with_the_crazyflie_prior_is_recorded_and_names_missing_inputs(tmp_path, data_dir):
+    """The prior is a per-model choice: an unknown one is refused at the door, the chosen one is kept in
+    the version's hyperparameters, and a flight without motor PWM / battery voltage fails the job with a
+    message naming them (the kinematic prior trains on the same flight in the test above)."""
+    with running_app(tmp_path / "home") as client:
+        flight = upload(client, flight_csv(data_dir, 0)).json()
+        wrong = client.post("/models", json={"name": "cf", "flight_id": flight["id"], "system": "helicopter"})
+        assert wrong.status_code == 422
+        accepted = client.post("/models", json={"name": "cf", "flight_id": flight["id"], "epochs": EPOCHS,
+                                                "system": "crazyflie"})
+        assert accepted.status_code == 202, accepted.text
+        job = wait_for_job(client, accepted.json()["job_id"])
+        assert job["state"] == "failed"
+        assert "motor PWM" in job["error"] and "battery voltage" in job["error"]
+        version = client.get("/models/cf/versions/1").json()
+        assert version["hyperparameters"]["system"] == "crazyflie" and version["status"] == "failed"

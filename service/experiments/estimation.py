@@ -17,10 +17,11 @@ from learnest.estimators.mhe import MHE
 from learnest.estimators.results import FilterResult
 from learnest.estimators.ukf import run_ukf
 from learnest.ingest.flight import Flight
+from learnest.models.inputs import system_inputs
 from learnest.models.knode import HybridModel
 from learnest.models.presets import METHODS, MHE_HORIZON, parse_methods
 
-from .flights import evaluate_flights, initial_state, quadrotor_for
+from .flights import FLIGHT_SYSTEMS, evaluate_flights, initial_state, system_for
 
 
 class MHEResult(NamedTuple):
@@ -48,10 +49,11 @@ class MHEResult(NamedTuple):
 def _checked(model: HybridModel, flight: Flight):
     if not isinstance(flight, Flight):
         raise InvalidInput(f"expected a Flight (learnest.read_flights), got {type(flight).__name__}")
-    if model.system.name != "quadrotor":
-        raise InvalidInput(f"a {model.system.name!r} model cannot run on a flight; flights need a quadrotor model")
-    system = quadrotor_for(flight)
-    return system, flight.measurements(), np.zeros((len(flight.t), 0))
+    if model.system.name not in FLIGHT_SYSTEMS:
+        raise InvalidInput(f"a {model.system.name!r} model cannot run on a flight; flights need one of "
+                           f"{', '.join(FLIGHT_SYSTEMS)}")
+    system = system_for(flight, model.system.name)
+    return system, flight.measurements(), system_inputs(flight, system)
 
 
 def ukf(model: HybridModel, flight: Flight, alpha: float = 1e-3) -> FilterResult:

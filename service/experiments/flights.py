@@ -7,20 +7,34 @@ from dataclasses import replace
 
 import numpy as np
 
+from learnest.errors import InvalidInput
 from learnest.estimators.evaluate import evaluate_sequence, summarize
 from learnest.estimators.observers import pretraining_observer
 from learnest.ingest.baseline import references
 from learnest.ingest.flight import Flight
 from learnest.models.effects import correct_acc_body, world_from_body
+from learnest.models.inputs import system_inputs
 from learnest.models.knode import HybridModel
 from learnest.models.presets import CRAZYFLIE_TRAINING, MHE_HORIZON, SG_WINDOW, TrainingConfig
-from learnest.models.systems import Quadrotor, make_system
+from learnest.models.systems import System, make_system
 from learnest.models.training import TrainingResult, train_knode
 
 
-def quadrotor_for(flight: Flight) -> Quadrotor:
-    """The quadrotor system on this flight's grid; noise settings are the Quadrotor defaults."""
-    return make_system("quadrotor", dt=flight.dt, n_samples=len(flight.t))
+# Systems a model of a real flight may use: the paper's kinematic chain, or the Crazyflie prior driven by
+# the motors and the battery (needs those channels in the flight).
+FLIGHT_SYSTEMS = ("quadrotor", "crazyflie")
+
+
+def system_for(flight: Flight, name: str = "quadrotor") -> System:
+    """The named flight system on this flight's grid; noise settings are the system's defaults."""
+    if name not in FLIGHT_SYSTEMS:
+        raise InvalidInput(f"system {name!r} does not model a flight; choose one of {', '.join(FLIGHT_SYSTEMS)}")
+    return make_system(name, dt=flight.dt, n_samples=len(flight.t))
+
+
+def quadrotor_for(flight: Flight) -> System:
+    """The paper's kinematic quadrotor on this flight's grid."""
+    return system_for(flight, "quadrotor")
 
 
 def initial_state(flight: Flight) -> np.ndarray:
@@ -32,15 +46,17 @@ def initial_state(flight: Flight) -> np.ndarray:
 
 
 def train_on_flight(flight: Flight, config: TrainingConfig = CRAZYFLIE_TRAINING,
-                    progress: Callable[[int, float], None] | None = None) -> TrainingResult:
-    """Algorithm 1 on one flight: the KF pre-training observer on its measurements, then `train_knode`.
-    The model records the training flight (name and source sha256) in its meta.  ``progress`` is called
-    as ``progress(epoch, mean_training_loss)``."""
-    system = quadrotor_for(flight)
-    y, u = flight.measurements(), np.zeros((len(flight.t), 0))
+                    progress: Callable[[int, float], None] | None = None,
+                    system: str = "quadrotor") -> TrainingResult:
+    """Algorithm 1 on one flight with the named prior (`FLIGHT_SYSTEMS`): the KF pre-training observer on
+    its measurements, then `train_knode`.  The model records the training flight (name and source sha256)
+    in its meta.  ``progress`` is called as ``progress(epoch, mean_training_loss)``.  Raises
+    `models.inputs.MissingInputs` when the prior needs inputs the flight lacks."""
+    system = system_for(flight, system)
+    y, u = flight.measurements(), system_inputs(flight, system)
     zeta = pretraining_observer(system, y, u, system.dt)
     result = train_knode(system, zeta, u, system.dt, config, progress=progress)
-    result.model.meta.update({"training_flight": flight.name,
+    result.model.meta.update({"system": system.name, "training_flight": flight.name,
                               "training_flight_sha256": [s["sha256"] for s in flight.meta.get("sources", [])]})
     return result
 
@@ -67,14 +83,14 @@ def evaluate_flight(knode: HybridModel, flight: Flight, methods: Sequence[str], 
         ``results`` {method: `evaluate_sequence`'s entry}; ``reference`` (the SG references) when
         ``keep_estimates``, else None.
     """
-    system = replace(quadrotor_for(flight), prior_params=dict(knode.system.prior_params))
+    system = replace(system_for(flight, knode.system.name), prior_params=dict(knode.system.prior_params))
     knode = HybridModel(replace(knode.system, dt=flight.dt), knode.kind, knode.residual, knode.meta)
     prior = HybridModel(system, "prior")
     reference = references(flight, window=sg_window)
     measured = flight
     if knode.meta.get("measurement_effects"):
         measured = corrected_flight(flight, knode.meta["measurement_effects"])
-    results = evaluate_sequence(methods, prior, knode, measured.measurements(), np.zeros((len(flight.t), 0)),
+    results = evaluate_sequence(methods, prior, knode, measured.measurements(), system_inputs(flight, system),
                                 flight.dt, system.Q, system.R, initial_state(measured), system.P0, reference,
                                 horizon=horizon, keep_estimates=keep_estimates, mhe_cache=mhe_cache)
     return {"results": results, "reference": reference if keep_estimates else None}
@@ -110,4 +126,4 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
         reports.append(entry)
         if progress:
             progress(entry)
-    return {"model": knode.meta.get("name"), "flights": reports, **summarize(reports)}
+    return {"model": knode.meta.get("name"), "system": knode.system.name, "flights": reports, **summarize(reports)}

@@ -12,9 +12,8 @@ from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 from learnest.models.presets import CRAZYFLIE_TRAINING
 
-from .flights import train_on_flight
+from .flights import FLIGHT_SYSTEMS, train_on_flight
 
-FLIGHT_SYSTEMS = ("quadrotor",)  # systems a Flight can be fitted with
 
 
 class KNODE:
@@ -23,7 +22,8 @@ class KNODE:
     Parameters
     ----------
     system : str
-        The prior: ``"quadrotor"`` (the paper's kinematic chain x = [p, v, a], 9 states).
+        The prior: ``"quadrotor"`` (the paper's kinematic chain x = [p, v, a], 9 states) or ``"crazyflie"``
+        (the same states driven by the motor PWM and battery voltage the flight must carry).
     hidden : int
         Neurons of the residual's hidden tanh layer (Sec. V-C: 16).
     epochs : int
@@ -89,7 +89,7 @@ class KNODE:
             raise InvalidInput(f"fit needs a Flight (learnest.read_flights), got {type(flight).__name__}")
         config = replace(CRAZYFLIE_TRAINING, hidden=self.hidden, epochs=self.epochs, lr=self.lr,
                          validation_fraction=self.validation_fraction, seed=self.seed)
-        result = train_on_flight(flight, config, progress=progress)
+        result = train_on_flight(flight, config, progress=progress, system=self.system)
         self.model_ = result.model
         self.losses_, self.validation_losses_ = result.losses, result.validation_losses
         self.seconds_ = result.seconds

@@ -33,7 +33,8 @@ def train_model(body: TrainRequest, response: Response, services: Services = Dep
     """Train a KNODE on one stored flight (Algorithm 1, the Crazyflie settings of Sec. V-C unless
     overridden) as a job; the next version number of `name` is reserved now and usable once ready."""
     job, version = start_training(services, body.name, body.flight_id,
-                                  {"epochs": body.epochs, "hidden": body.hidden, "lr": body.lr},
+                                  {"epochs": body.epochs, "hidden": body.hidden, "lr": body.lr,
+                                   "system": body.system},
                                   parent=body.parent, include_bad=body.include_bad)
     response.headers["Location"] = f"/jobs/{job.id}"
     return {"job_id": job.id, "name": version.name, "version": version.version, "status": version.status}

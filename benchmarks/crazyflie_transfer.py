@@ -1,0 +1,121 @@
+"""Transfer across trajectory families on the real NanoBench flights (issue 14, step 4): a KNODE trained on
+one circle (or one figure-eight) with the paper's kinematic prior and with the Crazyflie prior (motors +
+battery), each scored with UKF / MHE / KNODE-UKF / KNODE-MHE on every flight of the *other* family.
+
+Same training flights as benchmarks/run_crazyflie.sh (medium speed, repetition 2) and the same settings
+(service.experiment.CRAZYFLIE_TRAINING, MHE horizon 20, Savitzky–Golay references of window 150).
+
+Run from the repository root (needs ../shared/data):
+    .venv/bin/python benchmarks/crazyflie_transfer.py [--out benchmarks/results/crazyflie_transfer]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from learnest.models.presets import METHODS
+from learnest.ingest import read_flights
+from learnest.service.experiments.flights import evaluate_flights, train_on_flight
+
+DATA = Path("../shared/data/nanobench")
+TRAIN = {"circle": "B2_circle_medium_rep2", "figure8": "B3_figure8_medium_rep2"}
+OTHER = {"circle": "figure8", "figure8": "circle"}
+SYSTEMS = ("quadrotor", "crazyflie")
+
+
+def gains(report: dict) -> dict:
+    """Per scored flight: the KNODE estimator's MSE gain over its own prior-only estimator (%)."""
+    out = {}
+    for entry in report["flights"]:
+        if entry["excluded"]:
+            continue
+        mse = entry["mse"]
+        out[entry["flight"]] = {base: 100.0 * (1.0 - mse[f"knode-{base}"] / mse[base]) for base in ("ukf", "mhe")
+                                if base in mse and f"knode-{base}" in mse}
+    return out
+
+
+def markdown(result: dict) -> str:
+    lines = ["# Transfer across trajectory families: kinematic prior vs Crazyflie prior (real NanoBench flights)",
+             "", f"Command: `{result['command']}`  ({result['seconds']:.0f} s wall, 2 shared cores)", ""]
+    for direction, by_system in result["runs"].items():
+        lines += [f"## {direction}", "", "| prior | scored | " + " | ".join(f"median {m}" for m in METHODS)
+                  + " | KNODE-UKF vs UKF | KNODE-MHE vs MHE | flights KNODE-UKF better | flights KNODE-MHE better |",
+                  "|---" * (6 + len(METHODS)) + "|"]
+        for system, run in by_system.items():
+            med = run["report"]["median"]
+            imp = run["report"]["improvement_pct"]
+            per = run["gains"]
+            better = {b: sum(1 for g in per.values() if g.get(b, 0) > 0) for b in ("ukf", "mhe")}
+            lines.append(f"| {system} | {run['report']['flights_scored']} | "
+                         + " | ".join(f"{med.get(m, float('nan')):.5f}" for m in METHODS)
+                         + f" | {imp.get('knode-ukf_vs_ukf', float('nan')):+.1f} % | "
+                           f"{imp.get('knode-mhe_vs_mhe', float('nan')):+.1f} % | {better['ukf']}/{len(per)} | "
+                           f"{better['mhe']}/{len(per)} |")
+        lines += [""]
+        for system, run in by_system.items():
+            lines.append(f"- {system}: median MSE by state group (p, v, a) — "
+                         + "; ".join(f"{m}: " + ", ".join(f"{g} {v:.5f}" for g, v in run["median_groups"][m].items())
+                                     for m in METHODS if m in run["median_groups"]))
+        lines += [""]
+    return "\n".join(lines)
+
+
+def median_groups(report: dict) -> dict:
+    scored = [f for f in report["flights"] if not f["excluded"]]
+    return {m: {g: float(np.median([f["groups"][m][g] for f in scored])) for g in ("p", "v", "a")}
+            for m in METHODS if scored and m in scored[0]["groups"]}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=DATA)
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/crazyflie_transfer"))
+    parser.add_argument("--directions", default="circle,figure8", help="families to train on")
+    parser.add_argument("--methods", default=",".join(METHODS), help="estimators to score (MHE dominates the time)")
+    parser.add_argument("--flights", default="", help="comma-separated names: score only these flights of the "
+                                                           "other family (default: all of them)")
+    parser.add_argument("--tag", default="", help="suffix of the result files (transfer<tag>.json/.md)")
+    args = parser.parse_args(argv)
+    started = time.perf_counter()
+    paths = sorted(args.data.glob("B*.csv"))
+    if not paths:
+        sys.exit(f"no NanoBench flights under {args.data}")
+    flights = read_flights(paths)
+    by_name = {f.name: f for f in flights}
+    runs = {}
+    methods = [m for m in args.methods.split(",") if m]
+    args.out.mkdir(parents=True, exist_ok=True)
+    stem = f"transfer{args.tag}"
+    for family in args.directions.split(","):
+        test = [f for f in flights if OTHER[family] in f.name]   # quality-failed flights are excluded by evaluate
+        if args.flights:
+            test = [f for f in test if f.name in args.flights.split(",")]
+        direction = f"trained on {TRAIN[family]}, scored on the {OTHER[family]}s"
+        runs[direction] = {}
+        for system in SYSTEMS:
+            t0 = time.perf_counter()
+            trained = train_on_flight(by_name[TRAIN[family]], system=system)
+            report = evaluate_flights(trained.model, test, methods)
+            runs[direction][system] = {"report": report, "gains": gains(report), "median_groups": median_groups(report),
+                                       "train_seconds": trained.seconds, "seconds": time.perf_counter() - t0}
+            print(f"{direction} / {system}: medians {report['median']} improvement {report['improvement_pct']}",
+                  file=sys.stderr, flush=True)
+            partial = {"command": "python benchmarks/crazyflie_transfer.py " + " ".join(argv or sys.argv[1:]),
+                       "runs": runs, "seconds": time.perf_counter() - started}
+            (args.out / f"{stem}.json").write_text(json.dumps(partial, indent=1))
+    result = {"command": "python benchmarks/crazyflie_transfer.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+              "runs": runs, "seconds": time.perf_counter() - started}
+    (args.out / f"{stem}.json").write_text(json.dumps(result, indent=1))
+    (args.out / f"{stem}.md").write_text(markdown(result))
+    print(markdown(result))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

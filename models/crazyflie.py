@@ -1,0 +1,198 @@
+"""Crazyflie 2.x physics driven by its inputs: thrust map from motor PWM, battery voltage, rotor drag,
+ground effect, motor lag.  Written once against the numpy/torch/CasADi namespace of `models.backend`.
+
+Every number has one home here: `PUBLIC` holds published values with their source, `IDENTIFIED` the
+values fitted on the real NanoBench flights by `benchmarks/crazyflie_physics.py` (committed results in
+`benchmarks/results/crazyflie_physics/`), `BOUNDS` the physically plausible range of each parameter.
+Parameter names follow issue 14's effect contract: `m_kg`, `gamma`, `k_xy`, `k_z`, `r_m`, `tau_s`.
+
+Thrust of one motor (N), PWM p in 0..65535, battery voltage V (V):
+
+    T_i = (q_pwm2 · a2 · p² + a1 · p + a0) · (V / V_ref)^gamma
+
+with Förster's Crazyflie 2.0 coefficients a2, a1, a0 and q_pwm2 = 1 reproducing his map exactly.
+Why a voltage factor: the logged `motor.m1..m4` are the duty cycles *after* the firmware's battery
+compensation (checked on NanoBench: mean PWM = 65535·volts(cmd_thrust)/vbat to 1 %), so at a given PWM
+the motor sees a voltage proportional to the battery's.
+
+Specific force in the body frame (what the accelerometer reads, m/s²), with v_b = Rᵀ v:
+
+    f_b = [0, 0, Σ T_i · G(z) / m_kg] − diag(k_xy, k_xy, k_z) · v_b
+
+G(z) = 1 / (1 − (r_m / (4 z))²) is Cheeseman & Bennett's ground-effect factor (z above the floor, z = 0
+in the mocap frame), and the world acceleration is a = R f_b − g e₃.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from learnest.ingest.frames import GRAVITY
+
+from .backend import ops_for
+
+
+# -- published values ----------------------------------------------------------------------------------
+# J. Förster, "System Identification of the Crazyflie 2.0 Nano Quadrocopter", BSc thesis, ETH Zürich,
+# 2015 (listed on Bitcraze's "PWM to Thrust" page, crazyflie-firmware docs, functional-areas/pwm-to-thrust):
+# static thrust of one motor+propeller vs the 16-bit PWM command, F = a2·p² + a1·p + a0 in N.
+FOERSTER_A2 = 2.130295e-11    # N
+FOERSTER_A1 = 1.032633e-6     # N
+FOERSTER_A0 = 5.484560e-4     # N
+# Förster, same thesis: rotor speed vs PWM, ω = 0.04076521·p + 380.8359 (rad/s), and the rotor-drag
+# coefficients of F_aero = K · (Σ ω_i) · v_body with K = diag(-9.1785e-7, -9.1785e-7, -10.311e-7) kg/rad.
+FOERSTER_OMEGA_SLOPE = 0.04076521   # rad/s per PWM count
+FOERSTER_OMEGA_OFFSET = 380.8359    # rad/s
+FOERSTER_K_DRAG_XY = 9.1785e-7      # kg/rad
+FOERSTER_K_DRAG_Z = 10.311e-7       # kg/rad
+# Bitcraze, Crazyflie 2.1 product page / datasheet: take-off weight 27 g; propellers 45 mm diameter.
+BITCRAZE_MASS_KG = 0.027
+BITCRAZE_ROTOR_RADIUS_M = 0.0225
+# crazyflie-firmware, src/drivers/src/motors.c (motorsCompensateBatteryVoltage): "A LiPo battery is
+# supposed to be 4.2V charged, 3.7V mid-charge and 3V discharged" -> the reference voltage of the map.
+V_REF = 3.7
+PWM_MAX = 65535.0
+
+
+def _hover_pwm(mass_kg: float) -> float:
+    """PWM of each of 4 motors that holds mass_kg on Förster's map at V_ref (positive root)."""
+    a2, a1, a0 = FOERSTER_A2, FOERSTER_A1, FOERSTER_A0 - mass_kg * GRAVITY / 4.0
+    return float((-a1 + np.sqrt(a1 * a1 - 4.0 * a2 * a0)) / (2.0 * a2))
+
+
+def _rotor_drag_per_second(k_aero: float, mass_kg: float) -> float:
+    """Förster's K (kg/rad) times the summed rotor speed at hover, over the mass: a rate in 1/s."""
+    omega = FOERSTER_OMEGA_SLOPE * _hover_pwm(mass_kg) + FOERSTER_OMEGA_OFFSET
+    return k_aero * 4.0 * omega / mass_kg
+
+
+PUBLIC = {
+    "m_kg": BITCRAZE_MASS_KG,
+    "gamma": 1.0,      # the firmware's compensation (duty = volts / vbat) treats thrust as set by duty·V
+    "q_pwm2": 1.0,     # Förster's quadratic term unchanged
+    "k_xy": _rotor_drag_per_second(FOERSTER_K_DRAG_XY, BITCRAZE_MASS_KG),   # ≈ 0.25 1/s
+    "k_z": _rotor_drag_per_second(FOERSTER_K_DRAG_Z, BITCRAZE_MASS_KG),     # ≈ 0.28 1/s
+    "r_m": BITCRAZE_ROTOR_RADIUS_M,
+    # No published Crazyflie 2.x motor time constant was found in the sources above; 30 ms is the order
+    # of magnitude of small brushed motors and the value issue 14's simulated tests use.
+    "tau_s": 0.03,
+    "v_ref": V_REF,
+}
+
+# Fitted on the 16 usable NanoBench flights of CF_01 (benchmarks/crazyflie_physics.py, all flights
+# pooled; intervals and the held-out scores are in benchmarks/results/crazyflie_physics/).  m_kg is an
+# *effective* mass relative to Förster's map: NanoBench's vehicle carries markers and maybe a deck, and
+# its motors/propellers are not Förster's, so mass and thrust gain are one number here.
+IDENTIFIED = {
+    "m_kg": 0.0190,
+    "gamma": 0.42,
+    "q_pwm2": -0.153,
+    "k_xy": 0.40,
+    "k_z": 0.108,
+    "r_m": BITCRAZE_ROTOR_RADIUS_M,   # not identifiable at 1 m flying height: the public value is kept
+    "tau_s": 0.061,
+    "v_ref": V_REF,
+}
+
+# Plausible ranges: fits are constrained to them and the effect library may use them as priors.
+BOUNDS = {
+    "m_kg": (0.01, 0.1),
+    "gamma": (-1.0, 3.0),
+    "q_pwm2": (-3.0, 3.0),
+    "k_xy": (0.0, 2.0),
+    "k_z": (-1.0, 2.0),
+    "r_m": (0.0, 0.1),
+    "tau_s": (0.0, 0.3),
+    "v_ref": (V_REF, V_REF),
+}
+
+UNITS = {"m_kg": "kg", "gamma": "1", "q_pwm2": "1", "k_xy": "1/s", "k_z": "1/s", "r_m": "m", "tau_s": "s",
+         "v_ref": "V"}
+
+# Issue 14's effect contract: effect id -> its parameters and the one-line equation it adds to the prior.
+# Nominal values: PUBLIC (published) and IDENTIFIED (NanoBench); ranges: BOUNDS; units: UNITS.
+EFFECTS = {
+    "mass": {"params": ("m_kg",), "equation": "v̇ = R(q)·[0, 0, Σ T_i]ᵀ / m_kg − g e₃  (a payload raises m_kg)"},
+    "battery_thrust": {"params": ("gamma",),
+                       "equation": "T_i = (q_pwm2·a2·p_i² + a1·p_i + a0)·(V / V_ref)^gamma, V_ref = 3.7 V"},
+    "rotor_drag": {"params": ("k_xy", "k_z"), "equation": "f_b −= diag(k_xy, k_xy, k_z)·Rᵀ v"},
+    "ground_effect": {"params": ("r_m",), "equation": "Σ T_i /= 1 − (r_m / (4 z))²  (Cheeseman–Bennett)"},
+    "motor_lag": {"params": ("tau_s",), "equation": "ȧ = (a_cmd(v, z, u) − a) / tau_s"},
+}
+
+# The inputs the prior needs, in order: mocap attitude (scalar last), 4 motor PWM, battery voltage.
+INPUT_NAMES = ("qx", "qy", "qz", "qw", "pwm1", "pwm2", "pwm3", "pwm4", "vbat")
+
+
+# -- the model, one definition for numpy / torch / CasADi -------------------------------------------
+def motor_thrust(pwm, vbat, params):
+    """Thrust of one motor (N) from its PWM (0..65535) and the battery voltage (V); any array kind."""
+    poly = params.get("q_pwm2", 1.0) * FOERSTER_A2 * pwm**2 + FOERSTER_A1 * pwm + FOERSTER_A0
+    return poly * (vbat / params.get("v_ref", V_REF)) ** params["gamma"]
+
+
+def ground_effect(z, r_m):
+    """Cheeseman–Bennett thrust factor 1 / (1 − (r/4z)²) at height z (m) above the floor.
+
+    Heights below 2 r are treated as 2 r (the factor there is 1.016): the formula diverges at z = r/4
+    and is not meant for a vehicle sitting on the floor."""
+    ops = ops_for(z)
+    z_safe = 0.5 * (z + 2.0 * r_m + ops.sqrt((z - 2.0 * r_m) ** 2 + 1e-8))  # smooth max(z, 2r)
+    ratio = r_m / (4.0 * z_safe)
+    return 1.0 / (1.0 - ratio * ratio)
+
+
+def rotation_columns(qx, qy, qz, qw):
+    """Rows of R(q) (body -> world) for a unit scalar-last quaternion, as 9 scalars/arrays r[i][j]."""
+    return ((1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)),
+            (2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)),
+            (2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)))
+
+
+def specific_force_body(v_world, z, u, params):
+    """Body-frame specific force (m/s², the accelerometer's reading) predicted from the inputs.
+
+    Parameters
+    ----------
+    v_world : list of 3 arrays/symbols
+        Velocity in the world frame (m/s), each of batch shape (...).
+    z : array/symbol
+        Height above the floor (m), batch shape (...).
+    u : list of 9 arrays/symbols
+        `INPUT_NAMES`: quaternion (scalar last), PWM of motors 1..4 (0..65535), battery voltage (V).
+    params : dict
+        `PUBLIC` / `IDENTIFIED` keys.
+
+    Returns
+    -------
+    (list of 3 body-frame components, R as nested tuples)
+    """
+    qx, qy, qz, qw, p1, p2, p3, p4, vbat = u
+    R = rotation_columns(qx, qy, qz, qw)
+    vb = [R[0][i] * v_world[0] + R[1][i] * v_world[1] + R[2][i] * v_world[2] for i in range(3)]  # Rᵀ v
+    thrust = sum(motor_thrust(p, vbat, params) for p in (p1, p2, p3, p4))
+    if params.get("r_m", 0.0) > 0.0:
+        thrust = thrust * ground_effect(z, params["r_m"])
+    fz = thrust / params["m_kg"] - params["k_z"] * vb[2]
+    return [-params["k_xy"] * vb[0], -params["k_xy"] * vb[1], fz], R
+
+
+def world_acceleration(v_world, z, u, params):
+    """Predicted world-frame acceleration a = R f_b − g e₃ (m/s²), the quantity `Flight.a_meas` holds."""
+    f_b, R = specific_force_body(v_world, z, u, params)
+    return [R[i][0] * f_b[0] + R[i][1] * f_b[1] + R[i][2] * f_b[2] - (GRAVITY if i == 2 else 0.0)
+            for i in range(3)]
+
+
+def hover_pwm(params, vbat: float | None = None) -> float:
+    """The PWM (equal on 4 motors) at which the thrust holds the vehicle level in still air, far from
+    the floor, at battery voltage vbat (default v_ref): a root of a quadratic in PWM."""
+    vbat = params.get("v_ref", V_REF) if vbat is None else vbat
+    per_motor = params["m_kg"] * GRAVITY / 4.0 / (vbat / params.get("v_ref", V_REF)) ** params["gamma"]
+    a2, a1, a0 = params.get("q_pwm2", 1.0) * FOERSTER_A2, FOERSTER_A1, FOERSTER_A0 - per_motor
+    if abs(a2) < 1e-30:
+        return float(-a0 / a1)
+    disc = a1 * a1 - 4.0 * a2 * a0
+    if disc < 0:
+        raise ValueError(f"the thrust map {params} cannot hold {params['m_kg']} kg at {vbat} V")
+    # the root on the rising branch of the map, for either sign of the quadratic term
+    return float((-a1 + np.sqrt(disc)) / (2.0 * a2))

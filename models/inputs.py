@@ -1,0 +1,50 @@
+"""The input sequence u (T, p) a system needs, taken from a Flight's channels; a clear error otherwise.
+
+The kinematic quadrotor needs no inputs; the Crazyflie prior needs the mocap attitude (always in a
+Flight), the four motor PWM and the battery voltage.  Which log variables carry each channel is listed
+so the message tells a user what their logger should have recorded.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from learnest.errors import InvalidInput
+from learnest.ingest.flight import Flight
+
+from .systems import System
+
+# channel -> what carries it in each supported format (for the error message)
+CHANNEL_SOURCES = {
+    "motors": "motor PWM: NanoBench motor_motor_m1..m4, uSD/cfclient motor.m1..m4 or pwm.m1_pwm..m4_pwm",
+    "vbat": "battery voltage: NanoBench pwr_pm_vbat, uSD/cfclient pm.vbat or pm.vbatMV",
+}
+# system name -> the Flight channels its inputs come from, in input order after the attitude
+NEEDED = {"crazyflie": ("motors", "vbat")}
+
+
+class MissingInputs(InvalidInput):
+    """A flight without the channels a system's inputs come from."""
+
+
+def missing_inputs(flight: Flight, system_name: str) -> list[str]:
+    return [name for name in NEEDED.get(system_name, ()) if name not in flight.channels]
+
+
+def system_inputs(flight: Flight, system: System) -> np.ndarray:
+    """u (T, system.n_inputs) for this flight: empty for input-free systems, [quat, PWM x4, vbat] for crazyflie."""
+    if system.n_inputs == 0:
+        return np.zeros((len(flight.t), 0))
+    if system.name not in NEEDED:
+        raise ValueError(f"no rule for the inputs of system {system.name!r} on a Flight")
+    missing = missing_inputs(flight, system.name)
+    if missing:
+        what = "; ".join(CHANNEL_SOURCES[name] for name in missing)
+        raise MissingInputs(f"{flight.name}: the {system.name!r} prior needs inputs this flight does not carry "
+                            f"({what}). The kinematic prior (system 'quadrotor') works without them.")
+    columns = [flight.quat] + [np.asarray(flight.channels[name], float).reshape(len(flight.t), -1)
+                               for name in NEEDED[system.name]]
+    u = np.column_stack(columns)
+    if u.shape[1] != system.n_inputs:
+        raise MissingInputs(f"{flight.name}: expected {system.n_inputs} input columns for {system.name!r}, got "
+                            f"{u.shape[1]} (channels {', '.join(NEEDED[system.name])})")
+    return u

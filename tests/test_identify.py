@@ -1,0 +1,96 @@
+"""Identification of the input-driven physics: parameters recovered from a simulated flight whose truth is
+known, and on the real NanoBench flights the held-out body-z specific-force prediction of issue 14."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from learnest.ingest.flight import Flight
+from learnest.ingest.frames import GRAVITY
+from learnest.models import crazyflie as cf
+from learnest.models.identify import (FULL, VARIANTS, Variant, fit_z, flight_arrays, interpolated_rows, rmse_constant,
+                             rmse_z)
+from learnest.models.systems import make_system
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+NANOBENCH = DATA / "nanobench"
+needs_data = pytest.mark.skipif(not NANOBENCH.is_dir(), reason="../shared/data/nanobench not present")
+
+
+def simulated_flight(true_params: dict, seed: int, vbat_from: float, vbat_to: float, n: int = 1500) -> Flight:
+    """A level flight of the crazyflie system with a sagging battery; the accelerometer reads the model's
+    body-frame specific force (level: a + g e3) plus white noise."""
+    system = make_system("crazyflie", true_params=true_params, n_samples=n)
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * system.dt
+    u = system.excitation(rng, t)
+    u[:, 8] = np.linspace(vbat_from, vbat_to, n)
+    u[:, 4:8] *= (3.7 / u[:, 8:9]) ** (0.5 * true_params["gamma"])   # roughly hold altitude as the battery sags
+    x = np.empty((n, 9))
+    x[0] = system.initial_state(rng)
+    for k in range(n - 1):
+        x[k + 1] = _rk4(system, x[k], u[k])
+    acc_body = x[:, 6:9] + np.array([0, 0, GRAVITY]) + rng.normal(0, 0.05, (n, 3))
+    return Flight(t, x[:, :3], x[:, 6:9], u[:, :4], {"motors": u[:, 4:8], "vbat": u[:, 8:9], "acc_body": acc_body},
+                  {"name": f"sim{seed}"})
+
+
+def _rk4(system, x, u, substeps=4):
+    h = system.dt / substeps
+    for _ in range(substeps):
+        k1 = system.f_true(x, u)
+        k2 = system.f_true(x + 0.5 * h * k1, u)
+        k3 = system.f_true(x + 0.5 * h * k2, u)
+        k4 = system.f_true(x + h * k3, u)
+        x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return x
+
+
+def test_interpolated_rows_are_the_straight_segments():
+    values = np.random.default_rng(0).normal(size=(20, 2))
+    values[5:9] = np.linspace(values[4], values[9], 6)[1:-1]
+    assert np.flatnonzero(interpolated_rows(values)).tolist() == [5, 6, 7, 8]
+
+
+def test_fit_recovers_mass_battery_exponent_and_motor_lag_on_simulated_flights():
+    truth = {**cf.IDENTIFIED, "m_kg": 0.032, "gamma": 1.2, "tau_s": 0.04, "r_m": 0.0, "k_z": 0.0}
+    flights = [flight_arrays(simulated_flight(truth, seed, 4.1, 3.4)) for seed in (1, 2)]
+    variant = Variant("sim", ("m_kg", "gamma", "tau_s"), base={**truth})
+    fitted = fit_z(variant, flights, start={"m_kg": 0.025, "gamma": 0.5, "tau_s": 0.02})
+    assert fitted["m_kg"] == pytest.approx(0.032, rel=0.05)
+    assert fitted["gamma"] == pytest.approx(1.2, rel=0.2)
+    assert fitted["tau_s"] == pytest.approx(0.04, rel=0.2)
+    assert rmse_z(fitted, flights) < 0.5 * rmse_constant(flights)
+
+
+@needs_data
+@pytest.mark.slow
+def test_real_flights_held_out_family_prediction_beats_constant_and_two_parameter_model():
+    """Fit on the circles, score on the figure-eights, and the reverse (whole flights held out).
+    Measured (benchmarks/results/crazyflie_physics): full model 0.157 / 0.187 m/s², constant 0.214 /
+    0.211, two-parameter model 0.216 / 0.253."""
+    from learnest.ingest import read_flights
+    flights = [f for f in read_flights(sorted(NANOBENCH.glob("B*.csv"))) if f.quality["ok"]]
+    arrays = [flight_arrays(f) for f in flights]
+    circles = [a for a in arrays if "circle" in a.name]
+    eights = [a for a in arrays if "figure8" in a.name]
+    two_parameter = VARIANTS[1]
+    for train, test in ((circles, eights), (eights, circles)):
+        full = rmse_z(fit_z(FULL, train), test)
+        assert full < 0.9 * rmse_constant(test)
+        assert full < 0.85 * rmse_z(fit_z(two_parameter, train), test)
+
+
+@needs_data
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="issue 14's target (<= 0.15 m/s² and <= 60 % of the constant on both "
+                                       "held-out families) is not reached: a per-flight thrust offset remains")
+def test_real_flights_meet_issue_14_target():
+    from learnest.ingest import read_flights
+    flights = [f for f in read_flights(sorted(NANOBENCH.glob("B*.csv"))) if f.quality["ok"]]
+    arrays = [flight_arrays(f) for f in flights]
+    circles = [a for a in arrays if "circle" in a.name]
+    eights = [a for a in arrays if "figure8" in a.name]
+    for train, test in ((circles, eights), (eights, circles)):
+        full = rmse_z(fit_z(FULL, train), test)
+        assert full <= 0.15 and full <= 0.6 * rmse_constant(test)
