@@ -22,14 +22,13 @@ STATE_GROUPS = {"p": slice(0, 3), "v": slice(3, 6), "a": slice(6, 9)}
 
 
 def _mhe_for(cache: dict, model, dt, Q, R, P0, horizon: int) -> MHE:
-    """One MHE per model and tuning, its windows built before any timing: a batch of flights reuses it
-    (building the IPOPT problems costs seconds; the models of one evaluation outlive the cache)."""
+    """One MHE per model and tuning, built before any timing: a batch of flights reuses it (compiling the
+    Gauss–Newton functions or building the IPOPT problems costs seconds; the models of one evaluation
+    outlive the cache)."""
     key = (model.kind, id(model.residual), model.system.name, tuple(sorted(model.system.prior_params.items())),
            float(dt), horizon, Q.tobytes(), R.tobytes(), P0.tobytes())
     if key not in cache:
-        cache[key] = MHE(model, dt, Q, R, P0, horizon=horizon)
-        for length in range(1, horizon + 2):
-            cache[key].window(length)
+        cache[key] = MHE(model, dt, Q, R, P0, horizon=horizon).prepare()
     return cache[key]
 
 

@@ -155,3 +155,20 @@ def test_readme_example_runs(tmp_path):
                          capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr
     assert "(9,)" not in run.stdout and "knode-ukf_vs_ukf" in run.stdout
+
+
+def test_a_repaired_model_sees_its_measurement_effects_in_ukf_and_mhe():
+    """A model a diagnosis repaired carries accelerometer effects: le.ukf/le.mhe correct the flight
+    exactly as le.evaluate does, so the same model gives the same estimates through every entry point."""
+    from learnest.service.experiments.flights import corrected_flight
+
+    [flight] = le.read_flights([SAMPLES / "circle_rep2.csv"])
+    flight = flight.slice(0, 150)
+    effects = {"bias_z": 0.4, "scale_x": 1.05}
+    prior = le.HybridModel(le.make_system("quadrotor"))
+    repaired = le.HybridModel(le.make_system("quadrotor"), meta={"measurement_effects": effects})
+    fixed = corrected_flight(flight, effects)
+    np.testing.assert_allclose(le.ukf(repaired, flight).means, le.ukf(prior, fixed).means, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(le.mhe(repaired, flight, horizon=3).means, le.mhe(prior, fixed, horizon=3).means,
+                               rtol=0, atol=1e-9)
+    assert not np.allclose(le.ukf(repaired, flight).means, le.ukf(prior, flight).means)

@@ -21,7 +21,7 @@ from learnest.models.inputs import system_inputs
 from learnest.models.knode import HybridModel
 from learnest.models.presets import METHODS, MHE_HORIZON, parse_methods
 
-from .flights import FLIGHT_SYSTEMS, evaluate_flights, initial_state, system_for
+from .flights import FLIGHT_SYSTEMS, corrected_flight, evaluate_flights, initial_state, system_for
 
 
 class MHEResult(NamedTuple):
@@ -53,7 +53,9 @@ def _checked(model: HybridModel, flight: Flight):
         raise InvalidInput(f"a {model.system.name!r} model cannot run on a flight; flights need one of "
                            f"{', '.join(FLIGHT_SYSTEMS)}")
     system = system_for(flight, model.system.name)
-    return system, flight.measurements(), system_inputs(flight, system)
+    if model.meta.get("measurement_effects"):  # a model a diagnosis repaired sees the flight as evaluate does
+        flight = corrected_flight(flight, model.meta["measurement_effects"])
+    return system, flight.measurements(), system_inputs(flight, system), initial_state(flight)
 
 
 def ukf(model: HybridModel, flight: Flight, alpha: float = 1e-3) -> FilterResult:
@@ -89,9 +91,8 @@ def ukf(model: HybridModel, flight: Flight, alpha: float = 1e-3) -> FilterResult
     >>> post.means.shape == (len(flights[1].t), 9)
     True
     """
-    system, y, u = _checked(model, flight)
-    result = run_ukf(model, y, u, dt=flight.dt, Q=system.Q, R=system.R, x0=initial_state(flight), P0=system.P0,
-                     alpha=alpha)
+    system, y, u, x0 = _checked(model, flight)
+    result = run_ukf(model, y, u, dt=flight.dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0, alpha=alpha)
     return result._replace(t=np.asarray(flight.t, dtype=float))
 
 
@@ -132,9 +133,9 @@ def mhe(model: HybridModel, flight: Flight, horizon: int = MHE_HORIZON) -> MHERe
     >>> result.covariances.shape[1:]
     (9, 9)
     """
-    system, y, u = _checked(model, flight)
+    system, y, u, x0 = _checked(model, flight)
     estimator = MHE(model, flight.dt, system.Q, system.R, system.P0, horizon=horizon)
-    means = estimator.run(y, u, initial_state(flight))
+    means = estimator.run(y, u, x0)
     failures = int(estimator.stats.get("failures", 0))
     if failures:
         warnings.warn(f"{flight.name}: the MHE solver failed on {failures} of {estimator.stats['solves']} windows; "

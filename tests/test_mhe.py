@@ -1,0 +1,126 @@
+"""The Gauss–Newton MHE (the default solver) against IPOPT, the reference, on known cases."""
+import numpy as np
+import pytest
+
+from learnest.estimators.codegen import compiled
+from learnest.estimators.kf import run_kf
+from learnest.estimators.mhe import MHE
+from learnest.models.knode import HybridModel, Residual
+from learnest.models.systems import make_system
+
+
+def both(model, system, run, T, **options):
+    y, u, x0 = run.y[:T], run.u[:T], run.x_noisy[0]
+    args = (model, system.dt, system.Q, system.R, system.P0)
+    gn = MHE(*args, solver="gauss-newton", **options)
+    ipopt = MHE(*args, solver="ipopt", **options)
+    return gn, gn.run(y, u, x0), ipopt.run(y, u, x0)
+
+
+def test_gauss_newton_equals_ipopt_and_the_kalman_filter_on_a_linear_system():
+    """Quadrotor prior (linear): one exact step per window; with a window longer than the record both
+    are the full-information estimate, whose last node is the KF's."""
+    system = make_system("quadrotor")
+    run = system.simulate(5, n_samples=80)
+    model = HybridModel(system, "prior")
+    gn, ours, ipopt = both(model, system, run, 80, horizon=10)
+    np.testing.assert_allclose(ours, ipopt, rtol=0, atol=1e-6)
+    assert gn.stats["iterations"] == gn.stats["solves"] == 80  # linear: one step each
+    long = MHE(model, system.dt, system.Q, system.R, system.P0, horizon=50).run(run.y[:40], run.u[:40],
+                                                                              run.x_noisy[0])
+    kf = run_kf(model, run.y[:40], run.u[:40], dt=system.dt, Q=system.Q, R=system.R, x0=run.x_noisy[0],
+                P0=system.P0).means
+    np.testing.assert_allclose(long, kf, rtol=0, atol=1e-6 * np.abs(kf).max())
+
+
+@pytest.mark.parametrize("name,kind", [("cartpole", "true"), ("robot", "true"), ("cartpole", "knode")])
+def test_gauss_newton_equals_ipopt_on_nonlinear_systems(name, kind):
+    """Cartpole (sin/cos dynamics), robot (range measurements: nonlinear h) and a cartpole KNODE with a
+    random residual network: the converged windows are IPOPT's within 1e-6, sliding and growing."""
+    system = make_system(name)
+    run = system.simulate(3, n_samples=160)
+    residual = None
+    if kind == "knode":
+        rng = np.random.default_rng(0)
+        n_in = system.n + system.n_inputs
+        residual = Residual([(rng.normal(0, 0.5, (8, n_in)), rng.normal(0, 0.1, 8)),
+                             (rng.normal(0, 0.2, (system.n, 8)), np.zeros(system.n))])
+    model = HybridModel(system, kind, residual)
+    gn, ours, ipopt = both(model, system, run, 160, horizon=20)
+    np.testing.assert_allclose(ours, ipopt, rtol=0, atol=1e-6)
+    assert gn.stats["failures"] == 0 and gn.stats["ipopt_fallbacks"] == 0
+
+
+def test_fixed_arrival_and_the_interpreter_fallback_give_the_same_estimates():
+    system = make_system("cartpole")
+    run = system.simulate(4, n_samples=60)
+    model = HybridModel(system, "true")
+    gn, ours, ipopt = both(model, system, run, 60, horizon=8, arrival="fixed")
+    np.testing.assert_allclose(ours, ipopt, rtol=0, atol=1e-6)
+    interpreted = MHE(model, system.dt, system.Q, system.R, system.P0, horizon=8, arrival="fixed", compiler=None)
+    assert interpreted._gn.backend == "casadi" and gn._gn.backend in ("c", "casadi")
+    np.testing.assert_allclose(interpreted.run(run.y[:60], run.u[:60], run.x_noisy[0]), ours, rtol=0, atol=1e-9)
+
+
+def test_a_real_time_iteration_is_close_but_not_equal():
+    """max_iter=1 (one Gauss–Newton step per window) trades accuracy for time: measurable, small."""
+    system = make_system("cartpole")
+    run = system.simulate(3, n_samples=150)
+    model = HybridModel(system, "true")
+    rti = MHE(model, system.dt, system.Q, system.R, system.P0, max_iter=1).run(run.y[:150], run.u[:150],
+                                                                               run.x_noisy[0])
+    exact = MHE(model, system.dt, system.Q, system.R, system.P0).run(run.y[:150], run.u[:150], run.x_noisy[0])
+    gap = np.abs(rti - exact).max()
+    assert 0 < gap < 0.05 * np.abs(exact).max()
+
+
+def test_compiled_functions_are_cached_by_content(tmp_path):
+    import casadi as ca
+    x = ca.SX.sym("x", 3)
+    fn = ca.Function("lrn_test_square", [x], [x * x])
+    first = compiled([fn], cache_dir=tmp_path)[0]
+    if first.backend != "c":
+        pytest.skip("no C compiler here")
+    libraries = sorted(tmp_path.glob("*.so"))
+    assert len(libraries) == 1
+    stamp = libraries[0].stat().st_mtime_ns
+    again = compiled([fn], cache_dir=tmp_path)[0]
+    assert libraries[0].stat().st_mtime_ns == stamp and len(list(tmp_path.glob("*.so"))) == 1
+    again.inputs[0][...] = [1.0, -2.0, 3.0]
+    np.testing.assert_array_equal(again()[0].ravel(), [1.0, 4.0, 9.0])
+
+
+def test_mhe_rejects_an_unknown_solver():
+    system = make_system("quadrotor")
+    model = HybridModel(system, "prior")
+    with pytest.raises(ValueError, match="solver must be one of gauss-newton, ipopt"):
+        MHE(model, 0.01, system.Q, system.R, system.P0, solver="newton")
+    with pytest.raises(ValueError, match="max_iter"):
+        MHE(model, 0.01, system.Q, system.R, system.P0, max_iter=0)
+
+
+def test_the_quadrotor_observer_batch_solve_equals_the_kalman_rts_smoother():
+    """The pre-training observer solves the smoothing problem in one block-tridiagonal solve; the RTS
+    smoother (filterpy) computes the same means recursively."""
+    from learnest.estimators.observers import observe_quadrotor
+    system = make_system("quadrotor")
+    run = system.simulate(2, n_samples=400)
+    model = HybridModel(system, "prior")
+    x0 = np.concatenate([run.y[0, :3], np.zeros(3), run.y[0, 3:]])
+    rts = run_kf(model, run.y, dt=system.dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0, smooth=True).means
+    ours = observe_quadrotor(system, run.y, run.u, system.dt)
+    np.testing.assert_allclose(ours, rts, rtol=0, atol=1e-9 * np.abs(rts).max())
+    assert np.abs(ours - run.x).mean() < np.abs(run.y[:, 3:] - run.x[:, 6:]).mean()  # it does smooth
+
+
+def test_a_window_gauss_newton_cannot_solve_is_solved_by_ipopt():
+    """The fallback path: every window reported unconverged goes to IPOPT, from the same warm start,
+    arrival weight and data, so the recursion equals the IPOPT solver's."""
+    system = make_system("cartpole")
+    run = system.simulate(5, n_samples=40)
+    model = HybridModel(system, "true")
+    gn, _, ipopt = both(model, system, run, 40, horizon=6)
+    gn._gn._solve = lambda X, *args: (X, False)   # Gauss–Newton "fails" on every window
+    fallback = gn.run(run.y[:40], run.u[:40], run.x_noisy[0])
+    np.testing.assert_allclose(fallback, ipopt, rtol=0, atol=1e-6)
+    assert gn.stats["ipopt_fallbacks"] == 40
