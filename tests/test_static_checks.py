@@ -15,8 +15,8 @@ PYPROJECT = ROOT / "pyproject.toml"
 PACKAGE_FOLDERS = ["ingest", "models", "estimators", "service", "learnest"]
 
 # ruff violations on main in files being rewritten (they are checked again once removed from here)
-RUFF_NOT_YET_CLEAN = ["estimators/mhe.py", "ingest/simulator.py", "service/experiments/flights.py",
-                      "service/experiments/knode.py"]
+RUFF_NOT_YET_CLEAN = ["estimators/mhe.py", "estimators/mhe_gn.py", "ingest/simulator.py",
+                      "service/experiments/flights.py", "service/experiments/knode.py"]
 # mypy errors in files being rewritten (paths inside the installed package)
 MYPY_NOT_YET_CLEAN = ["estimators/mhe.py", "estimators/observers.py", "ingest/mcap_log.py", "ingest/simulator.py",
                       "ingest/usd.py", "ingest/vicon_csv.py", "service/experiments/diagnosis.py",
