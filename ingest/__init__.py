@@ -56,7 +56,8 @@ def group_files(paths: Iterable[str | Path]) -> list[tuple[str, list[Path]]]:
     IngestError
         If a file is not recognised, or Vicon exports and cfclient logs do not come in equal numbers.
     """
-    singles, roles = [], {"vicon": [], "cfclient": []}
+    singles: list[tuple[str, list[Path]]] = []
+    roles: dict[str, list[tuple[str, list[Path]]]] = {"vicon": [], "cfclient": []}
     for path in map(Path, paths):
         kind = detect(path)
         (roles[kind] if kind in roles else singles).append((kind, [path]))

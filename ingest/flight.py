@@ -215,9 +215,12 @@ class Flight:
     def to_bytes(self) -> bytes:
         """The flight as a compressed ``.npz``: arrays exact, channels as ``channel__<name>``, meta as JSON."""
         buffer = io.BytesIO()
-        arrays = {"t": self.t, "p": self.p, "a_meas": self.a_meas, "quat": self.quat}
+        # meta first: the member order of the archive (and so the blob's sha) is unchanged
+        arrays = {"meta": np.frombuffer(json.dumps(self.meta).encode(), dtype=np.uint8),
+                  "t": self.t, "p": self.p, "a_meas": self.a_meas, "quat": self.quat}
         arrays.update({f"channel__{k}": v for k, v in self.channels.items()})
-        np.savez_compressed(buffer, meta=np.frombuffer(json.dumps(self.meta).encode(), dtype=np.uint8), **arrays)
+        # allow_pickle=True is numpy's default, given so the stubs do not match **arrays against it
+        np.savez_compressed(buffer, allow_pickle=True, **arrays)
         return buffer.getvalue()
 
     @classmethod

@@ -30,7 +30,6 @@ from learnest.ingest.frames import GRAVITY
 
 from .backend import ops_for
 
-
 # -- published values ----------------------------------------------------------------------------------
 # J. Förster, "System Identification of the Crazyflie 2.0 Nano Quadrocopter", BSc thesis, ETH Zürich,
 # 2015 (listed on Bitcraze's "PWM to Thrust" page, crazyflie-firmware docs, functional-areas/pwm-to-thrust):

@@ -15,9 +15,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.optimize import least_squares
+
+if TYPE_CHECKING:
+    from .effects import Effect
 
 DELTA_BIC = 10.0          # "very strong" evidence on Kass & Raftery's scale
 MIN_CV_GAIN = 0.0         # and it must not raise the held-out (blocked CV) error: it has to transfer
@@ -210,7 +214,7 @@ def bootstrap_ci(problem: ResidualProblem, final: Fit, replicates: int = BOOTSTR
     r = final.residual
     n = len(r)
     block = int(np.clip(np.ceil(2 * final.tau), 5, max(5, n // 5)))
-    samples = {name: [] for name in final.values}
+    samples: dict[str, list[float]] = {name: [] for name in final.values}
     for _ in range(replicates):
         starts = rng.integers(0, n - block + 1, size=int(np.ceil(n / block)))
         resampled = np.concatenate([r[s:s + block] for s in starts])[:n]
@@ -244,14 +248,17 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3) -> dict:
     current = fit(problem, [])
     baseline_rss = current.rss
     current_cv = cv_error(problem, [])
-    chosen, trace, near_ties = [], [], []
+    chosen: list[Effect] = []
+    trace: list[dict[str, Any]] = []
+    near_ties: list[tuple[Effect, Effect, float]] = []
     while len(chosen) < max_effects:
         remaining = [e for e in problem.candidates if e not in chosen]
         if not remaining:
             break
         trials = sorted((fit(problem, chosen + [e]) for e in remaining), key=lambda f: f.bic)
         best = trials[0]
-        step = {"candidates": {t.effects[-1].id: round(float(t.bic - current.bic), 2) for t in trials}}
+        step: dict[str, Any] = {"candidates": {t.effects[-1].id: round(float(t.bic - current.bic), 2)
+                                               for t in trials}}
         if best.bic > current.bic - DELTA_BIC:
             step["stop"] = "no candidate lowers BIC_eff enough"
             trace.append(step)
@@ -270,7 +277,7 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3) -> dict:
         trace.append(step)
 
     intervals = bootstrap_ci(problem, current)
-    results = []
+    results: list[dict[str, Any]] = []
     for effect in chosen:
         without_rss = fit(problem, [e for e in chosen if e is not effect]).rss if len(chosen) > 1 else baseline_rss
         results.append({"id": effect.id, "target": effect.target,

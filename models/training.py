@@ -45,6 +45,9 @@ class TrainingResult:
 class _MLP(torch.nn.Module):
     """Δθ with fixed input standardisation (from the training data) so tanh sees O(1) inputs."""
 
+    mean: torch.Tensor  # buffers registered in __init__
+    std: torch.Tensor
+
     def __init__(self, n_in: int, n_out: int, hidden: int, mean: np.ndarray, std: np.ndarray):
         super().__init__()
         self.hidden_layer = torch.nn.Linear(n_in, hidden, dtype=torch.float64)
@@ -151,7 +154,7 @@ def train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, config
     batch = config.batch_size or n_fit
     generator = torch.Generator().manual_seed(config.seed)
     losses, val_losses, started = [], [], time.perf_counter()
-    best = (float("inf"), None, -1)
+    best: tuple[float, dict[str, torch.Tensor] | None, int] = (float("inf"), None, -1)
     if n_val:  # epoch -1 is the prior itself (Δθ starts at zero): training must beat it on held-out data
         with torch.no_grad():
             best = (one_step_loss(val_data).item(),

@@ -15,6 +15,7 @@ from fastapi import FastAPI, HTTPException, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
+from starlette.types import Receive, Send
 
 from learnest.errors import LearnestError
 
@@ -90,7 +91,7 @@ class BodySizeLimit:
             return await self.app(scope, receive, send)
         declared = dict(scope.get("headers") or []).get(b"content-length", b"")
         if declared.isdigit() and int(declared) > self.max_bytes:
-            return await self._reject(send)
+            return await self._reject(receive, send)
         received = 0
 
         async def limited_receive():
@@ -107,9 +108,9 @@ class BodySizeLimit:
     def _message(self) -> str:
         return f"upload too large: the limit is {self.max_bytes / 2**20:g} MB (LEARNEST_MAX_UPLOAD_MB)"
 
-    async def _reject(self, send) -> None:
+    async def _reject(self, receive: Receive, send: Send) -> None:
         response = JSONResponse({"detail": self._message()}, status_code=413, headers={"Connection": "close"})
-        await response({"type": "http"}, None, send)
+        await response({"type": "http"}, receive, send)
 
 
 # -- errors: a 4xx a person can act on, never a traceback ------------------------------------------------

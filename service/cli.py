@@ -57,7 +57,8 @@ def _train(args) -> int:
         out = train(args.files, args.name, epochs=args.epochs, include_bad=args.include_bad, progress=_advance(bar),
                     system=args.system)
     print(json.dumps(out, indent=2) if args.json else
-          f"registered {out['ref']} ({out['system']} prior): trained on {out['training_flight']} (flight {out['flight_id']}) "
+          f"registered {out['ref']} ({out['system']} prior): trained on {out['training_flight']} "
+          f"(flight {out['flight_id']}) "
           f"in {out['seconds']:.1f} s; registry in {out['home']}")
     return 0
 

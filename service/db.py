@@ -13,12 +13,14 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any, TypeVar, cast
 
 from alembic.config import Config
 from sqlalchemy import (
     JSON,
     BigInteger,
     Boolean,
+    CursorResult,
     DateTime,
     Float,
     ForeignKey,
@@ -27,6 +29,7 @@ from sqlalchemy import (
     Text,
     UniqueConstraint,
     create_engine,
+    delete,
     event,
     exists,
     or_,
@@ -34,10 +37,12 @@ from sqlalchemy import (
     text,
     update,
 )
+from sqlalchemy.engine import Connection
+from sqlalchemy.engine import Result as QueryResult
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, relationship, sessionmaker
 
-from learnest.errors import Conflict
+from learnest.errors import Conflict, NotFound
 from learnest.ingest.flight import json_compatible
 
 MIGRATIONS = Path(__file__).resolve().parent / "migrations"
@@ -235,7 +240,7 @@ def referenced_blobs(db: Database) -> set[str]:
     """Every blob sha a row names: normalized flights, their raw files, model weights."""
     with db.transaction() as session:
         return {sha for column in (FlightRecord.flight_blob, FlightFile.sha256, ModelVersion.weights_blob)
-                for sha in session.scalars(select(column).where(column.is_not(None)))}
+                for sha in session.scalars(select(column).where(column.is_not(None))) if sha is not None}
 
 
 def blob_is_referenced(db: Database, sha: str) -> bool:
@@ -298,7 +303,7 @@ class Database:
                 # A migration may rebuild a table (SQLite cannot ALTER it): with foreign keys enforced,
                 # dropping the old copy would cascade-delete the rows that point at it.  The pragma only
                 # takes effect outside a transaction, so it is set on the driver's connection first.
-                connection.connection.driver_connection.execute("PRAGMA foreign_keys=OFF")
+                _driver_connection(connection).execute("PRAGMA foreign_keys=OFF")
             try:
                 with connection.begin():
                     if not self.is_sqlite:  # PostgreSQL: held until this transaction ends
@@ -309,7 +314,7 @@ class Database:
                         raise RuntimeError("migration left rows whose foreign keys point nowhere")
             finally:
                 if self.is_sqlite:
-                    connection.connection.driver_connection.execute("PRAGMA foreign_keys=ON")
+                    _driver_connection(connection).execute("PRAGMA foreign_keys=ON")
 
     def require_current_schema(self) -> None:
         """Raise `Conflict` unless the schema is at the newest migration; reads never migrate.
@@ -347,6 +352,14 @@ class Database:
         self.engine.dispose()
 
 
+def _driver_connection(connection: Connection) -> Any:
+    """The DBAPI driver's own connection under ``connection`` (sqlite3's, for the pragmas)."""
+    driver = connection.connection.driver_connection
+    if driver is None:  # only None once the pooled connection was invalidated
+        raise RuntimeError("the database connection was closed during the migration")
+    return driver
+
+
 def _sqlite_pragmas(engine) -> None:
     @event.listens_for(engine, "connect")
     def _on_connect(dbapi_connection, _record):
@@ -364,14 +377,32 @@ def _sqlite_pragmas(engine) -> None:
         connection.exec_driver_sql("BEGIN IMMEDIATE")
 
 
+# -- typed helpers ----------------------------------------------------------------------------------------
+RowT = TypeVar("RowT", bound="Base")
+
+
+def get_row(session: Session, table: type[RowT], key: Any, what: str, *, for_update: bool = False) -> RowT:
+    """The row of ``table`` with primary key ``key``; `NotFound` (naming it ``what``) if there is none."""
+    row = session.get(table, key, with_for_update=for_update)
+    if row is None:
+        raise NotFound(f"{what} {key} not found")
+    return row
+
+
+def dml_rowcount(result: QueryResult[Any]) -> int:
+    """The number of rows an UPDATE / DELETE matched.  ``Session.execute`` is typed as returning a plain
+    ``Result``, but for a DML statement SQLAlchemy returns a `CursorResult`, which has ``rowcount``."""
+    return cast("CursorResult[Any]", result).rowcount
+
+
 # -- leases -------------------------------------------------------------------------------------------
 def acquire_lease(db: Database, name: str, owner: str, ttl_s: float) -> bool:
     """Take or renew the lease `name` for `owner` for ttl_s seconds; False if someone else holds it."""
     now = time.time()
     with db.transaction() as session:
-        taken = session.execute(
+        taken = dml_rowcount(session.execute(
             update(Lease).where(Lease.name == name, (Lease.owner == owner) | (Lease.expires_at < now))
-            .values(owner=owner, expires_at=now + ttl_s)).rowcount
+            .values(owner=owner, expires_at=now + ttl_s)))
         if taken:
             return True
     try:
@@ -385,7 +416,8 @@ def acquire_lease(db: Database, name: str, owner: str, ttl_s: float) -> bool:
 def release_lease(db: Database, name: str, owner: str) -> None:
     """Drop lease ``name`` if ``owner`` holds it."""
     with db.transaction() as session:
-        session.execute(Lease.__table__.delete().where(Lease.name == name, Lease.owner == owner))
+        session.execute(delete(Lease).where(Lease.name == name, Lease.owner == owner),
+                        execution_options={"synchronize_session": False})
 
 
 def lease_holder(db: Database, name: str) -> str | None:

@@ -47,6 +47,8 @@ from .db import (
     Result,
     acquire_lease,
     blob_is_referenced,
+    dml_rowcount,
+    get_row,
     referenced_blobs,
     release_lease,
     utcnow,
@@ -193,8 +195,8 @@ class JobRunner:
 
     def _mark_running(self, job_id: int) -> bool:
         with self.db.transaction() as session:
-            return bool(session.execute(update(Job).where(Job.id == job_id, Job.state == "queued")
-                                        .values(state="running", started_at=utcnow())).rowcount)
+            return bool(dml_rowcount(session.execute(update(Job).where(Job.id == job_id, Job.state == "queued")
+                                                     .values(state="running", started_at=utcnow()))))
 
     def mark_succeeded(self, session: Session, job_id: int, result: dict) -> None:
         """Set a running job succeeded with ``result`` in the caller's transaction; `JobAborted` if it is
@@ -444,7 +446,7 @@ def start_training(services: Services, name: str, flight_id: int, overrides: dic
 def run_training(services: Services, ctx: JobContext, version_id: int) -> None:
     """The training job's work: train on the executor, store the weights, mark the version ready."""
     with services.db.transaction() as session:
-        version = session.get(ModelVersion, version_id)
+        version = get_row(session, ModelVersion, version_id, "model version")
         flight = session.get(FlightRecord, version.training_flight_id)
         if flight is None:
             raise InvalidInput(f"training flight {version.training_flight_id} was deleted")
@@ -455,7 +457,7 @@ def run_training(services: Services, ctx: JobContext, version_id: int) -> None:
     with services.blobs.writing():  # the weights blob exists before the row that names it commits
         weights = services.blobs.put_bytes(out["model_json"])
         with services.db.transaction() as session:
-            version = session.get(ModelVersion, version_id, with_for_update=True)
+            version = get_row(session, ModelVersion, version_id, "model version", for_update=True)
             version.status, version.weights_blob, version.ready_at = "ready", weights, utcnow()
             version.prior = registry.prior_of(out["model_json"])
             version.losses, version.training_seconds = out["losses"], out["seconds"]
@@ -551,18 +553,18 @@ def run_evaluation(services: Services, ctx: JobContext, evaluation_id: int) -> N
     """The evaluation job's work: one executor task per flight without a cached result, each stored as
     it finishes (a failed flight is recorded and does not stop the others), then the report."""
     with services.db.transaction() as session:
-        evaluation = session.get(Evaluation, evaluation_id)
-        version = session.get(ModelVersion, evaluation.model_version_id)
+        evaluation = get_row(session, Evaluation, evaluation_id, "evaluation")
+        version = get_row(session, ModelVersion, evaluation.model_version_id, "model version")
         settings = EstimatorSettings(tuple(evaluation.settings["methods"]), evaluation.settings["horizon"],
                                      evaluation.settings["include_bad"])
         flights = _flights_by_id(session, evaluation.flight_ids)
         entries = cached_entries(session, version.id, settings.key, [f.sha256 for f in flights.values()])
-        model_json = services.blobs.read_bytes(version.weights_blob)
+        model_json = services.blobs.read_bytes(registry.weights_of(version))
         todo = {f.id: (f.name, f.sha256, f.flight_blob) for f in flights.values() if f.sha256 not in entries}
         order = [flights[i].sha256 if i in flights else None for i in evaluation.flight_ids]
-        model_ref, version_id = evaluation.model_ref, version.id
+        model_ref, version_id, flight_ids = evaluation.model_ref, version.id, list(evaluation.flight_ids)
 
-    total, done, failed = len(evaluation.flight_ids), len(evaluation.flight_ids) - len(todo), 0
+    total, done, failed = len(flight_ids), len(flight_ids) - len(todo), 0
     futures = {}
     for flight_id, (name, sha, blob) in todo.items():
         try:
@@ -582,9 +584,9 @@ def run_evaluation(services: Services, ctx: JobContext, evaluation_id: int) -> N
         ctx.progress(done / total)
 
     report = assemble_report(model_ref, [entries[sha] if sha else _missing_entry(i)
-                                         for i, sha in zip(evaluation.flight_ids, order)])
+                                         for i, sha in zip(flight_ids, order)])
     with services.db.transaction() as session:
-        session.get(Evaluation, evaluation_id).report = report
+        get_row(session, Evaluation, evaluation_id, "evaluation").report = report
         ctx.complete(session, {"evaluation_id": evaluation_id, "flights": total, "computed": len(todo),
                                "failed": failed})
 
@@ -743,15 +745,16 @@ def run_diagnosis(services: Services, ctx: JobContext, diagnosis_id: int) -> Non
     """The diagnosis job's work: diagnose on the executor, register the repaired model if asked, store the
     report.  The fitting flight is found by name among the diagnosis' flights (first flight if none matches)."""
     with services.db.transaction() as session:
-        diagnosis = session.get(Diagnosis, diagnosis_id)
+        diagnosis = get_row(session, Diagnosis, diagnosis_id, "diagnosis")
         flights = _flights_by_id(session, diagnosis.flight_ids)
         if len(flights) != len(diagnosis.flight_ids):
             raise InvalidInput("a flight of this diagnosis was deleted before it started")
         blobs = [flights[i].flight_blob for i in diagnosis.flight_ids]
         weights = None
         if diagnosis.model_ref is not None:
-            weights = registry.resolve(session, diagnosis.model_ref).weights_blob
+            weights = registry.weights_of(registry.resolve(session, diagnosis.model_ref))
         settings, model_ref, register = dict(diagnosis.settings), diagnosis.model_ref, diagnosis.register_as
+        first_flight_id = diagnosis.flight_ids[0]
     out = services.executor.submit(diagnose_task, [services.blobs.read_bytes(b) for b in blobs],
                                    services.blobs.read_bytes(weights) if weights else None,
                                    settings["methods"], settings["epochs"]).result()
@@ -761,14 +764,14 @@ def run_diagnosis(services: Services, ctx: JobContext, diagnosis_id: int) -> Non
         model = registry.model_from_json(out["model_json"])
         # the fitting flight: diagnose_flights skips flights that fail the quality checks, so go by name
         fitting = next((f for f in flights.values() if f.name == out["fitting_flight"]),
-                       flights[diagnosis.flight_ids[0]])
+                       flights[first_flight_id])
         row = registry.register_model(services.db, services.blobs, register, model, flight=fitting,
                                       hyperparameters=training_config({"epochs": settings["epochs"]}),
                                       parent=model_ref, job_id=ctx.job_id,
                                       metrics=diagnosis_metrics(model, out["report"]))
         registered = {"name": row.name, "version": row.version, "parent": row.parent}
     with services.db.transaction() as session:
-        diagnosis = session.get(Diagnosis, diagnosis_id)
+        diagnosis = get_row(session, Diagnosis, diagnosis_id, "diagnosis")
         diagnosis.report, diagnosis.registered = out["report"], registered
         ctx.complete(session, {"diagnosis_id": diagnosis_id, "effects": [e["id"] for e in out["report"]["effects"]],
                                "registered": registered})

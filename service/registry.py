@@ -172,6 +172,7 @@ def register_model(db: Database, blobs: BlobStore, name: str, model: HybridModel
             except IntegrityError:
                 if attempt == 19:
                     raise
+    raise AssertionError("unreachable: the last attempt returns or re-raises")
 
 
 def fail_versions_of_jobs(session: Session, job_ids: list[int], reason: str) -> None:
@@ -241,9 +242,16 @@ def prior_of(model_json: bytes) -> dict:
     return {"system": data["system"], "kind": data["kind"], "prior_params": data["prior_params"]}
 
 
+def weights_of(row: ModelVersion) -> str:
+    """The sha of a version's weights blob; `NotFound` if it has none (a version still training or failed)."""
+    if row.weights_blob is None:
+        raise NotFound(f"{row.name}:{row.version} has no stored weights (status {row.status!r})")
+    return row.weights_blob
+
+
 def load_version(blobs: BlobStore, row: ModelVersion) -> HybridModel:
     """The model stored in a version's weights blob."""
-    return model_from_json(blobs.read_bytes(row.weights_blob))
+    return model_from_json(blobs.read_bytes(weights_of(row)))
 
 
 def load_model_ref(ref: str, settings: Settings | None = None) -> HybridModel:
@@ -306,7 +314,7 @@ def _git_head(repo: Path) -> str | None:
 
 def library_versions() -> dict:
     """{"python": version, library: installed version or None} for the numerical libraries in ``LIBRARIES``."""
-    versions = {"python": platform.python_version()}
+    versions: dict[str, str | None] = {"python": platform.python_version()}
     for name in LIBRARIES:
         try:
             versions[name] = importlib.metadata.version(name)

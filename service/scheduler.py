@@ -20,7 +20,7 @@ from learnest.models.presets import PRODUCTION_ALIAS, parse_methods
 
 from . import registry
 from .config import Settings
-from .db import Job, ModelAlias, acquire_lease, release_lease
+from .db import Job, ModelAlias, acquire_lease, get_row, release_lease
 from .jobs import EstimatorSettings, Services, flights_without_results, open_services, start_evaluation
 
 log = logging.getLogger("learnest.scheduler")
@@ -53,7 +53,7 @@ def evaluate_new(services: Services, alias: str = PRODUCTION_ALIAS, settings: Es
         job_id, evaluation_id, _ = start_evaluation(services, ref, flight_ids, settings, wait=True,
                                                     on_progress=on_progress)
         with services.db.transaction() as session:
-            job = session.get(Job, job_id)
+            job = get_row(session, Job, job_id, "job")
         rounds.append({"model": ref, "evaluation_id": evaluation_id, "job_id": job_id, "flights": flight_ids,
                        "state": job.state, "failed": (job.result or {}).get("failed", 0), "error": job.error})
         log.info("scheduled evaluation %s of %s on %d new flight(s)", evaluation_id, ref, len(flight_ids))

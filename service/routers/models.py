@@ -68,7 +68,7 @@ def version_detail(name: str, version: int, db: Database = Depends(get_db)):
 def version_weights(name: str, version: int, db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
     with db.transaction() as session:
         row = registry.resolve(session, registry.ModelRef(name, version))
-    return Response(blobs.read_bytes(row.weights_blob), media_type="application/json",
+    return Response(blobs.read_bytes(registry.weights_of(row)), media_type="application/json",
                     headers={"Content-Disposition": f'attachment; filename="{name}-{version}.json"'})
 
 

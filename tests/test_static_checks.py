@@ -1,0 +1,87 @@
+"""Static checks as tests (issue 9): ruff on the package's source folders, mypy on the installed package.
+
+Files colleagues are rewriting are not clean yet; they are named below so that every other file is held
+to the checks now, and the lists shrink as those rewrites land (delete an entry once its file is clean).
+"""
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PYPROJECT = ROOT / "pyproject.toml"
+PACKAGE_FOLDERS = ["ingest", "models", "estimators", "service", "learnest"]
+
+# ruff violations on main in files being rewritten (they are checked again once removed from here)
+RUFF_NOT_YET_CLEAN = ["estimators/mhe.py", "estimators/mhe_gn.py", "ingest/simulator.py",
+                      "service/experiments/flights.py", "service/experiments/knode.py"]
+# mypy errors in files being rewritten (paths inside the installed package)
+MYPY_NOT_YET_CLEAN = ["estimators/mhe.py", "estimators/observers.py", "ingest/mcap_log.py", "ingest/simulator.py",
+                      "ingest/usd.py", "ingest/vicon_csv.py", "service/experiments/diagnosis.py",
+                      "service/experiments/flights.py"]
+
+
+def _ruff(*args: str, stdin: str | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "ruff", "check", "--no-cache", *args], cwd=ROOT, input=stdin,
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_ruff_clean_on_the_package():
+    """`ruff check ingest models estimators service learnest` passes (but for the files named above)."""
+    result = _ruff("--extend-exclude", ",".join(RUFF_NOT_YET_CLEAN), *PACKAGE_FOLDERS)
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_ruff_check_catches_a_violation():
+    """The check is live: the project's configuration run on a module with an unused import and a too
+    long line fails, so the test above cannot pass by checking nothing."""
+    source = "import os\n\nVALUE = '" + "x" * 130 + "'\n"
+    result = _ruff("--stdin-filename", "service/_probe.py", "-", stdin=source)
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert "F401" in result.stdout and "E501" in result.stdout
+
+
+def test_the_exempt_files_exist():
+    """An exemption for a renamed or deleted file would silently cover nothing: drop it instead."""
+    missing = [f for f in RUFF_NOT_YET_CLEAN + MYPY_NOT_YET_CLEAN if not (ROOT / f).is_file()]
+    assert missing == []
+
+
+@pytest.fixture(scope="module")
+def mypy_run(tmp_path_factory) -> tuple[int, str, dict[str, int]]:
+    """One mypy run shared by the two mypy tests."""
+    return _mypy_errors(tmp_path_factory.mktemp("mypy"))
+
+
+def _mypy_errors(tmp_path: Path) -> tuple[int, str, dict[str, int]]:
+    """Run mypy on the installed `learnest` (from an empty folder, so the source tree is not what it sees);
+    return its exit code, its output and the number of errors per file (relative to the package)."""
+    result = subprocess.run([sys.executable, "-m", "mypy", "--config-file", str(PYPROJECT), "--cache-dir",
+                             str(tmp_path / "cache"), "-p", "learnest"], cwd=tmp_path, capture_output=True,
+                            text=True, timeout=900)
+    counts: dict[str, int] = {}
+    for match in re.finditer(r"^(\S+?\.py):\d+: error:", result.stdout, flags=re.MULTILINE):
+        path = match.group(1).replace("\\", "/").split("site-packages/learnest/", 1)[-1]
+        counts[path] = counts.get(path, 0) + 1
+    return result.returncode, result.stdout + result.stderr, counts
+
+
+@pytest.mark.slow
+def test_mypy_clean_outside_the_files_being_rewritten(mypy_run):
+    """No mypy error in any file but those named in MYPY_NOT_YET_CLEAN."""
+    code, output, counts = mypy_run
+    assert code in (0, 1), output  # 2: mypy itself failed (bad configuration, crash)
+    assert (code == 1) == bool(counts), output  # its errors were read: a format change cannot hide them
+    unexpected = {path: n for path, n in counts.items() if path not in MYPY_NOT_YET_CLEAN}
+    assert unexpected == {}, output
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=False, reason="mypy errors remain in files being rewritten: "
+                   + ", ".join(MYPY_NOT_YET_CLEAN))
+def test_mypy_clean_on_the_installed_package(mypy_run):
+    """`mypy -p learnest` on the installed package reports nothing (issue 9's goal)."""
+    code, output, _ = mypy_run
+    assert code == 0, output
