@@ -95,7 +95,7 @@ class MHE:
         if not warm_start:
             self.options["ipopt.warm_start_init_point"] = "no"
             self.options.pop("ipopt.mu_init")
-        x, u, w = ca.SX.sym("x", self.n), ca.SX.sym("u", self.p), ca.SX.sym("w", self.n)
+        x, u = ca.SX.sym("x", self.n), ca.SX.sym("u", self.p)
         self.step_fn = ca.Function("f", [x, u], [model.step(x, u, self.dt)])
         self.h_fn = ca.Function("h", [x, u], [model.h(x, u)])
         if arrival == "ekf":
@@ -109,7 +109,7 @@ class MHE:
                                                compiler=compiler)
             self.stats = self._gn.stats
 
-    def prepare(self) -> "MHE":
+    def prepare(self) -> MHE:
         """Build everything a run needs (IPOPT: every growing-horizon window), so timing excludes it."""
         if self.solver == "ipopt":
             for length in range(1, self.horizon + 2):

@@ -50,7 +50,6 @@ from learnest.errors import NumericalWarning
 
 from .codegen import compiled, load_source
 
-
 # The contraction estimate ρ = s_k/s_{k-1} predicts the remaining error only once both steps are small
 # (asymptotic regime); from a large first step it can promise too much (measured: 2e-6 off IPOPT).
 RATE_REGIME = 1e-4

@@ -536,7 +536,8 @@ def _write_usd(sim: SimulatedFlight, path: Path, version: int, pose_stream: str)
         latest = np.searchsorted(mocap.t, imu.t + 1e-9, side="right") - 1     # the last frame received
         fixed.update({name: ("f", pose[latest, j]) for j, name in enumerate(names)})
     elif pose_stream == "event":
-        events["locSrvPose"] = {"t": USD_BOOT_S + mocap.t, "vars": {name: ("f", pose[:, j]) for j, name in enumerate(names)}}
+        pose_vars = {name: ("f", pose[:, j]) for j, name in enumerate(names)}
+        events["locSrvPose"] = {"t": USD_BOOT_S + mocap.t, "vars": pose_vars}
     else:
         raise ValueError(f"usd pose_stream must be 'fixed' or 'event', not {pose_stream!r}")
     usd.write(path, events, version=version)

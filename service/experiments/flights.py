@@ -19,7 +19,6 @@ from learnest.models.presets import CRAZYFLIE_TRAINING, MHE_HORIZON, SG_WINDOW, 
 from learnest.models.systems import System, make_system
 from learnest.models.training import TrainingResult, train_knode
 
-
 # Systems a model of a real flight may use: the paper's kinematic chain, or the Crazyflie prior driven by
 # the motors and the battery (needs those channels in the flight).
 FLIGHT_SYSTEMS = ("quadrotor", "crazyflie")

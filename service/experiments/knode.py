@@ -15,7 +15,6 @@ from learnest.models.presets import CRAZYFLIE_TRAINING
 from .flights import FLIGHT_SYSTEMS, train_on_flight
 
 
-
 class KNODE:
     """A knowledge-based neural ODE, f = f_prior + Δθ, trained on one flight (paper Algorithm 1).
 
