@@ -64,7 +64,7 @@ def ukf(model: HybridModel, flight: Flight, alpha: float = 1e-3) -> FilterResult
     Parameters
     ----------
     model : HybridModel
-        Discrete 9-state quadrotor model, x = [p (m), v (m/s), a (m/s²)].
+        Discrete 9-state flight model ("quadrotor" or "crazyflie"), x = [p (m), v (m/s), a (m/s²)].
     flight : Flight
         Measurements y = [p, a_meas] on the flight's grid.
     alpha : float
@@ -102,7 +102,7 @@ def mhe(model: HybridModel, flight: Flight, horizon: int = MHE_HORIZON) -> MHERe
     Parameters
     ----------
     model : HybridModel
-        Discrete 9-state quadrotor model, x = [p (m), v (m/s), a (m/s²)].
+        Discrete 9-state flight model ("quadrotor" or "crazyflie"), x = [p (m), v (m/s), a (m/s²)].
     flight : Flight
         Measurements y = [p, a_meas] on the flight's grid.
     horizon : int
