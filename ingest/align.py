@@ -121,7 +121,8 @@ def build_flight(path: str | Path, *, t_mocap: ArrayLike, p: ArrayLike, quat: Ar
     Raises
     ------
     IngestError
-        With fewer than 2 samples in a stream, or streams that overlap for less than two grid steps.
+        With fewer than 2 samples in a stream, streams that overlap for less than two grid steps, or a
+        flying part of fewer than 2 samples.
     """
     t_mocap, t_acc = np.asarray(t_mocap, float), np.asarray(t_acc, float)
     if len(t_mocap) < 2 or len(t_acc) < 2:
@@ -142,6 +143,8 @@ def build_flight(path: str | Path, *, t_mocap: ArrayLike, p: ArrayLike, quat: Ar
     start, stop = 0, len(grid)
     if cut:
         start, stop, rule = flying_window(flight.t, flight.p[:, 2], rate_hz)
+        if stop - start < 2:  # e.g. one corrupt height sample is the only "airborne" one
+            raise IngestError(path, f"the flying part has {stop - start} sample(s) ({rule}): no flight to keep")
         flight = flight.slice(start, stop)
         flight.meta["flying_window"] = {"start_s": float(grid[start] - grid[0]),
                                         "stop_s": float(grid[stop - 1] - grid[0]), "rule": rule}

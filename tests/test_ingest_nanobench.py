@@ -356,3 +356,17 @@ def test_an_expanding_metadata_sidecar_refuses_the_flight(csv_path, sidecar, cap
     yaml_path.write_text(sidecar)
     with pytest.raises(IngestError, match=f"synthetic_metadata.yaml: .*{cap}"):
         nanobench.read(csv_path)
+
+
+def test_a_single_corrupt_height_sample_is_not_a_flight(tmp_path):
+    """Found by the fuzzer: a last row with pz = 2e9 was the only 'airborne' sample and became a
+    one-sample flight; it is an IngestError naming the file instead."""
+    lines = BASE_TEXT.strip().split("\n")
+    header, rows = lines[0], lines[1:]
+    pz = header.split(",").index("pz")
+    last = rows[-1].split(",")
+    last[pz] = "2050000000"
+    path = tmp_path / "spike.csv"
+    path.write_text("\n".join([header, *rows[:-1], ",".join(last)]) + "\n")
+    with pytest.raises(IngestError, match=r"spike.csv: the flying part has 1 sample\(s\)"):
+        nanobench.read(path)
