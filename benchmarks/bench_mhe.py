@@ -31,28 +31,17 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
+from bench_core import timed_side_by_side  # noqa: E402  (the script folder is on sys.path)
 
 from learnest.estimators.mhe import MHE  # noqa: E402
 from learnest.ingest import read_flights  # noqa: E402
 from learnest.models.knode import HybridModel  # noqa: E402
 from learnest.models.systems import make_system  # noqa: E402
 from learnest.models.training import TrainingConfig  # noqa: E402
-from learnest.service.experiments.flights import (evaluate_flight, initial_state, quadrotor_for,  # noqa: E402
-                                                  train_on_flight)
+from learnest.service.experiments.flights import evaluate_flight, initial_state, quadrotor_for, train_on_flight  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "nanobench"
 OUT = Path(__file__).parent / "results"
-
-
-def side_by_side(run_a, run_b, repeats):
-    """Medians of a and b run alternately (a slow spell of a shared machine hits both alike)."""
-    times, results = ([], []), [None, None]
-    for _ in range(repeats):
-        for i, fn in enumerate((run_a, run_b)):
-            start = time.perf_counter()
-            results[i] = fn()
-            times[i].append(time.perf_counter() - start)
-    return statistics.median(times[0]), statistics.median(times[1]), results[0], results[1]
 
 
 def compare(label, model, dt, Q, R, P0, y, u, x0, repeats):
@@ -63,7 +52,7 @@ def compare(label, model, dt, Q, R, P0, y, u, x0, repeats):
     ipopt = MHE(model, dt, Q, R, P0, horizon=20, solver="ipopt").prepare()
     build_ipopt = time.perf_counter() - build
     T = len(y)
-    gn_s, ip_s, ours, ref = side_by_side(lambda: gn.run(y, u, x0), lambda: ipopt.run(y, u, x0), repeats)
+    gn_s, ip_s, ours, ref = timed_side_by_side(lambda: gn.run(y, u, x0), lambda: ipopt.run(y, u, x0), repeats)
     runs = gn.stats["solves"] / T
     row = {"case": label, "steps": T, "gn_ms_per_step": 1e3 * gn_s / T, "ipopt_ms_per_step": 1e3 * ip_s / T,
            "speedup": ip_s / gn_s, "max_abs_difference": float(np.abs(ours - ref).max()),
