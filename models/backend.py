@@ -26,6 +26,11 @@ def _torch() -> ModuleType:
     return torch
 
 
+def _torch_function(name: str) -> staticmethod:
+    """torch.<name>, looked up on first call (a staticmethod of `TorchOps`)."""
+    return staticmethod(lambda x: getattr(_torch(), name)(x))
+
+
 class NumpyOps:
     """numpy namespace: a state is the last axis, shape (..., n); leading axes are a batch (sigma points)."""
 
@@ -66,29 +71,8 @@ class TorchOps:
 
     name = "torch"
 
-    @staticmethod
-    def sin(x: torch.Tensor) -> torch.Tensor:
-        return _torch().sin(x)
-
-    @staticmethod
-    def cos(x: torch.Tensor) -> torch.Tensor:
-        return _torch().cos(x)
-
-    @staticmethod
-    def tan(x: torch.Tensor) -> torch.Tensor:
-        return _torch().tan(x)
-
-    @staticmethod
-    def arctan(x: torch.Tensor) -> torch.Tensor:
-        return _torch().atan(x)
-
-    @staticmethod
-    def tanh(x: torch.Tensor) -> torch.Tensor:
-        return _torch().tanh(x)
-
-    @staticmethod
-    def sqrt(x: torch.Tensor) -> torch.Tensor:
-        return _torch().sqrt(x)
+    sin, cos, tan = _torch_function("sin"), _torch_function("cos"), _torch_function("tan")
+    arctan, tanh, sqrt = _torch_function("atan"), _torch_function("tanh"), _torch_function("sqrt")
 
     @staticmethod
     def unstack(x: torch.Tensor) -> list[torch.Tensor]:

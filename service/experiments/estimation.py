@@ -186,6 +186,6 @@ def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[st
     >>> report["flights_scored"]      # flights[0] is the training flight: never scored
     1
     """
-    methods = parse_methods(",".join(methods)) if not isinstance(methods, str) else parse_methods(methods)
+    methods = parse_methods(methods if isinstance(methods, str) else ",".join(methods))
     return evaluate_flights(model, list(flights), methods, include_bad=include_bad, horizon=horizon,
                             progress=progress)
