@@ -3,7 +3,8 @@ with torchdiffeq's RK4 -> loss (8) -> Adam -> discrete hybrid model f_h = RK4(f_
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -17,6 +18,56 @@ from .checks import check_dt, check_sequence
 from .knode import HybridModel, Residual
 from .presets import TrainingConfig
 from .systems import System
+
+# Δθ is a one-hidden-layer MLP on a few thousand rows: each operation is microseconds of work, and on
+# these 2-core machines torch's intra-op threads cost more in hand-offs than they save (with the Adam
+# below, training on a 33-s flight went from 48.6 s to 6.6 s under load: benchmarks/results/training_speed.md).
+TRAINING_THREADS = 1
+
+
+@contextmanager
+def _torch_threads(count: int) -> Iterator[None]:
+    """Run the block with ``count`` torch intra-op threads, then restore the caller's setting."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(count)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+class Adam:
+    """``torch.optim.Adam``'s default CPU update (single-tensor path, no weight decay, no amsgrad), the
+    same operations in the same order, so the weights are bit-identical (tests/test_knode.py checks it).
+
+    Why not torch.optim: its first ``step()`` imports ``torch._dynamo`` (3-4 s on these machines), longer
+    than a whole 150-epoch training run; the update itself is five tensor operations.
+    """
+
+    def __init__(self, params, lr: float = 1e-3, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8):
+        self.params = [p for p in params]
+        self.lr, (self.beta1, self.beta2), self.eps = lr, betas, eps
+        self.exp_avg = [torch.zeros_like(p, memory_format=torch.preserve_format) for p in self.params]
+        self.exp_avg_sq = [torch.zeros_like(p, memory_format=torch.preserve_format) for p in self.params]
+        self.steps = 0
+
+    def zero_grad(self) -> None:
+        for p in self.params:
+            p.grad = None
+
+    @torch.no_grad()
+    def step(self) -> None:
+        self.steps += 1
+        step_size = self.lr / (1 - self.beta1**self.steps)
+        bias_correction2_sqrt = (1 - self.beta2**self.steps) ** 0.5
+        for param, exp_avg, exp_avg_sq in zip(self.params, self.exp_avg, self.exp_avg_sq):
+            if param.grad is None:
+                continue
+            grad = param.grad
+            exp_avg.lerp_(grad, 1 - self.beta1)
+            exp_avg_sq.mul_(self.beta2).addcmul_(grad, grad, value=1 - self.beta2)
+            denom = (exp_avg_sq.sqrt() / bias_correction2_sqrt).add_(self.eps)
+            param.addcdiv_(exp_avg, denom, value=-step_size)
 
 
 @dataclass
@@ -115,7 +166,12 @@ def train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, config
         On wrong shapes, non-finite values, fewer than 3 observations, a bad ``dt``, ``epochs < 1`` or an
         unknown validation layout.
     """
-    config = config or TrainingConfig()
+    with _torch_threads(TRAINING_THREADS):
+        return _train_knode(system, zeta, u, dt, config or TrainingConfig(), progress)
+
+
+def _train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, config: TrainingConfig,
+                 progress: Callable[[int, float], None] | None) -> TrainingResult:
     zeta = check_sequence("zeta", zeta, cols=system.n)
     u = check_sequence("u", np.asarray(u, dtype=float).reshape(len(zeta), -1), rows=len(zeta), cols=system.n_inputs)
     if len(zeta) < 3:
@@ -150,7 +206,7 @@ def train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, config
         prediction = odeint(vector_field, x0, t_span, method="rk4")[-1]           # eq. (7)
         return ((prediction - target) ** 2).sum(dim=-1).mean()                   # eq. (8)
 
-    optimizer = torch.optim.Adam(mlp.parameters(), lr=config.lr)
+    optimizer = Adam(mlp.parameters(), lr=config.lr)
     batch = config.batch_size or n_fit
     generator = torch.Generator().manual_seed(config.seed)
     losses, val_losses, started = [], [], time.perf_counter()
