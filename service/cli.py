@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -10,6 +11,47 @@ from tqdm import tqdm
 
 from learnest.errors import InvalidInput, LearnestError
 from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON, PRODUCTION_ALIAS
+
+
+# -- argument types: refuse bad values before any import or ingest (argparse prints usage and exits 2) ----
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
+    return value
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {text!r}")
+    return value
+
+
+def _model_ref(text: str) -> str:
+    """A registry reference, checked for its form only (whether it exists needs the registry)."""
+    from .registry import parse_ref
+
+    try:
+        return str(parse_ref(text))
+    except InvalidInput as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
+def _new_file(text: str) -> str:
+    """An output path whose folder exists: a typo must not cost a whole evaluation."""
+    folder = Path(text).expanduser().resolve().parent
+    if not folder.is_dir():
+        raise argparse.ArgumentTypeError(f"folder {folder} does not exist")
+    if Path(text).is_dir():
+        raise argparse.ArgumentTypeError(f"{text} is a folder, not a file name")
+    return text
 
 
 def _reproduce(args) -> int:
@@ -44,6 +86,11 @@ def _ingest(args) -> int:
             offset = "" if s["clock_offset_s"] is None else f", clock offset {s['clock_offset_s']:+.3f} s"
             print(f"{f.name}: {s['adapter']}, {s['duration_s']:.1f} s at {s['rate_hz']:.0f} Hz "
                   f"({s['samples']} samples{offset}) — {state}")
+    failed = [f.name for f in flights if not f.quality["ok"]]
+    if args.strict and failed:
+        print(f"learnest: {len(failed)} of {len(flights)} flight(s) failed the quality checks: {', '.join(failed)}",
+              file=sys.stderr)
+        return 1
     return 0
 
 
@@ -252,28 +299,31 @@ def build_parser() -> argparse.ArgumentParser:
 
     rep = sub.add_parser("reproduce", help="reproduce Table I of the paper on simulated systems")
     rep.add_argument("--task", choices=["cartpole", "robot"], required=True)
-    rep.add_argument("--seeds", type=int, default=15)
-    rep.add_argument("--json", metavar="FILE", help="also write the results as JSON")
-    rep.add_argument("--samples", type=int, default=None,
+    rep.add_argument("--seeds", type=_positive_int, default=15)
+    rep.add_argument("--json", metavar="FILE", type=_new_file, help="also write the results as JSON")
+    rep.add_argument("--samples", type=_positive_int, default=None,
                      help="evaluation trajectory length in samples (default: the paper's)")
-    rep.add_argument("--epochs", type=int, default=None, help="training epochs (default: the paper's)")
-    rep.add_argument("--horizon", type=int, default=MHE_HORIZON, help=f"MHE horizon N (default {MHE_HORIZON})")
-    rep.add_argument("--workers", type=int, default=1, help="processes to spread the seeds over")
+    rep.add_argument("--epochs", type=_positive_int, default=None, help="training epochs (default: the paper's)")
+    rep.add_argument("--horizon", type=_positive_int, default=MHE_HORIZON,
+                     help=f"MHE horizon N (default {MHE_HORIZON})")
+    rep.add_argument("--workers", type=_positive_int, default=1, help="processes to spread the seeds over")
     rep.set_defaults(func=_reproduce)
 
     ing = sub.add_parser("ingest", help="read flight logs, normalise them and check their quality")
     ing.add_argument("files", nargs="+")
     ing.add_argument("--json", action="store_true")
-    ing.add_argument("--rate", type=float, default=100.0, help="grid rate in Hz (default 100)")
+    ing.add_argument("--rate", type=_positive_float, default=100.0, help="grid rate in Hz (default 100)")
+    ing.add_argument("--strict", action="store_true", help="exit with status 1 if any flight fails the quality checks")
     ing.set_defaults(func=_ingest)
 
     tr = sub.add_parser("train", help="train a KNODE on one flight (Algorithm 1) and register it as the next "
                                       "version of NAME (the flight is stored too, as by an upload)")
     tr.add_argument("files", nargs="+", help="the log file(s) of one flight")
     tr.add_argument("--name", required=True, help="registered model name")
-    tr.add_argument("--epochs", type=int, default=None, help=f"default {CRAZYFLIE_TRAINING.epochs} (Sec. V-C)")
+    tr.add_argument("--epochs", type=_positive_int, default=None,
+                    help=f"default {CRAZYFLIE_TRAINING.epochs} (Sec. V-C)")
     tr.add_argument("--json", action="store_true")
-    tr.add_argument("--rate", type=float, default=100.0, help="grid rate in Hz (the registry keeps 100)")
+    tr.add_argument("--rate", type=_positive_float, default=100.0, help="grid rate in Hz (the registry keeps 100)")
     tr.add_argument("--include-bad", action="store_true", help="train even if the flight fails quality checks")
     tr.add_argument("--system", default="quadrotor", choices=["quadrotor", "crazyflie"],
                     help="the prior: the paper's kinematic chain (default) or the Crazyflie driven by its motors "
@@ -282,13 +332,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     ev = sub.add_parser("evaluate", help="run UKF/MHE/KNODE-UKF/KNODE-MHE on flights and score them")
     ev.add_argument("files", nargs="*")
-    ev.add_argument("--model", metavar="REF", help="a registered model: NAME (its latest ready version), "
-                    "NAME:VERSION or NAME@ALIAS (required unless --new)")
+    ev.add_argument("--model", metavar="REF", type=_model_ref,
+                    help="a registered model: NAME (its latest ready version), NAME:VERSION or NAME@ALIAS "
+                         "(required unless --new)")
     ev.add_argument("--methods", default=",".join(METHODS))
     ev.add_argument("--json", action="store_true")
-    ev.add_argument("--plot", metavar="PNG", help="write a Fig. 3-style box plot")
-    ev.add_argument("--horizon", type=int, default=MHE_HORIZON, help="MHE horizon N")
-    ev.add_argument("--rate", type=float, default=100.0)
+    ev.add_argument("--plot", metavar="PNG", type=_new_file, help="write a Fig. 3-style box plot")
+    ev.add_argument("--horizon", type=_positive_int, default=MHE_HORIZON, help="MHE horizon N")
+    ev.add_argument("--rate", type=_positive_float, default=100.0)
     ev.add_argument("--include-bad", action="store_true", help="also score flights that fail quality checks")
     ev.add_argument("--system", default=None, choices=["quadrotor", "crazyflie"],
                     help="check that the model's prior is this one (a model always runs with its own prior)")
@@ -301,7 +352,7 @@ def build_parser() -> argparse.ArgumentParser:
     srv = sub.add_parser("serve", help="run the HTTP service (uvicorn; OpenAPI docs at /docs)")
     srv.add_argument("--host", default="127.0.0.1")
     srv.add_argument("--port", type=int, default=8000)
-    srv.add_argument("--workers", type=int, default=1, help="uvicorn worker processes")
+    srv.add_argument("--workers", type=_positive_int, default=1, help="uvicorn worker processes")
     srv.add_argument("--dask", metavar="URL", help="run jobs on a Dask scheduler (tcp://host:port, or 'local' "
                      "for a LocalCluster) instead of the local process pool")
     srv.set_defaults(func=_serve)
@@ -313,15 +364,16 @@ def build_parser() -> argparse.ArgumentParser:
     dia.add_argument("--simulate", metavar="NAME=VALUE,...", default=None,
                      help="simulated systems: the true system's parameters/effects (hidden from the diagnosis)")
     dia.add_argument("--seed", type=int, default=0)
-    dia.add_argument("--model", metavar="REF", help="a registered KNODE to analyse: NAME, NAME:VERSION or "
-                     "NAME@ALIAS (default: train one on the fitting flight)")
+    dia.add_argument("--model", metavar="REF", type=_model_ref,
+                     help="a registered KNODE to analyse: NAME, NAME:VERSION or NAME@ALIAS (default: train one "
+                          "on the fitting flight)")
     dia.add_argument("--register", metavar="NAME", help="register the repaired model (flight files only) as the "
                      "next version of NAME, with --model's version as its parent")
     dia.add_argument("--methods", default="ukf,knode-ukf", help="estimators scored before and after")
-    dia.add_argument("--epochs", type=int, default=None)
+    dia.add_argument("--epochs", type=_positive_int, default=None)
     dia.add_argument("--json", action="store_true")
-    dia.add_argument("--plot", metavar="PNG", help="residual and MSE before/after")
-    dia.add_argument("--rate", type=float, default=100.0)
+    dia.add_argument("--plot", metavar="PNG", type=_new_file, help="residual and MSE before/after")
+    dia.add_argument("--rate", type=_positive_float, default=100.0)
     dia.set_defaults(func=_diagnose)
 
     demo = sub.add_parser("demo", help="ingest, train on one flight and evaluate the others, for a folder")
@@ -329,15 +381,18 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--train", help="name of the training flight (default: the first clean one)")
     demo.add_argument("--name", default="demo", help="registered model name (each run adds a version)")
     demo.add_argument("--methods", default=",".join(METHODS))
-    demo.add_argument("--plot", metavar="PNG", default=None)
-    demo.add_argument("--horizon", type=int, default=MHE_HORIZON)
-    demo.add_argument("--rate", type=float, default=100.0)
+    demo.add_argument("--plot", metavar="PNG", type=_new_file, default=None)
+    demo.add_argument("--horizon", type=_positive_int, default=MHE_HORIZON)
+    demo.add_argument("--rate", type=_positive_float, default=100.0)
     demo.set_defaults(func=_demo)
     return parser
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as stop:  # a bad argument (argparse printed usage and why) or --help
+        return int(stop.code or 0)
     if args.func not in (_ingest, _serve):  # the rest run the networks here; --help and ingest skip torch
         from .executors import init_worker
 

@@ -69,6 +69,35 @@ def test_bad_input_is_one_clear_line_without_traceback(tmp_path, capsys, monkeyp
     assert "model reference '../etc/passwd' must be" in err and "junk.bin" not in err
 
 
+@pytest.mark.parametrize("argv, message", [
+    (["ingest", "--rate", "0"], "argument --rate: must be a positive number, got '0'"),
+    (["ingest", "--rate", "-5"], "argument --rate: must be a positive number, got '-5'"),
+    (["ingest", "--rate", "nan"], "argument --rate: must be a positive number, got 'nan'"),
+    (["ingest", "--rate", "fast"], "argument --rate: must be a number, got 'fast'"),
+    (["train", "--name", "m", "--epochs", "0"], "argument --epochs: must be at least 1, got '0'"),
+    (["evaluate", "--model", "m", "--horizon", "-1"], "argument --horizon: must be at least 1, got '-1'"),
+    (["evaluate", "--model", "m", "--plot", "/no/such/folder/box.png"], "folder /no/such/folder does not exist"),
+    (["diagnose", "--model", "a b"], "argument --model: model reference 'a b' must be"),
+])
+def test_bad_arguments_are_refused_before_any_file_is_read(tmp_path, capsys, argv, message):
+    """Each bad value is named with its option, and the missing flight file is never reached (its error
+    would say 'no such file'), so no import or ingest ran first; no version number is spent."""
+    missing = str(tmp_path / "missing.csv")
+    assert main([argv[0], missing, *argv[1:]]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "missing.csv" not in err and "Traceback" not in err
+
+
+@needs_data
+def test_ingest_strict_fails_when_a_flight_fails_quality(capsys):
+    files = [str(NANOBENCH / "B2_circle_medium_rep2.csv"), str(NANOBENCH / "B2_circle_medium_rep3.csv")]
+    assert main(["ingest", *files]) == 0             # a report: bad flights are listed, not an error
+    assert "BAD" in capsys.readouterr().out
+    assert main(["ingest", *files, "--strict"]) == 1
+    assert "1 of 2 flight(s) failed the quality checks: B2_circle_medium_rep3" in capsys.readouterr().err
+    assert main(["ingest", files[0], "--strict"]) == 0
+
+
 def test_a_lone_half_of_a_vicon_cfclient_pair_is_named(tmp_path, capsys):
     """One Vicon export with two cfclient logs: the second log has no partner, and the error says so."""
     import numpy as np
