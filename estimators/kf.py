@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import casadi as ca
 import numpy as np
-from filterpy.kalman import KalmanFilter
 from numpy.typing import ArrayLike
 
 from learnest.models.checks import check_covariance, check_dt, check_sequence, check_vector
@@ -35,6 +34,8 @@ def linearize(model: StateSpaceModel, dt: float, x_op: np.ndarray | None = None)
 
 def _filter(F, H, Q, R, x0, P0, y, smooth: bool):
     """x0, P0 describe the state at the first sample: update with y[0], then predict/update."""
+    from filterpy.kalman import KalmanFilter  # imports scipy.stats (~2 s): on first use, not on import
+
     kf = KalmanFilter(dim_x=F.shape[0], dim_z=H.shape[0])
     kf.F, kf.H, kf.Q, kf.R, kf.x, kf.P = F, H, Q, R, x0.copy(), P0.copy()
     means, covs = np.empty((len(y), len(x0))), np.empty((len(y), len(x0), len(x0)))
