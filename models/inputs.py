@@ -27,6 +27,7 @@ class MissingInputs(InvalidInput):
 
 
 def missing_inputs(flight: Flight, system_name: str) -> list[str]:
+    """Names of the Flight channels the named system's inputs need that ``flight`` lacks (empty if none)."""
     return [name for name in NEEDED.get(system_name, ()) if name not in flight.channels]
 
 

@@ -52,11 +52,13 @@ class Adam:
         self.steps = 0
 
     def zero_grad(self) -> None:
+        """Drop the gradients (as ``torch.optim`` does by default: set to None, not zeroed)."""
         for p in self.params:
             p.grad = None
 
     @torch.no_grad()
     def step(self) -> None:
+        """One Adam update of every parameter that has a gradient."""
         self.steps += 1
         step_size = self.lr / (1 - self.beta1**self.steps)
         bias_correction2_sqrt = (1 - self.beta2**self.steps) ** 0.5
