@@ -1,1 +1,1 @@
-"""HTTP routers, one per resource: flights, models, jobs, evaluations, diagnoses."""
+"""The JSON routes (FastAPI routers), one module per resource: flights, models, jobs, evaluations, diagnoses."""
