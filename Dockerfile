@@ -1,4 +1,4 @@
-# learnest image: CPU-only torch, the learnest CLI (and, once the service lands, its uvicorn app).
+# learnest image: CPU-only torch, the learnest CLI and its HTTP service (uvicorn, learnest.service.api.app).
 # Build: docker build -t learnest .   Serve: docker run --rm -p 8000:8000 -v learnest-data:/data learnest
 # One-off command: docker run --rm -v learnest-data:/data learnest reproduce --task cartpole --seeds 2
 FROM python:3.11-slim

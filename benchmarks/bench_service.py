@@ -8,7 +8,7 @@
    c. 4 concurrent clients against 2 uvicorn workers, on a fresh LEARNEST_HOME.
 2. Batch evaluation.  One model (trained on a 17th flight for TRAIN_EPOCHS epochs: the estimator cost does not
    depend on how well it is trained) evaluated on the 16 flights with UKF and KNODE-UKF through the service's
-   job code (service.jobs.start_evaluation, results cache emptied before each run), on
+   job code (service.jobs.evaluation.start_evaluation, results cache emptied before each run), on
    - the local process pool with 2 workers, and with 1 worker,
    - a Dask LocalCluster with 2 worker processes (1 thread each).
    Workers are started and warm (torch, CasADi imported) before the clock starts.  The three reports must be
@@ -37,9 +37,13 @@ sys.path.insert(0, str(REPO))
 from sqlalchemy import delete, select  # noqa: E402
 
 from learnest.service.config import Settings
-from learnest.service.db import Database, Evaluation, FlightRecord, Result  # noqa: E402
-from learnest.service.executors import DaskExecutor, LocalPoolExecutor  # noqa: E402
-from learnest.service.jobs import EstimatorSettings, open_services, start_evaluation, start_training  # noqa: E402
+from learnest.service.jobs.evaluation import start_evaluation  # noqa: E402
+from learnest.service.jobs.executors import DaskExecutor, LocalPoolExecutor  # noqa: E402
+from learnest.service.jobs.result_cache import EstimatorSettings  # noqa: E402
+from learnest.service.jobs.services import open_services  # noqa: E402
+from learnest.service.jobs.training import start_training  # noqa: E402
+from learnest.service.storage.database import Database  # noqa: E402
+from learnest.service.storage.tables import Evaluation, FlightRecord, Result  # noqa: E402
 
 OUT = REPO / "benchmarks" / "results"
 N_FLIGHTS = 16

@@ -17,16 +17,23 @@ v_i = y_i - h(x_i) are substituted into the cost.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike
 
 from learnest.models.checks import check_covariance, check_dt, check_sequence, check_vector
 
 from .mhe_gn import GaussNewtonWindowSolver
+from .protocols import StateSpaceModel
 
-IPOPT_OPTIONS = {
+# The values an IPOPT / nlpsol option takes (the Hessian callback is a CasADi Function).
+SolverOption = bool | int | float | str | ca.Function
+
+IPOPT_OPTIONS: dict[str, SolverOption] = {
     "ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
     "ipopt.tol": 1e-8, "ipopt.max_iter": 200,
     "ipopt.warm_start_init_point": "yes", "ipopt.mu_init": 1e-6,
@@ -70,10 +77,11 @@ class MHE:
         ("auto" or None for CasADi's interpreter).
     """
 
-    def __init__(self, model, dt, Q, R, P0, horizon: int = 20, arrival: str = "ekf",
-                 warm_start: bool = True, hessian: str = "cost", ipopt_options: dict | None = None,
-                 solver: str = "gauss-newton", tol: float = 1e-9, max_iter: int | None = None,
-                 codegen_dir=None, compiler: str | None = "auto"):
+    def __init__(self, model: StateSpaceModel, dt: float, Q: ArrayLike, R: ArrayLike, P0: ArrayLike,
+                 horizon: int = 20, arrival: str = "ekf", warm_start: bool = True, hessian: str = "cost",
+                 ipopt_options: dict[str, SolverOption] | None = None, solver: str = "gauss-newton", tol: float = 1e-9,
+                 max_iter: int | None = None, codegen_dir: str | Path | None = None,
+                 compiler: str | None = "auto") -> None:
         if int(horizon) != horizon or horizon < 1:
             raise ValueError(f"horizon must be a positive integer, got {horizon}")
         if arrival not in ("fixed", "ekf"):
@@ -103,7 +111,7 @@ class MHE:
             self.jac_h = ca.Function("H", [x, u], [ca.jacobian(model.h(x, u), x)])
         self._windows: dict[int, _Window] = {}
         self.stats = {"solves": 0, "iterations": 0, "failures": 0}
-        self._gn = None
+        self._gn: GaussNewtonWindowSolver | None = None
         if solver == "gauss-newton":
             self._gn = GaussNewtonWindowSolver(self, tol=tol, max_iter=max_iter, cache_dir=codegen_dir,
                                                compiler=compiler)
@@ -142,15 +150,16 @@ class MHE:
             predicted = self.step_fn.map(length - 1)(X[:, :-1], U[:, :-1])
             constraints = [ca.vec(X[:, 1:] - predicted - W)]
         z = ca.vertcat(ca.vec(X), ca.vec(W))
-        p = ca.vertcat(ca.vec(Y), ca.vec(U), x_bar, ca.vec(P_inv))
+        params = ca.vertcat(ca.vec(Y), ca.vec(U), x_bar, ca.vec(P_inv))
         g = ca.vertcat(*constraints) if constraints else ca.SX(0, 1)
         options = dict(self.options)
         if self.hessian == "cost":
-            options["hess_lag"] = self._cost_hessian(z, p, cost, g.shape[0])
-        return _Window(ca.nlpsol(f"mhe_{length}", "ipopt", {"x": z, "p": p, "f": cost, "g": g}, options), length)
+            options["hess_lag"] = self._cost_hessian(z, params, cost, g.shape[0])
+        problem = {"x": z, "p": params, "f": cost, "g": g}
+        return _Window(ca.nlpsol(f"mhe_{length}", "ipopt", problem, options), length)
 
     @staticmethod
-    def _cost_hessian(z, p, cost, n_constraints):
+    def _cost_hessian(z: ca.SX, p: ca.SX, cost: ca.SX, n_constraints: int) -> ca.Function:
         """The Lagrangian's Hessian without the dynamics' curvature (λᵀ∇²g): the cost's exact Hessian only.
         For a KNODE it avoids second derivatives of the network through RK4, which dominate the exact
         Hessian's cost.  It is positive semi-definite when h is linear (the quadrotor, the cartpole); with
@@ -162,7 +171,8 @@ class MHE:
                            ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
 
     # -- estimation ---------------------------------------------------------------------------------
-    def run(self, y, u, x0, progress=None) -> np.ndarray:
+    def run(self, y: ArrayLike, u: ArrayLike, x0: ArrayLike,
+            progress: Callable[[int], object] | None = None) -> np.ndarray:
         """Estimate x̂_{k|k} for every k; x0 is the prior guess of the first state (arrival x̄ at k=0)."""
         y = check_sequence("y", y, cols=self.m)
         T = len(y)
@@ -181,7 +191,7 @@ class MHE:
             params = np.concatenate([y[start:k + 1].T.ravel("F"), u[start:k + 1].T.ravel("F"),
                                      x_bar, np.linalg.inv(P_arrival).ravel("F")])
             x_init = np.concatenate([guess_X.ravel("F"), guess_W.ravel("F")])
-            args = dict(x0=x_init, p=params, lbg=0.0, ubg=0.0)
+            args: dict[str, np.ndarray | float] = {"x0": x_init, "p": params, "lbg": 0.0, "ubg": 0.0}
             if self.warm_start and guess_lam.size == self.n * (length - 1):
                 args["lam_g0"] = guess_lam
             sol = win.solver(**args)
@@ -197,7 +207,8 @@ class MHE:
                 progress(k)
         return estimates
 
-    def solve_window_ipopt(self, X, u_win, y_win, x_bar, P_inv):
+    def solve_window_ipopt(self, X: np.ndarray, u_win: np.ndarray, y_win: np.ndarray, x_bar: np.ndarray,
+                           P_inv: np.ndarray) -> tuple[np.ndarray, bool]:
         """(X*, success): one window (X (L, n) as the initial guess) solved by IPOPT; the Gauss–Newton
         solver's fallback."""
         L = len(X)
@@ -208,7 +219,9 @@ class MHE:
         z = np.asarray(sol["x"]).ravel()
         return z[: self.n * L].reshape(L, self.n), bool(win.solver.stats().get("success", True))
 
-    def _shift(self, X, W, lam, u, k, start, x_bar, P_arrival, y):
+    def _shift(self, X: np.ndarray, W: np.ndarray, lam: np.ndarray, u: np.ndarray, k: int, start: int,
+               x_bar: np.ndarray, P_arrival: np.ndarray,
+               y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Next window's warm start and arrival cost (x̄_{k-N|k} <- x̂*_{k-N|k-1})."""
         x_next = np.asarray(self.step_fn(X[:, -1], u[k])).ravel()
         slides = k + 1 - self.horizon > start  # the window start moves forward at the next step
@@ -221,7 +234,7 @@ class MHE:
         return (np.column_stack([X[:, 1:], x_next]), np.column_stack([W[:, 1:], np.zeros(self.n)]),
                 lam_next, X[:, 1].copy(), P_arrival)
 
-    def _ekf_arrival(self, x, u, y, P):
+    def _ekf_arrival(self, x: np.ndarray, u: np.ndarray, y: np.ndarray, P: np.ndarray) -> np.ndarray:
         H = np.asarray(self.jac_h(x, u))
         S = H @ P @ H.T + self.R
         P = P - P @ H.T @ np.linalg.solve(S, H @ P)
@@ -229,7 +242,7 @@ class MHE:
         P = F @ P @ F.T + self.Q
         return 0.5 * (P + P.T)
 
-    def _record(self, solver):
+    def _record(self, solver: ca.Function) -> None:
         stats = solver.stats()
         self.stats["solves"] += 1
         self.stats["iterations"] += int(stats.get("iter_count", 0))

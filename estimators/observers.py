@@ -5,6 +5,8 @@ ground robot.  They run offline, so each ends with a Rauch-Tung-Striebel backwar
 """
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -29,25 +31,28 @@ def observe_cartpole(system: System, y: np.ndarray, u: np.ndarray, dt: float) ->
 class _PlanarKinematics:
     """Constant-velocity point in the plane with a slowly varying heading, seen by the robot's sensors."""
 
-    def __init__(self, robot: GroundRobot):
+    def __init__(self, robot: GroundRobot) -> None:
         self.robot, self.n, self.n_inputs, self.n_meas = robot, 5, 0, robot.n_meas
 
-    def step(self, x, u, dt):
+    def step(self, x: np.ndarray, u: np.ndarray | None, dt: float) -> np.ndarray:
         out = np.array(x, dtype=float, copy=True)
         out[..., 0] += dt * x[..., 2]
         out[..., 1] += dt * x[..., 3]
         return out
 
-    def h(self, x, u=None):
+    def h(self, x: np.ndarray, u: np.ndarray | None = None) -> np.ndarray:
         state = np.stack([x[..., 0], x[..., 1], np.hypot(x[..., 2], x[..., 3]), x[..., 4]], axis=-1)
         return self.robot.h(state)
 
 
-def observe_robot(system: GroundRobot, y: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
+def observe_robot(system: System, y: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
     """Precursory UKF (ranges + heading -> position, heading), then a linear KF for the speed.
 
     y (T, 5) = [r1..r4 (m), ψ (rad)] -> ζ (T, 4) = [x (m), y (m), v (m/s), ψ (rad)]; ``u`` is unused.
+    ``system`` must be a `GroundRobot` (its sensor positions locate the robot).
     """
+    if not isinstance(system, GroundRobot):
+        raise TypeError(f"observe_robot needs a GroundRobot, got {type(system).__name__}")
     kinematics = _PlanarKinematics(system)
     x0 = _trilaterate(system, y[0])
     Q = np.diag([1e-6, 1e-6, 4e-4, 4e-4, 1e-4])
@@ -59,7 +64,7 @@ def observe_robot(system: GroundRobot, y: np.ndarray, u: np.ndarray, dt: float) 
     return np.column_stack([pos[:, 0], pos[:, 1], speed, pos[:, 2]])
 
 
-def _trilaterate(system: GroundRobot, ranges) -> np.ndarray:
+def _trilaterate(system: GroundRobot, ranges: np.ndarray) -> np.ndarray:
     """Least-squares position from the first set of ranges (linearised by differencing sensor 0)."""
     s = np.asarray(system.sensors)
     r = np.asarray(ranges[: len(s)])
@@ -82,14 +87,17 @@ def observe_quadrotor(system: System, y: np.ndarray, u: np.ndarray, dt: float) -
     return batch_smoother(F, H, system.Q, system.R, x0, system.P0, check_sequence("y", y, cols=system.n_meas))
 
 
-def observe_crazyflie(system: System, y, u, dt):
+def observe_crazyflie(system: System, y: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
     """The same KF + RTS on the kinematic chain as for the paper's quadrotor: the observer knows nothing
     of the motors, so what the residual learns is not an artefact of the thrust model it corrects."""
     kinematic = make_system("quadrotor", dt=dt, n_samples=len(y))
     return observe_quadrotor(kinematic, y, np.zeros((len(y), 0)), dt)
 
 
-OBSERVERS = {"cartpole": observe_cartpole, "robot": observe_robot, "quadrotor": observe_quadrotor,
+# An observer: (system, y (T, m), u (T, p), dt s) -> ζ (T, n).
+Observer = Callable[[System, np.ndarray, np.ndarray, float], np.ndarray]
+
+OBSERVERS: dict[str, Observer] = {"cartpole": observe_cartpole, "robot": observe_robot, "quadrotor": observe_quadrotor,
              "crazyflie": observe_crazyflie}
 
 

@@ -2,7 +2,7 @@
 
 A route and a page that show the same thing call the same function here (full-stack-fastapi-template's
 `crud.py` habit), so they cannot disagree about what "latest version" or "not found" means; each then
-shapes the answer its own way (JSON in service.routers, HTML in service.web).  Every function opens and
+shapes the answer its own way (JSON in service.api.routes, HTML in service.web).  Every function opens and
 closes its own transaction; the rows it returns stay readable afterwards (the sessions do not expire them
 on commit, and a flight's files are loaded with it).  A missing thing is NotFound (404) with the message
 both surfaces show.
@@ -16,7 +16,8 @@ from sqlalchemy import ColumnElement, func, select
 from learnest.errors import Conflict, NotFound
 
 from . import registry
-from .db import Database, Evaluation, FlightRecord, Job, ModelVersion, RegisteredModel
+from .storage.database import Database
+from .storage.tables import Evaluation, FlightRecord, Job, ModelVersion, RegisteredModel
 
 
 # -- flights ---------------------------------------------------------------------------------------------

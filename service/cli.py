@@ -153,8 +153,8 @@ def _evaluate_new(args) -> int:
     """One scheduler round (for cron): evaluate every stored flight without a result for name@alias."""
     from learnest.models.presets import parse_methods
 
-    from .jobs import EstimatorSettings
-    from .scheduler import evaluate_new_once
+    from .jobs.result_cache import EstimatorSettings
+    from .jobs.scheduler import evaluate_new_once
 
     settings = EstimatorSettings(tuple(parse_methods(args.methods)), args.horizon, args.include_bad)
     rounds = evaluate_new_once(args.alias, settings)
@@ -171,14 +171,15 @@ def _evaluate_new(args) -> int:
 
 
 def _serve(args) -> int:
-    """The HTTP service (FastAPI app factory service.app:create_app under uvicorn); docs at /docs."""
+    """The HTTP service (FastAPI app factory service.api.app:create_app under uvicorn); docs at /docs."""
     import os
 
     import uvicorn
 
     if args.dask:  # the app reads its settings from the environment, in every worker process
         os.environ["LEARNEST_DASK"] = args.dask
-    uvicorn.run("learnest.service.app:create_app", factory=True, host=args.host, port=args.port, workers=args.workers)
+    uvicorn.run("learnest.service.api.app:create_app", factory=True, host=args.host, port=args.port,
+                workers=args.workers)
     return 0
 
 
@@ -394,7 +395,7 @@ def main(argv=None) -> int:
     except SystemExit as stop:  # a bad argument (argparse printed usage and why) or --help
         return int(stop.code or 0)
     if args.func not in (_ingest, _serve):  # the rest run the networks here; --help and ingest skip torch
-        from .executors import init_worker
+        from .jobs.executors import init_worker
 
         init_worker()  # the networks are tiny: extra threads only add contention
     try:

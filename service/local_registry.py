@@ -28,8 +28,12 @@ from learnest.models.knode import HybridModel
 
 from . import catalog, registry
 from .config import Settings
-from .db import Database, FlightRecord, Job, RegisteredModel
-from .jobs import ACTIVE, Services, diagnosis_metrics, open_services, start_training, training_config
+from .jobs.runner import ACTIVE
+from .jobs.services import Services, open_services
+from .jobs.tasks import diagnosis_metrics
+from .jobs.training import start_training, training_config
+from .storage.database import Database
+from .storage.tables import FlightRecord, Job, RegisteredModel
 from .uploads import LocalFile
 from .uploads import add_flight as add_uploaded_flight
 

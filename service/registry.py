@@ -22,9 +22,10 @@ from sqlalchemy.orm import Session
 from learnest.errors import Conflict, InvalidInput, NotFound
 from learnest.models.knode import HybridModel
 
-from .blobs import BlobStore
 from .config import Settings
-from .db import Database, FlightRecord, ModelAlias, ModelVersion, RegisteredModel, utcnow
+from .storage.blobs import BlobStore
+from .storage.database import Database
+from .storage.tables import FlightRecord, ModelAlias, ModelVersion, RegisteredModel, utcnow
 
 NAME = r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}"
 NAME_PATTERN = re.compile(rf"^{NAME}$")

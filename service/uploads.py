@@ -24,8 +24,9 @@ from learnest.errors import Conflict, InvalidInput
 from learnest.ingest import IngestError, group_files, read_group
 from learnest.ingest.flight import Flight as CanonicalFlight
 
-from .blobs import CHUNK, BlobStore
-from .db import Database, FlightFile, FlightRecord, utcnow
+from .storage.blobs import CHUNK, BlobStore
+from .storage.database import Database
+from .storage.tables import FlightFile, FlightRecord, utcnow
 
 log = logging.getLogger("learnest.uploads")
 

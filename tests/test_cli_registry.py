@@ -13,7 +13,8 @@ from utils.service import running_app
 from learnest.service import registry
 from learnest.service.cli import main
 from learnest.service.config import Settings
-from learnest.service.db import Database, FlightFile, FlightRecord
+from learnest.service.storage.database import Database
+from learnest.service.storage.tables import FlightFile, FlightRecord
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
 TRAIN, OTHER = SAMPLES / "circle_rep1.csv", SAMPLES / "circle_rep2.csv"

@@ -8,7 +8,7 @@ from pathlib import Path
 
 SERVER = """
 import time
-from learnest.service.executors import LocalPoolExecutor
+from learnest.service.jobs.executors import LocalPoolExecutor
 pool = LocalPoolExecutor(max_workers=1)
 pool.submit(time.sleep, 600)                  # a long job: the worker is busy when the server dies
 while not pool._pool._processes:

@@ -12,11 +12,12 @@ from utils.service import FAST_METHODS, evaluate, running_app, settings_for, upl
 
 from learnest.ingest.flight import Flight as CanonicalFlight
 from learnest.ingest.simulator import RandomWaypoints, SensorModel, simulate, write_flight
-from learnest.service.blobs import BlobStore
 from learnest.service.cli import main
-from learnest.service.db import Database, FlightRecord
 from learnest.service.experiments.flights import evaluate_flight
 from learnest.service.registry import load_model_ref
+from learnest.service.storage.blobs import BlobStore
+from learnest.service.storage.database import Database
+from learnest.service.storage.tables import FlightRecord
 
 BIAS = (0.3, -0.2, 0.25)
 EPOCHS = 3

@@ -17,14 +17,16 @@ from utils.service import (
 )
 
 from learnest.ingest.flight import Flight as CanonicalFlight
-from learnest.service.blobs import BlobStore
 from learnest.service.cli import main as cli_main
-from learnest.service.db import Database, FlightRecord, Result
-from learnest.service.executors import DaskExecutor
 from learnest.service.experiments.flights import evaluate_flights
-from learnest.service.jobs import EstimatorSettings, JobRunner
+from learnest.service.jobs.executors import DaskExecutor
+from learnest.service.jobs.result_cache import EstimatorSettings
+from learnest.service.jobs.runner import JobRunner
+from learnest.service.jobs.scheduler import Scheduler
 from learnest.service.registry import load_model_ref
-from learnest.service.scheduler import Scheduler
+from learnest.service.storage.blobs import BlobStore
+from learnest.service.storage.database import Database
+from learnest.service.storage.tables import FlightRecord, Result
 
 
 @pytest.fixture(scope="module")

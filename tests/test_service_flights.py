@@ -14,8 +14,8 @@ from sqlalchemy import create_engine, func, select
 from utils.service import blob_files, flight_csv, running_app, settings_for, shared_pool, upload
 
 from learnest.ingest import read_flights
-from learnest.service.app import create_app
-from learnest.service.db import FlightFile, FlightRecord
+from learnest.service.api.app import create_app
+from learnest.service.storage.tables import FlightFile, FlightRecord
 
 
 def count_rows(home: Path, table=FlightRecord) -> int:

@@ -11,20 +11,10 @@ from alembic.migration import MigrationContext
 from sqlalchemy import inspect
 from utils.service import blob_files, flight_csv, running_app, settings_for, upload, wait_for_job
 
-from learnest.service.db import (
-    Base,
-    Database,
-    Evaluation,
-    FlightRecord,
-    Job,
-    Lease,
-    ModelVersion,
-    RegisteredModel,
-    acquire_lease,
-    lease_holder,
-    release_lease,
-)
-from learnest.service.jobs import JobRunner
+from learnest.service.jobs.runner import JobRunner
+from learnest.service.storage.database import Database
+from learnest.service.storage.leases import acquire_lease, lease_holder, release_lease
+from learnest.service.storage.tables import Base, Evaluation, FlightRecord, Job, Lease, ModelVersion, RegisteredModel
 
 
 def database_for(home) -> Database:

@@ -4,7 +4,7 @@ from alembic.config import Config
 from sqlalchemy import text
 from utils.service import flight_csv, running_app, upload
 
-from learnest.service.db import MIGRATIONS, Database
+from learnest.service.storage.database import MIGRATIONS, Database
 
 
 def test_a_deleted_flights_id_is_never_given_to_the_next_upload(tmp_path, data_dir):

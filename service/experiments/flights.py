@@ -9,6 +9,7 @@ import numpy as np
 
 from learnest.errors import InvalidInput
 from learnest.estimators.evaluate import evaluate_sequence, summarize
+from learnest.estimators.mhe import MHE
 from learnest.estimators.observers import pretraining_observer
 from learnest.ingest.baseline import references
 from learnest.ingest.flight import Flight
@@ -51,11 +52,11 @@ def train_on_flight(flight: Flight, config: TrainingConfig = CRAZYFLIE_TRAINING,
     its measurements, then `train_knode`.  The model records the training flight (name and source sha256)
     in its meta.  ``progress`` is called as ``progress(epoch, mean_training_loss)``.  Raises
     `models.inputs.MissingInputs` when the prior needs inputs the flight lacks."""
-    system = system_for(flight, system)
-    y, u = flight.measurements(), system_inputs(flight, system)
-    zeta = pretraining_observer(system, y, u, system.dt)
-    result = train_knode(system, zeta, u, system.dt, config, progress=progress)
-    result.model.meta.update({"system": system.name, "training_flight": flight.name,
+    prior = system_for(flight, system)
+    y, u = flight.measurements(), system_inputs(flight, prior)
+    zeta = pretraining_observer(prior, y, u, prior.dt)
+    result = train_knode(prior, zeta, u, prior.dt, config, progress=progress)
+    result.model.meta.update({"system": prior.name, "training_flight": flight.name,
                               "training_flight_sha256": [s["sha256"] for s in flight.meta.get("sources", [])]})
     return result
 
@@ -69,7 +70,8 @@ def corrected_flight(flight: Flight, values: dict) -> Flight:
 
 
 def evaluate_flight(knode: HybridModel, flight: Flight, methods: Sequence[str], horizon: int = MHE_HORIZON,
-                    sg_window: int = SG_WINDOW, keep_estimates: bool = False, mhe_cache: dict | None = None) -> dict:
+                    sg_window: int = SG_WINDOW, keep_estimates: bool = False,
+                    mhe_cache: dict[tuple, MHE] | None = None) -> dict:
     """Scores of every method on one flight, against SG references of its mocap position.
 
     The prior-only rows use the model's own prior (which a diagnosis may have extended), and a model
@@ -109,7 +111,8 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
     Flights that fail the quality checks (unless ``include_bad``) and the model's own training flight are
     listed as excluded, with the reason, and not scored.  ``progress`` is called with each flight's entry.
     """
-    reports, mhe_cache = [], {}
+    reports: list[dict] = []
+    mhe_cache: dict[tuple, MHE] = {}
     for flight in flights:
         entry = {"flight": flight.name, "excluded": False, "reason": None, "mse": {}, "groups": {}}
         quality = flight.quality

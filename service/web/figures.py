@@ -20,8 +20,8 @@ if TYPE_CHECKING:
 
 from learnest.ingest.flight import Flight as CanonicalFlight
 
-from ..blobs import BlobStore
-from ..db import ModelVersion
+from ..storage.blobs import BlobStore
+from ..storage.tables import ModelVersion
 
 BOX_ORDER = ("mhe", "knode-mhe", "ukf", "knode-ukf")   # the order of the paper's Fig. 3
 VELOCITY_METHODS = ("ukf", "knode-ukf")                # the velocity plot's estimators: quick to run on a request

@@ -19,9 +19,9 @@ from pydantic import ValidationError
 
 from learnest.errors import InvalidInput, LearnestError
 
+from ..api.deps import key_matches
+from ..api.schemas import AliasIn, EvaluationRequest, TrainRequest
 from ..config import Settings
-from ..routers.deps import key_matches
-from ..schemas import AliasIn, EvaluationRequest, TrainRequest
 
 COOKIE = "learnest_api_key"
 MAX_VEHICLE, MAX_NOTES = 200, 10_000   # the JSON upload's Form(max_length=...) limits

@@ -33,9 +33,13 @@ from learnest.ingest.flight import Flight as CanonicalFlight
 from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON
 
 from .. import catalog, registry
-from ..db import Evaluation, FlightRecord, Job
-from ..jobs import ACTIVE, EstimatorSettings, Services, start_evaluation, start_training
-from ..routers.deps import get_services
+from ..api.deps import get_services
+from ..jobs.evaluation import start_evaluation
+from ..jobs.result_cache import EstimatorSettings
+from ..jobs.runner import ACTIVE
+from ..jobs.services import Services
+from ..jobs.training import start_training
+from ..storage.tables import Evaluation, FlightRecord, Job
 from ..uploads import add_flight
 from . import figures, forms
 

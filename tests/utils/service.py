@@ -17,7 +17,7 @@ import pandas as pd
 from learnest.ingest import nanobench
 from learnest.ingest.frames import GRAVITY, quat_to_matrix
 from learnest.service.config import Settings
-from learnest.service.executors import LocalPoolExecutor
+from learnest.service.jobs.executors import LocalPoolExecutor
 
 if TYPE_CHECKING:  # the app (torch, filterpy, matplotlib) is imported when a test first runs one
     from fastapi.testclient import TestClient
@@ -78,8 +78,8 @@ def running_app(home: Path, executor=None, **changes):
     """The real app (lifespan included: migrations, job runner) on a SQLite file under `home`."""
     from fastapi.testclient import TestClient
 
-    from learnest.service.app import create_app
-    from learnest.service.executors import init_worker
+    from learnest.service.api.app import create_app
+    from learnest.service.jobs.executors import init_worker
 
     init_worker()  # this process trains too (CLI paths): one torch thread, as in the workers
     app = create_app(settings_for(home, **changes), executor=executor or shared_pool(), scheduler=False)

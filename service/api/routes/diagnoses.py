@@ -4,11 +4,13 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Response
 
-from ..catalog import row_and_job
-from ..db import Database, Diagnosis
-from ..jobs import Services, start_diagnosis
+from ...catalog import row_and_job
+from ...jobs.diagnosis import start_diagnosis
+from ...jobs.services import Services
+from ...storage.database import Database
+from ...storage.tables import Diagnosis
+from ..deps import get_db, get_services, pending, require_api_key
 from ..schemas import DiagnosisAccepted, DiagnosisPending, DiagnosisRequest
-from .deps import get_db, get_services, pending, require_api_key
 
 router = APIRouter(prefix="/diagnoses", tags=["diagnoses"])
 

@@ -1,5 +1,5 @@
 """The learnest HTTP service (FastAPI).  `create_app()` is the factory uvicorn runs
-(`learnest serve`, or `uvicorn --factory service.app:create_app`); OpenAPI docs at /docs.
+(`learnest serve`, or `uvicorn --factory learnest.service.api.app:create_app`); OpenAPI docs at /docs.
 
 Start-up: Alembic `upgrade head`, blob folder, executor (local process pool or Dask), job runner (fails the
 jobs a crashed server left running), scheduler when LEARNEST_SCHEDULE_SECONDS > 0.
@@ -7,26 +7,20 @@ jobs a crashed server left running), scheduler when LEARNEST_SCHEDULE_SECONDS > 
 from __future__ import annotations
 
 import importlib.metadata
-import logging
-import uuid
 from contextlib import asynccontextmanager
 
 from fastapi import FastAPI, HTTPException, Request
-from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.types import Receive, Send
 
-from learnest.errors import LearnestError
-
-from .config import Settings
-from .executors import Executor
-from .jobs import open_services, sweep_orphan_blobs
-from .routers import diagnoses, evaluations, flights, jobs, models
-from .scheduler import Scheduler
-from .web import pages
-
-log = logging.getLogger("learnest.app")
+from ..config import Settings
+from ..jobs.executors import Executor
+from ..jobs.scheduler import Scheduler
+from ..jobs.services import open_services, sweep_orphan_blobs
+from ..web import pages
+from .errors import install_error_handlers
+from .routes import diagnoses, evaluations, flights, jobs, models
 
 
 def create_app(settings: Settings | None = None, *, executor: Executor | None = None,
@@ -111,33 +105,3 @@ class BodySizeLimit:
     async def _reject(self, receive: Receive, send: Send) -> None:
         response = JSONResponse({"detail": self._message()}, status_code=413, headers={"Connection": "close"})
         await response({"type": "http"}, receive, send)
-
-
-# -- errors: a 4xx a person can act on, never a traceback ------------------------------------------------
-def install_error_handlers(app: FastAPI) -> None:
-    @app.exception_handler(RequestValidationError)
-    async def invalid_request(_request: Request, err: RequestValidationError):
-        errors = [{"field": _field(e.get("loc", ())), "message": e.get("msg", "invalid")} for e in err.errors()]
-        detail = "; ".join(f"{e['field']}: {e['message']}" if e["field"] else e["message"] for e in errors)
-        return JSONResponse({"detail": detail, "errors": errors}, status_code=422)
-
-    @app.exception_handler(LearnestError)
-    async def learnest_error(_request: Request, err: LearnestError):
-        return JSONResponse({"detail": str(err)}, status_code=err.status)
-
-    @app.exception_handler(Exception)
-    async def unexpected(request: Request, err: Exception):
-        incident = uuid.uuid4().hex[:12]
-        log.error("incident %s on %s %s", incident, request.method, request.url.path, exc_info=err)
-        return JSONResponse({"detail": f"internal error (incident {incident}; the server log has the details)"},
-                            status_code=500)
-
-
-def _field(loc) -> str:
-    """("body", "epochs") -> "epochs"; ("query", "limit") -> "limit (query)"."""
-    parts = [str(p) for p in loc]
-    if parts and parts[0] == "body":
-        return ".".join(parts[1:]) or "body"
-    if len(parts) > 1 and parts[0] in ("query", "path", "header"):
-        return f"{'.'.join(parts[1:])} ({parts[0]})"
-    return ".".join(parts)

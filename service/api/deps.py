@@ -7,10 +7,11 @@ import hmac
 from fastapi import Depends, Header, HTTPException, Request
 from fastapi.responses import JSONResponse
 
-from ..blobs import BlobStore
 from ..config import Settings
-from ..db import Database, Job
-from ..jobs import Services
+from ..jobs.services import Services
+from ..storage.blobs import BlobStore
+from ..storage.database import Database
+from ..storage.tables import Job
 
 
 def get_services(request: Request) -> Services:

@@ -23,12 +23,13 @@ from starlette.background import BackgroundTask
 from learnest.errors import NotFound
 from learnest.ingest.flight import Flight as CanonicalFlight
 
-from .. import catalog
-from ..blobs import CHUNK, BlobStore
-from ..db import Database, FlightRecord, Result, blob_is_referenced
+from ... import catalog
+from ...storage.blobs import CHUNK, BlobStore
+from ...storage.database import Database, blob_is_referenced
+from ...storage.tables import FlightRecord, Result
+from ...uploads import add_flight
+from ..deps import get_blobs, get_db, require_api_key
 from ..schemas import FlightDetail, FlightOut, FlightPage
-from ..uploads import add_flight
-from .deps import get_blobs, get_db, require_api_key
 
 router = APIRouter(prefix="/flights", tags=["flights"])
 

@@ -4,7 +4,7 @@ under LEARNEST_HOME, exactly like the app."""
 from alembic import context
 
 from learnest.service.config import Settings
-from learnest.service.db import Base
+from learnest.service.storage.tables import Base
 
 config = context.config
 target_metadata = Base.metadata
@@ -32,7 +32,8 @@ def run_online() -> None:
     if connection is not None:
         _run(connection)
         return
-    from learnest.service.db import Database  # the same engine setup (pragmas, BEGIN IMMEDIATE) as the app
+    # the same engine setup (pragmas, BEGIN IMMEDIATE) as the app
+    from learnest.service.storage.database import Database
 
     database = Database(_url())
     with database.engine.begin() as connection:

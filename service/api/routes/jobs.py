@@ -5,10 +5,11 @@ from typing import Literal
 
 from fastapi import APIRouter, Depends, Query
 
-from .. import catalog
-from ..db import Database, Job
+from ... import catalog
+from ...storage.database import Database
+from ...storage.tables import Job
+from ..deps import get_db
 from ..schemas import JobOut
-from .deps import get_db
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 

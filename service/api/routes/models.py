@@ -4,12 +4,14 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Response
 
-from .. import catalog, registry
-from ..blobs import BlobStore
-from ..db import Database, ModelVersion
-from ..jobs import Services, start_training
+from ... import catalog, registry
+from ...jobs.services import Services
+from ...jobs.training import start_training
+from ...storage.blobs import BlobStore
+from ...storage.database import Database
+from ...storage.tables import ModelVersion
+from ..deps import get_blobs, get_db, get_services, require_api_key
 from ..schemas import AliasIn, AliasOut, ModelOut, ModelPage, TrainAccepted, TrainRequest, VersionOut
-from .deps import get_blobs, get_db, get_services, require_api_key
 
 router = APIRouter(prefix="/models", tags=["models"])
 

@@ -18,10 +18,14 @@ from sqlalchemy import select
 
 from learnest.models.presets import PRODUCTION_ALIAS, parse_methods
 
-from . import registry
-from .config import Settings
-from .db import Job, ModelAlias, acquire_lease, get_row, release_lease
-from .jobs import EstimatorSettings, Services, flights_without_results, open_services, start_evaluation
+from .. import registry
+from ..config import Settings
+from ..storage.database import get_row
+from ..storage.leases import acquire_lease, release_lease
+from ..storage.tables import Job, ModelAlias
+from .evaluation import start_evaluation
+from .result_cache import EstimatorSettings, flights_without_results
+from .services import Services, open_services
 
 log = logging.getLogger("learnest.scheduler")
 

@@ -5,11 +5,14 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Response
 
-from ..catalog import row_and_job
-from ..db import Database, Evaluation
-from ..jobs import EstimatorSettings, Services, start_evaluation
+from ...catalog import row_and_job
+from ...jobs.evaluation import start_evaluation
+from ...jobs.result_cache import EstimatorSettings
+from ...jobs.services import Services
+from ...storage.database import Database
+from ...storage.tables import Evaluation
+from ..deps import get_db, get_services, pending, require_api_key
 from ..schemas import EvaluationAccepted, EvaluationPending, EvaluationRequest
-from .deps import get_db, get_services, pending, require_api_key
 
 router = APIRouter(prefix="/evaluations", tags=["evaluations"])
 

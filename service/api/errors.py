@@ -1,0 +1,45 @@
+"""Errors: a 4xx a person can act on, never a traceback.  One handler per kind of exception: a request
+that fails validation (422, naming each field), a `LearnestError` (the status it carries: `InvalidInput`
+422, `NotFound` 404, `Conflict` 409), and anything else (500 with an incident id; the log has the rest)."""
+from __future__ import annotations
+
+import logging
+import uuid
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+
+from learnest.errors import LearnestError
+
+log = logging.getLogger("learnest.app")
+
+
+def install_error_handlers(app: FastAPI) -> None:
+    """Answer every exception a route raises as JSON ``{"detail": ...}`` with the right status."""
+    @app.exception_handler(RequestValidationError)
+    async def invalid_request(_request: Request, err: RequestValidationError):
+        errors = [{"field": _field(e.get("loc", ())), "message": e.get("msg", "invalid")} for e in err.errors()]
+        detail = "; ".join(f"{e['field']}: {e['message']}" if e["field"] else e["message"] for e in errors)
+        return JSONResponse({"detail": detail, "errors": errors}, status_code=422)
+
+    @app.exception_handler(LearnestError)
+    async def learnest_error(_request: Request, err: LearnestError):
+        return JSONResponse({"detail": str(err)}, status_code=err.status)
+
+    @app.exception_handler(Exception)
+    async def unexpected(request: Request, err: Exception):
+        incident = uuid.uuid4().hex[:12]
+        log.error("incident %s on %s %s", incident, request.method, request.url.path, exc_info=err)
+        return JSONResponse({"detail": f"internal error (incident {incident}; the server log has the details)"},
+                            status_code=500)
+
+
+def _field(loc) -> str:
+    """("body", "epochs") -> "epochs"; ("query", "limit") -> "limit (query)"."""
+    parts = [str(p) for p in loc]
+    if parts and parts[0] == "body":
+        return ".".join(parts[1:]) or "body"
+    if len(parts) > 1 and parts[0] in ("query", "path", "header"):
+        return f"{'.'.join(parts[1:])} ({parts[0]})"
+    return ".".join(parts)

@@ -1,0 +1,87 @@
+"""Diagnosis jobs: `learnest diagnose` on stored flights (on the executor), registering the repaired model
+as a child version when asked, and storing the report."""
+from __future__ import annotations
+
+from learnest.errors import InvalidInput, NotFound
+
+from .. import registry
+from ..storage.database import flights_by_id, get_row
+from ..storage.tables import Diagnosis, utcnow
+from .runner import JobContext
+from .services import Services
+from .tasks import diagnose_task, diagnosis_metrics
+from .training import training_config
+
+
+def start_diagnosis(services: Services, flight_ids: list[int], model_ref: str | None, register: str | None,
+                    methods: list[str], epochs: int) -> tuple[int, int]:
+    """Create the diagnosis and its job and launch it.  -> (job id, diagnosis id)
+
+    Raises
+    ------
+    InvalidInput
+        For a bad ``register`` name or no flights.
+    NotFound
+        If a flight or the model does not exist.
+    Conflict
+        If the model version is not ready.
+    """
+    if register is not None:
+        registry.check_name(register)
+    ids = list(dict.fromkeys(int(i) for i in flight_ids))
+    if not ids:
+        raise InvalidInput("flights: give at least one flight id (the first is the fitting flight)")
+    with services.db.transaction() as session:
+        found = flights_by_id(session, ids)
+        missing = [i for i in ids if i not in found]
+        if missing:
+            raise NotFound(f"flight(s) not found: {', '.join(map(str, missing))}")
+        if model_ref is not None:
+            version = registry.resolve(session, model_ref)
+            model_ref = f"{version.name}:{version.version}"
+        settings = {"methods": list(methods), "epochs": epochs}
+        job = services.runner.create(session, "diagnosis", {"flights": ids, "model": model_ref,
+                                                            "register": register, **settings})
+        diagnosis = Diagnosis(job_id=job.id, flight_ids=ids, model_ref=model_ref, register_as=register,
+                              settings=settings, created_at=utcnow())
+        session.add(diagnosis)
+        session.flush()
+        job_id, diagnosis_id = job.id, diagnosis.id
+    services.runner.launch(job_id, lambda ctx: run_diagnosis(services, ctx, diagnosis_id))
+    return job_id, diagnosis_id
+
+
+def run_diagnosis(services: Services, ctx: JobContext, diagnosis_id: int) -> None:
+    """The diagnosis job's work: diagnose on the executor, register the repaired model if asked, store the
+    report.  The fitting flight is found by name among the diagnosis' flights (first flight if none matches)."""
+    with services.db.transaction() as session:
+        diagnosis = get_row(session, Diagnosis, diagnosis_id, "diagnosis")
+        flights = flights_by_id(session, diagnosis.flight_ids)
+        if len(flights) != len(diagnosis.flight_ids):
+            raise InvalidInput("a flight of this diagnosis was deleted before it started")
+        blobs = [flights[i].flight_blob for i in diagnosis.flight_ids]
+        weights = None
+        if diagnosis.model_ref is not None:
+            weights = registry.weights_of(registry.resolve(session, diagnosis.model_ref))
+        settings, model_ref, register = dict(diagnosis.settings), diagnosis.model_ref, diagnosis.register_as
+        first_flight_id = diagnosis.flight_ids[0]
+    out = services.executor.submit(diagnose_task, [services.blobs.read_bytes(b) for b in blobs],
+                                   services.blobs.read_bytes(weights) if weights else None,
+                                   settings["methods"], settings["epochs"]).result()
+    ctx.progress(0.95)
+    registered = None
+    if register is not None:
+        model = registry.model_from_json(out["model_json"])
+        # the fitting flight: diagnose_flights skips flights that fail the quality checks, so go by name
+        fitting = next((f for f in flights.values() if f.name == out["fitting_flight"]),
+                       flights[first_flight_id])
+        row = registry.register_model(services.db, services.blobs, register, model, flight=fitting,
+                                      hyperparameters=training_config({"epochs": settings["epochs"]}),
+                                      parent=model_ref, job_id=ctx.job_id,
+                                      metrics=diagnosis_metrics(model, out["report"]))
+        registered = {"name": row.name, "version": row.version, "parent": row.parent}
+    with services.db.transaction() as session:
+        diagnosis = get_row(session, Diagnosis, diagnosis_id, "diagnosis")
+        diagnosis.report, diagnosis.registered = out["report"], registered
+        ctx.complete(session, {"diagnosis_id": diagnosis_id, "effects": [e["id"] for e in out["report"]["effects"]],
+                               "registered": registered})

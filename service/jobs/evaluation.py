@@ -1,0 +1,141 @@
+"""Evaluation jobs: score a model version on stored flights, one executor task per flight without a cached
+result (`result_cache`), then the report (the shape of service.experiments.flights.evaluate_flights)."""
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Iterable
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from learnest.errors import InvalidInput, NotFound
+
+from .. import registry
+from ..storage.database import flights_by_id, get_row
+from ..storage.tables import Evaluation, FlightRecord, ModelVersion, utcnow
+from .result_cache import EstimatorSettings, cached_entries, store_result
+from .runner import JobContext, error_message
+from .services import Services
+from .tasks import evaluate_task
+
+log = logging.getLogger("learnest.jobs")
+
+
+def start_evaluation(services: Services, model_ref: str, flights: Iterable[int] | str, settings: EstimatorSettings,
+                     wait: bool = False, on_progress: Callable[[], object] | None = None) -> tuple[int, int, str]:
+    """Create the evaluation and its job; answer from the cache at once when every flight has a result,
+    otherwise run it (in the background, or here when wait=True).  -> (job id, evaluation id, state)
+
+    ``flights`` is a list of flight ids or ``"all-other"`` (every stored flight but the training one).
+    """
+    with services.db.transaction() as session:
+        version = registry.resolve(session, model_ref)
+        flight_ids = _flight_ids(session, flights, version)
+        job = services.runner.create(session, "evaluation", {"model": model_ref, "flights": flight_ids,
+                                                             "settings": settings.as_dict()})
+        evaluation = Evaluation(job_id=job.id, model_ref=f"{version.name}:{version.version}",
+                                model_version_id=version.id, flight_ids=flight_ids,
+                                settings=settings.as_dict(), created_at=utcnow())
+        session.add(evaluation)
+        session.flush()
+        by_id = flights_by_id(session, flight_ids)
+        shas = [by_id[i].sha256 for i in flight_ids]
+        entries = cached_entries(session, version.id, settings.key, shas)
+        if len(entries) == len(flight_ids):  # everything cached: no job to run
+            evaluation.report = assemble_report(evaluation.model_ref, [entries[sha] for sha in shas])
+            job.state, job.progress, job.started_at, job.finished_at = "succeeded", 1.0, utcnow(), utcnow()
+            job.result = {"evaluation_id": evaluation.id, "flights": len(flight_ids), "computed": 0}
+            return job.id, evaluation.id, job.state
+        job_id, evaluation_id = job.id, evaluation.id
+
+    def work(ctx: JobContext) -> None:
+        run_evaluation(services, ctx, evaluation_id)
+
+    if wait:
+        services.runner.run(job_id, work, on_progress=on_progress)
+    else:
+        services.runner.launch(job_id, work)
+    return job_id, evaluation_id, "queued"
+
+
+def run_evaluation(services: Services, ctx: JobContext, evaluation_id: int) -> None:
+    """The evaluation job's work: one executor task per flight without a cached result, each stored as
+    it finishes (a failed flight is recorded and does not stop the others), then the report."""
+    with services.db.transaction() as session:
+        evaluation = get_row(session, Evaluation, evaluation_id, "evaluation")
+        version = get_row(session, ModelVersion, evaluation.model_version_id, "model version")
+        settings = EstimatorSettings(tuple(evaluation.settings["methods"]), evaluation.settings["horizon"],
+                                     evaluation.settings["include_bad"])
+        flights = flights_by_id(session, evaluation.flight_ids)
+        entries = cached_entries(session, version.id, settings.key, [f.sha256 for f in flights.values()])
+        model_json = services.blobs.read_bytes(registry.weights_of(version))
+        todo = {f.id: (f.name, f.sha256, f.flight_blob) for f in flights.values() if f.sha256 not in entries}
+        order = [flights[i].sha256 if i in flights else None for i in evaluation.flight_ids]
+        model_ref, version_id, flight_ids = evaluation.model_ref, version.id, list(evaluation.flight_ids)
+
+    total, done, failed = len(flight_ids), len(flight_ids) - len(todo), 0
+    futures = {}
+    for flight_id, (name, sha, blob) in todo.items():
+        try:
+            flight_bytes = services.blobs.read_bytes(blob)
+        except FileNotFoundError:  # deleted while this job was starting
+            entries[sha], done = _missing_entry(flight_id), done + 1
+            continue
+        futures[services.executor.submit(evaluate_task, model_json, flight_bytes, settings.as_dict())] = \
+            (flight_id, name, sha)
+    for future in services.executor.as_completed(futures):
+        flight_id, name, sha = futures[future]
+        entry, error = _outcome(future, name)
+        failed += error is not None
+        store_result(services.db, sha, version_id, settings.key, flight_id, entry, error)
+        entries[sha] = entry
+        done += 1
+        ctx.progress(done / total)
+
+    report = assemble_report(model_ref, [entries[sha] if sha else _missing_entry(i)
+                                         for i, sha in zip(flight_ids, order)])
+    with services.db.transaction() as session:
+        get_row(session, Evaluation, evaluation_id, "evaluation").report = report
+        ctx.complete(session, {"evaluation_id": evaluation_id, "flights": total, "computed": len(todo),
+                               "failed": failed})
+
+
+def _outcome(future, flight_name: str) -> tuple[dict, str | None]:
+    """A flight that fails is recorded with its reason and does not stop the others."""
+    try:
+        return future.result(), None
+    except Exception as err:
+        message = error_message(err)
+        log.warning("evaluation of %s failed: %s", flight_name, message)
+        return {"flight": flight_name, "excluded": True, "reason": f"failed: {message}", "mse": {}, "groups": {},
+                "failed": True}, message
+
+
+def _missing_entry(flight_id: int) -> dict:
+    return {"flight": f"#{flight_id}", "excluded": True, "reason": "flight was deleted", "mse": {}, "groups": {}}
+
+
+def assemble_report(model_ref: str, entries: list[dict]) -> dict:
+    """The same shape and numbers as service.experiments.flights.evaluate_flights."""
+    from learnest.estimators.evaluate import summarize
+
+    return {"model": model_ref, "flights": entries, **summarize(entries)}
+
+
+def _flight_ids(session: Session, flights, version: ModelVersion) -> list[int]:
+    if flights == "all-other":
+        query = select(FlightRecord.id).order_by(FlightRecord.id)
+        if version.training_flight_id is not None:
+            query = query.where(FlightRecord.id != version.training_flight_id)
+        ids = list(session.scalars(query))
+        if not ids:
+            raise InvalidInput("no flights other than the model's training flight are stored")
+        return ids
+    ids = list(dict.fromkeys(int(i) for i in flights))
+    if not ids:
+        raise InvalidInput("flights: give at least one flight id, or \"all-other\"")
+    found = set(session.scalars(select(FlightRecord.id).where(FlightRecord.id.in_(ids))))
+    missing = [i for i in ids if i not in found]
+    if missing:
+        raise NotFound(f"flight(s) not found: {', '.join(map(str, missing))}")
+    return ids

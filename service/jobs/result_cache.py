@@ -1,0 +1,91 @@
+"""The per-flight result cache of evaluations: one stored entry per (flight content, model version, estimator
+settings), so an evaluation computes only the flights no earlier one has scored with the same settings."""
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+from sqlalchemy import select
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
+
+from learnest.models.presets import METHODS, MHE_HORIZON
+
+from ..storage.database import Database
+from ..storage.tables import FlightRecord, Result, utcnow
+
+log = logging.getLogger("learnest.jobs")
+
+
+@dataclass(frozen=True)
+class EstimatorSettings:
+    """Settings of an evaluation that change a flight's result (part of the result cache key).
+
+    Attributes
+    ----------
+    methods : tuple of str
+        Estimators to run.
+    horizon : int
+        MHE window N, samples.
+    include_bad : bool
+        Also score flights that failed the quality checks.
+    """
+
+    methods: tuple[str, ...] = METHODS
+    horizon: int = MHE_HORIZON
+    include_bad: bool = False
+
+    def as_dict(self) -> dict:
+        """The fields as JSON-able values."""
+        return {"methods": list(self.methods), "horizon": self.horizon, "include_bad": self.include_bad}
+
+    @property
+    def key(self) -> str:
+        """Cache key part: what changes a flight's entry besides the flight and the model."""
+        canonical = json.dumps({"methods": sorted(self.methods), "horizon": self.horizon,
+                                "include_bad": self.include_bad}, sort_keys=True)
+        return hashlib.sha256(canonical.encode()).hexdigest()
+
+
+def cached_entries(session: Session, version_id: int, key: str, shas: Iterable[str],
+                   include_failed: bool = False) -> dict:
+    """{flight sha256: stored entry} of this model version and settings key (succeeded results only,
+    unless ``include_failed``)."""
+    query = select(Result).where(Result.model_version_id == version_id, Result.settings_key == key,
+                                 Result.flight_sha256.in_(list(shas)))
+    if not include_failed:  # an explicit request retries flights that failed before
+        query = query.where(Result.state == "succeeded")
+    return {row.flight_sha256: row.entry for row in session.scalars(query)}
+
+
+def store_result(db: Database, sha: str, version_id: int, key: str, flight_id: int, entry: dict,
+                 error: str | None) -> None:
+    """Insert or update the result of one flight (failed when ``error`` is given); retried on a concurrent
+    insert; after three conflicts the result is not cached (logged: the evaluation's report still has it)."""
+    state = "failed" if error else "succeeded"
+    for _ in range(3):  # two evaluations may store the same flight at once: the second updates
+        try:
+            with db.transaction() as session:
+                row = session.scalar(select(Result).where(Result.flight_sha256 == sha, Result.settings_key == key,
+                                                          Result.model_version_id == version_id))
+                if row is None:
+                    session.add(Result(flight_sha256=sha, model_version_id=version_id, settings_key=key,
+                                       flight_id=flight_id, state=state, entry=entry, error=error,
+                                       created_at=utcnow()))
+                else:
+                    row.state, row.entry, row.error, row.created_at = state, entry, error, utcnow()
+            return
+        except IntegrityError:
+            continue
+    log.warning("result of flight %s (version %s) not cached: three concurrent inserts conflicted", flight_id,
+                version_id)
+
+
+def flights_without_results(session: Session, version_id: int, key: str) -> list[int]:
+    """Every stored flight with no result (succeeded or failed) for this model version and settings."""
+    done = select(Result.flight_sha256).where(Result.model_version_id == version_id, Result.settings_key == key)
+    query = select(FlightRecord.id).where(FlightRecord.sha256.not_in(done)).order_by(FlightRecord.id)
+    return list(session.scalars(query))

@@ -1,0 +1,59 @@
+"""What a job needs, opened once per process: settings, database, blob folder, executor and job runner."""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+from .. import registry
+from ..config import Settings
+from ..storage.blobs import BlobStore
+from ..storage.database import Database, blob_is_referenced, referenced_blobs
+from .executors import Executor, make_executor
+from .runner import JobRunner
+
+log = logging.getLogger("learnest.jobs")
+
+
+@dataclass
+class Services:
+    """What a job needs, opened once per process (`open_services`)."""
+
+    settings: Settings
+    db: Database
+    blobs: BlobStore
+    executor: Executor
+    runner: JobRunner
+    owns_executor: bool = True
+
+    def close(self) -> None:
+        """Shut the runner down, the executor too if these services created it, and dispose the database."""
+        self.runner.shutdown()
+        if self.owns_executor:
+            self.executor.shutdown()
+        self.db.dispose()
+
+
+def open_services(settings: Settings, executor: Executor | None = None) -> Services:
+    """Migrate the database, open the blob folder and the executor, fail jobs of crashed servers."""
+    settings.home.mkdir(parents=True, exist_ok=True)
+    db = Database(settings.url)
+    db.migrate()
+    blobs = BlobStore(settings.home / "blobs")
+    runner = JobRunner(db)
+    runner.on_stale.append(registry.fail_versions_of_jobs)
+    runner.start()
+    owns = executor is None
+    executor = executor or make_executor(settings.dask_address, settings.pool_workers)
+    return Services(settings, db, blobs, executor, runner, owns_executor=owns)
+
+
+def sweep_orphan_blobs(db: Database, blobs: BlobStore) -> list[str]:
+    """Delete blobs no row names: a crash between a blob's write and its row's commit leaves one behind.
+    Safe beside a running server: writers hold the store's shared lock until their row is committed,
+    and `collect` checks each candidate again under the exclusive lock."""
+    referenced = referenced_blobs(db)
+    removed = blobs.collect([sha for sha in blobs.all_blobs() if sha not in referenced],
+                            lambda sha: blob_is_referenced(db, sha))
+    if removed:
+        log.warning("removed %d orphaned blob(s) left by an interrupted write", len(removed))
+    return removed

@@ -1,1 +1,0 @@
-"""HTTP routers, one per resource: flights, models, jobs, evaluations, diagnoses."""

@@ -1,0 +1,198 @@
+"""The Database handle: engine, short transactions, Alembic migrations, and a few typed query helpers.
+
+SQLite (a file under LEARNEST_HOME) is the default; PostgreSQL when LEARNEST_DATABASE_URL is given.
+Tables (`storage.tables`) are created only by the Alembic migrations in `storage/migrations` (the app runs
+`upgrade head`).
+"""
+from __future__ import annotations
+
+import fcntl
+import json
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, TypeVar, cast
+
+from alembic.config import Config
+from sqlalchemy import CursorResult, create_engine, event, exists, or_, select, text
+from sqlalchemy.engine import Connection
+from sqlalchemy.engine import Result as QueryResult
+from sqlalchemy.orm import Session, sessionmaker
+
+from learnest.errors import Conflict, NotFound
+from learnest.ingest.flight import json_compatible
+
+from .tables import Base, FlightFile, FlightRecord, ModelVersion
+
+MIGRATIONS = Path(__file__).resolve().parent / "migrations"
+
+
+def _json_dumps(value) -> str:
+    return json.dumps(json_compatible(value))
+
+
+# -- which blobs the rows name ------------------------------------------------------------------------
+def referenced_blobs(db: Database) -> set[str]:
+    """Every blob sha a row names: normalized flights, their raw files, model weights."""
+    with db.transaction() as session:
+        return {sha for column in (FlightRecord.flight_blob, FlightFile.sha256, ModelVersion.weights_blob)
+                for sha in session.scalars(select(column).where(column.is_not(None))) if sha is not None}
+
+
+def blob_is_referenced(db: Database, sha: str) -> bool:
+    """Whether a flight, a raw file or a model version names blob ``sha``."""
+    with db.transaction() as session:
+        return bool(session.scalar(select(or_(exists().where(FlightRecord.flight_blob == sha),
+                                              exists().where(FlightFile.sha256 == sha),
+                                              exists().where(ModelVersion.weights_blob == sha)))))
+
+
+# -- the database handle ------------------------------------------------------------------------------
+class Database:
+    """Engine + session factory.  Use `with db.transaction() as session:` for short units of work: on
+    SQLite every transaction takes the write lock up front (BEGIN IMMEDIATE), so holding one while doing
+    slow work would block every other writer."""
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        self.is_sqlite = url.startswith("sqlite")
+        if self.is_sqlite:
+            self._prepare_sqlite_file()
+            self.engine = create_engine(url, connect_args={"timeout": 60, "check_same_thread": False},
+                                        json_serializer=_json_dumps)
+            _sqlite_pragmas(self.engine)
+        else:
+            self.engine = create_engine(url, pool_pre_ping=True, json_serializer=_json_dumps)
+        self._sessions = sessionmaker(self.engine, expire_on_commit=False)
+
+    def _prepare_sqlite_file(self) -> None:
+        path = self.sqlite_path
+        if path is not None:
+            path.parent.mkdir(parents=True, exist_ok=True)
+
+    @property
+    def sqlite_path(self) -> Path | None:
+        """The SQLite file of a ``sqlite:///`` URL; None for in-memory SQLite and other databases."""
+        prefix = "sqlite:///"
+        if not self.url.startswith(prefix) or self.url == prefix or ":memory:" in self.url:
+            return None
+        return Path(self.url[len(prefix):].split("?", 1)[0])
+
+    def session(self) -> Session:
+        """A new session (the caller commits and closes it); prefer `transaction`."""
+        return self._sessions()
+
+    @contextmanager
+    def transaction(self) -> Iterator[Session]:
+        """A session in a transaction: committed on exit, rolled back on an exception."""
+        with self._sessions.begin() as session:
+            yield session
+
+    def migrate(self) -> None:
+        """Alembic `upgrade head`, serialized across processes (several uvicorn workers start at once)."""
+        from alembic import command
+
+        config = Config()
+        config.set_main_option("script_location", str(MIGRATIONS))
+        with self._migration_lock(), self.engine.connect() as connection:
+            if self.is_sqlite:
+                # A migration may rebuild a table (SQLite cannot ALTER it): with foreign keys enforced,
+                # dropping the old copy would cascade-delete the rows that point at it.  The pragma only
+                # takes effect outside a transaction, so it is set on the driver's connection first.
+                _driver_connection(connection).execute("PRAGMA foreign_keys=OFF")
+            try:
+                with connection.begin():
+                    if not self.is_sqlite:  # PostgreSQL: held until this transaction ends
+                        connection.execute(text("SELECT pg_advisory_xact_lock(7261034)"))
+                    config.attributes["connection"] = connection
+                    command.upgrade(config, "head")
+                    if self.is_sqlite and connection.exec_driver_sql("PRAGMA foreign_key_check").first():
+                        raise RuntimeError("migration left rows whose foreign keys point nowhere")
+            finally:
+                if self.is_sqlite:
+                    _driver_connection(connection).execute("PRAGMA foreign_keys=ON")
+
+    def require_current_schema(self) -> None:
+        """Raise `Conflict` unless the schema is at the newest migration; reads never migrate.
+
+        Migrating is a write that belongs to whoever runs the service (`learnest serve` does it at start);
+        a read (loading a model for `learnest evaluate`) against an older schema says so instead.
+        """
+        from alembic.migration import MigrationContext
+        from alembic.script import ScriptDirectory
+
+        config = Config()
+        config.set_main_option("script_location", str(MIGRATIONS))
+        head = ScriptDirectory.from_config(config).get_current_head()
+        with self.engine.connect() as connection:
+            current = MigrationContext.configure(connection).get_current_revision()
+        if current != head:
+            raise Conflict(f"the database is at schema revision {current or 'none'} and this learnest needs {head}: "
+                           "start `learnest serve` once (it migrates) or run `alembic upgrade head`")
+
+    @contextmanager
+    def _migration_lock(self):
+        path = self.sqlite_path
+        if path is None:
+            yield
+            return
+        with open(path.with_name(path.name + ".migrate.lock"), "a") as handle:
+            fcntl.flock(handle, fcntl.LOCK_EX)
+            try:
+                yield
+            finally:
+                fcntl.flock(handle, fcntl.LOCK_UN)
+
+    def dispose(self) -> None:
+        """Close the engine's pooled connections."""
+        self.engine.dispose()
+
+
+def _driver_connection(connection: Connection) -> Any:
+    """The DBAPI driver's own connection under ``connection`` (sqlite3's, for the pragmas)."""
+    driver = connection.connection.driver_connection
+    if driver is None:  # only None once the pooled connection was invalidated
+        raise RuntimeError("the database connection was closed during the migration")
+    return driver
+
+
+def _sqlite_pragmas(engine) -> None:
+    @event.listens_for(engine, "connect")
+    def _on_connect(dbapi_connection, _record):
+        dbapi_connection.isolation_level = None  # let SQLAlchemy's BEGIN below be the only one
+        cursor = dbapi_connection.cursor()
+        cursor.execute("PRAGMA journal_mode=WAL")      # readers never block the writer
+        cursor.execute("PRAGMA foreign_keys=ON")
+        cursor.execute("PRAGMA synchronous=FULL")      # a committed row survives a power cut
+        cursor.close()
+
+    @event.listens_for(engine, "begin")
+    def _on_begin(connection):
+        # IMMEDIATE: take the write lock now (waiting up to the busy timeout) instead of failing with
+        # "database is locked" when a read transaction later tries to write
+        connection.exec_driver_sql("BEGIN IMMEDIATE")
+
+
+# -- typed helpers ----------------------------------------------------------------------------------------
+RowT = TypeVar("RowT", bound=Base)
+
+
+def get_row(session: Session, table: type[RowT], key: Any, what: str, *, for_update: bool = False) -> RowT:
+    """The row of ``table`` with primary key ``key``; `NotFound` (naming it ``what``) if there is none."""
+    row = session.get(table, key, with_for_update=for_update)
+    if row is None:
+        raise NotFound(f"{what} {key} not found")
+    return row
+
+
+def flights_by_id(session: Session, ids: Iterable[int]) -> dict[int, FlightRecord]:
+    """{id: flight row} of the flights among ``ids`` that exist."""
+    return {f.id: f for f in session.scalars(select(FlightRecord).where(FlightRecord.id.in_(list(ids))))}
+
+
+def dml_rowcount(result: QueryResult[Any]) -> int:
+    """The number of rows an UPDATE / DELETE matched.  ``Session.execute`` is typed as returning a plain
+    ``Result``, but for a DML statement SQLAlchemy returns a `CursorResult`, which has ``rowcount``."""
+    return cast("CursorResult[Any]", result).rowcount
+
+
