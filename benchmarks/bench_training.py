@@ -23,10 +23,11 @@ CHILD = r"""
 import json, sys, time
 started = time.perf_counter()
 import torch
+import learnest.models.residual_net as residual_net
 import learnest.models.training as training
 if sys.argv[2] == "baseline":
-    training.Adam = torch.optim.Adam
-    training.TRAINING_THREADS = torch.get_num_threads()
+    residual_net.Adam = torch.optim.Adam
+    residual_net.TRAINING_THREADS = torch.get_num_threads()
 from learnest.estimators.observers import pretraining_observer
 from learnest.ingest import read_flights
 from learnest.models.inputs import system_inputs

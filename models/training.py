@@ -3,74 +3,22 @@ with torchdiffeq's RK4 -> loss (8) -> Adam -> discrete hybrid model f_h = RK4(f_
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 from numpy.typing import ArrayLike
-from torchdiffeq import odeint
 
 from learnest.errors import InvalidInput
 
 from .checks import check_dt, check_sequence
-from .knode import HybridModel, Residual
+from .knode import HybridModel
 from .presets import TrainingConfig
 from .systems import System
 
-# Δθ is a one-hidden-layer MLP on a few thousand rows: each operation is microseconds of work, and on
-# these 2-core machines torch's intra-op threads cost more in hand-offs than they save (with the Adam
-# below, training on a 33-s flight went from 48.6 s to 6.6 s under load: benchmarks/results/training_speed.md).
-TRAINING_THREADS = 1
-
-
-@contextmanager
-def _torch_threads(count: int) -> Iterator[None]:
-    """Run the block with ``count`` torch intra-op threads, then restore the caller's setting."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(count)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
-
-
-class Adam:
-    """``torch.optim.Adam``'s default CPU update (single-tensor path, no weight decay, no amsgrad), the
-    same operations in the same order, so the weights are bit-identical (tests/test_knode.py checks it).
-
-    Why not torch.optim: its first ``step()`` imports ``torch._dynamo`` (3-4 s on these machines), longer
-    than a whole 150-epoch training run; the update itself is five tensor operations.
-    """
-
-    def __init__(self, params, lr: float = 1e-3, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8):
-        self.params = [p for p in params]
-        self.lr, (self.beta1, self.beta2), self.eps = lr, betas, eps
-        self.exp_avg = [torch.zeros_like(p, memory_format=torch.preserve_format) for p in self.params]
-        self.exp_avg_sq = [torch.zeros_like(p, memory_format=torch.preserve_format) for p in self.params]
-        self.steps = 0
-
-    def zero_grad(self) -> None:
-        """Drop the gradients (as ``torch.optim`` does by default: set to None, not zeroed)."""
-        for p in self.params:
-            p.grad = None
-
-    @torch.no_grad()
-    def step(self) -> None:
-        """One Adam update of every parameter that has a gradient."""
-        self.steps += 1
-        step_size = self.lr / (1 - self.beta1**self.steps)
-        bias_correction2_sqrt = (1 - self.beta2**self.steps) ** 0.5
-        for param, exp_avg, exp_avg_sq in zip(self.params, self.exp_avg, self.exp_avg_sq):
-            if param.grad is None:
-                continue
-            grad = param.grad
-            exp_avg.lerp_(grad, 1 - self.beta1)
-            exp_avg_sq.mul_(self.beta2).addcmul_(grad, grad, value=1 - self.beta2)
-            denom = (exp_avg_sq.sqrt() / bias_correction2_sqrt).add_(self.eps)
-            param.addcdiv_(exp_avg, denom, value=-step_size)
-
+if TYPE_CHECKING:
+    import torch
 
 @dataclass
 class TrainingResult:
@@ -95,35 +43,10 @@ class TrainingResult:
     validation_losses: list = field(default_factory=list)
 
 
-class _MLP(torch.nn.Module):
-    """Δθ with fixed input standardisation (from the training data) so tanh sees O(1) inputs."""
-
-    mean: torch.Tensor  # buffers registered in __init__
-    std: torch.Tensor
-
-    def __init__(self, n_in: int, n_out: int, hidden: int, mean: np.ndarray, std: np.ndarray):
-        super().__init__()
-        self.hidden_layer = torch.nn.Linear(n_in, hidden, dtype=torch.float64)
-        self.output_layer = torch.nn.Linear(hidden, n_out, dtype=torch.float64)
-        torch.nn.init.zeros_(self.output_layer.weight)  # start at the prior: Δθ ≡ 0
-        torch.nn.init.zeros_(self.output_layer.bias)
-        self.register_buffer("mean", torch.as_tensor(mean))
-        self.register_buffer("std", torch.as_tensor(std))
-
-    def forward(self, z):
-        return self.output_layer(torch.tanh(self.hidden_layer((z - self.mean) / self.std)))
-
-    def export(self) -> Residual:
-        """Fold the standardisation into the first layer: W(z-m)/s + b = (W/s) z + (b - W m/s)."""
-        w1 = self.hidden_layer.weight.detach().numpy() / self.std.numpy()
-        b1 = self.hidden_layer.bias.detach().numpy() - w1 @ self.mean.numpy()
-        return Residual([(w1.copy(), b1.copy()),
-                         (self.output_layer.weight.detach().numpy().copy(),
-                          self.output_layer.bias.detach().numpy().copy())])
-
-
 def _split_rows(pairs: int, fraction: float, layout: str):
     """(fit rows, validation rows) as index tensors; validation is contiguous time, never random samples."""
+    import torch
+
     if layout not in ("tail", "spread"):
         raise InvalidInput(f"validation_layout must be 'tail' or 'spread', got {layout!r}")
     held = np.zeros(pairs, dtype=bool)
@@ -168,12 +91,19 @@ def train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, config
         On wrong shapes, non-finite values, fewer than 3 observations, a bad ``dt``, ``epochs < 1`` or an
         unknown validation layout.
     """
-    with _torch_threads(TRAINING_THREADS):
+    from . import residual_net  # torch, on first use (module docstring of residual_net)
+
+    with residual_net.torch_threads(residual_net.TRAINING_THREADS):
         return _train_knode(system, zeta, u, dt, config or TrainingConfig(), progress)
 
 
 def _train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, config: TrainingConfig,
                  progress: Callable[[int, float], None] | None) -> TrainingResult:
+    import torch
+    from torchdiffeq import odeint
+
+    from .residual_net import Adam, ResidualNet
+
     zeta = check_sequence("zeta", zeta, cols=system.n)
     u = check_sequence("u", np.asarray(u, dtype=float).reshape(len(zeta), -1), rows=len(zeta), cols=system.n_inputs)
     if len(zeta) < 3:
@@ -184,7 +114,7 @@ def _train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, confi
     torch.manual_seed(config.seed)
     features = np.concatenate([zeta, u], axis=1)
     std = features.std(axis=0)
-    mlp = _MLP(features.shape[1], system.n, config.hidden, features.mean(axis=0), np.where(std > 1e-9, std, 1.0))
+    mlp = ResidualNet(features.shape[1], system.n, config.hidden, features.mean(axis=0), np.where(std > 1e-9, std, 1.0))
 
     pairs = len(zeta) - 1
     fit_rows, val_rows = _split_rows(pairs, config.validation_fraction if pairs >= 10 else 0.0,

@@ -49,6 +49,16 @@ def test_science_layers_import_without_the_service_stack():
     assert out.stdout.strip() == ""
 
 
+def test_the_workflows_load_torch_and_filterpy_only_when_they_run():
+    """Importing the training, estimation and experiment modules (what every test module and job worker
+    does) loads neither torch (3 s) nor filterpy (2 s of scipy.stats): the suite's collection stays fast."""
+    code = ("import sys; import learnest.models.training, learnest.estimators.ukf, learnest.estimators.kf, "
+            "learnest.service.experiments.flights, learnest.service.experiments.estimation; "
+            "print(','.join(m for m in ('torch', 'filterpy', 'torchdiffeq') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd="/")
+    assert out.stdout.strip() == ""
+
+
 def test_public_names_resolve_and_unknown_names_fail():
     for name in le.__all__:
         assert getattr(le, name) is not None, name

@@ -1,7 +1,6 @@
 """Savitzky–Golay references: known answers, even windows, bad arguments."""
 import numpy as np
 import pytest
-from scipy.signal import savgol_filter
 
 from learnest.ingest.align import build_flight
 from learnest.ingest.baseline import centred_window, references, sg_references
@@ -45,6 +44,8 @@ def test_even_window_is_rounded_up_and_reported():
 def test_why_even_windows_are_not_passed_to_scipy():
     # scipy 1.17 accepts window 150 silently but evaluates the fit half a sample off-centre.
     ramp = np.arange(1000.0)
+    from scipy.signal import savgol_filter
+
     assert savgol_filter(ramp, 150, 2)[500] - ramp[500] == pytest.approx(0.5, abs=1e-6)
     assert sg_references(ramp, 1.0, window=150)["p"][500] == pytest.approx(ramp[500], abs=1e-6)
 

@@ -1,7 +1,6 @@
 """KF, UKF and MHE against known answers on linear-Gaussian systems, and their input checks."""
 import numpy as np
 import pytest
-from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
 from learnest.estimators.kf import linearize, run_kf
 from learnest.estimators.mhe import MHE
@@ -81,6 +80,8 @@ def test_batched_ukf_matches_filterpy_step_for_step_on_a_nonlinear_system():
     system = make_system("cartpole")
     model, run = HybridModel(system, "prior"), system.simulate(2, n_samples=200)
     ours = make_ukf(model, system.dt, system.Q, system.R, run.x_noisy[0], system.P0)
+    from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter  # slow import: only here
+
     points = MerweScaledSigmaPoints(4, alpha=1e-3, beta=2.0, kappa=0.0)
     plain = UnscentedKalmanFilter(4, 2, system.dt, points=points,
                                   fx=lambda x, dt, u: model.step(x[None], u[None], dt)[0],

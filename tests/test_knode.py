@@ -5,17 +5,20 @@ import json
 import casadi as ca
 import numpy as np
 import pytest
-import torch
 
 from learnest.models.knode import HybridModel, Residual
 from learnest.models.systems import make_system
-from learnest.models.training import _MLP, Adam, TrainingConfig, train_knode
+from learnest.models.training import TrainingConfig, train_knode
 
 
 def _random_mlp(n_in, n_out, hidden, seed=0):
+    import torch
+
+    from learnest.models.residual_net import ResidualNet
+
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    mlp = _MLP(n_in, n_out, hidden, rng.normal(size=n_in), rng.uniform(0.5, 2.0, size=n_in))
+    mlp = ResidualNet(n_in, n_out, hidden, rng.normal(size=n_in), rng.uniform(0.5, 2.0, size=n_in))
     torch.nn.init.normal_(mlp.output_layer.weight)
     torch.nn.init.normal_(mlp.output_layer.bias)
     return mlp
@@ -23,6 +26,8 @@ def _random_mlp(n_in, n_out, hidden, seed=0):
 
 @pytest.mark.parametrize("name,hidden", [("cartpole", 8), ("robot", 8), ("quadrotor", 16)])
 def test_torch_numpy_and_casadi_evaluations_agree_to_1e9(name, hidden):
+    import torch  # torch is imported by the tests that use it, never at collection (issue 9)
+
     system = make_system(name)
     mlp = _random_mlp(system.n + system.n_inputs, system.n, hidden)
     model = HybridModel(system, "knode", mlp.export())
@@ -103,6 +108,10 @@ def test_knode_model_needs_a_residual():
 def test_adam_matches_torch_optim_adam_bit_for_bit():
     """The training loop's Adam (written out to skip torch.optim's 3-4 s first-step import of
     torch._dynamo) takes exactly torch.optim.Adam's steps: same weights after 50 steps of a real loss."""
+    import torch
+
+    from learnest.models.residual_net import Adam
+
     torch.manual_seed(3)
     data, target = torch.randn(200, 9, dtype=torch.float64), torch.randn(200, 9, dtype=torch.float64)
     ours = torch.nn.Sequential(torch.nn.Linear(9, 16, dtype=torch.float64), torch.nn.Tanh(),
@@ -121,6 +130,8 @@ def test_adam_matches_torch_optim_adam_bit_for_bit():
 
 
 def test_training_leaves_the_callers_torch_threads_alone():
+    import torch
+
     system = make_system("quadrotor", n_samples=50)
     before = torch.get_num_threads()
     torch.set_num_threads(2)

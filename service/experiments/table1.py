@@ -11,7 +11,6 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
 from learnest.errors import InvalidInput
 from learnest.estimators.mhe import MHE
@@ -66,7 +65,6 @@ def run_seed(settings: ReproduceSettings, seed: int) -> dict:
     the MSE is over all states against the true states.  Returns ``{"seed", "mse": {row: MSE},
     "seconds": {row: wall time of the estimator run, s (the MHE's construction included)}}``.
     """
-    torch.set_num_threads(1)  # tiny networks: threads only contend with the other worker processes
     system = make_system(settings.task)
     train = system.simulate(10_000 + seed)
     test = system.simulate(20_000 + seed, settings.eval_samples)
