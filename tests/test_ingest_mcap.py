@@ -8,7 +8,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from learnest.ingest import mcap_log
+from learnest.ingest.formats.mcap import reader as mcap_log
 from learnest.ingest.flight import IngestError, sha256_file
 from learnest.ingest.frames import GRAVITY, quat_to_matrix
 

@@ -9,7 +9,8 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from learnest.ingest import nanobench, quality
+from learnest.ingest import quality
+from learnest.ingest.formats.nanobench import reader as nanobench
 from learnest.ingest.baseline import sg_references
 from learnest.ingest.flight import Flight, IngestError, sha256_file
 

@@ -5,7 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from learnest.ingest import nanobench, quality
+from learnest.ingest import quality
+from learnest.ingest.formats.nanobench import reader as nanobench
 from learnest.ingest.align import build_flight
 from learnest.ingest.frames import GRAVITY
 

@@ -1,4 +1,4 @@
-"""ingest.simulator: every format written and read back against the simulator's truth, the sensor effects,
+"""ingest.sim: every format written and read back against the simulator's truth, the sensor effects,
 the trajectories' geometry, the take-off/landing cut, and the bundled sample_logs/."""
 from pathlib import Path
 
@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from learnest.ingest import nanobench, read_flights
+from learnest.ingest import read_flights
+from learnest.ingest.formats.nanobench import reader as nanobench
 from learnest.ingest.frames import GRAVITY
-from learnest.ingest.simulator import (
+from learnest.ingest.sim.simulation import (
     CFCLIENT_CLOCK_OFFSET_S,
     FORMATS,
     SAMPLE_FLIGHTS,
@@ -265,7 +266,7 @@ def test_nanobench_write_layout_and_metadata(ideal_sim, tmp_path):
 def sample_files():
     files = sorted(path for path in SAMPLE_LOGS.iterdir() if path.name != "README.md")
     if not files:
-        pytest.skip("sample_logs/ is empty: run python -m ingest.simulator sample_logs")
+        pytest.skip("sample_logs/ is empty: run python -m learnest.ingest.sim.simulation sample_logs")
     return files
 
 

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from learnest.ingest import nanobench
+from learnest.ingest.formats.nanobench import reader as nanobench
 from learnest.ingest.frames import GRAVITY, quat_to_matrix
 from learnest.service.config import Settings
 from learnest.service.executors import LocalPoolExecutor

@@ -29,11 +29,11 @@ import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
-from . import clock
-from .align import build_flight, samples_per_second
-from .flight import Flight, IngestError, existing_file, sha256_file
-from .limits import MAX_ROOM_M
-from .usd import OPTIONAL_SOURCES  # the same firmware log variables, whichever tool logged them
+from ... import clock
+from ...align import build_flight, samples_per_second
+from ...flight import Flight, IngestError, existing_file, sha256_file
+from ...limits import MAX_ROOM_M
+from ..crazyflie_usd.reader import OPTIONAL_SOURCES  # the same firmware log variables, whichever tool logged them
 
 POSE_COLUMNS = ("RX", "RY", "RZ", "TX", "TY", "TZ")
 FRAME_COLUMNS = ("Frame", "Sub Frame")

@@ -26,10 +26,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from . import units
-from .align import build_flight, resample_quaternions, samples_per_second
-from .flight import Flight, IngestError, sha256_file
-from .limits import QUATERNION_NORM_TOLERANCE
+from ... import units
+from ...align import build_flight, resample_quaternions, samples_per_second
+from ...flight import Flight, IngestError, sha256_file
+from ...limits import QUATERNION_NORM_TOLERANCE
 
 MAGIC = 0xBC
 FIXED_FREQUENCY = "fixedFrequency"

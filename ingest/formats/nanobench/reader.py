@@ -15,11 +15,11 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from .align import FLYING_HEIGHT_M, build_flight
-from .flight import Flight, IngestError, existing_file, json_compatible, sha256_file
-from .frames import GRAVITY
-from .limits import MAX_ROOM_M, QUATERNION_NORM_TOLERANCE
-from .sidecar import SidecarTooLarge, read_sidecar
+from ...align import FLYING_HEIGHT_M, build_flight
+from ...flight import Flight, IngestError, existing_file, json_compatible, sha256_file
+from ...frames import GRAVITY
+from ...limits import MAX_ROOM_M, QUATERNION_NORM_TOLERANCE
+from ...sidecar import SidecarTooLarge, read_sidecar
 
 MOCAP_COLUMNS = ("px", "py", "pz", "qx", "qy", "qz", "qw")
 ACC_COLUMNS = ("imu_acc_x", "imu_acc_y", "imu_acc_z")

@@ -65,10 +65,10 @@ from mcap.writer import Writer as McapWriter
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer as Ros2McapWriter
 
-from .align import build_flight, samples_per_second
-from .flight import Flight, IngestError, existing_file, sha256_file
-from .frames import GRAVITY
-from .limits import QUATERNION_NORM_TOLERANCE
+from ...align import build_flight, samples_per_second
+from ...flight import Flight, IngestError, existing_file, sha256_file
+from ...frames import GRAVITY
+from ...limits import QUATERNION_NORM_TOLERANCE
 
 MAGIC = b"\x89MCAP0\r\n"
 DEFAULT_START_NS = 1_700_000_000 * 10**9     # writers: an epoch time, like a real bag

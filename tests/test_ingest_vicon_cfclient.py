@@ -8,7 +8,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from learnest.ingest import clock, vicon_csv
+from learnest.ingest import clock
+from learnest.ingest.formats.vicon_cfclient import reader as vicon_csv
 from learnest.ingest.flight import Flight, IngestError, sha256_file
 from learnest.ingest.frames import GRAVITY
 

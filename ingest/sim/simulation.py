@@ -30,7 +30,7 @@ Sensors (SensorModel, all parameters known):
 
 `write_flight` writes a SimulatedFlight as nanobench, usd, usd-v1, vicon+cfclient, mcap-ros2 or mcap-json;
 `sim_times` maps a Flight read back from those files onto simulation time; `make_sample_logs` writes the
-bundled sample_logs/ (python -m ingest.simulator [DIR]).
+bundled sample_logs/ (python -m learnest.ingest.sim.simulation [DIR]).
 """
 from __future__ import annotations
 
@@ -44,10 +44,12 @@ from scipy.interpolate import CubicSpline
 from scipy.signal import lfilter, lfilter_zi
 from scipy.spatial.transform import Rotation
 
-from . import mcap_log, nanobench, usd
-from .flight import Flight
-from .frames import GRAVITY, imu_misalignment
-from .vicon_csv import write_cfclient_csv, write_vicon_csv
+from ..flight import Flight
+from ..formats.crazyflie_usd import reader as usd
+from ..formats.mcap import reader as mcap_log
+from ..formats.nanobench import reader as nanobench
+from ..formats.vicon_cfclient.reader import write_cfclient_csv, write_vicon_csv
+from ..frames import GRAVITY, imu_misalignment
 
 SIM_RATE_HZ = 1000.0
 CRAZYFLIE_MASS_KG = 0.032
@@ -681,6 +683,6 @@ def _readme(rows) -> str:
 
 
 if __name__ == "__main__":
-    target = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[1] / "sample_logs"
+    target = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[2] / "sample_logs"
     for path in make_sample_logs(target):
         print(f"{path}  {path.stat().st_size / 1024:.0f} kB")

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from learnest.ingest import usd
+from learnest.ingest.formats.crazyflie_usd import reader as usd
 from learnest.ingest.flight import IngestError, sha256_file
 from learnest.ingest.frames import GRAVITY, quat_to_matrix
 

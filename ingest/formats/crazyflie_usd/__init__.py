@@ -1,0 +1,1 @@
+"""Crazyflie uSD-card binary logs."""

@@ -1,0 +1,1 @@
+"""MCAP recordings (ROS 2 bags and JSON-encoded channels)."""

@@ -1,0 +1,1 @@
+"""NanoBench CSV."""

@@ -1,0 +1,1 @@
+"""A Vicon CSV export with the cfclient CSV log of the same flight."""
