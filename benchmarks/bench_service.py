@@ -52,7 +52,7 @@ COMMAND = ".venv/bin/python benchmarks/bench_service.py"
 # -- flights ---------------------------------------------------------------------------------------------
 def make_flights(directory: Path, count: int) -> list[Path]:
     """`count` distinct short NanoBench CSVs (different circle, speed and noise seed each)."""
-    from learnest.ingest.sim.simulation import Circle, simulate, write_flight
+    from learnest.ingest.sim import Circle, simulate, write_flight
 
     paths = []
     for k in range(count):

@@ -12,14 +12,15 @@ from pathlib import Path
 
 from .flight import Flight, IngestError, existing_file
 
-# adapter name -> (module, sniff function); order matters only for speed (cheap binary magic first)
+# adapter name -> (reader module, sniff function); the reader module's `read` reads the file.  Order matters
+# only for speed (cheap binary magic first).
 SINGLE_FILE_ADAPTERS = {
     "usd": (".formats.crazyflie_usd.reader", "sniff"),
     "mcap": (".formats.mcap.reader", "sniff"),
     "nanobench": (".formats.nanobench.reader", "sniff"),
 }
-PAIR_ROLES = {"vicon": (".formats.vicon_cfclient.reader", "sniff_vicon"),
-              "cfclient": (".formats.vicon_cfclient.reader", "sniff_cfclient")}
+PAIR_ROLES = {"vicon": (".formats.vicon_cfclient.vicon", "sniff_vicon"),
+              "cfclient": (".formats.vicon_cfclient.cfclient", "sniff_cfclient")}
 
 
 def _sniffer(module: str, function: str):

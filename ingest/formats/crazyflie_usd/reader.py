@@ -1,253 +1,36 @@
-"""Crazyflie uSD-card binary logs (firmware usddeck, versions 1 and 2) -> Flight; plus a writer for tests.
-
-Format (little-endian, no padding; ../shared/data/README.md, "The uSD binary format"):
-  header   uint8 0xBC, uint16 version, uint16 number of event types; per event type: uint16 id
-           (0xFFFF = "fixedFrequency"), name NUL, uint16 nvars, nvars x "group.name(T)" NUL (T a struct code)
-  records  uint16 event id, timestamp (v2 uint64 us, v1 uint32 ms), values packed '<' + types
-  trailer  uint32 zlib CRC-32 of every byte before it
-
-Damaged files (decode keeps what it can, lists the problem in UsdLog.warnings and emits a UsdLogWarning):
-  - CRC mismatch or no trailer (a card cut off by power loss): every complete record is kept.
-  - incomplete last record: dropped.
-  - unknown event id mid-stream: the bytes after it cannot be framed any more, so decoding stops there and
-    keeps the records before it; the warning names the byte offset.
-A bad header (empty, bad magic, unknown version, cut off, malformed names) raises IngestError.
-
-`read` picks the streams a Flight needs (see its docstring) and hands them to `ingest.align.build_flight`.
-"""
+"""`read`: a uSD log as a Flight.  Picks the accelerometer, the mocap pose (locSrv) and the optional
+channels from the decoded event streams, drops what is not data (the card's start-up pause, locSrv's
+zeros before the first frame, sample-and-hold repeats) and hands them to `ingest.align.build_flight`."""
 from __future__ import annotations
 
-import re
-import warnings
-import zlib
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ... import units
 from ...align import build_flight, resample_quaternions, samples_per_second
 from ...flight import Flight, IngestError, sha256_file
-from ...limits import QUATERNION_NORM_TOLERANCE
+from ...limits import MAX_DURATION_S, QUATERNION_NORM_TOLERANCE
+from ..crazyflie_variables import ACC, OPTIONAL_SOURCES
+from .decoder import UsdLog, decode, parse_header
+from .layout import FIXED_FREQUENCY
 
-MAGIC = 0xBC
-FIXED_FREQUENCY = "fixedFrequency"
-FIXED_FREQUENCY_ID = 0xFFFF
-TIMESTAMP_FORMATS = {1: ("<u4", 1e-3), 2: ("<u8", 1e-6)}   # version -> (record dtype, seconds per tick)
-VALUE_TYPES = {"B": "u1", "b": "i1", "H": "<u2", "h": "<i2", "I": "<u4", "i": "<i4", "f": "<f4", "e": "<f2"}
 SNIFF_BYTES = 1 << 20          # headers are a few kB; a MiB is plenty
-_VARIABLE_SPEC = re.compile(r"([^()]+)\((.)\)")
-
-ACC = ("acc.x", "acc.y", "acc.z")                                                   # g, body frame
 POSE = ("locSrv.x", "locSrv.y", "locSrv.z", "locSrv.qx", "locSrv.qy", "locSrv.qz", "locSrv.qw")
 ONBOARD_RPY = ("ctrlLee.rpyx", "ctrlLee.rpyy", "ctrlLee.rpyz")                      # rad, onboard estimate
-# Optional Flight channels: (channel, variables, converter to the channel's unit, ingest.units). The first
-# source present wins.  uSD-card and cfclient logs share the firmware's variable names, so this one table
-# serves both adapters.
-OPTIONAL_SOURCES = (
-    ("p_onboard", ("stateEstimate.x", "stateEstimate.y", "stateEstimate.z"), units.identity),
-    ("p_onboard", ("stateEstimateZ.x", "stateEstimateZ.y", "stateEstimateZ.z"), units.millimetres),  # int16 mm
-    ("v_onboard", ("stateEstimate.vx", "stateEstimate.vy", "stateEstimate.vz"), units.identity),
-    ("v_onboard", ("stateEstimateZ.vx", "stateEstimateZ.vy", "stateEstimateZ.vz"), units.millimetres),
-    ("gyro", ("gyro.x", "gyro.y", "gyro.z"), units.degrees_per_second),
-    ("setpoint", ("ctrltarget.x", "ctrltarget.y", "ctrltarget.z"), units.identity),
-    ("setpoint", ("ctrltargetZ.x", "ctrltargetZ.y", "ctrltargetZ.z"), units.millimetres),
-    ("motors", ("motor.m1", "motor.m2", "motor.m3", "motor.m4"), units.pwm_16bit),
-    ("motors", ("pwm.m1_pwm", "pwm.m2_pwm", "pwm.m3_pwm", "pwm.m4_pwm"), units.pwm_16bit),
-    ("vbat", ("pm.vbat",), units.identity),
-    ("vbat", ("pm.vbatMV",), units.millivolts),
-    ("rotor_speed", ("rpm.m1", "rpm.m2", "rpm.m3", "rpm.m4"), units.rpm),
-    ("thrust_cmd", ("controller.cmd_thrust",), units.identity),
-    ("thrust_si", ("ctrlLee.thrustSI",), units.identity),
-)
 EDGE_GAP_S = 0.5               # a pause this long in the accelerometer stream splits the recording ...
 EDGE_FRAGMENT_S = 1.0          # ... and a piece shorter than this before the first/after the last split is dropped
-MAX_DURATION_S = 3600.0        # longer means corrupt timestamps (a Crazyflie battery lasts minutes)
-
-
-class UsdLogWarning(UserWarning):
-    """A damaged but partly readable uSD log (cut off, CRC mismatch, unframeable tail)."""
-
-
-@dataclass(frozen=True)
-class EventType:
-    id: int
-    name: str
-    var_names: tuple[str, ...]
-    var_types: tuple[str, ...]      # struct codes, one per variable
-
-    def record_dtype(self, version: int) -> np.dtype:
-        """One record as a packed numpy dtype; positional field names cannot clash with variable names."""
-        fields = [("id", "<u2"), ("time", TIMESTAMP_FORMATS[version][0])]
-        fields += [(f"v{i}", VALUE_TYPES[code]) for i, code in enumerate(self.var_types)]
-        return np.dtype(fields)
-
-
-@dataclass
-class UsdLog:
-    path: str
-    version: int
-    event_types: list[EventType]
-    events: dict[str, dict[str, np.ndarray]]    # event name -> {"t": seconds (float64), variable: values}
-    crc_ok: bool
-    warnings: list[str] = field(default_factory=list)
-
-
-# -- header ------------------------------------------------------------------------------------------------
-
-class _HeaderReader:
-    """Cursor over the header bytes: running off the end is an IngestError, never a struct/Index error."""
-
-    def __init__(self, data: bytes, path):
-        self.data, self.path, self.pos = data, path, 0
-
-    def uint(self, size: int, what: str) -> int:
-        end = self.pos + size
-        if end > len(self.data):
-            raise IngestError(self.path, f"uSD header cut off while reading the {what} "
-                                         f"(byte {self.pos} of {len(self.data)})")
-        value = int.from_bytes(self.data[self.pos:end], "little")
-        self.pos = end
-        return value
-
-    def text(self, what: str) -> str:
-        start, end = self.pos, self.data.find(b"\0", self.pos)
-        if end < 0:
-            raise IngestError(self.path, f"uSD header cut off inside the {what} at byte {start}")
-        self.pos = end + 1
-        try:
-            return self.data[start:end].decode("ascii")
-        except UnicodeDecodeError:
-            raise IngestError(self.path, f"uSD header: the {what} at byte {start} is not ASCII text "
-                                         f"({self.data[start:end][:40]!r})") from None
-
-
-def _parse_header(data: bytes, path) -> tuple[int, list[EventType], int]:
-    """(version, event types, offset of the first record); IngestError for anything that is not a uSD header."""
-    if not data:
-        raise IngestError(path, "empty file, not a uSD log")
-    reader = _HeaderReader(data, path)
-    magic = reader.uint(1, "magic byte")
-    if magic != MAGIC:
-        raise IngestError(path, f"not a uSD log: first byte is 0x{magic:02X}, expected 0x{MAGIC:02X}")
-    version = reader.uint(2, "version")
-    if version not in TIMESTAMP_FORMATS:
-        raise IngestError(path, f"unsupported uSD log version {version} (known: 1, 2)")
-    count = reader.uint(2, "number of event types")
-    if count == 0:
-        raise IngestError(path, "uSD header declares no event types")
-    event_types = [_parse_event_type(reader) for _ in range(count)]
-    for attribute in ("id", "name"):
-        values = [getattr(event_type, attribute) for event_type in event_types]
-        if len(set(values)) != len(values):
-            raise IngestError(path, f"uSD header: two event types share an {attribute}")
-    return version, event_types, reader.pos
-
-
-def _parse_event_type(reader: _HeaderReader) -> EventType:
-    event_id = reader.uint(2, "event id")
-    name = reader.text("event name")
-    if not name:
-        raise IngestError(reader.path, f"uSD header: event 0x{event_id:04X} has an empty name")
-    names, types = [], []
-    for _ in range(reader.uint(2, f"variable count of event {name!r}")):
-        spec = reader.text(f"variable name of event {name!r}")
-        match = _VARIABLE_SPEC.fullmatch(spec)
-        if not match or match[2] not in VALUE_TYPES or match[1] == "t":
-            raise IngestError(reader.path, f"uSD header: event {name!r} has a malformed variable {spec!r} "
-                                           f"(expected 'group.name(T)', T one of {''.join(VALUE_TYPES)})")
-        names.append(match[1])
-        types.append(match[2])
-    if len(set(names)) != len(names):
-        raise IngestError(reader.path, f"uSD header: event {name!r} lists a variable twice")
-    return EventType(event_id, name, tuple(names), tuple(types))
-
-
-# -- records -----------------------------------------------------------------------------------------------
-
-def _frame_records(data: bytes, start: int, end: int, sizes: dict[int, int]):
-    """Walk the record boundaries (records of different events interleave, so each id tells the next size).
-
-    Returns (start offsets per event id, offset where framing stopped, the unknown id that stopped it or None).
-    """
-    offsets = {event_id: [] for event_id in sizes}
-    pos = start
-    while pos + 2 <= end:
-        event_id = data[pos] | (data[pos + 1] << 8)
-        size = sizes.get(event_id)
-        if size is None:
-            return offsets, pos, event_id
-        if pos + size > end:
-            break
-        offsets[event_id].append(pos)
-        pos += size
-    return offsets, pos, None
-
-
-def _unpack(data: bytes, offsets: list[int], event_type: EventType, version: int) -> dict[str, np.ndarray]:
-    dtype = event_type.record_dtype(version)
-    size, count = dtype.itemsize, len(offsets)
-    if count and offsets[-1] - offsets[0] == (count - 1) * size:     # back to back: view the bytes directly
-        records = np.frombuffer(data, dtype, count=count, offset=offsets[0])
-    else:                                                             # interleaved: gather the rows first
-        rows = np.frombuffer(data, np.uint8)[np.asarray(offsets, np.int64)[:, None] + np.arange(size)]
-        records = rows.view(dtype).reshape(count)
-    columns = {"t": records["time"].astype(np.float64) * TIMESTAMP_FORMATS[version][1]}
-    for i, name in enumerate(event_type.var_names):
-        column = records[f"v{i}"]
-        columns[name] = column.astype(column.dtype.newbyteorder("="))
-    return columns
-
-
-def decode_bytes(data: bytes, path="<bytes>") -> UsdLog:
-    """Decode a uSD log held in memory; `path` only names it in messages."""
-    data = bytes(data)
-    version, event_types, body_start = _parse_header(data, path)
-    crc_ok = (len(data) >= body_start + 4
-              and zlib.crc32(data[:-4]) == int.from_bytes(data[-4:], "little"))
-    body_end = len(data) - 4 if crc_ok else len(data)   # without a valid trailer the file may just stop
-    sizes = {event_type.id: event_type.record_dtype(version).itemsize for event_type in event_types}
-    offsets, stop, unknown_id = _frame_records(data, body_start, body_end, sizes)
-    kept = sum(len(found) for found in offsets.values())
-
-    problems = []
-    if not crc_ok:
-        problems.append(f"CRC-32 trailer missing or wrong: the file was probably cut off (power loss) or is "
-                        f"damaged; kept {kept} complete records")
-    # Records that end exactly where a trailer belongs: the last 4 bytes are a wrong CRC, not a record.
-    damaged_trailer_only = not crc_ok and stop == len(data) - 4
-    if unknown_id is not None and not damaged_trailer_only:
-        problems.append(f"unknown event id 0x{unknown_id:04X} at byte offset {stop}: decoding stopped there, "
-                        f"kept the {kept} records before it")
-    elif stop < body_end and not damaged_trailer_only:
-        problems.append(f"dropped {body_end - stop} bytes at byte offset {stop}: an incomplete last record "
-                        f"(no complete record fits)")
-    for problem in problems:
-        warnings.warn(f"{path}: {problem}", UsdLogWarning, stacklevel=3)
-
-    events = {event_type.name: _unpack(data, offsets[event_type.id], event_type, version)
-              for event_type in event_types}
-    return UsdLog(str(path), version, event_types, events, crc_ok, problems)
-
-
-def decode(path) -> UsdLog:
-    """Decode a uSD log file: every event's records as numpy columns, timestamps in seconds."""
-    try:
-        data = Path(path).read_bytes()
-    except OSError as err:
-        raise IngestError(path, f"cannot read the file ({err.strerror or err})") from None
-    return decode_bytes(data, path)
 
 
 def sniff(path) -> bool:
     """True when the file's content starts with a parsable uSD header (magic 0xBC, version 1 or 2)."""
     try:
         with open(path, "rb") as handle:
-            _parse_header(handle.read(SNIFF_BYTES), path)
+            parse_header(handle.read(SNIFF_BYTES), path)
     except (OSError, IngestError):
         return False
     return True
+
 
 
 # -- adapter -----------------------------------------------------------------------------------------------
@@ -416,88 +199,3 @@ def read(path, rate_hz: float = 100.0) -> Flight:
                         acc_body_g=acc.values, channels=_optional_channels(log, window), rate_hz=rate_hz,
                         meta=meta)
 
-
-# -- writer (simulator and tests) --------------------------------------------------------------------------
-
-def encode(events: dict, version: int = 2) -> bytes:
-    """The bytes of a valid uSD log.
-
-    events maps event name -> {"t": times in s, "vars": {"group.name": (struct code, values)}, "id": optional}.
-    The id defaults to 0xFFFF for "fixedFrequency" and to the event's position in `events` otherwise.
-    Timestamps are rounded to the version's tick (v2 us, v1 ms), integer values to the nearest integer;
-    records of all events are merged by time (ties keep the order of `events`).
-    """
-    if version not in TIMESTAMP_FORMATS:
-        raise ValueError(f"uSD log version must be 1 or 2, not {version}")
-    event_types, tables = [], []
-    for position, (name, spec) in enumerate(events.items()):
-        variables = spec.get("vars", {})
-        event_id = spec.get("id", FIXED_FREQUENCY_ID if name == FIXED_FREQUENCY else position)
-        event_type = EventType(event_id, name, tuple(variables), tuple(code for code, _ in variables.values()))
-        event_types.append(event_type)
-        tables.append(_record_table(event_type, spec["t"], [values for _, values in variables.values()], version))
-    if len({event_type.id for event_type in event_types}) != len(event_types):
-        raise ValueError("two events share an id")
-    content = _encode_header(event_types, version) + _merge_by_time(tables)
-    return content + zlib.crc32(content).to_bytes(4, "little")
-
-
-def write(path, events: dict, version: int = 2, corrupt_crc: bool = False) -> None:
-    """Write `encode(events, version)` to path; corrupt_crc flips the trailer's bits (for tests)."""
-    data = encode(events, version)
-    if corrupt_crc:
-        data = data[:-4] + bytes(byte ^ 0xFF for byte in data[-4:])
-    Path(path).write_bytes(data)
-
-
-def _encode_header(event_types: list[EventType], version: int) -> bytes:
-    parts = [bytes([MAGIC]), version.to_bytes(2, "little"), len(event_types).to_bytes(2, "little")]
-    for event_type in event_types:
-        parts += [event_type.id.to_bytes(2, "little"), _c_string(event_type.name),
-                  len(event_type.var_names).to_bytes(2, "little")]
-        for name, code in zip(event_type.var_names, event_type.var_types):
-            if code not in VALUE_TYPES:
-                raise ValueError(f"variable {name!r}: type {code!r} is not one of {''.join(VALUE_TYPES)}")
-            parts.append(_c_string(f"{name}({code})"))
-    return b"".join(parts)
-
-
-def _c_string(text: str) -> bytes:
-    raw = text.encode("ascii")
-    if b"\0" in raw or not raw:
-        raise ValueError(f"name {text!r} must be non-empty ASCII without NUL")
-    return raw + b"\0"
-
-
-def _record_table(event_type: EventType, t, columns, version: int) -> np.ndarray:
-    dtype = event_type.record_dtype(version)
-    t = np.asarray(t, dtype=float).reshape(-1)
-    table = np.zeros(len(t), dtype)
-    table["id"] = event_type.id
-    table["time"] = _fitted(t / TIMESTAMP_FORMATS[version][1], dtype["time"], f"{event_type.name} timestamps")
-    for i, (name, values) in enumerate(zip(event_type.var_names, columns)):
-        values = np.asarray(values)
-        if values.shape != t.shape:
-            raise ValueError(f"{event_type.name}/{name}: {values.shape} values for {t.shape} timestamps")
-        table[f"v{i}"] = _fitted(values, dtype[f"v{i}"], f"{event_type.name}/{name}")
-    return table
-
-
-def _fitted(values: np.ndarray, dtype: np.dtype, what: str) -> np.ndarray:
-    """Values rounded to an integer dtype, refusing the silent wrap-around a cast would do."""
-    if dtype.kind not in "ui":
-        return values
-    rounded = np.rint(np.asarray(values, dtype=float))
-    limits = np.iinfo(dtype)
-    if rounded.size and (not np.all(np.isfinite(rounded)) or rounded.min() < limits.min or rounded.max() > limits.max):
-        raise ValueError(f"{what}: values do not fit {dtype} [{limits.min}, {limits.max}]")
-    return rounded.astype(dtype)
-
-
-def _merge_by_time(tables: list[np.ndarray]) -> bytes:
-    rows = [(table.tobytes(), table.dtype.itemsize) for table in tables]
-    times = np.concatenate([table["time"].astype(np.float64) for table in tables])
-    which = np.concatenate([np.full(len(table), k) for k, table in enumerate(tables)])
-    index = np.concatenate([np.arange(len(table)) for table in tables])
-    order = np.argsort(times, kind="stable")
-    return b"".join(rows[k][0][j * rows[k][1]:(j + 1) * rows[k][1]] for k, j in zip(which[order], index[order]))
