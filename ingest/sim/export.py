@@ -27,6 +27,7 @@ FORMATS = ("nanobench", "usd", "usd-v1", "vicon+cfclient", "mcap-ros2", "mcap-js
 SOURCE_TIME_AT_SIM_ZERO = {"nanobench": NANOBENCH_EPOCH_S, "usd": USD_BOOT_S, "usd-v1": USD_BOOT_S,
                            "vicon+cfclient": -VICON_START_S, "mcap-ros2": 0.0, "mcap-json": 0.0}
 
+
 def _on_times(t_from, values, t_to) -> np.ndarray:
     return np.column_stack([np.interp(t_to, t_from, values[:, j]) for j in range(values.shape[1])])
 

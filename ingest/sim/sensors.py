@@ -60,7 +60,6 @@ class Imu:
     setpoint: np.ndarray   # the reference position at the stamps (m)
 
 
-
 def sample_times(end_s: float, rate_hz: float) -> np.ndarray:
     return np.arange(int(np.floor(end_s * rate_hz + 1e-9)) + 1) / rate_hz
 

@@ -148,7 +148,6 @@ class States:
         return Rotation.from_quat(self.quat).inv().apply(world)
 
 
-
 def fly(ref: Reference, phases: Phases, vehicle: Vehicle) -> States:
     """The true states over the whole reference: resting before take-off, the closed loop from take-off to
     touchdown, resting where it touched down after (motors off)."""
