@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from learnest.ingest import read_flights
-from learnest.ingest.usd import write as write_usd
+from learnest.ingest.formats.crazyflie_usd.writer import write as write_usd
 from learnest.models.presets import TrainingConfig
 from learnest.service.experiments.flights import evaluate_flight, train_on_flight
 

@@ -1,6 +1,6 @@
 """HTTP service throughput: uploads over HTTP, and one 16-flight batch evaluation on three executors.
 
-1. Uploads.  16 distinct short simulated NanoBench flights (ingest.simulator: 6-s circles flown with take-off
+1. Uploads.  16 distinct short simulated NanoBench flights (ingest.sim: 6-s circles flown with take-off
    and landing, ~8 s after the cut, radius/speed/seed differ; ~0.3 MB each) POSTed to `learnest serve`
    (uvicorn) on 127.0.0.1:
    a. one client, one after the other, 1 uvicorn worker: new flights (ingest + quality checks + blobs + row);
@@ -56,7 +56,7 @@ COMMAND = ".venv/bin/python benchmarks/bench_service.py"
 # -- flights ---------------------------------------------------------------------------------------------
 def make_flights(directory: Path, count: int) -> list[Path]:
     """`count` distinct short NanoBench CSVs (different circle, speed and noise seed each)."""
-    from learnest.ingest.simulator import Circle, simulate, write_flight
+    from learnest.ingest.sim import Circle, simulate, write_flight
 
     paths = []
     for k in range(count):

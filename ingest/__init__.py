@@ -12,13 +12,15 @@ from pathlib import Path
 
 from .flight import Flight, IngestError, existing_file
 
-# adapter name -> (module, sniff function); order matters only for speed (cheap binary magic first)
+# adapter name -> (reader module, sniff function); the reader module's `read` reads the file.  Order matters
+# only for speed (cheap binary magic first).
 SINGLE_FILE_ADAPTERS = {
-    "usd": (".usd", "sniff"),
-    "mcap": (".mcap_log", "sniff"),
-    "nanobench": (".nanobench", "sniff"),
+    "usd": (".formats.crazyflie_usd.reader", "sniff"),
+    "mcap": (".formats.mcap.reader", "sniff"),
+    "nanobench": (".formats.nanobench.reader", "sniff"),
 }
-PAIR_ROLES = {"vicon": (".vicon_csv", "sniff_vicon"), "cfclient": (".vicon_csv", "sniff_cfclient")}
+PAIR_ROLES = {"vicon": (".formats.vicon_cfclient.vicon", "sniff_vicon"),
+              "cfclient": (".formats.vicon_cfclient.cfclient", "sniff_cfclient")}
 
 
 def _sniffer(module: str, function: str):
@@ -91,7 +93,7 @@ def read_group(adapter: str, files: list[Path], rate_hz: float = 100.0) -> Fligh
     from .quality import assess
 
     if adapter == "vicon+cfclient":
-        from .vicon_csv import read_pair
+        from .formats.vicon_cfclient.reader import read_pair
         flight = read_pair(files[0], files[1], rate_hz=rate_hz)
     else:
         module = importlib.import_module(SINGLE_FILE_ADAPTERS[adapter][0], __name__)

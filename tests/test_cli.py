@@ -102,7 +102,7 @@ def test_a_lone_half_of_a_vicon_cfclient_pair_is_named(tmp_path, capsys):
     """One Vicon export with two cfclient logs: the second log has no partner, and the error says so."""
     import numpy as np
 
-    from learnest.ingest.vicon_csv import write_cfclient_csv, write_vicon_csv
+    from learnest.ingest.formats.vicon_cfclient.writer import write_cfclient_csv, write_vicon_csv
     t = np.arange(200) / 100.0
     write_vicon_csv(tmp_path / "a_vicon.csv", t, np.tile([0.0, 0.0, 1.0], (200, 1)),
                     np.tile([0.0, 0.0, 0.0, 1.0], (200, 1)), 100.0)

@@ -5,7 +5,7 @@ import json
 import pytest
 
 from learnest.ingest import read_flights
-from learnest.ingest.simulator import Circle, RandomWaypoints, SensorModel, simulate, write_flight
+from learnest.ingest.sim import Circle, RandomWaypoints, SensorModel, simulate, write_flight
 from learnest.models.diagnosis import fit, select_effects
 from learnest.models.effects import LIBRARY
 from learnest.service.cli import main

@@ -8,8 +8,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from learnest.ingest import mcap_log
 from learnest.ingest.flight import IngestError, sha256_file
+from learnest.ingest.formats.mcap import container as mcap_container
+from learnest.ingest.formats.mcap import reader as mcap_reader
+from learnest.ingest.formats.mcap import schemas as mcap_schemas
+from learnest.ingest.formats.mcap import writer as mcap_writer
 from learnest.ingest.frames import GRAVITY, quat_to_matrix
 
 # -- the simulated flight: a circle at 1 m height, attitude from the thrust direction, varying yaw ----------
@@ -87,10 +90,11 @@ def write_flight(path, variant, **options):
     t, t_acc = mocap_times(), imu_times()
     p, quat, acc = true_position(t), true_quaternion(t), accelerometer_g(t_acc)
     if variant == "json":
-        mcap_log.write_json(path, t, p, quat, acc, t_acc=t_acc, **options)
+        mcap_writer.write_json(path, t, p, quat, acc, t_acc=t_acc, **options)
     else:
         pose_type, accel_type = variant.split("+")
-        mcap_log.write_ros2(path, t, p, quat, acc, t_acc=t_acc, pose_type=pose_type, accel_type=accel_type, **options)
+        mcap_writer.write_ros2(path, t, p, quat, acc, t_acc=t_acc, pose_type=pose_type, accel_type=accel_type,
+                               **options)
 
 
 def test_truth_is_consistent():
@@ -114,7 +118,7 @@ def test_truth_is_consistent():
 def test_round_trip_recovers_the_flight(tmp_path, variant, adapter, pose_topic, accel_topic):
     path = tmp_path / "flight.mcap"
     write_flight(path, variant)
-    flight = mcap_log.read(path)
+    flight = mcap_reader.read(path)
     assert_matches_truth(flight, acc_interpolation_tolerance())
     assert flight.duration_s == pytest.approx(DURATION)
     assert flight.meta["adapter"] == adapter
@@ -126,54 +130,54 @@ def test_round_trip_recovers_the_flight(tmp_path, variant, adapter, pose_topic, 
     assert (mcap_meta["pose_topic"], mcap_meta["accel_topic"]) == (pose_topic, accel_topic)
     stamp = "timestamp" if variant == "json" else "header.stamp"
     assert mcap_meta["time_source"] == {"pose": stamp, "accel": stamp}
-    assert mcap_meta["time_origin_ns"] == mcap_log.DEFAULT_START_NS
+    assert mcap_meta["time_origin_ns"] == mcap_writer.DEFAULT_START_NS
     assert mcap_meta["warnings"] == []
     assert mcap_meta["streams"]["accel"]["kept"] == len(imu_times())
 
 
 def test_json_vector3_without_unit_in_m_s2_is_inferred(tmp_path):
     t, t_acc = mocap_times(), imu_times()
-    with mcap_log.JsonMcapWriter(tmp_path / "flight.mcap") as recording:
+    with mcap_writer.JsonMcapWriter(tmp_path / "flight.mcap") as recording:
         recording.add_pose("/mocap", t, true_position(t), true_quaternion(t))
         recording.add_acceleration("/imu/acc", t_acc, accelerometer_g(t_acc), unit=None, schema_name="foxglove.Vector3")
-    with mcap_log.JsonMcapWriter(tmp_path / "si.mcap") as recording:
+    with mcap_writer.JsonMcapWriter(tmp_path / "si.mcap") as recording:
         recording.add_pose("/mocap", t, true_position(t), true_quaternion(t))
         recording.add_acceleration("/imu/acc", t_acc, accelerometer_g(t_acc) * GRAVITY, unit=None,
                                    schema_name="foxglove.Vector3")
     for name, unit in (("flight.mcap", "g"), ("si.mcap", "m/s^2")):
-        flight = mcap_log.read(tmp_path / name)
+        flight = mcap_reader.read(tmp_path / name)
         assert_matches_truth(flight, acc_interpolation_tolerance())
         assert any(f"read as {unit}" in note for note in flight.meta["mcap"]["warnings"])
 
 
 def test_json_frame_transform_pose(tmp_path):
     t, t_acc = mocap_times(), imu_times()
-    with mcap_log.JsonMcapWriter(tmp_path / "flight.mcap") as recording:
+    with mcap_writer.JsonMcapWriter(tmp_path / "flight.mcap") as recording:
         recording.add_pose("/tf/cf1", t, true_position(t), true_quaternion(t), message_type="FrameTransform")
         recording.add_acceleration("/cf1/acceleration", t_acc, accelerometer_g(t_acc))
-    flight = mcap_log.read(tmp_path / "flight.mcap")
+    flight = mcap_reader.read(tmp_path / "flight.mcap")
     assert flight.meta["mcap"]["pose_type"] == "foxglove.FrameTransform"
     assert_matches_truth(flight, acc_interpolation_tolerance())
 
 
 def test_json_acceleration_in_m_s2(tmp_path):
     write_flight(tmp_path / "flight.mcap", "json", unit="m/s^2")
-    assert_matches_truth(mcap_log.read(tmp_path / "flight.mcap"), acc_interpolation_tolerance())
+    assert_matches_truth(mcap_reader.read(tmp_path / "flight.mcap"), acc_interpolation_tolerance())
 
 
 def test_zero_header_stamps_fall_back_to_log_time(tmp_path):
     write_flight(tmp_path / "flight.mcap", "PoseStamped+Imu", stamp_headers=False)
-    flight = mcap_log.read(tmp_path / "flight.mcap")
+    flight = mcap_reader.read(tmp_path / "flight.mcap")
     assert flight.meta["mcap"]["time_source"] == {"pose": "log_time", "accel": "log_time"}
     assert_matches_truth(flight, acc_interpolation_tolerance())
 
 
 def test_stamps_on_one_topic_only_use_log_time_for_both(tmp_path):
     t, t_acc = mocap_times(), imu_times()
-    with mcap_log.Ros2BagWriter(tmp_path / "flight.mcap") as bag:
+    with mcap_writer.Ros2BagWriter(tmp_path / "flight.mcap") as bag:
         bag.add_pose("/vicon/cf1/cf1", t, true_position(t), true_quaternion(t), message_type="TransformStamped")
         bag.add_imu("/cf1/imu", t_acc, accelerometer_g(t_acc), stamp_headers=False)
-    flight = mcap_log.read(tmp_path / "flight.mcap")
+    flight = mcap_reader.read(tmp_path / "flight.mcap")
     assert flight.meta["mcap"]["time_source"] == {"pose": "log_time", "accel": "log_time"}
     assert any("log_time" in note for note in flight.meta["mcap"]["warnings"])
 
@@ -181,12 +185,12 @@ def test_stamps_on_one_topic_only_use_log_time_for_both(tmp_path):
 def test_float32_log_data_definition_is_decoded(tmp_path):
     # some crazyswarm2 releases declare float32[] values; the reader uses the definition in the file
     t, t_acc = mocap_times(), imu_times()
-    definition = mcap_log.LOG_DATA_GENERIC_DEFINITION.replace("float64[] values", "float32[] values")
-    assert definition != mcap_log.LOG_DATA_GENERIC_DEFINITION
-    with mcap_log.Ros2BagWriter(tmp_path / "flight.mcap") as bag:
+    definition = mcap_schemas.LOG_DATA_GENERIC_DEFINITION.replace("float64[] values", "float32[] values")
+    assert definition != mcap_schemas.LOG_DATA_GENERIC_DEFINITION
+    with mcap_writer.Ros2BagWriter(tmp_path / "flight.mcap") as bag:
         bag.add_pose("/vicon/cf1/cf1", t, true_position(t), true_quaternion(t), message_type="TransformStamped")
         bag.add_log_data("/cf1/acc", t_acc, accelerometer_g(t_acc), definition=definition)
-    flight = mcap_log.read(tmp_path / "flight.mcap")
+    flight = mcap_reader.read(tmp_path / "flight.mcap")
     float32_rounding = GRAVITY * 2.0**-24 * np.abs(accelerometer_g(t_acc)).max() * np.sqrt(3)
     assert_matches_truth(flight, acc_interpolation_tolerance() + float32_rounding)
 
@@ -194,26 +198,26 @@ def test_float32_log_data_definition_is_decoded(tmp_path):
 def test_log_variables_map_a_custom_log_block(tmp_path):
     t, t_acc = mocap_times(), imu_times()
     gyro = np.full((len(t_acc), 3), 7.0)
-    with mcap_log.Ros2BagWriter(tmp_path / "flight.mcap") as bag:
+    with mcap_writer.Ros2BagWriter(tmp_path / "flight.mcap") as bag:
         bag.add_pose("/vicon/cf1/cf1", t, true_position(t), true_quaternion(t), message_type="TransformStamped")
         bag.add_log_data("/cf1/imu_block", t_acc, np.column_stack([gyro, accelerometer_g(t_acc)]))
     with pytest.raises(IngestError, match="no usable acceleration topic"):
-        mcap_log.read(tmp_path / "flight.mcap")
+        mcap_reader.read(tmp_path / "flight.mcap")
     with pytest.raises(IngestError, match="log_variables"):
-        mcap_log.read(tmp_path / "flight.mcap", accel_topic="/cf1/imu_block")
+        mcap_reader.read(tmp_path / "flight.mcap", accel_topic="/cf1/imu_block")
     names = {"/cf1/imu_block": ["gyro.x", "gyro.y", "gyro.z", "acc.x", "acc.y", "acc.z"]}
-    flight = mcap_log.read(tmp_path / "flight.mcap", log_variables=names)
+    flight = mcap_reader.read(tmp_path / "flight.mcap", log_variables=names)
     assert flight.meta["mcap"]["accel_topic"] == "/cf1/imu_block"
     assert_matches_truth(flight, acc_interpolation_tolerance())
 
 
 def test_acc_topic_with_more_than_three_values_needs_a_mapping(tmp_path):
     t, t_acc = mocap_times(), imu_times()
-    with mcap_log.Ros2BagWriter(tmp_path / "flight.mcap") as bag:
+    with mcap_writer.Ros2BagWriter(tmp_path / "flight.mcap") as bag:
         bag.add_pose("/vicon/cf1/cf1", t, true_position(t), true_quaternion(t), message_type="TransformStamped")
         bag.add_log_data("/cf1/acc", t_acc, np.column_stack([accelerometer_g(t_acc)] * 2))
     with pytest.raises(IngestError, match="6 values instead of 3"):
-        mcap_log.read(tmp_path / "flight.mcap")
+        mcap_reader.read(tmp_path / "flight.mcap")
 
 
 def test_unsorted_duplicated_and_non_finite_messages_are_cleaned(tmp_path):
@@ -224,10 +228,10 @@ def test_unsorted_duplicated_and_non_finite_messages_are_cleaned(tmp_path):
     p, quat = true_position(t)[order], true_quaternion(t)[order]
     p[order == 300] = np.nan                                    # one unusable pose
     receive = np.arange(len(order)) / MOCAP_RATE               # log_time increases in file order
-    with mcap_log.JsonMcapWriter(tmp_path / "flight.mcap") as recording:
+    with mcap_writer.JsonMcapWriter(tmp_path / "flight.mcap") as recording:
         recording.add_pose("/mocap", t[order], p, quat, log_t=receive)
         recording.add_acceleration("/acc", t_acc, accelerometer_g(t_acc))
-    flight = mcap_log.read(tmp_path / "flight.mcap")
+    flight = mcap_reader.read(tmp_path / "flight.mcap")
     report = flight.meta["mcap"]["streams"]["pose"]
     assert report["non_finite"] == 1 and report["duplicate_time"] == 1 and report["out_of_order"] >= 1
     assert report["kept"] == len(t) - 1
@@ -239,7 +243,7 @@ def test_unsorted_duplicated_and_non_finite_messages_are_cleaned(tmp_path):
 
 def two_pose_topics(path):
     t, t_acc = mocap_times(), imu_times()
-    with mcap_log.Ros2BagWriter(path) as bag:
+    with mcap_writer.Ros2BagWriter(path) as bag:
         bag.add_pose("/vicon/cf1/cf1", t, true_position(t), true_quaternion(t), message_type="TransformStamped")
         bag.add_pose("/cf1/pose", t, true_position(t) + 0.01, true_quaternion(t))   # the onboard estimate
         bag.add_imu("/cf1/imu", t_acc, accelerometer_g(t_acc))
@@ -248,7 +252,7 @@ def two_pose_topics(path):
 def test_two_pose_topics_are_ambiguous_and_listed(tmp_path):
     two_pose_topics(tmp_path / "flight.mcap")
     with pytest.raises(IngestError, match="pose_topic=") as error:
-        mcap_log.read(tmp_path / "flight.mcap")
+        mcap_reader.read(tmp_path / "flight.mcap")
     message = str(error.value)
     assert "flight.mcap" in message and "/vicon/cf1/cf1" in message and "/cf1/pose" in message
     assert "geometry_msgs/msg/TransformStamped" in message
@@ -256,21 +260,21 @@ def test_two_pose_topics_are_ambiguous_and_listed(tmp_path):
 
 def test_explicit_topic_choice(tmp_path):
     two_pose_topics(tmp_path / "flight.mcap")
-    flight = mcap_log.read(tmp_path / "flight.mcap", pose_topic="/vicon/cf1/cf1")
+    flight = mcap_reader.read(tmp_path / "flight.mcap", pose_topic="/vicon/cf1/cf1")
     assert flight.meta["mcap"]["pose_topic"] == "/vicon/cf1/cf1"
     assert_matches_truth(flight, acc_interpolation_tolerance())
-    onboard = mcap_log.read(tmp_path / "flight.mcap", pose_topic="/cf1/pose", accel_topic="/cf1/imu")
+    onboard = mcap_reader.read(tmp_path / "flight.mcap", pose_topic="/cf1/pose", accel_topic="/cf1/imu")
     np.testing.assert_allclose(onboard.p, flight.p + 0.01, atol=1e-9)
     with pytest.raises(IngestError, match="no topic '/nope'.*/cf1/imu"):
-        mcap_log.read(tmp_path / "flight.mcap", pose_topic="/nope")
+        mcap_reader.read(tmp_path / "flight.mcap", pose_topic="/nope")
     with pytest.raises(IngestError, match="cannot be read as motion-capture pose"):
-        mcap_log.read(tmp_path / "flight.mcap", pose_topic="/cf1/imu")
+        mcap_reader.read(tmp_path / "flight.mcap", pose_topic="/cf1/imu")
 
 
 def test_topics_helper_lists_every_channel(tmp_path):
     two_pose_topics(tmp_path / "flight.mcap")
     n, n_acc = len(mocap_times()), len(imu_times())
-    assert mcap_log.topics(tmp_path / "flight.mcap") == [
+    assert mcap_container.topics(tmp_path / "flight.mcap") == [
         ("/cf1/imu", "sensor_msgs/msg/Imu", "cdr", n_acc),
         ("/cf1/pose", "geometry_msgs/msg/PoseStamped", "cdr", n),
         ("/vicon/cf1/cf1", "geometry_msgs/msg/TransformStamped", "cdr", n),
@@ -279,27 +283,27 @@ def test_topics_helper_lists_every_channel(tmp_path):
 
 def test_no_usable_topics_names_the_file_and_lists_topics(tmp_path):
     t = mocap_times()
-    with mcap_log.Ros2BagWriter(tmp_path / "battery.mcap") as bag:
+    with mcap_writer.Ros2BagWriter(tmp_path / "battery.mcap") as bag:
         bag.add_log_data("/cf1/battery", t, np.full((len(t), 1), 3.9))
     with pytest.raises(IngestError, match="no usable topics") as error:
-        mcap_log.read(tmp_path / "battery.mcap")
+        mcap_reader.read(tmp_path / "battery.mcap")
     assert "battery.mcap" in str(error.value)
     assert "/cf1/battery (crazyflie_interfaces/msg/LogDataGeneric, cdr" in str(error.value)
 
 
 def test_missing_acceleration_is_named(tmp_path):
     t = mocap_times()
-    with mcap_log.Ros2BagWriter(tmp_path / "pose_only.mcap") as bag:
+    with mcap_writer.Ros2BagWriter(tmp_path / "pose_only.mcap") as bag:
         bag.add_pose("/vicon/cf1/cf1", t, true_position(t), true_quaternion(t), message_type="TransformStamped")
     with pytest.raises(IngestError, match="pose_only.mcap: no usable acceleration topic.*/vicon/cf1/cf1"):
-        mcap_log.read(tmp_path / "pose_only.mcap")
+        mcap_reader.read(tmp_path / "pose_only.mcap")
 
 
 # -- damaged and foreign files -----------------------------------------------------------------------------
 
 def record_spans(data: bytes):
     """(opcode, start, end) of each top-level record after the magic."""
-    spans, offset = [], len(mcap_log.MAGIC)
+    spans, offset = [], len(mcap_container.MAGIC)
     while offset + 9 <= len(data):
         length = int.from_bytes(data[offset + 1:offset + 9], "little")
         spans.append((data[offset], offset, offset + 9 + length))
@@ -314,8 +318,8 @@ def test_cut_off_file_keeps_complete_chunks(tmp_path):
     write_flight(tmp_path / "full.mcap", "PoseStamped+Imu", chunk_size=16 << 10)
     data = (tmp_path / "full.mcap").read_bytes()
     (tmp_path / "cut.mcap").write_bytes(data[:int(len(data) * 0.6)])
-    assert mcap_log.sniff(tmp_path / "cut.mcap")
-    flight = mcap_log.read(tmp_path / "cut.mcap")
+    assert mcap_reader.sniff(tmp_path / "cut.mcap")
+    flight = mcap_reader.read(tmp_path / "cut.mcap")
     assert 2.0 < flight.duration_s < 0.7 * DURATION
     assert any("cut off" in note for note in flight.meta["mcap"]["warnings"])
     assert_matches_truth(flight, acc_interpolation_tolerance())
@@ -329,7 +333,7 @@ def test_damaged_chunk_is_skipped(tmp_path):
     start, end = chunks[len(chunks) // 2]
     data[end - 50] ^= 0xFF                                      # inside the compressed payload
     (tmp_path / "flight.mcap").write_bytes(bytes(data))
-    flight = mcap_log.read(tmp_path / "flight.mcap")
+    flight = mcap_reader.read(tmp_path / "flight.mcap")
     assert any("damaged chunk" in note for note in flight.meta["mcap"]["warnings"])
     assert flight.meta["gaps"]["acc_samples_in_gaps"] > 0       # the lost chunk is a gap, not invented data
     kept = flight.meta["mcap"]["streams"]["accel"]["kept"]
@@ -348,24 +352,24 @@ def small_valid_mcap(tmp_path) -> bytes:
     (lambda valid: valid[:5], "cut off inside its magic"),
     (lambda valid: valid[:8], "no usable topics"),
     (lambda valid: valid[:200], "no usable topics"),
-    (lambda valid: mcap_log.MAGIC + np.random.default_rng(4).bytes(5000), "no usable topics"),
+    (lambda valid: mcap_container.MAGIC + np.random.default_rng(4).bytes(5000), "no usable topics"),
 ])
 def test_bad_input_is_an_ingest_error_naming_the_file(tmp_path, make, problem):
     path = tmp_path / "flight_0042.mcap"
     path.write_bytes(make(small_valid_mcap(tmp_path)))
     with pytest.raises(IngestError, match=problem) as error:
-        mcap_log.read(path)
+        mcap_reader.read(path)
     assert "flight_0042.mcap" in str(error.value)
 
 
 def test_missing_file_and_directory(tmp_path):
     with pytest.raises(IngestError, match="no such file"):
-        mcap_log.read(tmp_path / "absent.mcap")
+        mcap_reader.read(tmp_path / "absent.mcap")
     bag = tmp_path / "rosbag2_2024"
     bag.mkdir()
     (bag / "rosbag2_2024_0.mcap").write_bytes(b"")
     with pytest.raises(IngestError, match="rosbag2_2024_0.mcap"):
-        mcap_log.read(bag)
+        mcap_reader.read(bag)
 
 
 def test_sniff_looks_at_content_not_extension(tmp_path):
@@ -373,10 +377,10 @@ def test_sniff_looks_at_content_not_extension(tmp_path):
     (tmp_path / "flight.csv").write_bytes(valid)
     (tmp_path / "header_only").write_bytes(valid[:8])
     (tmp_path / "flight.mcap").write_text("t,x\n0,1\n")
-    assert mcap_log.sniff(tmp_path / "flight.csv") is True
-    assert mcap_log.sniff(tmp_path / "header_only") is True
-    assert mcap_log.sniff(tmp_path / "flight.mcap") is False
-    assert mcap_log.sniff(tmp_path / "absent") is False
+    assert mcap_reader.sniff(tmp_path / "flight.csv") is True
+    assert mcap_reader.sniff(tmp_path / "header_only") is True
+    assert mcap_reader.sniff(tmp_path / "flight.mcap") is False
+    assert mcap_reader.sniff(tmp_path / "absent") is False
 
 
 # -- fuzzing -----------------------------------------------------------------------------------------------
@@ -388,11 +392,11 @@ def _fuzz_base(variant, **options) -> bytes:
         path = Path(folder) / "base.mcap"
         p, quat, acc = true_position(t), true_quaternion(t), accelerometer_g(t_acc)
         if variant == "json":   # no CRCs, no compression: flipped bytes reach the decoders
-            with mcap_log.JsonMcapWriter(path, chunk_size=2048, compression="none", enable_crcs=False) as recording:
+            with mcap_writer.JsonMcapWriter(path, chunk_size=2048, compression="none", enable_crcs=False) as recording:
                 recording.add_pose("/mocap", t, p, quat)
                 recording.add_acceleration("/acc", t_acc, acc)
         else:
-            mcap_log.write_ros2(path, t, p, quat, acc, t_acc=t_acc, pose_type="TransformStamped",
+            mcap_writer.write_ros2(path, t, p, quat, acc, t_acc=t_acc, pose_type="TransformStamped",
                                 accel_type="LogDataGeneric", chunk_size=2048, **options)
         return path.read_bytes()
 
@@ -418,8 +422,8 @@ def fuzz_path(tmp_path_factory):
 @given(data=damaged_files())
 def test_damaged_files_raise_only_ingest_errors(fuzz_path, data):
     fuzz_path.write_bytes(data)
-    assert isinstance(mcap_log.sniff(fuzz_path), bool)
-    for attempt in (mcap_log.topics, mcap_log.read):
+    assert isinstance(mcap_reader.sniff(fuzz_path), bool)
+    for attempt in (mcap_container.topics, mcap_reader.read):
         try:
             attempt(fuzz_path)
         except IngestError as error:
@@ -455,7 +459,7 @@ def _bomb(path: Path, chunks: int, uncompressed: int, compression: str = "zstd")
     for _ in range(chunks):
         Chunk(compression=compression, data=data, message_start_time=0, message_end_time=0,
               uncompressed_crc=zlib.crc32(zeros), uncompressed_size=uncompressed).write(builder)
-    path.write_bytes(mcap_log.MAGIC + builder.end())
+    path.write_bytes(mcap_container.MAGIC + builder.end())
     return path
 
 
@@ -468,11 +472,11 @@ def test_a_decompression_bomb_is_refused_before_it_is_decompressed(tmp_path, com
     assert path.stat().st_size < 1 << 20  # 64 MiB of zeros in < 1 MiB (zstd: kB)
     tracemalloc.start()
     with pytest.raises(IngestError, match=r"bomb.mcap: chunks expand to more than \d+ bytes \(the cap is 100x"):
-        mcap_log.read(path)
+        mcap_reader.read(path)
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     # memory is bounded by the budget (100 x the file's size), not by the 64 MiB the chunks claim
-    budget = mcap_log.MAX_EXPANSION * path.stat().st_size
+    budget = mcap_container.MAX_EXPANSION * path.stat().st_size
     assert peak < 2 * budget + (4 << 20), (peak, budget)
 
 
@@ -480,5 +484,5 @@ def test_chunks_within_the_expansion_cap_are_read(tmp_path):
     """A well-compressing but honest recording (the simulator's, zstd) stays well inside the cap."""
     path = tmp_path / "flight.mcap"
     write_flight(path, "PoseStamped+Imu")
-    content = mcap_log.scan(path)
+    content = mcap_container.scan(path)
     assert content.warnings == [] and content.channels

@@ -9,9 +9,10 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from learnest.ingest import nanobench, quality
+from learnest.ingest import quality
 from learnest.ingest.baseline import sg_references
 from learnest.ingest.flight import Flight, IngestError, sha256_file
+from learnest.ingest.formats.nanobench import reader as nanobench_reader
 
 NANOBENCH = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "nanobench"
 needs_data = pytest.mark.data  # skipped by conftest.py when ../shared/data is absent
@@ -32,11 +33,11 @@ def synthetic_table(seconds=20.0, seed=0) -> pd.DataFrame:
     quat /= np.linalg.norm(quat, axis=1, keepdims=True)
     table.update(zip(("qx", "qy", "qz", "qw"), quat.T))
     acc = np.array([0.0, 0.0, 1.0]) + rng.normal(0, 0.01, (n, 3))
-    table.update(zip(nanobench.ACC_COLUMNS, acc.T))
+    table.update(zip(nanobench_reader.ACC_COLUMNS, acc.T))
     level_and_noise = {"gyro": (0, 0.05), "motors": (40000, 500), "vbat": (3.7, 0.01), "thrust_cmd": (40000, 500),
                        "setpoint": (0, 0.01),
                        "p_onboard": (0, 0.01), "v_onboard": (0, 0.01)}
-    for name, columns in nanobench.OPTIONAL_STREAMS.items():
+    for name, columns in nanobench_reader.OPTIONAL_STREAMS.items():
         level, noise = level_and_noise[name]
         for column in columns:
             table[column] = level + rng.normal(0, noise, n)
@@ -57,7 +58,7 @@ def csv_path(tmp_path):
 
 def assert_ingest_error(path, *words):
     with pytest.raises(IngestError) as caught:
-        nanobench.read(path)
+        nanobench_reader.read(path)
     assert caught.value.path == str(path) and str(path) in str(caught.value)
     for word in words:
         assert word in str(caught.value), str(caught.value)
@@ -66,10 +67,10 @@ def assert_ingest_error(path, *words):
 
 # -- synthetic: reading and per-stream gaps -------------------------------------------------------------
 def test_synthetic_csv_reads(csv_path):
-    assert nanobench.sniff(csv_path)
-    flight = nanobench.read(csv_path)
+    assert nanobench_reader.sniff(csv_path)
+    flight = nanobench_reader.read(csv_path)
     assert isinstance(flight, Flight) and flight.dt == pytest.approx(0.01)
-    assert set(nanobench.OPTIONAL_STREAMS) | {"acc_body"} <= set(flight.channels)
+    assert set(nanobench_reader.OPTIONAL_STREAMS) | {"acc_body"} <= set(flight.channels)
     meta = flight.meta
     assert meta["adapter"] == "nanobench" and meta["clock_offset_s"] is None and meta["vehicle"] is None
     assert meta["sources"] == [{"path": str(csv_path), "sha256": sha256_file(csv_path)}]
@@ -81,14 +82,14 @@ def test_synthetic_csv_reads(csv_path):
 def test_sibling_metadata_is_read_and_hashed(csv_path):
     yaml_path = csv_path.with_name("synthetic_metadata.yaml")
     yaml_path.write_text(yaml.safe_dump({"crazyflie_id": "CF_07", "params": {"radius_m": 0.5}}))
-    meta = nanobench.read(csv_path).meta
+    meta = nanobench_reader.read(csv_path).meta
     assert meta["vehicle"] == "CF_07" and meta["nanobench"]["params"]["radius_m"] == 0.5
     assert meta["sources"][1] == {"path": str(yaml_path), "sha256": sha256_file(yaml_path)}
 
 
 def test_broken_metadata_is_a_warning_not_a_failure(csv_path):
     csv_path.with_name("synthetic_metadata.yaml").write_text("{unclosed: [")
-    flight = nanobench.read(csv_path)
+    flight = nanobench_reader.read(csv_path)
     assert flight.meta["nanobench"] is None and "unreadable" in flight.meta["warnings"][0]
 
 
@@ -96,7 +97,7 @@ def test_blank_and_nan_cells_are_gaps_of_that_stream_only(tmp_path):
     table = synthetic_table()
     table.loc[900:909, "imu_acc_x"] = np.nan          # written as empty cells
     table.loc[950:952, "pwr_pm_vbat"] = np.nan
-    flight = nanobench.read(write_csv(table, tmp_path / "holes.csv"))
+    flight = nanobench_reader.read(write_csv(table, tmp_path / "holes.csv"))
     streams = flight.meta["streams"]
     assert streams["acc"]["rows_missing"] == 10 and streams["vbat"]["rows_missing"] == 3
     assert streams["mocap"]["rows_missing"] == 0 and streams["gyro"]["rows_missing"] == 0
@@ -105,8 +106,9 @@ def test_blank_and_nan_cells_are_gaps_of_that_stream_only(tmp_path):
 
 def test_stale_repeats_of_a_sensor_are_dropped(tmp_path):
     table = synthetic_table()
-    table.loc[1000:1019, list(nanobench.ACC_COLUMNS)] = table.loc[1000, list(nanobench.ACC_COLUMNS)].to_numpy()
-    flight = nanobench.read(write_csv(table, tmp_path / "stale.csv"))
+    acc = list(nanobench_reader.ACC_COLUMNS)
+    table.loc[1000:1019, acc] = table.loc[1000, acc].to_numpy()
+    flight = nanobench_reader.read(write_csv(table, tmp_path / "stale.csv"))
     assert flight.meta["streams"]["acc"]["rows_stale"] == 19
 
 
@@ -120,9 +122,9 @@ def linear_in_time(table, rows, anchor_a, anchor_b, columns):
 
 def test_rows_the_recorder_interpolated_are_dropped_losslessly(tmp_path):
     table = synthetic_table()
-    columns, rows = list(nanobench.ACC_COLUMNS), np.arange(800, 812)
+    columns, rows = list(nanobench_reader.ACC_COLUMNS), np.arange(800, 812)
     table.loc[rows, columns] = linear_in_time(table, rows, 799, 812, columns)
-    flight = nanobench.read(write_csv(table, tmp_path / "filled.csv"))
+    flight = nanobench_reader.read(write_csv(table, tmp_path / "filled.csv"))
     assert flight.meta["streams"]["acc"]["rows_interpolated"] == 12
     assert flight.meta["gaps"]["acc_samples_in_gaps"] >= 10      # a 130 ms gap, now visible as one
     assert 0.12 < quality.interpolated_stretch_s(flight.channels["acc_body"], flight.dt) < 0.15
@@ -130,9 +132,9 @@ def test_rows_the_recorder_interpolated_are_dropped_losslessly(tmp_path):
 
 def test_stream_lost_in_mid_air_is_not_extrapolated(tmp_path):
     table = synthetic_table()
-    columns, rows = list(nanobench.ACC_COLUMNS), np.arange(1201, 2000)   # IMU dies at 12 s, mid-air
+    columns, rows = list(nanobench_reader.ACC_COLUMNS), np.arange(1201, 2000)   # IMU dies at 12 s, mid-air
     table.loc[rows, columns] = linear_in_time(table, rows, 1199, 1200, columns)
-    flight = nanobench.read(write_csv(table, tmp_path / "lost.csv"))
+    flight = nanobench_reader.read(write_csv(table, tmp_path / "lost.csv"))
     acc = flight.meta["streams"]["acc"]
     assert acc["rows_extrapolated"] >= len(rows) and acc["t_last_s"] <= 12.0
     # airborne (z above rest + 0.1 m) until 17.79 s in the synthetic landing ramp
@@ -142,9 +144,9 @@ def test_stream_lost_in_mid_air_is_not_extrapolated(tmp_path):
 
 def test_flat_motor_runs_are_kept(tmp_path):
     table = synthetic_table()
-    motors = list(nanobench.OPTIONAL_STREAMS["motors"])
+    motors = list(nanobench_reader.OPTIONAL_STREAMS["motors"])
     table.loc[:150, motors] = 0.0                                    # motors off on the ground
-    flight = nanobench.read(write_csv(table, tmp_path / "motors.csv"), cut=False)
+    flight = nanobench_reader.read(write_csv(table, tmp_path / "motors.csv"), cut=False)
     assert np.all(flight.channels["motors"][:140] == 0.0)
 
 
@@ -153,7 +155,7 @@ def test_empty_file(tmp_path):
     path = tmp_path / "empty.csv"
     path.write_bytes(b"")
     assert_ingest_error(path, "empty file")
-    assert not nanobench.sniff(path)
+    assert not nanobench_reader.sniff(path)
 
 
 def test_header_only(tmp_path):
@@ -166,7 +168,7 @@ def test_wrong_columns_are_named(tmp_path):
     table = synthetic_table().drop(columns=["imu_acc_y", "qw"])
     path = write_csv(table, tmp_path / "columns.csv")
     assert_ingest_error(path, "missing column(s)", "qw", "imu_acc_y")
-    assert not nanobench.sniff(path)
+    assert not nanobench_reader.sniff(path)
 
 
 def test_millimetres(tmp_path):
@@ -177,7 +179,7 @@ def test_millimetres(tmp_path):
 
 def test_acc_in_ms2(tmp_path):
     table = synthetic_table()
-    table[list(nanobench.ACC_COLUMNS)] *= 9.80665
+    table[list(nanobench_reader.ACC_COLUMNS)] *= 9.80665
     assert_ingest_error(write_csv(table, tmp_path / "ms2.csv"), "m/s² instead of g")
 
 
@@ -185,9 +187,9 @@ def test_truncated_last_line_is_dropped_with_a_warning(tmp_path, csv_path):
     text = csv_path.read_text()
     cut = tmp_path / "cut.csv"
     cut.write_text(text[: len(text) - 40])                           # mid-way through the last row
-    flight = nanobench.read(cut, cut=False)
+    flight = nanobench_reader.read(cut, cut=False)
     assert any("truncated" in warning for warning in flight.meta["warnings"])
-    full = nanobench.read(csv_path, cut=False)
+    full = nanobench_reader.read(csv_path, cut=False)
     assert len(flight.t) == len(full.t) - 1
 
 
@@ -195,7 +197,7 @@ def test_random_bytes(tmp_path):
     path = tmp_path / "noise.csv"
     path.write_bytes(np.random.default_rng(3).integers(0, 256, 5000, dtype=np.uint8).tobytes())
     assert_ingest_error(path)
-    assert not nanobench.sniff(path)
+    assert not nanobench_reader.sniff(path)
 
 
 def test_non_numeric_cell(tmp_path):
@@ -218,7 +220,7 @@ def test_time_not_in_seconds(tmp_path):
 
 def test_missing_file(tmp_path):
     assert_ingest_error(tmp_path / "nope.csv", "no such file")
-    assert not nanobench.sniff(tmp_path / "nope.csv")
+    assert not nanobench_reader.sniff(tmp_path / "nope.csv")
 
 
 # -- fuzzing: anything CSV-ish either reads or raises IngestError ---------------------------------------
@@ -251,9 +253,9 @@ def test_fuzz_only_ingest_errors(content):
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "fuzz.csv"
         path.write_bytes(content)
-        assert nanobench.sniff(path) in (True, False)
+        assert nanobench_reader.sniff(path) in (True, False)
         try:
-            flight = nanobench.read(path)
+            flight = nanobench_reader.read(path)
         except IngestError as err:
             assert err.path == str(path)
         else:
@@ -263,7 +265,7 @@ def test_fuzz_only_ingest_errors(content):
 # -- the real NanoBench flights -------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def flights():
-    return {path.stem: nanobench.read(path) for path in sorted(NANOBENCH.glob("*.csv"))}
+    return {path.stem: nanobench_reader.read(path) for path in sorted(NANOBENCH.glob("*.csv"))}
 
 
 @needs_data
@@ -271,7 +273,7 @@ def test_every_flight_reads(flights):
     assert len(flights) == 17
     for name, flight in flights.items():
         csv_path, yaml_path = NANOBENCH / f"{name}.csv", NANOBENCH / f"{name}_metadata.yaml"
-        assert nanobench.sniff(csv_path) and not nanobench.sniff(yaml_path)
+        assert nanobench_reader.sniff(csv_path) and not nanobench_reader.sniff(yaml_path)
         assert flight.duration_s > 10 and flight.dt == pytest.approx(0.01)
         assert np.all(np.isfinite(flight.p)) and np.all(np.isfinite(flight.a_meas))
         meta = flight.meta
@@ -355,7 +357,7 @@ def test_an_expanding_metadata_sidecar_refuses_the_flight(csv_path, sidecar, cap
     yaml_path = csv_path.with_name("synthetic_metadata.yaml")
     yaml_path.write_text(sidecar)
     with pytest.raises(IngestError, match=f"synthetic_metadata.yaml: .*{cap}"):
-        nanobench.read(csv_path)
+        nanobench_reader.read(csv_path)
 
 
 def test_a_single_corrupt_height_sample_is_not_a_flight(tmp_path):
@@ -369,4 +371,4 @@ def test_a_single_corrupt_height_sample_is_not_a_flight(tmp_path):
     path = tmp_path / "spike.csv"
     path.write_text("\n".join([header, *rows[:-1], ",".join(last)]) + "\n")
     with pytest.raises(IngestError, match=r"spike.csv: the flying part has 1 sample\(s\)"):
-        nanobench.read(path)
+        nanobench_reader.read(path)

@@ -1,53 +1,42 @@
-"""Quality checks: each fires for its defect and stays quiet on clean data (synthetic and NanoBench)."""
+"""Quality checks: each fires for its defect and stays quiet on clean data (simulated and NanoBench)."""
 import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from learnest.ingest import nanobench, quality
+from learnest.ingest import quality
 from learnest.ingest.align import build_flight
+from learnest.ingest.formats.nanobench import reader as nanobench_reader
 from learnest.ingest.frames import GRAVITY
+from learnest.ingest.sim import Circle, SensorModel, Timing, simulate
 
 NANOBENCH = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "nanobench"
-# Found by inspecting all 17 flights (see ingest/nanobench.py and the report): the onboard link of this
+# Found by inspecting all 17 flights (see ingest/formats/nanobench/reader.py and the report): the onboard link of this
 # one died at 31.3 s while the vehicle flew on until 38.2 s, so 6.9 s of flight have no accelerometer.
 BAD_NANOBENCH_FLIGHTS = {"B2_circle_medium_rep3"}
 
 RATE = 100.0
 
 
-# -- a synthetic, physically consistent flight ----------------------------------------------------------
-def smoothstep(u):
-    u = np.clip(u, 0.0, 1.0)
-    return u ** 3 * (10 - 15 * u + 6 * u ** 2)
+# -- a simulated flight, and defects made by breaking it ------------------------------------------------
+# The simulator (ingest.sim) flies clean physics only; every defect below is made by breaking its raw
+# streams (or the Flight built from them) the way a broken logger, exporter or unit mix-up would.
+TIMING = Timing(sit_before_s=2.0, takeoff_s=2.0, hover_s=0.5, land_s=2.0, sit_after_s=2.0)   # take-off at 2 s
+# Mocap and accelerometer both at 100 Hz, so sample k of either stream is at k / 100 s; 0.005 g of
+# accelerometer noise, like a real Crazyflie.
+SENSORS = SensorModel(imu_rate_hz=RATE, acc_noise_g=0.005)
 
 
-def raw_circle_flight(duration=30.0, radius=1.0, omega=1.0, seed=0):
-    """Mocap + body-frame accelerometer (g) of a take-off, circle, landing; thrust along body z, with
-    sub-millimetre mocap noise and 0.005 g accelerometer noise like a real Crazyflie."""
-    rng = np.random.default_rng(seed)
-    t = np.arange(0.0, duration, 1.0 / RATE)
-    up = smoothstep((t - 2.0) / 2.0) - smoothstep((t - (duration - 4.0)) / 2.0)
-    envelope = smoothstep((t - 5.0) / 3.0) * (1.0 - smoothstep((t - (duration - 8.0)) / 3.0))
-    p = np.column_stack([radius * envelope * np.sin(omega * t),
-                         radius * envelope * (1.0 - np.cos(omega * t)),
-                         0.03 + 0.97 * up])
-    a = np.gradient(np.gradient(p, t, axis=0), t, axis=0)
-    thrust = a + np.array([0.0, 0.0, GRAVITY])
-    quat = rotation_from_z(thrust / np.linalg.norm(thrust, axis=1, keepdims=True))
-    acc_g = np.column_stack([np.zeros_like(t), np.zeros_like(t), np.linalg.norm(thrust, axis=1) / GRAVITY])
-    return {"t_mocap": t, "p": p + rng.normal(0, 2e-4, p.shape), "quat": quat,
-            "t_acc": t.copy(), "acc_body_g": acc_g + rng.normal(0, 0.005, acc_g.shape)}
-
-
-def rotation_from_z(direction):
-    """Scalar-last quaternions of the shortest rotation taking body z onto `direction` (zero yaw)."""
-    z = np.array([0.0, 0.0, 1.0])
-    axis = np.cross(z, direction)
-    w = 1.0 + direction @ z
-    quat = np.column_stack([axis, w])
-    return quat / np.linalg.norm(quat, axis=1, keepdims=True)
+def raw_circle_flight(duration=30.0, radius=1.0, speed=1.0, seed=0):
+    """Mocap + body-frame accelerometer (g) of a simulated take-off, circle (1 rad/s by default; speed 0 is
+    a hover), landing: the raw streams `build_flight` takes."""
+    circling = duration - (TIMING.sit_before_s + TIMING.takeoff_s + 2 * TIMING.hover_s + TIMING.land_s
+                           + TIMING.sit_after_s)
+    sim = simulate(Circle(radius=radius, speed=speed, altitude=1.0, duration_s=circling, ramp_s=3.0),
+                   timing=TIMING, sensors=SENSORS, seed=seed)
+    return {"t_mocap": sim.mocap.t, "p": sim.mocap.p, "quat": sim.mocap.quat, "t_acc": sim.imu.t,
+            "acc_body_g": sim.imu.acc_g}
 
 
 def build(raw, **changes):
@@ -74,7 +63,7 @@ def assert_flags(flight, *words):
 
 
 # -- clean data -----------------------------------------------------------------------------------------
-def test_clean_synthetic_flight_passes(clean):
+def test_clean_simulated_flight_passes(clean):
     result = quality.assess(clean)
     assert result == {"ok": True, "issues": []}
     assert quality.acc_mocap_correlation(clean) > 0.95
@@ -202,7 +191,7 @@ def test_gravity_not_removed_is_a_mean_offset(clean):
 
 
 def test_hover_is_not_judged_by_correlation(raw):
-    hover = raw_circle_flight(radius=0.0)
+    hover = raw_circle_flight(speed=0.0)
     assert quality.acc_mocap_correlation(build(hover)) is None
     assert quality.assess(build(hover))["ok"]
 
@@ -221,7 +210,7 @@ needs_data = pytest.mark.data  # skipped by conftest.py when ../shared/data is a
 
 @needs_data
 def test_quality_flags_exactly_the_bad_nanobench_flights():
-    verdicts = {path.stem: quality.assess(nanobench.read(path)) for path in sorted(NANOBENCH.glob("*.csv"))}
+    verdicts = {path.stem: quality.assess(nanobench_reader.read(path)) for path in sorted(NANOBENCH.glob("*.csv"))}
     assert len(verdicts) == 17
     flagged = {name for name, verdict in verdicts.items() if not verdict["ok"]}
     assert flagged == BAD_NANOBENCH_FLIGHTS, {name: verdicts[name]["issues"] for name in flagged}

@@ -11,7 +11,7 @@ from sqlalchemy import select
 from utils.service import FAST_METHODS, evaluate, running_app, settings_for, upload, wait_for_job
 
 from learnest.ingest.flight import Flight as CanonicalFlight
-from learnest.ingest.simulator import RandomWaypoints, SensorModel, simulate, write_flight
+from learnest.ingest.sim import RandomWaypoints, SensorModel, simulate, write_flight
 from learnest.service.cli import main
 from learnest.service.experiments.flights import evaluate_flight
 from learnest.service.registry import load_model_ref

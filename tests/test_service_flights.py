@@ -117,7 +117,7 @@ def test_client_file_names_are_never_paths(tmp_path, data_dir):
 
 def test_upload_size_limit_is_413(tmp_path, data_dir):
     home = tmp_path / "home"
-    path = flight_csv(data_dir, 7)   # ~160 kB
+    path = flight_csv(data_dir, 7)   # ~240 kB
     with running_app(home, max_upload_mb=0.05) as client:
         response = upload(client, path)
         assert response.status_code == 413 and "LEARNEST_MAX_UPLOAD_MB" in response.json()["detail"]

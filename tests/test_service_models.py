@@ -8,7 +8,6 @@ import pytest
 from utils.service import (
     EPOCHS,
     flight_csv,
-    flight_table,
     running_app,
     settings_for,
     train,
@@ -101,9 +100,8 @@ def test_version_numbers_are_reserved_at_request_time(tmp_path, data_dir):
 
 
 def test_training_on_a_flight_that_failed_quality_needs_include_bad(tmp_path, data_dir):
-    table_path = data_dir / "hover.csv"
     # a 6 s recording has a flying part < 5 s: it fails the quality checks
-    flight_table(2, seconds=6.0).to_csv(table_path, index=False, float_format="%.9f")
+    table_path = flight_csv(data_dir, 2, name="hover.csv", seconds=6.0)
     with running_app(tmp_path / "home") as client:
         bad = upload(client, table_path).json()
         assert bad["quality"]["ok"] is False

@@ -1,4 +1,4 @@
-"""ingest.simulator: every format written and read back against the simulator's truth, the sensor effects,
+"""ingest.sim: every format written and read back against the simulator's truth, the sensor effects,
 the trajectories' geometry, the take-off/landing cut, and the bundled sample_logs/."""
 from pathlib import Path
 
@@ -6,21 +6,22 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from learnest.ingest import nanobench, read_flights
+from learnest.ingest import read_flights
+from learnest.ingest.formats.nanobench import reader as nanobench_reader
+from learnest.ingest.formats.nanobench import writer as nanobench_writer
 from learnest.ingest.frames import GRAVITY
-from learnest.ingest.simulator import (
-    CFCLIENT_CLOCK_OFFSET_S,
+from learnest.ingest.sim import (
     FORMATS,
-    SAMPLE_FLIGHTS,
     Circle,
     Figure8,
     RandomWaypoints,
     SensorModel,
-    sample_flight,
     sim_times,
     simulate,
     write_flight,
 )
+from learnest.ingest.sim.export import CFCLIENT_CLOCK_OFFSET_S
+from learnest.ingest.sim.samples import SAMPLE_FLIGHTS, sample_flight
 
 SAMPLE_LOGS = Path(__file__).resolve().parents[1] / "sample_logs"
 MOCAP_RATE_HZ = 100.0
@@ -250,22 +251,22 @@ def test_nanobench_write_layout_and_metadata(ideal_sim, tmp_path):
     path = tmp_path / "flight.csv"
     mocap, imu, n = ideal_sim.mocap, ideal_sim.imu, len(ideal_sim.mocap.t)
     on_mocap = np.searchsorted(imu.t, mocap.t)
-    nanobench.write(path, 1.7e9 + mocap.t, mocap.p, mocap.quat, imu.acc_g[on_mocap], gyro=imu.gyro[on_mocap],
+    nanobench_writer.write(path, 1.7e9 + mocap.t, mocap.p, mocap.quat, imu.acc_g[on_mocap], gyro=imu.gyro[on_mocap],
                     vbat=np.full(n, 4.0), metadata={"crazyflie_id": "SIM"})
     header = path.read_text().splitlines()[0].split(",")
-    assert header == ["t", *nanobench.MOCAP_COLUMNS, *nanobench.ACC_COLUMNS, "imu_gyro_x", "imu_gyro_y",
+    assert header == ["t", *nanobench_reader.MOCAP_COLUMNS, *nanobench_reader.ACC_COLUMNS, "imu_gyro_x", "imu_gyro_y",
                       "imu_gyro_z", "pwr_pm_vbat"]
-    flight = nanobench.read(path)
+    flight = nanobench_reader.read(path)
     assert flight.meta["vehicle"] == "SIM" and {"gyro", "vbat"} <= set(flight.channels)
     with pytest.raises(ValueError, match="acc"):
-        nanobench.write(path, mocap.t, mocap.p, mocap.quat, np.zeros((n - 1, 3)))
+        nanobench_writer.write(path, mocap.t, mocap.p, mocap.quat, np.zeros((n - 1, 3)))
 
 
 # -- sample_logs/ -----------------------------------------------------------------------------------------
 def sample_files():
     files = sorted(path for path in SAMPLE_LOGS.iterdir() if path.name != "README.md")
     if not files:
-        pytest.skip("sample_logs/ is empty: run python -m ingest.simulator sample_logs")
+        pytest.skip("sample_logs/ is empty: run python -m learnest.ingest.sim.samples sample_logs")
     return files
 
 

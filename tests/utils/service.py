@@ -1,7 +1,8 @@
 """Helpers for the service tests: a running app, uploads, jobs, small simulated NanoBench flights.
 
-Flights are small simulated NanoBench CSVs that pass the quality checks (11 s, ~6 s of flying part), so
-every test drives the real app, the real adapters and the real estimators in seconds.
+Flights are small NanoBench CSVs written by the project's simulator (ingest.sim) that pass the quality
+checks (11 s, ~6.8 s of flying part), so every test drives the real app, the real adapters and the real
+estimators in seconds.
 """
 from __future__ import annotations
 
@@ -11,11 +12,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import numpy as np
-import pandas as pd
-
-from learnest.ingest import nanobench
-from learnest.ingest.frames import GRAVITY, quat_to_matrix
+from learnest.ingest.sim import Circle, SimulatedFlight, Timing, simulate, write_flight
 from learnest.service.config import Settings
 from learnest.service.jobs.executors import LocalPoolExecutor
 
@@ -25,35 +22,28 @@ FAST_METHODS = ["ukf", "knode-ukf"]   # the MHE adds seconds per flight; one tes
 EPOCHS = 3
 
 
-def _smoothstep(u):
-    u = np.clip(u, 0.0, 1.0)
-    return u ** 3 * (10 - 15 * u + 6 * u * u)
+# A compact timeline (sit 1 s, take off 1.5 s, hover 0.5 s, circle, hover, land 1.5 s, sit 0.5 s) so that an
+# 11-s flight keeps ~6.8 s of flying part after the take-off/landing cut (the quality checks want 5 s).
+TIMING = Timing(sit_before_s=1.0, takeoff_s=1.5, hover_s=0.5, land_s=1.5, sit_after_s=0.5)
 
 
-def flight_table(seed: int = 0, seconds: float = 11.0) -> pd.DataFrame:
-    """Rest, take-off to 1 m, a circle (radius and rate depend on the seed), landing; the accelerometer
-    measures the path's second derivative plus gravity in the body frame, with noise."""
-    rng = np.random.default_rng(seed)
+def simulated_circle(seed: int = 0, seconds: float = 11.0) -> SimulatedFlight:
+    """The simulator (ingest.sim) flying rest, take-off to 1 m, a circle whose radius and rate depend on the
+    seed, landing: `seconds` in all, with the simulator's nominal sensor noise (seeded)."""
     radius, omega = 0.3 + 0.05 * (seed % 5), 0.8 + 0.1 * (seed % 3)
-    t = np.arange(int(seconds * 100)) * 0.01
-    up = _smoothstep((t - 1.0) / 1.5) - _smoothstep((t - (seconds - 2.5)) / 1.5)
-    p = np.column_stack([radius * np.sin(omega * t) * up, radius * (1 - np.cos(omega * t)) * up, 0.05 + 0.95 * up])
-    a = np.gradient(np.gradient(p, 0.01, axis=0), 0.01, axis=0)
-    quat = np.column_stack([rng.normal(0, 0.01, (len(t), 3)), np.ones(len(t))])
-    quat /= np.linalg.norm(quat, axis=1, keepdims=True)
-    acc_body_g = np.einsum("tji,tj->ti", quat_to_matrix(quat), a + [0, 0, GRAVITY]) / GRAVITY
-    acc_body_g += rng.normal(0, 0.005, acc_body_g.shape)
-    p += rng.normal(0, 2e-4, p.shape)
-    columns = {"t": 1.7e9 + t, "px": p[:, 0], "py": p[:, 1], "pz": p[:, 2]}
-    columns.update(zip(("qx", "qy", "qz", "qw"), quat.T))
-    columns.update(zip(nanobench.ACC_COLUMNS, acc_body_g.T))
-    return pd.DataFrame(columns)
+    circling = seconds - (TIMING.sit_before_s + TIMING.takeoff_s + 2 * TIMING.hover_s + TIMING.land_s
+                          + TIMING.sit_after_s)
+    circle = Circle(radius=radius, speed=radius * omega, altitude=1.0, duration_s=circling,
+                    ramp_s=min(1.5, circling / 2))
+    return simulate(circle, timing=TIMING, seed=seed, name=f"flight{seed}")
 
 
-def flight_csv(directory: Path, seed: int, name: str | None = None) -> Path:
+def flight_csv(directory: Path, seed: int, name: str | None = None, seconds: float = 11.0) -> Path:
+    """`simulated_circle(seed, seconds)` written as a NanoBench CSV (once per path)."""
     path = Path(directory) / (name or f"flight{seed}.csv")
     if not path.exists():
-        flight_table(seed).to_csv(path, index=False, float_format="%.9f")
+        written = write_flight(simulated_circle(seed, seconds), "nanobench", path.parent, path.stem)
+        assert written == [path], written
     return path
 
 

@@ -9,8 +9,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from learnest.ingest import usd
 from learnest.ingest.flight import IngestError, sha256_file
+from learnest.ingest.formats.crazyflie_usd import decoder as usd_decoder
+from learnest.ingest.formats.crazyflie_usd import layout as usd_layout
+from learnest.ingest.formats.crazyflie_usd import reader as usd_reader
+from learnest.ingest.formats.crazyflie_usd import writer as usd_writer
+from learnest.ingest.formats.crazyflie_variables import ACC
 from learnest.ingest.frames import GRAVITY, quat_to_matrix
 
 USD_DATA = Path(__file__).parents[1].parent / "shared" / "data" / "crazyswarm2-tools"
@@ -73,9 +77,9 @@ def simulated_events(duration=4.0, rate=250.0, mocap_rate=100.0, pose_stream="fi
     if pose_stream == "fixed":   # firmware behaviour: zeros until the first frame, then hold the last one
         held = np.searchsorted(t_mocap, t, side="right") - 1
         pose_at_fixed = np.where((held >= 0)[:, None], pose[np.maximum(held, 0)], 0.0)
-        fixed.update({name: ("f", pose_at_fixed[:, j]) for j, name in enumerate(usd.POSE)})
+        fixed.update({name: ("f", pose_at_fixed[:, j]) for j, name in enumerate(usd_reader.POSE)})
         return {"fixedFrequency": {"t": t, "vars": fixed}}
-    mocap = {"id": 3, "t": t_mocap, "vars": {name: ("f", pose[:, j]) for j, name in enumerate(usd.POSE)}}
+    mocap = {"id": 3, "t": t_mocap, "vars": {name: ("f", pose[:, j]) for j, name in enumerate(usd_reader.POSE)}}
     return {"fixedFrequency": {"t": t, "vars": fixed}, "locSrvEvent": mocap}
 
 
@@ -90,11 +94,11 @@ def all_types_events(n=300, seed=0):
 
 
 def header_length(data: bytes) -> int:
-    return usd._parse_header(data, "test")[2]
+    return usd_decoder.parse_header(data, "test")[2]
 
 
 def record_size(data: bytes, event="fixedFrequency") -> int:
-    version, event_types, _ = usd._parse_header(data, "test")
+    version, event_types, _ = usd_decoder.parse_header(data, "test")
     return next(e for e in event_types if e.name == event).record_dtype(version).itemsize
 
 
@@ -102,21 +106,21 @@ def record_size(data: bytes, event="fixedFrequency") -> int:
 
 @pytest.mark.parametrize("name", REAL_LOGS)
 def test_real_log_decodes_with_expected_layout(name):
-    log = usd.decode(real_log(name))
+    log = usd_decoder.decode(real_log(name))
     assert log.version == 2
     assert log.crc_ok and log.warnings == []
     assert [event.name for event in log.event_types] == ["fixedFrequency"]
-    assert log.event_types[0].id == usd.FIXED_FREQUENCY_ID
+    assert log.event_types[0].id == usd_layout.FIXED_FREQUENCY_ID
     stream = log.events["fixedFrequency"]
     assert len(stream) == 1 + 44
-    assert set(usd.ACC + usd.POSE) <= set(stream)
+    assert set(ACC + usd_reader.POSE) <= set(stream)
     assert 3700 < len(stream["t"]) < 4000
     assert stream["stateEstimateZ.z"].dtype == np.int16
 
 
 @pytest.mark.parametrize("name", REAL_LOGS)
 def test_real_log_timing_is_250_hz_for_about_16_s(name):
-    t = usd.decode(real_log(name)).events["fixedFrequency"]["t"]
+    t = usd_decoder.decode(real_log(name)).events["fixedFrequency"]["t"]
     assert np.all(np.diff(t) > 0)
     assert 245 < 1.0 / np.median(np.diff(t)) < 255
     assert 15.0 < t[-1] - t[0] < 18.0
@@ -125,8 +129,8 @@ def test_real_log_timing_is_250_hz_for_about_16_s(name):
 @pytest.mark.parametrize("name", REAL_LOGS)
 def test_real_log_accelerometer_reads_one_g_at_the_start(name):
     # The recordings start in hover, not on the ground: still ~1 g of specific force, mostly on body z.
-    stream = usd.decode(real_log(name)).events["fixedFrequency"]
-    acc = np.column_stack([stream[axis] for axis in usd.ACC])[:125]
+    stream = usd_decoder.decode(real_log(name)).events["fixedFrequency"]
+    acc = np.column_stack([stream[axis] for axis in ACC])[:125]
     assert np.linalg.norm(acc, axis=1).mean() == pytest.approx(1.0, abs=0.03)
     assert acc[:, 2].mean() > 0.95
 
@@ -134,7 +138,7 @@ def test_real_log_accelerometer_reads_one_g_at_the_start(name):
 @pytest.mark.parametrize("name", REAL_LOGS)
 def test_real_log_becomes_a_plausible_flight(name):
     path = real_log(name)
-    flight = usd.read(path)
+    flight = usd_reader.read(path)
     assert 13.0 < flight.duration_s < 17.0
     assert flight.rate_hz == pytest.approx(100.0)
     assert np.all(np.abs(flight.p[:, :2]) < 1.2) and np.all((flight.p[:, 2] > 0.9) & (flight.p[:, 2] < 1.1))
@@ -153,7 +157,7 @@ def test_real_log_becomes_a_plausible_flight(name):
 
 def test_real_figure_eight_acceleration_matches_mocap():
     """The whole chain (decode, attitude fallback, rotation, gravity) against mocap's second derivative."""
-    flight = usd.read(real_log("log182"))
+    flight = usd_reader.read(real_log("log182"))
     smooth = np.ones(9) / 9
     p = np.column_stack([np.convolve(flight.p[:, j], smooth, "same") for j in range(3)])
     a = np.column_stack([np.convolve(flight.a_meas[:, j], smooth, "same") for j in range(3)])
@@ -167,22 +171,22 @@ def test_real_figure_eight_acceleration_matches_mocap():
 @pytest.mark.parametrize("version", [1, 2])
 def test_round_trip_is_exact_for_every_type(tmp_path, version):
     events = all_types_events()
-    usd.write(tmp_path / "log", events, version=version)
-    log = usd.decode(tmp_path / "log")
+    usd_writer.write(tmp_path / "log", events, version=version)
+    log = usd_decoder.decode(tmp_path / "log")
     assert log.version == version and log.crc_ok and log.warnings == []
     decoded = log.events["fixedFrequency"]
     tick = {1: 1e-3, 2: 1e-6}[version]
     np.testing.assert_array_equal(np.rint(decoded["t"] / tick), np.rint(events["fixedFrequency"]["t"] / tick))
     for name, (code, values) in events["fixedFrequency"]["vars"].items():
-        assert decoded[name].dtype == np.dtype(usd.VALUE_TYPES[code]).newbyteorder("=")
+        assert decoded[name].dtype == np.dtype(usd_layout.VALUE_TYPES[code]).newbyteorder("=")
         np.testing.assert_array_equal(decoded[name], values)
 
 
 @pytest.mark.parametrize("version", [1, 2])
 def test_interleaved_event_streams_round_trip(tmp_path, version):
     events = simulated_events(pose_stream="event")
-    usd.write(tmp_path / "log", events, version=version)
-    log = usd.decode(tmp_path / "log")
+    usd_writer.write(tmp_path / "log", events, version=version)
+    log = usd_decoder.decode(tmp_path / "log")
     assert [(e.id, e.name) for e in log.event_types] == [(0xFFFF, "fixedFrequency"), (3, "locSrvEvent")]
     for event, spec in events.items():
         assert len(log.events[event]["t"]) == len(spec["t"])
@@ -193,9 +197,9 @@ def test_interleaved_event_streams_round_trip(tmp_path, version):
 
 def test_writer_refuses_values_that_do_not_fit():
     with pytest.raises(ValueError, match="do not fit"):
-        usd.encode({"fixedFrequency": {"t": [0.0], "vars": {"a.b": ("h", [40000])}}})
+        usd_writer.encode({"fixedFrequency": {"t": [0.0], "vars": {"a.b": ("h", [40000])}}})
     with pytest.raises(ValueError, match="values for"):
-        usd.encode({"fixedFrequency": {"t": [0.0, 1.0], "vars": {"a.b": ("f", [1.0])}}})
+        usd_writer.encode({"fixedFrequency": {"t": [0.0, 1.0], "vars": {"a.b": ("f", [1.0])}}})
 
 
 # -- adapter -------------------------------------------------------------------------------------------------
@@ -203,8 +207,8 @@ def test_writer_refuses_values_that_do_not_fit():
 @pytest.mark.parametrize("pose_stream", ["fixed", "event"])
 @pytest.mark.parametrize("version", [1, 2])
 def test_read_simulated_flight(tmp_path, pose_stream, version):
-    usd.write(tmp_path / "log", simulated_events(pose_stream=pose_stream), version=version)
-    flight = usd.read(tmp_path / "log")
+    usd_writer.write(tmp_path / "log", simulated_events(pose_stream=pose_stream), version=version)
+    flight = usd_reader.read(tmp_path / "log")
     t_source = flight.t + flight.meta["t0_source_s"]
     # sample-and-hold delays each frame by up to one fixed-stream period (4 ms): a few mm at ~1 m/s
     np.testing.assert_allclose(flight.p, true_position(t_source), atol=0.006)
@@ -217,8 +221,8 @@ def test_read_simulated_flight(tmp_path, pose_stream, version):
 
 
 def test_read_converts_compressed_and_degree_channels(tmp_path):
-    usd.write(tmp_path / "log", simulated_events())
-    flight = usd.read(tmp_path / "log")
+    usd_writer.write(tmp_path / "log", simulated_events())
+    flight = usd_reader.read(tmp_path / "log")
     t_source = flight.t + flight.meta["t0_source_s"]
     np.testing.assert_allclose(flight.channels["p_onboard"], true_position(t_source), atol=0.002)
     velocity = np.gradient(true_position(t_source), t_source, axis=0)
@@ -228,8 +232,8 @@ def test_read_converts_compressed_and_degree_channels(tmp_path):
 
 
 def test_position_only_mocap_uses_onboard_attitude(tmp_path):
-    usd.write(tmp_path / "log", simulated_events(with_quat=False))
-    flight = usd.read(tmp_path / "log")
+    usd_writer.write(tmp_path / "log", simulated_events(with_quat=False))
+    flight = usd_reader.read(tmp_path / "log")
     assert flight.meta["attitude_source"].startswith("onboard")
     np.testing.assert_allclose(flight.quat, yaw_quat(YAW, len(flight.t)), atol=1e-6)
     np.testing.assert_allclose(flight.a_meas, true_acceleration(flight.t + flight.meta["t0_source_s"]), atol=0.05)
@@ -239,9 +243,9 @@ def test_position_only_mocap_without_onboard_attitude_is_refused(tmp_path):
     events = simulated_events(with_quat=False)
     for axis in "xyz":
         del events["fixedFrequency"]["vars"][f"ctrlLee.rpy{axis}"]
-    usd.write(tmp_path / "log", events)
+    usd_writer.write(tmp_path / "log", events)
     with pytest.raises(IngestError, match="quaternion"):
-        usd.read(tmp_path / "log")
+        usd_reader.read(tmp_path / "log")
 
 
 def test_fragment_before_a_long_pause_is_skipped(tmp_path):
@@ -250,21 +254,21 @@ def test_fragment_before_a_long_pause_is_skipped(tmp_path):
     keep = (fixed["t"] < 0.01) | (fixed["t"] > 1.5)          # like the real logs: 3 records, then a pause
     fixed["t"] = fixed["t"][keep]
     fixed["vars"] = {name: (code, values[keep]) for name, (code, values) in fixed["vars"].items()}
-    usd.write(tmp_path / "log", events)
-    flight = usd.read(tmp_path / "log")
+    usd_writer.write(tmp_path / "log", events)
+    flight = usd_reader.read(tmp_path / "log")
     assert flight.meta["t0_source_s"] > 1.5
     assert flight.meta["gaps"]["acc_samples_in_gaps"] == 0
     assert any("skipped the first 3" in note for note in flight.meta["usd"]["warnings"])
 
 
-@pytest.mark.parametrize("drop, missing", [(usd.ACC, "acc.x"), (usd.POSE, "locSrv.qw")])
+@pytest.mark.parametrize("drop, missing", [(ACC, "acc.x"), (usd_reader.POSE, "locSrv.qw")])
 def test_missing_variables_are_named(tmp_path, drop, missing):
     events = simulated_events()
     for name in drop:
         del events["fixedFrequency"]["vars"][name]
-    usd.write(tmp_path / "log", events)
+    usd_writer.write(tmp_path / "log", events)
     with pytest.raises(IngestError, match=missing) as error:
-        usd.read(tmp_path / "log")
+        usd_reader.read(tmp_path / "log")
     assert "log" in str(error.value)
 
 
@@ -274,16 +278,18 @@ def test_rpy_to_quat_matches_the_z_y_x_convention():
     rx = np.array([[1, 0, 0], [0, c(roll), -s(roll)], [0, s(roll), c(roll)]])
     ry = np.array([[c(pitch), 0, s(pitch)], [0, 1, 0], [-s(pitch), 0, c(pitch)]])
     rz = np.array([[c(yaw), -s(yaw), 0], [s(yaw), c(yaw), 0], [0, 0, 1]])
-    np.testing.assert_allclose(quat_to_matrix(usd.rpy_to_quat([[roll, pitch, yaw]]))[0], rz @ ry @ rx, atol=1e-12)
+    np.testing.assert_allclose(quat_to_matrix(usd_reader.rpy_to_quat([[roll, pitch, yaw]]))[0], rz @ ry @ rx,
+                               atol=1e-12)
 
 
 def test_decoding_a_minute_at_500_hz_is_fast(tmp_path):
     t, t_mocap = np.arange(0, 60, 1 / 500), np.arange(0.001, 60, 1 / 100)
     fixed = {f"group.v{i}": ("f", np.sin(t + i)) for i in range(40)}
-    mocap = {name: ("f", np.full(len(t_mocap), 0.5)) for name in usd.POSE}
-    usd.write(tmp_path / "log", {"fixedFrequency": {"t": t, "vars": fixed}, "mocap": {"t": t_mocap, "vars": mocap}})
+    mocap = {name: ("f", np.full(len(t_mocap), 0.5)) for name in usd_reader.POSE}
+    usd_writer.write(tmp_path / "log", {"fixedFrequency": {"t": t, "vars": fixed},
+                                        "mocap": {"t": t_mocap, "vars": mocap}})
     start = time.perf_counter()
-    log = usd.decode(tmp_path / "log")
+    log = usd_decoder.decode(tmp_path / "log")
     assert time.perf_counter() - start < 1.0
     assert len(log.events["fixedFrequency"]["t"]) == 30000 and len(log.events["mocap"]["t"]) == 6000
 
@@ -291,10 +297,10 @@ def test_decoding_a_minute_at_500_hz_is_fast(tmp_path):
 # -- damaged files -------------------------------------------------------------------------------------------
 
 def test_cut_mid_record_keeps_complete_records(tmp_path):
-    data = usd.encode(all_types_events(n=50))
+    data = usd_writer.encode(all_types_events(n=50))
     (tmp_path / "cut").write_bytes(data[:-4 - record_size(data) // 2])
-    with pytest.warns(usd.UsdLogWarning, match="cut"):
-        log = usd.decode(tmp_path / "cut")
+    with pytest.warns(usd_decoder.UsdLogWarning, match="cut"):
+        log = usd_decoder.decode(tmp_path / "cut")
     assert not log.crc_ok
     assert len(log.events["fixedFrequency"]["t"]) == 49
     assert any("complete record" in note for note in log.warnings)
@@ -303,36 +309,36 @@ def test_cut_mid_record_keeps_complete_records(tmp_path):
 
 
 def test_cut_at_a_record_boundary_keeps_every_record(tmp_path):
-    data = usd.encode(all_types_events(n=50))
+    data = usd_writer.encode(all_types_events(n=50))
     (tmp_path / "cut").write_bytes(data[:-4])        # lost only the trailer
-    with pytest.warns(usd.UsdLogWarning, match="CRC"):
-        log = usd.decode(tmp_path / "cut")
+    with pytest.warns(usd_decoder.UsdLogWarning, match="CRC"):
+        log = usd_decoder.decode(tmp_path / "cut")
     assert not log.crc_ok and len(log.events["fixedFrequency"]["t"]) == 50
 
 
 def test_crc_mismatch_keeps_records_and_warns(tmp_path):
-    usd.write(tmp_path / "log", simulated_events(pose_stream="event"), corrupt_crc=True)
-    with pytest.warns(usd.UsdLogWarning, match="CRC"):
-        log = usd.decode(tmp_path / "log")
+    usd_writer.write(tmp_path / "log", simulated_events(pose_stream="event"), corrupt_crc=True)
+    with pytest.warns(usd_decoder.UsdLogWarning, match="CRC"):
+        log = usd_decoder.decode(tmp_path / "log")
     assert not log.crc_ok
     assert len(log.events["fixedFrequency"]["t"]) == 1000 and len(log.events["locSrvEvent"]["t"]) == 400
-    with pytest.warns(usd.UsdLogWarning):
-        flight = usd.read(tmp_path / "log")
+    with pytest.warns(usd_decoder.UsdLogWarning):
+        flight = usd_reader.read(tmp_path / "log")
     assert flight.meta["usd"]["crc_ok"] is False and flight.meta["usd"]["warnings"]
 
 
 def test_unknown_event_id_stops_decoding_and_names_the_offset(tmp_path):
-    data = bytearray(usd.encode(all_types_events(n=50)))
+    data = bytearray(usd_writer.encode(all_types_events(n=50)))
     offset = header_length(bytes(data)) + 20 * record_size(bytes(data))
     data[offset:offset + 2] = (0x1234).to_bytes(2, "little")
     data[-4:] = zlib.crc32(bytes(data[:-4])).to_bytes(4, "little")   # a consistent file, just an odd id
     (tmp_path / "log").write_bytes(bytes(data))
-    with pytest.warns(usd.UsdLogWarning, match=f"0x1234 at byte offset {offset}"):
-        log = usd.decode(tmp_path / "log")
+    with pytest.warns(usd_decoder.UsdLogWarning, match=f"0x1234 at byte offset {offset}"):
+        log = usd_decoder.decode(tmp_path / "log")
     assert log.crc_ok and len(log.events["fixedFrequency"]["t"]) == 20
 
 
-VALID = usd.encode(simulated_events(duration=1.0, pose_stream="event"))
+VALID = usd_writer.encode(simulated_events(duration=1.0, pose_stream="event"))
 
 
 @pytest.mark.parametrize("content, problem", [
@@ -351,31 +357,31 @@ def test_bad_input_is_an_ingest_error_naming_the_file(tmp_path, content, problem
     path = tmp_path / "flight_0042.usd"
     path.write_bytes(content)
     with pytest.raises(IngestError, match=problem) as error:
-        usd.decode(path)
+        usd_decoder.decode(path)
     assert "flight_0042.usd" in str(error.value)
     with pytest.raises(IngestError, match="flight_0042.usd"):
-        usd.read(path)
-    assert usd.sniff(path) is False
+        usd_reader.read(path)
+    assert usd_reader.sniff(path) is False
 
 
 def test_missing_file_is_an_ingest_error(tmp_path):
     with pytest.raises(IngestError, match="nothing_here"):
-        usd.decode(tmp_path / "nothing_here")
+        usd_decoder.decode(tmp_path / "nothing_here")
 
 
 def test_sniff_looks_at_content_not_extension(tmp_path):
     (tmp_path / "flight.csv").write_bytes(VALID)
     (tmp_path / "log01").write_bytes(VALID[:header_length(VALID)])
     (tmp_path / "log02.bin").write_text("t,x\n0,1\n")
-    assert usd.sniff(tmp_path / "flight.csv") is True
-    assert usd.sniff(tmp_path / "log01") is True       # header alone: a log cut off before its first record
-    assert usd.sniff(tmp_path / "log02.bin") is False
-    assert usd.sniff(tmp_path / "absent") is False
+    assert usd_reader.sniff(tmp_path / "flight.csv") is True
+    assert usd_reader.sniff(tmp_path / "log01") is True       # header alone: a log cut off before its first record
+    assert usd_reader.sniff(tmp_path / "log02.bin") is False
+    assert usd_reader.sniff(tmp_path / "absent") is False
 
 
 # -- fuzzing -------------------------------------------------------------------------------------------------
 
-FUZZ_BASES = [usd.encode(simulated_events(duration=1.0, rate=100.0, mocap_rate=50.0, pose_stream="event"),
+FUZZ_BASES = [usd_writer.encode(simulated_events(duration=1.0, rate=100.0, mocap_rate=50.0, pose_stream="event"),
                          version=version) for version in (1, 2)]
 
 
@@ -401,8 +407,8 @@ def test_damaged_logs_raise_only_ingest_errors(fuzz_path, data):
     fuzz_path.write_bytes(data)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")      # damaged files warn by design; only exceptions matter here
-        assert isinstance(usd.sniff(fuzz_path), bool)
-        for attempt in (usd.decode, usd.read):
+        assert isinstance(usd_reader.sniff(fuzz_path), bool)
+        for attempt in (usd_decoder.decode, usd_reader.read):
             try:
                 attempt(fuzz_path)
             except IngestError as error:

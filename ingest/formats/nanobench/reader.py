@@ -1,4 +1,4 @@
-"""NanoBench CSV (Vicon + Crazyflie onboard logs on one 10 ms host grid) -> canonical Flight.
+"""NanoBench CSV (Vicon + Crazyflie onboard logs on one 10 ms host grid) -> canonical Flight (`read`).
 
 The recorder resampled every onboard stream onto the Vicon time stamps by *linear interpolation*: radio
 dropouts show up as rows lying exactly on a straight line between their neighbours, and a stream that
@@ -13,13 +13,12 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import yaml
 
-from .align import FLYING_HEIGHT_M, build_flight
-from .flight import Flight, IngestError, existing_file, json_compatible, sha256_file
-from .frames import GRAVITY
-from .limits import MAX_ROOM_M, QUATERNION_NORM_TOLERANCE
-from .sidecar import SidecarTooLarge, read_sidecar
+from ...align import FLYING_HEIGHT_M, build_flight
+from ...flight import Flight, IngestError, existing_file, json_compatible, sha256_file
+from ...frames import GRAVITY
+from ...limits import MAX_ROOM_M, QUATERNION_NORM_TOLERANCE
+from ...sidecar import SidecarTooLarge, read_sidecar
 
 MOCAP_COLUMNS = ("px", "py", "pz", "qx", "qy", "qz", "qw")
 ACC_COLUMNS = ("imu_acc_x", "imu_acc_y", "imu_acc_z")
@@ -221,12 +220,12 @@ def _check_units(path: Path, p: np.ndarray, acc_g: np.ndarray) -> None:
 
 
 # -- metadata -------------------------------------------------------------------------------------------
-def _metadata_path(path: Path) -> Path:
+def metadata_path(path: Path) -> Path:
     return path.with_name(f"{path.stem}_metadata.yaml")
 
 
 def _read_metadata(path: Path, warnings: list[str]) -> dict | None:
-    yaml_path = _metadata_path(path)
+    yaml_path = metadata_path(path)
     if not yaml_path.is_file():
         return None
     try:
@@ -291,7 +290,7 @@ def read(path, rate_hz: float = 100.0, cut: bool = True) -> Flight:
 def _sources(path: Path, metadata: dict | None) -> list[dict]:
     sources = [{"path": str(path), "sha256": sha256_file(path)}]
     if metadata is not None:
-        sources.append({"path": str(_metadata_path(path)), "sha256": sha256_file(_metadata_path(path))})
+        sources.append({"path": str(metadata_path(path)), "sha256": sha256_file(metadata_path(path))})
     return sources
 
 
@@ -334,38 +333,3 @@ def _airborne_gaps(t_mocap, z, times: dict) -> dict:
         inside = ts[(ts > start) & (ts < stop)]
         gaps[f"{name}_longest_gap_airborne_s"] = float(np.max(np.diff(np.r_[start, inside, stop])))
     return gaps
-
-
-
-# -- writer (simulator and tests) -----------------------------------------------------------------------
-# Optional streams in the column order of the NanoBench files.
-WRITE_ORDER = ("gyro", "motors", "p_onboard", "v_onboard", "setpoint", "vbat")
-
-
-def write(path, t, p, quat_xyzw, acc_body_g, *, gyro=None, motors=None, p_onboard=None, v_onboard=None,
-          setpoint=None, vbat=None, metadata: dict | None = None, decimals: int = 9) -> None:
-    """A NanoBench CSV that `read` accepts: one row per time stamp t (s; NanoBench uses Unix time), the
-    REQUIRED_COLUMNS (p in m, quaternion scalar last, acc in g, body frame), then every optional stream
-    given (columns of OPTIONAL_STREAMS, in NanoBench's order, SI units as `read` expects), printed with
-    `decimals` decimals like the recorder.  `metadata` is written beside it as <stem>_metadata.yaml."""
-    t = np.asarray(t, dtype=float).reshape(-1)
-    if len(t) < 2 or not np.all(np.diff(t) > 0):
-        raise ValueError("t must hold at least 2 strictly increasing time stamps")
-    streams = {"mocap": (MOCAP_COLUMNS, np.column_stack([p, quat_xyzw])), "acc": (ACC_COLUMNS, acc_body_g)}
-    given = {"gyro": gyro, "motors": motors, "p_onboard": p_onboard, "v_onboard": v_onboard,
-             "setpoint": setpoint, "vbat": vbat}
-    streams.update({name: (OPTIONAL_STREAMS[name], given[name]) for name in WRITE_ORDER if given[name] is not None})
-    header, blocks = ["t"], [t[:, None]]
-    for name, (columns, values) in streams.items():
-        values = np.asarray(values, dtype=float)
-        values = values[:, None] if values.ndim == 1 else values     # a single column (vbat) may be 1-D
-        if values.shape != (len(t), len(columns)):
-            raise ValueError(f"{name}: expected {len(t)} rows of {len(columns)} values, got shape {values.shape}")
-        header += list(columns)
-        blocks.append(values)
-    path = Path(path)
-    with open(path, "w", encoding="utf-8", newline="\n") as handle:
-        np.savetxt(handle, np.hstack(blocks), fmt=f"%.{decimals}f", delimiter=",", header=",".join(header),
-                   comments="")
-    if metadata is not None:
-        _metadata_path(path).write_text(yaml.safe_dump(json_compatible(metadata), sort_keys=True), encoding="utf-8")

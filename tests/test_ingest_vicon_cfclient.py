@@ -8,8 +8,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from learnest.ingest import clock, vicon_csv
+from learnest.ingest import clock
 from learnest.ingest.flight import Flight, IngestError, sha256_file
+from learnest.ingest.formats.vicon_cfclient import cfclient, vicon
+from learnest.ingest.formats.vicon_cfclient import reader as pair_reader
+from learnest.ingest.formats.vicon_cfclient import writer as pair_writer
 from learnest.ingest.frames import GRAVITY
 
 # -- the simulated flight -------------------------------------------------------------------------------
@@ -86,7 +89,7 @@ class Scenario:
         self.occluded = np.zeros(len(self.t_vicon), dtype=bool)
         self.occluded[list(occluded)] = True
         self.vicon = directory / f"{name}_vicon.csv"
-        vicon_csv.write_vicon_csv(self.vicon, self.t_vicon, self.p_written, self.quat_written, RATE_HZ,
+        pair_writer.write_vicon_csv(self.vicon, self.t_vicon, self.p_written, self.quat_written, RATE_HZ,
                                   self.occluded, **(vicon_kwargs or {}))
         # cfclient: ~100 Hz packets with ±2 ms jitter in the sample instants, 1 % of packets lost.
         tau_acc = np.arange(0.0, duration, SAMPLE_S) + rng.uniform(-0.002, 0.002, int(round(duration * RATE_HZ)))
@@ -94,12 +97,12 @@ class Scenario:
         acc = accelerometer_g(tau_acc, kind) + rng.normal(0.0, ACC_NOISE_G, (len(tau_acc), 3))
         gyro_deg_s = np.tile([10.0, -20.0, 30.0], (len(tau_acc), 1))
         self.cfclient = directory / f"{name}_cfclient.csv"
-        vicon_csv.write_cfclient_csv(self.cfclient, tau_acc + BOOT_AHEAD_S, acc, extra={
+        pair_writer.write_cfclient_csv(self.cfclient, tau_acc + BOOT_AHEAD_S, acc, extra={
             "gyro.x": gyro_deg_s[:, 0], "gyro.y": gyro_deg_s[:, 1], "gyro.z": gyro_deg_s[:, 2],
             "pm.vbat": np.full(len(tau_acc), 3.9)})
 
     def read(self, **kwargs):
-        return vicon_csv.read_pair(self.vicon, self.cfclient, **kwargs)
+        return pair_reader.read_pair(self.vicon, self.cfclient, **kwargs)
 
 
 def vicon_times(flight):
@@ -133,7 +136,7 @@ def test_clock_offset_is_recovered_within_one_sample(flight):
 
 
 def test_parser_returns_the_written_positions_and_attitudes(scenario):
-    track = vicon_csv.read_vicon_csv(scenario.vicon)
+    track = vicon.read_vicon_csv(scenario.vicon)
     seen = ~scenario.occluded
     np.testing.assert_array_equal(track.t, scenario.t_vicon[seen])
     assert np.abs(track.p - scenario.p_written[seen]).max() < 1e-6                     # m (written to 1 nm)
@@ -184,7 +187,7 @@ def test_optional_cfclient_variables_become_channels_on_the_vicon_clock(flight):
 
 # -- occlusions -----------------------------------------------------------------------------------------
 def test_occluded_frames_are_counted_and_left_out(flight, scenario):
-    track = vicon_csv.read_vicon_csv(scenario.vicon)
+    track = vicon.read_vicon_csv(scenario.vicon)
     assert track.occluded_frames == len(OCCLUDED) == flight.meta["vicon"]["occluded_frames"]
     assert len(track.t) == len(scenario.t_vicon) - len(OCCLUDED)
     assert not np.isin(np.round(track.t * RATE_HZ).astype(int), OCCLUDED).any()
@@ -207,18 +210,18 @@ def test_occluded_stretch_is_bridged_not_invented(flight, scenario):
 
 # -- file variants --------------------------------------------------------------------------------------
 def assert_same_track(path, reference, atol=1e-6):
-    track = vicon_csv.read_vicon_csv(path)
+    track = vicon.read_vicon_csv(path)
     np.testing.assert_array_equal(track.t, reference.t)
     assert np.abs(track.p - reference.p).max() < atol
     return track
 
 
 def test_metres_crlf_trailing_commas_and_marker_section_read_the_same(tmp_path, scenario):
-    reference = vicon_csv.read_vicon_csv(scenario.vicon)
+    reference = vicon.read_vicon_csv(scenario.vicon)
     variants = {"metres": {"units": "m"}, "crlf": {"newline": "\r\n"}, "markers": {"marker_section": True}}
     for name, kwargs in variants.items():
         path = tmp_path / f"{name}.csv"
-        vicon_csv.write_vicon_csv(path, scenario.t_vicon, scenario.p_written, scenario.quat_written, RATE_HZ,
+        pair_writer.write_vicon_csv(path, scenario.t_vicon, scenario.p_written, scenario.quat_written, RATE_HZ,
                                   scenario.occluded, **kwargs)
         assert assert_same_track(path, reference).warnings == []
     trailing = tmp_path / "trailing.csv"
@@ -230,14 +233,14 @@ def test_segment_section_after_a_marker_section_is_found(tmp_path, scenario):
     markers = "Trajectories\n100\n,,cf1:m1,,\nFrame,Sub Frame,X,Y,Z\n,,mm,mm,mm\n1,0,1.0,2.0,3.0\n2,0,1.0,2.0,3.0\n\n"
     path = tmp_path / "markers_first.csv"
     path.write_text(markers + scenario.vicon.read_text())
-    assert_same_track(path, vicon_csv.read_vicon_csv(scenario.vicon))
+    assert_same_track(path, vicon.read_vicon_csv(scenario.vicon))
 
 
 def test_degrees_in_the_units_line_are_converted(tmp_path):
     path = tmp_path / "deg.csv"
     path.write_text("Segments\n100\n,,cf1:cf1,,,,,\nFrame,Sub Frame,RX,RY,RZ,TX,TY,TZ\n,,deg,deg,deg,mm,mm,mm\n"
                     "1,0,0,0,90,1000,0,0\n2,0,0,0,90,1000,0,0\n")
-    track = vicon_csv.read_vicon_csv(path)
+    track = vicon.read_vicon_csv(path)
     np.testing.assert_allclose(Rotation.from_quat(track.quat).as_rotvec(), [[0, 0, np.pi / 2]] * 2)
     np.testing.assert_allclose(track.p, [[1.0, 0, 0]] * 2)
 
@@ -245,9 +248,9 @@ def test_degrees_in_the_units_line_are_converted(tmp_path):
 @pytest.mark.parametrize("units", ["mm", "m"])
 def test_units_decided_by_magnitude_without_units_line_with_a_warning(tmp_path, scenario, units):
     path = tmp_path / f"no_units_{units}.csv"
-    vicon_csv.write_vicon_csv(path, scenario.t_vicon, scenario.p_written, scenario.quat_written, RATE_HZ,
+    pair_writer.write_vicon_csv(path, scenario.t_vicon, scenario.p_written, scenario.quat_written, RATE_HZ,
                               units=units, units_line=False)
-    track = vicon_csv.read_vicon_csv(path)
+    track = vicon.read_vicon_csv(path)
     assert np.abs(track.p - scenario.p_written).max() < 1e-6
     assert track.units == {"position": units, "rotation": "rad", "from": "magnitude"}
     assert any(f"assumed {units}" in warning for warning in track.warnings)
@@ -258,8 +261,8 @@ def test_several_segments_pick_by_name(tmp_path):
     path.write_text("Segments\n100\n,,cf1:cf1,,,,,,cf2:cf2,,,,,\n"
                     "Frame,Sub Frame,RX,RY,RZ,TX,TY,TZ,RX,RY,RZ,TX,TY,TZ\n,,rad,rad,rad,mm,mm,mm,rad,rad,rad,m,m,m\n"
                     "1,0,0,0,0,1000,0,0,0,0,0,2,0,0\n2,0,0,0,0,1000,0,0,0,0,0,2,0,0\n")
-    assert vicon_csv.read_vicon_csv(path).p[0, 0] == pytest.approx(1.0)
-    track = vicon_csv.read_vicon_csv(path, segment="cf2")
+    assert vicon.read_vicon_csv(path).p[0, 0] == pytest.approx(1.0)
+    track = vicon.read_vicon_csv(path, segment="cf2")
     assert track.p[0, 0] == pytest.approx(2.0) and track.subject == "cf2"
     assert any("2 segments" in warning for warning in track.warnings)
 
@@ -267,21 +270,21 @@ def test_several_segments_pick_by_name(tmp_path):
 def test_cfclient_crlf_and_sniffers(tmp_path, scenario):
     crlf = tmp_path / "crlf_cfclient.csv"
     crlf.write_bytes(scenario.cfclient.read_bytes().replace(b"\n", b"\r\n"))
-    reference, log = vicon_csv.read_cfclient_csv(scenario.cfclient), vicon_csv.read_cfclient_csv(crlf)
+    reference, log = cfclient.read_cfclient_csv(scenario.cfclient), cfclient.read_cfclient_csv(crlf)
     np.testing.assert_array_equal(log.t, reference.t)
     np.testing.assert_array_equal(log.acc_g, reference.acc_g)
-    assert vicon_csv.sniff_vicon(scenario.vicon) and not vicon_csv.sniff_vicon(scenario.cfclient)
-    assert vicon_csv.sniff_cfclient(crlf) and not vicon_csv.sniff_cfclient(scenario.vicon)
+    assert vicon.sniff_vicon(scenario.vicon) and not vicon.sniff_vicon(scenario.cfclient)
+    assert cfclient.sniff_cfclient(crlf) and not cfclient.sniff_cfclient(scenario.vicon)
     nanobench_like = tmp_path / "nb.csv"
     nanobench_like.write_text("t,px,py,pz\n0,1,2,3\n")
-    assert not vicon_csv.sniff_vicon(nanobench_like) and not vicon_csv.sniff_cfclient(nanobench_like)
-    assert not vicon_csv.sniff_vicon(tmp_path / "absent") and not vicon_csv.sniff_cfclient(tmp_path / "absent")
+    assert not vicon.sniff_vicon(nanobench_like) and not cfclient.sniff_cfclient(nanobench_like)
+    assert not vicon.sniff_vicon(tmp_path / "absent") and not cfclient.sniff_cfclient(tmp_path / "absent")
 
 
 # -- clock alignment quality ----------------------------------------------------------------------------
 def test_hover_gives_a_low_score_and_a_warning(tmp_path):
     flight = Scenario(tmp_path, kind="hover").read()
-    assert flight.meta["clock_offset_score"] < vicon_csv.MIN_CLOCK_SCORE
+    assert flight.meta["clock_offset_score"] < pair_reader.MIN_CLOCK_SCORE
     assert any("clock offset ambiguous" in warning for warning in flight.meta["warnings"])
     assert flight.quality["ok"] is False and "clock offset ambiguous" in flight.quality["issues"][0]
 
@@ -290,7 +293,7 @@ def test_repetitive_motion_without_take_off_is_flagged_ambiguous(tmp_path):
     # An endless figure-eight matches itself one period (8 s) later as well as at the true lag.
     flight = Scenario(tmp_path, kind="airborne8").read()
     alignment = flight.meta["clock_alignment"]
-    assert alignment["runner_up"] > vicon_csv.MAX_RUNNER_UP_RATIO * alignment["score"]
+    assert alignment["runner_up"] > pair_reader.MAX_RUNNER_UP_RATIO * alignment["score"]
     assert flight.quality["ok"] is False
 
 
@@ -350,8 +353,8 @@ BAD_CFCLIENT = {
 }
 
 
-BAD_FILES = {**{f"vicon, {case}": (vicon_csv.read_vicon_csv, *bad) for case, bad in BAD_VICON.items()},
-             **{f"cfclient, {case}": (vicon_csv.read_cfclient_csv, *bad) for case, bad in BAD_CFCLIENT.items()}}
+BAD_FILES = {**{f"vicon, {case}": (vicon.read_vicon_csv, *bad) for case, bad in BAD_VICON.items()},
+             **{f"cfclient, {case}": (cfclient.read_cfclient_csv, *bad) for case, bad in BAD_CFCLIENT.items()}}
 
 
 @pytest.mark.parametrize("case", BAD_FILES)
@@ -374,7 +377,7 @@ def test_log_too_short_to_align_is_an_ingest_error(tmp_path, scenario):
     short = tmp_path / "short_cfclient.csv"
     short.write_text(CF_HEAD + "".join(f"{10000 + 10 * k},0,0,1\n" for k in range(100)))   # 1 s
     with pytest.raises(IngestError, match="cannot align its clock .* too short") as info:
-        vicon_csv.read_pair(scenario.vicon, short)
+        pair_reader.read_pair(scenario.vicon, short)
     assert info.value.path == str(short)
 
 
@@ -383,7 +386,7 @@ def test_vicon_export_too_short_to_align_names_the_vicon_file(tmp_path, scenario
     short = tmp_path / "short_vicon.csv"
     short.write_text("".join(lines[:len(VICON_HEAD.splitlines()) + 150]))          # 1.5 s of frames
     with pytest.raises(IngestError, match="cannot align its clock .* mocap: .* too short") as info:
-        vicon_csv.read_pair(short, scenario.cfclient)
+        pair_reader.read_pair(short, scenario.cfclient)
     assert info.value.path == str(short)
 
 
@@ -391,7 +394,7 @@ def test_truncated_last_row_is_dropped_with_a_warning(tmp_path, scenario):
     text = scenario.vicon.read_text()
     cut = tmp_path / "cut_vicon.csv"
     cut.write_text(text[:text.rindex("\n") - 7])          # the last row loses its last digits and line end
-    track = vicon_csv.read_vicon_csv(cut)
+    track = vicon.read_vicon_csv(cut)
     assert len(track.t) == (~scenario.occluded).sum() - 1
     assert any("truncated" in warning for warning in track.warnings)
 
@@ -444,10 +447,10 @@ def only_ingest_errors(reader, path: Path, content) -> None:
 @FUZZ
 @given(content=st.one_of(mutated(small_vicon_text()), CSV_LIKE, st.text(max_size=300), st.binary(max_size=300)))
 def test_fuzzed_vicon_files_raise_nothing_but_ingest_error(tmp_path, content):
-    only_ingest_errors(vicon_csv.read_vicon_csv, tmp_path / "fuzz_vicon.csv", content)
+    only_ingest_errors(vicon.read_vicon_csv, tmp_path / "fuzz_vicon.csv", content)
 
 
 @FUZZ
 @given(content=st.one_of(mutated(small_cfclient_text()), CSV_LIKE, st.text(max_size=300), st.binary(max_size=300)))
 def test_fuzzed_cfclient_files_raise_nothing_but_ingest_error(tmp_path, content):
-    only_ingest_errors(vicon_csv.read_cfclient_csv, tmp_path / "fuzz_cfclient.csv", content)
+    only_ingest_errors(cfclient.read_cfclient_csv, tmp_path / "fuzz_cfclient.csv", content)

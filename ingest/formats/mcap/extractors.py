@@ -1,0 +1,105 @@
+"""Extractors: one decoded message -> (stamp ns or None, values, unit or None).
+
+Pose extractors give (x, y, z, qx, qy, qz, qw) without a unit; acceleration extractors give (x, y, z)
+with their unit ("g", "m/s^2", or None when the message does not say).  A message that decodes but is no
+usable sample raises `Rejected` with the reason, which the reader counts per topic.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+from .schemas import UNIT_NAMES
+
+
+class Rejected(Exception):
+    """A message that decodes but is not a usable sample; the text is the reason, counted per topic."""
+
+
+# An extractor turns one decoded message into (stamp ns or None, values, unit or None).
+Extractor = Callable[[Any], tuple[int | None, tuple[float, ...], str | None]]
+
+
+def _ros_stamp_ns(header) -> int | None:
+    stamp_ns = header.stamp.sec * 10**9 + header.stamp.nanosec
+    return stamp_ns if stamp_ns > 0 else None
+
+
+def pose_stamped(msg):
+    position, orientation = msg.pose.position, msg.pose.orientation
+    return _ros_stamp_ns(msg.header), (position.x, position.y, position.z, *_xyzw(orientation)), None
+
+
+def transform_stamped(msg):
+    translation, rotation = msg.transform.translation, msg.transform.rotation
+    return _ros_stamp_ns(msg.header), (translation.x, translation.y, translation.z, *_xyzw(rotation)), None
+
+
+def _xyzw(quaternion) -> tuple[float, float, float, float]:
+    return quaternion.x, quaternion.y, quaternion.z, quaternion.w
+
+
+def imu(msg):
+    acc = msg.linear_acceleration
+    return _ros_stamp_ns(msg.header), (acc.x, acc.y, acc.z), "m/s^2"
+
+
+def log_data(msg, indices: list[int], expected: int):
+    values = msg.values
+    if len(values) != expected:
+        raise Rejected(f"{len(values)} values instead of {expected}")
+    return _ros_stamp_ns(msg.header), tuple(float(values[i]) for i in indices), "g"
+
+
+def _json_field(obj, key: str):
+    if not isinstance(obj, dict) or key not in obj:
+        raise Rejected(f"no field {key!r}")
+    return obj[key]
+
+
+def _json_number(obj, key: str) -> float:
+    value = _json_field(obj, key)
+    if value is None:                # some JSON writers turn NaN into null
+        return math.nan
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise Rejected(f"field {key!r} is not a number")
+    return float(value)
+
+
+def _json_stamp_ns(obj) -> int | None:
+    stamp = obj.get("timestamp")
+    if stamp is None:
+        return None
+    if not isinstance(stamp, dict):
+        raise Rejected("timestamp is not an object {sec, nsec}")
+    sec, nsec = stamp.get("sec", 0), stamp.get("nsec", stamp.get("nanosec", 0))
+    if not all(isinstance(v, int) and not isinstance(v, bool) for v in (sec, nsec)):
+        raise Rejected("timestamp sec/nsec are not integers")
+    stamp_ns = sec * 10**9 + nsec
+    return stamp_ns if 0 < stamp_ns < 2**63 else None
+
+
+def _json_xyz(obj, keys: str = "xyz") -> tuple[float, ...]:
+    return tuple(_json_number(obj, key) for key in keys)
+
+
+def json_pose_in_frame(obj):
+    pose = _json_field(obj, "pose")
+    position = _json_xyz(_json_field(pose, "position"))
+    orientation = _json_xyz(_json_field(pose, "orientation"), "xyzw")
+    return _json_stamp_ns(obj), position + orientation, None
+
+
+def json_frame_transform(obj):
+    translation = _json_xyz(_json_field(obj, "translation"))
+    rotation = _json_xyz(_json_field(obj, "rotation"), "xyzw")
+    return _json_stamp_ns(obj), translation + rotation, None
+
+
+def json_acceleration(obj):
+    xyz = _json_xyz(obj)
+    unit = obj.get("unit")
+    if unit is not None and unit not in UNIT_NAMES:
+        raise Rejected(f"unknown unit {unit!r} (expected 'g' or 'm/s^2')")
+    return _json_stamp_ns(obj), xyz, UNIT_NAMES.get(unit)

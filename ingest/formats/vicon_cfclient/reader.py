@@ -1,0 +1,90 @@
+"""`read_pair`: a Vicon export and the cfclient log of the same flight as one Flight on the Vicon clock."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from ... import clock
+from ...align import build_flight, samples_per_second
+from ...flight import Flight, IngestError, sha256_file
+from .cfclient import read_cfclient_csv
+from .vicon import read_vicon_csv
+
+# Clock alignment is trusted when the specific-force magnitudes correlate at least this well (clean
+# flights with take-off: > 0.95) and no other lag comes within this fraction of the peak (periodic motion).
+MIN_CLOCK_SCORE = 0.5
+MAX_RUNNER_UP_RATIO = 0.9
+
+
+def read_pair(vicon_path, cfclient_path, rate_hz: float = 100.0, *, clock_offset_s: float | None = None,
+              max_lag_s: float = clock.DEFAULT_MAX_LAG_S, segment: str | None = None, cut: bool = True) -> Flight:
+    """A Vicon CSV export and the cfclient log of the same flight as one Flight on the Vicon clock.
+
+    clock_offset_s: t_vicon = t_cfclient_s + clock_offset_s (t_cfclient_s = Timestamp / 1000).  None:
+    estimated by cross-correlation (ingest.clock), searched within ±max_lag_s of aligning the starts.
+    """
+    vicon_path, cfclient_path = Path(vicon_path), Path(cfclient_path)
+    track = read_vicon_csv(vicon_path, segment)
+    log = read_cfclient_csv(cfclient_path)
+    alignment = None
+    if clock_offset_s is None:
+        alignment = _estimate_offset(vicon_path, cfclient_path, track, log, max_lag_s, rate_hz)
+        clock_offset_s = alignment.offset_s
+    _require_overlap(vicon_path, cfclient_path, track.t, log.t + clock_offset_s, rate_hz)
+
+    warnings = [f"{vicon_path.name}: {w}" for w in track.warnings]
+    warnings += [f"{cfclient_path.name}: {w}" for w in log.warnings]
+    clock_issue = _clock_issue(alignment)
+    meta = {
+        "adapter": "vicon+cfclient",
+        "sources": [{"path": str(vicon_path), "sha256": sha256_file(vicon_path)},
+                    {"path": str(cfclient_path), "sha256": sha256_file(cfclient_path)}],
+        "original_rates": {"mocap": track.rate_hz, "acc": samples_per_second(log.t)},
+        "clock_offset_s": float(clock_offset_s),
+        "clock_offset_score": None if alignment is None else alignment.score,
+        "clock_alignment": {"method": "given" if alignment is None else
+                            "cross-correlation of |specific force| (mocap p̈ + g vs accelerometer)",
+                            **({} if alignment is None else alignment.as_meta())},
+        "vicon": {"subject": track.subject, "segment": track.segment, "capture_rate_hz": track.rate_hz,
+                  "frames": track.frames, "occluded_frames": track.occluded_frames,
+                  "missing_frame_numbers": track.missing_frame_numbers, "units": track.units},
+        "cfclient": {"rows": log.rows, "rows_used": int(len(log.t)), "columns": log.columns,
+                     "t_first_since_boot_s": float(log.t[0])},
+        "warnings": warnings + ([clock_issue] if clock_issue else []),
+    }
+    if clock_issue:
+        meta["quality"] = {"ok": False, "issues": [clock_issue]}
+    channels = {name: (t + clock_offset_s, values) for name, (t, values) in log.channels.items()}
+    return build_flight(vicon_path, t_mocap=track.t, p=track.p, quat=track.quat, t_acc=log.t + clock_offset_s,
+                        acc_body_g=log.acc_g, channels=channels, rate_hz=rate_hz, meta=meta, cut=cut)
+
+
+def _estimate_offset(vicon_path, cfclient_path, track, log, max_lag_s, rate_hz) -> clock.ClockAlignment:
+    try:
+        return clock.align_mocap_and_accelerometer(track.t, track.p, log.t, log.acc_g, max_lag_s=max_lag_s,
+                                                   rate_hz=rate_hz)
+    except ValueError as err:  # blame the file whose signal failed; a failed search is the pair's
+        if str(err).startswith("mocap"):
+            raise IngestError(vicon_path, f"cannot align its clock with {cfclient_path.name}: {err}") from None
+        raise IngestError(cfclient_path, f"cannot align its clock with {vicon_path.name}: {err}") from None
+
+
+def _clock_issue(alignment: clock.ClockAlignment | None) -> str | None:
+    """Why the estimated offset should not be trusted, or None."""
+    if alignment is None:
+        return None
+    if not alignment.score >= MIN_CLOCK_SCORE:
+        return (f"clock offset ambiguous: mocap and accelerometer |specific force| correlate only "
+                f"{alignment.score:.2f} at the best lag (< {MIN_CLOCK_SCORE:g}) — too little excitation "
+                f"(hover?) or the files are not of the same flight")
+    if alignment.runner_up > MAX_RUNNER_UP_RATIO * alignment.score:
+        return (f"clock offset ambiguous: another lag correlates {alignment.runner_up:.2f} vs "
+                f"{alignment.score:.2f} at the best (repetitive motion without take-off/landing?)")
+    return None
+
+
+def _require_overlap(vicon_path: Path, cfclient_path: Path, t_mocap, t_acc, rate_hz: float) -> None:
+    if min(t_mocap[-1], t_acc[-1]) - max(t_mocap[0], t_acc[0]) < 2.0 / rate_hz:
+        raise IngestError(cfclient_path, f"no overlap with {vicon_path.name} after clock alignment: mocap covers "
+                                         f"{t_mocap[0]:.2f}..{t_mocap[-1]:.2f} s, this log "
+                                         f"{t_acc[0]:.2f}..{t_acc[-1]:.2f} s on the Vicon clock")
+

@@ -1,0 +1,118 @@
+"""Writing a SimulatedFlight in every supported format (`write_flight`), each on its own clock, and mapping
+a Flight read back from those files onto simulation time (`sim_times`)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..flight import Flight
+from ..formats.crazyflie_usd import writer as usd_writer
+from ..formats.mcap import writer as mcap_writer
+from ..formats.nanobench import writer as nanobench_writer
+from ..formats.vicon_cfclient.writer import write_cfclient_csv, write_vicon_csv
+from .sensors import Imu, sample_times
+from .simulation import SimulatedFlight
+
+# Where simulation time 0 lies on each file's own clock (see sim_times).
+NANOBENCH_EPOCH_S = 1_700_000_000.0     # NanoBench stamps rows with Unix time
+USD_BOOT_S = 23.456                     # uSD stamps: time since the Crazyflie booted
+CFCLIENT_BOOT_S = 41.237                # cfclient Timestamp: ms since boot (another boot than the uSD one)
+VICON_START_S = 0.2                     # the Vicon capture starts 0.2 s after the cfclient log
+# The pair's two clocks: t_vicon = t_cfclient + CFCLIENT_CLOCK_OFFSET_S (t_cfclient = Timestamp / 1000).
+CFCLIENT_CLOCK_OFFSET_S = -(CFCLIENT_BOOT_S + VICON_START_S)
+CFCLIENT_RATE_HZ = 100.0                # a cfclient log block runs at ≤ 100 Hz over the radio
+
+FORMATS = ("nanobench", "usd", "usd-v1", "vicon+cfclient", "mcap-ros2", "mcap-json")
+SOURCE_TIME_AT_SIM_ZERO = {"nanobench": NANOBENCH_EPOCH_S, "usd": USD_BOOT_S, "usd-v1": USD_BOOT_S,
+                           "vicon+cfclient": -VICON_START_S, "mcap-ros2": 0.0, "mcap-json": 0.0}
+
+
+def _on_times(t_from, values, t_to) -> np.ndarray:
+    return np.column_stack([np.interp(t_to, t_from, values[:, j]) for j in range(values.shape[1])])
+
+
+def _decimated(imu: Imu, rate_hz: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(t, acc_g, gyro, setpoint) at rate_hz: every n-th sample when the IMU rate is a multiple, as a
+    log block samples the current value; otherwise interpolated."""
+    ratio = (len(imu.t) - 1) / (imu.t[-1] * rate_hz)
+    if abs(ratio - round(ratio)) < 1e-9 and round(ratio) >= 1:
+        pick = slice(None, None, int(round(ratio)))
+        return imu.t[pick], imu.acc_g[pick], imu.gyro[pick], imu.setpoint[pick]
+    t = sample_times(imu.t[-1], rate_hz)
+    return t, _on_times(imu.t, imu.acc_g, t), _on_times(imu.t, imu.gyro, t), _on_times(imu.t, imu.setpoint, t)
+
+
+def _write_nanobench(sim: SimulatedFlight, path: Path) -> list[Path]:
+    # The NanoBench recorder resampled every onboard stream onto the Vicon stamps by linear interpolation.
+    t = sim.mocap.t
+    nanobench_writer.write(path, NANOBENCH_EPOCH_S + t, sim.mocap.p, sim.mocap.quat,
+                           _on_times(sim.imu.t, sim.imu.acc_g, t), gyro=_on_times(sim.imu.t, sim.imu.gyro, t),
+                           setpoint=_on_times(sim.imu.t, sim.imu.setpoint, t))
+    return [path]
+
+
+def _write_usd(sim: SimulatedFlight, path: Path, version: int, pose_stream: str) -> list[Path]:
+    """The firmware's layout: a fixed-frequency stream at the IMU rate with acc (g), gyro (deg/s) and the
+    setpoint (ctrltargetZ, int16 mm); the mocap pose (locSrv) either sample-and-hold inside it (what real
+    logs hold) or in its own event stream at the mocap frames ("event")."""
+    imu, mocap = sim.imu, sim.mocap
+    fixed = {f"acc.{axis}": ("f", imu.acc_g[:, j]) for j, axis in enumerate("xyz")}
+    fixed.update({f"gyro.{axis}": ("f", np.degrees(imu.gyro[:, j])) for j, axis in enumerate("xyz")})
+    fixed.update({f"ctrltargetZ.{axis}": ("h", 1000 * imu.setpoint[:, j]) for j, axis in enumerate("xyz")})
+    pose = np.column_stack([mocap.p, mocap.quat])
+    names = ("locSrv.x", "locSrv.y", "locSrv.z", "locSrv.qx", "locSrv.qy", "locSrv.qz", "locSrv.qw")
+    events = {"fixedFrequency": {"t": USD_BOOT_S + imu.t, "vars": fixed}}
+    if pose_stream == "fixed":
+        latest = np.searchsorted(mocap.t, imu.t + 1e-9, side="right") - 1     # the last frame received
+        fixed.update({name: ("f", pose[latest, j]) for j, name in enumerate(names)})
+    elif pose_stream == "event":
+        pose_vars = {name: ("f", pose[:, j]) for j, name in enumerate(names)}
+        events["locSrvPose"] = {"t": USD_BOOT_S + mocap.t, "vars": pose_vars}
+    else:
+        raise ValueError(f"usd pose_stream must be 'fixed' or 'event', not {pose_stream!r}")
+    usd_writer.write(path, events, version=version)
+    return [path]
+
+
+def _write_vicon_cfclient(sim: SimulatedFlight, vicon_path: Path, cfclient_path: Path) -> list[Path]:
+    """Two clocks: the Vicon export counts from its first frame (VICON_START_S after the cfclient log
+    began), the cfclient log stamps ms since boot (CFCLIENT_BOOT_S at simulation time 0)."""
+    mocap = sim.mocap
+    seen = mocap.t >= VICON_START_S - 1e-9
+    write_vicon_csv(vicon_path, mocap.t[seen] - VICON_START_S, mocap.p[seen], mocap.quat[seen],
+                    rate_hz=sim.sensors.mocap_rate_hz, units="mm")
+    t, acc, gyro, setpoint = _decimated(sim.imu, CFCLIENT_RATE_HZ)
+    extra = {f"gyro.{axis}": np.degrees(gyro[:, j]) for j, axis in enumerate("xyz")}
+    extra.update({f"ctrltarget.{axis}": setpoint[:, j] for j, axis in enumerate("xyz")})
+    write_cfclient_csv(cfclient_path, CFCLIENT_BOOT_S + t, acc, extra)
+    return [vicon_path, cfclient_path]
+
+
+def write_flight(sim: SimulatedFlight, fmt: str, directory, stem: str, *, usd_pose_stream: str = "fixed") -> list[Path]:
+    """Write one simulated flight in format `fmt` (see FORMATS) into directory; returns the files to give to
+    ingest.read_flights (the Vicon export first for "vicon+cfclient")."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    if fmt == "nanobench":
+        return _write_nanobench(sim, directory / f"{stem}.csv")
+    if fmt in ("usd", "usd-v1"):
+        return _write_usd(sim, directory / stem, 2 if fmt == "usd" else 1, usd_pose_stream)
+    if fmt == "vicon+cfclient":
+        return _write_vicon_cfclient(sim, directory / f"{stem}_vicon.csv", directory / f"{stem}_cfclient.csv")
+    if fmt in ("mcap-ros2", "mcap-json"):
+        path = directory / f"{stem}.mcap"
+        writer = mcap_writer.write_ros2 if fmt == "mcap-ros2" else mcap_writer.write_json
+        writer(path, sim.mocap.t, sim.mocap.p, sim.mocap.quat, sim.imu.acc_g, t_acc=sim.imu.t)
+        return [path]
+    raise ValueError(f"unknown format {fmt!r} (one of {', '.join(FORMATS)})")
+
+
+def sim_times(flight: Flight, fmt: str) -> np.ndarray:
+    """Simulation time of every row of a Flight read back from a file that write_flight wrote in `fmt`.
+
+    The Flight's t restarts at 0 where its grid starts (meta t0_source_s, on the file's clock) plus the
+    take-off cut; each format puts simulation time 0 at SOURCE_TIME_AT_SIM_ZERO[fmt] on that clock (for
+    vicon+cfclient, the Vicon clock, on which the Flight lives)."""
+    start = flight.meta.get("flying_window", {}).get("start_s", 0.0)
+    return flight.t + (flight.meta["t0_source_s"] - SOURCE_TIME_AT_SIM_ZERO[fmt]) + start

@@ -1,0 +1,110 @@
+"""The sensors (SensorModel, every parameter known) and their records: mocap and IMU sampled from the
+true states, with noise, bias, scale, misalignment, low-pass and delay as set."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import lfilter, lfilter_zi
+from scipy.spatial.transform import Rotation
+
+from ..frames import GRAVITY, imu_misalignment
+from .trajectories import SIM_RATE_HZ, Reference
+from .vehicle import States
+
+
+@dataclass
+class SensorModel:
+    mocap_rate_hz: float = 100.0
+    mocap_position_noise_m: float = 0.0005
+    mocap_attitude_noise_rad: float = 0.002
+    imu_rate_hz: float = 500.0
+    acc_noise_g: float = 0.02
+    gyro_noise_rad_s: float = 0.005
+    bias: tuple = (0.0, 0.0, 0.0)            # m/s², IMU axes
+    scale: tuple = (1.0, 1.0, 1.0)
+    delay_s: float = 0.0                     # > 0: the IMU lags the mocap
+    misalignment: tuple = (0.0, 0.0)         # (roll, pitch) rad of the IMU frame vs the body frame
+    lowpass_hz: float | None = None          # first-order, on the accelerometer
+
+    @classmethod
+    def ideal(cls, **changes) -> SensorModel:
+        """No noise and no effects (then only the file formats' quantisation separates files from truth)."""
+        return cls(**{"mocap_position_noise_m": 0.0, "mocap_attitude_noise_rad": 0.0, "acc_noise_g": 0.0,
+                      "gyro_noise_rad_s": 0.0, **changes})
+
+    def changes(self) -> dict:
+        """Every setting that differs from the defaults (noise, rates and effects), for READMEs."""
+        nominal = SensorModel()
+        return {name: value for name, value in vars(self).items() if value != getattr(nominal, name)}
+
+    def misalignment_rotation(self) -> Rotation:
+        return imu_misalignment(*self.misalignment)     # body <- IMU
+
+
+@dataclass
+class Mocap:
+    t: np.ndarray          # s, simulation time
+    p: np.ndarray          # m, with noise
+    quat: np.ndarray       # with noise
+    truth: States
+
+
+@dataclass
+class Imu:
+    t: np.ndarray          # s, simulation time (the stamps; with delay_s the values are older)
+    acc_g: np.ndarray      # IMU frame, g
+    gyro: np.ndarray       # IMU frame, rad/s
+    truth: States          # at the stamps
+    setpoint: np.ndarray   # the reference position at the stamps (m)
+
+
+def sample_times(end_s: float, rate_hz: float) -> np.ndarray:
+    return np.arange(int(np.floor(end_s * rate_hz + 1e-9)) + 1) / rate_hz
+
+
+def _noise(seed: int, stream: int, shape, std: float) -> np.ndarray:
+    """White noise of one sensor stream; each stream has its own generator, so changing one sensor's
+    settings leaves the others' noise as it was."""
+    if std == 0:
+        return np.zeros(shape)
+    return np.random.default_rng([seed, stream]).normal(0.0, std, shape)
+
+
+def sample_mocap(truth: States, sensors: SensorModel, seed: int) -> Mocap:
+    t = sample_times(truth.t[-1], sensors.mocap_rate_hz)
+    exact = truth.at(t)
+    p = exact.p + _noise(seed, 1, exact.p.shape, sensors.mocap_position_noise_m)
+    quat = exact.quat
+    if sensors.mocap_attitude_noise_rad > 0:
+        jitter = Rotation.from_rotvec(_noise(seed, 2, exact.p.shape, sensors.mocap_attitude_noise_rad))
+        quat = (Rotation.from_quat(exact.quat) * jitter).as_quat()
+    return Mocap(t, p, quat, exact)
+
+
+def _first_order_lowpass(values: np.ndarray, cutoff_hz: float, rate_hz: float) -> np.ndarray:
+    """1/(τs + 1) as the pole-matched recursion y[k] = α x[k] + (1 − α) y[k−1], started in steady state at
+    the first value.  It uses x[k], not the zero-order hold's x[k−1], so it leads that by one 1-kHz step."""
+    alpha = 1.0 - math.exp(-2 * math.pi * cutoff_hz / rate_hz)
+    b, a = [alpha], [1.0, alpha - 1.0]
+    zi = lfilter_zi(b, a)[:, None] * values[:1]
+    return lfilter(b, a, values, axis=0, zi=zi)[0]
+
+
+def _delayed(t_sim, values, t_stamps, delay_s: float) -> np.ndarray:
+    """Values at t_stamps − delay (held at the first value before the start)."""
+    return np.column_stack([np.interp(t_stamps - delay_s, t_sim, values[:, j]) for j in range(values.shape[1])])
+
+
+def sample_imu(truth: States, ref: Reference, sensors: SensorModel, seed: int) -> Imu:
+    t = sample_times(truth.t[-1], sensors.imu_rate_hz)
+    to_imu = sensors.misalignment_rotation().inv()
+    force = to_imu.apply(truth.specific_force_body()) * sensors.scale + sensors.bias
+    if sensors.lowpass_hz:
+        force = _first_order_lowpass(force, sensors.lowpass_hz, SIM_RATE_HZ)
+    acc = _delayed(truth.t, force, t, sensors.delay_s) / GRAVITY + _noise(seed, 3, (len(t), 3), sensors.acc_noise_g)
+    rates = _delayed(truth.t, to_imu.apply(truth.omega), t, sensors.delay_s)
+    gyro = rates + _noise(seed, 4, (len(t), 3), sensors.gyro_noise_rad_s)
+    setpoint = np.column_stack([np.interp(t, ref.t, ref.p[:, j]) for j in range(3)])
+    return Imu(t, acc, gyro, truth.at(t), setpoint)

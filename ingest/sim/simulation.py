@@ -1,0 +1,34 @@
+"""`simulate`: fly a trajectory with take-off and landing in closed loop and sample the sensors, keeping
+the truth (a SimulatedFlight)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .sensors import Imu, Mocap, SensorModel, sample_imu, sample_mocap
+from .trajectories import Phases, Reference, Timing, Trajectory, reference
+from .vehicle import States, Vehicle, fly
+
+
+@dataclass
+class SimulatedFlight:
+    truth: States          # every 1 kHz step
+    reference: Reference
+    mocap: Mocap
+    imu: Imu
+    phases: Phases
+    trajectory: Trajectory
+    vehicle: Vehicle
+    sensors: SensorModel
+    seed: int
+    name: str = "simulated"
+
+
+def simulate(trajectory: Trajectory, *, vehicle: Vehicle | None = None, sensors: SensorModel | None = None,
+             timing: Timing | None = None, yaw_rad: float = 0.0, yaw_rate: float = 0.0, seed: int = 0,
+             name: str = "simulated") -> SimulatedFlight:
+    """Fly `trajectory` (with take-off and landing) in closed loop and sample the sensors."""
+    vehicle, sensors, timing = vehicle or Vehicle(), sensors or SensorModel(), timing or Timing()
+    ref, phases = reference(trajectory, timing, yaw_rad, yaw_rate)
+    truth = fly(ref, phases, vehicle)
+    return SimulatedFlight(truth, ref, sample_mocap(truth, sensors, seed), sample_imu(truth, ref, sensors, seed),
+                           phases, trajectory, vehicle, sensors, seed, name)
