@@ -17,7 +17,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.signal import savgol_filter
 
 from learnest.errors import InvalidInput
 
@@ -71,6 +70,8 @@ def sg_references(p: ArrayLike, dt: float, window: int = PAPER_WINDOW, order: in
         For non-numeric or non-finite positions, a bad ``dt``, ``window`` or ``order``, or a window
         longer than the series.
     """
+    from scipy.signal import savgol_filter  # scipy.signal imports scipy.stats (~1.5 s): loaded on first use
+
     series = _validated_series(p)
     if not (np.isfinite(dt) and dt > 0):
         raise InvalidInput(f"dt must be a positive number of seconds, got {dt}")

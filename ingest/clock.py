@@ -39,7 +39,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.signal import butter, correlate, savgol_filter, sosfiltfilt
 
 from .align import resample, uniform_grid
 from .frames import GRAVITY
@@ -161,6 +160,8 @@ def _uniform(t, values, rate_hz: float, name: str) -> tuple[np.ndarray, np.ndarr
 
 def _band_limited(signal: np.ndarray, rate_hz: float) -> np.ndarray:
     """Zero-phase low-pass and mean removal (the same for both signals: no relative delay)."""
+    from scipy.signal import butter, sosfiltfilt  # scipy.signal imports scipy.stats (~1.5 s): loaded on first use
+
     cutoff = min(BAND_HZ, 0.4 * rate_hz)
     sos = butter(BAND_ORDER, cutoff, fs=rate_hz, output="sos")
     filtered = sosfiltfilt(sos, signal - signal.mean())
@@ -173,6 +174,8 @@ def _normalised_correlation(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, n
     Normalising by the overlap (not the whole signals) keeps a lag with a short but perfect overlap
     comparable with the full one; the caller bounds the overlap from below.
     """
+    from scipy.signal import correlate  # scipy.signal imports scipy.stats (~1.5 s): loaded on first use
+
     lags = np.arange(-(len(y) - 1), len(x))
     raw = correlate(x, y, mode="full", method="fft")
     cx, cy = np.r_[0.0, np.cumsum(x ** 2)], np.r_[0.0, np.cumsum(y ** 2)]
@@ -216,6 +219,8 @@ def mocap_specific_force(t: ArrayLike, p: ArrayLike, rate_hz: float = 100.0) -> 
     Occlusion gaps are bridged linearly (p̈ = 0 inside, a short bump at the edges): harmless for the
     correlation as long as gaps are a small part of the flight.
     """
+    from scipy.signal import savgol_filter  # scipy.signal imports scipy.stats (~1.5 s): loaded on first use
+
     t, p = np.asarray(t, dtype=float), np.asarray(p, dtype=float)
     grid = uniform_grid(t[0], t[-1], rate_hz)
     window = _odd_window(SG_WINDOW_S * rate_hz, len(grid))

@@ -5,8 +5,12 @@ Quaternions are scalar-last [qx, qy, qz, qw]; "world" is z-up.
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-from scipy.spatial.transform import Rotation
+
+if TYPE_CHECKING:
+    from scipy.spatial.transform import Rotation
 
 GRAVITY = 9.80665  # m/s², standard gravity
 
@@ -14,6 +18,8 @@ GRAVITY = 9.80665  # m/s², standard gravity
 def imu_misalignment(roll: float, pitch: float) -> Rotation:
     """Rotation body <- IMU of an accelerometer mounted tilted by roll (about x), then pitch (about y):
     it reads R⁻¹ f for the body-frame specific force f.  The simulator and the diagnosis share it."""
+    from scipy.spatial.transform import Rotation  # scipy.spatial costs ~0.5 s to import: on first use
+
     return Rotation.from_euler("ZYX", [0.0, pitch, roll])
 
 

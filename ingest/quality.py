@@ -11,7 +11,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.ndimage import median_filter
-from scipy.signal import savgol_filter
 
 from .baseline import sg_references
 from .frames import GRAVITY
@@ -243,6 +242,8 @@ def acc_mocap_correlation(flight: Flight, window: int = SMOOTHING_WINDOW) -> flo
     """Pearson correlation of SG-smoothed a_meas with the SG second derivative of p, axes pooled after
     removing each axis' mean (a constant bias is a calibration matter, not misalignment).  None when the
     flight is too short for the window or too calm to tell."""
+    from scipy.signal import savgol_filter  # scipy.signal imports scipy.stats (~1.5 s): loaded on first use
+
     if not np.all(np.isfinite(flight.a_meas)):
         return None   # reported by the finiteness check
     try:

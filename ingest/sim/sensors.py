@@ -4,14 +4,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.signal import lfilter, lfilter_zi
-from scipy.spatial.transform import Rotation
 
 from ..frames import GRAVITY, imu_misalignment
 from .trajectories import SIM_RATE_HZ, Reference
 from .vehicle import States
+
+if TYPE_CHECKING:
+    from scipy.spatial.transform import Rotation
 
 
 @dataclass
@@ -40,6 +42,7 @@ class SensorModel:
         return {name: value for name, value in vars(self).items() if value != getattr(nominal, name)}
 
     def misalignment_rotation(self) -> Rotation:
+        """Rotation body <- IMU of this sensor's mounting tilt."""
         return imu_misalignment(*self.misalignment)     # body <- IMU
 
 
@@ -73,6 +76,8 @@ def _noise(seed: int, stream: int, shape, std: float) -> np.ndarray:
 
 
 def sample_mocap(truth: States, sensors: SensorModel, seed: int) -> Mocap:
+    from scipy.spatial.transform import Rotation  # scipy.spatial costs ~0.5 s to import: on first use
+
     t = sample_times(truth.t[-1], sensors.mocap_rate_hz)
     exact = truth.at(t)
     p = exact.p + _noise(seed, 1, exact.p.shape, sensors.mocap_position_noise_m)
@@ -86,6 +91,8 @@ def sample_mocap(truth: States, sensors: SensorModel, seed: int) -> Mocap:
 def _first_order_lowpass(values: np.ndarray, cutoff_hz: float, rate_hz: float) -> np.ndarray:
     """1/(τs + 1) as the pole-matched recursion y[k] = α x[k] + (1 − α) y[k−1], started in steady state at
     the first value.  It uses x[k], not the zero-order hold's x[k−1], so it leads that by one 1-kHz step."""
+    from scipy.signal import lfilter, lfilter_zi  # scipy.signal imports scipy.stats (~1.5 s): loaded on first use
+
     alpha = 1.0 - math.exp(-2 * math.pi * cutoff_hz / rate_hz)
     b, a = [alpha], [1.0, alpha - 1.0]
     zi = lfilter_zi(b, a)[:, None] * values[:1]

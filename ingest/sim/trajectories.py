@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 
 SIM_RATE_HZ = 1000.0    # the simulation runs on this grid: the reference, the closed loop, the IMU filter
 
@@ -112,6 +111,8 @@ class RandomWaypoints(Trajectory):
     duration_s: float = field(init=False, default=0.0)  # follows from the path
 
     def __post_init__(self):
+        from scipy.interpolate import CubicSpline  # scipy.interpolate costs ~1 s to import: on first use
+
         rng = np.random.default_rng(self.seed)
         low, high = np.array(self.box, float).T
         self.points = low + (high - low) * rng.random((self.count, 3))

@@ -6,7 +6,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..frames import GRAVITY
 from .trajectories import SIM_RATE_HZ, Phases, Reference
@@ -144,6 +143,8 @@ class States:
 
     def specific_force_body(self) -> np.ndarray:
         """What an ideal accelerometer at the centre of mass reads, m/s² in the body frame."""
+        from scipy.spatial.transform import Rotation  # scipy.spatial costs ~0.5 s to import: on first use
+
         world = self.a + [0.0, 0.0, GRAVITY]
         return Rotation.from_quat(self.quat).inv().apply(world)
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ...align import build_flight, resample_quaternions, samples_per_second
 from ...flight import Flight, IngestError, sha256_file
@@ -120,6 +119,8 @@ def _after_first_frame(pose: _Stream) -> _Stream:
 
 def rpy_to_quat(rpy) -> np.ndarray:
     """(N, 3) roll, pitch, yaw in rad (Z-Y-X, the firmware's quat2rpy) -> (N, 4) scalar-last quaternions."""
+    from scipy.spatial.transform import Rotation  # scipy.spatial costs ~0.5 s to import: on first use
+
     return Rotation.from_euler("ZYX", np.asarray(rpy, dtype=float).reshape(-1, 3)[:, ::-1]).as_quat()
 
 

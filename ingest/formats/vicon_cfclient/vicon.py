@@ -6,7 +6,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from scipy.spatial.transform import Rotation
 
 from ...flight import IngestError
 from ...limits import MAX_DURATION_S, MAX_ROOM_M
@@ -154,6 +153,8 @@ def _unit_of(path: Path, section: _Section, cells: list[str], columns: range, kn
 def read_vicon_csv(path, segment: str | None = None) -> ViconTrack:
     """Parse a Vicon Nexus/Tracker CSV export: the first segment-pose section, the requested (default:
     first) segment.  Occluded frames are left out (they are gaps, not data) and counted."""
+    from scipy.spatial.transform import Rotation  # scipy.spatial costs ~0.5 s to import: on first use
+
     path = Path(path)
     lines, ends_with_newline = read_lines(path)
     section = _pose_section(path, lines)

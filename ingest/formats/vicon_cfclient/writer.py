@@ -4,7 +4,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..crazyflie_variables import ACC
 from .vicon import EXPECTED_HEADER
@@ -20,6 +19,8 @@ def write_vicon_csv(path, t, p_m, quat_xyzw, rate_hz, occluded_mask=None, subjec
     occluded_mask rows are written with blank pose cells.  marker_section appends a marker "Trajectories"
     section after a blank line, as Nexus does, which readers must skip.
     """
+    from scipy.spatial.transform import Rotation  # scipy.spatial costs ~0.5 s to import: on first use
+
     t, p_m, quat = np.asarray(t, float), np.asarray(p_m, float), np.asarray(quat_xyzw, float)
     steps = (t - t[0]) * rate_hz
     frames = first_frame + np.round(steps).astype(np.int64)
