@@ -178,6 +178,12 @@ def _serve(args) -> int:
 
     if args.dask:  # the app reads its settings from the environment, in every worker process
         os.environ["LEARNEST_DASK"] = args.dask
+    if args.host not in ("0.0.0.0", "::"):  # the name it is reached by is served (LEARNEST_ALLOWED_HOSTS)
+        served = os.environ.get("LEARNEST_ALLOWED_HOSTS", "localhost,127.0.0.1,::1")
+        os.environ["LEARNEST_ALLOWED_HOSTS"] = f"{served},{args.host}"
+    else:
+        print("learnest: serving every interface: set LEARNEST_ALLOWED_HOSTS to the names clients use "
+              "(requests for other host names get 400)", file=sys.stderr)
     uvicorn.run("learnest.service.api.app:create_app", factory=True, host=args.host, port=args.port,
                 workers=args.workers)
     return 0

@@ -4,6 +4,8 @@
     LEARNEST_HOME               folder of the SQLite database and the blobs (default ./.learnest)
     LEARNEST_DATABASE_URL       PostgreSQL (or any SQLAlchemy URL) instead of the SQLite file
     LEARNEST_API_KEY            when set, every write needs the header X-API-Key
+    LEARNEST_ALLOWED_HOSTS      host names the server answers to, comma-separated (default the loopback
+                                names; add the machine's name or address to serve a network; * = any)
     LEARNEST_MAX_UPLOAD_MB      upload size limit (default 200)
     LEARNEST_SCHEDULE_SECONDS   evaluate new flights with the aliased model on this interval (0 = off)
     LEARNEST_SCHEDULE_ALIAS     ... with the version holding this alias (default production)
@@ -35,6 +37,7 @@ class Settings(BaseSettings):
     database_url: str | None = None          # None: SQLite file home/learnest.db
     max_upload_mb: float = Field(200.0, gt=0)
     api_key: str | None = None               # None: writes need no key
+    allowed_hosts: str = "localhost,127.0.0.1,::1"   # Host header names served (DNS rebinding): comma list
     schedule_seconds: float = Field(0.0, ge=0)   # 0: scheduler off
     schedule_alias: str = PRODUCTION_ALIAS
     schedule_methods: str = DEFAULT_METHODS
@@ -51,6 +54,11 @@ class Settings(BaseSettings):
     @classmethod
     def _known_methods(cls, value: str) -> str:
         return ",".join(parse_methods(value))  # names the unknown ones
+
+    @property
+    def allowed_host_names(self) -> tuple[str, ...]:
+        """`allowed_hosts` as a tuple of lower-case names."""
+        return tuple(name.strip().lower() for name in self.allowed_hosts.split(",") if name.strip())
 
     @property
     def url(self) -> str:

@@ -20,6 +20,7 @@ from ..jobs.scheduler import Scheduler
 from ..jobs.services import open_services, sweep_orphan_blobs
 from ..web import pages
 from .errors import install_error_handlers
+from .request_guard import RequestGuard
 from .routes import diagnoses, evaluations, flights, jobs, models
 
 
@@ -50,6 +51,7 @@ def create_app(settings: Settings | None = None, *, executor: Executor | None = 
                               "evaluate KNODE-UKF / KNODE-MHE against Savitzky-Golay references. Writes need "
                               "the X-API-Key header when the server has LEARNEST_API_KEY set.")
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
+    app.add_middleware(RequestGuard, allowed_hosts=settings.allowed_host_names)  # outermost: runs first
     install_error_handlers(app)
     for router in (flights.router, models.router, jobs.router, evaluations.router, diagnoses.router):
         app.include_router(router)

@@ -60,6 +60,8 @@ def shared_pool() -> LocalPoolExecutor:
 
 
 def settings_for(home: Path, **changes) -> Settings:
+    """Service settings on a SQLite file under ``home``; Starlette's TestClient sends ``Host: testserver``."""
+    changes.setdefault("allowed_hosts", "localhost,127.0.0.1,::1,testserver")
     return Settings(home=Path(home), pool_workers=1, **changes)
 
 
