@@ -3,8 +3,9 @@ the API-key check for writes; and the 202 answer every job-backed resource (eval
 from __future__ import annotations
 
 import hmac
+from typing import Annotated
 
-from fastapi import Depends, Header, HTTPException, Request
+from fastapi import Depends, Header, HTTPException, Path, Query, Request
 from fastapi.responses import JSONResponse
 
 from ..config import Settings
@@ -12,6 +13,12 @@ from ..jobs.services import Services
 from ..storage.blobs import BlobStore
 from ..storage.database import Database
 from ..storage.tables import Job
+
+# Ids and offsets are SQL BIGINTs: a larger number names nothing, and SQLite raises OverflowError on it (a
+# 500).  Declared once here, they are checked at the boundary and answered with a 422 that says the range.
+MAX_ROW_ID = 2**63 - 1
+RowId = Annotated[int, Path(ge=1, le=MAX_ROW_ID)]
+Offset = Annotated[int, Query(ge=0, le=MAX_ROW_ID)]
 
 
 def get_services(request: Request) -> Services:

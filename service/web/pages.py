@@ -33,7 +33,7 @@ from learnest.ingest.flight import Flight as CanonicalFlight
 from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON
 
 from .. import catalog, registry
-from ..api.deps import get_services
+from ..api.deps import MAX_ROW_ID, Offset, RowId, get_services
 from ..jobs.evaluation import start_evaluation
 from ..jobs.result_cache import EstimatorSettings
 from ..jobs.runner import ACTIVE
@@ -109,7 +109,7 @@ pages = APIRouter(include_in_schema=False)
 
 # -- flights ---------------------------------------------------------------------------------------------
 @pages.get("/", response_class=HTMLResponse)
-def flights_page(request: Request, offset: int = Query(0, ge=0), services: Services = Depends(get_services)):
+def flights_page(request: Request, offset: Offset = 0, services: Services = Depends(get_services)):
     total, rows = catalog.list_flights(services.db, limit=PAGE_SIZE, offset=offset, newest_first=True)
     return page("flights.html", "Flights", flights=rows, total=total, offset=offset,
                 key=forms.key_state(request, services.settings))
@@ -128,7 +128,7 @@ def upload_flight_form(request: Request, files: list[UploadFile | str] = File(de
 
 @pages.get("/ui/flights/{flight_id}", response_class=HTMLResponse)
 @html_errors
-def flight_page(request: Request, flight_id: int, services: Services = Depends(get_services)):
+def flight_page(request: Request, flight_id: RowId, services: Services = Depends(get_services)):
     row = catalog.get_flight(services.db, flight_id)
     return page("flight.html", f"Flight {row.id}: {row.name}", flight=row,
                 trained=catalog.versions_trained_on(services.db, flight_id),
@@ -208,7 +208,7 @@ def jobs_page(services: Services = Depends(get_services)):
 
 @pages.get("/ui/jobs/{job_id}", response_class=HTMLResponse)
 @html_errors
-def job_page(job_id: int, services: Services = Depends(get_services)):
+def job_page(job_id: RowId, services: Services = Depends(get_services)):
     job = catalog.get_job(services.db, job_id)
     evaluation = catalog.evaluation_of_job(services.db, job_id)
     active = job.state in ACTIVE
@@ -235,9 +235,10 @@ reports = APIRouter(tags=["evaluations"])
 @reports.get("/evaluations/{evaluation_id}/report.html", response_class=HTMLResponse,
              responses={202: {"description": "not finished yet (the page reloads itself)"},
                         409: {"description": "the evaluation job failed"}})
-def evaluation_report_page(evaluation_id: int,
-                           flight: int | None = Query(None, description="flight id of the velocity plot "
-                                                                        "(default: the first scored flight)"),
+def evaluation_report_page(evaluation_id: RowId,
+                           flight: int | None = Query(None, ge=1, le=MAX_ROW_ID,
+                                                      description="flight id of the velocity plot "
+                                                                  "(default: the first scored flight)"),
                            services: Services = Depends(get_services)):
     """The evaluation report for people: box plot, per-flight MSE table, velocity of one flight."""
     evaluation, job = catalog.row_and_job(services.db, Evaluation, evaluation_id, "evaluation")

@@ -9,7 +9,7 @@ from ...jobs.diagnosis import start_diagnosis
 from ...jobs.services import Services
 from ...storage.database import Database
 from ...storage.tables import Diagnosis
-from ..deps import get_db, get_services, pending, require_api_key
+from ..deps import RowId, get_db, get_services, pending, require_api_key
 from ..schemas import DiagnosisAccepted, DiagnosisPending, DiagnosisRequest
 
 router = APIRouter(prefix="/diagnoses", tags=["diagnoses"])
@@ -28,7 +28,7 @@ def create_diagnosis(body: DiagnosisRequest, response: Response, services: Servi
 @router.get("/{diagnosis_id}", responses={200: {"description": "the report (diagnose_flights' JSON)"},
                                           202: {"model": DiagnosisPending, "description": "not finished yet"},
                                           409: {"description": "the diagnosis job failed"}})
-def diagnosis_report(diagnosis_id: int, db: Database = Depends(get_db)):
+def diagnosis_report(diagnosis_id: RowId, db: Database = Depends(get_db)):
     diagnosis, job = row_and_job(db, Diagnosis, diagnosis_id, "diagnosis")
     if job.state != "succeeded":
         return pending("diagnosis", diagnosis, job)

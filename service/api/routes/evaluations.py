@@ -11,7 +11,7 @@ from ...jobs.result_cache import EstimatorSettings
 from ...jobs.services import Services
 from ...storage.database import Database
 from ...storage.tables import Evaluation
-from ..deps import get_db, get_services, pending, require_api_key
+from ..deps import RowId, get_db, get_services, pending, require_api_key
 from ..schemas import EvaluationAccepted, EvaluationPending, EvaluationRequest
 
 router = APIRouter(prefix="/evaluations", tags=["evaluations"])
@@ -30,7 +30,7 @@ def create_evaluation(body: EvaluationRequest, response: Response, services: Ser
 @router.get("/{evaluation_id}", responses={200: {"description": "the report (evaluate_flights' JSON)"},
                                            202: {"model": EvaluationPending, "description": "not finished yet"},
                                            409: {"description": "the evaluation job failed"}})
-def evaluation_report(evaluation_id: int, db: Database = Depends(get_db)):
+def evaluation_report(evaluation_id: RowId, db: Database = Depends(get_db)):
     evaluation, job = row_and_job(db, Evaluation, evaluation_id, "evaluation")
     if job.state != "succeeded":
         return pending("evaluation", evaluation, job)

@@ -20,7 +20,7 @@ from fastapi.responses import FileResponse
 from sqlalchemy import delete
 from starlette.background import BackgroundTask
 
-from learnest.errors import NotFound
+from learnest.errors import InvalidInput, NotFound
 from learnest.ingest.flight import Flight as CanonicalFlight
 
 from ... import catalog
@@ -28,7 +28,7 @@ from ...storage.blobs import CHUNK, BlobStore
 from ...storage.database import Database, blob_is_referenced
 from ...storage.tables import FlightRecord, Result
 from ...uploads import add_flight
-from ..deps import get_blobs, get_db, require_api_key
+from ..deps import Offset, RowId, get_blobs, get_db, require_api_key
 from ..schemas import FlightDetail, FlightOut, FlightPage
 
 router = APIRouter(prefix="/flights", tags=["flights"])
@@ -72,7 +72,7 @@ def list_flights(vehicle: str | None = None,
                                                                                "the quality checks"),
                  since: datetime | None = Query(None, description="uploaded at or after (ISO 8601; UTC if no zone)"),
                  until: datetime | None = Query(None, description="uploaded before (ISO 8601; UTC if no zone)"),
-                 limit: int = Query(50, ge=1, le=500), offset: int = Query(0, ge=0),
+                 limit: int = Query(50, ge=1, le=500), offset: Offset = 0,
                  db: Database = Depends(get_db)):
     conditions = []
     if vehicle is not None:
@@ -88,17 +88,21 @@ def list_flights(vehicle: str | None = None,
 
 
 def _naive_utc(moment: datetime) -> datetime:
-    return moment.astimezone(UTC).replace(tzinfo=None) if moment.tzinfo else moment
+    """The moment in UTC without a zone (how the rows store it); 422 for one outside years 1-9999 in UTC."""
+    try:
+        return moment.astimezone(UTC).replace(tzinfo=None) if moment.tzinfo else moment
+    except OverflowError:  # e.g. 0001-01-01T00:00:00+14:00 is in year 0 in UTC
+        raise InvalidInput(f"date {moment.isoformat()} is out of range in UTC (years 1-9999)") from None
 
 
 @router.get("/{flight_id}", response_model=FlightDetail)
-def flight_detail(flight_id: int, db: Database = Depends(get_db)):
+def flight_detail(flight_id: RowId, db: Database = Depends(get_db)):
     return flight_out(catalog.get_flight(db, flight_id), detail=True)
 
 
 @router.get("/{flight_id}/data", response_class=Response,
             responses={200: {"content": {"text/csv": {}}, "description": f"columns {CSV_COLUMNS}"}})
-def flight_data(flight_id: int, db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
+def flight_data(flight_id: RowId, db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
     """The normalized flight: uniform grid, SI units, world frame z-up, a = a_meas (gravity removed)."""
     row = catalog.get_flight(db, flight_id)
     flight = CanonicalFlight.from_bytes(blobs.read_bytes(row.flight_blob))
@@ -111,7 +115,7 @@ def flight_data(flight_id: int, db: Database = Depends(get_db), blobs: BlobStore
 
 @router.get("/{flight_id}/raw", response_class=FileResponse,
             responses={200: {"content": {"application/octet-stream": {}, "application/zip": {}}}})
-def flight_raw(flight_id: int, db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
+def flight_raw(flight_id: RowId, db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
     """The original upload: the file itself, or a zip of the files when there were several."""
     row = catalog.get_flight(db, flight_id)
     if len(row.files) == 1:
@@ -143,7 +147,7 @@ def _unique(name: str, used: set[str]) -> str:
 
 
 @router.delete("/{flight_id}", status_code=204, dependencies=[Depends(require_api_key)])
-def delete_flight(flight_id: int, db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
+def delete_flight(flight_id: RowId, db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
     """Removes the flight, its cached results and its blobs (unless another row still uses them).
     Model versions trained on it keep its id and sha256 (lineage)."""
     with db.transaction() as session:

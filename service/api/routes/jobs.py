@@ -8,7 +8,7 @@ from fastapi import APIRouter, Depends, Query
 from ... import catalog
 from ...storage.database import Database
 from ...storage.tables import Job
-from ..deps import get_db
+from ..deps import Offset, RowId, get_db
 from ..schemas import JobOut
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
@@ -21,13 +21,13 @@ def job_out(job: Job) -> dict:
 
 
 @router.get("/{job_id}", response_model=JobOut)
-def job_detail(job_id: int, db: Database = Depends(get_db)):
+def job_detail(job_id: RowId, db: Database = Depends(get_db)):
     return job_out(catalog.get_job(db, job_id))
 
 
 @router.get("", response_model=dict)
 def list_jobs(state: Literal["queued", "running", "succeeded", "failed"] | None = None,
-              kind: str | None = None, limit: int = Query(50, ge=1, le=500), offset: int = Query(0, ge=0),
+              kind: str | None = None, limit: int = Query(50, ge=1, le=500), offset: Offset = 0,
               db: Database = Depends(get_db)):
     """Newest first."""
     conditions = [c for c in (Job.state == state if state else None, Job.kind == kind if kind else None)

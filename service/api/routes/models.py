@@ -10,7 +10,7 @@ from ...jobs.training import start_training
 from ...storage.blobs import BlobStore
 from ...storage.database import Database
 from ...storage.tables import ModelVersion
-from ..deps import get_blobs, get_db, get_services, require_api_key
+from ..deps import RowId, get_blobs, get_db, get_services, require_api_key
 from ..schemas import AliasIn, AliasOut, ModelOut, ModelPage, TrainAccepted, TrainRequest, VersionOut
 
 router = APIRouter(prefix="/models", tags=["models"])
@@ -58,7 +58,7 @@ def model_detail(name: str, db: Database = Depends(get_db)):
 
 
 @router.get("/{name}/versions/{version}", response_model=VersionOut)
-def version_detail(name: str, version: int, db: Database = Depends(get_db)):
+def version_detail(name: str, version: RowId, db: Database = Depends(get_db)):
     with db.transaction() as session:
         row = registry.get_version(session, name, version)
         return version_out(row, registry.aliases_of(session, name))
@@ -67,7 +67,7 @@ def version_detail(name: str, version: int, db: Database = Depends(get_db)):
 @router.get("/{name}/versions/{version}/weights", response_class=Response,
             responses={200: {"content": {"application/json": {}},
                              "description": "the HybridModel file (models.knode.HybridModel.load reads it)"}})
-def version_weights(name: str, version: int, db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
+def version_weights(name: str, version: RowId, db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
     with db.transaction() as session:
         row = registry.resolve(session, registry.ModelRef(name, version))
     return Response(blobs.read_bytes(registry.weights_of(row)), media_type="application/json",

@@ -1,6 +1,7 @@
-"""Issue 10, item 5: with no API key (the default), a page on another site must not be able to start jobs
-through the user's browser (CSRF), and a server on localhost must not answer requests for other host
-names (DNS rebinding).  The real app, the real forms; the attack is what a browser would send."""
+"""Service hardening (issue 10).  Item 5: with no API key (the default), a page on another site must not be
+able to start jobs through the user's browser (CSRF), and a server on localhost must not answer requests for
+other host names (DNS rebinding).  The real app, the real forms; the attack is what a browser would send.
+Item 10: numbers and dates out of range are a 422, not a 500."""
 import pytest
 from utils.service import flight_csv, running_app, upload
 
@@ -70,3 +71,18 @@ def test_the_served_names_answer(app_with_a_flight):
                                           ("Example.ORG", "example.org"), ("10.0.0.5:80", "10.0.0.5")])
 def test_host_name_strips_the_port(header, name):
     assert host_name(header) == name
+
+
+# -- issue 10, item 10: out-of-range ids and dates are a 422 that says so, never a 500 -------------------
+@pytest.mark.parametrize("path", ["/flights/9223372036854775808", "/jobs/99999999999999999999",
+                                  "/flights?offset=9223372036854775808", "/jobs?offset=18446744073709551616",
+                                  "/models/quad/versions/9223372036854775808", "/evaluations/9223372036854775808",
+                                  "/ui/flights/9223372036854775808", "/?offset=9223372036854775808",
+                                  "/flights?since=0001-01-01T00:00:00%2B14:00",
+                                  "/flights?until=9999-12-31T23:00:00-05:00"])
+def test_out_of_range_numbers_are_a_422_not_a_500(app_with_a_flight, path):
+    client, _ = app_with_a_flight
+    response = client.get(path)
+    assert response.status_code == 422, (path, response.status_code, response.text[:300])
+    # the largest id that can exist is a plain 404
+    assert client.get("/flights/9223372036854775807").status_code == 404
