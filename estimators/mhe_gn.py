@@ -180,6 +180,32 @@ class GaussNewtonWindowSolver:
 
     # -- the recursion ----------------------------------------------------------------------------------
     def run(self, y, u, x_bar, progress=None) -> np.ndarray:
+        """Estimate x̂_{k|k} for every k, the window growing to horizon + 1 nodes and then sliding.
+
+        Called by `MHE.run`, which checks the shapes.
+
+        Parameters
+        ----------
+        y : (T, m) array
+            Measurements, one row per step.
+        u : (T, p) array
+            Inputs, one row per step.
+        x_bar : (n,) array
+            Prior guess of the first state (the arrival x̄ at k = 0).
+        progress : callable, optional
+            Called with k after each step.
+
+        Returns
+        -------
+        (T, n) array
+            The last node of each window's solution.
+
+        Warns
+        -----
+        NumericalWarning
+            Some windows did not converge (even after the IPOPT fallback).  The count comes from `stats`, which
+            accumulates over calls.
+        """
         mhe = self.mhe
         n, m, N, T = mhe.n, mhe.m, mhe.horizon, len(y)
         F, H = np.zeros((self.Lmax, n, n)), np.zeros((self.Lmax, m, n))

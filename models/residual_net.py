@@ -82,6 +82,17 @@ class ResidualNet(torch.nn.Module):
         self.register_buffer("std", torch.as_tensor(std))
 
     def forward(self, z):
+        """Δθ = W₂ tanh(W₁ (z - mean) / std + b₁) + b₂.
+
+        Parameters
+        ----------
+        z : (..., n_in) float64 tensor
+            Network inputs, in the units of the training data.
+
+        Returns
+        -------
+        (..., n_out) float64 tensor
+        """
         return self.output_layer(torch.tanh(self.hidden_layer((z - self.mean) / self.std)))
 
     def export(self) -> Residual:

@@ -284,6 +284,9 @@ def _diagnose(args) -> int:
 
 
 def format_report(report: dict) -> str:
+    """An evaluation report (evaluate_flights' JSON) as a text table: per-flight and median MSE (x 1e-3) per method,
+    then the improvements in %.
+    """
     methods = list(report["median"])
     prior = f" ({report['system']} prior)" if report.get("system") else ""
     lines = [f"model {report['model']}{prior}: MSE over [p, v, a] vs Savitzky-Golay references (x 1e-3)",
@@ -300,6 +303,7 @@ def format_report(report: dict) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of every `learnest` subcommand; each sets `func`, the function that runs it."""
     parser = argparse.ArgumentParser(prog="learnest", description="Learning-enhanced state estimation "
                                      "for Crazyflie flight logs (LEARNEST).")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -396,6 +400,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    """Run the `learnest` command line on `argv` (default: sys.argv[1:]) and return the exit status.
+
+    0 on success or --help; 2 for a bad argument or a LearnestError (printed on one line, no traceback);
+    otherwise the subcommand's status (e.g. `ingest --strict` returns 1 when a flight fails the quality checks).
+    """
     try:
         args = build_parser().parse_args(argv)
     except SystemExit as stop:  # a bad argument (argparse printed usage and why) or --help

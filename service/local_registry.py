@@ -11,7 +11,8 @@ replaces the plain file store of the ingest issue (home/models/NAME.json files a
 - `register_repaired`: register a diagnosis' repaired model as the next version of a name (its fitting flight
   stored as by an upload), as POST /diagnoses with "register" does.
 - `load_model`: "NAME" (its latest ready version), "NAME:VERSION" or "NAME@ALIAS" -> HybridModel, through
-  service.registry.load_model_ref; a reference that names nothing is a ValueError listing the known models.
+  service.registry.load_model_ref; a reference that names nothing usable is a NotFound or Conflict listing the
+  known models.
 """
 from __future__ import annotations
 
@@ -51,6 +52,7 @@ def cli_settings() -> Settings:
 
 @contextmanager
 def local_services(settings: Settings | None = None) -> Iterator[Services]:
+    """The service's Services opened in this process (default: `cli_settings`), closed on exit."""
     services = open_services(settings or cli_settings())
     try:
         yield services
@@ -136,7 +138,16 @@ def register_repaired(name: str, model: HybridModel, flights, report: dict, *, e
 
 # -- loading -----------------------------------------------------------------------------------------------
 def load_model(ref: str, settings: Settings | None = None) -> HybridModel:
-    """The model a reference names; ValueError (with the known models) when it names nothing usable."""
+    """The model a reference names.
+
+    Raises
+    ------
+    InvalidInput
+        `ref` does not parse.
+    NotFound, Conflict
+        It names nothing usable (no such model/version/alias, not ready, no database yet, an older
+        schema); the message lists the registered models (except when there is no database).
+    """
     parsed = registry.parse_ref(ref)  # InvalidInput (a ValueError) says which forms are accepted
     settings = settings or Settings()
     # no database yet: say so instead of creating an empty one (Settings.url puts SQLite at home/learnest.db)
@@ -150,6 +161,7 @@ def load_model(ref: str, settings: Settings | None = None) -> HybridModel:
 
 
 def known_models(settings: Settings) -> list[str]:
+    """Names of every registered model in the database `settings` points to, sorted."""
     database = Database(settings.url)
     try:
         with database.transaction() as session:

@@ -37,10 +37,12 @@ class Upload(Protocol):
     """What the upload code reads of a file: FastAPI's UploadFile, or a LocalFile."""
 
     @property
-    def filename(self) -> str | None: ...
+    def filename(self) -> str | None:
+        """The client's file name (None when it sent none)."""
 
     @property
-    def file(self) -> BinaryIO: ...
+    def file(self) -> BinaryIO:
+        """The content as a binary file object (the copy seeks to its start)."""
 
 
 @dataclass
@@ -88,6 +90,21 @@ def add_flight(db: Database, blobs: BlobStore, uploads: Sequence[Upload], vehicl
 # -- staging uploads ----------------------------------------------------------------------------------
 @dataclass
 class StagedFile:
+    """One uploaded file copied into the private temp folder.
+
+    Attributes
+    ----------
+    original_name : str
+        The client's file name (metadata only; see `original_basename`).
+    path : Path
+        Our name for it in the temp folder.
+    sha256 : str
+        Hex digest of its content.
+    size : int
+        Bytes.
+    role : str
+        "log", or "sidecar" for a NanoBench *_metadata.yaml uploaded with its CSV.
+    """
     original_name: str      # the client's name: metadata only
     path: Path              # our name for it in the private temp folder
     sha256: str
@@ -103,6 +120,9 @@ def original_basename(filename: str | None, index: int) -> str:
 
 
 def safe_stem(name: str) -> str:
+    """A file name's stem reduced to [A-Za-z0-9._-] (other runs become "_"), at most 100 characters, "flight" if
+    nothing is left: the flight's name.
+    """
     stem = re.sub(r"[^A-Za-z0-9._-]+", "_", Path(name).stem).strip("._-")[:100]
     return stem or "flight"
 
@@ -243,5 +263,6 @@ def _text_or_none(value) -> str | None:
 
 
 def find_by_sha(db: Database, sha: str) -> FlightRecord | None:
+    """The flight stored under this content sha256 (see `content_sha256`), or None."""
     with db.transaction() as session:
         return session.scalar(select(FlightRecord).where(FlightRecord.sha256 == sha))

@@ -18,6 +18,33 @@ if TYPE_CHECKING:
 
 @dataclass
 class SensorModel:
+    """The simulated sensors' settings: rates, noise and IMU effects (the defaults add noise and no effects).
+
+    Attributes
+    ----------
+    mocap_rate_hz : float
+        Mocap sample rate, Hz.
+    mocap_position_noise_m : float
+        Standard deviation of the white position noise, m.
+    mocap_attitude_noise_rad : float
+        Standard deviation of each component of a rotation-vector jitter applied in the body frame, rad.
+    imu_rate_hz : float
+        IMU sample rate, Hz.
+    acc_noise_g : float
+        Standard deviation of the accelerometer's white noise, g.
+    gyro_noise_rad_s : float
+        Standard deviation of the gyro's white noise, rad/s.
+    bias : (3,) tuple
+        Accelerometer bias, m/s², IMU axes.
+    scale : (3,) tuple
+        Accelerometer scale factor per IMU axis (applied before the bias).
+    delay_s : float
+        How far the IMU lags the mocap, s (> 0: its values are older than its stamps).
+    misalignment : (2,) tuple
+        (roll, pitch) of the IMU frame vs the body frame, rad.
+    lowpass_hz : float or None
+        Cut-off of a first-order low-pass on the accelerometer (run on the 1 kHz grid), Hz; None: no filter.
+    """
     mocap_rate_hz: float = 100.0
     mocap_position_noise_m: float = 0.0005
     mocap_attitude_noise_rad: float = 0.002
@@ -48,6 +75,19 @@ class SensorModel:
 
 @dataclass
 class Mocap:
+    """The mocap records of a simulated flight.
+
+    Attributes
+    ----------
+    t : (N,) array
+        Sample times, s (simulation time).
+    p : (N, 3) array
+        Positions with noise, m, world frame.
+    quat : (N, 4) array
+        Attitudes with noise, body -> world, scalar last.
+    truth : States
+        The true states at `t`.
+    """
     t: np.ndarray          # s, simulation time
     p: np.ndarray          # m, with noise
     quat: np.ndarray       # with noise
@@ -56,6 +96,21 @@ class Mocap:
 
 @dataclass
 class Imu:
+    """The IMU records of a simulated flight.
+
+    Attributes
+    ----------
+    t : (N,) array
+        Stamps, s (simulation time); with delay_s > 0 the values are those of t - delay_s.
+    acc_g : (N, 3) array
+        Specific force in the IMU frame, g (with scale, bias, low-pass, delay and noise as set).
+    gyro : (N, 3) array
+        Body rates in the IMU frame, rad/s (with delay and noise only).
+    truth : States
+        The true states at the stamps.
+    setpoint : (N, 3) array
+        The reference position at the stamps, m.
+    """
     t: np.ndarray          # s, simulation time (the stamps; with delay_s the values are older)
     acc_g: np.ndarray      # IMU frame, g
     gyro: np.ndarray       # IMU frame, rad/s
@@ -64,6 +119,7 @@ class Imu:
 
 
 def sample_times(end_s: float, rate_hz: float) -> np.ndarray:
+    """Sample times 0, 1/rate_hz, 2/rate_hz, ... up to end_s (included when on the grid), s; shape (N,)."""
     return np.arange(int(np.floor(end_s * rate_hz + 1e-9)) + 1) / rate_hz
 
 
@@ -76,6 +132,21 @@ def _noise(seed: int, stream: int, shape, std: float) -> np.ndarray:
 
 
 def sample_mocap(truth: States, sensors: SensorModel, seed: int) -> Mocap:
+    """Sample the mocap at sensors.mocap_rate_hz over [0, truth.t[-1]], with position and attitude noise.
+
+    Parameters
+    ----------
+    truth : States
+        The true states on the simulation grid.
+    sensors : SensorModel
+        Rate and noise levels.
+    seed : int
+        Noise seed (each sensor stream draws from its own generator).
+
+    Returns
+    -------
+    Mocap
+    """
     from scipy.spatial.transform import Rotation  # scipy.spatial costs ~0.5 s to import: on first use
 
     t = sample_times(truth.t[-1], sensors.mocap_rate_hz)
@@ -105,6 +176,26 @@ def _delayed(t_sim, values, t_stamps, delay_s: float) -> np.ndarray:
 
 
 def sample_imu(truth: States, ref: Reference, sensors: SensorModel, seed: int) -> Imu:
+    """Sample the IMU at sensors.imu_rate_hz over [0, truth.t[-1]].
+
+    The true body-frame specific force is rotated into the IMU frame, scaled, biased, low-passed (if set),
+    delayed, converted to g and given noise; body rates are rotated, delayed and given noise.
+
+    Parameters
+    ----------
+    truth : States
+        The true states on the simulation grid.
+    ref : Reference
+        The reference; its position, interpolated at the stamps, becomes ``Imu.setpoint``.
+    sensors : SensorModel
+        Rate, noise and effects.
+    seed : int
+        Noise seed (each sensor stream draws from its own generator).
+
+    Returns
+    -------
+    Imu
+    """
     t = sample_times(truth.t[-1], sensors.imu_rate_hz)
     to_imu = sensors.misalignment_rotation().inv()
     force = to_imu.apply(truth.specific_force_body()) * sensors.scale + sensors.bias

@@ -11,6 +11,25 @@ from .vehicle import States, Vehicle, fly
 
 @dataclass
 class SimulatedFlight:
+    """A simulated flight with its truth and everything it was made from.
+
+    Attributes
+    ----------
+    truth : States
+        True states at every 1 kHz simulation step.
+    reference : Reference
+        The reference the controller tracked.
+    mocap, imu : Mocap, Imu
+        The sampled sensors.
+    phases : Phases
+        Times (s) where the flight's phases begin.
+    trajectory, vehicle, sensors : Trajectory, Vehicle, SensorModel
+        What the flight was simulated with.
+    seed : int
+        Noise seed.
+    name : str
+        Name of the flight.
+    """
     truth: States          # every 1 kHz step
     reference: Reference
     mocap: Mocap

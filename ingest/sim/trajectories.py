@@ -39,6 +39,7 @@ class Trajectory:
 
     @property
     def s_end(self) -> float:
+        """Nominal time at the end of the trajectory, s: duration_s - ramp_s (each speed ramp covers ramp_s / 2)."""
         return self.duration_s - self.ramp_s
 
     def path(self, s):
@@ -70,6 +71,7 @@ class Circle(Trajectory):
     center: tuple = (0.0, 0.0)
 
     def path(self, s):
+        """(p, dp/ds, d²p/ds²) at nominal times s, each (N, 3): m, m/s, m/s²."""
         w = self.speed / self.radius
         angle = w * np.asarray(s, float)
         c, sn, zero = np.cos(angle), np.sin(angle), np.zeros_like(angle)
@@ -89,6 +91,7 @@ class Figure8(Trajectory):
     center: tuple = (0.0, 0.0)
 
     def path(self, s):
+        """(p, dp/ds, d²p/ds²) at nominal times s, each (N, 3): m, m/s, m/s²."""
         w = 2 * np.pi / self.period
         angle = w * np.asarray(s, float)
         zero = np.zeros_like(angle)
@@ -121,6 +124,7 @@ class RandomWaypoints(Trajectory):
         self._spline = CubicSpline(knots, self.points, bc_type="clamped")
 
     def path(self, s):
+        """(p, dp/ds, d²p/ds²) at nominal times s, each (N, 3): m, m/s, m/s²."""
         s = np.asarray(s, float)
         return self._spline(s), self._spline(s, 1), self._spline(s, 2)
 
@@ -128,6 +132,21 @@ class RandomWaypoints(Trajectory):
 # -- the reference over the whole flight -------------------------------------------------------------------
 @dataclass
 class Timing:
+    """Durations of the phases around the trajectory, s.
+
+    Attributes
+    ----------
+    sit_before_s : float
+        On the ground before take-off, s.
+    takeoff_s : float
+        Minimum-jerk climb from the ground below the trajectory's first point to that point, s.
+    hover_s : float
+        Hover before the trajectory and again after it, s (each).
+    land_s : float
+        Minimum-jerk descent from the trajectory's last point to the ground below it, s.
+    sit_after_s : float
+        On the ground after touchdown, s.
+    """
     sit_before_s: float = 1.5
     takeoff_s: float = 2.0
     hover_s: float = 0.5
@@ -148,6 +167,17 @@ class Phases:
 
 @dataclass
 class Reference:
+    """The reference over the whole flight, on the 1 kHz simulation grid.
+
+    Attributes
+    ----------
+    t : (N,) array
+        Simulation time, s.
+    p, v, a : (N, 3) arrays
+        Position (m), velocity (m/s) and acceleration (m/s²), world frame.
+    yaw : (N,) array
+        Yaw, rad.
+    """
     t: np.ndarray
     p: np.ndarray
     v: np.ndarray

@@ -22,6 +22,21 @@ CRAZYFLIE_MAX_THRUST_N = 0.57
 
 @dataclass
 class Vehicle:
+    """The simulated quadrotor and its position controller (defaults: a Crazyflie 2.x).
+
+    Attributes
+    ----------
+    mass : float
+        kg.
+    drag : float
+        Linear, isotropic rotor drag, kg/s (force -drag · v, world frame).
+    attitude_tau_s : float
+        Time constant of the first-order attitude lag, s.
+    max_thrust_n : float
+        Total thrust limit, N (the commanded thrust is clipped to [0, max_thrust_n]).
+    kp, kd : (3,) tuples
+        PD gains per world axis (x, y, z), 1/s² and 1/s.
+    """
     mass: float = CRAZYFLIE_MASS_KG
     drag: float = CRAZYFLIE_DRAG_KG_S          # kg/s, linear, isotropic
     attitude_tau_s: float = 0.03

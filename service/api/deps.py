@@ -22,24 +22,29 @@ Offset = Annotated[int, Query(ge=0, le=MAX_ROW_ID)]
 
 
 def get_services(request: Request) -> Services:
+    """The Services the app opened at startup (``app.state.services``)."""
     return request.app.state.services
 
 
 def get_db(services: Services = Depends(get_services)) -> Database:
+    """The app's database."""
     return services.db
 
 
 def get_blobs(services: Services = Depends(get_services)) -> BlobStore:
+    """The app's blob store."""
     return services.blobs
 
 
 def get_settings(services: Services = Depends(get_services)) -> Settings:
+    """The app's settings."""
     return services.settings
 
 
 def require_api_key(x_api_key: str | None = Header(None, description="required for writes when the server "
                                                                        "has LEARNEST_API_KEY set"),
                     settings: Settings = Depends(get_settings)) -> None:
+    """Let a write through when the server needs no API key or X-API-Key holds it; otherwise 401."""
     if not key_matches(settings, x_api_key):
         raise HTTPException(401, "missing or wrong API key: send it in the X-API-Key header",
                             headers={"WWW-Authenticate": "X-API-Key"})

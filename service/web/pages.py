@@ -110,6 +110,7 @@ pages = APIRouter(include_in_schema=False)
 # -- flights ---------------------------------------------------------------------------------------------
 @pages.get("/", response_class=HTMLResponse)
 def flights_page(request: Request, offset: Offset = 0, services: Services = Depends(get_services)):
+    """The home page: flights newest first (PAGE_SIZE per page, from `offset`) and the upload form."""
     total, rows = catalog.list_flights(services.db, limit=PAGE_SIZE, offset=offset, newest_first=True)
     return page("flights.html", "Flights", flights=rows, total=total, offset=offset,
                 key=forms.key_state(request, services.settings))
@@ -120,6 +121,7 @@ def flights_page(request: Request, offset: Offset = 0, services: Services = Depe
 def upload_flight_form(request: Request, files: list[UploadFile | str] = File(default=[]),
                        vehicle: str = Form(""), notes: str = Form(""), api_key: str = Form(""),
                        services: Services = Depends(get_services)):
+    """Upload form: store the chosen file(s) as one flight (as POST /flights does), then 303 to its page."""
     forms.require_key(request, services.settings, api_key)
     chosen = forms.chosen_files(files)
     row, _created = add_flight(services.db, services.blobs, chosen, *forms.upload_text(vehicle, notes))
@@ -129,6 +131,7 @@ def upload_flight_form(request: Request, files: list[UploadFile | str] = File(de
 @pages.get("/ui/flights/{flight_id}", response_class=HTMLResponse)
 @html_errors
 def flight_page(request: Request, flight_id: RowId, services: Services = Depends(get_services)):
+    """A flight's page: metadata, quality, trajectory plot, models trained on it, train form."""
     row = catalog.get_flight(services.db, flight_id)
     return page("flight.html", f"Flight {row.id}: {row.name}", flight=row,
                 trained=catalog.versions_trained_on(services.db, flight_id),
@@ -151,6 +154,7 @@ def _trajectory(services: Services, row: FlightRecord) -> dict:
 def train_model_form(request: Request, name: str = Form(""), flight_id: str = Form(""), epochs: str = Form(""),
                      include_bad: str | None = Form(None), api_key: str = Form(""),
                      services: Services = Depends(get_services)):
+    """Train form: start a training job (as POST /models does), then 303 to the job's page."""
     forms.require_key(request, services.settings, api_key)
     body = forms.train_request(name, flight_id, epochs, include_bad)
     job, _version = start_training(services, body.name, body.flight_id, {"epochs": body.epochs},
@@ -160,12 +164,16 @@ def train_model_form(request: Request, name: str = Form(""), flight_id: str = Fo
 
 @pages.get("/ui/models", response_class=HTMLResponse)
 def models_page(services: Services = Depends(get_services)):
+    """The registered models."""
     return page("models.html", "Models", models=catalog.list_models(services.db))
 
 
 @pages.get("/ui/models/{name}", response_class=HTMLResponse)
 @html_errors
 def model_page(request: Request, name: str, services: Services = Depends(get_services)):
+    """A model's page: versions, aliases and alias form, loss curves of its ready versions, its latest evaluations and
+    the evaluate form.
+    """
     model = catalog.get_model(services.db, name)
     ready = [v for v in model.versions if v.status == "ready"]
     _total, flights = catalog.list_flights(services.db, limit=PAGE_SIZE, newest_first=True)
@@ -179,6 +187,7 @@ def model_page(request: Request, name: str, services: Services = Depends(get_ser
 @html_errors
 def alias_form_post(request: Request, name: str, alias: str = Form(""), version: str = Form(""),
                     api_key: str = Form(""), services: Services = Depends(get_services)):
+    """Alias form: point name@alias at a version, then 303 to the model's page."""
     forms.require_key(request, services.settings, api_key)
     catalog.set_alias(services.db, name, alias.strip(), forms.alias_version(version))
     return forms.redirect(f"/ui/models/{name}", services.settings, api_key)
@@ -190,6 +199,7 @@ def evaluate_form_post(request: Request, model: str = Form(""), flights: list[st
                        methods: list[str] = Form(default=[]), horizon: str = Form(str(MHE_HORIZON)),
                        include_bad: str | None = Form(None), api_key: str = Form(""),
                        services: Services = Depends(get_services)):
+    """Evaluate form: start an evaluation job (as POST /evaluations does), then 303 to the job's page."""
     forms.require_key(request, services.settings, api_key)
     body = forms.evaluation_request(model, flights, methods, horizon, include_bad)
     settings = EstimatorSettings(tuple(body.methods), body.horizon, body.include_bad)
@@ -200,6 +210,7 @@ def evaluate_form_post(request: Request, model: str = Form(""), flights: list[st
 # -- jobs ------------------------------------------------------------------------------------------------
 @pages.get("/ui/jobs", response_class=HTMLResponse)
 def jobs_page(services: Services = Depends(get_services)):
+    """The latest jobs (PAGE_SIZE), newest first; reloads every 2 s while one of them is active."""
     _total, jobs = catalog.list_jobs(services.db, limit=PAGE_SIZE)
     running = any(j.state in ACTIVE for j in jobs)
     return page("jobs.html", "Jobs", refresh_s=2 if running else None,
@@ -209,6 +220,7 @@ def jobs_page(services: Services = Depends(get_services)):
 @pages.get("/ui/jobs/{job_id}", response_class=HTMLResponse)
 @html_errors
 def job_page(job_id: RowId, services: Services = Depends(get_services)):
+    """A job's page: state, progress and result; reloads every second while the job is active."""
     job = catalog.get_job(services.db, job_id)
     evaluation = catalog.evaluation_of_job(services.db, job_id)
     active = job.state in ACTIVE

@@ -29,6 +29,23 @@ class UsdLogWarning(UserWarning):
 
 @dataclass
 class UsdLog:
+    """A decoded uSD log: the header's event types and every event's records as numpy columns.
+
+    Attributes
+    ----------
+    path : str
+        The file read (or the name given to `decode_bytes`).
+    version : int
+        Log format version: 1 (uint32 timestamps, ms) or 2 (uint64 timestamps, µs).
+    event_types : list of EventType
+        As declared in the header, in header order.
+    events : dict
+        Event name -> {"t": (N,) float64 timestamps in s, variable name: (N,) values in the logged type}.
+    crc_ok : bool
+        Whether the CRC-32 trailer matched (False when it is missing, e.g. a card cut off by power loss).
+    warnings : list of str
+        The damage met while decoding (also emitted as UsdLogWarning).
+    """
     path: str
     version: int
     event_types: list[EventType]

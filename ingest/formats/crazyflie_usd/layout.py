@@ -15,6 +15,19 @@ VALUE_TYPES = {"B": "u1", "b": "i1", "H": "<u2", "h": "<i2", "I": "<u4", "i": "<
 
 @dataclass(frozen=True)
 class EventType:
+    """One event type declared in the header: its id and its variables, which fix the layout of its records.
+
+    Attributes
+    ----------
+    id : int
+        The uint16 id that starts each record of this event.
+    name : str
+        Event name.
+    var_names : tuple of str
+        Variable names ("group.name"), in record order.
+    var_types : tuple of str
+        Struct codes (keys of VALUE_TYPES), one per variable.
+    """
     id: int
     name: str
     var_names: tuple[str, ...]

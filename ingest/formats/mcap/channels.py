@@ -24,6 +24,17 @@ from .schemas import (
 
 @dataclass(frozen=True)
 class Reading:
+    """How one channel is read.
+
+    Attributes
+    ----------
+    role : str
+        "pose" (values x, y, z, qx, qy, qz, qw) or "accel" (values x, y, z, with the unit the extractor gives).
+    extract : Extractor
+        Decoded message -> (stamp ns or None, values, unit or None); raises extractors.Rejected.
+    stamp_name : str
+        Name of the message's own time stamp field ("header.stamp" or "timestamp"), for meta.
+    """
     role: str             # "pose" (x, y, z, qx, qy, qz, qw) or "accel" (x, y, z with a unit)
     extract: Extractor
     stamp_name: str       # what the message's own time stamp is called, for meta

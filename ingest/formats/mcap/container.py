@@ -51,14 +51,25 @@ class McapChannel:
 
     @property
     def schema_name(self) -> str:
+        """The schema's name, "" when the channel has no schema."""
         return self.schema.name if self.schema is not None else ""
 
     def describe(self) -> str:
+        """One line for messages: topic (schema, message encoding, message count)."""
         return f"{self.topic} ({self.schema_name or 'no schema'}, {self.message_encoding}, {self.count} messages)"
 
 
 @dataclass
 class McapContent:
+    """What `scan` found in a file.
+
+    Attributes
+    ----------
+    channels : list of McapChannel
+        Every declared channel, sorted by (topic, id); messages are kept only for pose/acceleration candidates.
+    warnings : list of str
+        The damage met (file cut off, chunks skipped, messages on undeclared channels).
+    """
     channels: list[McapChannel]
     warnings: list[str]
 

@@ -27,11 +27,19 @@ def _ros_stamp_ns(header) -> int | None:
 
 
 def pose_stamped(msg):
+    """geometry_msgs/PoseStamped -> (header stamp ns, (x, y, z, qx, qy, qz, qw), None).
+
+    The stamp is None when the header's stamp is zero.  Position and quaternion are passed on as written.
+    """
     position, orientation = msg.pose.position, msg.pose.orientation
     return _ros_stamp_ns(msg.header), (position.x, position.y, position.z, *_xyzw(orientation)), None
 
 
 def transform_stamped(msg):
+    """geometry_msgs/TransformStamped -> (header stamp ns, (x, y, z, qx, qy, qz, qw), None).
+
+    Translation and rotation as written; the stamp is None when the header's stamp is zero.
+    """
     translation, rotation = msg.transform.translation, msg.transform.rotation
     return _ros_stamp_ns(msg.header), (translation.x, translation.y, translation.z, *_xyzw(rotation)), None
 
@@ -41,11 +49,31 @@ def _xyzw(quaternion) -> tuple[float, float, float, float]:
 
 
 def imu(msg):
+    """sensor_msgs/Imu -> (header stamp ns, linear_acceleration (x, y, z), "m/s^2").
+
+    Orientation and angular velocity are ignored; the stamp is None when the header's stamp is zero.
+    """
     acc = msg.linear_acceleration
     return _ros_stamp_ns(msg.header), (acc.x, acc.y, acc.z), "m/s^2"
 
 
 def log_data(msg, indices: list[int], expected: int):
+    """crazyflie_interfaces/LogDataGeneric -> (header stamp ns, the values at `indices` (acc.x, acc.y, acc.z), "g").
+
+    Parameters
+    ----------
+    msg
+        The decoded message.
+    indices : list of int
+        Positions of acc.x, acc.y, acc.z in ``msg.values``.
+    expected : int
+        How many values the log block holds.
+
+    Raises
+    ------
+    Rejected
+        The message does not hold `expected` values.
+    """
     values = msg.values
     if len(values) != expected:
         raise Rejected(f"{len(values)} values instead of {expected}")
@@ -85,6 +113,15 @@ def _json_xyz(obj, keys: str = "xyz") -> tuple[float, ...]:
 
 
 def json_pose_in_frame(obj):
+    """foxglove.PoseInFrame (JSON) -> (timestamp ns, position + orientation (x, y, z, qx, qy, qz, qw), None).
+
+    A null number reads as NaN; the stamp is None without a timestamp or when it is outside (0, 2^63) ns.
+
+    Raises
+    ------
+    Rejected
+        A field is missing or not a number, or the timestamp is malformed.
+    """
     pose = _json_field(obj, "pose")
     position = _json_xyz(_json_field(pose, "position"))
     orientation = _json_xyz(_json_field(pose, "orientation"), "xyzw")
@@ -92,12 +129,30 @@ def json_pose_in_frame(obj):
 
 
 def json_frame_transform(obj):
+    """foxglove.FrameTransform (JSON) -> (timestamp ns, translation + rotation (x, y, z, qx, qy, qz, qw), None).
+
+    A null number reads as NaN; the stamp is None without a timestamp or when it is outside (0, 2^63) ns.
+
+    Raises
+    ------
+    Rejected
+        A field is missing or not a number, or the timestamp is malformed.
+    """
     translation = _json_xyz(_json_field(obj, "translation"))
     rotation = _json_xyz(_json_field(obj, "rotation"), "xyzw")
     return _json_stamp_ns(obj), translation + rotation, None
 
 
 def json_acceleration(obj):
+    """learnest.Acceleration or a Vector3-like message (JSON) -> (timestamp ns, (x, y, z), unit).
+
+    The unit is "g" or "m/s^2" (spellings normalised by UNIT_NAMES), None when the message has no unit field.
+
+    Raises
+    ------
+    Rejected
+        x, y or z missing or not a number, an unknown unit, or a malformed timestamp.
+    """
     xyz = _json_xyz(obj)
     unit = obj.get("unit")
     if unit is not None and unit not in UNIT_NAMES:

@@ -106,6 +106,7 @@ def ros_type(schema_name: str) -> str:
 
 
 def is_vector3_schema(schema_name: str) -> bool:
+    """Whether the schema name's last part (after "/" or ".") is Vector3 or Vector3Stamped."""
     return schema_name.replace("/", ".").split(".")[-1] in VECTOR3_SCHEMA_SUFFIXES
 
 

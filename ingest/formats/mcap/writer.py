@@ -93,6 +93,32 @@ class Ros2BagWriter(_BufferedRecording):
 
     def add_pose(self, topic: str, t, p, quat_xyzw, *, message_type: str = "PoseStamped",
                  frame_id: str = "world", child_frame_id: str = "cf1", stamp_headers: bool = True, log_t=None):
+        """Buffer a pose stream as geometry_msgs/PoseStamped or TransformStamped messages.
+
+        Parameters
+        ----------
+        topic : str
+            Channel topic.
+        t : (N,) array
+            Sample times, s from `start_ns` (the header stamps).
+        p : (N, 3) array
+            Positions, m.
+        quat_xyzw : (N, 4) array
+            Orientations, scalar last.
+        message_type : {"PoseStamped", "TransformStamped"}
+            Message type to write.
+        frame_id, child_frame_id : str
+            Header frame; child_frame_id is written only by TransformStamped.
+        stamp_headers : bool
+            False writes zero header stamps.
+        log_t : (N,) array, optional
+            Receive times, s from `start_ns`, used as log_time; default `t`.
+
+        Raises
+        ------
+        ValueError
+            Unknown `message_type`.
+        """
         p, quat = np.asarray(p, float), np.asarray(quat_xyzw, float)
         if message_type == "PoseStamped":
             def message(i, stamp_ns):
@@ -133,6 +159,7 @@ class Ros2BagWriter(_BufferedRecording):
         self._add(topic, (LOG_DATA_GENERIC, definition), t, log_t, message)
 
     def close(self) -> None:
+        """Write the buffered messages to `path` in log_time order (one ros2msg schema per message type)."""
         with open(self.path, "wb") as handle:
             writer = Ros2McapWriter(handle, chunk_size=self.chunk_size, compression=self.compression,
                                     enable_crcs=self.enable_crcs)
@@ -192,6 +219,7 @@ class JsonMcapWriter(_BufferedRecording):
         self._add(topic, (schema_name, schema), t, log_t, message)
 
     def close(self) -> None:
+        """Write the buffered messages to `path` in log_time order (one JSON channel, jsonschema, per topic)."""
         with open(self.path, "wb") as handle:
             writer = McapWriter(handle, chunk_size=self.chunk_size, compression=self.compression,
                                 enable_crcs=self.enable_crcs)

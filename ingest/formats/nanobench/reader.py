@@ -221,6 +221,7 @@ def _check_units(path: Path, p: np.ndarray, acc_g: np.ndarray) -> None:
 
 # -- metadata -------------------------------------------------------------------------------------------
 def metadata_path(path: Path) -> Path:
+    """Where a NanoBench CSV's metadata sidecar is: <stem>_metadata.yaml next to it."""
     return path.with_name(f"{path.stem}_metadata.yaml")
 
 

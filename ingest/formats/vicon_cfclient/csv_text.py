@@ -32,14 +32,20 @@ def read_lines(path: Path) -> tuple[list[str], bool]:
 
 
 def split_cells(line: str) -> list[str]:
+    """The comma-separated cells of a line, each stripped of spaces and surrounding double quotes.
+
+    No CSV quoting: a comma inside quotes still splits.
+    """
     return [cell.strip().strip('"').strip() for cell in line.split(",")]
 
 
 def is_blank(line: str) -> bool:
+    """True for a line of nothing but commas and whitespace."""
     return not line.replace(",", "").strip()
 
 
 def is_number(text: str) -> bool:
+    """Whether float() parses the text (so "nan" and "inf" count as numbers)."""
     try:
         float(text)
     except ValueError:

@@ -42,6 +42,7 @@ class ViconTrack:
 
     @property
     def subject(self) -> str:
+        """The subject part of `segment` ("subject:segment" -> "subject"; the whole name without a colon)."""
         return self.segment.split(":", 1)[0]
 
 

@@ -29,6 +29,7 @@ def create_diagnosis(body: DiagnosisRequest, response: Response, services: Servi
                                           202: {"model": DiagnosisPending, "description": "not finished yet"},
                                           409: {"description": "the diagnosis job failed"}})
 def diagnosis_report(diagnosis_id: RowId, db: Database = Depends(get_db)):
+    """The diagnosis report: 200 when the job succeeded, 202 with its state while it runs, 409 if it failed."""
     diagnosis, job = row_and_job(db, Diagnosis, diagnosis_id, "diagnosis")
     if job.state != "succeeded":
         return pending("diagnosis", diagnosis, job)

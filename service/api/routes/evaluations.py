@@ -31,6 +31,7 @@ def create_evaluation(body: EvaluationRequest, response: Response, services: Ser
                                            202: {"model": EvaluationPending, "description": "not finished yet"},
                                            409: {"description": "the evaluation job failed"}})
 def evaluation_report(evaluation_id: RowId, db: Database = Depends(get_db)):
+    """The evaluation report: 200 when the job succeeded, 202 with its state while it runs, 409 if it failed."""
     evaluation, job = row_and_job(db, Evaluation, evaluation_id, "evaluation")
     if job.state != "succeeded":
         return pending("evaluation", evaluation, job)

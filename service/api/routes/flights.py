@@ -38,6 +38,7 @@ CSV_COLUMNS = "t,px,py,pz,ax,ay,az,qx,qy,qz,qw"
 
 # -- JSON shapes ---------------------------------------------------------------------------------------
 def flight_out(row: FlightRecord, detail: bool = False) -> dict:
+    """A flight row as the API's JSON (FlightOut; with `detail`, FlightDetail: plus the ingest metadata)."""
     out = {"id": row.id, "name": row.name, "adapter": row.adapter, "vehicle": row.vehicle, "notes": row.notes,
            "duration_s": row.duration_s, "rate_hz": row.rate_hz, "samples": row.samples,
            "quality": row.quality, "clock_offset_s": row.clock_offset_s, "sha256": row.sha256,
@@ -74,6 +75,7 @@ def list_flights(vehicle: str | None = None,
                  until: datetime | None = Query(None, description="uploaded before (ISO 8601; UTC if no zone)"),
                  limit: int = Query(50, ge=1, le=500), offset: Offset = 0,
                  db: Database = Depends(get_db)):
+    """One page of flights by id, filtered by vehicle, quality and upload time."""
     conditions = []
     if vehicle is not None:
         conditions.append(FlightRecord.vehicle == vehicle)
@@ -97,6 +99,7 @@ def _naive_utc(moment: datetime) -> datetime:
 
 @router.get("/{flight_id}", response_model=FlightDetail)
 def flight_detail(flight_id: RowId, db: Database = Depends(get_db)):
+    """One flight with its ingest metadata; 404 when there is none."""
     return flight_out(catalog.get_flight(db, flight_id), detail=True)
 
 

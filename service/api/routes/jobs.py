@@ -15,6 +15,7 @@ router = APIRouter(prefix="/jobs", tags=["jobs"])
 
 
 def job_out(job: Job) -> dict:
+    """A job row as the API's JSON (JobOut)."""
     return {"id": job.id, "kind": job.kind, "state": job.state, "progress": job.progress, "error": job.error,
             "result": job.result, "created_at": job.created_at, "started_at": job.started_at,
             "finished_at": job.finished_at}
@@ -22,6 +23,7 @@ def job_out(job: Job) -> dict:
 
 @router.get("/{job_id}", response_model=JobOut)
 def job_detail(job_id: RowId, db: Database = Depends(get_db)):
+    """One job: state, progress, error and result; 404 when there is none."""
     return job_out(catalog.get_job(db, job_id))
 
 

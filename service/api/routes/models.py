@@ -17,6 +17,9 @@ router = APIRouter(prefix="/models", tags=["models"])
 
 
 def version_out(row: ModelVersion, aliases: dict[str, int], full: bool = True) -> dict:
+    """A version row as the API's JSON (VersionOut); `full=False` leaves out prior, losses, timing, code and
+    library versions and the weights' sha256 (for a model's list of versions).
+    """
     out = {"name": row.name, "version": row.version, "status": row.status, "job_id": row.job_id,
            "training_flight": {"id": row.training_flight_id, "sha256": row.training_flight_sha256,
                                "name": row.training_flight_name},
@@ -44,6 +47,7 @@ def train_model(body: TrainRequest, response: Response, services: Services = Dep
 
 @router.get("", response_model=ModelPage)
 def list_models(db: Database = Depends(get_db)):
+    """Every registered model by name, with its aliases, latest ready version and version count."""
     items = [{"name": m.model.name, "created_at": m.model.created_at, "aliases": m.aliases,
               "latest_version": m.latest_version, "version_count": m.version_count} for m in catalog.list_models(db)]
     return {"items": items, "total": len(items)}
@@ -51,6 +55,7 @@ def list_models(db: Database = Depends(get_db)):
 
 @router.get("/{name}", response_model=ModelOut)
 def model_detail(name: str, db: Database = Depends(get_db)):
+    """A registered model with its aliases and (short) versions; 404 when there is none."""
     model = catalog.get_model(db, name)
     return {"name": model.model.name, "created_at": model.model.created_at, "aliases": model.aliases,
             "latest_version": model.latest_version,
@@ -59,6 +64,7 @@ def model_detail(name: str, db: Database = Depends(get_db)):
 
 @router.get("/{name}/versions/{version}", response_model=VersionOut)
 def version_detail(name: str, version: RowId, db: Database = Depends(get_db)):
+    """One version, whatever its status; 404 when there is none."""
     with db.transaction() as session:
         row = registry.get_version(session, name, version)
         return version_out(row, registry.aliases_of(session, name))
@@ -68,6 +74,7 @@ def version_detail(name: str, version: RowId, db: Database = Depends(get_db)):
             responses={200: {"content": {"application/json": {}},
                              "description": "the HybridModel file (models.knode.HybridModel.load reads it)"}})
 def version_weights(name: str, version: RowId, db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
+    """Download a version's weights; 404 when there is no such version, 409 when it is not ready."""
     with db.transaction() as session:
         row = registry.resolve(session, registry.ModelRef(name, version))
     return Response(blobs.read_bytes(registry.weights_of(row)), media_type="application/json",
@@ -84,12 +91,16 @@ def alias_detail(name: str, alias: str, db: Database = Depends(get_db)):
 
 @router.put("/{name}/aliases/{alias}", response_model=AliasOut, dependencies=[Depends(require_api_key)])
 def put_alias(name: str, alias: str, body: AliasIn, db: Database = Depends(get_db)):
+    """Point name@alias at a version (creating or moving it); 404 for an unknown model or version, 409 when that
+    version is not ready, 422 for a bad alias name.
+    """
     catalog.set_alias(db, name, alias, body.version)
     return {"name": name, "alias": alias, "version": body.version}
 
 
 @router.delete("/{name}/aliases/{alias}", status_code=204, dependencies=[Depends(require_api_key)])
 def delete_alias(name: str, alias: str, db: Database = Depends(get_db)):
+    """Remove an alias; 204, or 404 when the model or the alias does not exist."""
     with db.transaction() as session:
         registry.delete_alias(session, name, alias)
     return Response(status_code=204)
