@@ -6,6 +6,7 @@ import json
 import math
 import sys
 from pathlib import Path
+from typing import NoReturn
 
 from tqdm import tqdm
 
@@ -302,9 +303,16 @@ def format_report(report: dict) -> str:
     return "\n".join(lines)
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors, like every other learnest error (the usage is one --help away)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every `learnest` subcommand; each sets `func`, the function that runs it."""
-    parser = argparse.ArgumentParser(prog="learnest", description="Learning-enhanced state estimation "
+    parser = _Parser(prog="learnest", description="Learning-enhanced state estimation "
                                      "for Crazyflie flight logs (LEARNEST).")
     sub = parser.add_subparsers(dest="command", required=True)
 
