@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from learnest.ingest import nanobench
+from learnest.ingest.formats.nanobench import writer as nanobench
 from learnest.models import crazyflie as cf
 from learnest.models.effects import LIBRARY, effects_for
 from learnest.models.inputs import MissingInputs

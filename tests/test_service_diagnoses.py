@@ -115,7 +115,7 @@ def test_cli_diagnose_registers_a_child_version(tmp_path, biased_logs, monkeypat
 def test_post_diagnoses_with_the_crazyflie_prior(tmp_path):
     """`"system": "crazyflie"`: the input-driven prior is diagnosed (a battery exponent the prior gets
     wrong), the report names its prior; a flight without motor PWM fails with the message saying so."""
-    from learnest.ingest import nanobench
+    from learnest.ingest.formats.nanobench import writer as nanobench
     from learnest.models import crazyflie as cf
     from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 
