@@ -131,7 +131,7 @@ def fit(problem: ResidualProblem, effects: list, rows: np.ndarray | None = None,
         offset: np.ndarray | None = None) -> Fit:
     """Least squares over the parameters of `effects`, every other candidate at its nominal value.
 
-    Bounded trust-region fit (scipy ``least_squares``) starting at the nominal values, on ``rows``
+    Bounded trust-region fit (scipy ``least_squares``) starting at each parameter's ``initial``, on ``rows``
     (default all); ``offset`` (same shape as the residual) is added to the residual (bootstrap replicates).
     """
     rows = np.arange(problem.n_rows) if rows is None else rows
@@ -144,7 +144,7 @@ def fit(problem: ResidualProblem, effects: list, rows: np.ndarray | None = None,
         return r if offset is None else r + offset
 
     if params:
-        x0 = np.array([p.nominal for p in params])
+        x0 = np.clip([p.initial for p in params], [p.lower for p in params], [p.upper for p in params])
         solution = least_squares(lambda th: residual_of(th).ravel(), x0, method="trf", x_scale="jac",
                                  bounds=([p.lower for p in params], [p.upper for p in params]))
         theta = solution.x
@@ -233,29 +233,36 @@ def _determined(param, interval) -> bool:
     return bool(not lo <= param.nominal <= hi or hi - lo < 0.05 * (param.upper - param.lower))
 
 
-def select_effects(problem: ResidualProblem, max_effects: int = 3) -> dict:
+def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: float = MIN_CV_GAIN) -> dict:
     """Forward selection; returns the chosen effects with values, intervals, explained fractions, the
     confounded pairs and the selection trace.
+
+    An effect is kept only if it lowers BIC_eff by more than ``DELTA_BIC`` and the blocked cross-validation
+    error by more than the fraction ``min_cv_gain`` (default ``MIN_CV_GAIN``: any gain).
 
     Returns
     -------
     dict
         ``channel``; ``effects`` (per chosen effect: ``id``, ``target``, ``params``, ``held_nominal``,
-        ``units``, ``ci95``, ``determined``, ``explained_fraction`` of the baseline RSS, ``equation``), sorted
-        by explained fraction; ``confounded``; ``values``; ``rss_before``; ``rss_after``; ``trace``; ``fit``
-        (the final `Fit`).
+        ``nominal``, ``units``, ``ci95``, ``determined``, ``explained_fraction`` of the baseline RSS,
+        ``equation``), sorted by explained fraction; ``confounded``; ``values``; ``rss_before``; ``rss_after``;
+        ``trace``; ``fit`` (the final `Fit`); ``candidates`` (every candidate: ``id``, ``target``, ``chosen``,
+        ``params`` fitted on its own, ``nominal``, ``units``, ``delta_bic_alone`` its BIC_eff change alone).
     """
     current = fit(problem, [])
-    baseline_rss = current.rss
+    baseline_rss, baseline_bic = current.rss, current.bic
     current_cv = cv_error(problem, [])
     chosen: list[Effect] = []
     trace: list[dict[str, Any]] = []
     near_ties: list[tuple[Effect, Effect, float]] = []
+    alone: dict[str, Fit] = {}     # each candidate fitted on its own (the first step)
     while len(chosen) < max_effects:
         remaining = [e for e in problem.candidates if e not in chosen]
         if not remaining:
             break
         trials = sorted((fit(problem, chosen + [e]) for e in remaining), key=lambda f: f.bic)
+        if not chosen:
+            alone = {t.effects[-1].id: t for t in trials}
         best = trials[0]
         step: dict[str, Any] = {"candidates": {t.effects[-1].id: round(float(t.bic - current.bic), 2)
                                                for t in trials}}
@@ -265,7 +272,7 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3) -> dict:
             break
         cv = cv_error(problem, chosen + [best.effects[-1]])
         step["cv_gain"] = round(1 - cv / current_cv, 4) if current_cv > 0 else 0.0
-        if cv > (1 - MIN_CV_GAIN) * current_cv:
+        if cv > (1 - min_cv_gain) * current_cv:
             step["stop"] = f"{best.effects[-1].id} does not improve held-out error"
             trace.append(step)
             break
@@ -282,6 +289,7 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3) -> dict:
         without_rss = fit(problem, [e for e in chosen if e is not effect]).rss if len(chosen) > 1 else baseline_rss
         results.append({"id": effect.id, "target": effect.target,
                         "params": {p.name: current.values.get(p.name, p.nominal) for p in effect.params},
+                        "nominal": effect.nominal(),
                         "held_nominal": {p.name: problem.frozen[p.name] for p in effect.params
                                          if p.name in problem.frozen},
                         "units": {p.name: p.unit for p in effect.params},
@@ -292,5 +300,12 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3) -> dict:
                         "equation": effect.equation({**effect.nominal(), **current.values})})
     results.sort(key=lambda r: -r["explained_fraction"])
     confounded = confounded_pairs(problem, chosen, current.values, near_ties)
+    candidates = [{"id": e.id, "target": e.target, "chosen": e in chosen,
+                   "params": {p.name: alone[e.id].values.get(p.name, p.nominal) for p in e.params}
+                   if e.id in alone else e.nominal(),
+                   "nominal": e.nominal(), "units": {p.name: p.unit for p in e.params},
+                   "delta_bic_alone": round(float(alone[e.id].bic - baseline_bic), 2) if e.id in alone else None}
+                  for e in problem.candidates]
     return {"channel": problem.name, "effects": results, "confounded": confounded, "values": current.values,
-            "rss_before": baseline_rss, "rss_after": current.rss, "trace": trace, "fit": current}
+            "rss_before": baseline_rss, "rss_after": current.rss, "trace": trace, "fit": current,
+            "candidates": candidates}

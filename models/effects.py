@@ -18,6 +18,8 @@ import numpy as np
 from learnest.errors import InvalidInput
 from learnest.ingest.frames import GRAVITY, imu_misalignment, quat_to_matrix, world_acceleration
 
+from . import crazyflie as cf
+
 if TYPE_CHECKING:
     from .systems import System
 
@@ -38,6 +40,9 @@ class Param:
         Bounds of the fit.
     key : str
         The system's dynamics parameter it sets (dynamics effects only).
+    start : float or None
+        Where a fit starts (default: ``nominal``).  Needed where the nominal "off" value is a flat point of
+        the model (ground effect acts through r², a lag of 0 s is a switch): a fit started there never moves.
     """
 
     name: str
@@ -46,6 +51,12 @@ class Param:
     lower: float
     upper: float
     key: str = ""           # the system's dynamics parameter it sets (dynamics effects)
+    start: float | None = None
+
+    @property
+    def initial(self) -> float:
+        """Where a fit of this parameter starts: ``start``, else ``nominal``."""
+        return self.nominal if self.start is None else self.start
 
 
 @dataclass(frozen=True)
@@ -91,6 +102,38 @@ def _meas(effect_id, description, *params):
     return Effect(effect_id, "quadrotor", "measurement", tuple(params), description)
 
 
+# systems whose flights carry the accelerometer the measurement effects describe (they are listed once,
+# under "quadrotor", and shared)
+ACCELEROMETER_SYSTEMS = ("quadrotor", "crazyflie")
+# a fit of these starts at the published value: their "off" value (0) is a flat point of the model
+_START_AT_PUBLIC = ("r_m", "tau_s")
+
+
+def crazyflie_effects(prior: dict | None = None) -> list[Effect]:
+    """The Crazyflie prior's physical effects (issue 14's contract), nominal at ``prior``'s values.
+
+    Ids, parameters and one-line equations come from `models.crazyflie.EFFECTS`, units from ``UNITS``,
+    bounds from ``BOUNDS``; the nominal value of each parameter is the prior's (default
+    `models.crazyflie.IDENTIFIED`, the values fitted on the real NanoBench flights).  A parameter's key is
+    its own name: the `Crazyflie` system's parameters carry the contract's names.
+    """
+    prior = cf.IDENTIFIED if prior is None else prior
+    return [_dyn(effect_id, "crazyflie", spec["equation"],
+                 *(Param(name, cf.UNITS[name], float(prior[name]), *cf.BOUNDS[name], key=name,
+                         start=_crazyflie_start(name, float(prior[name])))
+                   for name in spec["params"]))
+            for effect_id, spec in cf.EFFECTS.items()]
+
+
+def _crazyflie_start(name: str, nominal: float) -> float:
+    """A fit's starting value: the published one where 0 is a flat point, and never on a bound (scipy's
+    bounded trust region started on a bound takes vanishing steps and stops there)."""
+    lower, upper = cf.BOUNDS[name]
+    value = float(cf.PUBLIC[name]) if name in _START_AT_PUBLIC else nominal
+    margin = 0.01 * (upper - lower)
+    return float(np.clip(value, lower + margin, upper - margin))
+
+
 LIBRARY = {e.id: e for e in [
     # -- cartpole (eq. 9): physical constants of the prior, and viscous friction the prior lacks
     _dyn("cart_mass", "cartpole", "cart mass differs from the prior's", Param("m_c", "kg", 1.0, 0.1, 10.0, "m_c")),
@@ -119,6 +162,8 @@ LIBRARY = {e.id: e for e in [
     _meas("accel_delay", "accelerometer lags the mocap", Param("delay_s", "s", 0.0, -0.2, 0.2)),
     _meas("accel_misalignment", "IMU frame tilted against the mocap body frame",
           Param("roll_rad", "rad", 0.0, -0.3, 0.3), Param("pitch_rad", "rad", 0.0, -0.3, 0.3)),
+    # -- Crazyflie prior driven by motors and battery (issue 14): mass, battery_thrust, rotor_drag, ...
+    *crazyflie_effects(),
 ]}
 
 
@@ -130,10 +175,14 @@ def effects_for(system: str, target: str | None = None) -> list[Effect]:
     InvalidInput
         If none is found.
     """
-    found = [e for e in LIBRARY.values() if e.system == system and (target is None or e.target == target)]
+    found = [e for e in LIBRARY.values() if _belongs(e, system) and (target is None or e.target == target)]
     if not found:
         raise InvalidInput(f"no effects known for system {system!r}")
     return found
+
+
+def _belongs(effect: Effect, system: str) -> bool:
+    return effect.system == system or (effect.target == "measurement" and system in ACCELEROMETER_SYSTEMS)
 
 
 def dynamics_params(system: System, values: dict, effects: Iterable[Effect]) -> dict:
@@ -190,6 +239,23 @@ def correct_acc_body(acc_body: np.ndarray, t: np.ndarray, values: dict) -> np.nd
     bias = np.array([values.get(f"bias_{a}", 0.0) for a in "xyz"])
     untilted = ((acc_body - bias) / scale) @ tilt_matrix(values.get("roll_rad", 0.0), values.get("pitch_rad", 0.0)).T
     return delayed(untilted, float(t[1] - t[0]), -values.get("delay_s", 0.0))
+
+
+# a quadrotor's accelerometer sees horizontal (body x/y) specific force only through rotor drag; below
+# this rms the x/y scale factors cannot be separated from reference errors and are held at 1
+MIN_HORIZONTAL_FORCE_MS2 = 0.5
+
+
+def unidentifiable_scales(f_body: np.ndarray) -> dict[str, str]:
+    """{"scale_x"/"scale_y": why} for the body axes whose specific force f_body (N, 3) m/s² is below
+    ``MIN_HORIZONTAL_FORCE_MS2`` rms: such a scale factor is not identifiable and is held at 1."""
+    frozen = {}
+    for axis, j in (("x", 0), ("y", 1)):
+        rms = float(np.sqrt(np.mean(f_body[:, j] ** 2)))
+        if rms < MIN_HORIZONTAL_FORCE_MS2:
+            frozen[f"scale_{axis}"] = (f"body-{axis} specific force is only {rms:.2f} m/s² rms (rotor drag): "
+                                       f"scale_{axis} is not identifiable in this flight and is held at 1")
+    return frozen
 
 
 def specific_force_body(a_world: np.ndarray, quat: np.ndarray) -> np.ndarray:

@@ -12,6 +12,7 @@ a first-order filter with time constant `tau_s`.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -43,8 +44,13 @@ class FlightArrays:
 
 def lowpass(x: np.ndarray, dt: float, cutoff_hz: float = LOWPASS_HZ) -> np.ndarray:
     """Zero-phase 2nd-order Butterworth low-pass along axis 0."""
-    sos = butter(2, cutoff_hz, fs=1.0 / dt, output="sos")
-    return sosfiltfilt(sos, x, axis=0)
+    return sosfiltfilt(_butter_sos(cutoff_hz, 1.0 / dt), x, axis=0)
+
+
+@lru_cache(maxsize=16)
+def _butter_sos(cutoff_hz: float, rate_hz: float) -> np.ndarray:
+    # designed once per rate: effect selection low-passes thousands of predictions
+    return butter(2, cutoff_hz, fs=rate_hz, output="sos")
 
 
 def interpolated_rows(values: np.ndarray, tol: float = 1e-9) -> np.ndarray:

@@ -241,13 +241,6 @@ def _diagnose(args) -> int:
     from .web.figures import residual_before_after, save_figure
 
     methods = parse_methods(args.methods)
-    if args.system == "crazyflie":
-        # the effect library for the input-driven prior (issue 14, items 3-4) is not built yet: say so
-        # rather than silently diagnosing with the kinematic prior
-        raise InvalidInput("diagnose --system crazyflie is not available yet: the effects that act through the "
-                         "inputs (mass, battery_thrust, rotor_drag, ground_effect, motor_lag) are still to be added "
-                         "to the effect library; use --system quadrotor, or benchmarks/crazyflie_physics.py for "
-                         "the identified thrust map, battery exponent and rotor drag")
     if args.simulate is not None or args.system in ("cartpole", "robot"):
         if args.files:
             raise InvalidInput("give flight files or --simulate, not both")
@@ -269,7 +262,7 @@ def _diagnose(args) -> int:
         flights = _read(args.files, args.rate)
         epochs = args.epochs or CRAZYFLIE_TRAINING.epochs
         result, repaired = diagnose_flights(flights, knode=model, methods=methods, epochs=epochs,
-                                            return_model=True)
+                                            return_model=True, system=args.system)
         if args.register:
             from .local_registry import register_repaired
             result["registered"] = register_repaired(args.register, repaired, flights, result,

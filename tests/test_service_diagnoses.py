@@ -110,3 +110,35 @@ def test_cli_diagnose_registers_a_child_version(tmp_path, biased_logs, monkeypat
         assert [(v["version"], v["parent"]) for v in versions] == [(1, None), (2, "cf:1")]
         assert versions[0]["training_flight"] == versions[1]["training_flight"]   # the same stored flight
         assert client.get("/flights").json()["total"] == 1
+
+
+def test_post_diagnoses_with_the_crazyflie_prior(tmp_path):
+    """`"system": "crazyflie"`: the input-driven prior is diagnosed (a battery exponent the prior gets
+    wrong), the report names its prior; a flight without motor PWM fails with the message saying so."""
+    from learnest.ingest.formats.nanobench import writer as nanobench
+    from learnest.models import crazyflie as cf
+    from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
+
+    truth = {**cf.IDENTIFIED, "gamma": 1.2}
+    paths = []
+    for seed in (0, 1, 2):
+        f = simulate_crazyflie(SimulatedFlight(truth=truth, duration_s=20), seed=seed)
+        paths.append(tmp_path / f"cf{seed}.csv")
+        motors = None if seed == 2 else f.channels["motors"]
+        nanobench.write(paths[-1], f.t + 1.7e9, f.p, f.quat, f.channels["acc_body"] / cf.GRAVITY, motors=motors,
+                        vbat=f.channels["vbat"])
+    with running_app(tmp_path / "home") as client:
+        ids = [upload(client, p).json()["id"] for p in paths]
+        body = {"flights": ids[:2], "methods": ["ukf"], "epochs": 1, "system": "crazyflie"}
+        assert client.post("/diagnoses", json={**body, "system": "robot"}).status_code == 422
+        accepted = client.post("/diagnoses", json=body)
+        assert accepted.status_code == 202, accepted.text
+        assert wait_for_job(client, accepted.json()["job_id"])["state"] == "succeeded"
+        report = client.get(f"/diagnoses/{accepted.json()['diagnosis_id']}").json()
+        assert report["system"] == "crazyflie" and report["prior"]["params"]["gamma"] == cf.IDENTIFIED["gamma"]
+        assert report["effects"][0]["id"] == "battery_thrust"
+        assert report["effects"][0]["nominal"] == {"gamma": cf.IDENTIFIED["gamma"]}
+
+        failing = client.post("/diagnoses", json={**body, "flights": [ids[2], ids[0]]})
+        job = wait_for_job(client, failing.json()["job_id"])
+        assert job["state"] == "failed" and "motor PWM" in json.dumps(job)

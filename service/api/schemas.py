@@ -194,6 +194,9 @@ class DiagnosisRequest(Strict):
                                description="estimators scored before and after")
     epochs: int = Field(CRAZYFLIE_TRAINING.epochs, ge=1, le=100_000,
                         description=f"KNODE training epochs (Sec. V-C: {CRAZYFLIE_TRAINING.epochs})")
+    system: Literal["quadrotor", "crazyflie"] = Field(
+        "quadrotor", description='the prior diagnosed: "quadrotor" (kinematic) or "crazyflie" (driven by motors '
+                                 "and battery; its flights need motor PWM and battery voltage)")
 
     @field_validator("methods")
     @classmethod

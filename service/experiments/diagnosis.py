@@ -2,8 +2,12 @@
 
 Simulated systems (cartpole, robot): the true system gets the values given with --simulate; the
 diagnosis sees only measurements y and inputs u (through the pre-training observer), never the truth.
-Crazyflie flights: the accelerometer channel (measurement effects, against Savitzky–Golay references) and
-the translational dynamics (dynamics effects, on the KF observer's states) are traced separately.
+Crazyflie flights, kinematic prior (system "quadrotor"): the accelerometer channel (measurement effects,
+against Savitzky–Golay references) and the translational dynamics (dynamics effects, on the KF observer's
+states) are traced separately.  Crazyflie flights, input-driven prior (system "crazyflie"): one channel,
+the body-frame specific force the accelerometer reads against what motors, battery and mocap predict
+(`models.crazyflie_residual`), traces the physical effects (mass, battery_thrust, rotor_drag,
+ground_effect, motor_lag) and the accelerometer's together.
 Everything is fitted on some data and scored on other data (flights or trajectories not used to fit).
 """
 from __future__ import annotations
@@ -19,9 +23,21 @@ from learnest.estimators.observers import pretraining_observer
 from learnest.estimators.ukf import run_ukf
 from learnest.ingest.baseline import sg_references
 from learnest.ingest.flight import Flight
+from learnest.models import crazyflie as cf
 from learnest.models.backend import rk4_step
+from learnest.models.crazyflie_residual import CRAZYFLIE_MIN_CV_GAIN, crazyflie_problem, specific_force_rmse
 from learnest.models.diagnosis import ResidualProblem, select_effects
-from learnest.models.effects import LIBRARY, Effect, dynamics_params, effects_for, predict_acc_body, specific_force_body
+from learnest.models.effects import (
+    LIBRARY,
+    Effect,
+    dynamics_params,
+    effects_for,
+    predict_acc_body,
+    specific_force_body,
+    unidentifiable_scales,
+)
+from learnest.models.identify import LOWPASS_HZ
+from learnest.models.inputs import system_inputs
 from learnest.models.knode import HybridModel
 from learnest.models.presets import CRAZYFLIE_TRAINING, PAPER_TRAINING
 from learnest.models.systems import System, make_system
@@ -32,12 +48,10 @@ from .flights import (
     evaluate_flight,
     initial_state,
     quadrotor_for,
+    system_for,
     train_on_flight,
 )
 
-# a quadrotor's accelerometer sees horizontal (body x/y) specific force only through rotor drag; below
-# this rms the x/y scale factors cannot be separated from reference errors and are held at 1
-MIN_HORIZONTAL_FORCE_MS2 = 0.5
 DIAGNOSIS_SG_WINDOW = 31   # 0.3 s: keeps the accelerometer's manoeuvre content that delay and scale act on
 EDGE_S = 0.5               # SG references are least reliable at the ends of a record
 
@@ -71,7 +85,7 @@ def accelerometer_problem(flights: list[Flight], window: int = DIAGNOSIS_SG_WIND
 
     Rows are the samples of every flight without its first and last ``EDGE_S`` s, k = 3 columns (m/s²,
     body frame); the flights are the cross-validation blocks when there are several.  The x/y scale
-    factors are frozen at 1 when that axis' specific force is below ``MIN_HORIZONTAL_FORCE_MS2`` rms.
+    factors are frozen at 1 when that axis' specific force is below ``effects.MIN_HORIZONTAL_FORCE_MS2`` rms.
     Needs the ``acc_body`` channel.  ``window`` is the SG window, samples.
     """
     pieces = []
@@ -88,12 +102,7 @@ def accelerometer_problem(flights: list[Flight], window: int = DIAGNOSIS_SG_WIND
         return np.concatenate(parts)[rows]
 
     blocks = [np.arange(offsets[i], offsets[i + 1]) for i in range(len(pieces))] if len(pieces) > 1 else []
-    frozen = {}
-    for axis, j in (("x", 0), ("y", 1)):
-        rms = float(np.sqrt(np.mean(np.concatenate([f[keep][:, j] for _, f, _, keep in pieces]) ** 2)))
-        if rms < MIN_HORIZONTAL_FORCE_MS2:
-            frozen[f"scale_{axis}"] = (f"body-{axis} specific force is only {rms:.2f} m/s² rms (rotor drag): "
-                                       f"scale_{axis} is not identifiable in this flight and is held at 1")
+    frozen = unidentifiable_scales(np.concatenate([f[keep] for _, f, _, keep in pieces]))
     return ResidualProblem("accelerometer", effects_for("quadrotor", "measurement"), residual,
                            int(offsets[-1]), blocks, frozen)
 
@@ -159,7 +168,9 @@ def diagnose_simulated(system_name: str, simulate: str = "", seed: int = 0,
 
     # retrain on top with a held-out block: once the prior is right there may be nothing left to learn,
     # and then the KNODE should stay the prior rather than fit the observer's noise
-    config = replace(PAPER_TRAINING[system_name], validation_fraction=0.2, **({"epochs": epochs} if epochs else {}))
+    config = replace(PAPER_TRAINING[system_name], validation_fraction=0.2)
+    if epochs:
+        config = replace(config, epochs=epochs)
     before = _score_simulated(system, zeta, train, test, methods, config)
     after = _score_simulated(repaired, zeta, train, test, methods, config)
     return {"system": system_name, "simulated_truth": {k: system.true_params[k] for k in system.true_params},
@@ -187,13 +198,26 @@ def _split_for_fitting(flights: list[Flight]):
 
 def diagnose_flights(flights: list[Flight], knode: HybridModel | None = None,
                      methods: Sequence[str] = ("ukf", "knode-ukf"), epochs: int = CRAZYFLIE_TRAINING.epochs,
-                     return_model: bool = False):
+                     return_model: bool = False, system: str = "quadrotor", prior: dict | None = None):
     """The diagnosis report; with return_model, also the repaired model (prior + dynamics effects,
     measurement effects in its meta, KNODE retrained on top) ready to be registered as a new version:
     ``report`` or ``(report, model)``.
 
-    Flights failing the quality checks are left out unless all fail.  See `diagnose` for the report.
+    Flights failing the quality checks are left out unless all fail.  ``system`` is the prior diagnosed:
+    "quadrotor" (kinematic) or "crazyflie" (input-driven, see `diagnose_crazyflie`; ``prior`` its
+    parameters).  See `diagnose` for the report.
     """
+    if system == "crazyflie":
+        return diagnose_crazyflie(flights, knode=knode, methods=methods, epochs=epochs, return_model=return_model,
+                                  prior=prior)
+    if system != "quadrotor":
+        raise InvalidInput(f"diagnosing flights needs system 'quadrotor' or 'crazyflie', not {system!r}")
+    return _diagnose_quadrotor(flights, knode, methods, epochs, return_model)
+
+
+def _diagnose_quadrotor(flights: list[Flight], knode: HybridModel | None, methods: Sequence[str], epochs: int,
+                        return_model: bool):
+    """`diagnose_flights` with the kinematic prior: accelerometer channel, then translational dynamics."""
     flights = [f for f in flights if f.quality["ok"]] or flights
     fitting, scoring, split = _split_for_fitting(flights)
     accel = select_effects(accelerometer_problem(fitting))
@@ -221,8 +245,10 @@ def diagnose_flights(flights: list[Flight], knode: HybridModel | None = None,
         "training_flight": fitting[0].name,
         "training_flight_sha256": [s["sha256"] for s in fitting[0].meta.get("sources", [])],
         "parent": knode_before.meta.get("name")})
-    before, after, per_flight = {m: [] for m in methods}, {m: [] for m in methods}, []
-    mhe_cache = {}  # keyed by model: before and after never share an MHE
+    before: dict[str, list[float]] = {m: [] for m in methods}
+    after: dict[str, list[float]] = {m: [] for m in methods}
+    per_flight: list[dict] = []
+    mhe_cache: dict = {}  # keyed by model: before and after never share an MHE
     for flight in scoring:
         b = evaluate_flight(knode_before, flight, methods, mhe_cache=mhe_cache)["results"]
         a = evaluate_flight(knode_after, flight, methods, mhe_cache=mhe_cache)["results"]
@@ -243,6 +269,112 @@ def diagnose_flights(flights: list[Flight], knode: HybridModel | None = None,
         "residuals": _residual_summary(fitting, fixed_fitting, accel, dynamics, knode_before),
         "channels": {"accelerometer": _channel(accel), "translational dynamics": _channel(dynamics)}}
     return (report, knode_after) if return_model else report
+
+
+# -- Crazyflie flights, input-driven prior -------------------------------------------------------------
+def _split_crazyflie(flights: list[Flight]):
+    """Fit on the first half of the flights (rounded up; blocked CV by flight when that is several), score
+    on the others; one flight: fit on its first 60 %, score the rest."""
+    if len(flights) == 1:
+        return _split_for_fitting(flights)
+    cut = (len(flights) + 1) // 2
+    return flights[:cut], flights[cut:], f"fit on the first {cut} flight(s), scored on the other {len(flights) - cut}"
+
+
+def _crazyflie_model(flight: Flight, params: dict, train: bool, config) -> HybridModel:
+    """The Crazyflie prior with ``params`` on ``flight``'s grid; with ``train``, a KNODE trained on top."""
+    system = replace(system_for(flight, "crazyflie"), prior_params=dict(params))
+    if not train:
+        return HybridModel(system, "prior")
+    u = system_inputs(flight, system)
+    zeta = pretraining_observer(system, flight.measurements(), u, system.dt)
+    model = train_knode(system, zeta, u, system.dt, config).model
+    model.meta.update({"system": "crazyflie", "training_flight": flight.name,
+                       "training_flight_sha256": [s["sha256"] for s in flight.meta.get("sources", [])]})
+    return model
+
+
+def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, methods: Sequence[str] = ("ukf",),
+                       epochs: int = CRAZYFLIE_TRAINING.epochs, return_model: bool = False,
+                       prior: dict | None = None):
+    """Trace what the input-driven Crazyflie prior lacks on real flights; score before and after on
+    flights not used to fit.
+
+    The residual is the body-frame specific force (`models.crazyflie_residual.crazyflie_problem`, both
+    sides low-passed at 5 Hz); effects are selected on the fitting flights (`_split_crazyflie`) and scored
+    on the others: the RMSE of the specific force predicted from the inputs alone (``specific_force_rmse``,
+    m/s²) and, for each of ``methods``, the estimator's MSE with the prior before and after (KNODE methods
+    train a KNODE on the first fitting flight, ``epochs`` epochs, on each prior).
+
+    Returns
+    -------
+    dict or (dict, HybridModel)
+        `diagnose`'s report with ``system`` "crazyflie", ``prior`` {``system``, ``params``}, ``candidates``
+        (every candidate effect, fitted alone), ``lowpass_hz``; with ``return_model`` also the repaired
+        model (a KNODE on the repaired prior, measurement effects in its meta).
+
+    Raises
+    ------
+    models.inputs.MissingInputs
+        If a flight lacks the motor PWM or battery voltage.
+    InvalidInput
+        If ``knode`` is not a crazyflie model.
+    """
+    if knode is not None and knode.system.name != "crazyflie":
+        raise InvalidInput(f"model {knode.meta.get('name') or ''} has the {knode.system.name!r} prior: diagnosing "
+                           "with --system crazyflie needs a model trained with the crazyflie prior")
+    prior = dict(cf.IDENTIFIED if prior is None else prior)
+    flights = [f for f in flights if f.quality["ok"]] or flights
+    for flight in flights:
+        system_inputs(flight, system_for(flight, "crazyflie"))   # MissingInputs names what a flight lacks
+    fitting, scoring, split = _split_crazyflie(flights)
+    problem = crazyflie_problem(fitting, prior)
+    selection = select_effects(problem, min_cv_gain=CRAZYFLIE_MIN_CV_GAIN)
+    values = selection["values"]
+    chosen = [e for e in problem.candidates if e.id in {c["id"] for c in selection["effects"]}]
+    repaired = {**prior, **{p.name: values[p.name] for e in chosen if e.target == "dynamics" for p in e.params
+                            if p.name in values}}
+    measurement = {p.name: values[p.name] for e in chosen if e.target == "measurement" for p in e.params
+                   if p.name in values}
+
+    config = replace(CRAZYFLIE_TRAINING, epochs=epochs)
+    learn = any(m.startswith("knode") for m in methods)
+    model_before = knode or _crazyflie_model(fitting[0], prior, learn, config)
+    model_after = _crazyflie_model(fitting[0], repaired, learn or return_model, config)
+    model_after.meta.update({"measurement_effects": measurement, "effects": [e.id for e in chosen],
+                             "parent": model_before.meta.get("name")})
+    keys = ["specific_force_rmse", *methods]
+    before: dict[str, list[float]] = {k: [] for k in keys}
+    after: dict[str, list[float]] = {k: [] for k in keys}
+    per_flight: list[dict] = []
+    mhe_cache: dict = {}
+    for flight in scoring:
+        held_out = crazyflie_problem([flight], prior)
+        b = {"specific_force_rmse": specific_force_rmse(held_out)}
+        a = {"specific_force_rmse": specific_force_rmse(held_out, values)}
+        if methods:
+            scored_b = evaluate_flight(model_before, flight, methods, mhe_cache=mhe_cache)["results"]
+            scored_a = evaluate_flight(model_after, flight, methods, mhe_cache=mhe_cache)["results"]
+            b.update({m: scored_b[m]["mse"] for m in methods})
+            a.update({m: scored_a[m]["mse"] for m in methods})
+        per_flight.append({"flight": flight.name, "before": b, "after": a})
+        for k in keys:
+            before[k].append(b[k])
+            after[k].append(a[k])
+    effects = [{**e, "channel": selection["channel"]} for e in selection["effects"]]
+    report = {
+        "system": "crazyflie", "prior": {"system": "crazyflie", "params": prior},
+        "effects": effects, "confounded": selection["confounded"],
+        "candidates": [{**c, "channel": selection["channel"]} for c in selection["candidates"]],
+        "before": {k: float(np.median(v)) for k, v in before.items()},
+        "after": {k: float(np.median(v)) for k, v in after.items()},
+        "per_flight": per_flight, "split": split, "lowpass_hz": LOWPASS_HZ,
+        "improved_flights": {k: f"{sum(p['after'][k] < p['before'][k] for p in per_flight)}/{len(per_flight)}"
+                             for k in keys},
+        "residuals": {"specific_force_rmse_fitting_before": specific_force_rmse(problem),
+                      "specific_force_rmse_fitting_after": specific_force_rmse(problem, values)},
+        "channels": {selection["channel"]: _channel(selection)}}
+    return (report, model_after) if return_model else report
 
 
 def _residual_summary(fitting, fixed_fitting, accel, dynamics, knode):
@@ -282,16 +414,24 @@ def format_diagnosis(result: dict) -> str:
     """The human-readable report: effects as equations, intervals, what could not be told apart, and
     the estimators' error before and after.  ``result`` is `diagnose`'s or `diagnose_simulated`'s dict."""
     lines = [f"diagnosis of {result['system']}"]
+    if result.get("prior"):
+        prior = result["prior"]["params"]
+        lines.append("  prior: " + ", ".join(f"{k} = {v:.4g} {cf.UNITS.get(k, '')}".rstrip() for k, v in prior.items()
+                                            if k in cf.UNITS))
     if result.get("simulated_truth"):
         lines.append(f"  (simulated; truth hidden from the diagnosis: {result['simulated_truth']})")
     if not result["effects"]:
         lines.append("  no effect explains the residual better than noise: the model is not missing anything "
                      "these candidates describe")
     for e in result["effects"]:
-        cis = ", ".join(f"{k} in [{lo:.4g}, {hi:.4g}]" for k, (lo, hi) in e["ci95"].items())
+        units = e.get("units", {})
+        cis = ", ".join(f"{k} in [{lo:.4g}, {hi:.4g}] {units.get(k, '')}".rstrip() for k, (lo, hi) in e["ci95"].items())
         shaky = [k for k, ok in e.get("determined", {}).items() if not ok]
         lines.append(f"  {e['equation']}  ({e['channel']}; explains {100 * e['explained_fraction']:.1f} % of the "
                      f"residual; 95 % CI {cis})")
+        if "nominal" in e:
+            lines.append("    prior's value: " + ", ".join(f"{k} = {v:.4g} {units.get(k, '')}".rstrip()
+                                                          for k, v in e["nominal"].items()))
         for name, why in e.get("held_nominal", {}).items():
             lines.append(f"    {name}: {why}")
         shaky = [k for k in shaky if k not in e.get("held_nominal", {})]
@@ -300,8 +440,16 @@ def format_diagnosis(result: dict) -> str:
     for c in result["confounded"]:
         lines.append(f"  cannot tell apart: {c['note']}")
     median = " (median over flights)" if result.get("per_flight") else ""
-    lines.append(f"  MSE on held-out data{median}   before        after")
-    for m in result["before"]:
+    if "specific_force_rmse" in result["before"]:
+        before, after = result["before"]["specific_force_rmse"], result["after"]["specific_force_rmse"]
+        helped = result.get("improved_flights", {}).get("specific_force_rmse")
+        lines.append(f"  body-frame specific force from the inputs alone, RMSE on held-out data (m/s², both sides "
+                     f"low-passed at {result.get('lowpass_hz', LOWPASS_HZ):g} Hz): before {before:.4g}, after "
+                     f"{after:.4g}" + (f"; better on {helped} flights" if helped else ""))
+    methods = [m for m in result["before"] if m != "specific_force_rmse"]
+    if methods:
+        lines.append(f"  MSE on held-out data{median}   before        after")
+    for m in methods:
         helped = result.get("improved_flights", {}).get(m)
         lines.append(f"    {m:<20}{result['before'][m]:>10.4g}  {result['after'][m]:>10.4g}"
                      + (f"   better on {helped} flights" if helped else ""))

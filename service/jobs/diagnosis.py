@@ -14,7 +14,7 @@ from .training import training_config
 
 
 def start_diagnosis(services: Services, flight_ids: list[int], model_ref: str | None, register: str | None,
-                    methods: list[str], epochs: int) -> tuple[int, int]:
+                    methods: list[str], epochs: int, system: str = "quadrotor") -> tuple[int, int]:
     """Create the diagnosis and its job and launch it.  -> (job id, diagnosis id)
 
     Raises
@@ -39,7 +39,7 @@ def start_diagnosis(services: Services, flight_ids: list[int], model_ref: str | 
         if model_ref is not None:
             version = registry.resolve(session, model_ref)
             model_ref = f"{version.name}:{version.version}"
-        settings = {"methods": list(methods), "epochs": epochs}
+        settings = {"methods": list(methods), "epochs": epochs, "system": system}
         job = services.runner.create(session, "diagnosis", {"flights": ids, "model": model_ref,
                                                             "register": register, **settings})
         diagnosis = Diagnosis(job_id=job.id, flight_ids=ids, model_ref=model_ref, register_as=register,
@@ -67,7 +67,8 @@ def run_diagnosis(services: Services, ctx: JobContext, diagnosis_id: int) -> Non
         first_flight_id = diagnosis.flight_ids[0]
     out = services.executor.submit(diagnose_task, [services.blobs.read_bytes(b) for b in blobs],
                                    services.blobs.read_bytes(weights) if weights else None,
-                                   settings["methods"], settings["epochs"]).result()
+                                   settings["methods"], settings["epochs"],
+                                   settings.get("system", "quadrotor")).result()
     ctx.progress(0.95)
     registered = None
     if register is not None:

@@ -97,7 +97,8 @@ def evaluate_task(model_json: bytes, flight_bytes: bytes, settings: dict) -> dic
     return report["flights"][0]
 
 
-def diagnose_task(flights_bytes: list[bytes], model_json: bytes | None, methods: list[str], epochs: int) -> dict:
+def diagnose_task(flights_bytes: list[bytes], model_json: bytes | None, methods: list[str], epochs: int,
+                  system: str = "quadrotor") -> dict:
     """service.experiments.diagnosis.diagnose_flights on stored flights; the report as plain JSON, the
     repaired model as HybridModel JSON, and the name of the flight it was fitted on."""
     from ..experiments.diagnosis import diagnose_flights
@@ -105,7 +106,7 @@ def diagnose_task(flights_bytes: list[bytes], model_json: bytes | None, methods:
     init_worker()
     knode = registry.model_from_json(model_json) if model_json is not None else None
     report, repaired = diagnose_flights([flight_from_bytes(b) for b in flights_bytes], knode=knode,
-                                        methods=tuple(methods), epochs=epochs, return_model=True)
+                                        methods=tuple(methods), epochs=epochs, return_model=True, system=system)
     return {"report": json_compatible(report), "model_json": registry.model_to_json(repaired),
             "fitting_flight": repaired.meta.get("training_flight")}
 

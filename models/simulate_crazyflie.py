@@ -1,0 +1,200 @@
+"""Simulated Crazyflie flights whose truth is `models.crazyflie`: the test bench of the Crazyflie diagnosis.
+
+A position controller flies the input-driven model closed-loop along a varied path: take-off hover a few
+cm above the floor (ground effect), a climb, circles at several speeds with climbs and descents (thrust
+and airspeed vary), a descent and a landing hover.  The battery sags linearly over the flight.  What the
+truth differs in from the prior (payload mass, voltage exponent, rotor drag, motor lag, ground effect) is
+set by ``truth``; the controller flies with the prior's thrust map and an integrator, as the firmware does.
+
+The Flight carries what a NanoBench log carries: mocap position and attitude, the accelerometer's
+body-frame specific force (``acc_body``, white noise, optionally the sensor's low-pass), the four motor PWM
+(``motors``) and the battery voltage (``vbat``).  The motor lag acts on the body-frame specific force as a
+first-order filter, the form `models.identify` predicts.  Writing these inputs into the log formats of
+`ingest` is not done here (ingest must not import models).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import butter, lfilter
+
+from learnest.ingest.flight import Flight
+from learnest.ingest.frames import GRAVITY
+
+from . import crazyflie as cf
+from .effects import world_from_body
+from .identify import lowpass
+
+SUBSTEPS = 5                    # integration steps per logged sample (2 ms at 100 Hz)
+KP, KD, KI = 6.0, 4.5, 2.0      # position loop (1/s², 1/s, 1/s³): a tight tracker, as a tuned Crazyflie's
+TORQUE_SPREAD = 0.01            # per-motor thrust differences (attitude control), fraction of the mean
+
+
+@dataclass(frozen=True)
+class SimulatedFlight:
+    """Settings of one simulated flight.
+
+    Attributes
+    ----------
+    truth : dict
+        Parameters of the vehicle flown (`models.crazyflie.IDENTIFIED` keys).
+    controller : dict
+        Parameters the controller's thrust map assumes (the prior).
+    duration_s : float
+        Length, s (take-off and landing hovers included).
+    vbat : tuple of float
+        Battery voltage at start and end, V (linear sag).
+    speeds : tuple of float
+        Circle speeds, m/s, flown in turn (shuffled per seed).
+    hover_height_m : float
+        Height of the take-off and landing hovers, m (ground effect acts below ~4 rotor radii).
+    accel_noise : float
+        Accelerometer white noise, m/s² per sample (vibration-dominated in flight).
+    mocap_noise : float
+        Mocap position noise, m.
+    vbat_noise : float
+        Voltage reading noise, V.
+    accel_lpf_hz : float or None
+        Cut-off of the accelerometer's own 2nd-order low-pass (the firmware's is 30 Hz); None: no filter.
+        Its group delay (~7 ms at 30 Hz) is a real accelerometer delay that a diagnosis reports.
+    rate_hz : float
+        Log rate, Hz.
+    """
+
+    truth: dict = field(default_factory=lambda: dict(cf.IDENTIFIED))
+    controller: dict = field(default_factory=lambda: dict(cf.IDENTIFIED))
+    duration_s: float = 30.0
+    vbat: tuple = (4.1, 3.4)
+    speeds: tuple = (0.5, 1.0, 1.5)
+    hover_height_m: float = 0.05
+    accel_noise: float = 0.1
+    mocap_noise: float = 3e-4
+    vbat_noise: float = 0.005
+    accel_lpf_hz: float | None = None
+    rate_hz: float = 100.0
+
+
+def reference_path(settings: SimulatedFlight, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
+    """(t, p, v, a, yaw): the path to fly, (T,), (T, 3) m, m/s, m/s², (T,) rad, smooth (1 Hz low-pass)."""
+    dt = 1.0 / settings.rate_hz
+    t = np.arange(int(round(settings.duration_s * settings.rate_hz))) * dt
+    hover, climb = 2.5, 2.5                       # s at the floor, s to climb (and to descend)
+    up = np.clip((t - hover) / climb, 0, 1)
+    down = np.clip((settings.duration_s - hover - t) / climb, 0, 1)
+    airborne = np.minimum(up, down)
+    airborne = airborne * airborne * (3 - 2 * airborne)   # smoothstep
+    radius = rng.uniform(0.4, 0.7)
+    speeds = rng.permutation(settings.speeds)
+    cruise = np.clip(t - hover - climb, 0, None)
+    cruise_s = max(settings.duration_s - 2 * (hover + climb), 1.0)
+    speed = speeds[np.minimum((cruise / cruise_s * len(speeds)).astype(int), len(speeds) - 1)]
+    phase = rng.uniform(0, 2 * np.pi) + np.cumsum(speed * airborne) * dt / radius
+    height = 1.0 + rng.uniform(0.2, 0.4) * np.sin(2 * np.pi * t / rng.uniform(3.0, 5.0))
+    p = np.column_stack([radius * np.cos(phase) * airborne, radius * np.sin(phase) * airborne,
+                         settings.hover_height_m + (height - settings.hover_height_m) * airborne])
+    p = lowpass(p, dt, 1.0)
+    v = np.gradient(p, dt, axis=0)
+    a = np.gradient(v, dt, axis=0)
+    yaw = 0.4 * np.sin(2 * np.pi * t / rng.uniform(8.0, 12.0))
+    return t, p, v, a, yaw
+
+
+def _pwm_for(thrust_n: np.ndarray, vbat: float, params: dict) -> np.ndarray:
+    """PWM (0..65535) at which each motor gives thrust_n (N) at vbat (V) on the map ``params``."""
+    poly = thrust_n / (vbat / params.get("v_ref", cf.V_REF)) ** params["gamma"]
+    a2, a1, a0 = params.get("q_pwm2", 1.0) * cf.FOERSTER_A2, cf.FOERSTER_A1, cf.FOERSTER_A0 - poly
+    if abs(a2) < 1e-30:
+        return np.clip(-a0 / a1, 0.0, cf.PWM_MAX)
+    return np.clip((-a1 + np.sqrt(np.maximum(a1 * a1 - 4 * a2 * a0, 0.0))) / (2 * a2), 0.0, cf.PWM_MAX)
+
+
+def _attitude(force: np.ndarray, yaw: float) -> tuple[np.ndarray, np.ndarray]:
+    """(R body-to-world, its quaternion scalar last) with body z along ``force`` and heading ``yaw`` (rad).
+
+    Written out rather than through scipy: it runs once per logged sample in the closed loop."""
+    b3 = force / np.sqrt(force @ force)
+    heading = (np.cos(yaw), np.sin(yaw))
+    b2 = np.array([-b3[2] * heading[1], b3[2] * heading[0], b3[0] * heading[1] - b3[1] * heading[0]])  # b3 × h
+    b2 /= np.sqrt(b2 @ b2)
+    b1 = np.array([b2[1] * b3[2] - b2[2] * b3[1], b2[2] * b3[0] - b2[0] * b3[2], b2[0] * b3[1] - b2[1] * b3[0]])
+    R = np.column_stack([b1, b2, b3])
+    # the vehicle never tilts past 90°, so 1 + trace > 0 and the scalar part is the safe pivot
+    w = 0.5 * np.sqrt(1.0 + R[0, 0] + R[1, 1] + R[2, 2])
+    quat = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1], 4 * w * w]) / (4 * w)
+    return R, quat
+
+
+def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int = 0, name: str | None = None) -> Flight:
+    """Fly ``settings.truth`` closed-loop along a varied path and log it as a Flight.
+
+    The inputs are held over each sample, and so is the specific force they command (the motor lag
+    filters it exactly, as `models.identify.first_order_lag` assumes); position and velocity are
+    integrated in `SUBSTEPS` steps per sample.
+
+    Parameters
+    ----------
+    settings : SimulatedFlight
+    seed : int
+        Seed of the path (radius, speed order, climbs, yaw), the motor spread and the sensor noise.
+    name : str, optional
+        The flight's name (default ``"sim_crazyflie_<seed>"``).
+
+    Returns
+    -------
+    Flight
+        T = duration·rate rows: ``p`` (m, mocap noise), ``quat`` (scalar last), ``a_meas`` (m/s², world,
+        gravity removed), channels ``acc_body`` (T, 3) m/s², ``motors`` (T, 4) PWM, ``vbat`` (T,) V; its
+        ``meta["simulated_truth"]`` holds ``settings.truth``.
+    """
+    rng = np.random.default_rng(seed)
+    truth, ctrl = settings.truth, settings.controller
+    t, p_ref, v_ref, a_ref, yaw = reference_path(settings, rng)
+    n, dt = len(t), 1.0 / settings.rate_hz
+    h = dt / SUBSTEPS
+    volts = np.linspace(settings.vbat[0], settings.vbat[1], n)
+    spread = TORQUE_SPREAD * rng.standard_normal((n, 4))
+    spread -= spread.mean(axis=1, keepdims=True)            # differential: the collective is unchanged
+    # the lagged force at the start of each substep and at the end of the sample: f_cmd + (f - f_cmd)·decay
+    decay = np.exp(-np.arange(SUBSTEPS + 1) * h / truth["tau_s"]) if truth["tau_s"] > 1e-6 \
+        else np.r_[1.0, np.zeros(SUBSTEPS)]
+    gravity = np.array([0.0, 0.0, GRAVITY])
+    p, v = p_ref[0].copy(), np.zeros(3)
+
+    def step(k: int, trim: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(R, u, commanded body specific force) at sample k: the controller's inputs and their effect."""
+        force = a_ref[k] + KP * (p_ref[k] - p) + KD * (v_ref[k] - v) + gravity
+        R, quat = _attitude(force, yaw[k])
+        per_motor = ctrl["m_kg"] * trim * float(force @ R[:, 2]) / 4.0
+        u = np.concatenate([quat, _pwm_for(per_motor * (1 + spread[k]), volts[k], ctrl), [volts[k]]])
+        f_b, _ = cf.specific_force_body(list(v), p[2], list(u), truth)
+        return R, u, np.array([float(c) for c in f_b])
+
+    # start in a steady hover: the trim makes the controller's thrust hold the true vehicle, as the
+    # firmware's integrator has done by the time a flight's log starts
+    trim = 1.0
+    for _ in range(3):
+        trim *= GRAVITY / step(0, trim)[2][2]
+    f = step(0, trim)[2]
+    log_p, log_f, log_u = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 9))
+    for k in range(n):
+        R, u, f_cmd = step(k, trim)
+        log_p[k], log_f[k], log_u[k] = p, f, u
+        # symplectic Euler with the acceleration at the start of each substep: the second difference of
+        # the logged positions then is the acceleration at the sample, not a substep later
+        for fraction in decay[:-1]:
+            v = v + h * (R @ (f_cmd + (f - f_cmd) * fraction) - gravity)
+            p = p + h * v
+        f = f_cmd + (f - f_cmd) * decay[-1]
+        trim += KI * (p_ref[k, 2] - p[2]) * dt / GRAVITY
+
+    acc = log_f + settings.accel_noise * rng.standard_normal(log_f.shape)
+    if settings.accel_lpf_hz:
+        b, a = butter(2, settings.accel_lpf_hz, fs=settings.rate_hz)
+        acc = lfilter(b, a, acc - acc[0], axis=0) + acc[0]
+    positions = log_p + settings.mocap_noise * rng.standard_normal(log_p.shape)
+    channels = {"acc_body": acc, "motors": log_u[:, 4:8],
+                "vbat": log_u[:, 8] + settings.vbat_noise * rng.standard_normal(n)}
+    meta = {"name": name or f"sim_crazyflie_{seed}", "adapter": "simulated crazyflie",
+            "quality": {"ok": True, "issues": []}, "simulated_truth": dict(truth)}
+    return Flight(t, positions, world_from_body(acc, log_u[:, :4]), log_u[:, :4], channels, meta)
