@@ -18,7 +18,6 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy.optimize import least_squares
 
 if TYPE_CHECKING:
     from .effects import Effect
@@ -134,6 +133,8 @@ def fit(problem: ResidualProblem, effects: list, rows: np.ndarray | None = None,
     Bounded trust-region fit (scipy ``least_squares``) starting at each parameter's ``initial``, on ``rows``
     (default all); ``offset`` (same shape as the residual) is added to the residual (bootstrap replicates).
     """
+    from scipy.optimize import least_squares  # scipy.optimize costs ~1 s to import: loaded on first use
+
     rows = np.arange(problem.n_rows) if rows is None else rows
     params = [p for e in effects for p in e.params if p.name not in problem.frozen]
     base = _all_values(problem.candidates)

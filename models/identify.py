@@ -15,8 +15,6 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.signal import butter, lfilter, sosfiltfilt
 
 from learnest.ingest.flight import Flight
 from learnest.ingest.frames import quat_to_matrix
@@ -44,11 +42,15 @@ class FlightArrays:
 
 def lowpass(x: np.ndarray, dt: float, cutoff_hz: float = LOWPASS_HZ) -> np.ndarray:
     """Zero-phase 2nd-order Butterworth low-pass along axis 0."""
+    from scipy.signal import sosfiltfilt  # scipy.signal imports scipy.stats (~1.5 s): loaded on first use
+
     return sosfiltfilt(_butter_sos(cutoff_hz, 1.0 / dt), x, axis=0)
 
 
 @lru_cache(maxsize=16)
 def _butter_sos(cutoff_hz: float, rate_hz: float) -> np.ndarray:
+    from scipy.signal import butter  # scipy.signal imports scipy.stats (~1.5 s): loaded on first use
+
     # designed once per rate: effect selection low-passes thousands of predictions
     return butter(2, cutoff_hz, fs=rate_hz, output="sos")
 
@@ -83,6 +85,8 @@ def flight_arrays(flight: Flight) -> FlightArrays:
 def first_order_lag(x: np.ndarray, tau: float, dt: float) -> np.ndarray:
     """Exact discretisation of τ ẏ = x − y with x held over each step (y[k+1] from x[k], as the system
     integrates it), started at y = x[0]."""
+    from scipy.signal import lfilter  # scipy.signal imports scipy.stats (~1.5 s): loaded on first use
+
     if tau <= 1e-6:
         return x
     a = np.exp(-dt / tau)
@@ -116,6 +120,8 @@ def z_residuals(theta, variant: Variant, flights: list[FlightArrays]) -> np.ndar
 
 def fit_z(variant: Variant, flights: list[FlightArrays], start: dict | None = None) -> dict:
     """Bounded least squares of the free parameters on body-z specific force; returns all params."""
+    from scipy.optimize import least_squares  # scipy.optimize costs ~1 s to import: loaded on first use
+
     start = {**variant.base, "m_kg": 0.03, "gamma": 1.0, "tau_s": 0.05, **(start or {})}
     x0 = [start[k] for k in variant.free]
     lower = [BOUNDS[k][0] for k in variant.free]

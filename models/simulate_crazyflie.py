@@ -17,7 +17,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import butter, lfilter
 
 from learnest.ingest.flight import Flight
 from learnest.ingest.frames import GRAVITY
@@ -190,6 +189,8 @@ def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int 
 
     acc = log_f + settings.accel_noise * rng.standard_normal(log_f.shape)
     if settings.accel_lpf_hz:
+        from scipy.signal import butter, lfilter  # scipy.signal imports scipy.stats (~1.5 s): loaded on first use
+
         b, a = butter(2, settings.accel_lpf_hz, fs=settings.rate_hz)
         acc = lfilter(b, a, acc - acc[0], axis=0) + acc[0]
     positions = log_p + settings.mocap_noise * rng.standard_normal(log_p.shape)

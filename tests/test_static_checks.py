@@ -77,8 +77,6 @@ def test_mypy_clean_outside_the_files_being_rewritten(mypy_run):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason="mypy errors remain in files being rewritten: "
-                   + ", ".join(MYPY_NOT_YET_CLEAN))
 def test_mypy_clean_on_the_installed_package(mypy_run):
     """`mypy -p learnest` on the installed package reports nothing (issue 9's goal)."""
     code, output, _ = mypy_run
