@@ -9,12 +9,10 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
-from fastapi.testclient import TestClient
 from sqlalchemy import create_engine, func, select
 from utils.service import blob_files, flight_csv, running_app, settings_for, shared_pool, upload
 
 from learnest.ingest import read_flights
-from learnest.service.api.app import create_app
 from learnest.service.storage.tables import FlightFile, FlightRecord
 
 
@@ -236,7 +234,10 @@ def test_delete_removes_row_and_blobs(tmp_path, data_dir):
 
 
 def test_unexpected_errors_show_no_traceback(tmp_path, data_dir, monkeypatch):
+    from fastapi.testclient import TestClient  # the app stack loads when a test runs, not at collection
+
     import learnest.service.uploads as uploads
+    from learnest.service.api.app import create_app
 
     def explode(_staged):
         raise RuntimeError("secret internals /srv/path")
