@@ -25,6 +25,7 @@ if TYPE_CHECKING:
 DELTA_BIC = 10.0          # "very strong" evidence on Kass & Raftery's scale
 MIN_CV_GAIN = 0.0         # and it must not raise the held-out (blocked CV) error: it has to transfer
 BOOTSTRAP_REPLICATES = 60
+ALIKE_COSINE = 0.9        # sensitivities this parallel are "the same effect on this data"
 
 
 @dataclass
@@ -193,12 +194,14 @@ def confounded_pairs(problem: ResidualProblem, chosen: list, values: dict, near_
         with np.errstate(invalid="ignore", divide="ignore"):
             cosine = np.nan_to_num(np.abs(A.T @ B) / norms)
         i, j = np.unravel_index(np.argmax(cosine), cosine.shape)
-        out.append({"effects": [a.id, b.id], "params": [a.params[i].name, b.params[j].name],
-                    "cosine": round(float(cosine[i, j]), 4), "delta_bic": delta_bic,
+        pa, pb, c = a.params[i].name, b.params[j].name, float(cosine[i, j])
+        why = (f"{pa} and {pb} act alike on this data (cosine {c:.3f}): they cannot be told apart here, and data "
+               f"with more varied motion (thrust, speed) would separate them" if c >= ALIKE_COSINE else
+               f"the two act differently (largest cosine {c:.3f}, {pa} vs {pb}) yet fit about equally well: the "
+               f"data cannot choose between these explanations; more flights would")
+        out.append({"effects": [a.id, b.id], "params": [pa, pb], "cosine": round(c, 4), "delta_bic": delta_bic,
                     "note": f"{b.id} explains the residual almost as well as {a.id} (BIC_eff within "
-                            f"{DELTA_BIC:g}); {a.params[i].name} and {b.params[j].name} act alike on this data "
-                            f"(cosine {cosine[i, j]:.3f}): they cannot be told apart here, and data with more "
-                            f"varied motion (thrust, speed) would separate them"})
+                            f"{DELTA_BIC:g}); {why}"})
     return out
 
 

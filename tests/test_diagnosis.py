@@ -113,3 +113,29 @@ def test_cartpole_without_an_effect_claims_none(capsys):
 def test_bad_simulate_spec_is_a_clear_error(capsys):
     assert main(["diagnose", "--system", "cartpole", "--simulate", "warp_drive=3"]) == 2
     assert "warp_drive" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("angle_deg, alike", [(2.0, True), (89.0, False)])
+def test_a_near_tie_says_whether_the_two_effects_act_alike(angle_deg, alike):
+    """Two one-parameter effects whose residual sensitivities make a known angle: parallel ones are "alike",
+    orthogonal ones are a tie the data cannot break, and the note must not call them alike (issue 13)."""
+    import numpy as np
+
+    from learnest.models.diagnosis import ResidualProblem, confounded_pairs
+    from learnest.models.effects import Effect, Param
+
+    rng = np.random.default_rng(0)
+    u = rng.normal(size=200)
+    w = rng.normal(size=200)
+    w -= (w @ u) / (u @ u) * u                                # w ⟂ u, same scale
+    w *= np.linalg.norm(u) / np.linalg.norm(w)
+    angle = np.radians(angle_deg)
+    v = np.cos(angle) * u + np.sin(angle) * w                 # cos(u, v) = cos(angle)
+    a = Effect("effect_a", "quadrotor", "measurement", (Param("alpha", "", 0.0, -1.0, 1.0),), "a")
+    b = Effect("effect_b", "quadrotor", "measurement", (Param("beta", "", 0.0, -1.0, 1.0),), "b")
+    problem = ResidualProblem("toy", [a, b], lambda values, rows: (values["alpha"] * u + values["beta"] * v)[rows, None],
+                              n_rows=200)
+    (pair,) = confounded_pairs(problem, [a], {"alpha": 0.0}, [(a, b, 3.0)])
+    assert pair["cosine"] == pytest.approx(abs(np.cos(angle)), abs=1e-4)
+    assert ("act alike" in pair["note"]) is alike
+    assert ("act differently" in pair["note"]) is not alike
