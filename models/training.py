@@ -20,6 +20,7 @@ from .systems import System
 if TYPE_CHECKING:
     import torch
 
+
 @dataclass
 class TrainingResult:
     """What `train_knode` returns.
