@@ -7,14 +7,7 @@ import json
 from pathlib import Path
 
 import pytest
-from sqlalchemy import func, select
 from utils.service import running_app
-
-from learnest.service import registry
-from learnest.service.cli import main
-from learnest.service.config import Settings
-from learnest.service.storage.database import Database
-from learnest.service.storage.tables import FlightFile, FlightRecord
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
 TRAIN, OTHER = SAMPLES / "circle_rep1.csv", SAMPLES / "circle_rep2.csv"
@@ -27,6 +20,8 @@ def use_home(monkeypatch, home: Path) -> None:
 
 
 def run_json(capsys, *argv) -> dict:
+    from learnest.service.cli import main
+
     capsys.readouterr()
     assert main([*argv, "--json"]) == 0
     return json.loads(capsys.readouterr().out)
@@ -35,6 +30,8 @@ def run_json(capsys, *argv) -> dict:
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
     """circle:1 and circle:2, both trained (2 epochs) on circle_rep1 by `learnest train`."""
+    from learnest.service.cli import main
+
     home = tmp_path_factory.mktemp("cli-registry") / "home"
     outputs = []
     with pytest.MonkeyPatch.context() as monkeypatch:
@@ -48,6 +45,12 @@ def trained(tmp_path_factory):
 
 
 def test_train_twice_registers_versions_1_and_2_on_one_stored_flight(trained):
+    from sqlalchemy import func, select
+
+    from learnest.service.config import Settings
+    from learnest.service.storage.database import Database
+    from learnest.service.storage.tables import FlightFile, FlightRecord
+
     first, second = trained["outputs"]
     assert (first["version"], first["ref"], second["version"], second["ref"]) == (1, "circle:1", 2, "circle:2")
     assert first["training_flight"] == second["training_flight"] == "circle_rep1"
@@ -66,6 +69,10 @@ def test_train_twice_registers_versions_1_and_2_on_one_stored_flight(trained):
 
 
 def test_evaluate_by_version_alias_and_bare_name(trained, monkeypatch, capsys):
+    from learnest.service import registry
+    from learnest.service.config import Settings
+    from learnest.service.storage.database import Database
+
     use_home(monkeypatch, trained["home"])
     database = Database(Settings(home=trained["home"]).url)
     with database.transaction() as session:  # PUT alias, through the Python registry API
@@ -90,6 +97,8 @@ def test_evaluate_by_version_alias_and_bare_name(trained, monkeypatch, capsys):
     ("../circle", "must be 'name:version', 'name@alias' or 'name'"),
 ])
 def test_unknown_reference_is_exit_code_2_with_the_reason(trained, monkeypatch, capsys, ref, message):
+    from learnest.service.cli import main
+
     use_home(monkeypatch, trained["home"])
     capsys.readouterr()
     assert main(["evaluate", "--model", ref, str(OTHER)]) == 2
@@ -102,6 +111,8 @@ def test_unknown_reference_is_exit_code_2_with_the_reason(trained, monkeypatch, 
 
 
 def test_no_registry_yet_is_a_clear_error_and_creates_nothing(tmp_path, monkeypatch, capsys):
+    from learnest.service.cli import main
+
     home = tmp_path / "empty"
     use_home(monkeypatch, home)
     assert main(["evaluate", "--model", "circle", str(OTHER)]) == 2
@@ -110,6 +121,8 @@ def test_no_registry_yet_is_a_clear_error_and_creates_nothing(tmp_path, monkeypa
 
 
 def test_training_on_an_unreadable_file_registers_nothing(tmp_path, monkeypatch, capsys):
+    from learnest.service.cli import main
+
     junk = tmp_path / "junk.bin"
     junk.write_bytes(b"\x00\xff" * 100)
     use_home(monkeypatch, tmp_path / "home")

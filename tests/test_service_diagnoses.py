@@ -7,17 +7,10 @@ import io
 import json
 
 import pytest
-from sqlalchemy import select
 from utils.service import FAST_METHODS, evaluate, running_app, settings_for, upload, wait_for_job
 
 from learnest.ingest.flight import Flight as CanonicalFlight
 from learnest.ingest.sim import RandomWaypoints, SensorModel, simulate, write_flight
-from learnest.service.cli import main
-from learnest.service.experiments.flights import evaluate_flight
-from learnest.service.registry import load_model_ref
-from learnest.service.storage.blobs import BlobStore
-from learnest.service.storage.database import Database
-from learnest.service.storage.tables import FlightRecord
 
 BIAS = (0.3, -0.2, 0.25)
 EPOCHS = 3
@@ -34,6 +27,12 @@ def biased_logs(tmp_path_factory):
 
 
 def stored_flight(home, flight_id) -> CanonicalFlight:
+    from sqlalchemy import select
+
+    from learnest.service.storage.blobs import BlobStore
+    from learnest.service.storage.database import Database
+    from learnest.service.storage.tables import FlightRecord
+
     database = Database(settings_for(home).url)
     with database.transaction() as session:
         blob = session.scalar(select(FlightRecord.flight_blob).where(FlightRecord.id == flight_id))
@@ -48,6 +47,9 @@ def assert_bias_found(report: dict) -> None:
 
 
 def test_post_diagnoses_registers_the_repaired_model(tmp_path, biased_logs):
+    from learnest.service.experiments.flights import evaluate_flight
+    from learnest.service.registry import load_model_ref
+
     home = tmp_path / "home"
     with running_app(home, api_key="secret") as client:
         key = {"X-API-Key": "secret"}
@@ -88,6 +90,9 @@ def test_post_diagnoses_registers_the_repaired_model(tmp_path, biased_logs):
 
 
 def test_cli_diagnose_registers_a_child_version(tmp_path, biased_logs, monkeypatch):
+    from learnest.service.cli import main
+    from learnest.service.registry import load_model_ref
+
     monkeypatch.setenv("LEARNEST_HOME", str(tmp_path / "home"))
     for name in ("LEARNEST_DATABASE_URL", "LEARNEST_DASK", "LEARNEST_API_KEY"):
         monkeypatch.delenv(name, raising=False)

@@ -4,7 +4,6 @@ import dataclasses
 import json
 
 import pytest
-from sqlalchemy import delete, select
 from utils.service import (
     FAST_METHODS,
     evaluate,
@@ -17,16 +16,6 @@ from utils.service import (
 )
 
 from learnest.ingest.flight import Flight as CanonicalFlight
-from learnest.service.cli import main as cli_main
-from learnest.service.experiments.flights import evaluate_flights
-from learnest.service.jobs.executors import DaskExecutor
-from learnest.service.jobs.result_cache import EstimatorSettings
-from learnest.service.jobs.runner import JobRunner
-from learnest.service.jobs.scheduler import Scheduler
-from learnest.service.registry import load_model_ref
-from learnest.service.storage.blobs import BlobStore
-from learnest.service.storage.database import Database
-from learnest.service.storage.tables import FlightRecord, Result
 
 
 @pytest.fixture(scope="module")
@@ -43,6 +32,12 @@ def registry_home(tmp_path_factory):
 
 
 def stored_flights(home, ids) -> list[CanonicalFlight]:
+    from sqlalchemy import select
+
+    from learnest.service.storage.blobs import BlobStore
+    from learnest.service.storage.database import Database
+    from learnest.service.storage.tables import FlightRecord
+
     database, blobs = Database(settings_for(home).url), BlobStore(home / "blobs")
     with database.transaction() as session:
         query = select(FlightRecord).where(FlightRecord.id.in_(ids))
@@ -64,6 +59,9 @@ def assert_same_numbers(report: dict, expected: dict) -> None:
 
 
 def test_report_equals_evaluate_flights_and_is_cached(registry_home):
+    from learnest.service.experiments.flights import evaluate_flights
+    from learnest.service.registry import load_model_ref
+
     home, ids = registry_home["home"], registry_home["ids"]
     with running_app(home) as client:
         accepted, report = evaluate(client, "quad@production", "all-other")
@@ -94,6 +92,9 @@ def test_report_equals_evaluate_flights_and_is_cached(registry_home):
 
 
 def test_mhe_numbers_equal_evaluate_flights(registry_home):
+    from learnest.service.experiments.flights import evaluate_flights
+    from learnest.service.registry import load_model_ref
+
     home, flight_id = registry_home["home"], registry_home["ids"][1]
     methods = ["mhe", "knode-mhe"]
     with running_app(home) as client:
@@ -104,6 +105,12 @@ def test_mhe_numbers_equal_evaluate_flights(registry_home):
 
 
 def test_dask_executor_gives_the_local_pool_numbers(registry_home):
+    from sqlalchemy import delete
+
+    from learnest.service.jobs.executors import DaskExecutor
+    from learnest.service.storage.database import Database
+    from learnest.service.storage.tables import Result
+
     home, ids = registry_home["home"], registry_home["ids"]
     request = {"model": "quad:1", "flights": ids[1:], "methods": FAST_METHODS, "horizon": 7}
     with running_app(home) as client:
@@ -125,6 +132,14 @@ def test_dask_executor_gives_the_local_pool_numbers(registry_home):
 
 
 def test_scheduler_evaluates_new_flights_once(registry_home, monkeypatch, capsys):
+    from sqlalchemy import select
+
+    from learnest.service.cli import main as cli_main
+    from learnest.service.jobs.result_cache import EstimatorSettings
+    from learnest.service.jobs.runner import JobRunner
+    from learnest.service.jobs.scheduler import Scheduler
+    from learnest.service.storage.tables import FlightRecord, Result
+
     home, logs = registry_home["home"], registry_home["logs"]
     fast = EstimatorSettings(tuple(FAST_METHODS))
     with running_app(home) as client:
@@ -174,6 +189,8 @@ def test_scheduler_evaluates_new_flights_once(registry_home, monkeypatch, capsys
 
 def test_cli_evaluate_new_output(registry_home, monkeypatch, capsys):
     """Runs after the scheduler test: the CLI already evaluated the newest flight, so nothing is left."""
+    from learnest.service.cli import main as cli_main
+
     monkeypatch.setenv("LEARNEST_HOME", str(registry_home["home"]))
     monkeypatch.delenv("LEARNEST_DATABASE_URL", raising=False)
     assert cli_main(["evaluate", "--new", "--methods", ",".join(FAST_METHODS), "--json"]) == 0

@@ -9,14 +9,18 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
-from sqlalchemy import create_engine, func, select
 from utils.service import blob_files, flight_csv, running_app, settings_for, shared_pool, upload
 
 from learnest.ingest import read_flights
-from learnest.service.storage.tables import FlightFile, FlightRecord
 
 
-def count_rows(home: Path, table=FlightRecord) -> int:
+def count_rows(home: Path, table=None) -> int:
+    """Rows of ``table`` (default: flights) in the SQLite database under ``home``."""
+    from sqlalchemy import create_engine, func, select
+
+    from learnest.service.storage.tables import FlightRecord
+
+    table = FlightRecord if table is None else table
     engine = create_engine(f"sqlite:///{home / 'learnest.db'}")
     with engine.connect() as connection:
         n = connection.scalar(select(func.count()).select_from(table))
@@ -81,6 +85,8 @@ def test_nanobench_metadata_sidecar_travels_with_its_csv(tmp_path, data_dir):
 
 
 def test_unreadable_upload_is_422_and_stores_nothing(tmp_path, data_dir):
+    from learnest.service.storage.tables import FlightFile
+
     home = tmp_path / "home"
     rng = np.random.default_rng(1)
     with running_app(home) as client:
@@ -196,6 +202,8 @@ def test_api_key_guards_every_write(tmp_path, data_dir):
 
 
 def test_concurrent_uploads_leave_exactly_the_right_rows(tmp_path, data_dir):
+    from learnest.service.storage.tables import FlightFile
+
     home = tmp_path / "home"
     paths = [flight_csv(data_dir, 20 + k) for k in range(5)]
     jobs = [paths[k % 5] for k in range(20)]          # 5 different files, each uploaded 4 times at once

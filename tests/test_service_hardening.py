@@ -5,8 +5,6 @@ Item 10: numbers and dates out of range are a 422, not a 500."""
 import pytest
 from utils.service import flight_csv, running_app, upload
 
-from learnest.service.api.request_guard import host_name
-
 
 @pytest.fixture(scope="module")
 def app_with_a_flight(tmp_path_factory):
@@ -70,6 +68,8 @@ def test_the_served_names_answer(app_with_a_flight):
 @pytest.mark.parametrize("header, name", [("localhost:8000", "localhost"), ("[::1]:8000", "::1"), ("::1", "::1"),
                                           ("Example.ORG", "example.org"), ("10.0.0.5:80", "10.0.0.5")])
 def test_host_name_strips_the_port(header, name):
+    from learnest.service.api.request_guard import host_name
+
     assert host_name(header) == name
 
 

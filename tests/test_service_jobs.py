@@ -8,16 +8,12 @@ import time
 
 from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
-from sqlalchemy import inspect
 from utils.service import blob_files, flight_csv, running_app, settings_for, upload, wait_for_job
 
-from learnest.service.jobs.runner import JobRunner
-from learnest.service.storage.database import Database
-from learnest.service.storage.leases import acquire_lease, lease_holder, release_lease
-from learnest.service.storage.tables import Base, Evaluation, FlightRecord, Job, Lease, ModelVersion, RegisteredModel
 
+def database_for(home):
+    from learnest.service.storage.database import Database
 
-def database_for(home) -> Database:
     database = Database(settings_for(home).url)
     database.migrate()
     return database
@@ -30,6 +26,8 @@ def dead_pid() -> int:
 
 
 def test_jobs_left_running_by_a_crashed_server_are_failed_at_startup(tmp_path):
+    from learnest.service.storage.tables import Job, Lease, ModelVersion, RegisteredModel
+
     home = tmp_path / "home"
     database = database_for(home)
     host = socket.gethostname()
@@ -79,6 +77,8 @@ def test_blobs_orphaned_by_an_interrupted_write_are_swept_at_startup_and_stored_
 
 
 def test_a_failing_training_job_fails_its_version_with_the_reason(tmp_path, data_dir):
+    from learnest.service.storage.tables import FlightRecord
+
     with running_app(tmp_path / "home") as client:
         flight = upload(client, flight_csv(data_dir, 0)).json()
         services = client.app.state.services
@@ -95,6 +95,8 @@ def test_a_failing_training_job_fails_its_version_with_the_reason(tmp_path, data
 
 
 def test_leases_give_one_owner_at_a_time(tmp_path):
+    from learnest.service.storage.leases import acquire_lease, lease_holder, release_lease
+
     database = database_for(tmp_path / "home")
     assert acquire_lease(database, "scheduler", "a", ttl_s=0.3)
     assert not acquire_lease(database, "scheduler", "b", ttl_s=0.3)
@@ -119,6 +121,10 @@ def test_leases_give_one_owner_at_a_time(tmp_path):
 
 
 def test_a_second_runner_never_fails_a_live_runners_jobs(tmp_path):
+    from learnest.service.jobs.runner import JobRunner
+    from learnest.service.storage.leases import release_lease
+    from learnest.service.storage.tables import Job
+
     database = database_for(tmp_path / "home")
     first, second = JobRunner(database), JobRunner(database)
     first.start()
@@ -136,6 +142,11 @@ def test_a_second_runner_never_fails_a_live_runners_jobs(tmp_path):
 
 
 def test_migrations_build_exactly_the_tables_of_the_models(tmp_path):
+    from sqlalchemy import inspect
+
+    from learnest.service.storage.database import Database
+    from learnest.service.storage.tables import Base
+
     home = tmp_path / "home"
     home.mkdir()
     databases = [Database(settings_for(home).url) for _ in range(3)]
@@ -156,6 +167,8 @@ def test_migrations_build_exactly_the_tables_of_the_models(tmp_path):
 
 
 def test_an_unfinished_evaluation_answers_202_with_its_state(tmp_path, data_dir):
+    from learnest.service.storage.tables import Evaluation, ModelVersion, RegisteredModel
+
     with running_app(tmp_path / "home") as client:
         services = client.app.state.services
         with services.db.transaction() as session:

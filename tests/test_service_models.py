@@ -15,10 +15,10 @@ from utils.service import (
     wait_for_job,
 )
 
-from learnest.service.registry import load_model_ref, parse_ref
-
 
 def test_training_registers_versions_and_aliases(tmp_path, data_dir):
+    from learnest.service.registry import load_model_ref
+
     home = tmp_path / "home"
     with running_app(home) as client:
         flight = upload(client, flight_csv(data_dir, 0)).json()
@@ -115,6 +115,8 @@ def test_training_on_a_flight_that_failed_quality_needs_include_bad(tmp_path, da
 
 
 def test_model_references_parse():
+    from learnest.service.registry import parse_ref
+
     assert str(parse_ref("quad:3")) == "quad:3" and parse_ref("quad:3").version == 3
     assert parse_ref("quad@production").alias == "production" and parse_ref("quad").version is None
     for bad in ("", "quad:", "quad@", "../x:1", "a:b", "quad:1@x"):

@@ -1,10 +1,7 @@
 """Storage: ids are never handed out twice, on a new database and on one migrated from before the fix."""
 from alembic import command
 from alembic.config import Config
-from sqlalchemy import text
 from utils.service import flight_csv, running_app, upload
-
-from learnest.service.storage.database import MIGRATIONS, Database
 
 
 def test_a_deleted_flights_id_is_never_given_to_the_next_upload(tmp_path, data_dir):
@@ -19,7 +16,9 @@ def test_a_deleted_flights_id_is_never_given_to_the_next_upload(tmp_path, data_d
         assert client.get(f"/flights/{new['id']}").status_code == 200
 
 
-def _upgrade(database: Database, revision: str) -> None:
+def _upgrade(database, revision: str) -> None:
+    from learnest.service.storage.database import MIGRATIONS
+
     config = Config()
     config.set_main_option("script_location", str(MIGRATIONS))
     with database.engine.begin() as connection:
@@ -28,6 +27,8 @@ def _upgrade(database: Database, revision: str) -> None:
 
 
 def _insert_flight(connection, name: str, flight_id: int | None = None) -> int:
+    from sqlalchemy import text
+
     columns = "sha256, name, adapter, duration_s, rate_hz, samples, quality_ok, quality, flight_blob, meta, created_at"
     values = f"'{name:0>64}', '{name}', 'nanobench', 1.0, 100.0, 100, 1, '{{}}', 'b', '{{}}', '2026-01-01'"
     if flight_id is not None:
@@ -37,6 +38,10 @@ def _insert_flight(connection, name: str, flight_id: int | None = None) -> int:
 
 
 def test_migrating_an_old_database_keeps_its_rows_and_stops_id_reuse(tmp_path):
+    from sqlalchemy import text
+
+    from learnest.service.storage.database import Database
+
     database = Database(f"sqlite:///{tmp_path / 'old.db'}")
     _upgrade(database, "0002")                      # the schema before ids were protected
     with database.engine.begin() as connection:
@@ -66,6 +71,7 @@ def test_loading_a_model_never_migrates_an_older_database(tmp_path):
     from learnest.errors import Conflict
     from learnest.service.config import Settings
     from learnest.service.registry import load_model_ref
+    from learnest.service.storage.database import Database
 
     home = tmp_path / "home"
     home.mkdir()

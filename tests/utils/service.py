@@ -13,11 +13,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from learnest.ingest.sim import Circle, SimulatedFlight, Timing, simulate, write_flight
-from learnest.service.config import Settings
-from learnest.service.jobs.executors import LocalPoolExecutor
 
-if TYPE_CHECKING:  # the app (torch, filterpy, matplotlib) is imported when a test first runs one
+if TYPE_CHECKING:  # the service stack is imported when a test first uses it, not at collection
     from fastapi.testclient import TestClient
+
+    from learnest.service.config import Settings
+    from learnest.service.jobs.executors import LocalPoolExecutor
+
 FAST_METHODS = ["ukf", "knode-ukf"]   # the MHE adds seconds per flight; one test runs it
 EPOCHS = 3
 
@@ -54,6 +56,8 @@ _shared_pool: LocalPoolExecutor | None = None
 def shared_pool() -> LocalPoolExecutor:
     global _shared_pool
     if _shared_pool is None:
+        from learnest.service.jobs.executors import LocalPoolExecutor
+
         _shared_pool = LocalPoolExecutor(max_workers=1)
         atexit.register(_shared_pool.shutdown)
     return _shared_pool
@@ -62,6 +66,8 @@ def shared_pool() -> LocalPoolExecutor:
 def settings_for(home: Path, **changes) -> Settings:
     """Service settings on a SQLite file under ``home``; Starlette's TestClient sends ``Host: testserver``."""
     changes.setdefault("allowed_hosts", "localhost,127.0.0.1,::1,testserver")
+    from learnest.service.config import Settings
+
     return Settings(home=Path(home), pool_workers=1, **changes)
 
 
