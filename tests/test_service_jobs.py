@@ -98,11 +98,13 @@ def test_leases_give_one_owner_at_a_time(tmp_path):
     from learnest.service.storage.leases import acquire_lease, lease_holder, release_lease
 
     database = database_for(tmp_path / "home")
-    assert acquire_lease(database, "scheduler", "a", ttl_s=0.3)
-    assert not acquire_lease(database, "scheduler", "b", ttl_s=0.3)
-    assert acquire_lease(database, "scheduler", "a", ttl_s=0.3)          # renewal
+    # long leases where the test needs them held (a busy machine may pause between two calls), a short
+    # one only where it must expire
+    assert acquire_lease(database, "scheduler", "a", ttl_s=30)
+    assert not acquire_lease(database, "scheduler", "b", ttl_s=30)
+    assert acquire_lease(database, "scheduler", "a", ttl_s=1.0)          # renewal, now for 1 s
     assert lease_holder(database, "scheduler") == "a"
-    time.sleep(0.4)
+    time.sleep(1.2)
     assert lease_holder(database, "scheduler") is None
     assert acquire_lease(database, "scheduler", "b", ttl_s=5)            # expired: taken over
     release_lease(database, "scheduler", "a")                            # not a's any more: no effect
