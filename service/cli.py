@@ -14,7 +14,7 @@ from learnest.errors import InvalidInput, LearnestError
 from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON, PRODUCTION_ALIAS
 
 
-# -- argument types: refuse bad values before any import or ingest (argparse prints usage and exits 2) ----
+# -- argument types: refuse bad values before any import or ingest (one-line error, exit 2) -----------
 def _positive_float(text: str) -> float:
     try:
         value = float(text)
@@ -37,7 +37,7 @@ def _positive_int(text: str) -> int:
 
 def _model_ref(text: str) -> str:
     """A registry reference, checked for its form only (whether it exists needs the registry)."""
-    from .registry import parse_ref
+    from .references import parse_ref
 
     try:
         return str(parse_ref(text))
@@ -180,7 +180,9 @@ def _serve(args) -> int:
     if args.dask:  # the app reads its settings from the environment, in every worker process
         os.environ["LEARNEST_DASK"] = args.dask
     if args.host not in ("0.0.0.0", "::"):  # the name it is reached by is served (LEARNEST_ALLOWED_HOSTS)
-        served = os.environ.get("LEARNEST_ALLOWED_HOSTS", "localhost,127.0.0.1,::1")
+        from .config import Settings
+
+        served = os.environ.get("LEARNEST_ALLOWED_HOSTS", Settings.model_fields["allowed_hosts"].default)
         os.environ["LEARNEST_ALLOWED_HOSTS"] = f"{served},{args.host}"
     else:
         print("learnest: serving every interface: set LEARNEST_ALLOWED_HOSTS to the names clients use "
@@ -256,7 +258,7 @@ def _diagnose(args) -> int:
             from .local_registry import load_model
             model = load_model(args.model)
         if args.register:
-            from .registry import check_name
+            from .references import check_name
             _registry_grid(args.rate)
             check_name(args.register)  # before the work
         flights = _read(args.files, args.rate)

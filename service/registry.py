@@ -10,76 +10,23 @@ from __future__ import annotations
 import importlib.metadata
 import json
 import platform
-import re
 import tempfile
-from dataclasses import dataclass
 from pathlib import Path
 
 from sqlalchemy import func, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from learnest.errors import Conflict, InvalidInput, NotFound
+from learnest.errors import Conflict, NotFound
 from learnest.models.knode import HybridModel
 
 from .config import Settings
+from .references import ModelRef, check_name, parse_ref
 from .storage.blobs import BlobStore
 from .storage.database import Database
 from .storage.tables import FlightRecord, ModelAlias, ModelVersion, RegisteredModel, utcnow
 
-NAME = r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}"
-NAME_PATTERN = re.compile(rf"^{NAME}$")
-REF_PATTERN = re.compile(rf"^(?P<name>{NAME})(?::(?P<version>[0-9]{{1,9}})|@(?P<alias>{NAME}))?$")
 LIBRARIES = ("torch", "casadi", "filterpy", "numpy", "scipy", "torchdiffeq")
-
-
-@dataclass(frozen=True)
-class ModelRef:
-    """A parsed model reference; ``str()`` gives it back as "name:version", "name@alias" or "name".
-
-    Attributes
-    ----------
-    name : str
-        Registered model name.
-    version : int, optional
-        Explicit version number.
-    alias : str, optional
-        Alias name (only when no version is given).
-    """
-
-    name: str
-    version: int | None = None
-    alias: str | None = None
-
-    def __str__(self) -> str:
-        if self.version is not None:
-            return f"{self.name}:{self.version}"
-        return f"{self.name}@{self.alias}" if self.alias else self.name
-
-
-def parse_ref(text: str) -> ModelRef:
-    """Parse "name:version", "name@alias" or "name" (surrounding spaces ignored).
-
-    Raises
-    ------
-    InvalidInput
-        If ``text`` has none of these forms.
-    """
-    match = REF_PATTERN.fullmatch((text or "").strip())
-    if match is None:
-        raise InvalidInput(f"model reference {text!r} must be 'name:version', 'name@alias' or 'name' (names: "
-                      "1-100 letters, digits, '.', '_' or '-')")
-    version = match["version"]
-    return ModelRef(match["name"], int(version) if version else None, match["alias"])
-
-
-def check_name(name: str, what: str = "model name") -> str:
-    """``name`` unchanged if it is 1-100 letters, digits, '.', '_' or '-' starting with a letter or digit;
-    else `InvalidInput` (``what`` names it in the message)."""
-    if not NAME_PATTERN.fullmatch(name or ""):
-        raise InvalidInput(f"{what} {name!r} must be 1-100 letters, digits, '.', '_' or '-' (starting with a "
-                      "letter or digit)")
-    return name
 
 
 # -- lookups ------------------------------------------------------------------------------------------

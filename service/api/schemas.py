@@ -8,9 +8,9 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON, parse_methods
 
-from ..registry import NAME
+from ..references import NAME
 
-NAME_REGEX = rf"^{NAME}$"  # registry.NAME: one definition of a valid name
+NAME_REGEX = rf"^{NAME}$"  # references.NAME: one definition of a valid name
 
 
 class Strict(BaseModel):

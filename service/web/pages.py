@@ -32,7 +32,7 @@ from learnest.errors import LearnestError
 from learnest.ingest.flight import Flight as CanonicalFlight
 from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON
 
-from .. import catalog, registry
+from .. import catalog, references
 from ..api.deps import MAX_ROW_ID, Offset, RowId, get_services
 from ..jobs.evaluation import start_evaluation
 from ..jobs.result_cache import EstimatorSettings
@@ -60,7 +60,7 @@ TEMPLATES = Environment(loader=PackageLoader("learnest.service.web", "templates"
                         finalize=lambda value: "" if value is None else value,  # None shows as nothing
                         trim_blocks=True, lstrip_blocks=True)
 TEMPLATES.filters["when"] = _when
-TEMPLATES.globals.update(NAME_PATTERN=registry.NAME, METHODS=METHODS, MHE_HORIZON=MHE_HORIZON,
+TEMPLATES.globals.update(NAME_PATTERN=references.NAME, METHODS=METHODS, MHE_HORIZON=MHE_HORIZON,
                          VELOCITY_METHODS=figures.VELOCITY_METHODS, MAX_VEHICLE=forms.MAX_VEHICLE,
                          MAX_NOTES=forms.MAX_NOTES, PAGE_SIZE=PAGE_SIZE,
                          DEFAULT_EPOCHS=CRAZYFLIE_TRAINING.epochs)
