@@ -9,7 +9,10 @@ import json
 import numpy as np
 import pytest
 
+from learnest.ingest import read_flights
 from learnest.ingest.formats.nanobench import writer as nanobench
+from learnest.ingest.sim import CANONICAL_FORMATS, write_canonical_flight
+from learnest.ingest.sim.export import CFCLIENT_CLOCK_OFFSET_S, SOURCE_TIME_AT_SIM_ZERO
 from learnest.models import crazyflie as cf
 from learnest.models.effects import LIBRARY, effects_for
 from learnest.models.inputs import MissingInputs
@@ -154,3 +157,36 @@ def test_cli_diagnose_system_crazyflie_json(tmp_path, capsys):
     assert set(report["before"]) == {"specific_force_rmse", "ukf"}
     text = format_diagnosis(report)       # what `learnest diagnose` prints without --json
     assert "gamma in [" in text and "m_kg = 0.019 kg" in text and "specific force" in text
+
+
+@pytest.mark.parametrize("fmt", CANONICAL_FORMATS)
+def test_the_inputs_are_written_into_every_format_that_carries_them_and_read_back(tmp_path, fmt):
+    flight = simulate_crazyflie(SimulatedFlight(duration_s=16, vbat=(4.1, 3.4)))
+    read = read_flights(write_canonical_flight(flight, fmt, tmp_path, "flight"))[0]
+    assert read.quality["ok"], read.quality["issues"]
+    assert {"motors", "vbat", "acc_body"} <= set(read.channels)
+    # the read Flight's rows on the simulation's clock (the reader cut take-off and landing)
+    t_sim = read.t + read.meta["t0_source_s"] - SOURCE_TIME_AT_SIM_ZERO[fmt] + read.meta["flying_window"]["start_s"]
+    t_onboard, scale = t_sim, 1.0
+    if fmt == "vicon+cfclient":      # the reader aligns the cfclient clock to the Vicon's, within a mocap sample
+        error = read.meta["clock_offset_s"] - CFCLIENT_CLOCK_OFFSET_S
+        assert abs(error) < 0.01
+        t_onboard, scale = t_sim - error, 200.0    # and resamples the onboard streams onto the Vicon frames
+    inner = slice(5, -5)
+    for name, tolerance in (("motors", 0.5), ("vbat", 1e-6), ("acc_body", 1e-5)):   # PWM rounds to integers
+        truth = np.asarray(flight.channels[name]).reshape(len(flight.t), -1)
+        expected = np.column_stack([np.interp(t_onboard, flight.t, column) for column in truth.T])
+        got = np.asarray(read.channels[name]).reshape(len(read.t), -1)
+        assert np.abs(got - expected)[inner].max() < tolerance * scale, name
+    expected_p = np.column_stack([np.interp(t_sim, flight.t, column) for column in flight.p.T])
+    np.testing.assert_allclose(read.p[inner], expected_p[inner], atol=1e-6)
+
+
+def test_a_sagging_battery_is_traced_from_vicon_and_cfclient_files(tmp_path):
+    """The whole path a lab's logs take: the vehicle's inputs in a cfclient log, the pose in a Vicon export,
+    two clocks aligned by the reader, then the diagnosis."""
+    truth = {**PRIOR, "gamma": 1.2}
+    flights = []
+    for i, flight in enumerate(_flights(truth, vbat=(4.1, 3.4))):
+        flights += read_flights(write_canonical_flight(flight, "vicon+cfclient", tmp_path, f"flight{i}"))
+    _first(diagnose_crazyflie(flights, methods=(), prior=PRIOR), "battery_thrust", truth)

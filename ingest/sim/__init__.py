@@ -29,6 +29,8 @@ Sensors (SensorModel, all parameters known):
   gyro           same stamps, misalignment and delay as the accelerometer; white noise (rad/s)
 
 `write_flight` writes a SimulatedFlight as nanobench, usd, usd-v1, vicon+cfclient, mcap-ros2 or mcap-json;
+`write_canonical_flight` writes any Flight (e.g. one flown by `models.simulate_crazyflie`) with the inputs it
+carries (motor PWM, battery voltage, gyro, setpoint) as nanobench, usd, usd-v1 or vicon+cfclient;
 `sim_times` maps a Flight read back from those files onto simulation time; `make_sample_logs` writes the
 bundled sample_logs/ (python -m learnest.ingest.sim.samples [DIR]).
 
@@ -37,11 +39,12 @@ its closed loop and the true states), `sensors` (the sensor model and the sample
 `simulation` (`simulate`: one SimulatedFlight), `export` (`write_flight`, `sim_times`), `samples` (the
 bundled sample logs: `sample_flight`, `make_sample_logs`).  The names below are the simulator's public surface.
 """
-from .export import FORMATS, sim_times, write_flight
+from .export import CANONICAL_FORMATS, FORMATS, sim_times, write_canonical_flight, write_flight
 from .sensors import SensorModel
 from .simulation import SimulatedFlight, simulate
 from .trajectories import Circle, Figure8, RandomWaypoints, Timing, Trajectory
 from .vehicle import Vehicle
 
-__all__ = ["FORMATS", "Circle", "Figure8", "RandomWaypoints", "SensorModel", "SimulatedFlight", "Timing",
-           "Trajectory", "Vehicle", "sim_times", "simulate", "write_flight"]
+__all__ = ["CANONICAL_FORMATS", "FORMATS", "Circle", "Figure8", "RandomWaypoints", "SensorModel", "SimulatedFlight", "Timing",
+           "Trajectory", "Vehicle", "sim_times", "simulate",
+           "write_canonical_flight", "write_flight"]

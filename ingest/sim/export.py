@@ -116,3 +116,85 @@ def sim_times(flight: Flight, fmt: str) -> np.ndarray:
     vicon+cfclient, the Vicon clock, on which the Flight lives)."""
     start = flight.meta.get("flying_window", {}).get("start_s", 0.0)
     return flight.t + (flight.meta["t0_source_s"] - SOURCE_TIME_AT_SIM_ZERO[fmt]) + start
+
+
+# -- a canonical Flight (any source, e.g. models.simulate_crazyflie) written back as a log ---------------
+# The firmware variables each Flight channel is written as in the uSD and cfclient logs (the first source of
+# ingest.formats.crazyflie_variables.OPTIONAL_SOURCES, in the firmware's own units), with the uSD value type.
+FIRMWARE_VARIABLES = {
+    "gyro": (("gyro.x", "gyro.y", "gyro.z"), "f", np.degrees),                      # deg/s
+    "motors": (("motor.m1", "motor.m2", "motor.m3", "motor.m4"), "I", lambda x: x),  # PWM 0..65535, uint32
+    "vbat": (("pm.vbat",), "f", lambda x: x),                                        # V
+    "setpoint": (("ctrltarget.x", "ctrltarget.y", "ctrltarget.z"), "f", lambda x: x),  # m
+}
+CANONICAL_FORMATS = ("nanobench", "usd", "usd-v1", "vicon+cfclient")
+
+
+def _acc_body_g(flight: Flight) -> np.ndarray:
+    """The body-frame accelerometer (g): the channel when the Flight has it, else from a_meas and the attitude."""
+    from ..frames import GRAVITY, quat_to_matrix
+
+    if "acc_body" in flight.channels:
+        return np.asarray(flight.channels["acc_body"], float) / GRAVITY
+    world = flight.a_meas + np.array([0.0, 0.0, GRAVITY])
+    return np.einsum("tji,tj->ti", quat_to_matrix(flight.quat), world) / GRAVITY
+
+
+def _firmware_columns(flight: Flight) -> dict:
+    """{"group.name": (uSD type code, values in firmware units)} of the channels the Flight carries."""
+    columns = {}
+    for channel, (names, code, to_firmware) in FIRMWARE_VARIABLES.items():
+        if channel in flight.channels:
+            values = np.asarray(to_firmware(np.asarray(flight.channels[channel], float)), float)
+            values = values.reshape(len(flight.t), -1)
+            columns.update({name: (code, values[:, j]) for j, name in enumerate(names)})
+    return columns
+
+
+def write_canonical_flight(flight: Flight, fmt: str, directory, stem: str) -> list[Path]:
+    """Write a Flight, with the inputs it carries (motor PWM, battery voltage, gyro, setpoint), as a log.
+
+    Parameters
+    ----------
+    flight : Flight
+        Any Flight on a uniform grid (t in s); the accelerometer is the ``acc_body`` channel (m/s²) when
+        present, else ``a_meas`` rotated back into the body frame with gravity added.
+    fmt : str
+        One of CANONICAL_FORMATS: "nanobench" (CSV, SI units, Unix time), "usd" / "usd-v1" (uSD binary,
+        firmware variables, time since boot), "vicon+cfclient" (a Vicon export at the Flight's rate and a
+        cfclient log of the onboard variables, on the two clocks `write_flight` uses).
+    directory, stem : where to write; file names as in `write_flight`.
+
+    Returns
+    -------
+    list of Path
+        The files to give to ``ingest.read_flights`` (the Vicon export first for "vicon+cfclient"); simulation
+        time 0 (the Flight's t = 0) lies at SOURCE_TIME_AT_SIM_ZERO[fmt] on the file's clock.
+    """
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    t, acc_g = np.asarray(flight.t, float), _acc_body_g(flight)
+    if fmt == "nanobench":
+        path = directory / f"{stem}.csv"
+        given = {name: flight.channels[name] for name in FIRMWARE_VARIABLES if name in flight.channels}
+        nanobench_writer.write(path, NANOBENCH_EPOCH_S + t, flight.p, flight.quat, acc_g, **given)
+        return [path]
+    if fmt in ("usd", "usd-v1"):
+        fixed = {f"acc.{axis}": ("f", acc_g[:, j]) for j, axis in enumerate("xyz")}
+        fixed.update(_firmware_columns(flight))
+        pose = np.column_stack([flight.p, flight.quat])
+        names = ("locSrv.x", "locSrv.y", "locSrv.z", "locSrv.qx", "locSrv.qy", "locSrv.qz", "locSrv.qw")
+        fixed.update({name: ("f", pose[:, j]) for j, name in enumerate(names)})
+        path = directory / stem
+        usd_writer.write(path, {"fixedFrequency": {"t": USD_BOOT_S + t, "vars": fixed}},
+                         version=2 if fmt == "usd" else 1)
+        return [path]
+    if fmt == "vicon+cfclient":
+        vicon_path, cfclient_path = directory / f"{stem}_vicon.csv", directory / f"{stem}_cfclient.csv"
+        seen = t >= VICON_START_S - 1e-9
+        write_vicon_csv(vicon_path, t[seen] - VICON_START_S, flight.p[seen],
+                        flight.quat[seen], rate_hz=flight.rate_hz, units="mm")
+        extra = {name: values for name, (_, values) in _firmware_columns(flight).items()}
+        write_cfclient_csv(cfclient_path, CFCLIENT_BOOT_S + t, acc_g, extra)
+        return [vicon_path, cfclient_path]
+    raise ValueError(f"unknown format {fmt!r} for a Flight (one of {', '.join(CANONICAL_FORMATS)})")
