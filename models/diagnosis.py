@@ -26,6 +26,10 @@ DELTA_BIC = 10.0          # "very strong" evidence on Kass & Raftery's scale
 MIN_CV_GAIN = 0.0         # and it must not raise the held-out (blocked CV) error: it has to transfer
 BOOTSTRAP_REPLICATES = 60
 ALIKE_COSINE = 0.9        # sensitivities this parallel are "the same effect on this data"
+# A rival that, in place of a chosen effect, removes this fraction of the residual the chosen one removes is
+# an alternative explanation, whatever the BIC says: with many samples a small misfit of the prior (a sensor
+# filter, drag) moves BIC_eff by tens, so a BIC margin alone would hide a tilt behind a bias.
+ALTERNATIVE_FRACTION = 0.9
 
 
 @dataclass
@@ -184,11 +188,13 @@ def confounded_pairs(problem: ResidualProblem, chosen: list, values: dict, near_
     """Chosen effects that another candidate explains about as well (BIC_eff within DELTA_BIC), with the
     pair of parameters whose sensitivities are most nearly parallel as the reason.
 
-    ``near_ties`` is a list of (chosen effect, rival effect, ΔBIC_eff); ``chosen`` is not used.
+    ``near_ties`` is a list of (chosen effect, rival effect, ΔBIC_eff[, fraction]) where fraction is the share
+    of the chosen effect's RSS reduction the rival achieves in its place; ``chosen`` is not used.
     """
     allv = _all_values(problem.candidates, values)
     out = []
-    for a, b, delta_bic in near_ties:
+    for a, b, delta_bic, *rest in near_ties:
+        fraction = rest[0] if rest else None
         A, B = _sensitivity(problem, allv, a.params), _sensitivity(problem, allv, b.params)
         norms = np.linalg.norm(A, axis=0)[:, None] * np.linalg.norm(B, axis=0)[None, :]
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -199,9 +205,11 @@ def confounded_pairs(problem: ResidualProblem, chosen: list, values: dict, near_
                f"with more varied motion (thrust, speed) would separate them" if c >= ALIKE_COSINE else
                f"the two act differently (largest cosine {c:.3f}, {pa} vs {pb}) yet fit about equally well: the "
                f"data cannot choose between these explanations; more flights would")
+        how_well = (f"BIC_eff within {DELTA_BIC:g}" if delta_bic < DELTA_BIC else
+                    f"ΔBIC_eff {delta_bic:g}, but it removes {100 * fraction:.0f} % of the residual {a.id} removes")
         out.append({"effects": [a.id, b.id], "params": [pa, pb], "cosine": round(c, 4), "delta_bic": delta_bic,
-                    "note": f"{b.id} explains the residual almost as well as {a.id} (BIC_eff within "
-                            f"{DELTA_BIC:g}); {why}"})
+                    "fraction_of_chosen": None if fraction is None else round(float(fraction), 4),
+                    "note": f"{b.id} explains the residual almost as well as {a.id} ({how_well}); {why}"})
     return out
 
 
@@ -228,6 +236,11 @@ def bootstrap_ci(problem: ResidualProblem, final: Fit, replicates: int = BOOTSTR
     return {name: [float(np.percentile(v, 2.5)), float(np.percentile(v, 97.5))] for name, v in samples.items()}
 
 
+def _claimed(param, interval) -> bool:
+    """The interval excludes the prior's value: the data say this parameter differs from the prior."""
+    return bool(interval is not None and not interval[0] <= param.nominal <= interval[1])
+
+
 def _determined(param, interval) -> bool:
     """The data pin the parameter down: its interval excludes the prior's value or is narrow (< 5 % of
     the physical range).  Otherwise the value is reported but should not be trusted."""
@@ -248,8 +261,12 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
     -------
     dict
         ``channel``; ``effects`` (per chosen effect: ``id``, ``target``, ``params``, ``held_nominal``,
-        ``nominal``, ``units``, ``ci95``, ``determined``, ``explained_fraction`` of the baseline RSS,
-        ``equation``), sorted by explained fraction; ``confounded``; ``values``; ``rss_before``; ``rss_after``;
+        ``nominal``, ``units``, ``ci95``, ``determined``, ``claimed`` (interval excludes the prior's value),
+        ``explained_fraction`` of the baseline RSS, ``equation``, ``alternatives``: every rival within the
+        criterion's threshold (BIC_eff within ``DELTA_BIC``, or removing ≥ ``ALTERNATIVE_FRACTION`` of the
+        residual the effect removes) with ``id``, ``params`` it would take in the effect's place, ``units``,
+        ``delta_bic``, ``fraction_of_chosen``), sorted by explained fraction; ``confounded``; ``values``;
+        ``rss_before``; ``rss_after``;
         ``trace``; ``fit`` (the final `Fit`); ``candidates`` (every candidate: ``id``, ``target``, ``chosen``,
         ``params`` fitted on its own, ``nominal``, ``units``, ``delta_bic_alone`` its BIC_eff change alone).
     """
@@ -258,7 +275,8 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
     current_cv = cv_error(problem, [])
     chosen: list[Effect] = []
     trace: list[dict[str, Any]] = []
-    near_ties: list[tuple[Effect, Effect, float]] = []
+    near_ties: list[tuple[Effect, Effect, float, float]] = []
+    alternatives: dict[str, list[dict[str, Any]]] = {}    # chosen effect id -> rivals that explain as much
     alone: dict[str, Fit] = {}     # each candidate fitted on its own (the first step)
     while len(chosen) < max_effects:
         remaining = [e for e in problem.candidates if e not in chosen]
@@ -280,8 +298,16 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
             step["stop"] = f"{best.effects[-1].id} does not improve held-out error"
             trace.append(step)
             break
-        near_ties += [(best.effects[-1], t.effects[-1], round(float(t.bic - best.bic), 2))
-                      for t in trials[1:] if t.bic - best.bic < DELTA_BIC]
+        gain = current.rss - best.rss
+        for t in trials[1:]:
+            fraction = (current.rss - t.rss) / gain if gain > 0 else 0.0
+            if t.bic - best.bic < DELTA_BIC or fraction >= ALTERNATIVE_FRACTION:
+                rival, delta_bic = t.effects[-1], round(float(t.bic - best.bic), 2)
+                near_ties.append((best.effects[-1], rival, delta_bic, fraction))
+                alternatives.setdefault(best.effects[-1].id, []).append(
+                    {"id": rival.id, "params": {p.name: t.values.get(p.name, p.nominal) for p in rival.params},
+                     "units": {p.name: p.unit for p in rival.params}, "delta_bic": delta_bic,
+                     "fraction_of_chosen": round(float(fraction), 4)})
         chosen.append(best.effects[-1])
         current, current_cv = best, cv
         step["chosen"] = best.effects[-1].id
@@ -300,6 +326,8 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
                         # only fitted parameters have one: held-nominal ones are listed above
                         "ci95": {p.name: intervals[p.name] for p in effect.params if p.name in intervals},
                         "determined": {p.name: _determined(p, intervals.get(p.name)) for p in effect.params},
+                        "claimed": {p.name: _claimed(p, intervals.get(p.name)) for p in effect.params},
+                        "alternatives": alternatives.get(effect.id, []),
                         "explained_fraction": float((without_rss - current.rss) / baseline_rss),
                         "equation": effect.equation({**effect.nominal(), **current.values})})
     results.sort(key=lambda r: -r["explained_fraction"])

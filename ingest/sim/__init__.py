@@ -45,6 +45,5 @@ from .simulation import SimulatedFlight, simulate
 from .trajectories import Circle, Figure8, RandomWaypoints, Timing, Trajectory
 from .vehicle import Vehicle
 
-__all__ = ["CANONICAL_FORMATS", "FORMATS", "Circle", "Figure8", "RandomWaypoints", "SensorModel", "SimulatedFlight", "Timing",
-           "Trajectory", "Vehicle", "sim_times", "simulate",
-           "write_canonical_flight", "write_flight"]
+__all__ = ["CANONICAL_FORMATS", "FORMATS", "Circle", "Figure8", "RandomWaypoints", "SensorModel", "SimulatedFlight",
+           "Timing", "Trajectory", "Vehicle", "sim_times", "simulate", "write_canonical_flight", "write_flight"]

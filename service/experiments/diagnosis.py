@@ -437,6 +437,13 @@ def format_diagnosis(result: dict) -> str:
         shaky = [k for k in shaky if k not in e.get("held_nominal", {})]
         if shaky:
             lines.append(f"    not pinned down by this data: {', '.join(shaky)}")
+        unclaimed = [k for k, claimed in e.get("claimed", {}).items() if not claimed and k in e["ci95"]]
+        if unclaimed:
+            lines.append(f"    not claimed (the interval holds the prior's value): {', '.join(unclaimed)}")
+        for alt in e.get("alternatives", []):
+            values = ", ".join(f"{k} = {v:.4g} {alt['units'].get(k, '')}".rstrip() for k, v in alt["params"].items())
+            lines.append(f"    alternative: {alt['id']} with {values} explains {100 * alt['fraction_of_chosen']:.0f} % "
+                         f"as much (ΔBIC_eff {alt['delta_bic']:+g})")
     for c in result["confounded"]:
         lines.append(f"  cannot tell apart: {c['note']}")
     median = " (median over flights)" if result.get("per_flight") else ""
