@@ -24,7 +24,7 @@ from ...limits import MAX_DURATION_S, QUATERNION_NORM_TOLERANCE
 from .channels import ONBOARD, Channel, Reading, classify
 from .container import MAGIC, McapChannel, scan
 from .decoding import Decoded, DecoderFor, decode
-from .selection import ROLE_WORDS, candidates, choose, listing
+from .selection import ROLE_WORDS, Candidate, candidates, choose, listing
 
 # A flight's median specific force is ≈ 1 g (hover or rest); outside these bounds the unit is wrong.
 PLAUSIBLE_MEDIAN_ACC_G = (0.25, 4.0)
@@ -233,7 +233,8 @@ def read_channels(path: Path, channels: Sequence[Channel], warnings: list[str], 
         "clock_offset_s": None,     # one recorder clock for every topic in a bag
         "topics": {"pose": pose_choice.label, "pose_type": pose_choice.type_name, "pose_source": source,
                    "pose_source_reason": why, "accel": accel_choice.label, "accel_type": accel_choice.type_name},
-        "warnings": [_onboard_warning(pose_choice.label, why)] if source == ONBOARD else [],
+        "warnings": ([_onboard_warning(pose_choice.label, why)] if source == ONBOARD else [])
+                    + _vehicle_mismatch(pose_choice, accel_choice, found),
         container: {"pose_topic": pose_choice.label, "accel_topic": accel_choice.label,
                     "pose_type": pose_choice.type_name, "accel_type": accel_choice.type_name,
                     "time_source": {"pose": pose_source, "accel": acc_source}, "time_origin_ns": origin_ns,
@@ -243,6 +244,16 @@ def read_channels(path: Path, channels: Sequence[Channel], warnings: list[str], 
         meta["vehicle"] = pose_choice.body
     return build_flight(path, t_mocap=t_pose, p=mocap[:, :3], quat=mocap[:, 3:7], t_acc=t_acc,
                         acc_body_g=acc_g, rate_hz=rate_hz, meta=meta)
+
+
+def _vehicle_mismatch(pose: Candidate, accel: Candidate, found: list[Candidate]) -> list[str]:
+    """A warning when the acceleration topic is named after another body of the pose's multi-body topic."""
+    others = {c.body for c in found if c.body and c.topic == pose.topic and c.body != pose.body}
+    named = accel.words() & others
+    if pose.body is None or pose.body in accel.words() or not named:
+        return []
+    return [f"the acceleration topic {accel.label} seems to belong to {sorted(named)[0]}, the pose {pose.label} "
+            f"to {pose.body}: choose the IMU topic of {pose.body}"]
 
 
 def _onboard_warning(label: str, why: str) -> str:

@@ -104,7 +104,7 @@ def candidates(path: Path, channels: Sequence[Channel], readings: dict[int, Read
 def _how_to_choose(role: str) -> str:
     _, argument, option, _ = ROLE_WORDS[role]
     field = "imu_topic" if role == "accel" else "pose_topic"
-    return f"choose one with {argument}=... (learnest {option} TOPIC; upload form field {field})"
+    return f"choose one with {argument}=... (CLI: {option} TOPIC; upload: form field {field})"
 
 
 def _requested(path: Path, channels: Sequence[Channel], found: list[Candidate], role: str,
