@@ -165,7 +165,8 @@ def read_flights(paths: Iterable[str | Path], rate_hz: float = 100.0, *, pose_to
     groups = group_files(paths)
     for adapter, files in groups:
         check_topic_choice(adapter, files, pose_topic, imu_topic)
-    return [read_group(adapter, files, rate_hz, pose_topic=pose_topic, imu_topic=imu_topic) for adapter, files in groups]
+    return [read_group(adapter, files, rate_hz, pose_topic=pose_topic, imu_topic=imu_topic)
+            for adapter, files in groups]
 
 
 def summary(flight: Flight) -> dict:

@@ -5,7 +5,8 @@ CLI's `learnest train FILE...` all call `add_flight`.  One upload is one flight:
 [+ its *_metadata.yaml], a uSD log, an MCAP file, a ROS bag (.bag, .db3), or a Vicon export + cfclient log)
 must make exactly one flight, otherwise InvalidInput (422) - several flights are several uploads, so each gets
 its own id, dedupe key and error.  A recording with several vehicles is one upload per vehicle, each naming
-its pose (and IMU) topic: the chosen topics are part of the dedupe key.  Client file names are metadata only: files are staged under names of ours, and messages
+its pose (and IMU) topic: the chosen topics are part of the dedupe key.
+Client file names are metadata only: files are staged under names of ours, and messages
 name the client's file, never our temp paths.
 """
 from __future__ import annotations

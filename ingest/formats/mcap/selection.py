@@ -131,7 +131,7 @@ def _requested(path: Path, channels: Sequence[Channel], found: list[Candidate], 
 
 
 def choose(path: Path, channels: Sequence[Channel], found: list[Candidate], role: str, requested: str | None,
-           vehicle_words: set[str] = frozenset()) -> tuple[Candidate, str | None]:
+           vehicle_words: set[str] | frozenset[str] = frozenset()) -> tuple[Candidate, str | None]:
     """The candidate that plays `role`, and a note saying why when others were passed over.
 
     Parameters
