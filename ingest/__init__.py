@@ -17,6 +17,7 @@ from .flight import Flight, IngestError, existing_file
 SINGLE_FILE_ADAPTERS = {
     "usd": (".formats.crazyflie_usd.reader", "sniff"),
     "mcap": (".formats.mcap.reader", "sniff"),
+    "rosbag": (".formats.rosbag.reader", "sniff"),
     "nanobench": (".formats.nanobench.reader", "sniff"),
 }
 PAIR_ROLES = {"vicon": (".formats.vicon_cfclient.vicon", "sniff_vicon"),
@@ -33,7 +34,7 @@ def detect(path: str | Path) -> str:
     Returns
     -------
     str
-        ``"usd"``, ``"mcap"``, ``"nanobench"``, ``"vicon"`` or ``"cfclient"``.
+        ``"usd"``, ``"mcap"``, ``"rosbag"``, ``"nanobench"``, ``"vicon"`` or ``"cfclient"``.
 
     Raises
     ------
@@ -46,7 +47,8 @@ def detect(path: str | Path) -> str:
         if sniff(path):
             return name
     raise IngestError(path, "unrecognised format (expected a NanoBench CSV, a Crazyflie uSD log, an MCAP "
-                            "file, or a Vicon CSV export together with a cfclient CSV log)")
+                            "file, a ROS bag (ROS 1 .bag or ROS 2 .db3), or a Vicon CSV export together with a "
+                            "cfclient CSV log)")
 
 
 def group_files(paths: Iterable[str | Path]) -> list[tuple[str, list[Path]]]:
@@ -72,7 +74,19 @@ def group_files(paths: Iterable[str | Path]) -> list[tuple[str, list[Path]]]:
     return singles + pairs
 
 
-def read_group(adapter: str, files: list[Path], rate_hz: float = 100.0) -> Flight:
+# adapters whose recordings hold named topics: the only ones a pose/IMU topic choice applies to
+TOPIC_ADAPTERS = ("mcap", "rosbag")
+
+
+def check_topic_choice(adapter: str, files: list[Path], pose_topic: str | None, imu_topic: str | None) -> None:
+    """IngestError when a topic is chosen for a file that has no topics (a CSV, a uSD log)."""
+    if (pose_topic or imu_topic) and adapter not in TOPIC_ADAPTERS:
+        raise IngestError(files[0], f"a pose/IMU topic was chosen, but this is a {adapter} log, which has no "
+                                    f"topics (topics apply to MCAP recordings and ROS bags)")
+
+
+def read_group(adapter: str, files: list[Path], rate_hz: float = 100.0, *, pose_topic: str | None = None,
+               imu_topic: str | None = None) -> Flight:
     """Read one flight with its adapter, resampled to ``rate_hz``, and run the quality checks.
 
     Parameters
@@ -83,6 +97,9 @@ def read_group(adapter: str, files: list[Path], rate_hz: float = 100.0) -> Fligh
         The flight's file, or [Vicon export, cfclient log].
     rate_hz : float
         Grid rate of the Flight, Hz.
+    pose_topic, imu_topic : str, optional
+        For MCAP recordings and ROS bags: the pose topic ("topic:body" for one body of a TFMessage or
+        NamedPoseArray topic) and the acceleration topic, when the automatic choice is not wanted or ambiguous.
 
     Returns
     -------
@@ -92,31 +109,40 @@ def read_group(adapter: str, files: list[Path], rate_hz: float = 100.0) -> Fligh
     """
     from .quality import assess
 
+    check_topic_choice(adapter, files, pose_topic, imu_topic)
     if adapter == "vicon+cfclient":
         from .formats.vicon_cfclient.reader import read_pair
         flight = read_pair(files[0], files[1], rate_hz=rate_hz)
     else:
         module = importlib.import_module(SINGLE_FILE_ADAPTERS[adapter][0], __name__)
-        flight = module.read(files[0], rate_hz=rate_hz)
+        topics = {"pose_topic": pose_topic, "accel_topic": imu_topic} if adapter in TOPIC_ADAPTERS else {}
+        flight = module.read(files[0], rate_hz=rate_hz, **topics)
     # the adapter may already know of problems (e.g. an ambiguous clock alignment): keep them
     earlier = flight.meta.get("quality", {}).get("issues", [])
     checked = assess(flight)
     issues = list(dict.fromkeys(earlier + checked["issues"]))
     flight.meta["quality"] = {"ok": not issues, "issues": issues}
     flight.meta.setdefault("name", files[0].stem)
+    if pose_topic or imu_topic:   # what was asked for (meta["topics"] says what was read): a re-read repeats it
+        flight.meta["topic_choice"] = {"pose_topic": pose_topic, "imu_topic": imu_topic}
     return flight
 
 
-def read_flights(paths: Iterable[str | Path], rate_hz: float = 100.0) -> list[Flight]:
+def read_flights(paths: Iterable[str | Path], rate_hz: float = 100.0, *, pose_topic: str | None = None,
+                 imu_topic: str | None = None) -> list[Flight]:
     """Read flight logs of any supported format into Flights (the format is sniffed from the content).
 
     Parameters
     ----------
     paths : iterable of str or Path
-        Log files: NanoBench CSV, Crazyflie uSD logs, MCAP recordings, or Vicon CSV exports given together
+        Log files: NanoBench CSV, Crazyflie uSD logs, MCAP recordings, ROS bags (ROS 1 .bag, ROS 2 sqlite3
+        .db3), or Vicon CSV exports given together
         with as many cfclient CSV logs (paired in name order).
     rate_hz : float
         Rate of the uniform grid every flight is resampled to, Hz.
+    pose_topic, imu_topic : str, optional
+        The topics to read from every MCAP recording / ROS bag given (see `read_group`); a topic choice with
+        a file that has no topics is an IngestError, raised before any file is read.
 
     Returns
     -------
@@ -136,16 +162,22 @@ def read_flights(paths: Iterable[str | Path], rate_hz: float = 100.0) -> list[Fl
     >>> flights[0].p.shape[1]
     3
     """
-    return [read_group(adapter, files, rate_hz) for adapter, files in group_files(paths)]
+    groups = group_files(paths)
+    for adapter, files in groups:
+        check_topic_choice(adapter, files, pose_topic, imu_topic)
+    return [read_group(adapter, files, rate_hz, pose_topic=pose_topic, imu_topic=imu_topic)
+            for adapter, files in groups]
 
 
 def summary(flight: Flight) -> dict:
     """The per-flight record `learnest ingest --json` prints: sources, adapter, duration (s), rate (Hz),
-    samples, clock offset (s) and quality."""
+    samples, clock offset (s), quality, the topics read (recordings with topics, else None) and warnings
+    (e.g. a pose that is the vehicle's onboard estimate)."""
     return {"source": [s["path"] for s in flight.meta.get("sources", [])], "adapter": flight.meta.get("adapter"),
             "duration_s": round(flight.duration_s, 3), "rate_hz": round(flight.rate_hz, 3),
             "samples": len(flight.t), "clock_offset_s": flight.meta.get("clock_offset_s"),
-            "quality": flight.quality}
+            "quality": flight.quality, "topics": flight.meta.get("topics"),
+            "warnings": list(flight.meta.get("warnings", []))}
 
 
 __all__ = ["Flight", "IngestError", "detect", "group_files", "read_flights", "read_group", "summary"]

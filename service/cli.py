@@ -45,6 +45,30 @@ def _model_ref(text: str) -> str:
         raise argparse.ArgumentTypeError(str(err)) from None
 
 
+def _topic(text: str) -> str:
+    """A ROS topic name, optionally with ":BODY" (one body of a TFMessage / NamedPoseArray topic)."""
+    from .references import check_topic
+
+    try:
+        return check_topic(text)
+    except InvalidInput as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
+def _add_topic_arguments(parser: argparse.ArgumentParser) -> None:
+    """--pose-topic / --imu-topic, for the commands that read MCAP recordings and ROS bags."""
+    parser.add_argument("--pose-topic", type=_topic, metavar="TOPIC",
+                        help="MCAP/ROS bag: the pose topic to read, e.g. /poses:cf1 (one body of a NamedPoseArray "
+                             "or /tf topic) or /vicon/cf1/cf1 (default: the motion-capture topic, if only one)")
+    parser.add_argument("--imu-topic", "--accel-topic", dest="imu_topic", type=_topic, metavar="TOPIC",
+                        help="MCAP/ROS bag: the acceleration topic (sensor_msgs/Imu or LogDataGeneric), "
+                             "e.g. /cf1/imu (default: the only one, or the pose's vehicle's)")
+
+
+def _topics(args) -> dict:
+    return {"pose_topic": getattr(args, "pose_topic", None), "imu_topic": getattr(args, "imu_topic", None)}
+
+
 def _new_file(text: str) -> str:
     """An output path whose folder exists: a typo must not cost a whole evaluation."""
     folder = Path(text).expanduser().resolve().parent
@@ -68,16 +92,16 @@ def _reproduce(args) -> int:
     return 0
 
 
-def _read(paths, rate_hz):
+def _read(paths, rate_hz, topics: dict | None = None):
     from learnest.ingest import read_flights
 
-    return read_flights(paths, rate_hz=rate_hz)
+    return read_flights(paths, rate_hz=rate_hz, **(topics or {}))
 
 
 def _ingest(args) -> int:
     from learnest.ingest import summary
 
-    flights = _read(args.files, args.rate)
+    flights = _read(args.files, args.rate, _topics(args))
     if args.json:
         print(json.dumps({"flights": [summary(f) for f in flights]}, indent=2))
     else:
@@ -87,6 +111,12 @@ def _ingest(args) -> int:
             offset = "" if s["clock_offset_s"] is None else f", clock offset {s['clock_offset_s']:+.3f} s"
             print(f"{f.name}: {s['adapter']}, {s['duration_s']:.1f} s at {s['rate_hz']:.0f} Hz "
                   f"({s['samples']} samples{offset}) — {state}")
+            if s["topics"]:
+                t = s["topics"]
+                print(f"  pose from {t['pose']} ({t['pose_type']}, {t['pose_source']}); "
+                      f"acceleration from {t['accel']} ({t['accel_type']})")
+            for warning in s["warnings"]:
+                print(f"  WARNING: {warning}")
     failed = [f.name for f in flights if not f.quality["ok"]]
     if args.strict and failed:
         print(f"learnest: {len(failed)} of {len(flights)} flight(s) failed the quality checks: {', '.join(failed)}",
@@ -103,7 +133,7 @@ def _train(args) -> int:
     with tqdm(total=args.epochs or CRAZYFLIE_TRAINING.epochs, desc=f"training {args.name}", unit="epoch",
               file=sys.stderr) as bar:
         out = train(args.files, args.name, epochs=args.epochs, include_bad=args.include_bad, progress=_advance(bar),
-                    system=args.system)
+                    system=args.system, **_topics(args))
     print(json.dumps(out, indent=2) if args.json else
           f"registered {out['ref']} ({out['system']} prior): trained on {out['training_flight']} "
           f"(flight {out['flight_id']}) "
@@ -136,7 +166,7 @@ def _evaluate(args) -> int:
     model = load_model(args.model)
     if args.system and args.system != model.system.name:
         raise InvalidInput(f"{args.model} was trained with the {model.system.name!r} prior, not {args.system!r}")
-    flights = _read(args.files, args.rate)
+    flights = _read(args.files, args.rate, _topics(args))
     with tqdm(total=len(flights), desc="evaluating", unit="flight", file=sys.stderr) as bar:
         report = evaluate_flights(model, flights, methods, include_bad=args.include_bad, horizon=args.horizon,
                                   progress=lambda _f: bar.update(1))
@@ -261,7 +291,7 @@ def _diagnose(args) -> int:
             from .references import check_name
             _registry_grid(args.rate)
             check_name(args.register)  # before the work
-        flights = _read(args.files, args.rate)
+        flights = _read(args.files, args.rate, _topics(args))
         epochs = args.epochs or CRAZYFLIE_TRAINING.epochs
         result, repaired = diagnose_flights(flights, knode=model, methods=methods, epochs=epochs,
                                             return_model=True, system=args.system)
@@ -328,6 +358,7 @@ def build_parser() -> argparse.ArgumentParser:
     ing.add_argument("--json", action="store_true")
     ing.add_argument("--rate", type=_positive_float, default=100.0, help="grid rate in Hz (default 100)")
     ing.add_argument("--strict", action="store_true", help="exit with status 1 if any flight fails the quality checks")
+    _add_topic_arguments(ing)
     ing.set_defaults(func=_ingest)
 
     tr = sub.add_parser("train", help="train a KNODE on one flight (Algorithm 1) and register it as the next "
@@ -342,6 +373,7 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--system", default="quadrotor", choices=["quadrotor", "crazyflie"],
                     help="the prior: the paper's kinematic chain (default) or the Crazyflie driven by its motors "
                          "and battery (needs motor PWM and battery voltage in the log)")
+    _add_topic_arguments(tr)
     tr.set_defaults(func=_train)
 
     ev = sub.add_parser("evaluate", help="run UKF/MHE/KNODE-UKF/KNODE-MHE on flights and score them")
@@ -361,6 +393,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "for the registry model holding --alias (one scheduler round, for cron)")
     ev.add_argument("--alias", default=PRODUCTION_ALIAS,
                     help=f"with --new: the alias to evaluate (default {PRODUCTION_ALIAS})")
+    _add_topic_arguments(ev)
     ev.set_defaults(func=_evaluate)
 
     srv = sub.add_parser("serve", help="run the HTTP service (uvicorn; OpenAPI docs at /docs)")
@@ -388,6 +421,7 @@ def build_parser() -> argparse.ArgumentParser:
     dia.add_argument("--json", action="store_true")
     dia.add_argument("--plot", metavar="PNG", type=_new_file, help="residual and MSE before/after")
     dia.add_argument("--rate", type=_positive_float, default=100.0)
+    _add_topic_arguments(dia)
     dia.set_defaults(func=_diagnose)
 
     demo = sub.add_parser("demo", help="ingest, train on one flight and evaluate the others, for a folder")

@@ -73,24 +73,26 @@ def flight_files(paths) -> list[Path]:
     return list(files.values())
 
 
-def add_flight(services: Services, paths) -> tuple[FlightRecord, bool]:
-    """Store the log file(s) of one flight exactly as an upload would.  -> (row, created); created is False
-    when the same content was stored before (its existing row)."""
+def add_flight(services: Services, paths, *, pose_topic: str | None = None,
+               imu_topic: str | None = None) -> tuple[FlightRecord, bool]:
+    """Store the log file(s) of one flight exactly as an upload would (with the topics chosen, for MCAP
+    recordings and ROS bags).  -> (row, created); created is False when the same content was stored before
+    (its existing row)."""
     with ExitStack() as stack:
         uploads = [LocalFile(path.name, stack.enter_context(open(path, "rb"))) for path in flight_files(paths)]
-        return add_uploaded_flight(services.db, services.blobs, uploads)
+        return add_uploaded_flight(services.db, services.blobs, uploads, pose_topic=pose_topic, imu_topic=imu_topic)
 
 
 # -- training ----------------------------------------------------------------------------------------------
 def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = False,
           progress: Callable[[float], None] | None = None, settings: Settings | None = None,
-          system: str = "quadrotor") -> dict:
+          system: str = "quadrotor", pose_topic: str | None = None, imu_topic: str | None = None) -> dict:
     """Store the flight, train the next version of `name` on it and wait; `progress(fraction)` while it trains.
     Returns what `learnest train --json` prints."""
     registry.check_name(name)  # before any work
     settings = settings or cli_settings()
     with local_services(settings) as services:
-        row, created = add_flight(services, paths)
+        row, created = add_flight(services, paths, pose_topic=pose_topic, imu_topic=imu_topic)
         if not row.quality_ok and not include_bad:  # checked here too, to name the CLI's flag
             raise InvalidInput(f"{row.name} failed the quality checks ({'; '.join(row.quality.get('issues', []))}); "
                              "pass --include-bad to train on it anyway")
@@ -129,7 +131,8 @@ def register_repaired(name: str, model: HybridModel, flights, report: dict, *, e
     registry.check_name(name)
     fitting = next((f for f in flights if f.name == model.meta.get("training_flight")), flights[0])
     with local_services(settings or cli_settings()) as services:
-        row, _ = add_flight(services, [source["path"] for source in fitting.meta["sources"]])
+        row, _ = add_flight(services, [source["path"] for source in fitting.meta["sources"]],
+                            **fitting.meta.get("topic_choice", {}))
         version = registry.register_model(services.db, services.blobs, name, model, flight=row,
                                           hyperparameters=training_config({"epochs": epochs}), parent=parent,
                                           metrics=diagnosis_metrics(model, report))

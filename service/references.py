@@ -1,5 +1,6 @@
-"""Model names and references ("name", "name:version", "name@alias"): the grammar alone, with no database,
-so the CLI and the request models check them before any heavy import (`service.registry` resolves them).
+"""Model names and references ("name", "name:version", "name@alias"), and the topic names an upload or the
+CLI may choose: the grammar alone, with no database, so the CLI and the request models check them before any
+heavy import or work (`service.registry` resolves references; the readers find topics).
 """
 from __future__ import annotations
 
@@ -60,3 +61,19 @@ def check_name(name: str, what: str = "model name") -> str:
         raise InvalidInput(f"{what} {name!r} must be 1-100 letters, digits, '.', '_' or '-' (starting with a "
                       "letter or digit)")
     return name
+
+
+# A ROS topic name (letters, digits, "_", "/", "~"; JSON MCAP topics may also use "." and "-"), optionally
+# with ":BODY", one body of a tf2_msgs/TFMessage or NamedPoseArray topic
+TOPIC_PATTERN = re.compile(r"^/?[A-Za-z0-9_~][A-Za-z0-9_./~-]{0,199}(?::[A-Za-z0-9_][A-Za-z0-9_./-]{0,99})?$")
+
+
+def check_topic(topic: str, what: str = "topic") -> str:
+    """``topic`` without surrounding spaces if it is a topic name, optionally with ":BODY" (e.g. "/poses:cf1");
+    else `InvalidInput` (``what`` names it in the message)."""
+    text = (topic or "").strip()
+    if not TOPIC_PATTERN.fullmatch(text):
+        raise InvalidInput(f"{what} {topic!r} is not a topic name: letters, digits, '_', '/', '.', '-', '~' (at "
+                           "most 200), optionally ':BODY' for one body of a /tf or NamedPoseArray topic, e.g. "
+                           "/poses:cf1")
+    return text

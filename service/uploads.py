@@ -2,9 +2,11 @@
 
 The one way a flight gets in, whoever brings it: POST /flights, the upload form of the web pages and the
 CLI's `learnest train FILE...` all call `add_flight`.  One upload is one flight: its files (a NanoBench CSV
-[+ its *_metadata.yaml], a uSD log, an MCAP file, or a Vicon export + cfclient log) must make exactly one
-flight, otherwise InvalidInput (422) - several flights are several uploads, so each gets its own id, dedupe
-key and error.  Client file names are metadata only: files are staged under names of ours, and messages
+[+ its *_metadata.yaml], a uSD log, an MCAP file, a ROS bag (.bag, .db3), or a Vicon export + cfclient log)
+must make exactly one flight, otherwise InvalidInput (422) - several flights are several uploads, so each gets
+its own id, dedupe key and error.  A recording with several vehicles is one upload per vehicle, each naming
+its pose (and IMU) topic: the chosen topics are part of the dedupe key.
+Client file names are metadata only: files are staged under names of ours, and messages
 name the client's file, never our temp paths.
 """
 from __future__ import annotations
@@ -54,7 +56,8 @@ class LocalFile:
 
 
 def add_flight(db: Database, blobs: BlobStore, uploads: Sequence[Upload], vehicle: str | None = None,
-               notes: str | None = None) -> tuple[FlightRecord, bool]:
+               notes: str | None = None, *, pose_topic: str | None = None,
+               imu_topic: str | None = None) -> tuple[FlightRecord, bool]:
     """Store the log file(s) of one flight, unless the same content is stored already.
 
     Parameters
@@ -65,6 +68,9 @@ def add_flight(db: Database, blobs: BlobStore, uploads: Sequence[Upload], vehicl
         The file(s) of ONE flight (see the module docstring for what makes one flight).
     vehicle, notes
         Free text kept on the row; the vehicle defaults to what the log itself says.
+    pose_topic, imu_topic
+        For MCAP recordings and ROS bags: the topics to read (see learnest.ingest.read_group); checked
+        before anything is stored.
 
     Returns
     -------
@@ -75,15 +81,18 @@ def add_flight(db: Database, blobs: BlobStore, uploads: Sequence[Upload], vehicl
     Raises
     ------
     InvalidInput
-        A file cannot be read, or the files make no flight or several (the message names the file).
+        A file cannot be read, the files make no flight or several (the message names the file), or a topic
+        is not a topic name.
     """
+    topics = {"pose_topic": _topic_or_none(pose_topic, "pose_topic"),
+              "imu_topic": _topic_or_none(imu_topic, "imu_topic")}
     with blobs.temp_dir() as directory:
         staged = stage_uploads(uploads, directory)
-        sha = content_sha256(staged)
+        sha = content_sha256(staged, topics)
         row = find_by_sha(db, sha)
         if row is not None:
             return row, False
-        flight = read_uploaded_flight(staged)
+        flight = read_uploaded_flight(staged, **topics)
         return store_flight(db, blobs, staged, flight, sha, vehicle, notes)
 
 
@@ -168,15 +177,27 @@ def _copy_and_hash(source, target: Path) -> tuple[str, int]:
     return digest.hexdigest(), size
 
 
-def content_sha256(staged: list[StagedFile]) -> str:
-    """The dedupe key: a single file's own sha256, else the sha256 of the sorted sha256s (one per line)."""
+def content_sha256(staged: list[StagedFile], topics: dict[str, str | None] | None = None) -> str:
+    """The dedupe key: a single file's own sha256, else the sha256 of the sorted sha256s (one per line).  With
+    chosen topics (one vehicle of a recording), the sha256 of that key and "name=topic" lines: each vehicle of
+    one bag is its own flight."""
     if len(staged) == 1:
-        return staged[0].sha256
-    return hashlib.sha256("\n".join(sorted(f.sha256 for f in staged)).encode()).hexdigest()
+        key = staged[0].sha256
+    else:
+        key = hashlib.sha256("\n".join(sorted(f.sha256 for f in staged)).encode()).hexdigest()
+    chosen = sorted(f"{name}={topic}" for name, topic in (topics or {}).items() if topic)
+    return hashlib.sha256("\n".join([key, *chosen]).encode()).hexdigest() if chosen else key
+
+
+def _topic_or_none(topic: str | None, what: str) -> str | None:
+    from .references import check_topic
+
+    return check_topic(topic, what) if topic and topic.strip() else None
 
 
 # -- reading ------------------------------------------------------------------------------------------
-def read_uploaded_flight(staged: list[StagedFile]) -> CanonicalFlight:
+def read_uploaded_flight(staged: list[StagedFile], pose_topic: str | None = None,
+                         imu_topic: str | None = None) -> CanonicalFlight:
     """The adapters decide the format; every failure is InvalidInput naming the client's file."""
     originals = {str(f.path): f.original_name for f in staged}
     logs = [f.path for f in staged if f.role == "log"]
@@ -186,7 +207,7 @@ def read_uploaded_flight(staged: list[StagedFile]) -> CanonicalFlight:
             raise InvalidInput(f"one flight per upload: {', '.join(originals.values())} make {len(groups)} flights; "
                           "upload each flight's file(s) separately")
         adapter, files = groups[0]
-        flight = read_group(adapter, files)
+        flight = read_group(adapter, files, pose_topic=pose_topic, imu_topic=imu_topic)
     except IngestError as err:
         name = originals.get(err.path, Path(err.path).name)
         raise InvalidInput(f"{name}: {_scrub(err.problem, originals)}") from None

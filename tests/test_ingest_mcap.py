@@ -249,13 +249,30 @@ def two_pose_topics(path):
         bag.add_imu("/cf1/imu", t_acc, accelerometer_g(t_acc))
 
 
-def test_two_pose_topics_are_ambiguous_and_listed(tmp_path):
+def test_motion_capture_is_preferred_over_the_onboard_estimate(tmp_path):
     two_pose_topics(tmp_path / "flight.mcap")
+    flight = mcap_reader.read(tmp_path / "flight.mcap")
+    assert flight.meta["topics"]["pose"] == "/vicon/cf1/cf1"
+    assert flight.meta["topics"]["pose_source"] == "motion capture" and flight.meta["warnings"] == []
+    assert any("preferred over /cf1/pose (onboard estimate)" in note for note in flight.meta["mcap"]["warnings"])
+    assert_matches_truth(flight, acc_interpolation_tolerance())
+
+
+def test_two_motion_capture_topics_are_ambiguous_and_listed(tmp_path):
+    t, t_acc = mocap_times(), imu_times()
+    with mcap_writer.Ros2BagWriter(tmp_path / "flight.mcap") as bag:
+        bag.add_pose("/vicon/cf1/cf1", t, true_position(t), true_quaternion(t), message_type="TransformStamped")
+        bag.add_pose("/vicon/cf2/cf2", t, true_position(t) + 1.0, true_quaternion(t), message_type="TransformStamped")
+        bag.add_pose("/cf1/pose", t, true_position(t) + 0.01, true_quaternion(t))
+        bag.add_imu("/cf1/imu", t_acc, accelerometer_g(t_acc))
     with pytest.raises(IngestError, match="pose_topic=") as error:
         mcap_reader.read(tmp_path / "flight.mcap")
     message = str(error.value)
-    assert "flight.mcap" in message and "/vicon/cf1/cf1" in message and "/cf1/pose" in message
-    assert "geometry_msgs/msg/TransformStamped" in message
+    assert "flight.mcap" in message and "--pose-topic" in message
+    for topic in ("/vicon/cf1/cf1", "/vicon/cf2/cf2", "/cf1/pose"):
+        assert topic in message
+    assert f"/vicon/cf2/cf2 (geometry_msgs/msg/TransformStamped, cdr, {len(t)} messages, motion capture)" in message
+    assert "/cf1/pose (geometry_msgs/msg/PoseStamped, cdr" in message and "onboard estimate" in message
 
 
 def test_explicit_topic_choice(tmp_path):

@@ -44,6 +44,54 @@ def transform_stamped(msg):
     return _ros_stamp_ns(msg.header), (translation.x, translation.y, translation.z, *_xyzw(rotation)), None
 
 
+def pose_with_covariance_stamped(msg):
+    """geometry_msgs/PoseWithCovarianceStamped -> (header stamp ns, pose.pose (x, y, z, qx, qy, qz, qw), None).
+
+    The covariance is ignored; the stamp is None when the header's stamp is zero.
+    """
+    return _ros_stamp_ns(msg.header), _pose_values(msg.pose.pose), None
+
+
+def odometry(msg):
+    """nav_msgs/Odometry -> (header stamp ns, pose.pose (x, y, z, qx, qy, qz, qw), None).
+
+    The twist and the covariances are ignored; the stamp is None when the header's stamp is zero.
+    """
+    return _ros_stamp_ns(msg.header), _pose_values(msg.pose.pose), None
+
+
+# A multi-pose extractor turns one decoded message into [(body name, stamp ns or None, values)], one entry per
+# body it carries a pose of.
+MultiExtractor = Callable[[Any], list[tuple[str, int | None, tuple[float, ...]]]]
+
+# Parent frames a tracked body's transform hangs from (case-insensitive, leading "/" ignored): a transform
+# between two body frames (a propeller, a camera mount) is no trajectory.
+WORLD_FRAMES = ("world", "map", "mocap", "vicon", "optitrack", "qualisys")
+
+
+def tf_message(msg):
+    """tf2_msgs/TFMessage -> [(child_frame_id, header stamp ns, (x, y, z, qx, qy, qz, qw))] for every transform
+    whose parent frame is a world frame (WORLD_FRAMES); transforms between other frames are left out."""
+    bodies = []
+    for transform in msg.transforms:
+        if transform.header.frame_id.lstrip("/").lower() in WORLD_FRAMES and transform.child_frame_id:
+            _, values, _ = transform_stamped(transform)
+            bodies.append((transform.child_frame_id.lstrip("/"), _ros_stamp_ns(transform.header), values))
+    return bodies
+
+
+def named_pose_array(msg):
+    """motion_capture_tracking_interfaces/NamedPoseArray -> [(name, header stamp ns, (x, y, z, qx, qy, qz, qw))],
+    one per named body; all share the array's header stamp."""
+    stamp = _ros_stamp_ns(msg.header)
+    return [(named.name, stamp, _pose_values(named.pose)) for named in msg.poses if named.name]
+
+
+def _pose_values(pose) -> tuple[float, ...]:
+    position = pose.position
+    return (position.x, position.y, position.z, *_xyzw(pose.orientation))
+
+
 def _xyzw(quaternion) -> tuple[float, float, float, float]:
     return quaternion.x, quaternion.y, quaternion.z, quaternion.w
 

@@ -10,9 +10,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
-from collections import Counter, defaultdict
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -23,19 +21,10 @@ from ...align import build_flight, samples_per_second
 from ...flight import Flight, IngestError, sha256_file
 from ...frames import GRAVITY
 from ...limits import MAX_DURATION_S, QUATERNION_NORM_TOLERANCE
-from .channels import Reading, classify
-from .container import MAGIC, McapChannel, McapContent, scan
-from .extractors import Rejected
-from .schemas import (
-    ACCELERATION,
-    FRAME_TRANSFORM,
-    IMU,
-    LOG_DATA_GENERIC,
-    POSE_IN_FRAME,
-    POSE_STAMPED,
-    TRANSFORM_STAMPED,
-    ros_type,
-)
+from .channels import ONBOARD, Channel, Reading, classify
+from .container import MAGIC, McapChannel, scan
+from .decoding import Decoded, DecoderFor, decode
+from .selection import ROLE_WORDS, Candidate, candidates, choose, listing
 
 # A flight's median specific force is ≈ 1 g (hover or rest); outside these bounds the unit is wrong.
 PLAUSIBLE_MEDIAN_ACC_G = (0.25, 4.0)
@@ -50,18 +39,7 @@ def sniff(path) -> bool:
         return False
 
 
-# -- decoding the chosen topics ----------------------------------------------------------------------------
-
-@dataclass
-class _Decoded:
-    channels: list[McapChannel]
-    reading: Reading
-    log_times: list[int] = field(default_factory=list)
-    stamps: list[int | None] = field(default_factory=list)
-    values: list[tuple] = field(default_factory=list)
-    units: list[str | None] = field(default_factory=list)
-    rejected: Counter = field(default_factory=Counter)
-
+# -- decoding ------------------------------------------------------------------------------------------------
 
 def _payload_decoder(path: Path, channel: McapChannel) -> Callable[[bytes], Any]:
     if channel.message_encoding == "json":
@@ -79,35 +57,11 @@ def _payload_decoder(path: Path, channel: McapChannel) -> Callable[[bytes], Any]
     return decoder
 
 
-def _decode(path: Path, channels: list[McapChannel], reading: Reading) -> _Decoded:
-    decoded = _Decoded(channels, reading)
-    for channel in channels:
-        decode = _payload_decoder(path, channel)
-        for log_time, payload in channel.messages:
-            try:
-                stamp, values, unit = reading.extract(decode(payload))
-            except Rejected as reason:
-                decoded.rejected[str(reason)] += 1
-                continue
-            except Exception as err:   # third-party decoder on bytes from the file: count, never crash
-                decoded.rejected[f"undecodable ({type(err).__name__})"] += 1
-                continue
-            decoded.log_times.append(log_time)
-            decoded.stamps.append(stamp)
-            decoded.values.append(values)
-            decoded.units.append(unit)
-    if not decoded.values:
-        reasons = "; ".join(f"{n} {why}" for why, n in decoded.rejected.most_common()) or "no messages kept"
-        total = sum(len(c.messages) for c in channels)
-        raise IngestError(path, f"topic {channels[0].topic}: none of its {total} messages is usable ({reasons})")
-    return decoded
-
-
-def _has_all_stamps(decoded: _Decoded) -> bool:
+def _has_all_stamps(decoded: Decoded) -> bool:
     return all(stamp is not None for stamp in decoded.stamps)
 
 
-def _times(decoded: _Decoded, use_stamps: bool) -> tuple[list[int], str]:
+def _times(decoded: Decoded, use_stamps: bool) -> tuple[list[int], str]:
     """The messages' own stamps when asked for and every message has one, otherwise their log_time."""
     if use_stamps:
         stamps = [stamp for stamp in decoded.stamps if stamp is not None]
@@ -166,75 +120,35 @@ def _check_acc_magnitude(path: Path, topic: str, acc_g: np.ndarray) -> None:
                                 f"{hint} (expected body-frame specific force, gravity included)")
 
 
-# -- topic choice ------------------------------------------------------------------------------------------
-
-ROLE_WORDS = {"pose": ("motion-capture pose", "pose_topic",
-                       f"{POSE_STAMPED}, {TRANSFORM_STAMPED} (cdr); {POSE_IN_FRAME}, {FRAME_TRANSFORM} (json)"),
-              "accel": ("acceleration", "accel_topic",
-                        f"{IMU}, {LOG_DATA_GENERIC} on an 'acc' topic or mapped in log_variables (cdr); "
-                        f"{ACCELERATION}, *Vector3 on an 'acc' topic (json)")}
-
-
-def _listing(channels: list[McapChannel]) -> str:
-    return "; ".join(c.describe() for c in channels) or "none"
-
-
-def _choose(path: Path, content: McapContent, role: str, requested: str | None,
-            readings: dict[int, Reading]) -> list[McapChannel]:
-    """The channels (normally one) of the topic that plays `role`."""
-    what, argument, supported = ROLE_WORDS[role]
-    if requested is not None:
-        named = [c for c in content.channels if c.topic == requested]
-        if not named:
-            raise IngestError(path, f"no topic {requested!r} in this file; topics: {_listing(content.channels)}")
-        usable = [c for c in named if c.id in readings and readings[c.id].role == role]
-        if not usable:
-            hint = (f"; for a LogDataGeneric topic pass log_variables={{{requested!r}: [variable names in log "
-                    f"order, including acc.x, acc.y, acc.z]}}"
-                    if any(ros_type(c.schema_name) == LOG_DATA_GENERIC for c in named) else "")
-            raise IngestError(path, f"topic {requested} ({named[0].schema_name}) cannot be read as {what} "
-                                    f"(supported: {supported}){hint}")
-        return usable
-    candidates = [c for c in content.channels if c.id in readings and readings[c.id].role == role and c.messages]
-    by_topic: dict[str, list[McapChannel]] = defaultdict(list)
-    for channel in candidates:
-        by_topic[channel.topic].append(channel)
-    if len(by_topic) == 1:
-        return next(iter(by_topic.values()))
-    if not by_topic:
-        raise IngestError(path, f"no usable {what} topic (supported: {supported}); topics in the file: "
-                                f"{_listing(content.channels)}")
-    raise IngestError(path, f"{len(by_topic)} candidate {what} topics: {_listing(candidates)}; choose one with "
-                            f"read(path, {argument}=...)")
-
-
-def _no_usable_topics(path: Path, content: McapContent, readings: dict[int, Reading]) -> IngestError | None:
-    if any(c.messages and c.id in readings for c in content.channels):
+def _no_usable_topics(path: Path, channels: Sequence[Channel], warnings: list[str],
+                      readings: dict[int, Reading]) -> IngestError | None:
+    if any(c.messages and c.id in readings for c in channels):
         return None
-    found = _listing(content.channels)
-    notes = f" [{'; '.join(content.warnings)}]" if content.warnings else ""
-    return IngestError(path, f"no usable topics (need a pose topic: {ROLE_WORDS['pose'][2]}; and an "
-                             f"acceleration topic: {ROLE_WORDS['accel'][2]}); topics in the file: {found}{notes}")
+    notes = f" [{'; '.join(warnings)}]" if warnings else ""
+    return IngestError(path, f"no usable topics (need a pose topic: {ROLE_WORDS['pose'][3]}; and an "
+                             f"acceleration topic: {ROLE_WORDS['accel'][3]}); topics in the file: "
+                             f"{listing(channels)}{notes}")
 
 
 # -- public entry ------------------------------------------------------------------------------------------
 
-def _stream(path: Path, decoded: _Decoded, t_ns: list[int], origin_ns: int,
+def _stream(path: Path, decoded: Decoded, label: str, t_ns: list[int], origin_ns: int,
             notes: list[str]) -> tuple[np.ndarray, np.ndarray, dict]:
     """Seconds since origin_ns, cleaned values (pose as-is, acceleration in g), and the topic's report."""
-    channel = decoded.channels[0]
-    report: dict[str, Any] = {"messages": sum(c.count for c in decoded.channels),
+    messages = (len(decoded.values) + sum(decoded.rejected.values()) if decoded.reading.multi
+                else sum(c.count for c in decoded.channels))
+    report: dict[str, Any] = {"messages": messages,
                               "rejected": dict(decoded.rejected)}
     t_s = np.array([(ns - origin_ns) / 1e9 for ns in t_ns], dtype=float)  # exact ints, then one rounding
     values = np.array(decoded.values, dtype=float)
     if decoded.reading.role == "pose":
         t_s, values = _clean(t_s, values, report, valid_row=_unit_quaternion(values))
     else:
-        values = _to_g(channel.topic, values, decoded.units, notes)
+        values = _to_g(label, values, decoded.units, notes)
         t_s, values = _clean(t_s, values, report)
     if len(t_s) < 2:
         dropped = {**report["rejected"], **{k: v for k, v in report.items() if k in DROP_REASONS and v}}
-        raise IngestError(path, f"topic {channel.topic}: {len(t_s)} usable message(s) of {report['messages']} "
+        raise IngestError(path, f"topic {label}: {len(t_s)} usable message(s) of {report['messages']} "
                                 f"(dropped: {dropped or 'none'})")
     return t_s, values, report
 
@@ -243,47 +157,105 @@ def read(path, pose_topic: str | None = None, accel_topic: str | None = None, ra
          log_variables: dict[str, list[str]] | None = None) -> Flight:
     """An MCAP recording as a Flight (see the module docstring for the supported topics).
 
-    pose_topic / accel_topic choose the topics when the automatic choice is ambiguous.  log_variables
-    maps LogDataGeneric topics to the names of their values, e.g. {"/cf1/imu": ["gyro.x", "gyro.y",
-    "gyro.z", "acc.x", "acc.y", "acc.z"]}.
+    pose_topic / accel_topic choose the topics when the automatic choice is ambiguous (a body of a multi-body
+    topic is "topic:name", e.g. "/poses:cf1").  log_variables maps LogDataGeneric topics to the names of their
+    values, e.g. {"/cf1/imu": ["gyro.x", "gyro.y", "gyro.z", "acc.x", "acc.y", "acc.z"]}.
     """
     path = Path(path)
     content = scan(path)
-    notes = list(content.warnings)
-    readings = {c.id: r for c in content.channels if (r := classify(c, log_variables)) is not None}
-    if (error := _no_usable_topics(path, content, readings)) is not None:
+    return read_channels(path, content.channels, content.warnings, _payload_decoder, container="mcap",
+                         pose_topic=pose_topic, accel_topic=accel_topic, rate_hz=rate_hz, log_variables=log_variables)
+
+
+ADAPTER_NAMES = {frozenset({"cdr"}): "ros2", frozenset({"ros1"}): "ros1", frozenset({"json"}): "json"}
+
+
+def read_channels(path: Path, channels: Sequence[Channel], warnings: list[str], decoder_for: DecoderFor, *,
+                  container: str, pose_topic: str | None = None, accel_topic: str | None = None,
+                  rate_hz: float = 100.0, log_variables: dict[str, list[str]] | None = None) -> Flight:
+    """The Flight of a recording's channels, whatever container they come from (MCAP here, ROS bags in
+    formats.rosbag): topic choice, decoding, one clock, cleaning, the Flight.
+
+    Parameters
+    ----------
+    path : Path
+        The file, for messages and meta.
+    channels : sequence of Channel
+        Every channel of the file; messages are kept for pose/acceleration candidates.
+    warnings : list of str
+        What the container met on the way (damage), carried into meta[container]["warnings"].
+    decoder_for : DecoderFor
+        The container's payload decoder for a channel.
+    container : str
+        "mcap" or "rosbag": the meta key and the adapter name's prefix.
+    pose_topic, accel_topic, rate_hz, log_variables
+        As in `read`.
+
+    Returns
+    -------
+    Flight
+        With meta["topics"] (the chosen topics and where the pose comes from), meta["warnings"] (an onboard
+        estimate taken as the truth) and meta[container] (the details).
+    """
+    notes = list(warnings)
+    readings = {c.id: r for c in channels if (r := classify(c, log_variables)) is not None}
+    if (error := _no_usable_topics(path, channels, notes, readings)) is not None:
         raise error
-    pose_channels = _choose(path, content, "pose", pose_topic, readings)
-    accel_channels = _choose(path, content, "accel", accel_topic, readings)
-    pose = _decode(path, pose_channels, readings[pose_channels[0].id])
-    accel = _decode(path, accel_channels, readings[accel_channels[0].id])
+    found = candidates(path, channels, readings, decoder_for)
+    accel_words = {part for part in (accel_topic or "").split("/") if part}
+    pose_choice, pose_note = choose(path, channels, found, "pose", pose_topic, accel_words)
+    accel_choice, accel_note = choose(path, channels, found, "accel", accel_topic, pose_choice.words())
+    notes += [note for note in (pose_note, accel_note) if note]
+    pose = pose_choice.decoded or decode(path, pose_choice.channels, pose_choice.reading, decoder_for)
+    accel = decode(path, accel_choice.channels, accel_choice.reading, decoder_for)
 
     # One clock: message stamps only when both topics have them throughout.
     use_stamps = _has_all_stamps(pose) and _has_all_stamps(accel)
     if _has_all_stamps(pose) != _has_all_stamps(accel):
-        notes.append("only one of the two topics has time stamps in every message: both use the MCAP log_time")
+        notes.append("only one of the two topics has time stamps in every message: both use the receive time "
+                     "(log_time)")
     (t_pose_ns, pose_source), (t_acc_ns, acc_source) = _times(pose, use_stamps), _times(accel, use_stamps)
     origin_ns = min(min(t_pose_ns), min(t_acc_ns))
-    t_pose, mocap, pose_report = _stream(path, pose, t_pose_ns, origin_ns, notes)
-    t_acc, acc_g, acc_report = _stream(path, accel, t_acc_ns, origin_ns, notes)
-    _check_acc_magnitude(path, accel_channels[0].topic, acc_g)
+    t_pose, mocap, pose_report = _stream(path, pose, pose_choice.label, t_pose_ns, origin_ns, notes)
+    t_acc, acc_g, acc_report = _stream(path, accel, accel_choice.label, t_acc_ns, origin_ns, notes)
+    _check_acc_magnitude(path, accel_choice.label, acc_g)
     overlap = min(t_pose[-1], t_acc[-1]) - max(t_pose[0], t_acc[0])
     if overlap > MAX_DURATION_S:
         raise IngestError(path, f"pose and acceleration overlap for {overlap:.0f} s, more than "
                                 f"{MAX_DURATION_S:.0f} s: corrupt time stamps?")
 
-    encodings = {pose_channels[0].message_encoding, accel_channels[0].message_encoding}
+    encodings = frozenset({pose_choice.channels[0].message_encoding, accel_choice.channels[0].message_encoding})
+    source, why = pose_choice.source
     meta = {
-        "adapter": {frozenset({"cdr"}): "mcap-ros2", frozenset({"json"}): "mcap-json"}.get(
-            frozenset(encodings), "mcap-ros2+json"),
+        "adapter": f"{container}-{ADAPTER_NAMES.get(encodings, 'ros2+json')}",
         "sources": [{"path": str(path), "sha256": sha256_file(path)}],
         "original_rates": {"mocap": samples_per_second(t_pose), "acc": samples_per_second(t_acc)},
         "clock_offset_s": None,     # one recorder clock for every topic in a bag
-        "mcap": {"pose_topic": pose_channels[0].topic, "accel_topic": accel_channels[0].topic,
-                 "pose_type": pose_channels[0].schema_name, "accel_type": accel_channels[0].schema_name,
-                 "time_source": {"pose": pose_source, "accel": acc_source}, "time_origin_ns": origin_ns,
-                 "streams": {"pose": pose_report, "accel": acc_report}, "warnings": notes},
+        "topics": {"pose": pose_choice.label, "pose_type": pose_choice.type_name, "pose_source": source,
+                   "pose_source_reason": why, "accel": accel_choice.label, "accel_type": accel_choice.type_name},
+        "warnings": ([_onboard_warning(pose_choice.label, why)] if source == ONBOARD else [])
+                    + _vehicle_mismatch(pose_choice, accel_choice, found),
+        container: {"pose_topic": pose_choice.label, "accel_topic": accel_choice.label,
+                    "pose_type": pose_choice.type_name, "accel_type": accel_choice.type_name,
+                    "time_source": {"pose": pose_source, "accel": acc_source}, "time_origin_ns": origin_ns,
+                    "streams": {"pose": pose_report, "accel": acc_report}, "warnings": notes},
     }
+    if pose_choice.body:
+        meta["vehicle"] = pose_choice.body
     return build_flight(path, t_mocap=t_pose, p=mocap[:, :3], quat=mocap[:, 3:7], t_acc=t_acc,
                         acc_body_g=acc_g, rate_hz=rate_hz, meta=meta)
 
+
+def _vehicle_mismatch(pose: Candidate, accel: Candidate, found: list[Candidate]) -> list[str]:
+    """A warning when the acceleration topic is named after another body of the pose's multi-body topic."""
+    others = {c.body for c in found if c.body and c.topic == pose.topic and c.body != pose.body}
+    named = accel.words() & others
+    if pose.body is None or pose.body in accel.words() or not named:
+        return []
+    return [f"the acceleration topic {accel.label} seems to belong to {sorted(named)[0]}, the pose {pose.label} "
+            f"to {pose.body}: choose the IMU topic of {pose.body}"]
+
+
+def _onboard_warning(label: str, why: str) -> str:
+    return (f"the pose topic {label} is the vehicle's onboard estimate, not motion capture ({why}): errors "
+            f"measured against it are errors against the Crazyflie's own estimator, not against the truth")

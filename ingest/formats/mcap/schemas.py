@@ -24,6 +24,17 @@ MSG_TEXT = {
     # crazyswarm2's definition (timestamp: uint32 ms since boot).  Some releases use float32[] values;
     # the reader decodes whatever definition the file carries.
     "crazyflie_interfaces/msg/LogDataGeneric": "std_msgs/Header header\nuint32 timestamp\nfloat64[] values",
+    "geometry_msgs/msg/PoseWithCovariance": "Pose pose\nfloat64[36] covariance",
+    "geometry_msgs/msg/PoseWithCovarianceStamped": "std_msgs/Header header\nPoseWithCovariance pose",
+    "geometry_msgs/msg/Twist": "Vector3 linear\nVector3 angular",
+    "geometry_msgs/msg/TwistWithCovariance": "Twist twist\nfloat64[36] covariance",
+    "nav_msgs/msg/Odometry": ("std_msgs/Header header\nstring child_frame_id\n"
+                              "geometry_msgs/PoseWithCovariance pose\ngeometry_msgs/TwistWithCovariance twist"),
+    "tf2_msgs/msg/TFMessage": "geometry_msgs/TransformStamped[] transforms",
+    # motion_capture_tracking_interfaces (what crazyswarm2's mocap node publishes on /poses)
+    "motion_capture_tracking_interfaces/msg/NamedPose": "string name\ngeometry_msgs/Pose pose",
+    "motion_capture_tracking_interfaces/msg/NamedPoseArray": ("std_msgs/Header header\n"
+                                                              "NamedPose[] poses"),
 }
 MSG_DEPENDENCIES = {
     "std_msgs/msg/Header": ["builtin_interfaces/msg/Time"],
@@ -33,6 +44,16 @@ MSG_DEPENDENCIES = {
     "geometry_msgs/msg/TransformStamped": ["std_msgs/msg/Header", "geometry_msgs/msg/Transform"],
     "sensor_msgs/msg/Imu": ["std_msgs/msg/Header", "geometry_msgs/msg/Quaternion", "geometry_msgs/msg/Vector3"],
     "crazyflie_interfaces/msg/LogDataGeneric": ["std_msgs/msg/Header"],
+    "geometry_msgs/msg/PoseWithCovariance": ["geometry_msgs/msg/Pose"],
+    "geometry_msgs/msg/PoseWithCovarianceStamped": ["std_msgs/msg/Header", "geometry_msgs/msg/PoseWithCovariance"],
+    "geometry_msgs/msg/Twist": ["geometry_msgs/msg/Vector3"],
+    "geometry_msgs/msg/TwistWithCovariance": ["geometry_msgs/msg/Twist"],
+    "nav_msgs/msg/Odometry": ["std_msgs/msg/Header", "geometry_msgs/msg/PoseWithCovariance",
+                              "geometry_msgs/msg/TwistWithCovariance"],
+    "tf2_msgs/msg/TFMessage": ["geometry_msgs/msg/TransformStamped"],
+    "motion_capture_tracking_interfaces/msg/NamedPose": ["geometry_msgs/msg/Pose"],
+    "motion_capture_tracking_interfaces/msg/NamedPoseArray": ["std_msgs/msg/Header",
+                                                              "motion_capture_tracking_interfaces/msg/NamedPose"],
 }
 
 
@@ -59,6 +80,17 @@ TRANSFORM_STAMPED = "geometry_msgs/msg/TransformStamped"
 IMU = "sensor_msgs/msg/Imu"
 LOG_DATA_GENERIC = "crazyflie_interfaces/msg/LogDataGeneric"
 LOG_DATA_GENERIC_DEFINITION = ros2msg_definition(LOG_DATA_GENERIC)
+POSE_WITH_COVARIANCE_STAMPED = "geometry_msgs/msg/PoseWithCovarianceStamped"
+ODOMETRY = "nav_msgs/msg/Odometry"
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+NAMED_POSE_ARRAY = "motion_capture_tracking_interfaces/msg/NamedPoseArray"
+NAMED_POSE = "motion_capture_tracking_interfaces/msg/NamedPose"
+# ROS types that carry one pose per message, and those that carry the poses of several bodies (named)
+SINGLE_POSE_TYPES = (POSE_STAMPED, TRANSFORM_STAMPED, POSE_WITH_COVARIANCE_STAMPED, ODOMETRY)
+MULTI_POSE_TYPES = (TF_MESSAGE, NAMED_POSE_ARRAY)
+# Types outside the standard ROS 2 type store that the reader knows the definitions of (a bag without
+# stored definitions, e.g. a Humble .db3, still decodes them)
+EXTRA_TYPES = (LOG_DATA_GENERIC, NAMED_POSE, NAMED_POSE_ARRAY)
 
 # -- JSON schemas ------------------------------------------------------------------------------------------
 
@@ -99,6 +131,10 @@ VECTOR3_JSON_SCHEMA = {"title": "Vector3Stamped", "type": "object",
 
 # -- which schemas may be read ---------------------------------------------------------------------------
 
+# ROS message encodings: CDR (ROS 2, MCAP and .db3) and ROS 1 serialization (.bag; decoded by rosbags)
+ROS_ENCODINGS = ("cdr", "ros1")
+
+
 def ros_type(schema_name: str) -> str:
     """"pkg/Type" and "pkg/msg/Type" name the same ROS 2 type."""
     parts = schema_name.split("/")
@@ -113,8 +149,8 @@ def is_vector3_schema(schema_name: str) -> bool:
 def is_candidate_schema(message_encoding: str, schema_name: str) -> bool:
     """Whether messages of this encoding and schema may be a pose or an acceleration (their payloads
     are kept while the file is scanned)."""
-    if message_encoding == "cdr":
-        return ros_type(schema_name) in (POSE_STAMPED, TRANSFORM_STAMPED, IMU, LOG_DATA_GENERIC)
+    if message_encoding in ROS_ENCODINGS:
+        return ros_type(schema_name) in (*SINGLE_POSE_TYPES, *MULTI_POSE_TYPES, IMU, LOG_DATA_GENERIC)
     if message_encoding == "json":
         return schema_name in (POSE_IN_FRAME, FRAME_TRANSFORM, ACCELERATION) or is_vector3_schema(schema_name)
     return False

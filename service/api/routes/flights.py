@@ -58,10 +58,15 @@ def flight_out(row: FlightRecord, detail: bool = False) -> dict:
 def upload_flight(response: Response,
                   files: list[UploadFile] = File(..., description="the log file(s) of one flight"),
                   vehicle: str | None = Form(None, max_length=200), notes: str | None = Form(None, max_length=10_000),
+                  pose_topic: str | None = Form(None, max_length=300, description=(
+                      "MCAP/ROS bag: the pose topic, e.g. /poses:cf1 (one body of a NamedPoseArray or /tf topic); "
+                      "default: the only motion-capture topic")),
+                  imu_topic: str | None = Form(None, max_length=300, description=(
+                      "MCAP/ROS bag: the acceleration topic (sensor_msgs/Imu or LogDataGeneric), e.g. /cf1/imu")),
                   db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
     """One flight's file(s) (see service.uploads): 201 and the new flight, or 200 and the flight that
-    already holds identical content."""
-    row, created = add_flight(db, blobs, files, vehicle, notes)
+    already holds identical content (and the same topic choice)."""
+    row, created = add_flight(db, blobs, files, vehicle, notes, pose_topic=pose_topic, imu_topic=imu_topic)
     response.status_code = 201 if created else 200
     response.headers["Location"] = f"/flights/{row.id}"
     return flight_out(row)
