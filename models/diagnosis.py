@@ -205,7 +205,7 @@ def confounded_pairs(problem: ResidualProblem, chosen: list, values: dict, near_
                f"with more varied motion (thrust, speed) would separate them" if c >= ALIKE_COSINE else
                f"the two act differently (largest cosine {c:.3f}, {pa} vs {pb}) yet fit about equally well: the "
                f"data cannot choose between these explanations; more flights would")
-        how_well = (f"BIC_eff within {DELTA_BIC:g}" if delta_bic < DELTA_BIC else
+        how_well = (f"BIC_eff within {DELTA_BIC:g}" if delta_bic < DELTA_BIC or fraction is None else
                     f"ΔBIC_eff {delta_bic:g}, but it removes {100 * fraction:.0f} % of the residual {a.id} removes")
         out.append({"effects": [a.id, b.id], "params": [pa, pb], "cosine": round(c, 4), "delta_bic": delta_bic,
                     "fraction_of_chosen": None if fraction is None else round(float(fraction), 4),

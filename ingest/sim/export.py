@@ -2,6 +2,7 @@
 a Flight read back from those files onto simulation time (`sim_times`)."""
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -121,7 +122,7 @@ def sim_times(flight: Flight, fmt: str) -> np.ndarray:
 # -- a canonical Flight (any source, e.g. models.simulate_crazyflie) written back as a log ---------------
 # The firmware variables each Flight channel is written as in the uSD and cfclient logs (the first source of
 # ingest.formats.crazyflie_variables.OPTIONAL_SOURCES, in the firmware's own units), with the uSD value type.
-FIRMWARE_VARIABLES = {
+FIRMWARE_VARIABLES: dict[str, tuple[tuple[str, ...], str, Callable[[np.ndarray], np.ndarray]]] = {
     "gyro": (("gyro.x", "gyro.y", "gyro.z"), "f", np.degrees),                      # deg/s
     "motors": (("motor.m1", "motor.m2", "motor.m3", "motor.m4"), "I", lambda x: x),  # PWM 0..65535, uint32
     "vbat": (("pm.vbat",), "f", lambda x: x),                                        # V
@@ -145,7 +146,7 @@ def _firmware_columns(flight: Flight) -> dict:
     columns = {}
     for channel, (names, code, to_firmware) in FIRMWARE_VARIABLES.items():
         if channel in flight.channels:
-            values = np.asarray(to_firmware(np.asarray(flight.channels[channel], float)), float)
+            values = np.asarray(to_firmware(np.asarray(flight.channels[channel], dtype=float)), dtype=float)
             values = values.reshape(len(flight.t), -1)
             columns.update({name: (code, values[:, j]) for j, name in enumerate(names)})
     return columns
