@@ -164,7 +164,9 @@ def _scanned_start(params: list, x0: np.ndarray, cost: Callable) -> np.ndarray:
     x0 = np.array(x0, dtype=float)
     for i, p in enumerate(params):
         if p.scan_step:
-            grid = np.arange(p.lower, p.upper + 0.5 * p.scan_step, p.scan_step)
+            # whole multiples of the step: 0 must be exactly 0 (scipy's trust region starts with a radius of
+            # |x0| in Jacobian units, so a start at 1e-16 from float round-off never moves)
+            grid = np.round(np.arange(p.lower, p.upper + 0.5 * p.scan_step, p.scan_step) / p.scan_step) * p.scan_step
             grid = np.clip(grid, p.lower + 1e-3 * p.scan_step, p.upper - 1e-3 * p.scan_step)   # off the bounds
             costs = [cost(np.r_[x0[:i], value, x0[i + 1:]]) for value in grid]
             x0[i] = grid[int(np.argmin(costs))]
