@@ -22,8 +22,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 from learnest.ingest import read_flights
 from learnest.ingest.align import build_flight
 from learnest.ingest.formats.vicon_cfclient.reader import read_pair
