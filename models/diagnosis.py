@@ -151,6 +151,7 @@ def fit(problem: ResidualProblem, effects: list, rows: np.ndarray | None = None,
 
     if params:
         x0 = np.clip([p.initial for p in params], [p.lower for p in params], [p.upper for p in params])
+        x0 = _scanned_start(params, x0, lambda th: float(np.sum(residual_of(th) ** 2)))
         solution = least_squares(lambda th: residual_of(th).ravel(), x0, method="trf", x_scale="jac",
                                  bounds=([p.lower for p in params], [p.upper for p in params]))
         theta = solution.x
@@ -159,6 +160,21 @@ def fit(problem: ResidualProblem, effects: list, rows: np.ndarray | None = None,
     r = residual_of(theta)
     bic, tau = bic_eff(r, len(params))
     return Fit(list(effects), {p.name: float(v) for p, v in zip(params, theta)}, r, float(np.sum(r**2)), bic, tau)
+
+
+def _scanned_start(params: list, x0: np.ndarray, cost: Callable) -> np.ndarray:
+    """x0 with each parameter that has a ``scan_step`` moved to the best point of a grid over its bounds
+    (the others held at x0): a local fit of a non-convex parameter (a delay) then starts in the right dip."""
+    x0 = np.array(x0, dtype=float)
+    for i, p in enumerate(params):
+        if p.scan_step:
+            # whole multiples of the step: 0 must be exactly 0 (scipy's trust region starts with a radius of
+            # |x0| in Jacobian units, so a start at 1e-16 from float round-off never moves)
+            grid = np.round(np.arange(p.lower, p.upper + 0.5 * p.scan_step, p.scan_step) / p.scan_step) * p.scan_step
+            grid = np.clip(grid, p.lower + 1e-3 * p.scan_step, p.upper - 1e-3 * p.scan_step)   # off the bounds
+            costs = [cost(np.r_[x0[:i], value, x0[i + 1:]]) for value in grid]
+            x0[i] = grid[int(np.argmin(costs))]
+    return x0
 
 
 def cv_error(problem: ResidualProblem, effects: list) -> float:

@@ -36,7 +36,7 @@ from learnest.models.effects import (
     specific_force_body,
     unidentifiable_scales,
 )
-from learnest.models.identify import LOWPASS_HZ
+from learnest.models.identify import LOWPASS_HZ, lowpass
 from learnest.models.inputs import system_inputs
 from learnest.models.knode import HybridModel
 from learnest.models.presets import CRAZYFLIE_TRAINING, PAPER_TRAINING
@@ -52,7 +52,17 @@ from .flights import (
     train_on_flight,
 )
 
-DIAGNOSIS_SG_WINDOW = 31   # 0.3 s: keeps the accelerometer's manoeuvre content that delay and scale act on
+# The SG reference of the accelerometer channel: 0.41 s, order 4.  Its passband must stay flat over the
+# manoeuvres: the reference is rotated into the body frame with the *unsmoothed* mocap attitude, and an
+# attenuated acceleration leaves a tilt error in body x/y that a delay fit absorbs.  Order 3 over 0.31 s
+# moved a known 40 ms delay by +2 to +14 ms on noise-free simulated flights; order 4 over 0.41 s by
+# at most +2 ms (benchmarks/results/timing_bias.md).
+DIAGNOSIS_SG_WINDOW = 41
+DIAGNOSIS_SG_ORDER = 4
+# Both sides of the accelerometer residual pass this zero-phase low-pass (no relative shift): above it the
+# reference is double-differentiated mocap noise and the reading vibration, which only add scatter to
+# the delay (±10 ms on 15-s simulated flights without it, a few ms with it).
+DIAGNOSIS_LOWPASS_HZ = 8.0
 EDGE_S = 0.5               # SG references are least reliable at the ends of a record
 
 
@@ -91,9 +101,10 @@ def accelerometer_problem(flights: list[Flight], window: int = DIAGNOSIS_SG_WIND
     pieces = []
     for flight in flights:
         edge = int(EDGE_S / flight.dt)
-        a_ref = sg_references(flight.p, flight.dt, window=window, order=3)["a"]
-        f_body = specific_force_body(a_ref, flight.quat)
-        pieces.append((flight.t, f_body, flight.channels["acc_body"], slice(edge, len(flight.t) - edge)))
+        a_ref = sg_references(flight.p, flight.dt, window=window, order=DIAGNOSIS_SG_ORDER)["a"]
+        f_body = lowpass(specific_force_body(a_ref, flight.quat), flight.dt, DIAGNOSIS_LOWPASS_HZ)
+        acc_body = lowpass(flight.channels["acc_body"], flight.dt, DIAGNOSIS_LOWPASS_HZ)
+        pieces.append((flight.t, f_body, acc_body, slice(edge, len(flight.t) - edge)))
     lengths = [len(p[0][p[3]]) for p in pieces]
     offsets = np.cumsum([0] + lengths)
 
@@ -388,7 +399,7 @@ def _residual_summary(fitting, fixed_fitting, accel, dynamics, knode):
     for label, f in (("before", flight), ("after", fixed)):
         innovations = run_ukf(HybridModel(system, "prior"), f.measurements(), dt=f.dt, Q=system.Q, R=system.R,
                               x0=initial_state(f), P0=system.P0).innovations
-        a_ref = sg_references(f.p, f.dt, window=DIAGNOSIS_SG_WINDOW, order=3)["a"]
+        a_ref = sg_references(f.p, f.dt, window=DIAGNOSIS_SG_WINDOW, order=DIAGNOSIS_SG_ORDER)["a"]
         rms = np.sqrt((innovations**2).mean(0)).round(5).tolist()
         out[f"innovation_rms_{label}"] = dict(zip(system.meas_names, rms))
         out[f"a_meas_minus_a_ref_rms_{label}"] = np.sqrt(((f.a_meas - a_ref) ** 2).mean(0)).round(4).tolist()
