@@ -50,7 +50,8 @@ def test_the_work_limit_counts_epochs_samples_and_hidden_units(tmp_path):
 
     settings = settings_for(tmp_path, max_training_work=1e6)
     check_training(settings, epochs=100, hidden=10, samples=1000)      # exactly 1e6: allowed
-    with pytest.raises(QuotaExceeded, match=r"100 x 1001 x 10 = 1,001,000, above .* 1,000,000 \(LEARNEST_MAX_TRAINING_WORK"):
+    with pytest.raises(QuotaExceeded,
+                       match=r"100 x 1001 x 10 = 1,001,000, above .* 1,000,000 \(LEARNEST_MAX_TRAINING_WORK"):
         check_training(settings, epochs=100, hidden=10, samples=1001)
     check_training(settings_for(tmp_path, max_training_work=0), epochs=5000, hidden=256, samples=10**6)  # 0: off
 

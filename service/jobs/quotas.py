@@ -26,5 +26,5 @@ def check_training(settings: Settings, *, epochs: int, hidden: int, samples: int
     work = float(epochs) * samples * hidden
     if settings.max_training_work and work > settings.max_training_work:
         raise QuotaExceeded(f"{what} too large: epochs x samples x hidden = {epochs} x {samples} x {hidden} = "
-                            f"{work:.3g}, above this server's limit of {settings.max_training_work:.3g} "
+                            f"{work:,.0f}, above this server's limit of {settings.max_training_work:,.0f} "
                             "(LEARNEST_MAX_TRAINING_WORK raises it; fewer epochs or hidden units lower it)")
