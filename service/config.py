@@ -15,8 +15,8 @@
     LEARNEST_GIT_COMMIT         code version recorded in the registry when the install has no git
     LEARNEST_MAX_EPOCHS         training / diagnosis epochs a request may ask for (default 5000)
     LEARNEST_MAX_HIDDEN         hidden units per layer a training request may ask for (default 256)
-    LEARNEST_MAX_TRAINING_WORK  epochs x flight samples x hidden units of one training (default 2e9,
-                                roughly an hour of one worker); 0 = no limit
+    LEARNEST_MAX_TRAINING_WORK  epochs x flight samples x hidden units of one training (default 2e9;
+                                not calibrated to a wall time); 0 = no limit
     LEARNEST_CANCEL_GRACE_S     seconds a cancelled job's running task gets to stop itself before its
                                 worker is killed (default 10)
 """
