@@ -128,7 +128,7 @@ def row_and_job(db: Database, table, row_id: int, what: str):
     NotFound
         There is no such row.
     Conflict
-        Its job failed (the message carries the job's error).
+        Its job failed or was cancelled (the message carries the job's error).
     """
     with db.transaction() as session:
         row = session.get(table, row_id)
@@ -137,8 +137,8 @@ def row_and_job(db: Database, table, row_id: int, what: str):
         job = session.get(Job, row.job_id)
     if job is None:  # the foreign key forbids it; said rather than an AttributeError if a database lies
         raise NotFound(f"{what} {row_id} has no job")
-    if job.state == "failed":
-        raise Conflict(f"{what} {row_id} failed: {job.error}")
+    if job.state in ("failed", "cancelled"):
+        raise Conflict(f"{what} {row_id} {job.state}: {job.error}")
     return row, job
 
 

@@ -455,6 +455,9 @@ def main(argv=None) -> int:
     except LearnestError as err:  # bad input, unknown model, failed training: one clear line, no traceback
         print(f"learnest: error: {err}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C: the command cleaned up on the way out (train: nothing registered)
+        print("learnest: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -13,6 +13,12 @@
     LEARNEST_DASK               address of a Dask scheduler (default: a local process pool)
     LEARNEST_POOL_WORKERS       local pool size (default min(2, cores))
     LEARNEST_GIT_COMMIT         code version recorded in the registry when the install has no git
+    LEARNEST_MAX_EPOCHS         training / diagnosis epochs a request may ask for (default 5000)
+    LEARNEST_MAX_HIDDEN         hidden units per layer a training request may ask for (default 256)
+    LEARNEST_MAX_TRAINING_WORK  epochs x flight samples x hidden units of one training (default 2e9;
+                                not calibrated to a wall time); 0 = no limit
+    LEARNEST_CANCEL_GRACE_S     seconds a cancelled job's running task gets to stop itself before its
+                                worker is killed (default 10)
 """
 from __future__ import annotations
 
@@ -44,6 +50,11 @@ class Settings(BaseSettings):
     dask_address: str | None = Field(None, validation_alias=AliasChoices("dask_address", "LEARNEST_DASK"))
     pool_workers: int = Field(default_factory=lambda: max(1, min(2, os.cpu_count() or 1)), ge=1)
     git_commit: str | None = None
+    # quotas: a request past one is a 422 naming it (service.jobs.quotas)
+    max_epochs: int = Field(5000, ge=1)
+    max_hidden: int = Field(256, ge=1)
+    max_training_work: float = Field(2e9, ge=0)   # epochs x samples x hidden; 0: no limit
+    cancel_grace_s: float = Field(10.0, ge=0)
 
     @field_validator("database_url", "api_key", "dask_address", "git_commit", mode="before")
     @classmethod

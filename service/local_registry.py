@@ -7,7 +7,8 @@ replaces the plain file store of the ingest issue (home/models/NAME.json files a
 - `add_flight`: store a flight's log file(s) as POST /flights does (service.uploads.add_flight: raw files +
   normalized flight as blobs, one row, deduplicated by sha256).
 - `train`: register the next version of a model trained on that flight, as POST /models does (a training job
-  on a one-process local pool, with the same provenance), and wait for it.
+  on a one-process local pool, with the same provenance), and wait for it.  Interrupted (Ctrl-C), the job is
+  cancelled, its worker stopped and its reserved version removed: nothing half-registered is left.
 - `register_repaired`: register a diagnosis' repaired model as the next version of a name (its fitting flight
   stored as by an upload), as POST /diagnoses with "register" does.
 - `load_model`: "NAME" (its latest ready version), "NAME:VERSION" or "NAME@ALIAS" -> HybridModel, through
@@ -98,7 +99,11 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
                              "pass --include-bad to train on it anyway")
         job, version = start_training(services, name, row.id, {"epochs": epochs, "system": system},
                                       include_bad=include_bad)
-        job = wait_for_job(services, job.id, progress)
+        try:
+            job = wait_for_job(services, job.id, progress)
+        except BaseException:  # Ctrl-C (KeyboardInterrupt) or a failure while waiting
+            abandon_training(services, job.id)
+            raise
         with services.db.transaction() as session:
             version = registry.get_version(session, name, version.version)
     if job.state != "succeeded":
@@ -109,6 +114,17 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
             "epochs": version.hyperparameters["epochs"], "best_epoch": (version.metrics or {}).get("best_epoch"),
             "final_loss": version.losses[-1] if version.losses else None, "seconds": version.training_seconds,
             "home": str(settings.home)}
+
+
+def abandon_training(services: Services, job_id: int) -> None:
+    """Cancel a training job this process started and remove the version it reserved, unless it finished
+    first (a version that became ready is complete: its row and weights were committed together)."""
+    try:
+        services.runner.cancel(job_id, "interrupted")
+    except Conflict:  # it succeeded or failed before the interrupt: nothing half-done to remove
+        return
+    with services.db.transaction() as session:
+        registry.drop_unfinished_versions(session, job_id)
 
 
 def wait_for_job(services: Services, job_id: int, progress: Callable[[float], None] | None = None,

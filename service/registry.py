@@ -23,7 +23,7 @@ from learnest.models.knode import HybridModel
 from .config import Settings
 from .references import ModelRef, check_name, parse_ref
 from .storage.blobs import BlobStore
-from .storage.database import Database
+from .storage.database import Database, discard_blobs
 from .storage.tables import FlightRecord, ModelAlias, ModelVersion, RegisteredModel, utcnow
 
 LIBRARIES = ("torch", "casadi", "filterpy", "numpy", "scipy", "torchdiffeq")
@@ -103,23 +103,29 @@ def register_model(db: Database, blobs: BlobStore, name: str, model: HybridModel
     model_json = model_to_json(model)
     prior = {**prior_of(model_json), "measurement_effects": model.meta.get("measurement_effects") or {},
              "effects": model.meta.get("effects") or []}
-    with blobs.writing():  # the weights blob exists before the row that names it commits
-        weights = blobs.put_bytes(model_json)
-        for attempt in range(20):  # another request may take the same version number first
-            try:
-                with db.transaction() as session:
-                    if parent is not None:
-                        resolved = resolve(session, parent)
-                        parent = f"{resolved.name}:{resolved.version}"
-                    row = reserve_version(session, name, job_id=job_id, flight=flight,
-                                          hyperparameters=hyperparameters, parent=parent)
-                    row.status, row.weights_blob, row.ready_at, row.prior = "ready", weights, utcnow(), prior
-                    row.metrics = metrics
-                    row.code_version, row.library_versions = code_version(), library_versions()
-                return row
-            except IntegrityError:
-                if attempt == 19:
-                    raise
+    weights = None
+    try:
+        with blobs.writing():  # the weights blob exists before the row that names it commits
+            weights = blobs.put_bytes(model_json)
+            for attempt in range(20):  # another request may take the same version number first
+                try:
+                    with db.transaction() as session:
+                        if parent is not None:
+                            resolved = resolve(session, parent)
+                            parent = f"{resolved.name}:{resolved.version}"
+                        row = reserve_version(session, name, job_id=job_id, flight=flight,
+                                              hyperparameters=hyperparameters, parent=parent)
+                        row.status, row.weights_blob, row.ready_at, row.prior = "ready", weights, utcnow(), prior
+                        row.metrics = metrics
+                        row.code_version, row.library_versions = code_version(), library_versions()
+                    return row
+                except IntegrityError:
+                    if attempt == 19:
+                        raise
+    except BaseException:  # the version and its weights appear together or not at all
+        if weights is not None:
+            discard_blobs(db, blobs, [weights])
+        raise
     raise AssertionError("unreachable: the last attempt returns or re-raises")
 
 
@@ -130,6 +136,24 @@ def fail_versions_of_jobs(session: Session, job_ids: list[int], reason: str) -> 
     for row in session.scalars(select(ModelVersion).where(ModelVersion.job_id.in_(job_ids),
                                                           ModelVersion.status == "training")):
         row.status, row.error = "failed", reason
+
+
+def drop_unfinished_versions(session: Session, job_id: int) -> list[str]:
+    """Delete the versions job ``job_id`` reserved and never finished (no weights), and a model name left with
+    no version and no alias: what an interrupted `learnest train` leaves is no version at all (the CLI never
+    announced the number; the API's reserved versions stay, failed, since their clients know them).
+    Returns the "name:version" references removed."""
+    rows = session.scalars(select(ModelVersion).where(ModelVersion.job_id == job_id,
+                                                      ModelVersion.weights_blob.is_(None))).all()
+    for row in rows:
+        session.delete(row)
+    session.flush()
+    for name in {row.name for row in rows}:
+        left = session.scalar(select(func.count()).select_from(ModelVersion).where(ModelVersion.name == name))
+        aliases = session.scalar(select(func.count()).select_from(ModelAlias).where(ModelAlias.name == name))
+        if not left and not aliases:
+            session.delete(session.get(RegisteredModel, name))
+    return [f"{row.name}:{row.version}" for row in rows]
 
 
 def set_alias(session: Session, name: str, alias: str, version: int) -> ModelAlias:

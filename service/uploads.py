@@ -26,8 +26,8 @@ from learnest.errors import Conflict, InvalidInput
 from learnest.ingest import IngestError, group_files, read_group
 from learnest.ingest.flight import Flight as CanonicalFlight
 
-from .storage.blobs import CHUNK, BlobStore
-from .storage.database import Database
+from .storage.blobs import CHUNK, BlobStore, storage_errors
+from .storage.database import Database, discard_blobs
 from .storage.tables import FlightFile, FlightRecord, utcnow
 
 log = logging.getLogger("learnest.uploads")
@@ -161,7 +161,8 @@ def stage_uploads(uploads: Sequence[Upload], directory: Path) -> list[StagedFile
             path, role = directory / f"upload_{owner}_metadata.yaml", "sidecar"
         else:
             path, role = directory / f"upload_{i}{_safe_suffix(name)}", "log"
-        sha, size = _copy_and_hash(upload.file, path)
+        with storage_errors("accept uploads"):
+            sha, size = _copy_and_hash(upload.file, path)
         staged.append(StagedFile(name, path, sha, size, role))
     return staged
 
@@ -245,25 +246,41 @@ def store_flight(db: Database, blobs: BlobStore, staged: list[StagedFile], fligh
                  vehicle: str | None, notes: str | None) -> tuple[FlightRecord, bool]:
     """Blobs first (fsync + rename), then the row; -> (row, created).  A concurrent upload of the same
     content makes our insert fail on the unique sha256: we answer with its row.  Names are unique (the
-    evaluation matches a model's training flight by name): a taken name gets the content hash appended."""
+    evaluation matches a model's training flight by name): a taken name gets the content hash appended.
+
+    The name is chosen before any blob is written (the normalized flight's bytes hold it), and a write that
+    fails (a name taken meanwhile, a full blob folder: `StorageUnavailable`) removes the blobs no row names."""
     base = flight.meta["name"]
-    for name in (base, f"{base}-{sha[:8]}"):
+    for name in free_names(db, base, sha):
         flight.meta["name"] = name
-        with blobs.writing():
-            flight_blob = blobs.put_bytes(flight.to_bytes())
-            for f in staged:
-                if f.path.exists():
-                    blobs.put_file(f.path, f.sha256)
-            try:
+        written: list[str] = []
+        try:
+            with blobs.writing():
+                written.append(blobs.put_bytes(flight.to_bytes()))
+                for f in staged:
+                    if f.path.exists():
+                        written.append(blobs.put_file(f.path, f.sha256))
                 with db.transaction() as session:
-                    row = _flight_row(flight, sha, flight_blob, staged, vehicle, notes)
+                    row = _flight_row(flight, sha, written[0], staged, vehicle, notes)
                     session.add(row)
                 return row, True
-            except IntegrityError:
-                existing = find_by_sha(db, sha)
-                if existing is not None:
-                    return existing, False
+        except IntegrityError:
+            discard_blobs(db, blobs, written)
+            existing = find_by_sha(db, sha)
+            if existing is not None:
+                return existing, False
+        except BaseException:
+            discard_blobs(db, blobs, written)
+            raise
     raise Conflict(f"a flight named {base!r} already exists and so does {base}-{sha[:8]}")
+
+
+def free_names(db: Database, base: str, sha: str) -> list[str]:
+    """The names a flight may take, in order: ``base`` and ``base-<sha[:8]>``, less those already taken."""
+    candidates = [base, f"{base}-{sha[:8]}"]
+    with db.transaction() as session:
+        taken = set(session.scalars(select(FlightRecord.name).where(FlightRecord.name.in_(candidates))))
+    return [name for name in candidates if name not in taken]
 
 
 def _flight_row(flight: CanonicalFlight, sha: str, flight_blob: str, staged: list[StagedFile],

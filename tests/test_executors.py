@@ -39,3 +39,34 @@ def test_pool_workers_exit_when_the_server_is_killed():
         assert not any(_alive(pid) for pid in workers), f"orphaned workers still running: {workers}"
     finally:
         server.kill()
+
+
+def test_a_task_that_does_not_stop_is_killed_after_the_grace_period_and_the_pool_recovers():
+    from concurrent.futures.process import BrokenProcessPool
+
+    import pytest
+
+    from learnest.service.jobs.executors import LocalPoolExecutor
+
+    pool = LocalPoolExecutor(max_workers=1)
+    try:
+        stuck = pool.submit(time.sleep, 600)            # a task that never looks at its job's state
+        queued = pool.submit(time.sleep, 600)
+        while not pool._pool._processes:
+            time.sleep(0.05)
+        worker = next(iter(pool._pool._processes))
+        while not stuck.running():
+            time.sleep(0.05)
+        started = time.monotonic()
+        pool.stop([stuck, queued], grace_s=0.5)
+        assert time.monotonic() - started < 10
+        assert queued.done()    # cancelled, or (already handed to the worker) failed with the pool
+        with pytest.raises(BrokenProcessPool):
+            stuck.result(timeout=30)
+        deadline = time.monotonic() + 30
+        while _alive(worker) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not _alive(worker)
+        assert pool.submit(sum, [1, 2, 3]).result(timeout=120) == 6   # a new pool serves the next job
+    finally:
+        pool.shutdown()

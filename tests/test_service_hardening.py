@@ -3,7 +3,7 @@ able to start jobs through the user's browser (CSRF), and a server on localhost 
 other host names (DNS rebinding).  The real app, the real forms; the attack is what a browser would send.
 Item 10: numbers and dates out of range are a 422, not a 500."""
 import pytest
-from utils.service import flight_csv, running_app, upload
+from utils.service import flight_csv, running_app, settings_for, upload
 
 
 @pytest.fixture(scope="module")
@@ -86,3 +86,187 @@ def test_out_of_range_numbers_are_a_422_not_a_500(app_with_a_flight, path):
     assert response.status_code == 422, (path, response.status_code, response.text[:300])
     # the largest id that can exist is a plain 404
     assert client.get("/flights/9223372036854775807").status_code == 404
+
+
+# -- issue 10, item 8: the API key is checked before an upload's body is read ------------------------------
+def _multipart(boundary: bytes, size: int, chunk: int = 1 << 16) -> list[bytes]:
+    head = (b"--" + boundary + b'\r\nContent-Disposition: form-data; name="files"; filename="big.csv"\r\n'
+            b"Content-Type: text/csv\r\n\r\n")
+    return [head] + [b"1" * chunk] * (size // chunk) + [b"\r\n--" + boundary + b"--\r\n"]
+
+
+def test_an_upload_without_the_key_is_refused_before_its_body_is_read(tmp_path):
+    """Raw ASGI, so the test sees how much of the body the app pulls: none (FastAPI used to spool all of it to
+    a temp file - an unnamed one on Linux, so watching the temp folder would prove nothing)."""
+    import asyncio
+
+    from fastapi.testclient import TestClient
+    from utils.service import shared_pool
+
+    from learnest.service.api.app import create_app
+
+    app = create_app(settings_for(tmp_path, api_key="sesame"), executor=shared_pool(), scheduler=False)
+    chunks = _multipart(b"xyz", 8 << 20)
+
+    def post(headers: list) -> tuple[int, int]:
+        pulled, sent = [0], []
+
+        async def receive():
+            if pulled[0] < len(chunks):
+                pulled[0] += 1
+                return {"type": "http.request", "body": chunks[pulled[0] - 1], "more_body": pulled[0] < len(chunks)}
+            return {"type": "http.disconnect"}
+
+        async def send(message):
+            sent.append(message)
+
+        scope = {"type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1", "method": "POST",
+                 "scheme": "http", "path": "/flights", "raw_path": b"/flights", "query_string": b"", "root_path": "",
+                 "server": ("testserver", 80), "client": ("127.0.0.1", 5000),
+                 "headers": [(b"host", b"testserver"), (b"content-type", b"multipart/form-data; boundary=xyz"),
+                             (b"content-length", str(sum(map(len, chunks))).encode()), *headers]}
+        asyncio.run(app(scope, receive, send))
+        return sent[0]["status"], pulled[0]
+
+    with TestClient(app):   # the lifespan: database, services
+        assert post([]) == (401, 0)
+        assert post([(b"x-api-key", b"wrong")]) == (401, 0)
+        status, pulled = post([(b"x-api-key", b"sesame")])   # with the key the body is read (and is no flight)
+        assert status == 422 and pulled == len(chunks)
+
+
+# -- issue 10, item 9: no orphan blob on a name collision; a crashed upload's temp folder goes ---------------
+def _blob_state(home):
+    from utils.service import blob_files
+
+    from learnest.service.storage.database import Database, referenced_blobs
+
+    db = Database(settings_for(home).url)
+    try:
+        return blob_files(home), referenced_blobs(db)
+    finally:
+        db.dispose()
+
+
+def test_a_flight_name_collision_leaves_no_orphan_blob(tmp_path):
+    with running_app(tmp_path) as client:
+        first = upload(client, flight_csv(tmp_path / "a", seed=3), names=["same.csv"])
+        second = upload(client, flight_csv(tmp_path / "b", seed=4), names=["same.csv"])
+        assert (first.status_code, second.status_code) == (201, 201)
+        assert first.json()["name"] == "same" and second.json()["name"] == f"same-{second.json()['sha256'][:8]}"
+        stored, referenced = _blob_state(tmp_path)
+    assert stored == referenced and len(stored) == 4   # two raw files, two normalized flights
+
+
+CRASHING_UPLOAD = """
+import sys, time
+from pathlib import Path
+from learnest.service.storage.blobs import BlobStore
+with BlobStore(Path(sys.argv[1])).temp_dir() as directory:
+    (directory / "upload_0.csv").write_bytes(b"1" * 100_000)
+    print(directory.name, flush=True)
+    time.sleep(600)
+"""
+
+
+def test_a_crashed_uploads_temp_folder_is_removed_when_the_store_opens(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from learnest.service.storage.blobs import BlobStore
+
+    root = tmp_path / "blobs"
+    crashed = subprocess.Popen([sys.executable, "-c", CRASHING_UPLOAD, str(root)], stdout=subprocess.PIPE, text=True)
+    name = crashed.stdout.readline().strip()
+    os.kill(crashed.pid, signal.SIGKILL)   # no cleanup: what a crash or an OOM kill does
+    crashed.wait()
+    assert (root / ".tmp" / name).is_dir()
+    with BlobStore(root).temp_dir() as ours:   # a live upload of this process ...
+        BlobStore(root)                        # ... while another server process starts
+        assert ours.is_dir()
+        assert not (root / ".tmp" / name).exists()
+
+
+# -- issue 10, item 12: a blob folder that cannot be written; DELETE; server paths in job errors ------------
+def test_an_upload_to_a_blob_folder_that_cannot_be_written_is_a_507_storing_nothing(tmp_path):
+    from learnest.ingest.flight import sha256_file
+
+    log = flight_csv(tmp_path / "logs", seed=5)
+    with running_app(tmp_path / "home") as client:
+        blocked = tmp_path / "home" / "blobs" / sha256_file(log)[:2]
+        blocked.write_text("")   # a file where the raw file's blob folder must go: mkdir fails (even as root)
+        response = upload(client, log)
+        assert response.status_code == 507, response.text
+        detail = response.json()["detail"]
+        assert "nothing was stored" in detail and str(tmp_path) not in detail
+        assert client.get("/flights").json()["total"] == 0
+        stored, _ = _blob_state(tmp_path / "home")
+        assert stored == set()   # the normalized flight written before the failure was removed again
+        assert list((tmp_path / "home" / "blobs" / ".tmp").iterdir()) == []
+        blocked.unlink()
+        assert upload(client, log).status_code == 201
+
+
+def test_delete_answers_204_when_a_blob_cannot_be_removed_and_the_sweep_removes_it_later(tmp_path, monkeypatch):
+    import pathlib
+
+    from learnest.service.jobs.services import sweep_orphan_blobs
+    from learnest.service.storage.blobs import BlobStore
+    from learnest.service.storage.database import Database
+
+    blobs_root = str(tmp_path / "blobs")
+    unlink = pathlib.Path.unlink
+
+    def read_only_blobs(path, *args, **kwargs):   # what a read-only blob folder does to unlink
+        if str(path).startswith(blobs_root) and "/.tmp" not in str(path):
+            raise PermissionError(13, "Read-only file system")
+        return unlink(path, *args, **kwargs)
+
+    with running_app(tmp_path) as client:
+        flight_id = upload(client, flight_csv(tmp_path / "logs", seed=6)).json()["id"]
+        kept = set(_blob_state(tmp_path)[0])
+        with monkeypatch.context() as patch:
+            patch.setattr(pathlib.Path, "unlink", read_only_blobs)
+            response = client.delete(f"/flights/{flight_id}")
+        assert response.status_code == 204, response.text   # the row is gone: say so, not 500
+        assert client.get(f"/flights/{flight_id}").status_code == 404
+    stored, referenced = _blob_state(tmp_path)
+    assert stored == kept and referenced == set()            # orphans now, harmless
+    db = Database(settings_for(tmp_path).url)
+    try:
+        assert set(sweep_orphan_blobs(db, BlobStore(tmp_path / "blobs"))) == kept
+    finally:
+        db.dispose()
+
+
+def test_a_job_error_shows_no_server_path(tmp_path):
+    from utils.service import wait_for_job
+
+    from learnest.service.storage.database import Database
+    from learnest.service.storage.tables import FlightRecord
+
+    with running_app(tmp_path) as client:
+        flight_id = upload(client, flight_csv(tmp_path / "logs", seed=7)).json()["id"]
+        db = Database(settings_for(tmp_path).url)
+        with db.transaction() as session:
+            sha = session.get(FlightRecord, flight_id).flight_blob
+        db.dispose()
+        (tmp_path / "blobs" / sha[:2] / sha[2:]).unlink()   # the normalized flight is gone from the disk
+        job_id = client.post("/models", json={"name": "lost", "flight_id": flight_id, "epochs": 1}).json()["job_id"]
+        job = wait_for_job(client, job_id)
+        assert job["state"] == "failed"
+        assert "FileNotFoundError" in job["error"] and sha[2:] in job["error"]   # still says what is missing
+        assert str(tmp_path) not in job["error"] and "/blobs/" not in job["error"]
+        version = client.get("/models/lost/versions/1").json()
+        assert str(tmp_path) not in version["error"]
+        assert str(tmp_path) not in client.get(f"/ui/jobs/{job_id}").text
+
+
+def test_error_message_keeps_file_names_and_drops_folders():
+    from learnest.service.jobs.runner import error_message
+
+    err = FileNotFoundError(2, "No such file or directory", "/srv/learnest/blobs/ab/cdef")
+    assert error_message(err) == "FileNotFoundError: [Errno 2] No such file or directory: '.../cdef'"
+    assert error_message(ValueError("velocity in m/s/s, 1/2 of it")) == "velocity in m/s/s, 1/2 of it"

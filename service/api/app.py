@@ -51,7 +51,8 @@ def create_app(settings: Settings | None = None, *, executor: Executor | None = 
                               "evaluate KNODE-UKF / KNODE-MHE against Savitzky-Golay references. Writes need "
                               "the X-API-Key header when the server has LEARNEST_API_KEY set.")
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
-    app.add_middleware(RequestGuard, allowed_hosts=settings.allowed_host_names)  # outermost: runs first
+    # outermost: runs first (host, cross-site and API key checks before any body is read)
+    app.add_middleware(RequestGuard, allowed_hosts=settings.allowed_host_names, api_key=settings.api_key)
     install_error_handlers(app)
     for router in (flights.router, models.router, jobs.router, evaluations.router, diagnoses.router):
         app.include_router(router)

@@ -10,9 +10,15 @@ POST to ``/ui/...`` and start jobs.  Browsers label such requests: ``Origin`` on
 (or ``Sec-Fetch-Site: cross-site``, or at least a ``Referer``).  A write whose origin is not this server
 is refused.  Clients that are not browsers (curl, scripts) send none of these headers and are not
 affected; the API key guards them when it is set.
+
+The API key of the JSON API's writes is checked here too, from the X-API-Key header, before the route reads
+anything of the body (issue 10, item 8): FastAPI parses a multipart body - spooling every file to a temp
+folder - before it runs the route's dependencies, so an unauthenticated 158 MB upload was written in full
+before its 401.  The web forms (/ui/...) carry their key in a form field or a cookie and check it themselves.
 """
 from __future__ import annotations
 
+import hmac
 import json
 from urllib.parse import urlsplit
 
@@ -20,21 +26,27 @@ from starlette.datastructures import Headers
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
+FORM_PREFIX = "/ui/"   # web form posts: the key comes in the form or the cookie (service.web.forms)
+KEY_HEADER = "x-api-key"
 
 
 class RequestGuard:
-    """ASGI middleware: 400 for a Host not in ``allowed_hosts``, 403 for a cross-site unsafe request.
+    """ASGI middleware: 400 for a Host not in ``allowed_hosts``, 403 for a cross-site unsafe request, 401 for
+    a write to the JSON API without the API key (before its body is read).
 
     Parameters
     ----------
     app : ASGI app
     allowed_hosts : tuple of str
         Host names served (no port); ``"*"`` serves any.
+    api_key : str, optional
+        The key writes need in X-API-Key (None: writes need none).
     """
 
-    def __init__(self, app: ASGIApp, allowed_hosts: tuple[str, ...]):
+    def __init__(self, app: ASGIApp, allowed_hosts: tuple[str, ...], api_key: str | None = None):
         self.app = app
         self.allowed = frozenset(name.lower() for name in allowed_hosts)
+        self.api_key = api_key
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
@@ -52,7 +64,16 @@ class RequestGuard:
             if problem:
                 await _refuse(send, 403, problem)
                 return
+            if not scope["path"].startswith(FORM_PREFIX) and not self._key_matches(headers.get(KEY_HEADER)):
+                await _refuse(send, 401, "missing or wrong API key: send it in the X-API-Key header",
+                              [(b"www-authenticate", b"X-API-Key"), (b"connection", b"close")])
+                return
         await self.app(scope, receive, send)
+
+    def _key_matches(self, key: str | None) -> bool:
+        if self.api_key is None:
+            return True
+        return bool(key) and hmac.compare_digest(str(key).encode(), self.api_key.encode())
 
 
 def host_name(host: str) -> str:
@@ -79,8 +100,10 @@ def cross_site_problem(headers: Headers, host: str) -> str | None:
     return None
 
 
-async def _refuse(send: Send, status: int, detail: str) -> None:
+async def _refuse(send: Send, status: int, detail: str, headers: list[tuple[bytes, bytes]] | None = None) -> None:
+    """Answer without reading the request's body (with Connection: close, the server need not drain it)."""
     body = json.dumps({"detail": detail}).encode()
     await send({"type": "http.response.start", "status": status,
-                "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode())]})
+                "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()),
+                            *(headers or [])]})
     await send({"type": "http.response.body", "body": body})

@@ -145,7 +145,7 @@ class AliasOut(BaseModel):
 class JobOut(BaseModel):
     id: int
     kind: str
-    state: Literal["queued", "running", "succeeded", "failed"]
+    state: Literal["queued", "running", "succeeded", "failed", "cancelled"]
     progress: float
     error: str | None
     result: dict[str, Any] | None

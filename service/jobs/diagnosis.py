@@ -7,7 +7,8 @@ from learnest.errors import InvalidInput, NotFound
 from .. import registry
 from ..storage.database import flights_by_id, get_row
 from ..storage.tables import Diagnosis, utcnow
-from .runner import JobContext
+from . import quotas
+from .runner import JobAborted, JobContext
 from .services import Services
 from .tasks import diagnose_task, diagnosis_metrics
 from .training import training_config
@@ -20,7 +21,8 @@ def start_diagnosis(services: Services, flight_ids: list[int], model_ref: str | 
     Raises
     ------
     InvalidInput
-        For a bad ``register`` name or no flights.
+        For a bad ``register`` name or no flights; `quotas.QuotaExceeded` for more epochs or work than the
+        settings allow (the fitting flight is the first).
     NotFound
         If a flight or the model does not exist.
     Conflict
@@ -36,6 +38,8 @@ def start_diagnosis(services: Services, flight_ids: list[int], model_ref: str | 
         missing = [i for i in ids if i not in found]
         if missing:
             raise NotFound(f"flight(s) not found: {', '.join(map(str, missing))}")
+        quotas.check_training(services.settings, epochs=epochs, hidden=training_config({})["hidden"],
+                              samples=found[ids[0]].samples, what="diagnosis")
         if model_ref is not None:
             version = registry.resolve(session, model_ref)
             model_ref = f"{version.name}:{version.version}"
@@ -65,13 +69,16 @@ def run_diagnosis(services: Services, ctx: JobContext, diagnosis_id: int) -> Non
             weights = registry.weights_of(registry.resolve(session, diagnosis.model_ref))
         settings, model_ref, register = dict(diagnosis.settings), diagnosis.model_ref, diagnosis.register_as
         first_flight_id = diagnosis.flight_ids[0]
-    out = services.executor.submit(diagnose_task, [services.blobs.read_bytes(b) for b in blobs],
-                                   services.blobs.read_bytes(weights) if weights else None,
-                                   settings["methods"], settings["epochs"],
-                                   settings.get("system", "quadrotor")).result()
+    out = ctx.wait(services.executor,
+                   services.executor.submit(diagnose_task, [services.blobs.read_bytes(b) for b in blobs],
+                                            services.blobs.read_bytes(weights) if weights else None,
+                                            settings["methods"], settings["epochs"],
+                                            settings.get("system", "quadrotor")))
     ctx.progress(0.95)
     registered = None
     if register is not None:
+        if not ctx.runner.is_running(ctx.job_id):  # cancelled while diagnosing: register nothing
+            raise JobAborted(ctx.job_id)
         model = registry.model_from_json(out["model_json"])
         # the fitting flight: diagnose_flights skips flights that fail the quality checks, so go by name
         fitting = next((f for f in flights.values() if f.name == out["fitting_flight"]),

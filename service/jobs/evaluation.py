@@ -83,7 +83,7 @@ def run_evaluation(services: Services, ctx: JobContext, evaluation_id: int) -> N
             continue
         futures[services.executor.submit(evaluate_task, model_json, flight_bytes, settings.as_dict())] = \
             (flight_id, name, sha)
-    for future in services.executor.as_completed(futures):
+    for future in ctx.finished(services.executor, futures):  # JobAborted when cancelled: no report stored
         flight_id, name, sha = futures[future]
         entry, error = _outcome(future, name)
         failed += error is not None

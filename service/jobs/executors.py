@@ -7,12 +7,18 @@
 
 Tasks are plain module-level functions taking and returning bytes/JSON-able values (flight and model
 bytes travel with the task), so remote Dask workers need no access to the blob folder.
+
+Stopping a cancelled job's tasks (`Executor.stop`): pending tasks are cancelled; running ones get a grace
+period to stop themselves (training checks its job's state between epochs), then the local pool kills its
+worker processes and starts new ones (a ProcessPoolExecutor cannot kill one task: the tasks of other jobs
+running in the pool at that moment fail with BrokenProcessPool), and Dask cancels them with force=True.
 """
 from __future__ import annotations
 
 import concurrent.futures
 import multiprocessing
 import os
+import signal
 import threading
 import time
 from abc import ABC, abstractmethod
@@ -36,6 +42,9 @@ def init_worker(parent_pid: int | None = None) -> None:
 
     torch.set_num_threads(1)
     if parent_pid is not None:
+        # Ctrl-C reaches the whole process group: the server (or CLI) decides what stops, and stops its
+        # workers itself; a worker interrupted mid-task would only hand its job a KeyboardInterrupt
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
         threading.Thread(target=_exit_with_parent, args=(parent_pid,), name="parent-watch", daemon=True).start()
 
 
@@ -61,6 +70,11 @@ class Executor(ABC):
     @abstractmethod
     def shutdown(self) -> None:
         """Stop the back end (running tasks are abandoned)."""
+
+    @abstractmethod
+    def stop(self, futures: Iterable, grace_s: float) -> None:
+        """Stop these tasks (a cancelled job's): pending ones never start, running ones get ``grace_s``
+        seconds to end by themselves and are then killed."""
 
     def describe(self) -> dict:
         """What the status page shows about this executor."""
@@ -100,9 +114,25 @@ class LocalPoolExecutor(Executor):
     def shutdown(self) -> None:
         """Cancel pending tasks and terminate the worker processes without waiting for them."""
         # the jobs still running are already marked failed: stop their processes instead of waiting for them
-        workers = list(getattr(self._pool, "_processes", {}).values())
-        self._pool.shutdown(wait=False, cancel_futures=True)
-        for process in workers:
+        self._terminate(self._pool)
+
+    def stop(self, futures: Iterable, grace_s: float) -> None:
+        """Cancel the pending futures; if one still runs after ``grace_s`` s, kill the pool's workers and
+        start a new pool (the module docstring says what that costs other jobs)."""
+        running = [f for f in futures if not f.cancel()]
+        deadline = time.monotonic() + grace_s
+        while any(not f.done() for f in running) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        if any(not f.done() for f in running):
+            with self._lock:
+                old, self._pool = self._pool, self._new_pool()
+            self._terminate(old)
+
+    @staticmethod
+    def _terminate(pool) -> None:
+        processes = list((getattr(pool, "_processes", None) or {}).values())
+        pool.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
             process.terminate()
 
     def describe(self) -> dict:
@@ -144,6 +174,15 @@ class DaskExecutor(Executor):
         self._client.close()
         if self._cluster is not None:
             self._cluster.close()
+
+    def stop(self, futures: Iterable, grace_s: float) -> None:
+        """Give running tasks ``grace_s`` s to end, then Client.cancel(force=True) (a worker thread cannot
+        be killed: Dask drops its result; tasks that check their job's state end by themselves)."""
+        futures = list(futures)
+        deadline = time.monotonic() + grace_s
+        while any(not f.done() for f in futures) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        self._client.cancel([f for f in futures if not f.done()], force=True)
 
     def describe(self) -> dict:
         """``name`` and the ``scheduler`` address."""

@@ -1,7 +1,8 @@
 """The job runner: job rows' states, this server process's ownership of them, and the sweep of jobs a crashed
 server left behind.
 
-A job row (queued -> running -> succeeded | failed, progress 0..1) is created in the request's transaction;
+A job row (queued -> running -> succeeded | failed | cancelled, progress 0..1) is created in the request's
+transaction;
 a thread of this server process (the JobRunner) then orchestrates it, sending the heavy parts (training,
 each flight of an evaluation) to the Executor.  Progress is written to the database, by the orchestrating
 thread or, for training, by the worker itself (`tasks.report_progress`).
@@ -10,36 +11,54 @@ Ownership: every job row names the server process that runs it, and each process
 "runner:<owner>" renewed every HEARTBEAT_S.  A job whose owner has no live lease (or, on this host, a dead
 pid) was left behind by a crashed server: `sweep` marks it failed with "server restarted" (at start-up
 and on every heartbeat, so several uvicorn workers never fail each other's live jobs).
+
+Cancelling (`JobRunner.cancel`, any server process): the row becomes "cancelled" at once, in one transaction
+with the `on_stale` hooks (a reserved model version is failed), so nothing the job computes afterwards can be
+stored: `mark_succeeded` only completes a running job.  The orchestrating thread notices within
+CANCEL_CHECK_S (`JobContext.wait`, `JobContext.finished`) and stops its executor tasks: pending ones never
+start, running ones get ``cancel_grace_s`` to stop themselves (training checks its job's state between
+epochs, `tasks.report_progress`) and are then killed (`Executor.stop`).
 """
 from __future__ import annotations
 
 import logging
 import os
+import re
 import socket
 import threading
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from sqlalchemy import select, update
 from sqlalchemy.orm import Session
+
+from learnest.errors import Conflict, NotFound
 
 from ..storage.database import Database, dml_rowcount
 from ..storage.leases import acquire_lease, release_lease
 from ..storage.tables import Job, Lease, utcnow
 
+if TYPE_CHECKING:
+    from .executors import Executor
+
 log = logging.getLogger("learnest.jobs")
 
 ACTIVE = ("queued", "running")
+STATES = ("queued", "running", "succeeded", "failed", "cancelled")
 HEARTBEAT_S = 10.0
 LEASE_S = 30.0
 ERROR_CHARS = 1000
+CANCEL_CHECK_S = 1.0     # how often a waiting job reads its state (a cancel by another server process)
+WAIT_POLL_S = 0.05       # how often it looks at its executor tasks
+CANCEL_GRACE_S = 10.0    # a cancelled task's time to stop itself before it is killed
 
 
 class JobAborted(RuntimeError):
-    """The job is no longer running (a sweep or shutdown failed it): drop its result."""
+    """The job is no longer running (cancelled, or a sweep or shutdown failed it): drop its result."""
 
 
 def make_owner_id() -> str:
@@ -72,6 +91,34 @@ class JobContext:
         self.runner.mark_succeeded(session, self.job_id, result)
         self.completed = True
 
+    def wait(self, executor: Executor, future):
+        """The result of one executor task; `JobAborted` (the task stopped, `Executor.stop`) as soon as the
+        job is no longer running (cancelled, or failed by a sweep)."""
+        for done in self.finished(executor, [future]):
+            return done.result()
+        raise AssertionError("unreachable: finished yields every future or raises")
+
+    def finished(self, executor: Executor, futures: Iterable) -> Iterator:
+        """Yield ``futures`` as they finish, like as_completed; when the job stops running, stop the
+        unfinished ones (`Executor.stop`) and raise `JobAborted`."""
+        pending = list(futures)
+        stopped = self.runner.stop_event(self.job_id)
+        next_check = time.monotonic() + CANCEL_CHECK_S
+        while pending:
+            done = [f for f in pending if f.done()]
+            for future in done:
+                pending.remove(future)
+                yield future
+            if done:
+                continue
+            if time.monotonic() >= next_check:  # a cancel may come through another server process
+                next_check = time.monotonic() + CANCEL_CHECK_S
+                if not self.runner.is_running(self.job_id):
+                    stopped.set()
+            if stopped.wait(WAIT_POLL_S):
+                executor.stop(pending, self.runner.cancel_grace_s)
+                raise JobAborted(self.job_id)
+
 
 class JobRunner:
     """Runs this server process's jobs in a thread pool and keeps its lease (module docstring).
@@ -81,6 +128,8 @@ class JobRunner:
     db : Database
     threads : int
         Jobs orchestrated at once; the heavy parts go to the Executor.
+    cancel_grace_s : float
+        Seconds a cancelled executor task gets to stop itself before it is killed.
 
     Attributes
     ----------
@@ -90,8 +139,11 @@ class JobRunner:
         Hooks ``hook(session, job_ids, reason)`` called in the transaction that fails jobs (sweep, shutdown).
     """
 
-    def __init__(self, db: Database, threads: int = 4) -> None:
+    def __init__(self, db: Database, threads: int = 4, cancel_grace_s: float = CANCEL_GRACE_S) -> None:
         self.db = db
+        self.cancel_grace_s = cancel_grace_s
+        self._stop_events: dict[int, threading.Event] = {}  # jobs this process runs, set when they must stop
+        self._events_lock = threading.Lock()
         self.owner = make_owner_id()
         self._threads = ThreadPoolExecutor(threads, thread_name_prefix="learnest-job")
         self._stop = threading.Event()
@@ -162,10 +214,16 @@ class JobRunner:
                 with self.db.transaction() as session:
                     context.complete(session, result or {})
         except JobAborted:
-            log.info("job %s was failed while running; its result is dropped", job_id)
+            log.info("job %s was stopped while running; its result is dropped", job_id)
         except Exception as err:  # recorded on the job: no traceback reaches a user, the log keeps it
-            log.exception("job %s failed", job_id)
-            self.mark_failed(job_id, error_message(err), on_failure)
+            if self.is_running(job_id):
+                log.exception("job %s failed", job_id)
+                self.mark_failed(job_id, error_message(err), on_failure)
+            else:  # a cancelled task's own exception (tasks.TaskCancelled, a killed worker): expected
+                log.info("job %s was stopped while running (%s)", job_id, type(err).__name__)
+        finally:
+            with self._events_lock:
+                self._stop_events.pop(job_id, None)
 
     def _mark_running(self, job_id: int) -> bool:
         with self.db.transaction() as session:
@@ -189,6 +247,44 @@ class JobRunner:
             job.state, job.error, job.finished_at = "failed", message, utcnow()
             if on_failure:
                 on_failure(session, message)
+
+    def cancel(self, job_id: int, reason: str = "cancelled by request") -> Job:
+        """Cancel a queued or running job: state "cancelled" with ``reason`` and the `on_stale` hooks in one
+        transaction; the thread running it (in this process, or found by `JobContext.finished` in another)
+        then stops its executor tasks.  Cancelling a cancelled job changes nothing.
+
+        Raises
+        ------
+        NotFound
+            No such job.
+        Conflict
+            The job already succeeded or failed.
+        """
+        with self.db.transaction() as session:
+            job = session.get(Job, job_id, with_for_update=True)
+            if job is None:
+                raise NotFound(f"job {job_id} not found")
+            if job.state in ACTIVE:
+                job.state, job.error, job.finished_at = "cancelled", reason, utcnow()
+                for hook in self.on_stale:
+                    hook(session, [job_id], reason)
+            elif job.state != "cancelled":
+                raise Conflict(f"job {job_id} already {job.state}; only queued or running jobs can be cancelled")
+        with self._events_lock:
+            event = self._stop_events.get(job_id)
+        if event is not None:
+            event.set()
+        return job
+
+    def stop_event(self, job_id: int) -> threading.Event:
+        """Set when job ``job_id``, run by this process, must stop (`cancel`)."""
+        with self._events_lock:
+            return self._stop_events.setdefault(job_id, threading.Event())
+
+    def is_running(self, job_id: int) -> bool:
+        """Whether the job's row still says "running"."""
+        with self.db.transaction() as session:
+            return session.scalar(select(Job.state).where(Job.id == job_id)) == "running"
 
     def set_progress(self, job_id: int, fraction: float) -> None:
         """Write a running job's progress, clipped to 0..1."""
@@ -237,10 +333,15 @@ def _dead_here(owner: str | None) -> bool:
         return False
 
 
+# an absolute POSIX path not glued to a word ("m/s" is no path): its folders are the server's business
+ABSOLUTE_PATH = re.compile(r"(?<![\w.~])/(?:[^\s'\"/:,;()]+/)+(?=[^\s'\"/:,;()]*)")
+
+
 def error_message(err: BaseException) -> str:
     """What a failed job records of ``err``: its message (prefixed by its kind when unexpected), at most
-    ERROR_CHARS characters; never a traceback."""
+    ERROR_CHARS characters; never a traceback, and no server folder (GET /jobs/{id} needs no key): an
+    absolute path keeps only its file name ("/srv/learnest/blobs/ab/cd" -> ".../cd")."""
     text = str(err) or type(err).__name__
     if not isinstance(err, (ValueError, LookupError)):  # unexpected: name the kind of failure
         text = f"{type(err).__name__}: {text}"
-    return text[:ERROR_CHARS]
+    return ABSOLUTE_PATH.sub(".../", text)[:ERROR_CHARS]

@@ -39,7 +39,7 @@ def open_services(settings: Settings, executor: Executor | None = None) -> Servi
     db = Database(settings.url)
     db.migrate()
     blobs = BlobStore(settings.home / "blobs")
-    runner = JobRunner(db)
+    runner = JobRunner(db, cancel_grace_s=settings.cancel_grace_s)
     runner.on_stale.append(registry.fail_versions_of_jobs)
     runner.start()
     owns = executor is None

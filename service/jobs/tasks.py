@@ -1,7 +1,8 @@
 """The functions that run in executor processes (pool workers, Dask workers): training, one flight's
 evaluation, a diagnosis.  Each takes and returns bytes and JSON-able values (flight and model bytes travel
 with the task), so a remote worker needs no access to the blob folder; training writes its own progress
-(`report_progress`) when the worker can reach the database.
+(`report_progress`) when the worker can reach the database, and stops (`TaskCancelled`) as soon as it finds
+its job no longer running (cancelled): the worker is then free for the next task.
 """
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from learnest.ingest.flight import Flight, json_compatible
 from learnest.models.knode import HybridModel
 
 from .. import registry
-from ..storage.database import Database
+from ..storage.database import Database, dml_rowcount
 from ..storage.tables import Job
 from .executors import init_worker
 
@@ -26,18 +27,24 @@ _worker_databases: dict[str, Database] = {}
 PROGRESS_EVERY_S = 1.0
 
 
-def report_progress(target: tuple[str, int] | None, fraction: float) -> None:
-    """Write a job's progress from a worker; best effort (a remote Dask worker may not reach the DB)."""
+class TaskCancelled(RuntimeError):
+    """The task's job is no longer running (cancelled, or failed by a sweep): its work is dropped."""
+
+
+def report_progress(target: tuple[str, int] | None, fraction: float) -> bool:
+    """Write a job's progress from a worker; best effort (a remote Dask worker may not reach the DB).
+    Returns False only when the database says the job is no longer running."""
     if target is None:
-        return
+        return True
     url, job_id = target
     try:
         database = _worker_databases.get(url) or _worker_databases.setdefault(url, Database(url))
         with database.transaction() as session:
-            session.execute(update(Job).where(Job.id == job_id, Job.state == "running")
-                            .values(progress=max(0.0, min(1.0, fraction))))
+            return bool(dml_rowcount(session.execute(update(Job).where(Job.id == job_id, Job.state == "running")
+                                                     .values(progress=max(0.0, min(1.0, fraction))))))
     except Exception:
         log.debug("progress of job %s not written", job_id, exc_info=True)
+        return True
 
 
 def train_task(flight_bytes: bytes, config: dict, progress_target: tuple[str, int] | None = None,
@@ -46,7 +53,8 @@ def train_task(flight_bytes: bytes, config: dict, progress_target: tuple[str, in
 
     ``config`` holds `TrainingConfig`'s fields; ``meta`` is added to the model's meta.  Returns
     ``model_json``, ``losses``, ``seconds``, ``library_versions``, ``code_version`` and ``metrics``.
-    The worker exits if its parent process dies.
+    The worker exits if its parent process dies; `TaskCancelled` when the job stops running (checked with
+    each progress report, about every PROGRESS_EVERY_S).
     """
     from learnest.models.training import TrainingConfig
 
@@ -60,7 +68,8 @@ def train_task(flight_bytes: bytes, config: dict, progress_target: tuple[str, in
             os._exit(1)             # (and nobody is left to read an exception)
         if time.monotonic() - last[0] >= PROGRESS_EVERY_S:
             last[0] = time.monotonic()
-            report_progress(progress_target, 0.99 * (epoch + 1) / config["epochs"])
+            if not report_progress(progress_target, 0.99 * (epoch + 1) / config["epochs"]):
+                raise TaskCancelled(f"job {progress_target and progress_target[1]} is no longer running")
 
     hyper = dict(config)
     system = hyper.pop("system", "quadrotor")

@@ -9,8 +9,9 @@ from learnest.errors import InvalidInput
 from learnest.models.presets import CRAZYFLIE_TRAINING
 
 from .. import registry
-from ..storage.database import get_row
+from ..storage.database import discard_blobs, get_row
 from ..storage.tables import FlightRecord, Job, ModelVersion, utcnow
+from . import quotas
 from .runner import JobContext
 from .services import Services
 from .tasks import train_task
@@ -31,7 +32,8 @@ def start_training(services: Services, name: str, flight_id: int, overrides: dic
     Raises
     ------
     InvalidInput
-        For a bad name, or a flight that failed the quality checks without ``include_bad``.
+        For a bad name, or a flight that failed the quality checks without ``include_bad``;
+        `quotas.QuotaExceeded` for more epochs, hidden units or work than the settings allow.
     NotFound
         If the flight or the parent does not exist.
     Conflict
@@ -46,7 +48,9 @@ def start_training(services: Services, name: str, flight_id: int, overrides: dic
         if parent is not None:
             resolved = registry.resolve(session, parent)
             parent = f"{resolved.name}:{resolved.version}"
+        samples = flight.samples
     config = training_config(overrides)
+    quotas.check_training(services.settings, epochs=config["epochs"], hidden=config["hidden"], samples=samples)
     for attempt in range(20):  # another request may take the same version number first
         try:
             with services.db.transaction() as session:
@@ -74,20 +78,26 @@ def run_training(services: Services, ctx: JobContext, version_id: int) -> None:
             raise InvalidInput(f"training flight {version.training_flight_id} was deleted")
         meta = {"name": version.name, "version": version.version, "training_flight_id": flight.id}
         config, blob = dict(version.hyperparameters), flight.flight_blob
-    out = services.executor.submit(train_task, services.blobs.read_bytes(blob), config, ctx.progress_target,
-                                   meta).result()
-    with services.blobs.writing():  # the weights blob exists before the row that names it commits
-        weights = services.blobs.put_bytes(out["model_json"])
-        with services.db.transaction() as session:
-            version = get_row(session, ModelVersion, version_id, "model version", for_update=True)
-            version.status, version.weights_blob, version.ready_at = "ready", weights, utcnow()
-            version.prior = registry.prior_of(out["model_json"])
-            version.losses, version.training_seconds = out["losses"], out["seconds"]
-            version.metrics, version.code_version = out["metrics"], out["code_version"]
-            version.library_versions = out["library_versions"]
-            ctx.complete(session, {"name": version.name, "version": version.version,
-                                   "final_loss": out["losses"][-1] if out["losses"] else None,
-                                   "seconds": out["seconds"]})
+    out = ctx.wait(services.executor, services.executor.submit(train_task, services.blobs.read_bytes(blob), config,
+                                                               ctx.progress_target, meta))
+    weights = None
+    try:
+        with services.blobs.writing():  # the weights blob exists before the row that names it commits
+            weights = services.blobs.put_bytes(out["model_json"])
+            with services.db.transaction() as session:
+                version = get_row(session, ModelVersion, version_id, "model version", for_update=True)
+                version.status, version.weights_blob, version.ready_at = "ready", weights, utcnow()
+                version.prior = registry.prior_of(out["model_json"])
+                version.losses, version.training_seconds = out["losses"], out["seconds"]
+                version.metrics, version.code_version = out["metrics"], out["code_version"]
+                version.library_versions = out["library_versions"]
+                ctx.complete(session, {"name": version.name, "version": version.version,
+                                       "final_loss": out["losses"][-1] if out["losses"] else None,
+                                       "seconds": out["seconds"]})
+    except BaseException:  # cancelled at the last moment, or the row failed: no weights without their version
+        if weights is not None:
+            discard_blobs(services.db, services.blobs, [weights])
+        raise
 
 
 def _fail_version(session: Session, version_id: int, message: str) -> None:

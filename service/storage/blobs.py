@@ -9,24 +9,60 @@ Deleting is the only way to break that order (a blob could be unlinked between a
 already present and its row commit), so writers hold a shared lock (`writing()`) from their first blob to
 their commit and `collect` takes the exclusive lock.  The lock is fcntl.flock on root/.lock: it works
 across threads and processes (several uvicorn workers) of one machine.
+
+A blob folder that cannot be written (full, read-only) is a `StorageUnavailable` (HTTP 507) that names the
+problem but not the server's folders; whatever the failed write had put in place is removed again.
+
+Temp entries are named "<host>-<pid>-..." after the process writing them: when the store is opened, those of
+processes of this host that no longer run (a crashed upload) are removed, and any entry older than an hour.
 """
 from __future__ import annotations
 
+import errno
 import fcntl
 import hashlib
+import logging
 import os
 import re
 import shutil
+import socket
 import tempfile
 import time
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from learnest.errors import LearnestError
 from learnest.ingest.flight import sha256_file
+
+log = logging.getLogger("learnest.storage")
 
 SHA256 = re.compile(r"^[0-9a-f]{64}$")
 CHUNK = 1 << 20
+STALE_TEMP_S = 3600.0   # temp entries this old go whoever wrote them
+
+
+class StorageUnavailable(LearnestError):
+    """The blob folder cannot be written (no space left, read-only, ...): HTTP 507 Insufficient Storage."""
+
+    status = 507
+
+
+@contextmanager
+def storage_errors(what: str = "store the files") -> Iterator[None]:
+    """Turn an OSError while writing to the blob folder into `StorageUnavailable`: the reason, not the path."""
+    try:
+        yield
+    except OSError as err:
+        reason = err.strerror or errno.errorcode.get(err.errno or 0) or type(err).__name__
+        log.error("blob folder write failed: %s", err)
+        raise StorageUnavailable(f"the server cannot {what} right now: its storage says {reason!r}; "
+                                 "nothing was stored (tell the server's operator)") from None
+
+
+def temp_prefix() -> str:
+    """"<host>-<pid>-": names this process as the writer of a temp entry."""
+    return f"{socket.gethostname()}-{os.getpid()}-"
 
 
 def sha256_bytes(data: bytes) -> str:
@@ -37,7 +73,8 @@ def sha256_bytes(data: bytes) -> str:
 class BlobStore:
     """A content-addressed blob folder (module docstring): blobs named by the sha256 of their bytes.
 
-    Creating one makes ``root/.tmp`` and ``root/.lock`` if needed and removes temp files older than an hour.
+    Creating one makes ``root/.tmp`` and ``root/.lock`` if needed and removes the temp entries of processes
+    that no longer run and those older than an hour (module docstring).
 
     Parameters
     ----------
@@ -53,15 +90,20 @@ class BlobStore:
         self._lock_path.touch(exist_ok=True)
         self._remove_stale_temp_files()
 
-    def _remove_stale_temp_files(self, older_than_s: float = 3600.0) -> None:
-        """Left by a crash mid-upload; only old ones (another worker may be uploading right now)."""
-        cutoff = time.time() - older_than_s
+    def _remove_stale_temp_files(self, older_than_s: float = STALE_TEMP_S) -> list[str]:
+        """Left by a crash mid-upload: those of dead writers of this host, and old ones (another process may
+        be uploading right now).  Returns the names removed."""
+        cutoff, removed = time.time() - older_than_s, []
         for path in self.tmp.iterdir():
             try:
-                if path.lstat().st_mtime < cutoff:
+                if _writer_is_gone(path.name) or path.lstat().st_mtime < cutoff:
                     shutil.rmtree(path) if path.is_dir() else path.unlink()
+                    removed.append(path.name)
             except OSError:
                 pass
+        if removed:
+            log.warning("removed %d temp entr(ies) left in %s by interrupted uploads", len(removed), self.tmp.name)
+        return removed
 
     # -- addressing -------------------------------------------------------------------------------------
     def path(self, sha: str) -> Path:
@@ -81,33 +123,48 @@ class BlobStore:
     # -- writing ----------------------------------------------------------------------------------------
     @contextmanager
     def temp_dir(self) -> Iterator[Path]:
-        """A private scratch folder on the blob file system (so `put_file` can rename, not copy)."""
-        with tempfile.TemporaryDirectory(dir=self.tmp) as directory:
+        """A private scratch folder on the blob file system (so `put_file` can rename, not copy), named
+        after this process; `StorageUnavailable` if it cannot be made."""
+        with storage_errors("accept uploads"):
+            scratch = tempfile.TemporaryDirectory(dir=self.tmp, prefix=temp_prefix(), ignore_cleanup_errors=True)
+        with scratch as directory:
             yield Path(directory)
 
     def put_bytes(self, data: bytes) -> str:
-        """Store ``data`` atomically; returns its sha256 (an existing blob with that content is kept)."""
-        fd, name = tempfile.mkstemp(dir=self.tmp)
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
+        """Store ``data`` atomically; returns its sha256 (an existing blob with that content is kept).
+        `StorageUnavailable` when the folder cannot take it (the temp file is removed)."""
+        with storage_errors():
+            fd, name = tempfile.mkstemp(dir=self.tmp, prefix=temp_prefix())
+            try:
+                with os.fdopen(fd, "wb") as handle:
+                    handle.write(data)
+            except OSError:
+                Path(name).unlink(missing_ok=True)
+                raise
         return self.put_file(Path(name), sha256_bytes(data))
 
     def put_file(self, source: Path, sha: str | None = None) -> str:
         """Move `source` (on this file system) into the store; returns its sha256.
 
         ``sha`` is trusted when given (computed from the file otherwise).  ``source`` is consumed either way:
-        renamed into place, or deleted when that content is already stored.
+        renamed into place, or deleted when that content is already stored (or when storing fails:
+        `StorageUnavailable`).
         """
-        sha = sha or sha256_file(source)
-        with open(source, "rb") as handle:
-            os.fsync(handle.fileno())
-        target = self.path(sha)
-        target.parent.mkdir(exist_ok=True)
-        if target.exists():  # same content already stored: keep the existing file
-            source.unlink()
-        else:
-            os.replace(source, target)
-            _fsync_dir(target.parent)
+        with storage_errors():
+            try:
+                sha = sha or sha256_file(source)
+                with open(source, "rb") as handle:
+                    os.fsync(handle.fileno())
+                target = self.path(sha)
+                target.parent.mkdir(exist_ok=True)
+                if target.exists():  # same content already stored: keep the existing file
+                    source.unlink()
+                else:
+                    os.replace(source, target)
+                    _fsync_dir(target.parent)
+            except OSError:
+                source.unlink(missing_ok=True)
+                raise
         return sha
 
     @contextmanager
@@ -118,13 +175,19 @@ class BlobStore:
 
     # -- deleting ---------------------------------------------------------------------------------------
     def collect(self, candidates: Iterable[str], is_referenced: Callable[[str], bool]) -> list[str]:
-        """Delete the candidate blobs no row references (checked under the exclusive lock)."""
+        """Delete the candidate blobs no row references (checked under the exclusive lock).  A blob that
+        cannot be deleted (read-only folder) is logged and left: an orphan is harmless, and the next
+        collect (the server's start-up sweep) removes it."""
         removed = []
         with self._flock(fcntl.LOCK_EX):
             for sha in set(candidates):
                 path = self.path(sha)
                 if path.exists() and not is_referenced(sha):
-                    path.unlink()
+                    try:
+                        path.unlink()
+                    except OSError as err:
+                        log.warning("blob %s not removed (%s); the next sweep retries", sha[:12], err.strerror)
+                        continue
                     removed.append(sha)
         return removed
 
@@ -143,6 +206,20 @@ class BlobStore:
                 yield
             finally:
                 fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def _writer_is_gone(name: str) -> bool:
+    """A temp entry named by `temp_prefix` whose process, on this host, no longer runs."""
+    host, pid, rest = (["", "", ""] + name.rsplit("-", 2))[-3:]  # the host name may hold "-"; the rest cannot
+    if host != socket.gethostname() or not pid.isdigit() or not rest:
+        return False
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:  # alive, someone else's
+        return False
+    return False
 
 
 def _fsync_dir(directory: Path) -> None:

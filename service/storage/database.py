@@ -11,7 +11,7 @@ import json
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, TypeVar, cast
+from typing import TYPE_CHECKING, Any, TypeVar, cast
 
 from alembic.config import Config
 from sqlalchemy import CursorResult, create_engine, event, exists, or_, select, text
@@ -23,6 +23,9 @@ from learnest.errors import Conflict, NotFound
 from learnest.ingest.flight import json_compatible
 
 from .tables import Base, FlightFile, FlightRecord, ModelVersion
+
+if TYPE_CHECKING:
+    from .blobs import BlobStore
 
 MIGRATIONS = Path(__file__).resolve().parent / "migrations"
 
@@ -45,6 +48,12 @@ def blob_is_referenced(db: Database, sha: str) -> bool:
         return bool(session.scalar(select(or_(exists().where(FlightRecord.flight_blob == sha),
                                               exists().where(FlightFile.sha256 == sha),
                                               exists().where(ModelVersion.weights_blob == sha)))))
+
+
+def discard_blobs(db: Database, blobs: BlobStore, shas: Iterable[str]) -> list[str]:
+    """Remove blobs a failed write left behind (no row names them); best effort, never raises OSError (a blob
+    that stays is an orphan the server's start-up sweep removes).  Call it outside `BlobStore.writing`."""
+    return blobs.collect([sha for sha in shas if sha], lambda sha: blob_is_referenced(db, sha))
 
 
 # -- the database handle ------------------------------------------------------------------------------

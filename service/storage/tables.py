@@ -114,7 +114,7 @@ class ModelAlias(Base):
 
 class Job(Base):
     """A background job: ``kind`` training/evaluation/diagnosis, ``state`` queued -> running -> succeeded |
-    failed, ``progress`` 0..1, ``owner`` the server process running it."""
+    failed | cancelled, ``progress`` 0..1, ``owner`` the server process running it."""
 
     __tablename__ = "jobs"
     __table_args__ = {"sqlite_autoincrement": True}  # an id is never handed out twice (see 0003)

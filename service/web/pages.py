@@ -5,10 +5,12 @@ Pages   /                       flights (newest first) and the upload form
         /ui/models              registered models
         /ui/models/{name}       versions, aliases (+ form), loss curves, evaluations, evaluate form
         /ui/jobs, /ui/jobs/{id} state and progress; a job page reloads itself every second until it is done
+                                and has a cancel button while it is
         /evaluations/{id}/report.html
                                 the Fig. 3-style box plot, per-flight MSE table, estimated vs reference velocity
                                 of one chosen flight (documented in the OpenAPI schema with the JSON report)
-Forms   POST /ui/flights, /ui/models, /ui/evaluations, /ui/models/{name}/aliases take the same request models
+Forms   POST /ui/flights, /ui/models, /ui/evaluations, /ui/models/{name}/aliases, /ui/jobs/{id}/cancel take the
+        same request models
         as the JSON routes (service.web.forms), call the same service functions (service.uploads,
         service.jobs, service.catalog) and answer 303 to the page of what they made, or an HTML error page
         with the API's status code and message.
@@ -220,15 +222,27 @@ def jobs_page(services: Services = Depends(get_services)):
 
 @pages.get("/ui/jobs/{job_id}", response_class=HTMLResponse)
 @html_errors
-def job_page(job_id: RowId, services: Services = Depends(get_services)):
-    """A job's page: state, progress and result; reloads every second while the job is active."""
+def job_page(request: Request, job_id: RowId, services: Services = Depends(get_services)):
+    """A job's page: state, progress and result; reloads every second while the job is active (and offers
+    to cancel it)."""
     job = catalog.get_job(services.db, job_id)
     evaluation = catalog.evaluation_of_job(services.db, job_id)
-    active = job.state in ACTIVE
-    return page("job.html", f"Job {job.id}", refresh_s=1 if active else None, job=job, active=active,
-                subject=job_subject(job), evaluation=evaluation,
+    active, key = job.state in ACTIVE, forms.key_state(request, services.settings)
+    # no reload while the cancel form asks for the key: a reload every second would wipe it mid-typing
+    return page("job.html", f"Job {job.id}", refresh_s=1 if active and key != "ask" else None, job=job,
+                active=active, subject=job_subject(job), evaluation=evaluation, key=key,
                 model_name=evaluation.model_ref.split(":", 1)[0] if evaluation else None,
                 result=json.dumps(job.result, indent=1) if job.result else None)
+
+
+@pages.post("/ui/jobs/{job_id}/cancel")
+@html_errors
+def cancel_job_form(request: Request, job_id: RowId, api_key: str = Form(""),
+                    services: Services = Depends(get_services)):
+    """Cancel button: cancel the job (as POST /jobs/{id}/cancel does), then 303 back to its page."""
+    forms.require_key(request, services.settings, api_key)
+    services.runner.cancel(job_id)
+    return forms.redirect(f"/ui/jobs/{job_id}", services.settings, api_key)
 
 
 def job_subject(job: Job) -> str:

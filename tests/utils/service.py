@@ -95,7 +95,7 @@ def wait_for_job(client: TestClient, job_id: int, timeout: float = 120.0) -> dic
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         job = client.get(f"/jobs/{job_id}").json()
-        if job["state"] in ("succeeded", "failed"):
+        if job["state"] in ("succeeded", "failed", "cancelled"):
             return job
         time.sleep(0.1)
     raise AssertionError(f"job {job_id} still {job['state']} after {timeout} s")

@@ -1,4 +1,4 @@
-"""/jobs: the state, progress and result of long work (training, evaluations, diagnoses)."""
+"""/jobs: the state, progress and result of long work (training, evaluations, diagnoses), and cancelling it."""
 from __future__ import annotations
 
 from typing import Literal
@@ -6,9 +6,10 @@ from typing import Literal
 from fastapi import APIRouter, Depends, Query
 
 from ... import catalog
+from ...jobs.services import Services
 from ...storage.database import Database
 from ...storage.tables import Job
-from ..deps import Offset, RowId, get_db
+from ..deps import Offset, RowId, get_db, get_services, require_api_key
 from ..schemas import JobOut
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
@@ -27,8 +28,17 @@ def job_detail(job_id: RowId, db: Database = Depends(get_db)):
     return job_out(catalog.get_job(db, job_id))
 
 
+@router.post("/{job_id}/cancel", response_model=JobOut, dependencies=[Depends(require_api_key)],
+             responses={404: {"description": "no such job"}, 409: {"description": "the job already finished"}})
+def cancel_job(job_id: RowId, services: Services = Depends(get_services)):
+    """Cancel a queued or running job: it is "cancelled" in this answer, its worker stops (a running task gets
+    LEARNEST_CANCEL_GRACE_S to stop, then is killed) and nothing it computed is stored; a training job's
+    reserved version is failed.  Cancelling a cancelled job changes nothing; 409 for a finished one."""
+    return job_out(services.runner.cancel(job_id))
+
+
 @router.get("", response_model=dict)
-def list_jobs(state: Literal["queued", "running", "succeeded", "failed"] | None = None,
+def list_jobs(state: Literal["queued", "running", "succeeded", "failed", "cancelled"] | None = None,
               kind: str | None = None, limit: int = Query(50, ge=1, le=500), offset: Offset = 0,
               db: Database = Depends(get_db)):
     """Newest first."""
