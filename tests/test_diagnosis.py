@@ -132,6 +132,20 @@ def test_a_tilt_at_constant_thrust_is_reported_with_bias_as_confounded(tmp_path,
     assert f"alternative: {rival} with" in text and "cannot tell apart" in text
 
 
+def test_a_z_scale_on_fast_vertical_motion_is_not_inflated_by_the_reference_smoothing(tmp_path):
+    """Issue 13: the mocap reference is smoothed; the accelerometer must be compared after the same filter, or
+    fast motion is attenuated on one side only and every gain comes back too large (1.08 read as 1.131)."""
+    sensors = SensorModel(scale=(1.0, 1.0, 1.08), lowpass_hz=30.0)
+    fast_climbs = RandomWaypoints(count=10, speed=2.0, box=((-0.5, 0.5), (-0.5, 0.5), (0.3, 1.8)), seed=0)
+    sim = simulate(fast_climbs, sensors=sensors, seed=0, name="climbs")
+    selection = select_effects(accelerometer_problem(read_flights(write_flight(sim, "usd-v1", tmp_path, "climbs"))))
+    found = _first(selection, "accel_scale")
+    assert abs(found["params"]["scale_z"] - 1.08) < 0.2 * 0.08
+    for effect in selection["effects"]:      # the sensor filter's lag, if reported, is reported as what it is
+        if effect["id"] == "accel_delay":
+            assert effect["params"]["delay_s"] == pytest.approx(sensors.accelerometer_group_delay_s(), abs=0.005)
+
+
 @pytest.mark.slow
 def test_cartpole_with_the_papers_cart_mass_error():
     result = diagnose_simulated("cartpole", "", seed=0, eval_samples=1500)
