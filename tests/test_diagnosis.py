@@ -16,6 +16,7 @@ from learnest.service.experiments.diagnosis import (
     diagnose_flights,
     diagnose_simulated,
     format_diagnosis,
+    unchanged_prior_note,
 )
 
 
@@ -130,6 +131,18 @@ def test_a_tilt_at_constant_thrust_is_reported_with_bias_as_confounded(tmp_path,
     text = format_diagnosis({"system": "quadrotor", "effects": [{**top, "channel": "accelerometer"}],
                              "confounded": selection["confounded"], "before": {}, "after": {}})
     assert f"alternative: {rival} with" in text and "cannot tell apart" in text
+
+
+def test_no_effect_but_a_moved_error_is_explained():
+    """With no effect the prior is unchanged: a KNODE method's error moves only because it was retrained,
+    and the report says so; prior-only estimators that did not move are not blamed, nothing moved: no note."""
+    same = {"system": "quadrotor", "effects": [], "confounded": [], "before": {"ukf": 1.0, "knode-ukf": 2.0}}
+    assert unchanged_prior_note({**same, "after": {"ukf": 1.0, "knode-ukf": 2.0}}) is None
+    note = unchanged_prior_note({**same, "after": {"ukf": 1.0, "knode-ukf": 2.24}})
+    assert note is not None and "knode-ukf" in note and "trained again" in note and "ukf," not in note
+    assert note in format_diagnosis({**same, "after": {"ukf": 1.0, "knode-ukf": 2.24}})
+    found = {**same, "effects": [{"id": "accel_bias"}]}
+    assert unchanged_prior_note({**found, "after": {"ukf": 0.5, "knode-ukf": 1.0}}) is None
 
 
 @pytest.mark.slow
