@@ -6,6 +6,7 @@ import contextlib
 import io
 import json
 
+import numpy as np
 import pytest
 from utils.service import FAST_METHODS, evaluate, running_app, settings_for, upload, wait_for_job
 
@@ -50,8 +51,6 @@ def assert_bias_found(report: dict) -> None:
 def assert_residual_series(series: dict) -> None:
     """The stored accelerometer residual of the held-out flight: its mean is the declared bias before the
     effects (the prior knows no bias) and about zero after; short enough to keep the report small."""
-    import numpy as np
-
     t, before, after = (np.asarray(series[k]) for k in ("t", "before", "after"))
     assert series["units"] == "m/s²" and series["flight"] == "b_cf_1"
     assert 100 < len(t) <= 1000 and before.shape == after.shape == (len(t), 3) and np.all(np.diff(t) > 0)
@@ -187,6 +186,15 @@ def test_post_diagnoses_with_the_crazyflie_prior(tmp_path):
         assert report["system"] == "crazyflie" and report["prior"]["params"]["gamma"] == cf.IDENTIFIED["gamma"]
         assert report["effects"][0]["id"] == "battery_thrust"
         assert report["effects"][0]["nominal"] == {"gamma": cf.IDENTIFIED["gamma"]}
+        # the held-out flight's specific force from the inputs: the wrong exponent leaves a residual that the
+        # fitted one removes, the same numbers as the report's specific_force_rmse
+        series = report["residual_series"]["specific force"]
+        rms = {k: float(np.sqrt(np.mean(np.square(series[k])))) for k in ("before", "after")}
+        assert rms["after"] < 0.7 * rms["before"]
+        assert rms["before"] == pytest.approx(report["before"]["specific_force_rmse"], rel=0.1)
+        page = client.get(f"/diagnoses/{accepted.json()['diagnosis_id']}/report.html").text
+        assert "<b class='effect-id'>battery_thrust</b>" in page and "id='residual-series'" in page
+        assert "id='candidates'" in page and "gamma = " in page
 
         failing = client.post("/diagnoses", json={**body, "flights": [ids[2], ids[0]]})
         job = wait_for_job(client, failing.json()["job_id"])

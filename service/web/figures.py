@@ -150,7 +150,7 @@ def residual_before_after(diagnosis: dict) -> Figure:
     if not series:
         draw_summary(fig, diagnosis)
         return fig
-    top, bottom = fig.subfigures(2, 1, height_ratios=[4, 1.8 * rows])
+    top, bottom = np.ravel(fig.subfigures(2, 1, height_ratios=[4, 1.8 * rows]))
     draw_summary(top, diagnosis)
     draw_residual_series(bottom, series)
     return fig
