@@ -11,7 +11,7 @@ import base64
 import functools
 import io
 import os
-from typing import IO, TYPE_CHECKING
+from typing import IO, TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -150,7 +150,8 @@ def residual_before_after(diagnosis: dict) -> Figure:
     if not series:
         draw_summary(fig, diagnosis)
         return fig
-    top, bottom = np.ravel(fig.subfigures(2, 1, height_ratios=[4, 1.8 * rows]))
+    # two rows give an array of SubFigures (the stubs also allow a single one)
+    top, bottom = cast("np.ndarray", fig.subfigures(2, 1, height_ratios=[4, 1.8 * rows]))
     draw_summary(top, diagnosis)
     draw_residual_series(bottom, series)
     return fig
