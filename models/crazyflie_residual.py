@@ -161,7 +161,8 @@ def crazyflie_problem(flights: list[Flight], prior: dict | None = None, name: st
     if low < MIN_GROUND_SAMPLES:
         frozen["r_m"] = (f"only {low} samples below {GROUND_EFFECT_HEIGHT_M:.2f} m: ground effect is not "
                          f"identifiable on these flights and r_m is held at the prior's value")
-    return ResidualProblem(name, candidates, residual, int(offsets[-1]), blocks, frozen)
+    times = np.concatenate([d.t[d.rows] for d in data])
+    return ResidualProblem(name, candidates, residual, int(offsets[-1]), blocks, frozen, times)
 
 
 def specific_force_rmse(problem: ResidualProblem, values: dict | None = None) -> float:

@@ -51,6 +51,8 @@ class ResidualProblem:
         Held-out row blocks of the cross-validation (flights or time); default 5 contiguous blocks.
     frozen : dict
         Parameter name -> why the data cannot identify it; such parameters stay nominal.
+    times : ndarray, optional
+        (n_rows,) time of each row, s, where rows are samples of a flight (for plotting the residual).
     """
 
     name: str
@@ -59,6 +61,7 @@ class ResidualProblem:
     n_rows: int
     blocks: list = field(default_factory=list)   # held-out blocks (row index arrays): flights or time
     frozen: dict = field(default_factory=dict)   # param name -> why the data cannot identify it (kept nominal)
+    times: np.ndarray | None = None              # (n_rows,) s, when rows are samples in time
 
     def __post_init__(self):
         if not self.blocks:

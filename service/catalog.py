@@ -16,8 +16,8 @@ from sqlalchemy import ColumnElement, func, select
 from learnest.errors import Conflict, NotFound
 
 from . import registry
-from .storage.database import Database
-from .storage.tables import Evaluation, FlightRecord, Job, ModelVersion, RegisteredModel
+from .storage.database import Database, flights_by_id
+from .storage.tables import Diagnosis, Evaluation, FlightRecord, Job, ModelVersion, RegisteredModel
 
 
 # -- flights ---------------------------------------------------------------------------------------------
@@ -32,6 +32,13 @@ def _get(db: Database, table, row_id: int, what: str):
 def get_flight(db: Database, flight_id: int) -> FlightRecord:
     """The flight row with its files; NotFound when there is none."""
     return _get(db, FlightRecord, flight_id, "flight")
+
+
+def flight_names(db: Database, flight_ids: list[int]) -> list[tuple[int, str | None]]:
+    """(id, name) of each flight in order; the name is None for a flight deleted since."""
+    with db.transaction() as session:
+        found = flights_by_id(session, flight_ids)
+    return [(i, found[i].name if i in found else None) for i in flight_ids]
 
 
 def list_flights(db: Database, *conditions: ColumnElement[bool], limit: int, offset: int = 0,
@@ -146,6 +153,12 @@ def evaluation_of_job(db: Database, job_id: int) -> Evaluation | None:
     """The evaluation a job computes, if it is an evaluation job."""
     with db.transaction() as session:
         return session.scalar(select(Evaluation).where(Evaluation.job_id == job_id))
+
+
+def diagnosis_of_job(db: Database, job_id: int) -> Diagnosis | None:
+    """The diagnosis a job computes, if it is a diagnosis job."""
+    with db.transaction() as session:
+        return session.scalar(select(Diagnosis).where(Diagnosis.job_id == job_id))
 
 
 def evaluations_of(db: Database, versions: list[ModelVersion], limit: int) -> list[tuple[Evaluation, Job | None]]:

@@ -419,7 +419,8 @@ def build_parser() -> argparse.ArgumentParser:
     dia.add_argument("--methods", default="ukf,knode-ukf", help="estimators scored before and after")
     dia.add_argument("--epochs", type=_positive_int, default=None)
     dia.add_argument("--json", action="store_true")
-    dia.add_argument("--plot", metavar="PNG", type=_new_file, help="residual and MSE before/after")
+    dia.add_argument("--plot", metavar="PNG", type=_new_file,
+                     help="residual over time and held-out error before/after (linear axes)")
     dia.add_argument("--rate", type=_positive_float, default=100.0)
     _add_topic_arguments(dia)
     dia.set_defaults(func=_diagnose)

@@ -16,6 +16,7 @@ from learnest.service.experiments.diagnosis import (
     diagnose_flights,
     diagnose_simulated,
     format_diagnosis,
+    unchanged_prior_note,
 )
 
 
@@ -144,6 +145,18 @@ def test_a_z_scale_on_fast_vertical_motion_is_not_inflated_by_the_reference_smoo
     for effect in selection["effects"]:      # the sensor filter's lag, if reported, is reported as what it is
         if effect["id"] == "accel_delay":
             assert effect["params"]["delay_s"] == pytest.approx(sensors.accelerometer_group_delay_s(), abs=0.005)
+
+
+def test_no_effect_but_a_moved_error_is_explained():
+    """With no effect the prior is unchanged: a KNODE method's error moves only because it was retrained,
+    and the report says so; prior-only estimators that did not move are not blamed, nothing moved: no note."""
+    same = {"system": "quadrotor", "effects": [], "confounded": [], "before": {"ukf": 1.0, "knode-ukf": 2.0}}
+    assert unchanged_prior_note({**same, "after": {"ukf": 1.0, "knode-ukf": 2.0}}) is None
+    note = unchanged_prior_note({**same, "after": {"ukf": 1.0, "knode-ukf": 2.24}})
+    assert note is not None and "knode-ukf" in note and "trained again" in note and "ukf," not in note
+    assert note in format_diagnosis({**same, "after": {"ukf": 1.0, "knode-ukf": 2.24}})
+    found = {**same, "effects": [{"id": "accel_bias"}]}
+    assert unchanged_prior_note({**found, "after": {"ukf": 0.5, "knode-ukf": 1.0}}) is None
 
 
 @pytest.mark.slow

@@ -6,6 +6,7 @@ import contextlib
 import io
 import json
 
+import numpy as np
 import pytest
 from utils.service import FAST_METHODS, evaluate, running_app, settings_for, upload, wait_for_job
 
@@ -14,6 +15,7 @@ from learnest.ingest.sim import RandomWaypoints, SensorModel, simulate, write_fl
 
 BIAS = (0.3, -0.2, 0.25)
 EPOCHS = 3
+HOSTILE = "<b>cf&"   # uploaded file names are user text: they reach the diagnosis page only made safe
 
 
 @pytest.fixture(scope="module")
@@ -46,6 +48,44 @@ def assert_bias_found(report: dict) -> None:
     assert top["params"]["bias_x"] == pytest.approx(BIAS[0], rel=0.2)
 
 
+def assert_residual_series(series: dict) -> None:
+    """The stored accelerometer residual of the held-out flight: its mean is the declared bias before the
+    effects (the prior knows no bias) and about zero after; short enough to keep the report small."""
+    t, before, after = (np.asarray(series[k]) for k in ("t", "before", "after"))
+    assert series["units"] == "m/s²" and series["flight"] == "b_cf_1"
+    assert 100 < len(t) <= 1000 and before.shape == after.shape == (len(t), 3) and np.all(np.diff(t) > 0)
+    np.testing.assert_allclose(before.mean(axis=0), BIAS, atol=0.05)
+    np.testing.assert_allclose(after.mean(axis=0), 0.0, atol=0.05)
+    assert np.sqrt(np.mean(after**2)) < 0.5 * np.sqrt(np.mean(before**2))
+
+
+def assert_diagnosis_page(client, diagnosis_id: int, job_id: int, report: dict) -> None:
+    """The report page shows every effect with its units and interval, the alternatives, both plots, the
+    before/after numbers, and escapes flight names; the job page links to it and to the registered version."""
+    import re
+
+    answer = client.get(f"/diagnoses/{diagnosis_id}/report.html")
+    assert answer.status_code == 200 and answer.headers["content-type"].startswith("text/html")
+    page = answer.text
+    for effect in report["effects"]:
+        assert f"<b class='effect-id'>{effect['id']}</b>" in page
+        for name, (lo, hi) in effect["ci95"].items():
+            unit = effect["units"][name].replace("&", "&amp;")
+            assert f"[{lo:.4g}, {hi:.4g}] {unit}" in page, (name, unit)
+        for alt in effect["alternatives"]:
+            assert f"<b>{alt['id']}</b> with" in page
+    assert re.search(r"<img id='residual-series' alt='[^']*' src='data:image/png;base64,", page)
+    assert re.search(r"<img id='diagnosis-summary' alt='[^']*' src='data:image/png;base64,", page)
+    for method in FAST_METHODS:
+        assert f"<b>{report['after'][method]:.4g}</b>" in page
+    assert "<b>cf" not in page and ">b_cf_0</a> (fitting), <a href='/ui/flights/2'>b_cf_1</a>" in page
+    assert "<a href='/ui/models/cf'>cf:1</a>" in page
+    job_page = client.get(f"/ui/jobs/{job_id}").text
+    assert f"href='/diagnoses/{diagnosis_id}/report.html'" in job_page
+    assert "id='registered-link' href='/ui/models/cf'" in job_page
+    assert client.get("/diagnoses/999/report.html").status_code == 404
+
+
 def test_post_diagnoses_registers_the_repaired_model(tmp_path, biased_logs):
     from learnest.service.experiments.flights import evaluate_flight
     from learnest.service.registry import load_model_ref
@@ -53,7 +93,8 @@ def test_post_diagnoses_registers_the_repaired_model(tmp_path, biased_logs):
     home = tmp_path / "home"
     with running_app(home, api_key="secret") as client:
         key = {"X-API-Key": "secret"}
-        ids = [upload(client, *paths, headers=key).json()["id"] for paths in biased_logs]
+        ids = [upload(client, *paths, names=[p.name.replace("biased", HOSTILE) for p in paths], headers=key).json()["id"]
+               for paths in biased_logs]
         body = {"flights": ids, "register": "cf", "epochs": EPOCHS}
         assert client.post("/diagnoses", json=body).status_code == 401
         assert client.post("/diagnoses", json={**body, "flights": []}, headers=key).status_code == 422
@@ -70,6 +111,8 @@ def test_post_diagnoses_registers_the_repaired_model(tmp_path, biased_logs):
         assert_bias_found(report)
         assert report["registered"] == {"name": "cf", "version": 1, "parent": None}
         assert set(report["before"]) == set(report["after"]) == set(FAST_METHODS)
+        assert_residual_series(report["residual_series"]["accelerometer"])
+        assert_diagnosis_page(client, accepted.json()["diagnosis_id"], accepted.json()["job_id"], report)
 
         version = client.get("/models/cf/versions/1").json()
         assert version["status"] == "ready" and version["training_flight"]["id"] == ids[0]
@@ -143,6 +186,15 @@ def test_post_diagnoses_with_the_crazyflie_prior(tmp_path):
         assert report["system"] == "crazyflie" and report["prior"]["params"]["gamma"] == cf.IDENTIFIED["gamma"]
         assert report["effects"][0]["id"] == "battery_thrust"
         assert report["effects"][0]["nominal"] == {"gamma": cf.IDENTIFIED["gamma"]}
+        # the held-out flight's specific force from the inputs: the wrong exponent leaves a residual that the
+        # fitted one removes, the same numbers as the report's specific_force_rmse
+        series = report["residual_series"]["specific force"]
+        rms = {k: float(np.sqrt(np.mean(np.square(series[k])))) for k in ("before", "after")}
+        assert rms["after"] < 0.7 * rms["before"]
+        assert rms["before"] == pytest.approx(report["before"]["specific_force_rmse"], rel=0.1)
+        page = client.get(f"/diagnoses/{accepted.json()['diagnosis_id']}/report.html").text
+        assert "<b class='effect-id'>battery_thrust</b>" in page and "id='residual-series'" in page
+        assert "id='candidates'" in page and "gamma = " in page
 
         failing = client.post("/diagnoses", json={**body, "flights": [ids[2], ids[0]]})
         job = wait_for_job(client, failing.json()["job_id"])

@@ -160,7 +160,7 @@ def test_unknown_ids_are_404(tmp_path):
                             ("delete", "/flights/999"), ("get", "/jobs/999"), ("get", "/models/nope"),
                             ("get", "/models/nope/versions/1"), ("get", "/models/nope/aliases/production"),
                             ("delete", "/models/nope/aliases/production"), ("get", "/evaluations/999"),
-                            ("get", "/evaluations/999/report.html")]:
+                            ("get", "/evaluations/999/report.html"), ("get", "/diagnoses/999/report.html")]:
             response = getattr(client, method)(url)
             assert response.status_code == 404, (method, url, response.text)
             assert "detail" in response.json()
@@ -263,7 +263,8 @@ def test_openapi_docs_are_served(tmp_path):
         assert client.get("/docs").status_code == 200
         paths = client.get("/openapi.json").json()["paths"]
         assert {"/flights", "/flights/{flight_id}/data", "/models", "/jobs/{job_id}", "/evaluations",
-                "/evaluations/{evaluation_id}/report.html", "/models/{name}/aliases/{alias}"} <= set(paths)
+                "/evaluations/{evaluation_id}/report.html", "/diagnoses/{diagnosis_id}/report.html",
+                "/models/{name}/aliases/{alias}"} <= set(paths)
 
 
 SAMPLE_LOGS = Path(__file__).resolve().parents[1] / "sample_logs"

@@ -64,6 +64,9 @@ DIAGNOSIS_SG_ORDER = 4
 # the delay (±10 ms on 15-s simulated flights without it, a few ms with it).
 DIAGNOSIS_LOWPASS_HZ = 8.0
 EDGE_S = 0.5               # SG references are least reliable at the ends of a record
+# The residual time series kept in the report for its plot: bin means down to at most this many points
+# per channel (3 axes before and after: ~60 kB of JSON), enough to see a bias or a drift leave.
+SERIES_POINTS = 1000
 
 
 # -- building the residual problems ------------------------------------------------------------------
@@ -114,8 +117,72 @@ def accelerometer_problem(flights: list[Flight], window: int = DIAGNOSIS_SG_WIND
 
     blocks = [np.arange(offsets[i], offsets[i + 1]) for i in range(len(pieces))] if len(pieces) > 1 else []
     frozen = unidentifiable_scales(np.concatenate([f[keep] for _, f, _, keep in pieces]))
+    times = np.concatenate([t[keep] for t, _, _, keep in pieces])
     return ResidualProblem("accelerometer", effects_for("quadrotor", "measurement"), residual,
-                           int(offsets[-1]), blocks, frozen)
+                           int(offsets[-1]), blocks, frozen, times)
+
+
+def residual_series(problem: ResidualProblem, values: dict, flight: str, points: int = SERIES_POINTS) -> dict:
+    """The residual of a one-flight problem over time, with the prior (before) and with the fitted effects
+    (after), for the report's plot.
+
+    Parameters
+    ----------
+    problem : ResidualProblem
+        One flight's problem with ``times``; its first 3 columns are plotted (body x, y, z, m/s²).
+    values : dict
+        The fitted parameter values {name: value}; parameters absent stay nominal.
+    flight : str
+        The flight's name, reported.
+    points : int
+        At most this many points: consecutive rows are averaged in equal bins (a mean, not a pick, so that
+        decimating a long flight does not alias the residual).
+
+    Returns
+    -------
+    dict
+        ``flight``, ``units`` "m/s²", ``axes`` ["x", "y", "z"], ``t`` (P,) s since the first row,
+        ``before`` and ``after`` (P, 3) lists, rounded to 0.1 mm/s².
+    """
+    if problem.times is None:
+        raise ValueError(f"residual_series: the {problem.name} problem has no row times")
+    nominal = {k: v for e in problem.candidates for k, v in e.nominal().items()}
+    rows = np.arange(problem.n_rows)
+    before = problem.residual(nominal, rows)[:, :3]
+    after = problem.residual({**nominal, **values}, rows)[:, :3]
+    step = -(-problem.n_rows // points)   # ceil: at most `points` bins
+    usable = problem.n_rows // step * step
+
+    def binned(a):
+        return a[:usable].reshape(usable // step, step, *a.shape[1:]).mean(axis=1)
+
+    t = problem.times - problem.times[0]
+    return {"flight": flight, "units": "m/s²", "axes": ["x", "y", "z"], "t": binned(t).round(3).tolist(),
+            "before": binned(before).round(4).tolist(), "after": binned(after).round(4).tolist()}
+
+
+def unchanged_prior_note(result: dict) -> str | None:
+    """Why the error moved although no effect was found (``None`` if an effect was found or nothing moved).
+
+    With no effect the prior is unchanged: what moves is the KNODE, trained again on top of the same prior
+    (a different optimisation run, or a fresh one in place of the model given), so the change is training
+    variability, not a missing effect.
+    """
+    if result["effects"]:
+        return None
+    moved = [m for m in result["after"] if m in result["before"]
+             and not np.isclose(result["after"][m], result["before"][m], rtol=1e-9, atol=0.0)]
+    if not moved:
+        return None
+    learned = [m for m in moved if m.startswith("knode")]
+    why = ("the prior is unchanged, but the KNODE on top of it was trained again (another optimisation run, "
+           "or a fresh one in place of the model given), so " + ", ".join(learned) + " reflect(s) training "
+           "variability, not a missing effect") if learned else ""
+    other = [m for m in moved if m not in learned]
+    if other:
+        why += ("; " if why else "") + (", ".join(other) + " moved with an unchanged prior: the estimator's "
+                                        "run is not reproducible (e.g. an MHE warm start), not an effect")
+    return "no effect found, yet the held-out error moved: " + why
 
 
 # -- simulated systems -----------------------------------------------------------------------------
@@ -278,7 +345,11 @@ def _diagnose_quadrotor(flights: list[Flight], knode: HybridModel | None, method
         "improved_flights": {m: f"{sum(p['after'][m] < p['before'][m] for p in per_flight)}/{len(per_flight)}"
                              for m in methods},
         "residuals": _residual_summary(fitting, fixed_fitting, accel, dynamics, knode_before),
-        "channels": {"accelerometer": _channel(accel), "translational dynamics": _channel(dynamics)}}
+        "channels": {"accelerometer": _channel(accel), "translational dynamics": _channel(dynamics)},
+        # the accelerometer residual on the first held-out flight, before and after its effects
+        "residual_series": {"accelerometer": residual_series(accelerometer_problem(scoring[:1]), accel["values"],
+                                                             scoring[0].name)}
+        if "acc_body" in scoring[0].channels else {}}
     return (report, knode_after) if return_model else report
 
 
@@ -359,8 +430,11 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
     after: dict[str, list[float]] = {k: [] for k in keys}
     per_flight: list[dict] = []
     mhe_cache: dict = {}
+    series: dict = {}
     for flight in scoring:
         held_out = crazyflie_problem([flight], prior)
+        # the specific force predicted from the inputs on the first held-out flight, before and after
+        series = series or {selection["channel"]: residual_series(held_out, values, flight.name)}
         b = {"specific_force_rmse": specific_force_rmse(held_out)}
         a = {"specific_force_rmse": specific_force_rmse(held_out, values)}
         if methods:
@@ -384,7 +458,7 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
                              for k in keys},
         "residuals": {"specific_force_rmse_fitting_before": specific_force_rmse(problem),
                       "specific_force_rmse_fitting_after": specific_force_rmse(problem, values)},
-        "channels": {selection["channel"]: _channel(selection)}}
+        "channels": {selection["channel"]: _channel(selection)}, "residual_series": series}
     return (report, model_after) if return_model else report
 
 
@@ -457,6 +531,9 @@ def format_diagnosis(result: dict) -> str:
                          f"as much (ΔBIC_eff {alt['delta_bic']:+g})")
     for c in result["confounded"]:
         lines.append(f"  cannot tell apart: {c['note']}")
+    note = unchanged_prior_note(result)
+    if note:
+        lines.append(f"  {note}")
     median = " (median over flights)" if result.get("per_flight") else ""
     if "specific_force_rmse" in result["before"]:
         before, after = result["before"]["specific_force_rmse"], result["after"]["specific_force_rmse"]

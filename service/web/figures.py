@@ -11,7 +11,7 @@ import base64
 import functools
 import io
 import os
-from typing import IO, TYPE_CHECKING
+from typing import IO, TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -138,29 +138,103 @@ def mse_boxplot(report: dict, title: str | None = None) -> Figure:
     return fig
 
 
+SPECIFIC_FORCE = "specific_force_rmse"   # a diagnosis' before/after key that is an RMSE in m/s², not an MSE
+
+
 def residual_before_after(diagnosis: dict) -> Figure:
-    """Residual RMS per channel before and after the effects were added, and each estimator's median MSE
-    before and after (a diagnosis report)."""
-    fig = _figure(figsize=(10, 4), layout="tight")
-    axes = fig.subplots(1, 2)
-    channels = diagnosis.get("channels", {})
-    names = list(channels)
-    before = [np.sqrt(channels[c]["rss_before"]) for c in names]
-    after = [np.sqrt(channels[c]["rss_after"]) for c in names]
-    x = np.arange(len(names))
-    axes[0].bar(x - 0.2, before, 0.4, label="before")
-    axes[0].bar(x + 0.2, after, 0.4, label="after")
-    axes[0].set_xticks(x, names)
-    axes[0].set_ylabel("√RSS of the whitened residual")
-    axes[0].set_title("residual, before and after the effects")
-    axes[0].legend()
-    methods = list(diagnosis.get("before", {}))
-    x = np.arange(len(methods))
-    axes[1].bar(x - 0.2, [diagnosis["before"][m] for m in methods], 0.4, label="original model")
-    axes[1].bar(x + 0.2, [diagnosis["after"][m] for m in methods], 0.4, label="with effects")
-    axes[1].set_xticks(x, [m.upper() for m in methods])
-    axes[1].set_ylabel("MSE (held-out data)")
-    axes[1].set_yscale("log")
-    axes[1].set_title(", ".join(e["id"] for e in diagnosis["effects"]) or "no effect found")
-    axes[1].legend()
+    """A diagnosis report's figure (`learnest diagnose --plot`): the summary (`diagnosis_summary`) above the
+    residual time series (`draw_residual_series`) when the report has them.  Linear axes throughout."""
+    series = diagnosis.get("residual_series") or {}
+    rows = sum(3 for _ in series)
+    fig = _figure(figsize=(10, 4 + 1.8 * rows), layout="constrained")
+    if not series:
+        draw_summary(fig, diagnosis)
+        return fig
+    # two rows give an array of SubFigures (the stubs also allow a single one)
+    top, bottom = cast("np.ndarray", fig.subfigures(2, 1, height_ratios=[4, 1.8 * rows]))
+    draw_summary(top, diagnosis)
+    draw_residual_series(bottom, series)
     return fig
+
+
+def diagnosis_summary(diagnosis: dict) -> Figure:
+    """Residual and held-out error before and after the effects (see `draw_summary`)."""
+    fig = _figure(figsize=(10, 3.6), layout="constrained")
+    draw_summary(fig, diagnosis)
+    return fig
+
+
+def residual_series(series: dict) -> Figure:
+    """The residual over time before and after the effects (see `draw_residual_series`)."""
+    fig = _figure(figsize=(10, 1 + 1.8 * 3 * len(series)), layout="constrained")
+    draw_residual_series(fig, series)
+    return fig
+
+
+def draw_summary(fig, diagnosis: dict) -> None:
+    """Left: each channel's √RSS of the whitened residual on the fitting data, before and after.  Then each
+    estimator's MSE on each held-out flight, before and after as a pair of dots joined by a line (the
+    median a bar), and the specific-force RMSE the same way when the report has one.  Linear axes from
+    zero: a log axis would make a 12 % change look like a factor.
+
+    ``fig`` is a matplotlib Figure or SubFigure.
+    """
+    channels = diagnosis.get("channels", {})
+    flights = diagnosis.get("per_flight") or [{"before": diagnosis["before"], "after": diagnosis["after"]}]
+    methods = [m for m in diagnosis.get("before", {}) if m != SPECIFIC_FORCE]
+    panels = 2 + (SPECIFIC_FORCE in diagnosis.get("before", {}))
+    axes = fig.subplots(1, panels, width_ratios=[1, 1.6, 0.7][:panels])
+    names = list(channels)
+    x = np.arange(len(names))
+    axes[0].bar(x - 0.2, [np.sqrt(channels[c]["rss_before"]) for c in names], 0.4, label="before")
+    axes[0].bar(x + 0.2, [np.sqrt(channels[c]["rss_after"]) for c in names], 0.4, label="after")
+    axes[0].set_xticks(x, names, fontsize="small")
+    axes[0].set(ylabel="√RSS, whitened residual", title="residual on the fitting data")
+    axes[0].legend(fontsize="small")
+    _paired(axes[1], flights, methods, "MSE on held-out data")
+    axes[1].set_title(", ".join(e["id"] for e in diagnosis["effects"]) or "no effect found")
+    if panels == 3:
+        _paired(axes[2], flights, [SPECIFIC_FORCE], "specific force RMSE (m/s²)")
+        axes[2].set_xticks([0], ["from inputs"])
+    for ax in axes:
+        ax.set_ylim(bottom=0)
+        ax.grid(axis="y", alpha=0.3)
+
+
+def _paired(ax, flights: list[dict], keys: list[str], ylabel: str) -> None:
+    """Per key: before (x - 0.15) and after (x + 0.15) of every flight joined by a line; medians as bars."""
+    for i, key in enumerate(keys):
+        before = [f["before"][key] for f in flights if key in f["before"] and key in f["after"]]
+        after = [f["after"][key] for f in flights if key in f["before"] and key in f["after"]]
+        if not before:
+            continue
+        ax.bar([i - 0.15, i + 0.15], [np.median(before), np.median(after)], 0.3, color=["tab:blue", "tab:orange"],
+               alpha=0.35)
+        for b, a in zip(before, after, strict=True):
+            ax.plot([i - 0.15, i + 0.15], [b, a], color="grey", lw=0.8, marker="o", ms=3)
+    ax.set_xticks(np.arange(len(keys)), [k.upper() for k in keys])
+    ax.set_ylabel(ylabel)
+
+
+def draw_residual_series(fig, series: dict) -> None:
+    """Per channel of ``series`` (a report's ``residual_series``), one axis per body axis: the residual over
+    time with the prior (before) and with the fitted effects (after), and their rms in the title.
+
+    ``fig`` is a matplotlib Figure or SubFigure.
+    """
+    axes = fig.subplots(3 * len(series), 1, sharex=True, squeeze=False)[:, 0]
+    for c, (channel, s) in enumerate(series.items()):
+        t, before, after = np.asarray(s["t"]), np.asarray(s["before"]), np.asarray(s["after"])
+        for k, name in enumerate(s["axes"]):
+            ax = axes[3 * c + k]
+            ax.plot(t, before[:, k], color="tab:blue", lw=0.8, label="before (prior)")
+            ax.plot(t, after[:, k], color="tab:orange", lw=0.8, label="after (with the effects)")
+            ax.axhline(0, color="black", lw=0.5)
+            ax.set_ylabel(f"{name} ({s['units']})")
+            ax.grid(alpha=0.3)
+        rms = [np.sqrt(np.mean(a**2)) for a in (before, after)]
+        flight = str(s["flight"]).replace("$", r"\$")   # a name is text, not mathtext
+        axes[3 * c].set_title(f"{channel} residual on held-out flight {flight}: rms {rms[0]:.3g} before, "
+                              f"{rms[1]:.3g} after ({s['units']})", fontsize="medium")
+        axes[3 * c].legend(fontsize="small", ncol=2, loc="upper right")
+    axes[-1].set_xlabel("t (s) since the first sample shown")

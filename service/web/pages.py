@@ -9,9 +9,11 @@ Pages   /                       flights (newest first) and the upload form
         /evaluations/{id}/report.html
                                 the Fig. 3-style box plot, per-flight MSE table, estimated vs reference velocity
                                 of one chosen flight (documented in the OpenAPI schema with the JSON report)
+        /diagnoses/{id}/report.html
+                                effects with units, intervals and alternatives, residual over time before/after,
+                                held-out error before/after per flight (linear axes)
 Forms   POST /ui/flights, /ui/models, /ui/evaluations, /ui/models/{name}/aliases, /ui/jobs/{id}/cancel take the
-        same request models
-        as the JSON routes (service.web.forms), call the same service functions (service.uploads,
+        same request models as the JSON routes (service.web.forms), call the same service functions (service.uploads,
         service.jobs, service.catalog) and answer 303 to the page of what they made, or an HTML error page
         with the API's status code and message.
 
@@ -32,6 +34,7 @@ from pydantic import ValidationError
 
 from learnest.errors import LearnestError
 from learnest.ingest.flight import Flight as CanonicalFlight
+from learnest.models.crazyflie import UNITS as CRAZYFLIE_UNITS
 from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON
 
 from .. import catalog, references
@@ -41,7 +44,7 @@ from ..jobs.result_cache import EstimatorSettings
 from ..jobs.runner import ACTIVE
 from ..jobs.services import Services
 from ..jobs.training import start_training
-from ..storage.tables import Evaluation, FlightRecord, Job
+from ..storage.tables import Diagnosis, Evaluation, FlightRecord, Job
 from ..uploads import add_flight
 from . import figures, forms
 
@@ -227,10 +230,11 @@ def job_page(request: Request, job_id: RowId, services: Services = Depends(get_s
     to cancel it)."""
     job = catalog.get_job(services.db, job_id)
     evaluation = catalog.evaluation_of_job(services.db, job_id)
+    diagnosis = catalog.diagnosis_of_job(services.db, job_id) if job.kind == "diagnosis" else None
     active, key = job.state in ACTIVE, forms.key_state(request, services.settings)
     # no reload while the cancel form asks for the key: a reload every second would wipe it mid-typing
     return page("job.html", f"Job {job.id}", refresh_s=1 if active and key != "ask" else None, job=job,
-                active=active, subject=job_subject(job), evaluation=evaluation, key=key,
+                active=active, subject=job_subject(job), evaluation=evaluation, key=key, diagnosis=diagnosis,
                 model_name=evaluation.model_ref.split(":", 1)[0] if evaluation else None,
                 result=json.dumps(job.result, indent=1) if job.result else None)
 
@@ -250,6 +254,9 @@ def job_subject(job: Job) -> str:
     payload = job.payload or {}
     if job.kind == "training":
         return f"{payload.get('name')} on flight {payload.get('flight_id')}"
+    if job.kind == "diagnosis":
+        return f"diagnosis of {payload.get('model') or 'a model trained on the fitting flight'} on " \
+               f"{len(payload.get('flights') or [])} flight(s)"
     return f"{payload.get('model')} on {len(payload.get('flights') or [])} flight(s)"
 
 
@@ -298,7 +305,35 @@ def _velocity(services: Services, evaluation: Evaluation, flight_id: int | None)
         return {"error": str(err)}
 
 
+# -- the diagnosis report -----------------------------------------------------------------------------------
+diagnosis_reports = APIRouter(tags=["diagnoses"])
+
+
+@diagnosis_reports.get("/diagnoses/{diagnosis_id}/report.html", response_class=HTMLResponse,
+                       responses={202: {"description": "not finished yet (the page reloads itself)"},
+                                  409: {"description": "the diagnosis job failed"}})
+def diagnosis_report_page(diagnosis_id: RowId, services: Services = Depends(get_services)):
+    """The diagnosis report for people: effects with units, 95 % intervals and alternatives, the residual over
+    time before and after, and the held-out error before and after (linear axes)."""
+    from learnest.service.experiments.diagnosis import unchanged_prior_note  # numpy only; kept off app start
+
+    diagnosis, job = catalog.row_and_job(services.db, Diagnosis, diagnosis_id, "diagnosis")
+    if job.state != "succeeded":
+        return page("report_pending.html", f"Diagnosis {diagnosis.id}", status=202, refresh_s=2, job=job)
+    report = diagnosis.report or {}
+    series = report.get("residual_series") or {}
+    prior = (report.get("prior") or {}).get("params", {})
+    return page("diagnosis.html", f"Diagnosis {diagnosis.id}: {report.get('system')}", diagnosis=diagnosis,
+                report=report, flights=catalog.flight_names(services.db, diagnosis.flight_ids),
+                prior=[(k, v, CRAZYFLIE_UNITS[k]) for k, v in prior.items() if k in CRAZYFLIE_UNITS],
+                summary=figures.png_data_uri(figures.diagnosis_summary(report), dpi=110),
+                series=figures.png_data_uri(figures.residual_series(series), dpi=110) if series else None,
+                note=unchanged_prior_note(report), registered=diagnosis.registered,
+                model_name=diagnosis.model_ref.split(":", 1)[0] if diagnosis.model_ref else None)
+
+
 # One router for the app: the pages (left out of the OpenAPI schema) and the report (in it).
 router = APIRouter()
 router.include_router(pages)
 router.include_router(reports)
+router.include_router(diagnosis_reports)
