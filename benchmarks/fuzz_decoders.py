@@ -269,7 +269,7 @@ def _yaml_value(rng, depth: int = 0):
     if kind == 1:
         return bool(rng.random() < 0.5)
     if kind == 2:
-        return int(rng.choice([0, 1, -1, 2**31, -2**63, 10**30]))
+        return [0, 1, -1, 2**31, -2**63, 10**30, 10**400, -10**400][int(rng.integers(8))]
     if kind == 3:
         return float(rng.choice([0.0, -1.0, 1e308, float("nan"), float("inf"), -float("inf"), 2.5]))
     if kind == 4:
@@ -304,7 +304,22 @@ def _yaml_structured(rng, data: bytes, _other) -> bytes:
     return yaml.safe_dump(document, allow_unicode=True).encode()
 
 
-YAML_MUTATIONS = (_yaml_structured, _yaml_structured, _yaml_structured, _numbers, _line_edits, _encoding) + \
+YAML_SNIPPETS = (b"!!binary aGVsbG8=", b"!!set {x, y}", b"2026-03-02", b"2026-03-02 10:00:00", b".nan", b"-.inf",
+                 b"1" + b"0" * 400, b"!!float 1e400", b"[1, [2, {a: b}]]", b"{}", b"~", b"0x1F", b"0o17", b"1_000",
+                 b"!!python/object:os.system ls", b"&a [*a]", b"*undefined", b"\'", b"yes", b"|\n  text")
+
+
+def _yaml_tags(rng, data: bytes, _other) -> bytes:
+    """A field's value replaced by a YAML tag, date, special float, huge integer, alias or flow collection."""
+    lines = _lines(data)
+    k = int(rng.integers(len(lines)))
+    if b":" in lines[k]:
+        key, _, _ = lines[k].partition(b":")
+        lines[k] = key + b": " + YAML_SNIPPETS[int(rng.integers(len(YAML_SNIPPETS)))]
+    return b"\n".join(lines)
+
+
+YAML_MUTATIONS = (_yaml_structured, _yaml_structured, _yaml_tags, _yaml_tags, _numbers, _line_edits, _encoding) + \
     BYTE_MUTATIONS
 
 
@@ -339,13 +354,16 @@ def _worker(connection, directory: str, warm_up) -> None:
     resource.setrlimit(resource.RLIMIT_AS, (MEMORY_LIMIT_BYTES, MEMORY_LIMIT_BYTES))
     import warnings
 
-    from learnest.ingest import IngestError, read_flights
+    from learnest.ingest import IngestError, read_flights, summary
 
     warnings.simplefilter("ignore")
     work = Path(directory)
     first = True
     while True:
-        job = warm_up if first else connection.recv()
+        try:
+            job = warm_up if first else connection.recv()
+        except EOFError:      # the parent is gone
+            return
         if job is None:
             return
         shutil.rmtree(work, ignore_errors=True)
@@ -357,7 +375,9 @@ def _worker(connection, directory: str, warm_up) -> None:
         read = [p for p in paths if not p.name.endswith("_metadata.yaml")]
         start = time.perf_counter()
         try:
-            read_flights(read)
+            for flight in read_flights(read):    # an accepted input must give a Flight the service can store
+                flight.to_bytes()
+                json.dumps(summary(flight), allow_nan=False)
             outcome, kind, message = "ok", "", ""
         except IngestError as err:
             outcome, kind, message = "rejected", type(err).__name__, str(err)[:300]
@@ -462,7 +482,7 @@ def fuzz(decoder: str, seeds, count: int, seed: int, root: Path) -> dict:
             counts[outcome] += 1
             times.append(seconds)
             if outcome in ("crash", "hang"):
-                key = f"{kind}: {message.split(':')[0]}" if outcome == "crash" else "hang"
+                key = f"{kind} at {message.split(': ')[0]}" if outcome == "crash" else "hang"
                 entry = crashes.setdefault(key, {"type": kind, "count": 0, "example": message, "mutation": how,
                                                  "reproducers": []})
                 entry["count"] += 1
