@@ -372,3 +372,35 @@ def test_a_single_corrupt_height_sample_is_not_a_flight(tmp_path):
     path.write_text("\n".join([header, *rows[:-1], ",".join(last)]) + "\n")
     with pytest.raises(IngestError, match=r"spike.csv: the flying part has 1 sample\(s\)"):
         nanobench_reader.read(path)
+
+
+# -- found by benchmarks/fuzz_decoders.py: sidecar values YAML types the reader did not expect -------------
+@pytest.mark.parametrize("row_count, shown", [("1" + "0" * 400, "1000000000"), (".inf", "inf"), ("true", "True"),
+                                              ("[1, 2]", "[1, 2]")])
+def test_a_metadata_row_count_that_is_not_one_is_ignored_with_a_warning(tmp_path, row_count, shown):
+    """A 400-digit row count made float() overflow (OverflowError); now the CSV's own rows give the rate."""
+    path = write_csv(synthetic_table(6.0, seed=3), tmp_path / "short.csv")
+    path.with_name("short_metadata.yaml").write_text(f"row_counts:\n  imu: {row_count}\n  vicon: 301\n")
+    flight = nanobench_reader.read(path)
+    assert any(w.startswith(f"metadata row_counts.imu = '{shown}") and w.endswith("is not a row count: ignored")
+               for w in flight.meta["warnings"])
+    rates = flight.meta["original_rates"]
+    assert rates["acc"] == pytest.approx(100.0, rel=1e-6)            # 600 CSV rows over 5.99 s
+    assert rates["mocap"] == pytest.approx(300 / 5.99, rel=1e-6)     # the valid count is still used
+
+
+@pytest.mark.parametrize("vehicle", ["2026-03-02", "!!binary aGk=", "{a: [1, .nan]}", "[cf1, cf2]", "true"])
+def test_a_metadata_vehicle_id_the_stored_meta_cannot_hold_is_ignored(tmp_path, vehicle):
+    """A YAML date or bytes as crazyflie_id made Flight.to_bytes fail (TypeError: not JSON serializable)."""
+    path = write_csv(synthetic_table(6.0, seed=3), tmp_path / "short.csv")
+    path.with_name("short_metadata.yaml").write_text(f"crazyflie_id: {vehicle}\n")
+    flight = nanobench_reader.read(path)
+    assert flight.meta["vehicle"] is None
+    assert any("crazyflie_id" in w and w.endswith("is not a vehicle name: ignored") for w in flight.meta["warnings"])
+    assert Flight.from_bytes(flight.to_bytes()).meta["vehicle"] is None
+
+
+def test_a_plain_metadata_vehicle_id_is_kept(tmp_path):
+    path = write_csv(synthetic_table(6.0, seed=3), tmp_path / "short.csv")
+    path.with_name("short_metadata.yaml").write_text("crazyflie_id: 7\n")
+    assert nanobench_reader.read(path).meta["vehicle"] == 7
