@@ -58,5 +58,7 @@ def read_sidecar(path) -> object:
         return yaml.safe_load(text)
     except SidecarTooLarge:
         raise
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
+    # ValueError: an integer of more than 4300 digits (Python's int-from-text cap); RecursionError: a
+    # document nested thousands of levels deep (PyYAML builds it recursively)
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError, yaml.YAMLError) as err:
         raise IngestError(path, f"unreadable YAML ({type(err).__name__}: {str(err)[:200]})") from None
