@@ -13,6 +13,7 @@ from learnest.ingest import quality
 from learnest.ingest.baseline import sg_references
 from learnest.ingest.flight import Flight, IngestError, sha256_file
 from learnest.ingest.formats.nanobench import reader as nanobench_reader
+from learnest.ingest.sidecar import read_sidecar
 
 NANOBENCH = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "nanobench"
 needs_data = pytest.mark.data  # skipped by conftest.py when ../shared/data is absent
@@ -404,3 +405,20 @@ def test_a_plain_metadata_vehicle_id_is_kept(tmp_path):
     path = write_csv(synthetic_table(6.0, seed=3), tmp_path / "short.csv")
     path.with_name("short_metadata.yaml").write_text("crazyflie_id: 7\n")
     assert nanobench_reader.read(path).meta["vehicle"] == 7
+
+
+@pytest.mark.parametrize("value, error", [("9" * 5000, "ValueError: Exceeds the limit"),
+                                          ("[" * 20_000 + "]" * 20_000, "brackets nested 20000 deep"),
+                                          ("{a: " * 5000 + "1" + "}" * 5000, "brackets nested 5000 deep"),
+                                          ("[" * 3000, "brackets nested 3000 deep")])   # was a > 5 s hang
+def test_a_sidecar_yaml_can_not_take_down_the_reader(tmp_path, value, error):
+    """Found by benchmarks/fuzz_decoders.py: a 5000-digit integer (ValueError from Python's int-from-text
+    cap) or a document nested 20 000 deep (RecursionError) escaped read_sidecar, and 3000 unclosed [ took
+    PyYAML's scanner past the 5 s limit; all are unreadable YAML, so the sidecar is ignored with a warning
+    and the flight still reads."""
+    path = write_csv(synthetic_table(6.0, seed=3), tmp_path / "short.csv")
+    path.with_name("short_metadata.yaml").write_text(f"crazyflie_id: {value}\n")
+    with pytest.raises(IngestError, match=f"short_metadata.yaml: unreadable YAML \\({error}"):
+        read_sidecar(path.with_name("short_metadata.yaml"))
+    flight = nanobench_reader.read(path)
+    assert flight.meta["nanobench"] is None and "unreadable YAML" in flight.meta["warnings"][0]
