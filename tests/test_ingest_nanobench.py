@@ -13,6 +13,7 @@ from learnest.ingest import quality
 from learnest.ingest.baseline import sg_references
 from learnest.ingest.flight import Flight, IngestError, sha256_file
 from learnest.ingest.formats.nanobench import reader as nanobench_reader
+from learnest.ingest.sidecar import read_sidecar
 
 NANOBENCH = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "nanobench"
 needs_data = pytest.mark.data  # skipped by conftest.py when ../shared/data is absent
@@ -372,3 +373,52 @@ def test_a_single_corrupt_height_sample_is_not_a_flight(tmp_path):
     path.write_text("\n".join([header, *rows[:-1], ",".join(last)]) + "\n")
     with pytest.raises(IngestError, match=r"spike.csv: the flying part has 1 sample\(s\)"):
         nanobench_reader.read(path)
+
+
+# -- found by benchmarks/fuzz_decoders.py: sidecar values YAML types the reader did not expect -------------
+@pytest.mark.parametrize("row_count, shown", [("1" + "0" * 400, "1000000000"), (".inf", "inf"), ("true", "True"),
+                                              ("[1, 2]", "[1, 2]")])
+def test_a_metadata_row_count_that_is_not_one_is_ignored_with_a_warning(tmp_path, row_count, shown):
+    """A 400-digit row count made float() overflow (OverflowError); now the CSV's own rows give the rate."""
+    path = write_csv(synthetic_table(6.0, seed=3), tmp_path / "short.csv")
+    path.with_name("short_metadata.yaml").write_text(f"row_counts:\n  imu: {row_count}\n  vicon: 301\n")
+    flight = nanobench_reader.read(path)
+    assert any(w.startswith(f"metadata row_counts.imu = '{shown}") and w.endswith("is not a row count: ignored")
+               for w in flight.meta["warnings"])
+    rates = flight.meta["original_rates"]
+    assert rates["acc"] == pytest.approx(100.0, rel=1e-6)            # 600 CSV rows over 5.99 s
+    assert rates["mocap"] == pytest.approx(300 / 5.99, rel=1e-6)     # the valid count is still used
+
+
+@pytest.mark.parametrize("vehicle", ["2026-03-02", "!!binary aGk=", "{a: [1, .nan]}", "[cf1, cf2]", "true"])
+def test_a_metadata_vehicle_id_the_stored_meta_cannot_hold_is_ignored(tmp_path, vehicle):
+    """A YAML date or bytes as crazyflie_id made Flight.to_bytes fail (TypeError: not JSON serializable)."""
+    path = write_csv(synthetic_table(6.0, seed=3), tmp_path / "short.csv")
+    path.with_name("short_metadata.yaml").write_text(f"crazyflie_id: {vehicle}\n")
+    flight = nanobench_reader.read(path)
+    assert flight.meta["vehicle"] is None
+    assert any("crazyflie_id" in w and w.endswith("is not a vehicle name: ignored") for w in flight.meta["warnings"])
+    assert Flight.from_bytes(flight.to_bytes()).meta["vehicle"] is None
+
+
+def test_a_plain_metadata_vehicle_id_is_kept(tmp_path):
+    path = write_csv(synthetic_table(6.0, seed=3), tmp_path / "short.csv")
+    path.with_name("short_metadata.yaml").write_text("crazyflie_id: 7\n")
+    assert nanobench_reader.read(path).meta["vehicle"] == 7
+
+
+@pytest.mark.parametrize("value, error", [("9" * 5000, "ValueError: Exceeds the limit"),
+                                          ("[" * 20_000 + "]" * 20_000, "brackets nested 20000 deep"),
+                                          ("{a: " * 5000 + "1" + "}" * 5000, "brackets nested 5000 deep"),
+                                          ("[" * 3000, "brackets nested 3000 deep")])   # was a > 5 s hang
+def test_a_sidecar_yaml_can_not_take_down_the_reader(tmp_path, value, error):
+    """Found by benchmarks/fuzz_decoders.py: a 5000-digit integer (ValueError from Python's int-from-text
+    cap) or a document nested 20 000 deep (RecursionError) escaped read_sidecar, and 3000 unclosed [ took
+    PyYAML's scanner past the 5 s limit; all are unreadable YAML, so the sidecar is ignored with a warning
+    and the flight still reads."""
+    path = write_csv(synthetic_table(6.0, seed=3), tmp_path / "short.csv")
+    path.with_name("short_metadata.yaml").write_text(f"crazyflie_id: {value}\n")
+    with pytest.raises(IngestError, match=f"short_metadata.yaml: unreadable YAML \\({error}"):
+        read_sidecar(path.with_name("short_metadata.yaml"))
+    flight = nanobench_reader.read(path)
+    assert flight.meta["nanobench"] is None and "unreadable YAML" in flight.meta["warnings"][0]

@@ -275,9 +275,9 @@ def read(path, rate_hz: float = 100.0, cut: bool = True) -> Flight:
     meta = {
         "adapter": "nanobench",
         "sources": _sources(path, metadata),
-        "original_rates": {name: _stream_rate(name, ts, metadata) for name, ts in times.items()},
+        "original_rates": {name: _stream_rate(name, ts, metadata, warnings) for name, ts in times.items()},
         "clock_offset_s": None,
-        "vehicle": (metadata or {}).get("crazyflie_id"),
+        "vehicle": _vehicle(metadata, warnings),
         "nanobench": json_compatible(metadata),
         "streams": {name: {**reports[name], **_span(times.get(name), t[0])} for name in reports},
         "warnings": warnings,
@@ -286,6 +286,16 @@ def read(path, rate_hz: float = 100.0, cut: bool = True) -> Flight:
                           acc_body_g=acc, channels=cleaned, rate_hz=rate_hz, meta=meta, cut=cut)
     flight.meta["gaps"].update(_airborne_gaps(t_mocap, mocap[:, 2], {"mocap": t_mocap, "acc": t_acc}))
     return flight
+
+
+def _vehicle(metadata: dict | None, warnings: list[str]) -> str | int | None:
+    """The metadata's crazyflie_id when it is a name or number; YAML may also give a date, bytes, a list...,
+    which the stored (JSON) meta cannot hold and no vehicle is named by: ignored with a warning."""
+    vehicle = (metadata or {}).get("crazyflie_id")
+    if vehicle is None or (isinstance(vehicle, (str, int)) and not isinstance(vehicle, bool)):
+        return vehicle
+    warnings.append(f"metadata crazyflie_id = {str(vehicle)[:40]!r} is not a vehicle name: ignored")
+    return None
 
 
 def _sources(path: Path, metadata: dict | None) -> list[dict]:
@@ -301,16 +311,26 @@ METADATA_ROW_COUNT_KEYS = {"mocap": "vicon", "acc": "imu", "gyro": "imu", "motor
                            "setpoint": "setpoint", "p_onboard": "estimator", "v_onboard": "estimator"}
 
 
-def _stream_rate(name: str, t: np.ndarray, metadata: dict | None) -> float | None:
+MAX_METADATA_ROWS = 1e12   # past any recorder's row count; larger (or a 400-digit int) is not one
+
+
+def _stream_rate(name: str, t: np.ndarray, metadata: dict | None, warnings: list[str]) -> float | None:
     """Delivered samples per second: the metadata's row count over the stream's span when known (the
-    CSV itself only holds the 10 ms resampling), else the rows that survived cleaning."""
+    CSV itself only holds the 10 ms resampling), else the rows that survived cleaning.  A row count that
+    is not a plausible number is ignored with a warning."""
     span = float(t[-1] - t[0]) if len(t) > 1 else 0.0
     if span <= 0:
         return None
     counts = (metadata or {}).get("row_counts")
     count = counts.get(METADATA_ROW_COUNT_KEYS.get(name)) if isinstance(counts, dict) else None
-    if isinstance(count, (int, float)) and count > 1:
+    # a row count is a plain number of a plausible size: YAML also gives bools, 400-digit ints, inf, NaN
+    if isinstance(count, (int, float)) and not isinstance(count, bool) and 1 < count < MAX_METADATA_ROWS:
         return float((count - 1) / span)
+    if count is not None:
+        problem = (f"metadata row_counts.{METADATA_ROW_COUNT_KEYS.get(name)} = {str(count)[:40]!r} is not a "
+                   f"row count: ignored")
+        if problem not in warnings:
+            warnings.append(problem)
     return float((len(t) - 1) / span)
 
 
