@@ -204,8 +204,9 @@ def _sensitivity(problem, values, params, step=1e-5):
 
 
 def confounded_pairs(problem: ResidualProblem, chosen: list, values: dict, near_ties: list) -> list[dict]:
-    """Chosen effects that another candidate explains about as well (BIC_eff within DELTA_BIC), with the
-    pair of parameters whose sensitivities are most nearly parallel as the reason.
+    """Chosen effects that another candidate explains about as well (BIC_eff within DELTA_BIC, or removing
+    at least ALTERNATIVE_FRACTION of the residual the chosen one removes), with the pair of parameters whose
+    sensitivities are most nearly parallel as the reason.
 
     ``near_ties`` is a list of (chosen effect, rival effect, ΔBIC_eff[, fraction]) where fraction is the share
     of the chosen effect's RSS reduction the rival achieves in its place; ``chosen`` is not used.
