@@ -23,6 +23,8 @@ VICON_START_S = 0.2                     # the Vicon capture starts 0.2 s after t
 # The pair's two clocks: t_vicon = t_cfclient + CFCLIENT_CLOCK_OFFSET_S (t_cfclient = Timestamp / 1000).
 CFCLIENT_CLOCK_OFFSET_S = -(CFCLIENT_BOOT_S + VICON_START_S)
 CFCLIENT_RATE_HZ = 100.0                # a cfclient log block runs at ≤ 100 Hz over the radio
+# The mocap pose the vehicle received, as the firmware logs it (position m, quaternion scalar last).
+LOCSRV_POSE = ("locSrv.x", "locSrv.y", "locSrv.z", "locSrv.qx", "locSrv.qy", "locSrv.qz", "locSrv.qw")
 
 FORMATS = ("nanobench", "usd", "usd-v1", "vicon+cfclient", "mcap-ros2", "mcap-json")
 SOURCE_TIME_AT_SIM_ZERO = {"nanobench": NANOBENCH_EPOCH_S, "usd": USD_BOOT_S, "usd-v1": USD_BOOT_S,
@@ -62,7 +64,7 @@ def _write_usd(sim: SimulatedFlight, path: Path, version: int, pose_stream: str)
     fixed.update({f"gyro.{axis}": ("f", np.degrees(imu.gyro[:, j])) for j, axis in enumerate("xyz")})
     fixed.update({f"ctrltargetZ.{axis}": ("h", 1000 * imu.setpoint[:, j]) for j, axis in enumerate("xyz")})
     pose = np.column_stack([mocap.p, mocap.quat])
-    names = ("locSrv.x", "locSrv.y", "locSrv.z", "locSrv.qx", "locSrv.qy", "locSrv.qz", "locSrv.qw")
+    names = LOCSRV_POSE
     events = {"fixedFrequency": {"t": USD_BOOT_S + imu.t, "vars": fixed}}
     if pose_stream == "fixed":
         latest = np.searchsorted(mocap.t, imu.t + 1e-9, side="right") - 1     # the last frame received
@@ -184,8 +186,7 @@ def write_canonical_flight(flight: Flight, fmt: str, directory, stem: str) -> li
         fixed = {f"acc.{axis}": ("f", acc_g[:, j]) for j, axis in enumerate("xyz")}
         fixed.update(_firmware_columns(flight))
         pose = np.column_stack([flight.p, flight.quat])
-        names = ("locSrv.x", "locSrv.y", "locSrv.z", "locSrv.qx", "locSrv.qy", "locSrv.qz", "locSrv.qw")
-        fixed.update({name: ("f", pose[:, j]) for j, name in enumerate(names)})
+        fixed.update({name: ("f", pose[:, j]) for j, name in enumerate(LOCSRV_POSE)})
         path = directory / stem
         usd_writer.write(path, {"fixedFrequency": {"t": USD_BOOT_S + t, "vars": fixed}},
                          version=2 if fmt == "usd" else 1)
