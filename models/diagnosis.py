@@ -135,11 +135,13 @@ def _all_values(candidates, chosen_values=None):
 
 
 def fit(problem: ResidualProblem, effects: list, rows: np.ndarray | None = None,
-        offset: np.ndarray | None = None) -> Fit:
+        offset: np.ndarray | None = None, start: dict[str, float] | None = None) -> Fit:
     """Least squares over the parameters of `effects`, every other candidate at its nominal value.
 
-    Bounded trust-region fit (scipy ``least_squares``) starting at each parameter's ``initial``, on ``rows``
-    (default all); ``offset`` (same shape as the residual) is added to the residual (bootstrap replicates).
+    Bounded trust-region fit (scipy ``least_squares``) on ``rows`` (default all); ``offset`` (same shape as
+    the residual) is added to the residual (bootstrap replicates).  It starts at ``start`` ({parameter name:
+    value}, e.g. an earlier fit's values) when given, else at each parameter's ``initial`` moved to the best
+    point of its coarse scan (parameters with a ``scan_step``).
     """
     from scipy.optimize import least_squares  # scipy.optimize costs ~1 s to import: loaded on first use
 
@@ -153,10 +155,14 @@ def fit(problem: ResidualProblem, effects: list, rows: np.ndarray | None = None,
         return r if offset is None else r + offset
 
     if params:
-        x0 = np.clip([p.initial for p in params], [p.lower for p in params], [p.upper for p in params])
-        x0 = _scanned_start(params, x0, lambda th: float(np.sum(residual_of(th) ** 2)))
+        lower, upper = [p.lower for p in params], [p.upper for p in params]
+        if start is not None:
+            x0 = np.clip([start[p.name] for p in params], lower, upper)
+        else:
+            x0 = np.clip([p.initial for p in params], lower, upper)
+            x0 = _scanned_start(params, x0, lambda th: float(np.sum(residual_of(th) ** 2)))
         solution = least_squares(lambda th: residual_of(th).ravel(), x0, method="trf", x_scale="jac",
-                                 bounds=([p.lower for p in params], [p.upper for p in params]))
+                                 bounds=(lower, upper))
         theta = solution.x
     else:
         theta = np.zeros(0)
@@ -209,7 +215,9 @@ def confounded_pairs(problem: ResidualProblem, chosen: list, values: dict, near_
     sensitivities are most nearly parallel as the reason.
 
     ``near_ties`` is a list of (chosen effect, rival effect, ΔBIC_eff[, fraction]) where fraction is the share
-    of the chosen effect's RSS reduction the rival achieves in its place; ``chosen`` is not used.
+    of the chosen effect's RSS reduction the rival achieves in its place; ``chosen`` is not used.  An entry
+    admitted by the fraction alone (ΔBIC_eff ≥ DELTA_BIC) has ``data_prefer`` = the chosen effect's id: the
+    data do choose, on the part of the record where the two differ; otherwise ``data_prefer`` is None.
     """
     allv = _all_values(problem.candidates, values)
     out = []
@@ -221,14 +229,21 @@ def confounded_pairs(problem: ResidualProblem, chosen: list, values: dict, near_
             cosine = np.nan_to_num(np.abs(A.T @ B) / norms)
         i, j = np.unravel_index(np.argmax(cosine), cosine.shape)
         pa, pb, c = a.params[i].name, b.params[j].name, float(cosine[i, j])
-        why = (f"{pa} and {pb} act alike on this data (cosine {c:.3f}): they cannot be told apart here, and data "
-               f"with more varied motion (thrust, speed) would separate them" if c >= ALIKE_COSINE else
-               f"the two act differently (largest cosine {c:.3f}, {pa} vs {pb}) yet fit about equally well: the "
-               f"data cannot choose between these explanations; more flights would")
+        preferred = delta_bic >= DELTA_BIC     # admitted by the fraction rule only: BIC does choose
+        if preferred:
+            why = (f"{pa} and {pb} act alike on most of this data (cosine {c:.3f}); the data prefer {a.id} from "
+                   f"the part where they differ, and more varied motion (thrust, speed) would make that certain")
+        elif c >= ALIKE_COSINE:
+            why = (f"{pa} and {pb} act alike on this data (cosine {c:.3f}): they cannot be told apart here, and "
+                   f"data with more varied motion (thrust, speed) would separate them")
+        else:
+            why = (f"the two act differently (largest cosine {c:.3f}, {pa} vs {pb}) yet fit about equally well: "
+                   f"the data cannot choose between these explanations; more flights would")
         how_well = (f"BIC_eff within {DELTA_BIC:g}" if delta_bic < DELTA_BIC or fraction is None else
                     f"ΔBIC_eff {delta_bic:g}, but it removes {100 * fraction:.0f} % of the residual {a.id} removes")
         out.append({"effects": [a.id, b.id], "params": [pa, pb], "cosine": round(c, 4), "delta_bic": delta_bic,
                     "fraction_of_chosen": None if fraction is None else round(float(fraction), 4),
+                    "data_prefer": a.id if preferred else None,
                     "note": f"{b.id} explains the residual almost as well as {a.id} ({how_well}); {why}"})
     return out
 
@@ -250,7 +265,8 @@ def bootstrap_ci(problem: ResidualProblem, final: Fit, replicates: int = BOOTSTR
     for _ in range(replicates):
         starts = rng.integers(0, n - block + 1, size=int(np.ceil(n / block)))
         resampled = np.concatenate([r[s:s + block] for s in starts])[:n]
-        refit = fit(problem, final.effects, offset=resampled - r)   # observed* = fitted + e*
+        # observed* = fitted + e*; each replicate starts from the fit it perturbs (no scan: it is in the dip)
+        refit = fit(problem, final.effects, offset=resampled - r, start=final.values)
         for name, value in refit.values.items():
             samples[name].append(value)
     return {name: [float(np.percentile(v, 2.5)), float(np.percentile(v, 97.5))] for name, v in samples.items()}

@@ -176,6 +176,46 @@ def test_robot_with_the_papers_quadratic_drag():
     assert result["after"]["ukf"] < result["before"]["ukf"]
 
 
+def _robot_drag_selection(truth: str, throttle_mean: float, throttle_weave: tuple) -> dict:
+    """Effect selection on 10 s of the simulated robot (observer states), the true drag given by ``truth``."""
+    from dataclasses import replace
+
+    from learnest.estimators.observers import pretraining_observer
+    from learnest.models.systems import make_system
+    from learnest.service.experiments.diagnosis import dynamics_problem, effects_for, parse_simulate
+
+    robot = replace(make_system("robot"), throttle_mean=throttle_mean, throttle_weave=throttle_weave)
+    robot = robot.with_true_params(**parse_simulate("robot", truth))
+    run = robot.simulate(10_000, 1000)
+    zeta = pretraining_observer(robot, run.y, run.u, robot.dt)
+    return select_effects(dynamics_problem(robot, zeta, run.u, robot.dt, effects_for("robot", "dynamics")))
+
+
+def test_robot_rolling_resistance_at_varied_speed_is_linear_drag_not_quadratic():
+    """Issue 13: k = 0.15 1/s of rolling resistance was reported as quadratic drag c = 0.169.  With the speed
+    varied (1-4 m/s) the two differ, and the linear one is found with its value."""
+    selection = _robot_drag_selection("linear_drag=0.15,c=0", throttle_mean=0.7, throttle_weave=(0.8, 0.48))
+    found = _first(selection, "linear_drag")
+    assert found["params"]["k"] == pytest.approx(0.15, rel=0.1)
+    assert found["claimed"] == {"k": True}
+    assert "quadratic_drag" not in {e["id"] for e in selection["effects"]}
+    for pair in selection["confounded"]:     # if listed at all, as a rival the data rejected
+        assert pair["data_prefer"] == "linear_drag"
+
+
+def test_robot_drag_at_constant_speed_is_reported_as_confounded():
+    """At a constant 2 m/s, k·v and c·v² are the same deceleration (k = 2c): whichever is chosen, the other
+    must be listed as confounded with its own value, and the data must not be said to prefer one."""
+    selection = _robot_drag_selection("linear_drag=0.2,c=0", throttle_mean=0.4, throttle_weave=(0.0, 0.0))
+    (first,) = selection["effects"]
+    assert first["id"] in ("linear_drag", "quadratic_drag")
+    (pair,) = selection["confounded"]
+    assert set(pair["effects"]) == {"linear_drag", "quadratic_drag"} and pair["data_prefer"] is None
+    assert "cannot be told apart" in pair["note"]
+    values = {**first["params"], **first["alternatives"][0]["params"]}
+    assert values["k"] == pytest.approx(0.2, rel=0.05) and values["c"] == pytest.approx(0.1, rel=0.05)
+
+
 def test_cartpole_without_an_effect_claims_none(capsys):
     assert main(["diagnose", "--system", "cartpole", "--simulate", "m_c=1.0", "--json", "--epochs", "50"]) == 0
     result = json.loads(capsys.readouterr().out)
