@@ -229,22 +229,29 @@ def confounded_pairs(problem: ResidualProblem, chosen: list, values: dict, near_
             cosine = np.nan_to_num(np.abs(A.T @ B) / norms)
         i, j = np.unravel_index(np.argmax(cosine), cosine.shape)
         pa, pb, c = a.params[i].name, b.params[j].name, float(cosine[i, j])
-        preferred = delta_bic >= DELTA_BIC     # admitted by the fraction rule only: BIC does choose
+        preferred = delta_bic >= DELTA_BIC     # admitted by the fraction rule only: BIC_eff does choose
         if preferred:
-            why = (f"{pa} and {pb} act alike on most of this data (cosine {c:.3f}); the data prefer {a.id} from "
-                   f"the part where they differ, and more varied motion (thrust, speed) would make that certain")
+            alike = (f"{pa} and {pb} act alike on most of this data (cosine {c:.3f})" if c >= ALIKE_COSINE else
+                     f"the two act differently (largest cosine {c:.3f}, {pa} vs {pb})")
+            why = (f"{alike}; the data prefer {a.id} (its residual is the less correlated one), and more varied "
+                   f"motion (thrust, speed) would make that certain")
         elif c >= ALIKE_COSINE:
             why = (f"{pa} and {pb} act alike on this data (cosine {c:.3f}): they cannot be told apart here, and "
                    f"data with more varied motion (thrust, speed) would separate them")
         else:
             why = (f"the two act differently (largest cosine {c:.3f}, {pa} vs {pb}) yet fit about equally well: "
                    f"the data cannot choose between these explanations; more flights would")
-        how_well = (f"BIC_eff within {DELTA_BIC:g}" if delta_bic < DELTA_BIC or fraction is None else
-                    f"ΔBIC_eff {delta_bic:g}, but it removes {100 * fraction:.0f} % of the residual {a.id} removes")
+        if not preferred or fraction is None:
+            how_well = f"BIC_eff within {DELTA_BIC:g}"
+        elif fraction > 1:
+            how_well = (f"it removes {fraction:.1f}× the residual {a.id} removes, but its BIC_eff is "
+                        f"{delta_bic:g} worse")
+        else:
+            how_well = f"ΔBIC_eff {delta_bic:g}, but it removes {100 * fraction:.0f} % of the residual {a.id} removes"
         out.append({"effects": [a.id, b.id], "params": [pa, pb], "cosine": round(c, 4), "delta_bic": delta_bic,
                     "fraction_of_chosen": None if fraction is None else round(float(fraction), 4),
                     "data_prefer": a.id if preferred else None,
-                    "note": f"{b.id} explains the residual almost as well as {a.id} ({how_well}); {why}"})
+                    "note": f"{b.id} explains the residual about as well as {a.id} ({how_well}); {why}"})
     return out
 
 

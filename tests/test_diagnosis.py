@@ -250,3 +250,28 @@ def test_a_near_tie_says_whether_the_two_effects_act_alike(angle_deg, alike):
     assert pair["cosine"] == pytest.approx(abs(np.cos(angle)), abs=1e-4)
     assert ("act alike" in pair["note"]) is alike
     assert ("act differently" in pair["note"]) is not alike
+
+
+@pytest.mark.parametrize("angle_deg", [2.0, 89.0])
+def test_a_rival_admitted_by_its_share_alone_is_a_close_rival_the_data_rank_lower(angle_deg):
+    """A rival that removes ≥ 90 % of the chosen effect's residual but scores ΔBIC_eff ≥ 10 worse is listed,
+    and said to be ranked lower by the data, not "cannot be told apart"; a share above 1 reads as a multiple."""
+    from learnest.models.diagnosis import ResidualProblem, confounded_pairs
+    from learnest.models.effects import Effect, Param
+    from learnest.service.experiments.diagnosis import confounded_label, how_much
+
+    rng = np.random.default_rng(1)
+    u, w = rng.normal(size=(2, 200))
+    v = np.cos(np.radians(angle_deg)) * u + np.sin(np.radians(angle_deg)) * w
+    a = Effect("effect_a", "quadrotor", "measurement", (Param("alpha", "", 0.0, -1.0, 1.0),), "a")
+    b = Effect("effect_b", "quadrotor", "measurement", (Param("beta", "", 0.0, -1.0, 1.0),), "b")
+    problem = ResidualProblem("toy", [a, b],
+                              lambda values, rows: (values["alpha"] * u + values["beta"] * v)[rows, None], n_rows=200)
+    (pair,) = confounded_pairs(problem, [a], {"alpha": 0.0}, [(a, b, 12.0, 7.36)])
+    assert pair["data_prefer"] == "effect_a"
+    assert confounded_label(pair) == "close rival (the data prefer effect_a)"
+    assert "removes 7.4× the residual effect_a removes" in pair["note"] and "the data prefer effect_a" in pair["note"]
+    assert ("act alike" in pair["note"]) is (angle_deg < 10)
+    assert how_much(7.36) == "removes 7.4× as much" and how_much(0.93) == "explains 93 % as much"
+    (tie,) = confounded_pairs(problem, [a], {"alpha": 0.0}, [(a, b, 3.0, 0.99)])
+    assert tie["data_prefer"] is None and confounded_label(tie) == "cannot tell apart"

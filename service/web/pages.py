@@ -315,7 +315,11 @@ diagnosis_reports = APIRouter(tags=["diagnoses"])
 def diagnosis_report_page(diagnosis_id: RowId, services: Services = Depends(get_services)):
     """The diagnosis report for people: effects with units, 95 % intervals and alternatives, the residual over
     time before and after, and the held-out error before and after (linear axes)."""
-    from learnest.service.experiments.diagnosis import unchanged_prior_note  # numpy only; kept off app start
+    from learnest.service.experiments.diagnosis import (  # numpy only; kept off app start
+        confounded_label,
+        how_much,
+        unchanged_prior_note,
+    )
 
     diagnosis, job = catalog.row_and_job(services.db, Diagnosis, diagnosis_id, "diagnosis")
     if job.state != "succeeded":
@@ -328,7 +332,8 @@ def diagnosis_report_page(diagnosis_id: RowId, services: Services = Depends(get_
                 prior=[(k, v, CRAZYFLIE_UNITS[k]) for k, v in prior.items() if k in CRAZYFLIE_UNITS],
                 summary=figures.png_data_uri(figures.diagnosis_summary(report), dpi=110),
                 series=figures.png_data_uri(figures.residual_series(series), dpi=110) if series else None,
-                note=unchanged_prior_note(report), registered=diagnosis.registered,
+                note=unchanged_prior_note(report), registered=diagnosis.registered, how_much=how_much,
+                confounded_label=confounded_label,
                 model_name=diagnosis.model_ref.split(":", 1)[0] if diagnosis.model_ref else None)
 
 
