@@ -250,7 +250,8 @@ def diagnose_simulated(system_name: str, simulate: str = "", seed: int = 0,
     if epochs:
         config = replace(config, epochs=epochs)
     before = _score_simulated(system, zeta, train, test, methods, config)
-    after = _score_simulated(repaired, zeta, train, test, methods, config)
+    # nothing chosen: the repaired prior is the prior, and training is seeded, so the scores would repeat
+    after = _score_simulated(repaired, zeta, train, test, methods, config) if chosen else dict(before)
     return {"system": system_name, "simulated_truth": {k: system.true_params[k] for k in system.true_params},
             **_public(selection), "before": before, "after": after,
             "prior_params_after": repaired.prior_params}
