@@ -21,6 +21,8 @@ from ..jobs.services import open_services, sweep_orphan_blobs
 from ..web import pages
 from .errors import install_error_handlers
 from .request_guard import RequestGuard
+from .server import BodyDeadline
+from .throttle import KeyThrottle
 from .routes import diagnoses, evaluations, flights, jobs, models
 
 
@@ -51,16 +53,21 @@ def create_app(settings: Settings | None = None, *, executor: Executor | None = 
                               "evaluate KNODE-UKF / KNODE-MHE against Savitzky-Golay references. Writes need "
                               "the X-API-Key header when the server has LEARNEST_API_KEY set.")
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
+    app.add_middleware(BodyDeadline, timeout_s=settings.body_timeout_s, min_rate=settings.body_min_rate)
+    # failed keys per client address: the guard (JSON API) and the web forms count into the same throttle
+    app.state.key_throttle = KeyThrottle(settings.key_failures, settings.key_failure_window_s)
     # outermost: runs first (host, cross-site and API key checks before any body is read)
-    app.add_middleware(RequestGuard, allowed_hosts=settings.allowed_host_names, api_key=settings.api_key)
+    app.add_middleware(RequestGuard, allowed_hosts=settings.allowed_host_names, api_key=settings.api_key,
+                       throttle=app.state.key_throttle)
     install_error_handlers(app)
     for router in (flights.router, models.router, jobs.router, evaluations.router, diagnoses.router):
         app.include_router(router)
     app.include_router(pages.router)  # the HTML pages for people (/, /ui/..., report.html): service/web/
     app.mount("/static", StaticFiles(packages=[("learnest.service.web", "static")]), name="static")
 
+    # async: answered on the event loop, never queued behind uploads and pages in the worker threads
     @app.get("/health", tags=["service"])
-    def health(request: Request) -> dict:
+    async def health(request: Request) -> dict:
         services = request.app.state.services
         return {"status": "ok", "version": _version(), "executor": services.executor.describe(),
                 "database": services.db.engine.dialect.name}
