@@ -15,27 +15,30 @@ from fastapi.staticfiles import StaticFiles
 from starlette.types import Receive, Send
 
 from ..config import Settings
+from ..jobs.decoding import DecodePool
 from ..jobs.executors import Executor
 from ..jobs.scheduler import Scheduler
 from ..jobs.services import open_services, sweep_orphan_blobs
 from ..web import pages
 from .errors import install_error_handlers
 from .request_guard import RequestGuard
+from .routes import diagnoses, evaluations, flights, jobs, models
 from .server import BodyDeadline
 from .throttle import KeyThrottle
-from .routes import diagnoses, evaluations, flights, jobs, models
 
 
 def create_app(settings: Settings | None = None, *, executor: Executor | None = None,
-               scheduler: bool = True) -> FastAPI:
-    """`executor`: an already running executor to share (not shut down with the app); None: make one from
-    the settings.  `scheduler=False` never starts the scheduler thread (tests drive `Scheduler.tick`)."""
+               decoder: DecodePool | None = None, scheduler: bool = True) -> FastAPI:
+    """`executor`, `decoder`: an already running executor / upload decoder pool to share (not shut down with
+    the app); None: make them from the settings.  `scheduler=False` never starts the scheduler thread (tests
+    drive `Scheduler.tick`)."""
     settings = settings or Settings()
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
-        services = open_services(settings, executor)
+        services = open_services(settings, executor, decoder)
         sweep_orphan_blobs(services.db, services.blobs)  # the server's start, not every CLI call's
+        services.decoder.start()
         app.state.services = services
         app.state.scheduler = None
         if scheduler and settings.schedule_seconds > 0:

@@ -130,7 +130,7 @@ def upload_flight_form(request: Request, files: list[UploadFile | str] = File(de
     forms.require_key(request, services.settings, api_key)
     chosen = forms.chosen_files(files)
     row, _created = add_flight(services.db, services.blobs, chosen, *forms.upload_text(vehicle, notes),
-                               pose_topic=pose_topic, imu_topic=imu_topic)
+                               pose_topic=pose_topic, imu_topic=imu_topic, decode=services.decoder.decode)
     return forms.redirect(f"/ui/flights/{row.id}", services.settings, api_key)
 
 
