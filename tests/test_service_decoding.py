@@ -59,7 +59,15 @@ def test_the_killed_decoder_is_replaced_and_the_next_upload_is_decoded(tmp_path,
 def test_uploads_beyond_the_workers_and_the_waiting_room_get_503_at_once(sleepy_pool, tmp_path):
     from learnest.service.jobs.decoding import DecodeBusy
 
-    first = threading.Thread(target=lambda: pytest.raises(Exception, sleepy_pool.decode, []))
+    outcome: list[str] = []
+
+    def occupy():
+        try:
+            sleepy_pool.decode([])
+        except Exception as err:   # the time limit
+            outcome.append(str(err))
+
+    first = threading.Thread(target=occupy)
     first.start()
     time.sleep(0.1)     # the one worker is busy and there is no waiting room
     started = time.monotonic()
@@ -67,6 +75,7 @@ def test_uploads_beyond_the_workers_and_the_waiting_room_get_503_at_once(sleepy_
         sleepy_pool.decode([])
     assert refused.value.status == 503 and time.monotonic() - started < 0.2
     first.join(5)
+    assert outcome and "limit" in outcome[0]
 
 
 def test_an_upload_is_decoded_in_another_process(tmp_path, data_dir):
