@@ -74,6 +74,7 @@ def test_uploads_beyond_the_workers_and_the_waiting_room_get_503_at_once(sleepy_
     with pytest.raises(DecodeBusy, match="LEARNEST_DECODE_QUEUE") as refused:
         sleepy_pool.decode([])
     assert refused.value.status == 503 and time.monotonic() - started < 0.2
+    assert refused.value.headers == {"Retry-After": "5"}
     first.join(5)
     assert outcome and "limit" in outcome[0]
 

@@ -37,7 +37,8 @@ def install_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(LearnestError)
     async def learnest_error(_request: Request, err: LearnestError):
-        return JSONResponse({"detail": str(err)}, status_code=err.status)
+        # an error may say when to come back (DecodeBusy: 503 with Retry-After)
+        return JSONResponse({"detail": str(err)}, status_code=err.status, headers=getattr(err, "headers", None))
 
     @app.exception_handler(Exception)
     async def unexpected(request: Request, err: Exception):

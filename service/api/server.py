@@ -48,7 +48,7 @@ class DeadlineH11Protocol(H11Protocol):
     def _header_timeout_s(self) -> float:
         return self.header_timeout_s if self.header_timeout_s is not None else _header_timeout_from_settings()
 
-    def connection_made(self, transport) -> None:  # type: ignore[override]
+    def connection_made(self, transport) -> None:
         super().connection_made(transport)
         self._arm_header_timer()
 

@@ -52,6 +52,7 @@ class DecodeBusy(LearnestError):
     """Every decode worker is busy and the waiting room is full: HTTP 503, retry later."""
 
     status = 503
+    headers = {"Retry-After": "5"}
 
 
 class DecodePool:

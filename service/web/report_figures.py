@@ -15,7 +15,7 @@ import threading
 from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 
-from .. import catalog
+from .. import catalog, registry
 from ..jobs.runner import error_message
 from ..jobs.services import Services
 from ..storage.tables import Evaluation, ReportFigure, utcnow
@@ -47,7 +47,7 @@ def velocity_figure(services: Services, evaluation: Evaluation, flight_id: int) 
     try:
         version = catalog.get_version_by_id(services.db, evaluation.model_version_id)
         row = catalog.get_flight(services.db, flight_id)
-        model_json = services.blobs.read_bytes(version.weights_blob)
+        model_json = services.blobs.read_bytes(registry.weights_of(version))
         flight_bytes = services.blobs.read_bytes(row.flight_blob)
         future = services.executor.submit(velocity_png, model_json, flight_bytes,
                                           f"{version.name}:{version.version} on {row.name}")
