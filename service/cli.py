@@ -207,19 +207,36 @@ def _serve(args) -> int:
 
     import uvicorn
 
+    from .api.server import uvicorn_options
+    from .config import Settings
+
     if args.dask:  # the app reads its settings from the environment, in every worker process
         os.environ["LEARNEST_DASK"] = args.dask
+    for option in SERVE_LIMITS:  # likewise the connection limits given on the command line
+        value = getattr(args, option)
+        if value is not None:
+            os.environ[f"LEARNEST_{option.upper()}"] = str(value)
     if args.host not in ("0.0.0.0", "::"):  # the name it is reached by is served (LEARNEST_ALLOWED_HOSTS)
-        from .config import Settings
-
         served = os.environ.get("LEARNEST_ALLOWED_HOSTS", Settings.model_fields["allowed_hosts"].default)
         os.environ["LEARNEST_ALLOWED_HOSTS"] = f"{served},{args.host}"
     else:
         print("learnest: serving every interface: set LEARNEST_ALLOWED_HOSTS to the names clients use "
               "(requests for other host names get 400)", file=sys.stderr)
+    settings = Settings()  # validated here: a bad value stops the start with its name
     uvicorn.run("learnest.service.api.app:create_app", factory=True, host=args.host, port=args.port,
-                workers=args.workers)
+                workers=args.workers, **uvicorn_options(settings))
     return 0
+
+
+# `learnest serve --NAME` options that override LEARNEST_NAME (service.config): timeouts and limits
+SERVE_LIMITS = {"header_timeout_s": (float, "a request's headers must arrive within this many seconds (10)"),
+                "body_timeout_s": (float, "a request body gets this many seconds (30) ..."),
+                "body_min_rate": (float, "... plus one per this many bytes received (10000); else 408"),
+                "keep_alive_s": (float, "close an idle keep-alive connection after this many seconds (5)"),
+                "limit_concurrency": (int, "connections + requests in progress beyond which the answer is 503 "
+                                           "(200; 0 = no limit)"),
+                "decode_workers": (int, "uploads decoded at once (2)"),
+                "decode_timeout_s": (float, "one upload's decode time limit, seconds (60)")}
 
 
 def _demo(args) -> int:
@@ -402,6 +419,9 @@ def build_parser() -> argparse.ArgumentParser:
     srv.add_argument("--workers", type=_positive_int, default=1, help="uvicorn worker processes")
     srv.add_argument("--dask", metavar="URL", help="run jobs on a Dask scheduler (tcp://host:port, or 'local' "
                      "for a LocalCluster) instead of the local process pool")
+    for option, (kind, text) in SERVE_LIMITS.items():
+        srv.add_argument("--" + option.replace("_", "-"), type=kind, default=None,
+                         help=f"{text}; env LEARNEST_{option.upper()}")
     srv.set_defaults(func=_serve)
 
     dia = sub.add_parser("diagnose", help="trace the residual to named physical effects, add them, "

@@ -2,6 +2,7 @@
 results cache, the HTML report, the scheduler (and `learnest evaluate --new`), and the Dask executor."""
 import dataclasses
 import json
+import time
 
 import pytest
 from utils.service import (
@@ -199,3 +200,33 @@ def test_cli_evaluate_new_output(registry_home, monkeypatch, capsys):
     assert cli_main(["evaluate", "--new", "--alias", "nobody-has-this", "--methods", "ukf"]) == 0
     assert "nothing new" in capsys.readouterr().out
     assert cli_main(["evaluate", "--model", "x"]) == 2   # the old form still needs files
+
+
+def test_the_report_page_computes_its_velocity_figure_once_and_keeps_it(registry_home):
+    """Issue 10, item 7: a report view starts one executor task for the figure (never a second one while it
+    runs, however many views), the page reloads until it is stored, and later views read the stored one."""
+    from sqlalchemy import func, select
+
+    from learnest.service.storage.tables import ReportFigure
+    from learnest.service.web import report_figures
+
+    home, ids = registry_home["home"], registry_home["ids"]
+    with running_app(home) as client:
+        accepted, _ = evaluate(client, "quad:1", [ids[2]], methods=["ukf"])   # settings no other test uses
+        page_url = f"/evaluations/{accepted['evaluation_id']}/report.html"
+        first = [client.get(page_url) for _ in range(5)]
+        assert all(r.status_code == 200 and "being computed" in r.text and "http-equiv='refresh'" in r.text
+                   or "velocity-plot" in r.text for r in first)
+        assert len(report_figures._running) <= 1
+        deadline = time.monotonic() + 60
+        while "id='velocity-plot'" not in (answer := client.get(page_url)).text:
+            assert time.monotonic() < deadline, answer.text[-500:]
+            time.sleep(0.2)
+        assert "being computed" not in answer.text and "http-equiv='refresh'" not in answer.text
+        services = client.app.state.services
+        with services.db.transaction() as session:
+            stored = session.scalar(select(func.count()).select_from(ReportFigure)
+                                    .where(ReportFigure.evaluation_id == accepted["evaluation_id"]))
+        assert stored == 1
+        started = time.monotonic()
+        assert "id='velocity-plot'" in client.get(page_url).text and time.monotonic() - started < 2

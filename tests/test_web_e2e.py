@@ -188,7 +188,9 @@ def test_upload_train_evaluate_and_report_in_chromium(server, browser):
     assert image_loaded(browser, "img[alt='MSE box plot']")
     table = by_css(browser, "table").text
     assert "circle_rep2" in table and "knode-ukf" in table and "median" in table
-    assert image_loaded(browser, "#velocity-plot")
+    # the velocity plot is computed once by an executor task; the page reloads itself until it is stored
+    from selenium.webdriver.support.ui import WebDriverWait
+    WebDriverWait(browser, 60).until(lambda driver: image_loaded(driver, "#velocity-plot"))
     assert "circle_rep2" in by_css(browser, "select[name=flight]").text
 
 

@@ -42,10 +42,16 @@ def init_worker(parent_pid: int | None = None) -> None:
 
     torch.set_num_threads(1)
     if parent_pid is not None:
-        # Ctrl-C reaches the whole process group: the server (or CLI) decides what stops, and stops its
-        # workers itself; a worker interrupted mid-task would only hand its job a KeyboardInterrupt
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        threading.Thread(target=_exit_with_parent, args=(parent_pid,), name="parent-watch", daemon=True).start()
+        watch_parent(parent_pid)
+
+
+def watch_parent(parent_pid: int) -> None:
+    """In a worker process: ignore Ctrl-C, and end as soon as process ``parent_pid`` is gone (see
+    `init_worker`).  The upload decoders' initializer (they need no torch)."""
+    # Ctrl-C reaches the whole process group: the server (or CLI) decides what stops, and stops its
+    # workers itself; a worker interrupted mid-task would only hand its job a KeyboardInterrupt
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.Thread(target=_exit_with_parent, args=(parent_pid,), name="parent-watch", daemon=True).start()
 
 
 def _exit_with_parent(parent_pid: int) -> None:

@@ -183,6 +183,21 @@ class Result(Base):
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
 
 
+class ReportFigure(Base):
+    """The velocity figure of one flight of an evaluation's report page, computed once (it runs the UKFs) by
+    an executor task and kept: a page view never runs an estimator for a figure stored here."""
+
+    __tablename__ = "report_figures"
+    __table_args__ = (UniqueConstraint("evaluation_id", "flight_id", name="uq_report_figures_evaluation_flight"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    evaluation_id: Mapped[int] = mapped_column(ForeignKey("evaluations.id", ondelete="CASCADE"))
+    flight_id: Mapped[int] = mapped_column(Integer)
+    png: Mapped[str | None] = mapped_column(Text)                # data URI; None when it failed
+    error: Mapped[str | None] = mapped_column(Text)
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+
+
 class Lease(Base):
     """A named lock with an expiry: whoever holds an unexpired lease owns the thing it names."""
 
