@@ -60,7 +60,7 @@ def evaluation_estimates(db: Database, blobs: BlobStore, evaluation_id: int,
         query = select(Result.flight_sha256, Result.estimates_blob).where(
             Result.model_version_id == evaluation.model_version_id, Result.settings_key == key,
             Result.flight_sha256.in_(list(shas.values())))
-        blob_of = dict(session.execute(query).tuples().all())
+        blob_of = {sha: blob for sha, blob in session.execute(query)}
         names = {i: row.name for i, row in rows.items()}
     missing = [i for i in shas if not blob_of.get(shas[i])]
     if missing:
