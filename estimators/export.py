@@ -124,16 +124,16 @@ def write_mcap(flights: Sequence[FlightEstimates], target: str | Path | IO[bytes
     several = len(flights) > 1
     for flight in flights:
         root, times = topic_root(flight, several), flight.log_times_ns()
-        channels = []  # (channel id, states (T, 9), columns or None for the pose)
+        channels: list[tuple[int, np.ndarray, slice | None]] = []  # (channel id, states (T, 9), columns; None: pose)
         for source, states in mcap_sources(flight).items():
             info = {"flight": flight.flight, "flight_id": str(flight.flight_id or ""), "source": source,
                     "frame_id": "world"}
-            for quantity, columns, unit in QUANTITIES:
-                if np.isnan(states[:, columns]).all():
+            for quantity, axes, unit in QUANTITIES:
+                if np.isnan(states[:, axes]).all():
                     continue
                 channel = writer.register_channel(f"{root}/{source}/{quantity}", "json", vector3,
                                                   metadata={**info, "unit": unit})
-                channels.append((channel, states, columns))
+                channels.append((channel, states, axes))
             channel = writer.register_channel(f"{root}/{source}/pose", "json", pose, metadata={**info, "unit": "m"})
             channels.append((channel, states, None))
         for i, stamp in enumerate(times.tolist()):

@@ -146,7 +146,8 @@ class Flight:
 
         Columns are ``t`` (s) and one column per array axis: ``p_x, p_y, p_z`` (m), ``a_meas_x..z``
         (m/s², world, gravity removed), ``quat_x..w`` and each channel (``gyro_x..z``, ``vbat``, ...;
-        a channel of other width k gives ``name_0..name_{k-1}``: ``motors_0..3`` are m1..m4).  ``df.attrs`` holds ``units``
+        a channel of other width k gives ``name_0..name_{k-1}``: ``motors_0..3`` are m1..m4).
+        ``df.attrs`` holds ``units``
         ({column: unit}) and ``meta`` (the flight's metadata), so `from_dataframe` restores the flight.
 
         Returns

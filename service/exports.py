@@ -60,9 +60,9 @@ def evaluation_estimates(db: Database, blobs: BlobStore, evaluation_id: int,
         query = select(Result.flight_sha256, Result.estimates_blob).where(
             Result.model_version_id == evaluation.model_version_id, Result.settings_key == key,
             Result.flight_sha256.in_(list(shas.values())))
-        blob_of = {sha: blob for sha, blob in session.execute(query)}
+        blob_of: dict[str, str] = {sha: blob for sha, blob in session.execute(query) if blob}
         names = {i: row.name for i, row in rows.items()}
-    missing = [i for i in shas if not blob_of.get(shas[i])]
+    missing = [i for i in shas if shas[i] not in blob_of]
     if missing:
         raise Conflict(f"evaluation {evaluation_id} has no stored estimates for flight(s) "
                        f"{', '.join(map(str, missing))} (scored before estimates were kept): evaluate them again")

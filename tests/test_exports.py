@@ -82,9 +82,8 @@ def test_mcap_has_foxglove_schemas_one_topic_per_source_and_the_estimates():
     out = io.BytesIO()
     write_estimates([flight], out, "mcap")
     channels, schemas, messages, summary = read_mcap(out.getvalue())
-    sources = {"reference": ("position", "velocity", "acceleration", "pose"),
-               "measurement": ("position", "acceleration", "pose"),
-               "a": ("position", "velocity", "acceleration", "pose"), "b": ("position", "velocity", "acceleration", "pose")}
+    every = ("position", "velocity", "acceleration", "pose")
+    sources = {"reference": every, "measurement": ("position", "acceleration", "pose"), "a": every, "b": every}
     expected = {f"/learnest/{s}/{q}" for s, quantities in sources.items() for q in quantities}
     assert set(channels) == expected
     assert summary.statistics.message_count == T * len(expected)

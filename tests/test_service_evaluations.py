@@ -212,10 +212,10 @@ def test_estimates_download_as_csv_parquet_and_mcap(registry_home):
     import pyarrow.parquet as pq
     from mcap.reader import make_reader
     from sqlalchemy import select, update
+    from utils.service import blob_files
 
     from learnest.estimators.estimates import STATE_COLUMNS
     from learnest.service.storage.tables import Result
-    from utils.service import blob_files
 
     home, ids = registry_home["home"], registry_home["ids"]
     with running_app(home) as client:

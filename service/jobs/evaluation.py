@@ -3,7 +3,7 @@ result (`result_cache`), then the report (the shape of service.experiments.fligh
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
@@ -89,8 +89,8 @@ def run_evaluation(services: Services, ctx: JobContext, evaluation_id: int) -> N
         entry, estimates, error = _outcome(future, name)
         failed += error is not None
         with services.blobs.writing():  # the estimates blob, then the row naming it
-            blob = services.blobs.put_bytes(estimates) if estimates is not None else None
-            replaced = store_result(services.db, sha, version_id, settings.key, flight_id, entry, error, blob)
+            kept = services.blobs.put_bytes(estimates) if estimates is not None else None
+            replaced = store_result(services.db, sha, version_id, settings.key, flight_id, entry, error, kept)
         discard_blobs(services.db, services.blobs, [replaced] if replaced else [])
         entries[sha] = entry
         done += 1
@@ -121,7 +121,8 @@ def _missing_entry(flight_id: int) -> dict:
     return {"flight": f"#{flight_id}", "excluded": True, "reason": "flight was deleted", "mse": {}, "groups": {}}
 
 
-def assemble_report(model_ref: str, entries: list[dict], flight_ids: list[int], shas: list[str | None]) -> dict:
+def assemble_report(model_ref: str, entries: list[dict], flight_ids: Sequence[int],
+                    shas: Sequence[str | None]) -> dict:
     """The same shape and numbers as service.experiments.flights.evaluate_flights; each flight's entry also
     names the stored flight (``flight_id``, ``sha256``: its content key), and ``units`` says what the
     numbers are in."""
