@@ -12,6 +12,7 @@ from utils.service import (
     settings_for,
     train,
     upload,
+    wait_for_job,
     without_timing,
 )
 
@@ -204,7 +205,7 @@ def test_cli_evaluate_new_output(registry_home, monkeypatch, capsys):
 def test_estimates_download_as_csv_parquet_and_mcap(registry_home):
     """GET /evaluations/{id}/estimates through the real app: the tidy table reproduces the reported MSE, one
     flight can be chosen, errors are 400/404/409; results cached before estimates were kept are computed
-    again; deleting a flight deletes its stored estimates.  (Last in the module: it adds a flight.)"""
+    again; deleting a flight deletes its stored estimates.  (Last in the module: it deletes a flight.)"""
     import io
 
     import numpy as np
@@ -268,14 +269,12 @@ def test_estimates_download_as_csv_parquet_and_mcap(registry_home):
         assert stale.status_code == 409 and "evaluate them again" in stale.json()["detail"]
         again = client.post("/evaluations", json={"model": "quad:1", "flights": ids[1:], "methods": FAST_METHODS})
         assert again.json()["state"] == "queued"            # not answered from the cache
-        renewed, _ = evaluate(client, "quad:1", ids[1:])
-        assert client.get(f"/evaluations/{renewed['evaluation_id']}/estimates").status_code == 200
+        assert wait_for_job(client, again.json()["job_id"])["state"] == "succeeded"
+        assert client.get(f"/evaluations/{again.json()['evaluation_id']}/estimates").status_code == 200
 
         # deleting a flight deletes the estimates stored with its results
-        new = upload(client, flight_csv(registry_home["logs"], 5)).json()
-        evaluate(client, "quad:1", [new["id"]])
         with database.transaction() as session:
-            kept = set(session.scalars(select(Result.estimates_blob).where(Result.flight_sha256 == new["sha256"])))
-        assert kept and kept <= blob_files(home)
-        assert client.delete(f"/flights/{new['id']}").status_code == 204
+            kept = set(session.scalars(select(Result.estimates_blob).where(Result.flight_sha256 == shas[1])))
+        assert kept and None not in kept and kept <= blob_files(home)
+        assert client.delete(f"/flights/{ids[2]}").status_code == 204
         assert not kept & blob_files(home)
