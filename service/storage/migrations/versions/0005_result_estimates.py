@@ -3,15 +3,15 @@
 Results stored before this have none; an evaluation computes such a flight again instead of answering
 from the cache, so every evaluation can export its estimates.
 
-Revision ID: 0004
-Revises: 0003
-Create Date: 2026-12-10
+Revision ID: 0005
+Revises: 0004
+Create Date: 2026-11-22
 """
 import sqlalchemy as sa
 from alembic import op
 
-revision = "0004"
-down_revision = "0003"
+revision = "0005"
+down_revision = "0004"
 branch_labels = None
 depends_on = None
 
