@@ -180,6 +180,8 @@ class Result(Base):
     state: Mapped[str] = mapped_column(String(20))               # "succeeded" | "failed"
     entry: Mapped[dict] = mapped_column(JSON)                    # the flight's entry of the report
     error: Mapped[str | None] = mapped_column(Text)
+    # FlightEstimates.to_bytes of a scored flight (None: excluded, failed, or stored before 0005)
+    estimates_blob: Mapped[str | None] = mapped_column(String(64))
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
 
 

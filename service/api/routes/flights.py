@@ -17,7 +17,7 @@ from typing import Literal
 import numpy as np
 from fastapi import APIRouter, Depends, File, Form, Query, Response, UploadFile
 from fastapi.responses import FileResponse
-from sqlalchemy import delete
+from sqlalchemy import delete, select
 from starlette.background import BackgroundTask
 
 from learnest.errors import InvalidInput, NotFound
@@ -161,13 +161,15 @@ def _unique(name: str, used: set[str]) -> str:
 
 @router.delete("/{flight_id}", status_code=204, dependencies=[Depends(require_api_key)])
 def delete_flight(flight_id: RowId, db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
-    """Removes the flight, its cached results and its blobs (unless another row still uses them).
-    Model versions trained on it keep its id and sha256 (lineage)."""
+    """Removes the flight, its cached results (with their stored estimates) and its blobs (unless another row
+    still uses them).  Model versions trained on it keep its id and sha256 (lineage)."""
     with db.transaction() as session:
         row = session.get(FlightRecord, flight_id)
         if row is None:
             raise NotFound(f"flight {flight_id} not found")
         candidates = [row.flight_blob] + [f.sha256 for f in row.files]
+        results = select(Result.estimates_blob).where(Result.flight_sha256 == row.sha256)
+        candidates += [sha for sha in session.scalars(results) if sha]
         session.execute(delete(Result).where(Result.flight_sha256 == row.sha256))
         session.delete(row)
     blobs.collect(candidates, lambda sha: blob_is_referenced(db, sha))
