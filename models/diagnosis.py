@@ -115,15 +115,27 @@ def autocorrelation_time(residual: np.ndarray) -> float:
     return float(np.clip(np.mean(taus), 1.0, n)) if taus else 1.0
 
 
-def bic_eff(residual: np.ndarray, n_params: int) -> tuple[float, float]:
+def bic_eff(residual: np.ndarray, n_params: int, tau: float | None = None) -> tuple[float, float]:
     """BIC with the effective number of independent samples N/τ (see autocorrelation_time).
 
     Returns ``(bic, tau)``: N_eff·log(mean r²) + n_params·log(N_eff), with N = residual.size, N_eff at
-    least n_params + 2, and τ in samples.
+    least n_params + 2, and τ in samples (the residual's own unless ``tau`` is given; compare models only
+    at a common τ, see `common_bic`).
     """
-    tau = autocorrelation_time(residual)
+    tau = autocorrelation_time(residual) if tau is None else tau
     n_eff = max(residual.size / tau, n_params + 2.0)
     return n_eff * np.log(max(np.mean(residual**2), 1e-300)) + n_params * np.log(n_eff), tau
+
+
+def common_bic(fit_: Fit, tau: float) -> float:
+    """BIC_eff of ``fit_`` with a given autocorrelation time τ (samples) instead of its own residual's.
+
+    Models compared with each other must share N_eff = N/τ: with each its own, the term N_eff·log(mean r²)
+    (whose sign depends on the residual's units) rewards a whiter residual over a smaller one — on a real
+    flight an accelerometer delay that removed 7× less residual than a tilt won on its whiter residual.
+    Differences at a common N_eff, N_eff·log(RSS₁/RSS₀) + Δk·log N_eff, do not depend on the units.
+    """
+    return bic_eff(fit_.residual, len(fit_.values), tau)[0]
 
 
 def _all_values(candidates, chosen_values=None):
@@ -233,8 +245,8 @@ def confounded_pairs(problem: ResidualProblem, chosen: list, values: dict, near_
         if preferred:
             alike = (f"{pa} and {pb} act alike on most of this data (cosine {c:.3f})" if c >= ALIKE_COSINE else
                      f"the two act differently (largest cosine {c:.3f}, {pa} vs {pb})")
-            why = (f"{alike}; the data prefer {a.id} (its residual is the less correlated one), and more varied "
-                   f"motion (thrust, speed) would make that certain")
+            why = (f"{alike}; the data prefer {a.id} by BIC_eff (residual and number of parameters together), "
+                   f"and more varied motion (thrust, speed) would make that certain")
         elif c >= ALIKE_COSINE:
             why = (f"{pa} and {pb} act alike on this data (cosine {c:.3f}): they cannot be told apart here, and "
                    f"data with more varied motion (thrust, speed) would separate them")
@@ -243,9 +255,9 @@ def confounded_pairs(problem: ResidualProblem, chosen: list, values: dict, near_
                    f"the data cannot choose between these explanations; more flights would")
         if not preferred or fraction is None:
             how_well = f"BIC_eff within {DELTA_BIC:g}"
-        elif fraction > 1:
-            how_well = (f"it removes {fraction:.1f}× the residual {a.id} removes, but its BIC_eff is "
-                        f"{delta_bic:g} worse")
+        elif fraction >= 1.05:
+            how_well = (f"it removes {fraction:.1f}× the residual {a.id} removes, but with more parameters its "
+                        f"BIC_eff is {delta_bic:g} worse")
         else:
             how_well = f"ΔBIC_eff {delta_bic:g}, but it removes {100 * fraction:.0f} % of the residual {a.id} removes"
         out.append({"effects": [a.id, b.id], "params": [pa, pb], "cosine": round(c, 4), "delta_bic": delta_bic,
@@ -314,24 +326,32 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
         ``params`` fitted on its own, ``nominal``, ``units``, ``delta_bic_alone`` its BIC_eff change alone).
     """
     current = fit(problem, [])
-    baseline_rss, baseline_bic = current.rss, current.bic
+    baseline_rss = current.rss
     current_cv = cv_error(problem, [])
     chosen: list[Effect] = []
     trace: list[dict[str, Any]] = []
     near_ties: list[tuple[Effect, Effect, float, float]] = []
     alternatives: dict[str, list[dict[str, Any]]] = {}    # chosen effect id -> rivals that explain as much
     alone: dict[str, Fit] = {}     # each candidate fitted on its own (the first step)
+    alone_delta: dict[str, float] = {}   # and its BIC_eff change against no effect
     while len(chosen) < max_effects:
         remaining = [e for e in problem.candidates if e not in chosen]
         if not remaining:
             break
-        trials = sorted((fit(problem, chosen + [e]) for e in remaining), key=lambda f: f.bic)
+        trials = [fit(problem, chosen + [e]) for e in remaining]
+        # one N_eff for all models compared at this step (see common_bic): the τ of the best-fitting
+        # candidate's residual, the best estimate here of how correlated the noise is
+        tau = min(trials, key=lambda f: f.rss).tau
+        bic = {id(f): common_bic(f, tau) for f in [current, *trials]}
+        trials.sort(key=lambda f: bic[id(f)])
         if not chosen:
             alone = {t.effects[-1].id: t for t in trials}
+            alone_delta = {t.effects[-1].id: round(float(bic[id(t)] - bic[id(current)]), 2) for t in trials}
         best = trials[0]
-        step: dict[str, Any] = {"candidates": {t.effects[-1].id: round(float(t.bic - current.bic), 2)
+        step: dict[str, Any] = {"tau": round(float(tau), 2),
+                                "candidates": {t.effects[-1].id: round(float(bic[id(t)] - bic[id(current)]), 2)
                                                for t in trials}}
-        if best.bic > current.bic - DELTA_BIC:
+        if bic[id(best)] > bic[id(current)] - DELTA_BIC:
             step["stop"] = "no candidate lowers BIC_eff enough"
             trace.append(step)
             break
@@ -344,8 +364,8 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
         gain = current.rss - best.rss
         for t in trials[1:]:
             fraction = (current.rss - t.rss) / gain if gain > 0 else 0.0
-            if t.bic - best.bic < DELTA_BIC or fraction >= ALTERNATIVE_FRACTION:
-                rival, delta_bic = t.effects[-1], round(float(t.bic - best.bic), 2)
+            if bic[id(t)] - bic[id(best)] < DELTA_BIC or fraction >= ALTERNATIVE_FRACTION:
+                rival, delta_bic = t.effects[-1], round(float(bic[id(t)] - bic[id(best)]), 2)
                 near_ties.append((best.effects[-1], rival, delta_bic, fraction))
                 alternatives.setdefault(best.effects[-1].id, []).append(
                     {"id": rival.id, "params": {p.name: t.values.get(p.name, p.nominal) for p in rival.params},
@@ -379,7 +399,7 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
                    "params": {p.name: alone[e.id].values.get(p.name, p.nominal) for p in e.params}
                    if e.id in alone else e.nominal(),
                    "nominal": e.nominal(), "units": {p.name: p.unit for p in e.params},
-                   "delta_bic_alone": round(float(alone[e.id].bic - baseline_bic), 2) if e.id in alone else None}
+                   "delta_bic_alone": alone_delta.get(e.id)}
                   for e in problem.candidates]
     return {"channel": problem.name, "effects": results, "confounded": confounded, "values": current.values,
             "rss_before": baseline_rss, "rss_after": current.rss, "trace": trace, "fit": current,

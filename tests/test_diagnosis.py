@@ -271,6 +271,7 @@ def test_a_rival_admitted_by_its_share_alone_is_a_close_rival_the_data_rank_lowe
     assert pair["data_prefer"] == "effect_a"
     assert confounded_label(pair) == "close rival (the data prefer effect_a)"
     assert "removes 7.4× the residual effect_a removes" in pair["note"] and "the data prefer effect_a" in pair["note"]
+    assert how_much(1.0001) == "explains 100 % as much"
     assert ("act alike" in pair["note"]) is (angle_deg < 10)
     assert how_much(7.36) == "removes 7.4× as much" and how_much(0.93) == "explains 93 % as much"
     (tie,) = confounded_pairs(problem, [a], {"alpha": 0.0}, [(a, b, 3.0, 0.99)])

@@ -497,9 +497,9 @@ def _public(selection):
 
 
 def how_much(fraction: float) -> str:
-    """A rival's share of the residual the chosen effect removes, in words (it can exceed 1: a rival that
-    removes more but leaves a more correlated residual has the worse BIC_eff)."""
-    return f"removes {fraction:.1f}× as much" if fraction > 1 else f"explains {100 * fraction:.0f} % as much"
+    """A rival's share of the residual the chosen effect removes, in words (it can exceed 1: a rival with
+    more parameters can remove more and still have the worse BIC_eff)."""
+    return f"removes {fraction:.1f}× as much" if fraction >= 1.05 else f"explains {100 * fraction:.0f} % as much"
 
 
 def confounded_label(pair: dict) -> str:
