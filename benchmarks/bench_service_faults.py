@@ -24,7 +24,6 @@ import json
 import os
 import platform
 import signal
-import socket
 import sqlite3
 import subprocess
 import sys
@@ -38,6 +37,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 import psutil
+from served import free_port, wait_until_up
 
 REPO = Path(__file__).resolve().parents[1]
 OUT = REPO / "benchmarks" / "results"
@@ -77,12 +77,6 @@ def make_bomb(path: Path, seed: int, chunks: int = 4, uncompressed: int = 16 << 
 
 
 # -- a real server ---------------------------------------------------------------------------------------
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 class Server:
     """`learnest serve` in a subprocess on 127.0.0.1:<free port> with its own LEARNEST_HOME."""
 
@@ -102,16 +96,7 @@ class Server:
         self._wait_until_up()
 
     def _wait_until_up(self, timeout: float = 120.0) -> None:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if self.process.poll() is not None:
-                raise RuntimeError(f"learnest serve exited: see {self.log.name}")
-            try:
-                if httpx.get(self.url + "/health", timeout=2).status_code == 200:
-                    return
-            except httpx.HTTPError:
-                time.sleep(0.2)
-        raise RuntimeError(f"learnest serve did not start within {timeout} s")
+        wait_until_up(self.process, self.url, self.log.name, timeout)
 
     def stop(self) -> None:
         if self.process.poll() is None:
