@@ -310,22 +310,34 @@ def _diagnose(args) -> int:
 
 
 def format_report(report: dict) -> str:
-    """An evaluation report (evaluate_flights' JSON) as a text table: per-flight and median MSE (x 1e-3) per method,
-    then the improvements in %.
+    """An evaluation report (evaluate_flights' JSON) as a text table: per-flight and median MSE (x 1e-3) per method
+    and the share of the flight outside the model's training envelope, then the improvements in %.
     """
     methods = list(report["median"])
     prior = f" ({report['system']} prior)" if report.get("system") else ""
     lines = [f"model {report['model']}{prior}: MSE over [p, v, a] vs Savitzky-Golay references (x 1e-3)",
-             f"{'flight':<28}" + "".join(f"{m:>12}" for m in methods)]
+             f"{'flight':<28}" + "".join(f"{m:>12}" for m in methods) + "  outside envelope"]
     for f in report["flights"]:
         if f["excluded"]:
             lines.append(f"{f['flight']:<28}  excluded: {f['reason']}")
         else:
-            lines.append(f"{f['flight']:<28}" + "".join(f"{f['mse'][m] * 1e3:>12.3f}" for m in methods))
+            lines.append(f"{f['flight']:<28}" + "".join(f"{f['mse'][m] * 1e3:>12.3f}" for m in methods)
+                         + f"  {_envelope_text(f.get('envelope'))}")
     lines.append(f"{'median':<28}" + "".join(f"{report['median'][m] * 1e3:>12.3f}" for m in methods))
     for key, value in report["improvement_pct"].items():
         lines.append(f"improvement {key}: {value:+.1f} % (median MSE)")
+    outside = report.get("outside_training_envelope")
+    if outside:
+        lines.append(f"outside what this model saw in training: {', '.join(outside)}")
     return "\n".join(lines)
+
+
+def _envelope_text(envelope: dict | None) -> str:
+    """'12 % (vx, az) OUTSIDE', '0 %', or '-' for a model stored without an envelope."""
+    if not envelope:
+        return "-"
+    states = f" ({', '.join(envelope['states_outside'])}) OUTSIDE" if envelope["outside_training_envelope"] else ""
+    return f"{100 * envelope['fraction_outside']:.0f} %{states}"
 
 
 class _Parser(argparse.ArgumentParser):

@@ -18,3 +18,5 @@ def test_quick_reproduction_shows_the_papers_ordering(task, samples, epochs):
         assert full < 1.5 * knode, f"{task}: full-state KNODE should not lose to partial ({estimator})"
     assert set(report["rows"]) == {"MHE", "KNODE-MHE", "KNODE-MHE (full state)", "MHE (true dynamics)", "UKF",
                                    "KNODE-UKF", "KNODE-UKF (full state)", "UKF (true dynamics)"}
+    for seed in report["per_seed"]:   # each evaluation run is judged against its KNODE's training envelope
+        assert isinstance(seed["envelope"]["outside_training_envelope"], bool)
