@@ -82,7 +82,8 @@ def _new_file(text: str) -> str:
 def _reproduce(args) -> int:
     from .experiments.table1 import ReproduceSettings, format_table, reproduce
 
-    settings = ReproduceSettings(task=args.task, eval_samples=args.samples, epochs=args.epochs, horizon=args.horizon)
+    settings = ReproduceSettings(task=args.task, eval_samples=args.samples, epochs=args.epochs, horizon=args.horizon,
+                                 observer_rounds=args.observer_rounds)
     with tqdm(total=args.seeds, desc=f"Table I {args.task}", unit="seed", file=sys.stderr) as bar:
         report = reproduce(settings, args.seeds, workers=args.workers, progress=lambda _r: bar.update(1))
     print(format_table(report))
@@ -363,6 +364,9 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--horizon", type=_positive_int, default=MHE_HORIZON,
                      help=f"MHE horizon N (default {MHE_HORIZON})")
     rep.add_argument("--workers", type=_positive_int, default=1, help="processes to spread the seeds over")
+    rep.add_argument("--observer-rounds", type=int, choices=range(0, 11), default=None, metavar="K",
+                     help="observer -> train rounds of the KNODE rows, 0-10 (default: the task's, "
+                          "models/presets.py PAPER_OBSERVER; 0 is the paper's Algorithm 1)")
     rep.set_defaults(func=_reproduce)
 
     ing = sub.add_parser("ingest", help="read flight logs, normalise them and check their quality")
