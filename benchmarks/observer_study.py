@@ -27,7 +27,7 @@ from learnest.models.presets import MHE_HORIZON, PAPER_TRAINING, TrainingConfig
 from learnest.models.systems import make_system
 
 VARIANTS = {"filter": ("filter", 0), "smoother": ("smoother", 0), "filter+iteration": ("filter", 3),
-            "smoother+iteration": ("smoother", 3)}
+            "smoother+iteration": ("smoother", 3), "filter+6 rounds": ("filter", 6)}
 
 
 def _scores(model, system, test) -> dict:
