@@ -21,7 +21,6 @@ from __future__ import annotations
 import json
 import os
 import platform
-import socket
 import subprocess
 import sys
 import tempfile
@@ -30,6 +29,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import httpx
+from served import free_port, wait_until_up
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -67,12 +67,6 @@ def make_flights(directory: Path, count: int) -> list[Path]:
 
 
 # -- a real server ---------------------------------------------------------------------------------------
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 class Server:
     """`learnest serve` in a subprocess with its own LEARNEST_HOME."""
 
@@ -89,16 +83,7 @@ class Server:
         self._wait_until_up()
 
     def _wait_until_up(self, timeout: float = 120.0) -> None:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if self.process.poll() is not None:
-                raise RuntimeError(f"learnest serve exited: see {self.log.name}")
-            try:
-                if httpx.get(self.url + "/health", timeout=2).status_code == 200:
-                    return
-            except httpx.HTTPError:
-                time.sleep(0.2)
-        raise RuntimeError(f"learnest serve did not start within {timeout} s")
+        wait_until_up(self.process, self.url, self.log.name, timeout)
 
     def stop(self) -> None:
         self.process.terminate()

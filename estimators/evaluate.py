@@ -19,6 +19,11 @@ from .protocols import StateSpaceModel
 from .ukf import run_ukf
 
 STATE_GROUPS = {"p": slice(0, 3), "v": slice(3, 6), "a": slice(6, 9)}
+# the units of an evaluation report's numbers (the report's "units"); the overall MSE averages the squared
+# errors of all nine states, each in its own squared SI unit
+MSE_UNITS = {"mse": "mean of squared errors of p (m^2), v (m^2/s^2) and a (m^2/s^4)",
+             "median": "as mse", "groups": {"p": "m^2", "v": "m^2/s^2", "a": "m^2/s^4"},
+             "ms_per_step": "ms of wall time per sample", "improvement_pct": "% (100 (1 - knode / prior-only))"}
 
 
 def _mhe_for(cache: dict, model, dt, Q, R, P0, horizon: int) -> MHE:

@@ -46,6 +46,10 @@ def detect(path: str | Path) -> str:
         sniff = _sniffer(module, function)
         if sniff(path):
             return name
+    missing = _sniffer(".formats.nanobench.reader", "missing_columns")(path)
+    if missing:   # most of a NanoBench header: say what is missing, not "unrecognised"
+        raise IngestError(path, f"a NanoBench CSV without the column(s) {', '.join(missing)} (it needs "
+                                f"{', '.join(_sniffer('.formats.nanobench.reader', 'REQUIRED_COLUMNS'))})")
     raise IngestError(path, "unrecognised format (expected a NanoBench CSV, a Crazyflie uSD log, an MCAP "
                             "file, a ROS bag (ROS 1 .bag or ROS 2 .db3), or a Vicon CSV export together with a "
                             "cfclient CSV log)")

@@ -146,7 +146,8 @@ class Flight:
 
         Columns are ``t`` (s) and one column per array axis: ``p_x, p_y, p_z`` (m), ``a_meas_x..z``
         (m/s², world, gravity removed), ``quat_x..w`` and each channel (``gyro_x..z``, ``vbat``, ...;
-        a channel of other width k gives ``name_0..name_{k-1}``).  ``df.attrs`` holds ``units``
+        a channel of other width k gives ``name_0..name_{k-1}``: ``motors_0..3`` are m1..m4).
+        ``df.attrs`` holds ``units``
         ({column: unit}) and ``meta`` (the flight's metadata), so `from_dataframe` restores the flight.
 
         Returns
@@ -257,7 +258,9 @@ class Flight:
 def _split_columns(name: str, values: np.ndarray) -> dict:
     if values.ndim == 1:
         return {name: values}
-    axes = _AXES.get(values.shape[1], tuple(str(i) for i in range(values.shape[1])))
+    # x, y, z for vectors and the quaternion's x, y, z, w; any other width (4 motors, 4 rotor speeds) 0..k-1
+    width = values.shape[1]
+    axes = _AXES[width] if width == 3 or (width == 4 and name == "quat") else tuple(str(i) for i in range(width))
     return {f"{name}_{axis}": values[:, i] for i, axis in enumerate(axes)}
 
 

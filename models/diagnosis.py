@@ -115,15 +115,27 @@ def autocorrelation_time(residual: np.ndarray) -> float:
     return float(np.clip(np.mean(taus), 1.0, n)) if taus else 1.0
 
 
-def bic_eff(residual: np.ndarray, n_params: int) -> tuple[float, float]:
+def bic_eff(residual: np.ndarray, n_params: int, tau: float | None = None) -> tuple[float, float]:
     """BIC with the effective number of independent samples N/τ (see autocorrelation_time).
 
     Returns ``(bic, tau)``: N_eff·log(mean r²) + n_params·log(N_eff), with N = residual.size, N_eff at
-    least n_params + 2, and τ in samples.
+    least n_params + 2, and τ in samples (the residual's own unless ``tau`` is given; compare models only
+    at a common τ, see `common_bic`).
     """
-    tau = autocorrelation_time(residual)
+    tau = autocorrelation_time(residual) if tau is None else tau
     n_eff = max(residual.size / tau, n_params + 2.0)
     return n_eff * np.log(max(np.mean(residual**2), 1e-300)) + n_params * np.log(n_eff), tau
+
+
+def common_bic(fit_: Fit, tau: float) -> float:
+    """BIC_eff of ``fit_`` with a given autocorrelation time τ (samples) instead of its own residual's.
+
+    Models compared with each other must share N_eff = N/τ: with each its own, the term N_eff·log(mean r²)
+    (whose sign depends on the residual's units) rewards a whiter residual over a smaller one — on a real
+    flight an accelerometer delay that removed 7× less residual than a tilt won on its whiter residual.
+    Differences at a common N_eff, N_eff·log(RSS₁/RSS₀) + Δk·log N_eff, do not depend on the units.
+    """
+    return bic_eff(fit_.residual, len(fit_.values), tau)[0]
 
 
 def _all_values(candidates, chosen_values=None):
@@ -135,11 +147,13 @@ def _all_values(candidates, chosen_values=None):
 
 
 def fit(problem: ResidualProblem, effects: list, rows: np.ndarray | None = None,
-        offset: np.ndarray | None = None) -> Fit:
+        offset: np.ndarray | None = None, start: dict[str, float] | None = None) -> Fit:
     """Least squares over the parameters of `effects`, every other candidate at its nominal value.
 
-    Bounded trust-region fit (scipy ``least_squares``) starting at each parameter's ``initial``, on ``rows``
-    (default all); ``offset`` (same shape as the residual) is added to the residual (bootstrap replicates).
+    Bounded trust-region fit (scipy ``least_squares``) on ``rows`` (default all); ``offset`` (same shape as
+    the residual) is added to the residual (bootstrap replicates).  It starts at ``start`` ({parameter name:
+    value}, e.g. an earlier fit's values) when given, else at each parameter's ``initial`` moved to the best
+    point of its coarse scan (parameters with a ``scan_step``).
     """
     from scipy.optimize import least_squares  # scipy.optimize costs ~1 s to import: loaded on first use
 
@@ -153,10 +167,14 @@ def fit(problem: ResidualProblem, effects: list, rows: np.ndarray | None = None,
         return r if offset is None else r + offset
 
     if params:
-        x0 = np.clip([p.initial for p in params], [p.lower for p in params], [p.upper for p in params])
-        x0 = _scanned_start(params, x0, lambda th: float(np.sum(residual_of(th) ** 2)))
+        lower, upper = [p.lower for p in params], [p.upper for p in params]
+        if start is not None:
+            x0 = np.clip([start[p.name] for p in params], lower, upper)
+        else:
+            x0 = np.clip([p.initial for p in params], lower, upper)
+            x0 = _scanned_start(params, x0, lambda th: float(np.sum(residual_of(th) ** 2)))
         solution = least_squares(lambda th: residual_of(th).ravel(), x0, method="trf", x_scale="jac",
-                                 bounds=([p.lower for p in params], [p.upper for p in params]))
+                                 bounds=(lower, upper))
         theta = solution.x
     else:
         theta = np.zeros(0)
@@ -209,7 +227,9 @@ def confounded_pairs(problem: ResidualProblem, chosen: list, values: dict, near_
     sensitivities are most nearly parallel as the reason.
 
     ``near_ties`` is a list of (chosen effect, rival effect, ΔBIC_eff[, fraction]) where fraction is the share
-    of the chosen effect's RSS reduction the rival achieves in its place; ``chosen`` is not used.
+    of the chosen effect's RSS reduction the rival achieves in its place; ``chosen`` is not used.  An entry
+    admitted by the fraction alone (ΔBIC_eff ≥ DELTA_BIC) has ``data_prefer`` = the chosen effect's id: the
+    data do choose, on the part of the record where the two differ; otherwise ``data_prefer`` is None.
     """
     allv = _all_values(problem.candidates, values)
     out = []
@@ -221,15 +241,29 @@ def confounded_pairs(problem: ResidualProblem, chosen: list, values: dict, near_
             cosine = np.nan_to_num(np.abs(A.T @ B) / norms)
         i, j = np.unravel_index(np.argmax(cosine), cosine.shape)
         pa, pb, c = a.params[i].name, b.params[j].name, float(cosine[i, j])
-        why = (f"{pa} and {pb} act alike on this data (cosine {c:.3f}): they cannot be told apart here, and data "
-               f"with more varied motion (thrust, speed) would separate them" if c >= ALIKE_COSINE else
-               f"the two act differently (largest cosine {c:.3f}, {pa} vs {pb}) yet fit about equally well: the "
-               f"data cannot choose between these explanations; more flights would")
-        how_well = (f"BIC_eff within {DELTA_BIC:g}" if delta_bic < DELTA_BIC or fraction is None else
-                    f"ΔBIC_eff {delta_bic:g}, but it removes {100 * fraction:.0f} % of the residual {a.id} removes")
+        preferred = delta_bic >= DELTA_BIC     # admitted by the fraction rule only: BIC_eff does choose
+        if preferred:
+            alike = (f"{pa} and {pb} act alike on most of this data (cosine {c:.3f})" if c >= ALIKE_COSINE else
+                     f"the two act differently (largest cosine {c:.3f}, {pa} vs {pb})")
+            why = (f"{alike}; the data prefer {a.id} by BIC_eff (residual and number of parameters together), "
+                   f"and more varied motion (thrust, speed) would make that certain")
+        elif c >= ALIKE_COSINE:
+            why = (f"{pa} and {pb} act alike on this data (cosine {c:.3f}): they cannot be told apart here, and "
+                   f"data with more varied motion (thrust, speed) would separate them")
+        else:
+            why = (f"the two act differently (largest cosine {c:.3f}, {pa} vs {pb}) yet fit about equally well: "
+                   f"the data cannot choose between these explanations; more flights would")
+        if not preferred or fraction is None:
+            how_well = f"BIC_eff within {DELTA_BIC:g}"
+        elif fraction >= 1.05:
+            how_well = (f"it removes {fraction:.1f}× the residual {a.id} removes, but with more parameters its "
+                        f"BIC_eff is {delta_bic:g} worse")
+        else:
+            how_well = f"ΔBIC_eff {delta_bic:g}, but it removes {100 * fraction:.0f} % of the residual {a.id} removes"
         out.append({"effects": [a.id, b.id], "params": [pa, pb], "cosine": round(c, 4), "delta_bic": delta_bic,
                     "fraction_of_chosen": None if fraction is None else round(float(fraction), 4),
-                    "note": f"{b.id} explains the residual almost as well as {a.id} ({how_well}); {why}"})
+                    "data_prefer": a.id if preferred else None,
+                    "note": f"{b.id} explains the residual about as well as {a.id} ({how_well}); {why}"})
     return out
 
 
@@ -250,7 +284,8 @@ def bootstrap_ci(problem: ResidualProblem, final: Fit, replicates: int = BOOTSTR
     for _ in range(replicates):
         starts = rng.integers(0, n - block + 1, size=int(np.ceil(n / block)))
         resampled = np.concatenate([r[s:s + block] for s in starts])[:n]
-        refit = fit(problem, final.effects, offset=resampled - r)   # observed* = fitted + e*
+        # observed* = fitted + e*; each replicate starts from the fit it perturbs (no scan: it is in the dip)
+        refit = fit(problem, final.effects, offset=resampled - r, start=final.values)
         for name, value in refit.values.items():
             samples[name].append(value)
     return {name: [float(np.percentile(v, 2.5)), float(np.percentile(v, 97.5))] for name, v in samples.items()}
@@ -291,24 +326,32 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
         ``params`` fitted on its own, ``nominal``, ``units``, ``delta_bic_alone`` its BIC_eff change alone).
     """
     current = fit(problem, [])
-    baseline_rss, baseline_bic = current.rss, current.bic
+    baseline_rss = current.rss
     current_cv = cv_error(problem, [])
     chosen: list[Effect] = []
     trace: list[dict[str, Any]] = []
     near_ties: list[tuple[Effect, Effect, float, float]] = []
     alternatives: dict[str, list[dict[str, Any]]] = {}    # chosen effect id -> rivals that explain as much
     alone: dict[str, Fit] = {}     # each candidate fitted on its own (the first step)
+    alone_delta: dict[str, float] = {}   # and its BIC_eff change against no effect
     while len(chosen) < max_effects:
         remaining = [e for e in problem.candidates if e not in chosen]
         if not remaining:
             break
-        trials = sorted((fit(problem, chosen + [e]) for e in remaining), key=lambda f: f.bic)
+        trials = [fit(problem, chosen + [e]) for e in remaining]
+        # one N_eff for all models compared at this step (see common_bic): the τ of the best-fitting
+        # candidate's residual, the best estimate here of how correlated the noise is
+        tau = min(trials, key=lambda f: f.rss).tau
+        bic = {id(f): common_bic(f, tau) for f in [current, *trials]}
+        trials.sort(key=lambda f: bic[id(f)])
         if not chosen:
             alone = {t.effects[-1].id: t for t in trials}
+            alone_delta = {t.effects[-1].id: round(float(bic[id(t)] - bic[id(current)]), 2) for t in trials}
         best = trials[0]
-        step: dict[str, Any] = {"candidates": {t.effects[-1].id: round(float(t.bic - current.bic), 2)
+        step: dict[str, Any] = {"tau": round(float(tau), 2),
+                                "candidates": {t.effects[-1].id: round(float(bic[id(t)] - bic[id(current)]), 2)
                                                for t in trials}}
-        if best.bic > current.bic - DELTA_BIC:
+        if bic[id(best)] > bic[id(current)] - DELTA_BIC:
             step["stop"] = "no candidate lowers BIC_eff enough"
             trace.append(step)
             break
@@ -321,8 +364,8 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
         gain = current.rss - best.rss
         for t in trials[1:]:
             fraction = (current.rss - t.rss) / gain if gain > 0 else 0.0
-            if t.bic - best.bic < DELTA_BIC or fraction >= ALTERNATIVE_FRACTION:
-                rival, delta_bic = t.effects[-1], round(float(t.bic - best.bic), 2)
+            if bic[id(t)] - bic[id(best)] < DELTA_BIC or fraction >= ALTERNATIVE_FRACTION:
+                rival, delta_bic = t.effects[-1], round(float(bic[id(t)] - bic[id(best)]), 2)
                 near_ties.append((best.effects[-1], rival, delta_bic, fraction))
                 alternatives.setdefault(best.effects[-1].id, []).append(
                     {"id": rival.id, "params": {p.name: t.values.get(p.name, p.nominal) for p in rival.params},
@@ -356,7 +399,7 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
                    "params": {p.name: alone[e.id].values.get(p.name, p.nominal) for p in e.params}
                    if e.id in alone else e.nominal(),
                    "nominal": e.nominal(), "units": {p.name: p.unit for p in e.params},
-                   "delta_bic_alone": round(float(alone[e.id].bic - baseline_bic), 2) if e.id in alone else None}
+                   "delta_bic_alone": alone_delta.get(e.id)}
                   for e in problem.candidates]
     return {"channel": problem.name, "effects": results, "confounded": confounded, "values": current.values,
             "rss_before": baseline_rss, "rss_after": current.rss, "trace": trace, "fit": current,

@@ -241,6 +241,11 @@ class GroundRobot(System):
     process_noise_std: tuple = (1e-3, 1e-3, 1e-3, 1e-4)
     initial_std: tuple = (0.2, 0.2, 0.2, 0.05)
     invariant_states: tuple = ("x", "y", "psi")  # a lap turns ψ through 2π: a longer lap is no new physics
+    # throttle = mean + a random weave of two sines (0.07 and 0.19 Hz) of these amplitudes (m/s²): the
+    # weave makes the speed vary (0.9-3.4 m/s), which is what tells linear from quadratic drag apart;
+    # no weave and a mean that balances the drag at 2 m/s flies at constant speed (issue 13's hard case)
+    throttle_mean: float = 0.4
+    throttle_weave: tuple = (0.5, 0.3)
 
     def dynamics(self, x, u, params):
         """x = [x (m), y (m), v (m/s), ψ (rad)], u = [a (m/s²), δ (rad)] -> dx/dt."""
@@ -265,7 +270,7 @@ class GroundRobot(System):
         """Inputs [a (m/s²), δ (rad)], shape (T, 2): constant offsets plus random sums of sines."""
         # one lap of a ~8 m loop inside the sensor square (25 s at ~2 m/s), with a random weave of
         # throttle and steering: every run covers the same arena, so train and test see the same states
-        accel = 0.4 + _sum_of_sines(rng, t, [0.5, 0.3], [0.07, 0.19])
+        accel = self.throttle_mean + _sum_of_sines(rng, t, list(self.throttle_weave), [0.07, 0.19])
         delta = 0.125 + _sum_of_sines(rng, t, [0.06, 0.04], [0.09, 0.23])
         return np.stack([accel, delta], axis=1)
 

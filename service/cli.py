@@ -147,15 +147,17 @@ def _advance(bar):
     return lambda fraction: bar.update(max(0, round(fraction * bar.total) - bar.n))
 
 
-def _registry_grid(rate: float) -> None:
+def _registry_grid(rate: float, hint: str = "") -> None:
     if rate != 100.0:
-        raise InvalidInput("--rate: flights in the model registry are on the service's 100 Hz grid")
+        raise InvalidInput("--rate: flights in the model registry are on the service's 100 Hz grid"
+                           + (f"; {hint}" if hint else ""))
 
 
 def _evaluate(args) -> int:
+    """Evaluate a registered model on flight files: stored in the registry (flights and evaluation, as the
+    web UI's), or with --no-store only computed here."""
     from learnest.models.presets import parse_methods
 
-    from .experiments.flights import evaluate_flights
     from .local_registry import load_model
     from .web.figures import mse_boxplot, save_figure
 
@@ -164,21 +166,95 @@ def _evaluate(args) -> int:
     if not args.model or not args.files:
         raise InvalidInput("evaluate needs --model REF and FILE..., or --new [--alias ALIAS]")
     methods = parse_methods(args.methods)
+    if args.store:
+        _registry_grid(args.rate, "pass --no-store to evaluate on another grid without storing")
     model = load_model(args.model)
     if args.system and args.system != model.system.name:
         raise InvalidInput(f"{args.model} was trained with the {model.system.name!r} prior, not {args.system!r}")
-    flights = _read(args.files, args.rate, _topics(args))
-    with tqdm(total=len(flights), desc="evaluating", unit="flight", file=sys.stderr) as bar:
-        report = evaluate_flights(model, flights, methods, include_bad=args.include_bad, horizon=args.horizon,
-                                  progress=lambda _f: bar.update(1))
-    report["model"] = model.meta.get("ref", args.model)  # name:version, whatever form was asked for
+    ref = model.meta.get("ref", args.model)  # name:version, whatever form was asked for
+    report = (_evaluate_stored if args.store else _evaluate_here)(args, model, ref, methods)
     if args.plot:
         save_figure(mse_boxplot(report), args.plot, dpi=120)
     if args.json:
         print(json.dumps(report, indent=2))
     else:
         print(format_report(report))
+        if "evaluation_id" in report:
+            print(f"stored as evaluation {report['evaluation_id']} in {_home()} (web page "
+                  f"/evaluations/{report['evaluation_id']}/report.html under `learnest serve`)")
+        if args.export and report["flights_scored"]:
+            print(f"estimates written to {args.export}")
+    if args.export and not report["flights_scored"]:
+        print(f"learnest: no flight was scored: {args.export} not written", file=sys.stderr)
     return 0
+
+
+def _evaluate_stored(args, model, ref: str, methods: list[str]) -> dict:
+    """Store the flights and the evaluation in the registry (service.local_registry.evaluate)."""
+    from .jobs.result_cache import EstimatorSettings
+    from .local_registry import evaluate, export
+
+    settings = EstimatorSettings(tuple(methods), args.horizon, args.include_bad)
+    with tqdm(total=1.0, desc="evaluating", unit="", file=sys.stderr,
+              bar_format="{desc}: {percentage:3.0f}%|{bar}| [{elapsed}]") as bar:
+        report = evaluate(args.files, ref, settings, progress=lambda f: bar.update(f - bar.n), **_topics(args))
+        bar.update(1.0 - bar.n)
+    if args.export and report["flights_scored"]:
+        export(report["evaluation_id"], args.export, _export_format(args.export))
+    return report
+
+
+def _evaluate_here(args, model, ref: str, methods: list[str]) -> dict:
+    """Evaluate in this process and store nothing (--no-store); --export writes the estimates kept on the way."""
+    from learnest.estimators.export import write_estimates
+
+    from .experiments.flights import evaluate_flights
+
+    flights = _read(args.files, args.rate, _topics(args))
+    kept: list = []
+    with tqdm(total=len(flights), desc="evaluating", unit="flight", file=sys.stderr) as bar:
+        report = evaluate_flights(model, flights, methods, include_bad=args.include_bad, horizon=args.horizon,
+                                  progress=lambda _f: bar.update(1),
+                                  on_estimates=(lambda _i, e: kept.append(e)) if args.export else None)
+    report["model"] = ref
+    if args.export and kept:
+        write_estimates(kept, args.export, _export_format(args.export))
+    return report
+
+
+def _export(args) -> int:
+    """Write a stored evaluation's state estimates (service.exports) as CSV, Parquet or MCAP."""
+    from .local_registry import export
+
+    fmt = args.format or _export_format(args.output)
+    flights = export(args.evaluation_id, args.output, fmt, args.flight)
+    methods = sorted({m for f in flights for m in f.methods})
+    print(f"wrote {args.output} ({fmt}): {len(flights)} flight(s) "
+          f"({', '.join(f.flight for f in flights)}), methods {', '.join(methods)}")
+    return 0
+
+
+def _export_format(path: str) -> str:
+    from learnest.estimators.export import format_of
+
+    return format_of(path)
+
+
+def _export_path(text: str) -> str:
+    """An output file whose folder exists and whose suffix names an export format (.csv, .parquet, .mcap)."""
+    from learnest.estimators.export import format_of
+
+    try:
+        format_of(text)
+    except InvalidInput as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+    return _new_file(text)
+
+
+def _home() -> str:
+    from .config import Settings
+
+    return str(Settings().home)
 
 
 def _evaluate_new(args) -> int:
@@ -208,19 +284,36 @@ def _serve(args) -> int:
 
     import uvicorn
 
+    from .api.server import uvicorn_options
+    from .config import Settings
+
     if args.dask:  # the app reads its settings from the environment, in every worker process
         os.environ["LEARNEST_DASK"] = args.dask
+    for option in SERVE_LIMITS:  # likewise the connection limits given on the command line
+        value = getattr(args, option)
+        if value is not None:
+            os.environ[f"LEARNEST_{option.upper()}"] = str(value)
     if args.host not in ("0.0.0.0", "::"):  # the name it is reached by is served (LEARNEST_ALLOWED_HOSTS)
-        from .config import Settings
-
         served = os.environ.get("LEARNEST_ALLOWED_HOSTS", Settings.model_fields["allowed_hosts"].default)
         os.environ["LEARNEST_ALLOWED_HOSTS"] = f"{served},{args.host}"
     else:
         print("learnest: serving every interface: set LEARNEST_ALLOWED_HOSTS to the names clients use "
               "(requests for other host names get 400)", file=sys.stderr)
+    settings = Settings()  # validated here: a bad value stops the start with its name
     uvicorn.run("learnest.service.api.app:create_app", factory=True, host=args.host, port=args.port,
-                workers=args.workers)
+                workers=args.workers, **uvicorn_options(settings))
     return 0
+
+
+# `learnest serve --NAME` options that override LEARNEST_NAME (service.config): timeouts and limits
+SERVE_LIMITS = {"header_timeout_s": (float, "a request's headers must arrive within this many seconds (10)"),
+                "body_timeout_s": (float, "a request body gets this many seconds (30) ..."),
+                "body_min_rate": (float, "... plus one per this many bytes received (10000); else 408"),
+                "keep_alive_s": (float, "close an idle keep-alive connection after this many seconds (5)"),
+                "limit_concurrency": (int, "connections + requests in progress beyond which the answer is 503 "
+                                           "(200; 0 = no limit)"),
+                "decode_workers": (int, "uploads decoded at once (2)"),
+                "decode_timeout_s": (float, "one upload's decode time limit, seconds (60)")}
 
 
 def _demo(args) -> int:
@@ -409,8 +502,23 @@ def build_parser() -> argparse.ArgumentParser:
                     "for the registry model holding --alias (one scheduler round, for cron)")
     ev.add_argument("--alias", default=PRODUCTION_ALIAS,
                     help=f"with --new: the alias to evaluate (default {PRODUCTION_ALIAS})")
+    ev.add_argument("--no-store", dest="store", action="store_false",
+                    help="only compute: do not store the flights and the evaluation in the registry (by default "
+                         "they are, so the evaluation shows in the web UI and `learnest export` can write it)")
+    ev.add_argument("--export", metavar="PATH", type=_export_path,
+                    help="also write the state estimates; the format follows the suffix: .csv, .parquet, .mcap")
     _add_topic_arguments(ev)
     ev.set_defaults(func=_evaluate)
+
+    exp = sub.add_parser("export", help="write a stored evaluation's state estimates (every method and flight, "
+                                        "with the reference) as CSV, Parquet or MCAP (Foxglove)")
+    exp.add_argument("evaluation_id", type=_positive_int, metavar="EVALUATION_ID")
+    exp.add_argument("-o", "--output", required=True, type=_new_file, metavar="PATH")
+    exp.add_argument("--format", choices=["csv", "parquet", "mcap"], default=None,
+                     help="default: from the suffix of PATH (.csv, .parquet, .mcap)")
+    exp.add_argument("--flight", type=_positive_int, default=None, metavar="ID",
+                     help="only this flight (default: every scored flight)")
+    exp.set_defaults(func=_export)
 
     srv = sub.add_parser("serve", help="run the HTTP service (uvicorn; OpenAPI docs at /docs)")
     srv.add_argument("--host", default="127.0.0.1")
@@ -418,6 +526,9 @@ def build_parser() -> argparse.ArgumentParser:
     srv.add_argument("--workers", type=_positive_int, default=1, help="uvicorn worker processes")
     srv.add_argument("--dask", metavar="URL", help="run jobs on a Dask scheduler (tcp://host:port, or 'local' "
                      "for a LocalCluster) instead of the local process pool")
+    for option, (kind, text) in SERVE_LIMITS.items():
+        srv.add_argument("--" + option.replace("_", "-"), type=kind, default=None,
+                         help=f"{text}; env LEARNEST_{option.upper()}")
     srv.set_defaults(func=_serve)
 
     dia = sub.add_parser("diagnose", help="trace the residual to named physical effects, add them, "
@@ -463,7 +574,15 @@ def main(argv=None) -> int:
         args = build_parser().parse_args(argv)
     except SystemExit as stop:  # a bad argument (argparse printed usage and why) or --help
         return int(stop.code or 0)
-    if args.func not in (_ingest, _serve):  # the rest run the networks here; --help and ingest skip torch
+    if args.func is _export and not args.format:  # the format is checked before any work, like the other arguments
+        from learnest.estimators.export import format_of
+
+        try:
+            format_of(args.output)
+        except InvalidInput as err:
+            print(f"learnest export: error: {err} (or give --format)", file=sys.stderr)
+            return 2
+    if args.func not in (_ingest, _serve, _export):  # the rest run the networks here; ingest/export skip torch
         from .jobs.executors import init_worker
 
         init_worker()  # the networks are tiny: extra threads only add contention

@@ -19,6 +19,21 @@
                                 not calibrated to a wall time); 0 = no limit
     LEARNEST_CANCEL_GRACE_S     seconds a cancelled job's running task gets to stop itself before its
                                 worker is killed (default 10)
+  uploads are decoded in their own worker processes (service.jobs.decoding):
+    LEARNEST_DECODE_WORKERS     uploads decoded at once (default 2)
+    LEARNEST_DECODE_QUEUE       uploads that may wait for a decode worker; more get 503 (default 16)
+    LEARNEST_DECODE_TIMEOUT_S   one upload's decode time limit; past it the upload is refused (default 60)
+  connections (service.api.server; `learnest serve` options of the same names):
+    LEARNEST_HEADER_TIMEOUT_S   a request's headers must arrive within this (default 10)
+    LEARNEST_BODY_TIMEOUT_S     a body gets this many seconds ... (default 30)
+    LEARNEST_BODY_MIN_RATE      ... plus one per this many bytes received (default 10000 B/s); else 408
+    LEARNEST_KEEP_ALIVE_S       an idle keep-alive connection is closed after this (default 5)
+    LEARNEST_LIMIT_CONCURRENCY  connections + requests in progress beyond which uvicorn answers 503
+                                (default 200; 0 = no limit)
+    LEARNEST_MAX_HEADER_BYTES   request line + headers (default 16384)
+    LEARNEST_GRACEFUL_SHUTDOWN_S  requests in progress get this long to finish on SIGTERM (default 10)
+    LEARNEST_KEY_FAILURES       failed API-key attempts from one address within ...
+    LEARNEST_KEY_FAILURE_WINDOW_S  ... this many seconds after which it gets 429 (defaults 10, 60; 0 = off)
 """
 from __future__ import annotations
 
@@ -55,6 +70,20 @@ class Settings(BaseSettings):
     max_hidden: int = Field(256, ge=1)
     max_training_work: float = Field(2e9, ge=0)   # epochs x samples x hidden; 0: no limit
     cancel_grace_s: float = Field(10.0, ge=0)
+    # uploads: decoded in worker processes, bounded in number, waiting room and time (service.jobs.decoding)
+    decode_workers: int = Field(2, ge=1)
+    decode_queue: int = Field(16, ge=0)
+    decode_timeout_s: float = Field(60.0, gt=0)
+    # connections (service.api.server)
+    header_timeout_s: float = Field(10.0, gt=0)
+    body_timeout_s: float = Field(30.0, gt=0)
+    body_min_rate: float = Field(10_000.0, gt=0)   # bytes/s
+    keep_alive_s: float = Field(5.0, gt=0)
+    limit_concurrency: int = Field(200, ge=0)       # 0: no limit
+    max_header_bytes: int = Field(16_384, ge=1024)
+    graceful_shutdown_s: float = Field(10.0, ge=0)
+    key_failures: int = Field(10, ge=0)             # 0: no throttling
+    key_failure_window_s: float = Field(60.0, gt=0)
 
     @field_validator("database_url", "api_key", "dask_address", "git_commit", mode="before")
     @classmethod

@@ -11,6 +11,9 @@ replaces the plain file store of the ingest issue (home/models/NAME.json files a
   cancelled, its worker stopped and its reserved version removed: nothing half-registered is left.
 - `register_repaired`: register a diagnosis' repaired model as the next version of a name (its fitting flight
   stored as by an upload), as POST /diagnoses with "register" does.
+- `evaluate`: store the flights (as `add_flight`) and evaluate a registered version on them as POST /evaluations
+  does, here and now (`InlineExecutor`); the evaluation is then in the registry, its page and its exports.
+- `export`: write a stored evaluation's state estimates (service.exports).
 - `load_model`: "NAME" (its latest ready version), "NAME:VERSION" or "NAME@ALIAS" -> HybridModel, through
   service.registry.load_model_ref; a reference that names nothing usable is a NotFound or Conflict listing the
   known models.
@@ -30,12 +33,16 @@ from learnest.models.knode import HybridModel
 
 from . import catalog, registry
 from .config import Settings
+from .jobs.evaluation import start_evaluation
+from .jobs.executors import Executor, InlineExecutor
+from .jobs.result_cache import EstimatorSettings
 from .jobs.runner import ACTIVE
 from .jobs.services import Services, open_services
 from .jobs.tasks import diagnosis_metrics
 from .jobs.training import start_training, training_config
+from .storage.blobs import BlobStore
 from .storage.database import Database
-from .storage.tables import FlightRecord, Job, RegisteredModel
+from .storage.tables import Evaluation, FlightRecord, Job, RegisteredModel
 from .uploads import LocalFile
 from .uploads import add_flight as add_uploaded_flight
 
@@ -52,9 +59,10 @@ def cli_settings() -> Settings:
 
 
 @contextmanager
-def local_services(settings: Settings | None = None) -> Iterator[Services]:
-    """The service's Services opened in this process (default: `cli_settings`), closed on exit."""
-    services = open_services(settings or cli_settings())
+def local_services(settings: Settings | None = None, executor: Executor | None = None) -> Iterator[Services]:
+    """The service's Services opened in this process (default: `cli_settings`; a local pool unless an
+    ``executor`` is given), closed on exit."""
+    services = open_services(settings or cli_settings(), executor=executor)
     try:
         yield services
     finally:
@@ -137,6 +145,65 @@ def wait_for_job(services: Services, job_id: int, progress: Callable[[float], No
         if job.state not in ACTIVE:
             return job
         time.sleep(poll_s)
+
+
+# -- evaluation ----------------------------------------------------------------------------------------------
+def evaluate(paths, model_ref: str, estimator_settings: EstimatorSettings, *, pose_topic: str | None = None,
+             imu_topic: str | None = None, progress: Callable[[float], None] | None = None,
+             settings: Settings | None = None) -> dict:
+    """Store the flights of ``paths`` (grouped as `learnest.ingest.group_files` does; stored ones are found
+    by content) and evaluate ``model_ref`` on them as an evaluation job run in this process.
+
+    Returns
+    -------
+    dict
+        The stored evaluation's report (``flight_id`` and ``sha256`` per flight, ``units``) plus
+        ``evaluation_id`` and ``job_id``.
+
+    Raises
+    ------
+    LearnestError
+        A file cannot be read (IngestError), the reference names nothing usable, or the job failed.
+    """
+    from learnest.ingest import group_files
+
+    settings = settings or cli_settings()
+    groups = group_files(paths)  # sniffs the formats only: a bad file is named before anything is stored
+    with local_services(settings, executor=InlineExecutor()) as services:
+        ids = [add_flight(services, files, pose_topic=pose_topic, imu_topic=imu_topic)[0].id for _, files in groups]
+        done = [0]
+
+        def advance() -> None:  # called by the job as each flight is done
+            done[0] += 1
+            if progress:
+                progress(done[0] / len(ids))
+
+        # interrupted (Ctrl-C), the job is failed by the runner's shutdown when the services close
+        job_id, evaluation_id, _ = start_evaluation(services, model_ref, ids, estimator_settings, wait=True,
+                                                    on_progress=advance)
+        job = catalog.get_job(services.db, job_id)
+        if job.state != "succeeded":
+            raise Conflict(f"evaluation {evaluation_id} {job.state}: {job.error}")
+        evaluation, _ = catalog.row_and_job(services.db, Evaluation, evaluation_id, "evaluation")
+    return {**(evaluation.report or {}), "evaluation_id": evaluation_id, "job_id": job_id}
+
+
+def export(evaluation_id: int, path: str | Path, fmt: str, flight_id: int | None = None,
+           settings: Settings | None = None) -> list:
+    """Write evaluation ``evaluation_id``'s state estimates to ``path`` as ``fmt`` (service.exports);
+    returns the `FlightEstimates` written.  NotFound when there is no registry yet or no such evaluation."""
+    from .exports import export_evaluation
+
+    settings = settings or cli_settings()
+    if settings.database_url is None and not (settings.home / "learnest.db").is_file():
+        raise NotFound(f"evaluation {evaluation_id} not found: nothing is stored under {settings.home} "
+                       "(LEARNEST_HOME)")
+    database = Database(settings.url)
+    try:
+        database.require_current_schema()
+        return export_evaluation(database, BlobStore(settings.home / "blobs"), evaluation_id, path, fmt, flight_id)
+    finally:
+        database.dispose()
 
 
 # -- diagnosis -----------------------------------------------------------------------------------------------

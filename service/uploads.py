@@ -14,7 +14,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO, Protocol
@@ -22,10 +22,10 @@ from typing import BinaryIO, Protocol
 from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 
-from learnest.errors import Conflict, InvalidInput
-from learnest.ingest import IngestError, group_files, read_group
+from learnest.errors import Conflict
 from learnest.ingest.flight import Flight as CanonicalFlight
 
+from .reading import StagedFile, read_uploaded_flight
 from .storage.blobs import CHUNK, BlobStore, storage_errors
 from .storage.database import Database, discard_blobs
 from .storage.tables import FlightFile, FlightRecord, utcnow
@@ -56,8 +56,8 @@ class LocalFile:
 
 
 def add_flight(db: Database, blobs: BlobStore, uploads: Sequence[Upload], vehicle: str | None = None,
-               notes: str | None = None, *, pose_topic: str | None = None,
-               imu_topic: str | None = None) -> tuple[FlightRecord, bool]:
+               notes: str | None = None, *, pose_topic: str | None = None, imu_topic: str | None = None,
+               decode: Callable[..., CanonicalFlight] | None = None) -> tuple[FlightRecord, bool]:
     """Store the log file(s) of one flight, unless the same content is stored already.
 
     Parameters
@@ -71,6 +71,9 @@ def add_flight(db: Database, blobs: BlobStore, uploads: Sequence[Upload], vehicl
     pose_topic, imu_topic
         For MCAP recordings and ROS bags: the topics to read (see learnest.ingest.read_group); checked
         before anything is stored.
+    decode
+        ``decode(staged, pose_topic=..., imu_topic=...)`` -> the flight: the server passes its decoder pool's
+        (service.jobs.decoding: worker processes, a time limit); default `read_uploaded_flight`, here.
 
     Returns
     -------
@@ -92,48 +95,16 @@ def add_flight(db: Database, blobs: BlobStore, uploads: Sequence[Upload], vehicl
         row = find_by_sha(db, sha)
         if row is not None:
             return row, False
-        flight = read_uploaded_flight(staged, **topics)
+        flight = (decode or read_uploaded_flight)(staged, **topics)
         return store_flight(db, blobs, staged, flight, sha, vehicle, notes)
 
 
 # -- staging uploads ----------------------------------------------------------------------------------
-@dataclass
-class StagedFile:
-    """One uploaded file copied into the private temp folder.
-
-    Attributes
-    ----------
-    original_name : str
-        The client's file name (metadata only; see `original_basename`).
-    path : Path
-        Our name for it in the temp folder.
-    sha256 : str
-        Hex digest of its content.
-    size : int
-        Bytes.
-    role : str
-        "log", or "sidecar" for a NanoBench *_metadata.yaml uploaded with its CSV.
-    """
-    original_name: str      # the client's name: metadata only
-    path: Path              # our name for it in the private temp folder
-    sha256: str
-    size: int
-    role: str               # "log" or "sidecar"
-
-
 def original_basename(filename: str | None, index: int) -> str:
     """The client's file name without any directory part or control characters (for display only)."""
     name = re.split(r"[/\\]", filename or "")[-1]
     name = "".join(ch for ch in name if ch.isprintable()).strip()[:255]
     return name if name not in ("", ".", "..") else f"file{index + 1}"
-
-
-def safe_stem(name: str) -> str:
-    """A file name's stem reduced to [A-Za-z0-9._-] (other runs become "_"), at most 100 characters, "flight" if
-    nothing is left: the flight's name.
-    """
-    stem = re.sub(r"[^A-Za-z0-9._-]+", "_", Path(name).stem).strip("._-")[:100]
-    return stem or "flight"
 
 
 def _safe_suffix(name: str) -> str:
@@ -194,51 +165,6 @@ def _topic_or_none(topic: str | None, what: str) -> str | None:
     from .references import check_topic
 
     return check_topic(topic, what) if topic and topic.strip() else None
-
-
-# -- reading ------------------------------------------------------------------------------------------
-def read_uploaded_flight(staged: list[StagedFile], pose_topic: str | None = None,
-                         imu_topic: str | None = None) -> CanonicalFlight:
-    """The adapters decide the format; every failure is InvalidInput naming the client's file."""
-    originals = {str(f.path): f.original_name for f in staged}
-    logs = [f.path for f in staged if f.role == "log"]
-    try:
-        groups = group_files(logs)
-        if len(groups) != 1:
-            raise InvalidInput(f"one flight per upload: {', '.join(originals.values())} make {len(groups)} flights; "
-                          "upload each flight's file(s) separately")
-        adapter, files = groups[0]
-        flight = read_group(adapter, files, pose_topic=pose_topic, imu_topic=imu_topic)
-    except IngestError as err:
-        name = originals.get(err.path, Path(err.path).name)
-        raise InvalidInput(f"{name}: {_scrub(err.problem, originals)}") from None
-    except InvalidInput:
-        raise
-    except Exception as err:  # an adapter bug on odd input is still "this file cannot be read"
-        log.exception("ingest failed unexpectedly")
-        raise InvalidInput(f"{', '.join(originals.values())}: could not be read ({type(err).__name__})") from None
-    _rename_sources(flight, originals)
-    flight.meta["name"] = safe_stem(originals[str(files[0])])
-    return flight
-
-
-def _scrub(value, originals: dict[str, str]):
-    """Replace our temp paths by the client's names anywhere in a message or metadata."""
-    if isinstance(value, str):
-        for path, name in originals.items():
-            value = value.replace(path, name)
-        return value
-    if isinstance(value, dict):
-        return {k: _scrub(v, originals) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_scrub(v, originals) for v in value]
-    return value
-
-
-def _rename_sources(flight: CanonicalFlight, originals: dict[str, str]) -> None:
-    for source in flight.meta.get("sources", []):
-        source["path"] = originals.get(source["path"], Path(source["path"]).name)
-    flight.meta.update(_scrub(dict(flight.meta), originals))
 
 
 # -- storing ------------------------------------------------------------------------------------------

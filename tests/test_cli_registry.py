@@ -19,6 +19,20 @@ def use_home(monkeypatch, home: Path) -> None:
         monkeypatch.delenv(name, raising=False)
 
 
+def evaluation_count(home: Path) -> int:
+    from sqlalchemy import func, select
+
+    from learnest.service.config import Settings
+    from learnest.service.storage.database import Database
+    from learnest.service.storage.tables import Evaluation
+
+    database = Database(Settings(home=home).url)
+    with database.transaction() as session:
+        count = session.scalar(select(func.count(Evaluation.id)))
+    database.dispose()
+    return int(count or 0)
+
+
 def run_json(capsys, *argv) -> dict:
     from learnest.service.cli import main
 
@@ -88,6 +102,57 @@ def test_evaluate_by_version_alias_and_bare_name(trained, monkeypatch, capsys):
         training, other = report["flights"]
         assert training["excluded"] and training["reason"].startswith("training flight")
         assert not other["excluded"] and set(other["mse"]) == {"ukf", "knode-ukf"}
+
+
+def test_evaluate_stores_its_evaluation_and_export_writes_its_estimates(trained, monkeypatch, capsys, tmp_path):
+    """`learnest evaluate` puts flights and evaluation in the registry (the web UI shows it) unless --no-store;
+    --export and `learnest export ID` write the estimates; errors come before any work."""
+    import pandas as pd
+    import pyarrow.parquet as pq
+    from mcap.reader import make_reader
+
+    from learnest.service.cli import main
+
+    use_home(monkeypatch, trained["home"])
+    common = [str(TRAIN), str(OTHER), "--methods", "ukf,knode-ukf"]
+    written = tmp_path / "estimates.csv"
+    report = run_json(capsys, "evaluate", "--model", "circle:1", *common, "--export", str(written))
+    evaluation_id, scored = report["evaluation_id"], report["flights"][1]
+    assert [f["flight"] for f in report["flights"]] == ["circle_rep1", "circle_rep2"]
+    assert scored["flight_id"] > 0 and len(scored["sha256"]) == 64 and report["units"]["groups"]["a"] == "m^2/s^4"
+    with running_app(trained["home"]) as client:  # the same evaluation through the API and the web page
+        stored = client.get(f"/evaluations/{evaluation_id}").json()
+        assert stored["flights"] == report["flights"] and stored["model"] == "circle:1"
+        assert client.get(f"/evaluations/{evaluation_id}/report.html").status_code == 200
+    frame = pd.read_csv(written)
+    assert set(frame["flight_id"]) == {scored["flight_id"]} and set(frame["method"]) == {"ukf", "knode-ukf"}
+
+    mcap, parquet = tmp_path / "e.mcap", tmp_path / "e.parquet"
+    assert main(["export", str(evaluation_id), "-o", str(mcap)]) == 0
+    assert "1 flight(s) (circle_rep2)" in capsys.readouterr().out
+    topics = {c.topic for c in make_reader(mcap.open("rb")).get_summary().channels.values()}
+    assert {"/learnest/ukf/position", "/learnest/knode-ukf/velocity", "/learnest/reference/pose"} <= topics
+    assert main(["export", str(evaluation_id), "-o", str(parquet), "--flight", str(scored["flight_id"])]) == 0
+    assert pq.read_table(parquet).num_rows == len(frame)
+
+    # --no-store computes the same numbers here and stores nothing; its --export writes the same table
+    here = tmp_path / "here.parquet"
+    unstored = run_json(capsys, "evaluate", "--model", "circle:1", *common, "--no-store", "--export", str(here))
+    assert "evaluation_id" not in unstored and unstored["flights"][1]["mse"] == pytest.approx(scored["mse"], rel=1e-9)
+    local = pq.read_table(here).to_pandas()
+    assert local[["t_s", "p_x_m", "err_v_y_m_s"]].to_numpy() == pytest.approx(frame[["t_s", "p_x_m", "err_v_y_m_s"]]
+                                                                               .to_numpy(), rel=1e-9, abs=1e-12)
+    assert evaluation_count(trained["home"]) == evaluation_id   # nothing stored since (ids are never reused)
+
+    capsys.readouterr()
+    assert main(["export", "999999", "-o", str(tmp_path / "x.csv")]) == 2
+    assert "evaluation 999999 not found" in capsys.readouterr().err
+    assert main(["export", str(evaluation_id), "-o", str(tmp_path / "x.xlsx")]) == 2
+    assert "cannot tell the export format" in capsys.readouterr().err
+    assert main(["evaluate", "--model", "circle:1", str(OTHER), "--export", str(tmp_path / "x.txt")]) == 2
+    assert "cannot tell the export format" in capsys.readouterr().err
+    assert main(["evaluate", "--model", "circle:1", str(OTHER), "--rate", "50"]) == 2
+    assert "--no-store" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("ref, message", [

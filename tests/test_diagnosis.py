@@ -176,6 +176,46 @@ def test_robot_with_the_papers_quadratic_drag():
     assert result["after"]["ukf"] < result["before"]["ukf"]
 
 
+def _robot_drag_selection(truth: str, throttle_mean: float, throttle_weave: tuple) -> dict:
+    """Effect selection on 10 s of the simulated robot (observer states), the true drag given by ``truth``."""
+    from dataclasses import replace
+
+    from learnest.estimators.observers import pretraining_observer
+    from learnest.models.systems import make_system
+    from learnest.service.experiments.diagnosis import dynamics_problem, effects_for, parse_simulate
+
+    robot = replace(make_system("robot"), throttle_mean=throttle_mean, throttle_weave=throttle_weave)
+    robot = robot.with_true_params(**parse_simulate("robot", truth))
+    run = robot.simulate(10_000, 1000)
+    zeta = pretraining_observer(robot, run.y, run.u, robot.dt)
+    return select_effects(dynamics_problem(robot, zeta, run.u, robot.dt, effects_for("robot", "dynamics")))
+
+
+def test_robot_rolling_resistance_at_varied_speed_is_linear_drag_not_quadratic():
+    """Issue 13: k = 0.15 1/s of rolling resistance was reported as quadratic drag c = 0.169.  With the speed
+    varied (1-4 m/s) the two differ, and the linear one is found with its value."""
+    selection = _robot_drag_selection("linear_drag=0.15,c=0", throttle_mean=0.7, throttle_weave=(0.8, 0.48))
+    found = _first(selection, "linear_drag")
+    assert found["params"]["k"] == pytest.approx(0.15, rel=0.1)
+    assert found["claimed"] == {"k": True}
+    assert "quadratic_drag" not in {e["id"] for e in selection["effects"]}
+    for pair in selection["confounded"]:     # if listed at all, as a rival the data rejected
+        assert pair["data_prefer"] == "linear_drag"
+
+
+def test_robot_drag_at_constant_speed_is_reported_as_confounded():
+    """At a constant 2 m/s, k·v and c·v² are the same deceleration (k = 2c): whichever is chosen, the other
+    must be listed as confounded with its own value, and the data must not be said to prefer one."""
+    selection = _robot_drag_selection("linear_drag=0.2,c=0", throttle_mean=0.4, throttle_weave=(0.0, 0.0))
+    (first,) = selection["effects"]
+    assert first["id"] in ("linear_drag", "quadratic_drag")
+    (pair,) = selection["confounded"]
+    assert set(pair["effects"]) == {"linear_drag", "quadratic_drag"} and pair["data_prefer"] is None
+    assert "cannot be told apart" in pair["note"]
+    values = {**first["params"], **first["alternatives"][0]["params"]}
+    assert values["k"] == pytest.approx(0.2, rel=0.05) and values["c"] == pytest.approx(0.1, rel=0.05)
+
+
 def test_cartpole_without_an_effect_claims_none(capsys):
     assert main(["diagnose", "--system", "cartpole", "--simulate", "m_c=1.0", "--json", "--epochs", "50"]) == 0
     result = json.loads(capsys.readouterr().out)
@@ -210,3 +250,29 @@ def test_a_near_tie_says_whether_the_two_effects_act_alike(angle_deg, alike):
     assert pair["cosine"] == pytest.approx(abs(np.cos(angle)), abs=1e-4)
     assert ("act alike" in pair["note"]) is alike
     assert ("act differently" in pair["note"]) is not alike
+
+
+@pytest.mark.parametrize("angle_deg", [2.0, 89.0])
+def test_a_rival_admitted_by_its_share_alone_is_a_close_rival_the_data_rank_lower(angle_deg):
+    """A rival that removes ≥ 90 % of the chosen effect's residual but scores ΔBIC_eff ≥ 10 worse is listed,
+    and said to be ranked lower by the data, not "cannot be told apart"; a share above 1 reads as a multiple."""
+    from learnest.models.diagnosis import ResidualProblem, confounded_pairs
+    from learnest.models.effects import Effect, Param
+    from learnest.service.experiments.diagnosis import confounded_label, how_much
+
+    rng = np.random.default_rng(1)
+    u, w = rng.normal(size=(2, 200))
+    v = np.cos(np.radians(angle_deg)) * u + np.sin(np.radians(angle_deg)) * w
+    a = Effect("effect_a", "quadrotor", "measurement", (Param("alpha", "", 0.0, -1.0, 1.0),), "a")
+    b = Effect("effect_b", "quadrotor", "measurement", (Param("beta", "", 0.0, -1.0, 1.0),), "b")
+    problem = ResidualProblem("toy", [a, b],
+                              lambda values, rows: (values["alpha"] * u + values["beta"] * v)[rows, None], n_rows=200)
+    (pair,) = confounded_pairs(problem, [a], {"alpha": 0.0}, [(a, b, 12.0, 7.36)])
+    assert pair["data_prefer"] == "effect_a"
+    assert confounded_label(pair) == "close rival (the data prefer effect_a)"
+    assert "removes 7.4× the residual effect_a removes" in pair["note"] and "the data prefer effect_a" in pair["note"]
+    assert how_much(1.0001) == "explains 100 % as much"
+    assert ("act alike" in pair["note"]) is (angle_deg < 10)
+    assert how_much(7.36) == "removes 7.4× as much" and how_much(0.93) == "explains 93 % as much"
+    (tie,) = confounded_pairs(problem, [a], {"alpha": 0.0}, [(a, b, 3.0, 0.99)])
+    assert tie["data_prefer"] is None and confounded_label(tie) == "cannot tell apart"

@@ -2,6 +2,7 @@
 results cache, the HTML report, the scheduler (and `learnest evaluate --new`), and the Dask executor."""
 import dataclasses
 import json
+import time
 
 import pytest
 from utils.service import (
@@ -12,6 +13,7 @@ from utils.service import (
     settings_for,
     train,
     upload,
+    wait_for_job,
     without_timing,
 )
 
@@ -207,3 +209,111 @@ def test_cli_evaluate_new_output(registry_home, monkeypatch, capsys):
     assert cli_main(["evaluate", "--new", "--alias", "nobody-has-this", "--methods", "ukf"]) == 0
     assert "nothing new" in capsys.readouterr().out
     assert cli_main(["evaluate", "--model", "x"]) == 2   # the old form still needs files
+
+
+def test_the_report_page_computes_its_velocity_figure_once_and_keeps_it(registry_home):
+    """Issue 10, item 7: a report view starts one executor task for the figure (never a second one while it
+    runs, however many views), the page reloads until it is stored, and later views read the stored one."""
+    from sqlalchemy import func, select
+
+    from learnest.service.storage.tables import ReportFigure
+    from learnest.service.web import report_figures
+
+    home, ids = registry_home["home"], registry_home["ids"]
+    with running_app(home) as client:
+        accepted, _ = evaluate(client, "quad:1", [ids[2]], methods=["ukf"])   # settings no other test uses
+        page_url = f"/evaluations/{accepted['evaluation_id']}/report.html"
+        first = [client.get(page_url) for _ in range(5)]
+        assert all(r.status_code == 200 and "being computed" in r.text and "http-equiv='refresh'" in r.text
+                   or "velocity-plot" in r.text for r in first)
+        assert len(report_figures._running) <= 1
+        deadline = time.monotonic() + 60
+        while "id='velocity-plot'" not in (answer := client.get(page_url)).text:
+            assert time.monotonic() < deadline, answer.text[-500:]
+            time.sleep(0.2)
+        assert "being computed" not in answer.text and "http-equiv='refresh'" not in answer.text
+        services = client.app.state.services
+        with services.db.transaction() as session:
+            stored = session.scalar(select(func.count()).select_from(ReportFigure)
+                                    .where(ReportFigure.evaluation_id == accepted["evaluation_id"]))
+        assert stored == 1
+        started = time.monotonic()
+        assert "id='velocity-plot'" in client.get(page_url).text and time.monotonic() - started < 2
+
+
+def test_estimates_download_as_csv_parquet_and_mcap(registry_home):
+    """GET /evaluations/{id}/estimates through the real app: the tidy table reproduces the reported MSE, one
+    flight can be chosen, errors are 400/404/409; results cached before estimates were kept are computed
+    again; deleting a flight deletes its stored estimates.  (Last in the module: it deletes a flight.)"""
+    import io
+
+    import numpy as np
+    import pandas as pd
+    import pyarrow.parquet as pq
+    from mcap.reader import make_reader
+    from sqlalchemy import select, update
+    from utils.service import blob_files
+
+    from learnest.estimators.estimates import STATE_COLUMNS
+    from learnest.service.storage.tables import Result
+
+    home, ids = registry_home["home"], registry_home["ids"]
+    with running_app(home) as client:
+        accepted, report = evaluate(client, "quad:1", ids[1:])
+        evaluation_id = accepted["evaluation_id"]
+        shas = [client.get(f"/flights/{i}").json()["sha256"] for i in ids[1:]]
+        assert [(f["flight_id"], f["sha256"]) for f in report["flights"]] == list(zip(ids[1:], shas))
+        assert report["units"]["groups"] == {"p": "m^2", "v": "m^2/s^2", "a": "m^2/s^4"}
+
+        response = client.get(f"/evaluations/{evaluation_id}/estimates?format=csv")
+        assert response.status_code == 200 and response.headers["content-type"].startswith("text/csv")
+        assert f'filename="evaluation-{evaluation_id}-estimates.csv"' in response.headers["content-disposition"]
+        frame = pd.read_csv(io.BytesIO(response.content))
+        assert sorted(set(frame["flight_id"])) == ids[1:] and sorted(set(frame["method"])) == sorted(FAST_METHODS)
+        for entry in report["flights"]:  # the exported errors give back the reported MSE of every method
+            for method in FAST_METHODS:
+                rows = frame[(frame["flight_id"] == entry["flight_id"]) & (frame["method"] == method)]
+                errors = rows[[f"err_{c}" for c in STATE_COLUMNS]].to_numpy()
+                assert np.mean(errors ** 2) == pytest.approx(entry["mse"][method], rel=1e-9)
+                assert rows["flight"].iloc[0] == entry["flight"]
+
+        one = client.get(f"/evaluations/{evaluation_id}/estimates", params={"format": "parquet", "flight": ids[2]})
+        assert one.status_code == 200
+        assert f"evaluation-{evaluation_id}-flight-{ids[2]}-estimates.parquet" in one.headers["content-disposition"]
+        table = pq.read_table(io.BytesIO(one.content))
+        assert set(table.column("flight_id").to_pylist()) == {ids[2]}
+        assert table.schema.field("a_x_m_s2").metadata[b"unit"] == b"m/s^2"
+
+        mcap = client.get(f"/evaluations/{evaluation_id}/estimates", params={"format": "mcap", "flight": ids[1]})
+        summary = make_reader(io.BytesIO(mcap.content)).get_summary()
+        topics = {c.topic for c in summary.channels.values()}
+        assert {"/learnest/ukf/velocity", "/learnest/knode-ukf/pose", "/learnest/reference/velocity"} <= topics
+        samples = int((frame["flight_id"] == ids[1]).sum() / len(FAST_METHODS))
+        assert summary.statistics.message_count == samples * len(topics)
+
+        assert client.get(f"/evaluations/{evaluation_id}/estimates?format=xlsx").json() == \
+            {"detail": "unknown format 'xlsx'; choose one of csv, parquet, mcap"}
+        assert client.get(f"/evaluations/{evaluation_id}/estimates?format=xlsx").status_code == 400
+        assert client.get("/evaluations/999999/estimates").status_code == 404
+        not_in = client.get(f"/evaluations/{evaluation_id}/estimates", params={"flight": ids[0]})
+        assert not_in.status_code == 404 and "not one of evaluation" in not_in.json()["detail"]
+        page = client.get(f"/evaluations/{evaluation_id}/report.html").text
+        assert f"/evaluations/{evaluation_id}/estimates?format=mcap" in page
+
+        # a result cached before estimates were kept: the download says so, a new evaluation computes it again
+        database = client.app.state.services.db
+        with database.transaction() as session:
+            session.execute(update(Result).where(Result.flight_sha256 == shas[0]).values(estimates_blob=None))
+        stale = client.get(f"/evaluations/{evaluation_id}/estimates")
+        assert stale.status_code == 409 and "evaluate them again" in stale.json()["detail"]
+        again = client.post("/evaluations", json={"model": "quad:1", "flights": ids[1:], "methods": FAST_METHODS})
+        assert again.json()["state"] == "queued"            # not answered from the cache
+        assert wait_for_job(client, again.json()["job_id"])["state"] == "succeeded"
+        assert client.get(f"/evaluations/{again.json()['evaluation_id']}/estimates").status_code == 200
+
+        # deleting a flight deletes the estimates stored with its results
+        with database.transaction() as session:
+            kept = set(session.scalars(select(Result.estimates_blob).where(Result.flight_sha256 == shas[1])))
+        assert kept and None not in kept and kept <= blob_files(home)
+        assert client.delete(f"/flights/{ids[2]}").status_code == 204
+        assert not kept & blob_files(home)

@@ -247,9 +247,9 @@ def test_unexpected_errors_show_no_traceback(tmp_path, data_dir, monkeypatch):
     import learnest.service.uploads as uploads
     from learnest.service.api.app import create_app
 
-    def explode(_staged):
+    def explode(*_args):
         raise RuntimeError("secret internals /srv/path")
-    monkeypatch.setattr(uploads, "read_uploaded_flight", explode)
+    monkeypatch.setattr(uploads, "find_by_sha", explode)   # in the server process (decoding is in a worker)
     app = create_app(settings_for(tmp_path / "home"), executor=shared_pool(), scheduler=False)
     with TestClient(app, raise_server_exceptions=False) as client:
         response = upload(client, flight_csv(data_dir, 32))

@@ -15,6 +15,7 @@ from fastapi.staticfiles import StaticFiles
 from starlette.types import Receive, Send
 
 from ..config import Settings
+from ..jobs.decoding import DecodePool
 from ..jobs.executors import Executor
 from ..jobs.scheduler import Scheduler
 from ..jobs.services import open_services, sweep_orphan_blobs
@@ -22,18 +23,22 @@ from ..web import pages
 from .errors import install_error_handlers
 from .request_guard import RequestGuard
 from .routes import diagnoses, evaluations, flights, jobs, models
+from .server import BodyDeadline
+from .throttle import KeyThrottle
 
 
 def create_app(settings: Settings | None = None, *, executor: Executor | None = None,
-               scheduler: bool = True) -> FastAPI:
-    """`executor`: an already running executor to share (not shut down with the app); None: make one from
-    the settings.  `scheduler=False` never starts the scheduler thread (tests drive `Scheduler.tick`)."""
+               decoder: DecodePool | None = None, scheduler: bool = True) -> FastAPI:
+    """`executor`, `decoder`: an already running executor / upload decoder pool to share (not shut down with
+    the app); None: make them from the settings.  `scheduler=False` never starts the scheduler thread (tests
+    drive `Scheduler.tick`)."""
     settings = settings or Settings()
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
-        services = open_services(settings, executor)
+        services = open_services(settings, executor, decoder)
         sweep_orphan_blobs(services.db, services.blobs)  # the server's start, not every CLI call's
+        services.decoder.start()
         app.state.services = services
         app.state.scheduler = None
         if scheduler and settings.schedule_seconds > 0:
@@ -51,16 +56,21 @@ def create_app(settings: Settings | None = None, *, executor: Executor | None = 
                               "evaluate KNODE-UKF / KNODE-MHE against Savitzky-Golay references. Writes need "
                               "the X-API-Key header when the server has LEARNEST_API_KEY set.")
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
+    app.add_middleware(BodyDeadline, timeout_s=settings.body_timeout_s, min_rate=settings.body_min_rate)
+    # failed keys per client address: the guard (JSON API) and the web forms count into the same throttle
+    app.state.key_throttle = KeyThrottle(settings.key_failures, settings.key_failure_window_s)
     # outermost: runs first (host, cross-site and API key checks before any body is read)
-    app.add_middleware(RequestGuard, allowed_hosts=settings.allowed_host_names, api_key=settings.api_key)
+    app.add_middleware(RequestGuard, allowed_hosts=settings.allowed_host_names, api_key=settings.api_key,
+                       throttle=app.state.key_throttle)
     install_error_handlers(app)
     for router in (flights.router, models.router, jobs.router, evaluations.router, diagnoses.router):
         app.include_router(router)
     app.include_router(pages.router)  # the HTML pages for people (/, /ui/..., report.html): service/web/
     app.mount("/static", StaticFiles(packages=[("learnest.service.web", "static")]), name="static")
 
+    # async: answered on the event loop, never queued behind uploads and pages in the worker threads
     @app.get("/health", tags=["service"])
-    def health(request: Request) -> dict:
+    async def health(request: Request) -> dict:
         services = request.app.state.services
         return {"status": "ok", "version": _version(), "executor": services.executor.describe(),
                 "database": services.db.engine.dialect.name}

@@ -25,6 +25,8 @@ from urllib.parse import urlsplit
 from starlette.datastructures import Headers
 from starlette.types import ASGIApp, Receive, Scope, Send
 
+from .throttle import KeyThrottle, client_address
+
 SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
 FORM_PREFIX = "/ui/"   # web form posts: the key comes in the form or the cookie (service.web.forms)
 KEY_HEADER = "x-api-key"
@@ -41,12 +43,16 @@ class RequestGuard:
         Host names served (no port); ``"*"`` serves any.
     api_key : str, optional
         The key writes need in X-API-Key (None: writes need none).
+    throttle : KeyThrottle, optional
+        Counts failed keys per client address; a throttled address gets 429 with Retry-After.
     """
 
-    def __init__(self, app: ASGIApp, allowed_hosts: tuple[str, ...], api_key: str | None = None):
+    def __init__(self, app: ASGIApp, allowed_hosts: tuple[str, ...], api_key: str | None = None,
+                 throttle: KeyThrottle | None = None):
         self.app = app
         self.allowed = frozenset(name.lower() for name in allowed_hosts)
         self.api_key = api_key
+        self.throttle = throttle
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
@@ -64,10 +70,19 @@ class RequestGuard:
             if problem:
                 await _refuse(send, 403, problem)
                 return
-            if not scope["path"].startswith(FORM_PREFIX) and not self._key_matches(headers.get(KEY_HEADER)):
-                await _refuse(send, 401, "missing or wrong API key: send it in the X-API-Key header",
-                              [(b"www-authenticate", b"X-API-Key"), (b"connection", b"close")])
-                return
+            if self.api_key is not None and not scope["path"].startswith(FORM_PREFIX):
+                address = client_address(scope)
+                wait = self.throttle.retry_after(address) if self.throttle else None
+                if wait is not None and self.throttle is not None:
+                    await _refuse(send, 429, self.throttle.message(wait),
+                                  [(b"retry-after", str(wait).encode()), (b"connection", b"close")])
+                    return
+                if not self._key_matches(headers.get(KEY_HEADER)):
+                    if self.throttle:
+                        self.throttle.failed(address)
+                    await _refuse(send, 401, "missing or wrong API key: send it in the X-API-Key header",
+                                  [(b"www-authenticate", b"X-API-Key"), (b"connection", b"close")])
+                    return
         await self.app(scope, receive, send)
 
     def _key_matches(self, key: str | None) -> bool:

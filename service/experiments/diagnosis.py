@@ -250,7 +250,8 @@ def diagnose_simulated(system_name: str, simulate: str = "", seed: int = 0,
     if epochs:
         config = replace(config, epochs=epochs)
     before = _score_simulated(system, zeta, train, test, methods, config)
-    after = _score_simulated(repaired, zeta, train, test, methods, config)
+    # nothing chosen: the repaired prior is the prior, and training is seeded, so the scores would repeat
+    after = _score_simulated(repaired, zeta, train, test, methods, config) if chosen else dict(before)
     return {"system": system_name, "simulated_truth": {k: system.true_params[k] for k in system.true_params},
             **_public(selection), "before": before, "after": after,
             "prior_params_after": repaired.prior_params}
@@ -495,6 +496,17 @@ def _public(selection):
             "channels": {selection["channel"]: _channel(selection)}}
 
 
+def how_much(fraction: float) -> str:
+    """A rival's share of the residual the chosen effect removes, in words (it can exceed 1: a rival with
+    more parameters can remove more and still have the worse BIC_eff)."""
+    return f"removes {fraction:.1f}× as much" if fraction >= 1.05 else f"explains {100 * fraction:.0f} % as much"
+
+
+def confounded_label(pair: dict) -> str:
+    """How a confounded pair is introduced: a close rival the data still rank lower, or a true tie."""
+    return f"close rival (the data prefer {pair['data_prefer']})" if pair.get("data_prefer") else "cannot tell apart"
+
+
 def format_diagnosis(result: dict) -> str:
     """The human-readable report: effects as equations, intervals, what could not be told apart, and
     the estimators' error before and after.  ``result`` is `diagnose`'s or `diagnose_simulated`'s dict."""
@@ -527,10 +539,10 @@ def format_diagnosis(result: dict) -> str:
             lines.append(f"    not claimed (the interval holds the prior's value): {', '.join(unclaimed)}")
         for alt in e.get("alternatives", []):
             values = ", ".join(f"{k} = {v:.4g} {alt['units'].get(k, '')}".rstrip() for k, v in alt["params"].items())
-            lines.append(f"    alternative: {alt['id']} with {values} explains {100 * alt['fraction_of_chosen']:.0f} % "
-                         f"as much (ΔBIC_eff {alt['delta_bic']:+g})")
+            lines.append(f"    alternative: {alt['id']} with {values} {how_much(alt['fraction_of_chosen'])} "
+                         f"(ΔBIC_eff {alt['delta_bic']:+g})")
     for c in result["confounded"]:
-        lines.append(f"  cannot tell apart: {c['note']}")
+        lines.append(f"  {confounded_label(c)}: {c['note']}")
     note = unchanged_prior_note(result)
     if note:
         lines.append(f"  {note}")

@@ -13,6 +13,7 @@ import numpy as np
 
 from learnest.errors import InvalidInput, NumericalWarning
 from learnest.estimators.covariance import linearized_covariances
+from learnest.estimators.estimates import FlightEstimates
 from learnest.estimators.mhe import MHE
 from learnest.estimators.results import FilterResult
 from learnest.estimators.ukf import run_ukf
@@ -146,7 +147,8 @@ def mhe(model: HybridModel, flight: Flight, horizon: int = MHE_HORIZON) -> MHERe
 
 def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[str] = METHODS,
              horizon: int = MHE_HORIZON, include_bad: bool = False,
-             progress: Callable[[dict], None] | None = None) -> dict:
+             progress: Callable[[dict], None] | None = None,
+             on_estimates: Callable[[int, FlightEstimates], None] | None = None) -> dict:
     """Score the estimators on flights against Savitzky–Golay references of their mocap position.
 
     Parameters
@@ -163,12 +165,16 @@ def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[st
         Also score flights that fail the quality checks.
     progress : callable, optional
         Called with each flight's entry as it is done.
+    on_estimates : callable, optional
+        Called as ``on_estimates(index, FlightEstimates)`` with the per-step estimates of every method on
+        each scored flight (``index`` into ``flights``); `learnest.estimators.export.write_estimates`
+        writes them as CSV, Parquet or MCAP, `FlightEstimates.to_frame` gives the tidy table.
 
     Returns
     -------
     dict
         ``flights``: per flight ``mse`` {method: MSE over [p, v, a] in SI units²}, ``groups`` (per p, v,
-        a), ``ms_per_step``, ``excluded`` and ``reason``; ``median`` {method: MSE};
+        a), ``ms_per_step``, ``excluded`` and ``reason``; ``median`` {method: MSE}; ``units`` of these;
         ``improvement_pct`` {"knode-ukf_vs_ukf": %, ...}; ``flights_scored``; ``model`` (the model's
         meta name, None for an unregistered model).
 
@@ -188,4 +194,4 @@ def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[st
     """
     methods = parse_methods(methods if isinstance(methods, str) else ",".join(methods))
     return evaluate_flights(model, list(flights), methods, include_bad=include_bad, horizon=horizon,
-                            progress=progress)
+                            progress=progress, on_estimates=on_estimates)

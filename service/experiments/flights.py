@@ -8,7 +8,8 @@ from dataclasses import replace
 import numpy as np
 
 from learnest.errors import InvalidInput
-from learnest.estimators.evaluate import evaluate_sequence, summarize
+from learnest.estimators.estimates import FlightEstimates
+from learnest.estimators.evaluate import MSE_UNITS, evaluate_sequence, summarize
 from learnest.estimators.mhe import MHE
 from learnest.estimators.observers import pretraining_observer
 from learnest.ingest.baseline import references
@@ -82,8 +83,8 @@ def evaluate_flight(knode: HybridModel, flight: Flight, methods: Sequence[str], 
     Returns
     -------
     dict
-        ``results`` {method: `evaluate_sequence`'s entry}; ``reference`` (the SG references) when
-        ``keep_estimates``, else None.
+        ``results`` {method: `evaluate_sequence`'s entry}; ``reference`` (the SG references) and
+        ``estimates`` (a `FlightEstimates` of every method) when ``keep_estimates``, else None.
     """
     system = replace(system_for(flight, knode.system.name), prior_params=dict(knode.system.prior_params))
     knode = HybridModel(replace(knode.system, dt=flight.dt), knode.kind, knode.residual, knode.meta)
@@ -95,7 +96,20 @@ def evaluate_flight(knode: HybridModel, flight: Flight, methods: Sequence[str], 
     results = evaluate_sequence(methods, prior, knode, measured.measurements(), system_inputs(flight, system),
                                 flight.dt, system.Q, system.R, initial_state(measured), system.P0, reference,
                                 horizon=horizon, keep_estimates=keep_estimates, mhe_cache=mhe_cache)
-    return {"results": results, "reference": reference if keep_estimates else None}
+    if not keep_estimates:
+        return {"results": results, "reference": None, "estimates": None}
+    estimates = FlightEstimates(flight.name, flight.t, reference, measured.measurements(), flight.quat,
+                                {m: r["estimates"] for m, r in results.items()}, log_start_ns(flight))
+    return {"results": results, "reference": reference, "estimates": estimates}
+
+
+def log_start_ns(flight: Flight) -> int:
+    """Time of the flight's t = 0 on its log's own clock, ns (never negative): an MCAP recording's origin
+    (``meta["time_origin_ns"]``) plus where the grid started (``t0_source_s``) and the take-off cut
+    (``flying_window.start_s``); 0 when the adapter recorded none of them."""
+    meta = flight.meta
+    seconds = float(meta.get("t0_source_s") or 0.0) + float((meta.get("flying_window") or {}).get("start_s") or 0.0)
+    return max(0, int(meta.get("time_origin_ns") or 0) + round(seconds * 1e9))
 
 
 def flight_envelope(knode: HybridModel, flight: Flight) -> dict | None:
@@ -123,17 +137,20 @@ def _is_training_flight(knode: HybridModel, flight: Flight) -> bool:
 
 
 def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequence[str], include_bad: bool = False,
-                     horizon: int = MHE_HORIZON, progress: Callable[[dict], None] | None = None) -> dict:
-    """The report of `learnest evaluate --json`: per flight, median, improvement %.
+                     horizon: int = MHE_HORIZON, progress: Callable[[dict], None] | None = None,
+                     on_estimates: Callable[[int, FlightEstimates], None] | None = None) -> dict:
+    """The report of `learnest evaluate --json`: per flight, median, improvement %, ``units`` of the numbers.
 
     Flights that fail the quality checks (unless ``include_bad``) and the model's own training flight are
     listed as excluded, with the reason, and not scored.  Each scored flight's ``envelope`` says how much
     of it lies outside what the model saw in training (`flight_envelope`); such flights are still scored,
-    and listed in ``outside_training_envelope``.  ``progress`` is called with each flight's entry.
+    and listed in ``outside_training_envelope``.  ``progress`` is called with each flight's entry;
+    ``on_estimates(index, FlightEstimates)`` with the per-step estimates of each scored flight (index into
+    ``flights``), when given.
     """
     reports: list[dict] = []
     mhe_cache: dict[tuple, MHE] = {}
-    for flight in flights:
+    for index, flight in enumerate(flights):
         entry = {"flight": flight.name, "excluded": False, "reason": None, "mse": {}, "groups": {}}
         quality = flight.quality
         if not quality["ok"] and not include_bad:
@@ -141,7 +158,11 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
         elif _is_training_flight(knode, flight):
             entry.update(excluded=True, reason="training flight (never scored on its own training data)")
         else:
-            results = evaluate_flight(knode, flight, methods, horizon, mhe_cache=mhe_cache)["results"]
+            out = evaluate_flight(knode, flight, methods, horizon, keep_estimates=on_estimates is not None,
+                                  mhe_cache=mhe_cache)
+            results = out["results"]
+            if on_estimates is not None:
+                on_estimates(index, out["estimates"])
             entry["mse"] = {m: r["mse"] for m, r in results.items()}
             entry["groups"] = {m: r["groups"] for m, r in results.items()}
             entry["ms_per_step"] = {m: r["ms_per_step"] for m, r in results.items()}
@@ -149,4 +170,5 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
         reports.append(entry)
         if progress:
             progress(entry)
-    return {"model": knode.meta.get("name"), "system": knode.system.name, "flights": reports, **summarize(reports)}
+    return {"model": knode.meta.get("name"), "system": knode.system.name, "flights": reports, **summarize(reports),
+            "units": MSE_UNITS}

@@ -3,7 +3,7 @@ result (`result_cache`), then the report (the shape of service.experiments.fligh
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
@@ -11,7 +11,7 @@ from sqlalchemy.orm import Session
 from learnest.errors import InvalidInput, NotFound
 
 from .. import registry
-from ..storage.database import flights_by_id, get_row
+from ..storage.database import discard_blobs, flights_by_id, get_row
 from ..storage.tables import Evaluation, FlightRecord, ModelVersion, utcnow
 from .result_cache import EstimatorSettings, cached_entries, store_result
 from .runner import JobContext, error_message
@@ -42,7 +42,8 @@ def start_evaluation(services: Services, model_ref: str, flights: Iterable[int] 
         shas = [by_id[i].sha256 for i in flight_ids]
         entries = cached_entries(session, version.id, settings.key, shas)
         if len(entries) == len(flight_ids):  # everything cached: no job to run
-            evaluation.report = assemble_report(evaluation.model_ref, [entries[sha] for sha in shas])
+            evaluation.report = assemble_report(evaluation.model_ref, [entries[sha] for sha in shas], flight_ids,
+                                                shas)
             job.state, job.progress, job.started_at, job.finished_at = "succeeded", 1.0, utcnow(), utcnow()
             job.result = {"evaluation_id": evaluation.id, "flights": len(flight_ids), "computed": 0}
             return job.id, evaluation.id, job.state
@@ -85,41 +86,51 @@ def run_evaluation(services: Services, ctx: JobContext, evaluation_id: int) -> N
             (flight_id, name, sha)
     for future in ctx.finished(services.executor, futures):  # JobAborted when cancelled: no report stored
         flight_id, name, sha = futures[future]
-        entry, error = _outcome(future, name)
+        entry, estimates, error = _outcome(future, name)
         failed += error is not None
-        store_result(services.db, sha, version_id, settings.key, flight_id, entry, error)
+        with services.blobs.writing():  # the estimates blob, then the row naming it
+            kept = services.blobs.put_bytes(estimates) if estimates is not None else None
+            replaced = store_result(services.db, sha, version_id, settings.key, flight_id, entry, error, kept)
+        discard_blobs(services.db, services.blobs, [replaced] if replaced else [])
         entries[sha] = entry
         done += 1
         ctx.progress(done / total)
 
     report = assemble_report(model_ref, [entries[sha] if sha else _missing_entry(i)
-                                         for i, sha in zip(flight_ids, order)])
+                                         for i, sha in zip(flight_ids, order)], flight_ids, order)
     with services.db.transaction() as session:
         get_row(session, Evaluation, evaluation_id, "evaluation").report = report
         ctx.complete(session, {"evaluation_id": evaluation_id, "flights": total, "computed": len(todo),
                                "failed": failed})
 
 
-def _outcome(future, flight_name: str) -> tuple[dict, str | None]:
-    """A flight that fails is recorded with its reason and does not stop the others."""
+def _outcome(future, flight_name: str) -> tuple[dict, bytes | None, str | None]:
+    """(entry, estimates bytes, error): a flight that fails is recorded with its reason and does not stop
+    the others."""
     try:
-        return future.result(), None
+        result = future.result()
+        return result["entry"], result["estimates"], None
     except Exception as err:
         message = error_message(err)
         log.warning("evaluation of %s failed: %s", flight_name, message)
         return {"flight": flight_name, "excluded": True, "reason": f"failed: {message}", "mse": {}, "groups": {},
-                "failed": True}, message
+                "failed": True}, None, message
 
 
 def _missing_entry(flight_id: int) -> dict:
     return {"flight": f"#{flight_id}", "excluded": True, "reason": "flight was deleted", "mse": {}, "groups": {}}
 
 
-def assemble_report(model_ref: str, entries: list[dict]) -> dict:
-    """The same shape and numbers as service.experiments.flights.evaluate_flights."""
-    from learnest.estimators.evaluate import summarize
+def assemble_report(model_ref: str, entries: list[dict], flight_ids: Sequence[int],
+                    shas: Sequence[str | None]) -> dict:
+    """The same shape and numbers as service.experiments.flights.evaluate_flights; each flight's entry also
+    names the stored flight (``flight_id``, ``sha256``: its content key), and ``units`` says what the
+    numbers are in."""
+    from learnest.estimators.evaluate import MSE_UNITS, summarize
 
-    return {"model": model_ref, "flights": entries, **summarize(entries)}
+    entries = [{**entry, "flight_id": flight_id, "sha256": sha} for entry, flight_id, sha in zip(entries, flight_ids,
+                                                                                                shas)]
+    return {"model": model_ref, "flights": entries, **summarize(entries), "units": MSE_UNITS}
 
 
 def _flight_ids(session: Session, flights, version: ModelVersion) -> list[int]:

@@ -1,9 +1,10 @@
-"""Where the heavy work (training, per-flight evaluation) runs: one small interface, two back ends.
+"""Where the heavy work (training, per-flight evaluation) runs: one small interface, three back ends.
 
 - `LocalPoolExecutor`: a concurrent.futures ProcessPoolExecutor (spawned processes: forking a server
   with running threads and torch/CasADi state is unsafe).  The default.
 - `DaskExecutor`: a dask.distributed Client, to a scheduler at tcp://host:port or to an in-process
   LocalCluster (tests, laptops).
+- `InlineExecutor`: in the calling process, one task at a time (the CLI's evaluations).
 
 Tasks are plain module-level functions taking and returning bytes/JSON-able values (flight and model
 bytes travel with the task), so remote Dask workers need no access to the blob folder.
@@ -42,10 +43,16 @@ def init_worker(parent_pid: int | None = None) -> None:
 
     torch.set_num_threads(1)
     if parent_pid is not None:
-        # Ctrl-C reaches the whole process group: the server (or CLI) decides what stops, and stops its
-        # workers itself; a worker interrupted mid-task would only hand its job a KeyboardInterrupt
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        threading.Thread(target=_exit_with_parent, args=(parent_pid,), name="parent-watch", daemon=True).start()
+        watch_parent(parent_pid)
+
+
+def watch_parent(parent_pid: int) -> None:
+    """In a worker process: ignore Ctrl-C, and end as soon as process ``parent_pid`` is gone (see
+    `init_worker`).  The upload decoders' initializer (they need no torch)."""
+    # Ctrl-C reaches the whole process group: the server (or CLI) decides what stops, and stops its
+    # workers itself; a worker interrupted mid-task would only hand its job a KeyboardInterrupt
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.Thread(target=_exit_with_parent, args=(parent_pid,), name="parent-watch", daemon=True).start()
 
 
 def _exit_with_parent(parent_pid: int) -> None:
@@ -79,6 +86,58 @@ class Executor(ABC):
     def describe(self) -> dict:
         """What the status page shows about this executor."""
         return {"name": self.name}
+
+
+class _DeferredFuture(concurrent.futures.Future):
+    """A future whose function runs, in the asking thread, when it is first asked whether it is done."""
+
+    def __init__(self, fn: Callable, args: tuple) -> None:
+        super().__init__()
+        self._call: tuple[Callable, tuple] | None = (fn, args)
+
+    def _run_once(self) -> None:
+        if self._call is None or not self.set_running_or_notify_cancel():
+            return
+        fn, args = self._call
+        self._call = None
+        try:
+            self.set_result(fn(*args))
+        except Exception as err:  # kept for .result(), as a pool's future does
+            self.set_exception(err)
+
+    def done(self) -> bool:
+        self._run_once()
+        return super().done()
+
+    def result(self, timeout: float | None = None) -> Any:
+        self._run_once()
+        return super().result(timeout)
+
+
+class InlineExecutor(Executor):
+    """Runs each task in the calling process, one at a time, when its result is first waited for: what the
+    CLI uses (its user waits anyway, torch is already loaded, and a spawned worker would cost seconds of
+    imports).  A job's progress still advances task by task."""
+
+    name = "inline"
+
+    def submit(self, fn: Callable, *args: Any) -> concurrent.futures.Future:
+        """A future that runs fn(*args) when first asked whether it is done (or for its result)."""
+        return _DeferredFuture(fn, args)
+
+    def as_completed(self, futures: Iterable) -> Iterator:
+        """Run the tasks in order, yielding each when done."""
+        for future in list(futures):
+            future.done()
+            yield future
+
+    def shutdown(self) -> None:
+        """Nothing runs in the background."""
+
+    def stop(self, futures: Iterable, grace_s: float) -> None:
+        """Tasks not yet started never start (one running is this thread: it has already returned)."""
+        for future in futures:
+            future.cancel()
 
 
 class LocalPoolExecutor(Executor):

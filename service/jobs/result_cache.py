@@ -53,18 +53,23 @@ class EstimatorSettings:
 def cached_entries(session: Session, version_id: int, key: str, shas: Iterable[str],
                    include_failed: bool = False) -> dict:
     """{flight sha256: stored entry} of this model version and settings key (succeeded results only,
-    unless ``include_failed``)."""
+    unless ``include_failed``).  A scored flight whose result has no stored estimates (cached before they
+    were kept) is left out: computing it again stores them."""
     query = select(Result).where(Result.model_version_id == version_id, Result.settings_key == key,
                                  Result.flight_sha256.in_(list(shas)))
     if not include_failed:  # an explicit request retries flights that failed before
         query = query.where(Result.state == "succeeded")
-    return {row.flight_sha256: row.entry for row in session.scalars(query)}
+    return {row.flight_sha256: row.entry for row in session.scalars(query)
+            if row.estimates_blob is not None or row.state == "failed" or row.entry.get("excluded")}
 
 
 def store_result(db: Database, sha: str, version_id: int, key: str, flight_id: int, entry: dict,
-                 error: str | None) -> None:
-    """Insert or update the result of one flight (failed when ``error`` is given); retried on a concurrent
-    insert; after three conflicts the result is not cached (logged: the evaluation's report still has it)."""
+                 error: str | None, estimates_blob: str | None = None) -> str | None:
+    """Insert or update the result of one flight (failed when ``error`` is given), with the blob of its
+    per-step estimates (`FlightEstimates.to_bytes`, written before this call); retried on a concurrent
+    insert; after three conflicts the result is not cached (logged: the evaluation's report still has it).
+
+    Returns the estimates blob the update replaced (for the caller to collect), else None."""
     state = "failed" if error else "succeeded"
     for _ in range(3):  # two evaluations may store the same flight at once: the second updates
         try:
@@ -74,14 +79,17 @@ def store_result(db: Database, sha: str, version_id: int, key: str, flight_id: i
                 if row is None:
                     session.add(Result(flight_sha256=sha, model_version_id=version_id, settings_key=key,
                                        flight_id=flight_id, state=state, entry=entry, error=error,
-                                       created_at=utcnow()))
-                else:
-                    row.state, row.entry, row.error, row.created_at = state, entry, error, utcnow()
-            return
+                                       estimates_blob=estimates_blob, created_at=utcnow()))
+                    return None
+                previous = row.estimates_blob
+                row.state, row.entry, row.error, row.created_at = state, entry, error, utcnow()
+                row.estimates_blob = estimates_blob
+            return previous if previous != estimates_blob else None
         except IntegrityError:
             continue
     log.warning("result of flight %s (version %s) not cached: three concurrent inserts conflicted", flight_id,
                 version_id)
+    return estimates_blob  # named by no row: the caller collects it
 
 
 def flights_without_results(session: Session, version_id: int, key: str) -> list[int]:

@@ -105,11 +105,12 @@ class JobContext:
         stopped = self.runner.stop_event(self.job_id)
         next_check = time.monotonic() + CANCEL_CHECK_S
         while pending:
-            done = [f for f in pending if f.done()]
-            for future in done:
-                pending.remove(future)
-                yield future
-            if done:
+            # one at a time, asking no further than the first finished one (an InlineExecutor's future
+            # runs its task when asked)
+            finished = next((f for f in pending if f.done()), None)
+            if finished is not None:
+                pending.remove(finished)
+                yield finished
                 continue
             if time.monotonic() >= next_check:  # a cancel may come through another server process
                 next_check = time.monotonic() + CANCEL_CHECK_S

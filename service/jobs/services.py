@@ -8,6 +8,7 @@ from .. import registry
 from ..config import Settings
 from ..storage.blobs import BlobStore
 from ..storage.database import Database, blob_is_referenced, referenced_blobs
+from .decoding import DecodePool
 from .executors import Executor, make_executor
 from .runner import JobRunner
 
@@ -23,18 +24,26 @@ class Services:
     blobs: BlobStore
     executor: Executor
     runner: JobRunner
+    decoder: DecodePool
     owns_executor: bool = True
+    owns_decoder: bool = True
 
     def close(self) -> None:
-        """Shut the runner down, the executor too if these services created it, and dispose the database."""
+        """Shut the runner down, the executor and the upload decoders too if these services created them, and
+        dispose the database."""
         self.runner.shutdown()
         if self.owns_executor:
             self.executor.shutdown()
+        if self.owns_decoder:
+            self.decoder.shutdown()
         self.db.dispose()
 
 
-def open_services(settings: Settings, executor: Executor | None = None) -> Services:
-    """Migrate the database, open the blob folder and the executor, fail jobs of crashed servers."""
+def open_services(settings: Settings, executor: Executor | None = None,
+                  decoder: DecodePool | None = None) -> Services:
+    """Migrate the database, open the blob folder and the executor, fail jobs of crashed servers.
+    ``executor``, ``decoder``: already running ones to share (not shut down by `Services.close`); None: made
+    from the settings (the decoder starts its processes on the first upload)."""
     settings.home.mkdir(parents=True, exist_ok=True)
     db = Database(settings.url)
     db.migrate()
@@ -44,7 +53,9 @@ def open_services(settings: Settings, executor: Executor | None = None) -> Servi
     runner.start()
     owns = executor is None
     executor = executor or make_executor(settings.dask_address, settings.pool_workers)
-    return Services(settings, db, blobs, executor, runner, owns_executor=owns)
+    owns_decoder = decoder is None
+    decoder = decoder or DecodePool(settings.decode_workers, settings.decode_queue, settings.decode_timeout_s)
+    return Services(settings, db, blobs, executor, runner, decoder, owns_executor=owns, owns_decoder=owns_decoder)
 
 
 def sweep_orphan_blobs(db: Database, blobs: BlobStore) -> list[str]:

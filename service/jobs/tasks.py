@@ -92,18 +92,20 @@ def flight_from_bytes(data: bytes) -> Flight:
 
 
 def evaluate_task(model_json: bytes, flight_bytes: bytes, settings: dict) -> dict:
-    """One flight's entry of service.experiments.flights.evaluate_flights' report.
+    """One flight's entry of service.experiments.flights.evaluate_flights' report and its estimates.
 
-    ``settings`` is `EstimatorSettings.as_dict()`.
+    ``settings`` is `EstimatorSettings.as_dict()`.  Returns ``entry`` and ``estimates``: the per-step
+    estimates as `FlightEstimates.to_bytes` (None when the flight was not scored).
     """
     from ..experiments.flights import evaluate_flights
 
     init_worker()
     model = registry.model_from_json(model_json)
     flight = flight_from_bytes(flight_bytes)
+    kept: list[bytes] = []
     report = evaluate_flights(model, [flight], list(settings["methods"]), include_bad=settings["include_bad"],
-                              horizon=settings["horizon"])
-    return report["flights"][0]
+                              horizon=settings["horizon"], on_estimates=lambda _i, e: kept.append(e.to_bytes()))
+    return {"entry": report["flights"][0], "estimates": kept[0] if kept else None}
 
 
 def diagnose_task(flights_bytes: list[bytes], model_json: bytes | None, methods: list[str], epochs: int,

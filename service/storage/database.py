@@ -22,7 +22,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from learnest.errors import Conflict, NotFound
 from learnest.ingest.flight import json_compatible
 
-from .tables import Base, FlightFile, FlightRecord, ModelVersion
+from .tables import Base, FlightFile, FlightRecord, ModelVersion, Result
 
 if TYPE_CHECKING:
     from .blobs import BlobStore
@@ -35,19 +35,20 @@ def _json_dumps(value) -> str:
 
 
 # -- which blobs the rows name ------------------------------------------------------------------------
+BLOB_COLUMNS = (FlightRecord.flight_blob, FlightFile.sha256, ModelVersion.weights_blob, Result.estimates_blob)
+
+
 def referenced_blobs(db: Database) -> set[str]:
-    """Every blob sha a row names: normalized flights, their raw files, model weights."""
+    """Every blob sha a row names: normalized flights, their raw files, model weights, stored estimates."""
     with db.transaction() as session:
-        return {sha for column in (FlightRecord.flight_blob, FlightFile.sha256, ModelVersion.weights_blob)
+        return {sha for column in BLOB_COLUMNS
                 for sha in session.scalars(select(column).where(column.is_not(None))) if sha is not None}
 
 
 def blob_is_referenced(db: Database, sha: str) -> bool:
-    """Whether a flight, a raw file or a model version names blob ``sha``."""
+    """Whether a flight, a raw file, a model version or a result's estimates name blob ``sha``."""
     with db.transaction() as session:
-        return bool(session.scalar(select(or_(exists().where(FlightRecord.flight_blob == sha),
-                                              exists().where(FlightFile.sha256 == sha),
-                                              exists().where(ModelVersion.weights_blob == sha)))))
+        return bool(session.scalar(select(or_(*(exists().where(column == sha) for column in BLOB_COLUMNS)))))
 
 
 def discard_blobs(db: Database, blobs: BlobStore, shas: Iterable[str]) -> list[str]:

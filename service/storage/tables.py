@@ -180,6 +180,23 @@ class Result(Base):
     state: Mapped[str] = mapped_column(String(20))               # "succeeded" | "failed"
     entry: Mapped[dict] = mapped_column(JSON)                    # the flight's entry of the report
     error: Mapped[str | None] = mapped_column(Text)
+    # FlightEstimates.to_bytes of a scored flight (None: excluded, failed, or stored before 0005)
+    estimates_blob: Mapped[str | None] = mapped_column(String(64))
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+
+
+class ReportFigure(Base):
+    """The velocity figure of one flight of an evaluation's report page, computed once (it runs the UKFs) by
+    an executor task and kept: a page view never runs an estimator for a figure stored here."""
+
+    __tablename__ = "report_figures"
+    __table_args__ = (UniqueConstraint("evaluation_id", "flight_id", name="uq_report_figures_evaluation_flight"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    evaluation_id: Mapped[int] = mapped_column(ForeignKey("evaluations.id", ondelete="CASCADE"))
+    flight_id: Mapped[int] = mapped_column(Integer)
+    png: Mapped[str | None] = mapped_column(Text)                # data URI; None when it failed
+    error: Mapped[str | None] = mapped_column(Text)
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
 
 

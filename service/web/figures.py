@@ -8,7 +8,6 @@ CLI's --plot).
 from __future__ import annotations
 
 import base64
-import functools
 import io
 import os
 from typing import IO, TYPE_CHECKING, cast
@@ -20,7 +19,6 @@ if TYPE_CHECKING:
 
 from learnest.ingest.flight import Flight as CanonicalFlight
 
-from ..storage.blobs import BlobStore
 from ..storage.tables import ModelVersion
 
 BOX_ORDER = ("mhe", "knode-mhe", "ukf", "knode-ukf")   # the order of the paper's Fig. 3
@@ -101,17 +99,14 @@ def velocity(t: np.ndarray, reference: np.ndarray, estimates: dict[str, np.ndarr
     return fig
 
 
-@functools.lru_cache(maxsize=32)  # the same plot is asked for again on every reload of the report
-def velocity_png(blobs: BlobStore, weights_sha: str, flight_sha: str, title: str) -> str:
-    """The velocity figure of a stored model on a stored flight, as a data URI.
-
-    Runs the UKF and KNODE-UKF on the flight (about a second), so the answer is cached by content hash.
-    """
-    from learnest.service.experiments.flights import evaluate_flight  # torch: only when a report asks
+def velocity_png(model_json: bytes, flight_bytes: bytes, title: str) -> str:
+    """The velocity figure of a model on a flight, as a data URI: an executor task (it runs the UKF and
+    KNODE-UKF on the flight, about a second); service.web.report_figures keeps its answer."""
+    from learnest.service.experiments.flights import evaluate_flight  # torch: only in the worker
     from learnest.service.registry import model_from_json
 
-    model = model_from_json(blobs.read_bytes(weights_sha))
-    flight = CanonicalFlight.from_bytes(blobs.read_bytes(flight_sha))
+    model = model_from_json(model_json)
+    flight = CanonicalFlight.from_bytes(flight_bytes)
     out = evaluate_flight(model, flight, list(VELOCITY_METHODS), keep_estimates=True)
     estimates = {m: r["estimates"] for m, r in out["results"].items()}
     return png_data_uri(velocity(flight.t, out["reference"], estimates, title))

@@ -21,6 +21,7 @@ from learnest.errors import InvalidInput, LearnestError
 
 from ..api.deps import key_matches
 from ..api.schemas import AliasIn, EvaluationRequest, TrainRequest
+from ..api.throttle import KeyThrottle, client_address
 from ..config import Settings
 
 COOKIE = "learnest_api_key"
@@ -31,6 +32,12 @@ class MissingKey(LearnestError):
     """A form write without the right API key."""
 
     status = 401
+
+
+class KeyThrottled(LearnestError):
+    """Too many failed key attempts from this address (see service.api.throttle)."""
+
+    status = 429
 
 
 # -- API key ---------------------------------------------------------------------------------------------
@@ -49,8 +56,19 @@ def require_key(request: Request, settings: Settings, form_key: str) -> None:
     ------
     MissingKey
         (401) Neither holds the right key.
+    KeyThrottled
+        (429) This address failed too often lately (the JSON API's throttle, counted together).
     """
+    if settings.api_key is None:
+        return
+    throttle: KeyThrottle | None = getattr(request.app.state, "key_throttle", None)
+    address = client_address(request)
+    wait = throttle.retry_after(address) if throttle else None
+    if throttle is not None and wait is not None:
+        raise KeyThrottled(throttle.message(wait))
     if not key_matches(settings, form_key or request.cookies.get(COOKIE)):
+        if throttle is not None:
+            throttle.failed(address)
         raise MissingKey("missing or wrong API key: type it into the form's API key field")
 
 

@@ -47,6 +47,7 @@ from ..jobs.training import start_training
 from ..storage.tables import Diagnosis, Evaluation, FlightRecord, Job
 from ..uploads import add_flight
 from . import figures, forms
+from .report_figures import velocity_figure
 
 log = logging.getLogger("learnest.web")
 
@@ -130,7 +131,7 @@ def upload_flight_form(request: Request, files: list[UploadFile | str] = File(de
     forms.require_key(request, services.settings, api_key)
     chosen = forms.chosen_files(files)
     row, _created = add_flight(services.db, services.blobs, chosen, *forms.upload_text(vehicle, notes),
-                               pose_topic=pose_topic, imu_topic=imu_topic)
+                               pose_topic=pose_topic, imu_topic=imu_topic, decode=services.decoder.decode)
     return forms.redirect(f"/ui/flights/{row.id}", services.settings, api_key)
 
 
@@ -283,26 +284,19 @@ def evaluation_report_page(evaluation_id: RowId,
     scored = [(fid, entry["flight"]) for fid, entry in zip(evaluation.flight_ids, report["flights"], strict=True)
               if not entry.get("excluded")]
     chosen = flight if flight in {fid for fid, _ in scored} else (scored[0][0] if scored else None)
-    return page("report.html", title, evaluation=evaluation, report=report,
+    velocity = _velocity(services, evaluation, chosen)
+    waiting = velocity.get("pending") or velocity.get("busy")
+    return page("report.html", title, refresh_s=2 if waiting else None, evaluation=evaluation, report=report,
                 methods=list(report.get("median", {})), settings=evaluation.settings,
                 boxplot=figures.png_data_uri(figures.mse_boxplot(report), dpi=120) if figures.has_scores(report)
                 else None,
-                scored=scored, chosen=chosen, velocity=_velocity(services, evaluation, chosen),
+                scored=scored, chosen=chosen, velocity=velocity,
                 model_name=evaluation.model_ref.split(":", 1)[0])
 
 
 def _velocity(services: Services, evaluation: Evaluation, flight_id: int | None) -> dict:
-    """{"png": data URI} or {"error": why}: a deleted or unreadable flight is said, the report still shown."""
-    if flight_id is None:
-        return {}
-    try:
-        version = catalog.get_version_by_id(services.db, evaluation.model_version_id)
-        row = catalog.get_flight(services.db, flight_id)
-        title = f"{version.name}:{version.version} on {row.name}"
-        return {"png": figures.velocity_png(services.blobs, version.weights_blob, row.flight_blob, title)}
-    except Exception as err:  # a broken plot must not break the report
-        log.warning("velocity plot of flight %s failed: %s", flight_id, err)
-        return {"error": str(err)}
+    """The stored figure, or that it is being computed (service.web.report_figures); {} without a flight."""
+    return {} if flight_id is None else velocity_figure(services, evaluation, flight_id)
 
 
 # -- the diagnosis report -----------------------------------------------------------------------------------
@@ -315,7 +309,11 @@ diagnosis_reports = APIRouter(tags=["diagnoses"])
 def diagnosis_report_page(diagnosis_id: RowId, services: Services = Depends(get_services)):
     """The diagnosis report for people: effects with units, 95 % intervals and alternatives, the residual over
     time before and after, and the held-out error before and after (linear axes)."""
-    from learnest.service.experiments.diagnosis import unchanged_prior_note  # numpy only; kept off app start
+    from learnest.service.experiments.diagnosis import (  # numpy only; kept off app start
+        confounded_label,
+        how_much,
+        unchanged_prior_note,
+    )
 
     diagnosis, job = catalog.row_and_job(services.db, Diagnosis, diagnosis_id, "diagnosis")
     if job.state != "succeeded":
@@ -328,7 +326,8 @@ def diagnosis_report_page(diagnosis_id: RowId, services: Services = Depends(get_
                 prior=[(k, v, CRAZYFLIE_UNITS[k]) for k, v in prior.items() if k in CRAZYFLIE_UNITS],
                 summary=figures.png_data_uri(figures.diagnosis_summary(report), dpi=110),
                 series=figures.png_data_uri(figures.residual_series(series), dpi=110) if series else None,
-                note=unchanged_prior_note(report), registered=diagnosis.registered,
+                note=unchanged_prior_note(report), registered=diagnosis.registered, how_much=how_much,
+                confounded_label=confounded_label,
                 model_name=diagnosis.model_ref.split(":", 1)[0] if diagnosis.model_ref else None)
 
 

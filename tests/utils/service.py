@@ -63,6 +63,21 @@ def shared_pool() -> LocalPoolExecutor:
     return _shared_pool
 
 
+_shared_decoder = None
+
+
+def shared_decoder():
+    """One upload decoder pool (its worker processes warm) for every test app."""
+    global _shared_decoder
+    if _shared_decoder is None:
+        from learnest.service.jobs.decoding import DecodePool
+
+        _shared_decoder = DecodePool(workers=1, waiting=64, timeout_s=60)  # room for the concurrency tests
+        _shared_decoder.start()
+        atexit.register(_shared_decoder.shutdown)
+    return _shared_decoder
+
+
 def settings_for(home: Path, **changes) -> Settings:
     """Service settings on a SQLite file under ``home``; Starlette's TestClient sends ``Host: testserver``."""
     changes.setdefault("allowed_hosts", "localhost,127.0.0.1,::1,testserver")
@@ -80,7 +95,8 @@ def running_app(home: Path, executor=None, **changes):
     from learnest.service.jobs.executors import init_worker
 
     init_worker()  # this process trains too (CLI paths): one torch thread, as in the workers
-    app = create_app(settings_for(home, **changes), executor=executor or shared_pool(), scheduler=False)
+    app = create_app(settings_for(home, **changes), executor=executor or shared_pool(), decoder=shared_decoder(),
+                     scheduler=False)
     with TestClient(app) as client:
         yield client
 

@@ -174,9 +174,12 @@ def read(path, rate_hz: float = 100.0) -> Flight:
     notes = list(log.warnings)
     acc = _require_stream(log, ACC, "accelerometer")
     pose = _require_stream(log, POSE, "motion-capture pose", prefer_own_event=True)
+    if len(acc.t) < 2:   # e.g. a log that ends after its header: there is no time span to speak of
+        raise IngestError(path, f"no samples: the log holds {len(acc.t)} accelerometer record(s) (a header "
+                                "without data?)")
     window = _main_window(acc.t, notes)
     if window[1] - window[0] > MAX_DURATION_S:
-        raise IngestError(path, f"timestamps span {window[1] - window[0]:.0f} s, more than {MAX_DURATION_S:.0f} s: "
+        raise IngestError(path, f"timestamps span {window[1] - window[0]:.6g} s, more than {MAX_DURATION_S:.0f} s: "
                                 f"corrupt timestamps?")
     acc, pose = acc.within(window), pose.within(window)
     pose = _after_first_frame(pose)

@@ -221,7 +221,7 @@ def read_channels(path: Path, channels: Sequence[Channel], warnings: list[str], 
     _check_acc_magnitude(path, accel_choice.label, acc_g)
     overlap = min(t_pose[-1], t_acc[-1]) - max(t_pose[0], t_acc[0])
     if overlap > MAX_DURATION_S:
-        raise IngestError(path, f"pose and acceleration overlap for {overlap:.0f} s, more than "
+        raise IngestError(path, f"pose and acceleration overlap for {overlap:.6g} s, more than "
                                 f"{MAX_DURATION_S:.0f} s: corrupt time stamps?")
 
     encodings = frozenset({pose_choice.channels[0].message_encoding, accel_choice.channels[0].message_encoding})

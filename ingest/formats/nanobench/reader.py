@@ -64,6 +64,17 @@ def _header_columns(path) -> list[str]:
     return [name.strip() for name in first.decode("utf-8-sig", errors="replace").strip().split(",")]
 
 
+def missing_columns(path) -> list[str] | None:
+    """For a file `sniff` refused: the NanoBench columns its header lacks, when it has most of them (a
+    NanoBench CSV with a column missing, not another format); else None."""
+    try:
+        columns = set(_header_columns(path))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return None
+    missing = [name for name in REQUIRED_COLUMNS if name not in columns]
+    return missing if 0 < len(missing) <= len(REQUIRED_COLUMNS) // 2 else None
+
+
 def sniff(path) -> bool:
     """True when the file's header line carries the NanoBench columns (content, not extension)."""
     try:
@@ -138,8 +149,8 @@ def _time_column(path: Path, table: pd.DataFrame, rate_hz: float, warnings: list
     backwards = np.flatnonzero(np.diff(t) <= 0)
     if backwards.size:
         i = int(backwards[0])
-        raise IngestError(path, f"time is not strictly increasing: t={float(t[i + 1]):.9f} follows "
-                                f"t={float(t[i]):.9f} (data row {i + 2}; {backwards.size} such place(s))")
+        raise IngestError(path, f"time is not strictly increasing: t={float(t[i + 1]):.15g} s follows "
+                                f"t={float(t[i]):.15g} s (data row {i + 2}; {backwards.size} such place(s))")
     grid_points = (t[-1] - t[0]) * rate_hz
     if not grid_points <= MAX_GRID_POINTS_PER_ROW * len(t):
         raise IngestError(path, f"time stamps span {t[-1] - t[0]:.6g} s for only {len(t)} rows "

@@ -71,7 +71,7 @@ def read_cfclient_csv(path) -> CfclientLog:
         raise IngestError(path, f"too few rows with a time stamp and acc.x/y/z ({int(usable.sum())})")
     t = t_ms[usable] / 1000.0
     if t[-1] - t[0] > MAX_DURATION_S:
-        raise IngestError(path, f"time stamps span {t[-1] - t[0]:.0f} s, more than {MAX_DURATION_S:.0f} s: "
+        raise IngestError(path, f"time stamps span {t[-1] - t[0]:.6g} s, more than {MAX_DURATION_S:.0f} s: "
                                 f"Timestamp must be milliseconds")
     acc = acc[usable]
     with np.errstate(over="ignore"):   # an absurd 1e308 in one row is inf here, and the median ignores it

@@ -222,7 +222,7 @@ def _frame_times(path: Path, table: pd.DataFrame, rate: float, first_line: int, 
         raise IngestError(path, f"line {first_line + i}: frame {table[0].iloc[i]} does not follow frame "
                                 f"{table[0].iloc[i - 1]} (frames must increase)")
     if t[-1] - t[0] > MAX_DURATION_S:
-        raise IngestError(path, f"frames span {t[-1] - t[0]:.0f} s at {rate:g} Hz, more than "
+        raise IngestError(path, f"frames span {t[-1] - t[0]:.6g} s at {rate:g} Hz, more than "
                                 f"{MAX_DURATION_S:.0f} s: wrong capture rate or frame numbers?")
     return t, frames
 

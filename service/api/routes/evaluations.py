@@ -3,15 +3,24 @@ is service.experiments.flights.evaluate_flights' JSON.  Its HTML page, /evaluati
 of the web pages (service.web.pages)."""
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Response
+import tempfile
+from pathlib import Path
+
+from fastapi import APIRouter, Depends, HTTPException, Query, Response
+from fastapi.responses import FileResponse
+from starlette.background import BackgroundTask
+
+from learnest.estimators.export import FORMATS, MEDIA_TYPES
 
 from ...catalog import row_and_job
+from ...exports import export_evaluation, export_filename
 from ...jobs.evaluation import start_evaluation
 from ...jobs.result_cache import EstimatorSettings
 from ...jobs.services import Services
+from ...storage.blobs import BlobStore
 from ...storage.database import Database
 from ...storage.tables import Evaluation
-from ..deps import RowId, get_db, get_services, pending, require_api_key
+from ..deps import MAX_ROW_ID, RowId, get_blobs, get_db, get_services, pending, require_api_key
 from ..schemas import EvaluationAccepted, EvaluationPending, EvaluationRequest
 
 router = APIRouter(prefix="/evaluations", tags=["evaluations"])
@@ -36,3 +45,37 @@ def evaluation_report(evaluation_id: RowId, db: Database = Depends(get_db)):
     if job.state != "succeeded":
         return pending("evaluation", evaluation, job)
     return evaluation.report
+
+
+@router.get("/{evaluation_id}/estimates",
+            responses={200: {"description": "the estimates file (CSV, Parquet or MCAP)",
+                             "content": {MEDIA_TYPES[f]: {} for f in FORMATS}},
+                       202: {"model": EvaluationPending, "description": "not finished yet"},
+                       400: {"description": "unknown format (the message names the allowed ones)"},
+                       404: {"description": "no such evaluation, or the flight is not one of its flights"},
+                       409: {"description": "the job failed, the flight was not scored, or no estimates were "
+                                            "stored"}})
+def evaluation_estimates_file(evaluation_id: RowId,
+                              format: str = Query("csv", description=f"one of {', '.join(FORMATS)}"),
+                              flight: int | None = Query(None, ge=1, le=MAX_ROW_ID,
+                                                         description="only this flight (default: every scored "
+                                                                     "flight)"),
+                              db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
+    """The per-step state estimates of every method on every scored flight, with the Savitzky–Golay reference,
+    the error and the measurement: a tidy table (CSV, Parquet; unit-suffixed columns) or an MCAP with Foxglove
+    schemas (topics /learnest/<method>/position|velocity|acceleration|pose and /learnest/reference/...)."""
+    if format not in FORMATS:
+        raise HTTPException(400, f"unknown format {format!r}; choose one of {', '.join(FORMATS)}")
+    evaluation, job = row_and_job(db, Evaluation, evaluation_id, "evaluation")
+    if job.state != "succeeded":
+        return pending("evaluation", evaluation, job)
+    handle = tempfile.NamedTemporaryFile(suffix=FORMATS[format], delete=False)
+    try:
+        with handle:
+            export_evaluation(db, blobs, evaluation_id, handle, format, flight)
+    except BaseException:
+        Path(handle.name).unlink(missing_ok=True)
+        raise
+    return FileResponse(handle.name, media_type=MEDIA_TYPES[format],
+                        filename=export_filename(evaluation_id, format, flight),
+                        background=BackgroundTask(Path(handle.name).unlink, missing_ok=True))

@@ -17,18 +17,19 @@ from typing import Literal
 import numpy as np
 from fastapi import APIRouter, Depends, File, Form, Query, Response, UploadFile
 from fastapi.responses import FileResponse
-from sqlalchemy import delete
+from sqlalchemy import delete, select
 from starlette.background import BackgroundTask
 
 from learnest.errors import InvalidInput, NotFound
 from learnest.ingest.flight import Flight as CanonicalFlight
 
 from ... import catalog
+from ...jobs.services import Services
 from ...storage.blobs import CHUNK, BlobStore
 from ...storage.database import Database, blob_is_referenced
 from ...storage.tables import FlightRecord, Result
 from ...uploads import add_flight
-from ..deps import Offset, RowId, get_blobs, get_db, require_api_key
+from ..deps import Offset, RowId, get_blobs, get_db, get_services, require_api_key
 from ..schemas import FlightDetail, FlightOut, FlightPage
 
 router = APIRouter(prefix="/flights", tags=["flights"])
@@ -54,7 +55,9 @@ def flight_out(row: FlightRecord, detail: bool = False) -> dict:
 @router.post("", status_code=201, response_model=FlightOut, dependencies=[Depends(require_api_key)],
              responses={200: {"model": FlightOut, "description": "identical content was already uploaded"},
                         413: {"description": "upload larger than LEARNEST_MAX_UPLOAD_MB"},
-                        422: {"description": "a file cannot be read (the message names it)"}})
+                        422: {"description": "a file cannot be read, or its decode passed the time limit "
+                                              "(the message names it)"},
+                        503: {"description": "too many uploads being decoded: retry later"}})
 def upload_flight(response: Response,
                   files: list[UploadFile] = File(..., description="the log file(s) of one flight"),
                   vehicle: str | None = Form(None, max_length=200), notes: str | None = Form(None, max_length=10_000),
@@ -63,10 +66,12 @@ def upload_flight(response: Response,
                       "default: the only motion-capture topic")),
                   imu_topic: str | None = Form(None, max_length=300, description=(
                       "MCAP/ROS bag: the acceleration topic (sensor_msgs/Imu or LogDataGeneric), e.g. /cf1/imu")),
-                  db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
+                  services: Services = Depends(get_services)):
     """One flight's file(s) (see service.uploads): 201 and the new flight, or 200 and the flight that
-    already holds identical content (and the same topic choice)."""
-    row, created = add_flight(db, blobs, files, vehicle, notes, pose_topic=pose_topic, imu_topic=imu_topic)
+    already holds identical content (and the same topic choice).  The file(s) are decoded in a worker process
+    within LEARNEST_DECODE_TIMEOUT_S (service.jobs.decoding); the answer comes when the flight is stored."""
+    row, created = add_flight(services.db, services.blobs, files, vehicle, notes, pose_topic=pose_topic,
+                              imu_topic=imu_topic, decode=services.decoder.decode)
     response.status_code = 201 if created else 200
     response.headers["Location"] = f"/flights/{row.id}"
     return flight_out(row)
@@ -156,13 +161,15 @@ def _unique(name: str, used: set[str]) -> str:
 
 @router.delete("/{flight_id}", status_code=204, dependencies=[Depends(require_api_key)])
 def delete_flight(flight_id: RowId, db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
-    """Removes the flight, its cached results and its blobs (unless another row still uses them).
-    Model versions trained on it keep its id and sha256 (lineage)."""
+    """Removes the flight, its cached results (with their stored estimates) and its blobs (unless another row
+    still uses them).  Model versions trained on it keep its id and sha256 (lineage)."""
     with db.transaction() as session:
         row = session.get(FlightRecord, flight_id)
         if row is None:
             raise NotFound(f"flight {flight_id} not found")
         candidates = [row.flight_blob] + [f.sha256 for f in row.files]
+        results = select(Result.estimates_blob).where(Result.flight_sha256 == row.sha256)
+        candidates += [sha for sha in session.scalars(results) if sha]
         session.execute(delete(Result).where(Result.flight_sha256 == row.sha256))
         session.delete(row)
     blobs.collect(candidates, lambda sha: blob_is_referenced(db, sha))

@@ -1,0 +1,135 @@
+"""How `learnest serve` runs uvicorn: timeouts for slow or idle clients and a concurrency limit (issue 10,
+item 7).  Idle, partial-header and 1-byte-per-5-s connections used to stay open for as long as the client
+liked, each holding a socket and, once its headers were in, a worker thread.
+
+- Headers: uvicorn closes an idle keep-alive connection (``timeout_keep_alive``) but has no limit on how
+  long a request's headers may take to arrive, nor on a new connection that never sends anything.
+  `DeadlineH11Protocol` (uvicorn's h11 protocol plus one timer) closes a connection whose next request's
+  headers are not complete within ``LEARNEST_HEADER_TIMEOUT_S`` of the connection opening or of the last
+  response.
+- Body: `BodyDeadline` (ASGI middleware) gives a body ``LEARNEST_BODY_TIMEOUT_S`` plus one second per
+  ``LEARNEST_BODY_MIN_RATE`` bytes received (the rule of Apache's mod_reqtimeout: a slow but steady upload
+  finishes, a trickle does not); past it the request gets a 408 and its connection is closed.
+- Concurrency: uvicorn's ``limit_concurrency`` answers 503 beyond that many connections and tasks;
+  ``h11_max_incomplete_event_size`` caps the bytes of a request line plus headers.
+"""
+from __future__ import annotations
+
+import asyncio
+import time
+from functools import lru_cache
+from typing import Any
+
+from starlette.exceptions import HTTPException
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+from uvicorn.protocols.http.h11_impl import H11Protocol
+
+from ..config import Settings
+
+
+@lru_cache(maxsize=1)
+def _header_timeout_from_settings() -> float:
+    # The protocol class is named to uvicorn by import path (its worker processes import it), so it reads its
+    # one setting from the environment like the app does; `learnest serve --header-timeout-s` sets it there.
+    return Settings().header_timeout_s
+
+
+class DeadlineH11Protocol(H11Protocol):
+    """uvicorn's h11 protocol that closes a connection whose request headers do not arrive in time.
+
+    The timer starts when the connection opens and again after each response; it stops when a request's
+    headers are complete (a new request/response cycle begins).  While a request is being answered there is
+    no header timer (the body has its own deadline, `BodyDeadline`).
+    """
+
+    header_timeout_s: float | None = None   # None: LEARNEST_HEADER_TIMEOUT_S (a subclass may fix it)
+    _header_timer: asyncio.TimerHandle | None = None
+
+    def _header_timeout_s(self) -> float:
+        return self.header_timeout_s if self.header_timeout_s is not None else _header_timeout_from_settings()
+
+    def connection_made(self, transport) -> None:
+        super().connection_made(transport)
+        self._arm_header_timer()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self._disarm_header_timer()
+        super().connection_lost(exc)
+
+    def handle_events(self) -> None:
+        cycle = self.cycle
+        super().handle_events()
+        if self.cycle is not cycle:  # a request's headers are complete
+            self._disarm_header_timer()
+
+    def on_response_complete(self) -> None:
+        # armed first: the pipelined request super() may start at once disarms it in handle_events
+        self._arm_header_timer()
+        super().on_response_complete()
+        if self.transport.is_closing():
+            self._disarm_header_timer()
+
+    def _arm_header_timer(self) -> None:
+        self._disarm_header_timer()
+        self._header_timer = self.loop.call_later(self._header_timeout_s(), self._header_deadline_passed)
+
+    def _disarm_header_timer(self) -> None:
+        if self._header_timer is not None:
+            self._header_timer.cancel()
+            self._header_timer = None
+
+    def _header_deadline_passed(self) -> None:
+        self._header_timer = None
+        waiting_for_headers = self.cycle is None or self.cycle.response_complete
+        if waiting_for_headers and not self.transport.is_closing():
+            self.logger.info("closing a connection whose request headers took longer than %g s (LEARNEST_HEADER_"
+                             "TIMEOUT_S)", self._header_timeout_s())
+            self.transport.close()
+
+
+class BodyDeadline:
+    """ASGI middleware: a request body must arrive within ``timeout_s`` plus one second per ``min_rate``
+    bytes received, else 408 (with ``Connection: close``: the rest of the body is not waited for).
+
+    Parameters
+    ----------
+    app : ASGI app
+    timeout_s : float
+        Seconds a body gets before any of it is counted, s.
+    min_rate : float
+        Bytes per second that earn one more second each (B/s).
+    """
+
+    def __init__(self, app: ASGIApp, timeout_s: float, min_rate: float) -> None:
+        self.app, self.timeout_s, self.min_rate = app, timeout_s, min_rate
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        start, received = time.monotonic(), 0
+
+        async def timed_receive() -> Message:
+            nonlocal received
+            remaining = start + self.timeout_s + received / self.min_rate - time.monotonic()
+            try:
+                message = await asyncio.wait_for(receive(), timeout=max(remaining, 0.0))
+            except TimeoutError:
+                # an HTTPException passes FastAPI's handlers as this status (as the upload size limit's 413)
+                raise HTTPException(408, f"request body too slow: it must arrive within {self.timeout_s:g} s plus "
+                                         f"1 s per {self.min_rate:g} bytes (LEARNEST_BODY_TIMEOUT_S, "
+                                         "LEARNEST_BODY_MIN_RATE)", headers={"Connection": "close"}) from None
+            if message["type"] == "http.request":
+                received += len(message.get("body", b""))
+            return message
+
+        await self.app(scope, timed_receive, send)
+
+
+def uvicorn_options(settings: Settings) -> dict[str, Any]:
+    """The keyword arguments of `uvicorn.run` / `uvicorn.Config` that the settings decide."""
+    return {"http": "learnest.service.api.server:DeadlineH11Protocol",
+            "timeout_keep_alive": settings.keep_alive_s,
+            "limit_concurrency": settings.limit_concurrency or None,
+            "h11_max_incomplete_event_size": settings.max_header_bytes,
+            "timeout_graceful_shutdown": settings.graceful_shutdown_s}
