@@ -90,7 +90,7 @@ PAPER_TRAINING = {  # Sec. V: 2 layers x 8 tanh; 250 epochs (cartpole), 10000 ep
 #   as the first observer is worse than the paper's model-free KF + RTS (seed 0: 42 vs 11), because the
 #   prior's wrong cart mass biases the rates the network learns from.
 # - robot: the unscented RTS pass on the precursory UKF (a smoother instead of the filter) helps more than
-#   the iteration on the one seed measured (seed 0: 16.5 -> 7.5; 3 rounds: 9.9): kept, to be confirmed on
+#   the iteration (seed 0: 16.5 -> 7.5, 3 rounds 9.9; seed 1: 69 -> 56): kept, to be confirmed on
 #   15 seeds.
 PAPER_OBSERVER = {"cartpole": ("filter", 3), "robot": ("smoother", 0)}
 
