@@ -81,8 +81,9 @@ def summarize(flight_reports: list[dict]) -> dict:
     Returns
     -------
     dict
-        ``median`` {method: MSE}, ``improvement_pct`` {"knode-ukf_vs_ukf": 100 (1 - knode/base), ...}
-        and ``flights_scored``.
+        ``median`` {method: MSE}, ``improvement_pct`` {"knode-ukf_vs_ukf": 100 (1 - knode/base), ...},
+        ``flights_scored`` and ``outside_training_envelope`` (names of the scored flights whose
+        ``envelope`` entry flags them: their scores judge the model outside what it was trained on).
     """
     scored = [f for f in flight_reports if not f.get("excluded")]
     methods = sorted({m for f in scored for m in f["mse"]})
@@ -91,4 +92,6 @@ def summarize(flight_reports: list[dict]) -> dict:
     for base in ("ukf", "mhe"):
         if base in median and f"knode-{base}" in median:
             improvement[f"knode-{base}_vs_{base}"] = 100.0 * (1.0 - median[f"knode-{base}"] / median[base])
-    return {"median": median, "improvement_pct": improvement, "flights_scored": len(scored)}
+    outside = [f["flight"] for f in scored if (f.get("envelope") or {}).get("outside_training_envelope")]
+    return {"median": median, "improvement_pct": improvement, "flights_scored": len(scored),
+            "outside_training_envelope": outside}

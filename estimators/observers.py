@@ -2,6 +2,8 @@
 
 As in Sec. V: a KF for the cartpole and the quadrotor, a precursory UKF followed by a linear KF for the
 ground robot.  They run offline, so each ends with a Rauch-Tung-Striebel backward pass (no lag to learn).
+`model_smoother` is the model-based alternative: an unscented RTS smoother with a given model (the prior,
+or a KNODE learned in an earlier round, `estimators.observer_training`).
 """
 from __future__ import annotations
 
@@ -16,6 +18,8 @@ from learnest.models.systems import GroundRobot, System, make_system
 
 from .batch import batch_smoother
 from .kf import kinematic_smoother, linearize
+from .results import FilterResult
+from .smoother import run_urts
 from .ukf import run_ukf
 
 
@@ -45,11 +49,12 @@ class _PlanarKinematics:
         return self.robot.h(state)
 
 
-def observe_robot(system: System, y: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
-    """Precursory UKF (ranges + heading -> position, heading), then a linear KF for the speed.
+def observe_robot(system: System, y: np.ndarray, u: np.ndarray, dt: float, smooth: bool = False) -> np.ndarray:
+    """Precursory UKF (ranges + heading -> position, heading), then a linear KF + RTS for the speed.
 
     y (T, 5) = [r1..r4 (m), ψ (rad)] -> ζ (T, 4) = [x (m), y (m), v (m/s), ψ (rad)]; ``u`` is unused.
-    ``system`` must be a `GroundRobot` (its sensor positions locate the robot).
+    ``system`` must be a `GroundRobot` (its sensor positions locate the robot).  ``smooth`` adds the
+    unscented RTS backward pass to the precursory UKF (the paper's observer is the filter alone).
     """
     if not isinstance(system, GroundRobot):
         raise TypeError(f"observe_robot needs a GroundRobot, got {type(system).__name__}")
@@ -57,7 +62,8 @@ def observe_robot(system: System, y: np.ndarray, u: np.ndarray, dt: float) -> np
     x0 = _trilaterate(system, y[0])
     Q = np.diag([1e-6, 1e-6, 4e-4, 4e-4, 1e-4])
     P0 = np.diag([1.0, 1.0, 4.0, 4.0, 0.1])
-    forward = run_ukf(kinematics, y, dt=dt, Q=Q, R=system.R, x0=x0, P0=P0).means
+    run = run_urts if smooth else run_ukf
+    forward = run(kinematics, y, dt=dt, Q=Q, R=system.R, x0=x0, P0=P0).means
     planar = np.column_stack([forward[:, 0], forward[:, 1], forward[:, 4]])
     pos, vel, _ = kinematic_smoother(planar, dt, meas_std=[0.03, 0.03, np.deg2rad(0.5)], jerk_std=5.0)
     speed = np.hypot(vel[:, 0], vel[:, 1])
@@ -110,6 +116,17 @@ def pretraining_observer(system: System, y: ArrayLike, u: ArrayLike, dt: float) 
         If ``system.name`` has no observer (cartpole, robot and quadrotor have one).
     """
     return OBSERVERS[system.name](system, np.asarray(y, float), np.asarray(u, float), dt)
+
+
+def model_smoother(model: HybridModel, y: ArrayLike, u: ArrayLike, dt: float, x0: ArrayLike) -> FilterResult:
+    """Unscented RTS smoother of the record with ``model`` (a prior or a learned KNODE): y (T, m), u (T, p).
+
+    Q, R and P0 are the estimators' settings of ``model.system``; ``x0`` (n,) is the first state's guess
+    (e.g. another observer's first estimate).  Returns the smoothed means (T, n), covariances and the
+    forward innovations (T, m), whose size says how well the model explains the measurements.
+    """
+    system = model.system
+    return run_urts(model, y, u, dt=dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0)
 
 
 def full_state_observer(system: System, x_measured: ArrayLike, dt: float) -> np.ndarray:

@@ -48,6 +48,9 @@ class System:
     meas_noise_std: tuple = ()    # measurement noise, also the estimators' R
     process_noise_std: tuple = () # estimator tuning Q (per step); the true system is noise-free
     initial_std: tuple = ()       # estimators' initial uncertainty P0
+    # states the true physics does not depend on (where the vehicle is, which way it points): leaving their
+    # training range is not new physics, so the training envelope reports them but never flags them
+    invariant_states: tuple = ()
 
     @property
     def n(self) -> int:
@@ -176,6 +179,7 @@ class Cartpole(System):
     meas_noise_std: tuple = (0.01, 0.01)
     process_noise_std: tuple = (1e-4, 1e-3, 1e-4, 1e-3)
     initial_std: tuple = (0.05, 0.5, 0.05, 0.5)
+    invariant_states: tuple = ("p",)
 
     def dynamics(self, x, u, params):
         """x = [p (m), ṗ (m/s), α (rad), α̇ (rad/s)], u = [F (N)] -> dx/dt."""
@@ -236,6 +240,7 @@ class GroundRobot(System):
     meas_noise_std: tuple = (0.05, 0.05, 0.05, 0.05, np.deg2rad(1.0))
     process_noise_std: tuple = (1e-3, 1e-3, 1e-3, 1e-4)
     initial_std: tuple = (0.2, 0.2, 0.2, 0.05)
+    invariant_states: tuple = ("x", "y", "psi")  # a lap turns ψ through 2π: a longer lap is no new physics
     # throttle = mean + a random weave of two sines (0.07 and 0.19 Hz) of these amplitudes (m/s²): the
     # weave makes the speed vary (0.9-3.4 m/s), which is what tells linear from quadratic drag apart;
     # no weave and a mean that balances the drag at 2 m/s flies at constant speed (issue 13's hard case)
@@ -294,6 +299,7 @@ class Quadrotor(System):
     meas_noise_std: tuple = (1e-3,) * 3 + (0.3,) * 3
     process_noise_std: tuple = (1e-5,) * 3 + (1e-4,) * 3 + (0.01,) * 3  # jerk ~1 m/s³ per step
     initial_std: tuple = (0.01,) * 3 + (0.1,) * 3 + (0.5,) * 3
+    invariant_states: tuple = ("px", "py", "pz")
 
     def dynamics(self, x, u, params):
         """x = [p (m), v (m/s), a (m/s²)] -> [v, a, jerk (m/s³)]; ``u`` is unused (no inputs)."""
@@ -346,6 +352,7 @@ class Crazyflie(System):
     meas_noise_std: tuple = Quadrotor.meas_noise_std
     process_noise_std: tuple = Quadrotor.process_noise_std
     initial_std: tuple = Quadrotor.initial_std
+    invariant_states: tuple = ("px", "py")  # not pz: the ground effect depends on the height
 
     # a lag below this is treated as this (ȧ would be stiff for RK4 at 100 Hz: dt/τ must stay < ~2.8)
     MIN_TAU_S = 0.005

@@ -13,6 +13,7 @@ from numpy.typing import ArrayLike
 from learnest.errors import InvalidInput
 
 from .checks import check_dt, check_sequence
+from .envelope import training_envelope
 from .knode import HybridModel
 from .presets import TrainingConfig
 from .systems import System
@@ -29,7 +30,7 @@ class TrainingResult:
     ----------
     model : HybridModel
         The ``"knode"`` model with the kept weights; its meta holds the config, final loss, seconds,
-        best epoch and best validation loss.
+        best epoch, best validation loss and the training ``envelope`` (`models.envelope`).
     losses : list of float
         Mean training loss (eq. 8) per epoch.
     seconds : float
@@ -172,5 +173,8 @@ def _train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, confi
                         meta={"training": config.as_dict(), "final_loss": losses[-1], "seconds": seconds,
                               # the epoch whose weights are kept: the last one when nothing is held out
                               "best_epoch": best[2] if n_val else config.epochs - 1,
-                              "best_validation_loss": best[0] if n_val else None})
+                              "best_validation_loss": best[0] if n_val else None,
+                              # where the training data lie: evaluations report records outside it
+                              "envelope": training_envelope(zeta, u, [*system.state_names, *system.input_names],
+                                                            system.invariant_states)})
     return TrainingResult(model, losses, seconds, val_losses)

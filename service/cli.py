@@ -82,7 +82,8 @@ def _new_file(text: str) -> str:
 def _reproduce(args) -> int:
     from .experiments.table1 import ReproduceSettings, format_table, reproduce
 
-    settings = ReproduceSettings(task=args.task, eval_samples=args.samples, epochs=args.epochs, horizon=args.horizon)
+    settings = ReproduceSettings(task=args.task, eval_samples=args.samples, epochs=args.epochs, horizon=args.horizon,
+                                 observer_rounds=args.observer_rounds)
     with tqdm(total=args.seeds, desc=f"Table I {args.task}", unit="seed", file=sys.stderr) as bar:
         report = reproduce(settings, args.seeds, workers=args.workers, progress=lambda _r: bar.update(1))
     print(format_table(report))
@@ -403,22 +404,34 @@ def _diagnose(args) -> int:
 
 
 def format_report(report: dict) -> str:
-    """An evaluation report (evaluate_flights' JSON) as a text table: per-flight and median MSE (x 1e-3) per method,
-    then the improvements in %.
+    """An evaluation report (evaluate_flights' JSON) as a text table: per-flight and median MSE (x 1e-3) per method
+    and the share of the flight outside the model's training envelope, then the improvements in %.
     """
     methods = list(report["median"])
     prior = f" ({report['system']} prior)" if report.get("system") else ""
     lines = [f"model {report['model']}{prior}: MSE over [p, v, a] vs Savitzky-Golay references (x 1e-3)",
-             f"{'flight':<28}" + "".join(f"{m:>12}" for m in methods)]
+             f"{'flight':<28}" + "".join(f"{m:>12}" for m in methods) + "  outside envelope"]
     for f in report["flights"]:
         if f["excluded"]:
             lines.append(f"{f['flight']:<28}  excluded: {f['reason']}")
         else:
-            lines.append(f"{f['flight']:<28}" + "".join(f"{f['mse'][m] * 1e3:>12.3f}" for m in methods))
+            lines.append(f"{f['flight']:<28}" + "".join(f"{f['mse'][m] * 1e3:>12.3f}" for m in methods)
+                         + f"  {_envelope_text(f.get('envelope'))}")
     lines.append(f"{'median':<28}" + "".join(f"{report['median'][m] * 1e3:>12.3f}" for m in methods))
     for key, value in report["improvement_pct"].items():
         lines.append(f"improvement {key}: {value:+.1f} % (median MSE)")
+    outside = report.get("outside_training_envelope")
+    if outside:
+        lines.append(f"outside what this model saw in training: {', '.join(outside)}")
     return "\n".join(lines)
+
+
+def _envelope_text(envelope: dict | None) -> str:
+    """'12 % (vx, az) OUTSIDE', '0 %', or '-' for a model stored without an envelope."""
+    if not envelope:
+        return "-"
+    states = f" ({', '.join(envelope['states_outside'])}) OUTSIDE" if envelope["outside_training_envelope"] else ""
+    return f"{100 * envelope['fraction_outside']:.0f} %{states}"
 
 
 class _Parser(argparse.ArgumentParser):
@@ -444,6 +457,9 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--horizon", type=_positive_int, default=MHE_HORIZON,
                      help=f"MHE horizon N (default {MHE_HORIZON})")
     rep.add_argument("--workers", type=_positive_int, default=1, help="processes to spread the seeds over")
+    rep.add_argument("--observer-rounds", type=int, choices=range(0, 11), default=None, metavar="K",
+                     help="observer -> train rounds of the KNODE rows, 0-10 (default: the task's, "
+                          "models/presets.py PAPER_OBSERVER; 0 is the paper's Algorithm 1)")
     rep.set_defaults(func=_reproduce)
 
     ing = sub.add_parser("ingest", help="read flight logs, normalise them and check their quality")

@@ -58,6 +58,9 @@ def assert_same_numbers(report: dict, expected: dict) -> None:
     assert report["median"] == pytest.approx(expected["median"], rel=1e-9)
     assert report["improvement_pct"] == pytest.approx(expected["improvement_pct"], rel=1e-6, abs=1e-9)
     assert report["flights_scored"] == expected["flights_scored"]
+    for got, want in zip(report["flights"], expected["flights"]):
+        assert got.get("envelope") == want.get("envelope")
+    assert report["outside_training_envelope"] == expected["outside_training_envelope"]
 
 
 def test_report_equals_evaluate_flights_and_is_cached(registry_home):
@@ -91,6 +94,11 @@ def test_report_equals_evaluate_flights_and_is_cached(registry_home):
         html = client.get(f"/evaluations/{accepted['evaluation_id']}/report.html")
         assert html.status_code == 200 and html.headers["content-type"].startswith("text/html")
         assert "data:image/png;base64," in html.text and report["flights"][0]["flight"] in html.text
+        assert "outside what this model saw" in html.text      # the training-envelope column
+        assert report["flights"][0]["envelope"]["threshold"] > 0
+        # the envelope is stored with the version (registry metadata), not only in the weights file
+        metrics = client.get("/models/quad").json()
+        assert "envelope" in json.dumps(metrics)
 
 
 def test_mhe_numbers_equal_evaluate_flights(registry_home):

@@ -15,6 +15,7 @@ from learnest.estimators.observers import pretraining_observer
 from learnest.ingest.baseline import references
 from learnest.ingest.flight import Flight
 from learnest.models.effects import correct_acc_body, world_from_body
+from learnest.models.envelope import envelope_report
 from learnest.models.inputs import system_inputs
 from learnest.models.knode import HybridModel
 from learnest.models.presets import CRAZYFLIE_TRAINING, MHE_HORIZON, SG_WINDOW, TrainingConfig
@@ -111,6 +112,23 @@ def log_start_ns(flight: Flight) -> int:
     return max(0, int(meta.get("time_origin_ns") or 0) + round(seconds * 1e9))
 
 
+def flight_envelope(knode: HybridModel, flight: Flight) -> dict | None:
+    """How much of ``flight`` lies outside the region the model was trained on (`models.envelope`), or None
+    for a model trained before envelopes were stored.
+
+    The flight's states are estimated by the same pre-training observer that made the training data, so
+    both sides of the comparison carry the same observer.
+    """
+    envelope = knode.meta.get("envelope")
+    if not envelope:
+        return None
+    system = system_for(flight, knode.system.name)
+    measured = corrected_flight(flight, knode.meta["measurement_effects"]) \
+        if knode.meta.get("measurement_effects") else flight
+    u = system_inputs(flight, system)
+    return envelope_report(envelope, pretraining_observer(system, measured.measurements(), u, system.dt), u)
+
+
 def _is_training_flight(knode: HybridModel, flight: Flight) -> bool:
     """By content (sha256 of the source files) when the model recorded it, else by name."""
     trained_on = set(knode.meta.get("training_flight_sha256") or [])
@@ -124,7 +142,9 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
     """The report of `learnest evaluate --json`: per flight, median, improvement %, ``units`` of the numbers.
 
     Flights that fail the quality checks (unless ``include_bad``) and the model's own training flight are
-    listed as excluded, with the reason, and not scored.  ``progress`` is called with each flight's entry;
+    listed as excluded, with the reason, and not scored.  Each scored flight's ``envelope`` says how much
+    of it lies outside what the model saw in training (`flight_envelope`); such flights are still scored,
+    and listed in ``outside_training_envelope``.  ``progress`` is called with each flight's entry;
     ``on_estimates(index, FlightEstimates)`` with the per-step estimates of each scored flight (index into
     ``flights``), when given.
     """
@@ -146,6 +166,7 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
             entry["mse"] = {m: r["mse"] for m, r in results.items()}
             entry["groups"] = {m: r["groups"] for m, r in results.items()}
             entry["ms_per_step"] = {m: r["ms_per_step"] for m, r in results.items()}
+            entry["envelope"] = flight_envelope(knode, flight)
         reports.append(entry)
         if progress:
             progress(entry)

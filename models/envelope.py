@@ -1,0 +1,100 @@
+"""Training envelope: the region of [state, input] space a KNODE's training data covered, and how much of an
+evaluation record lies outside it.
+
+A learned residual is only known where it was trained; outside, the network extrapolates and its
+estimates can be worse than the prior's (Table I, robot seed 7: an evaluation lap slower than any part of
+its training lap).  The envelope is a box per network input: the 0.5 and 99.5 percentiles of the
+observer's estimates and of the inputs over the training record.  Percentiles rather than min/max so that
+a few observer glitches do not stretch the box; a box rather than a joint density because it is compact
+(two numbers per dimension, stored in the model's meta), needs no tuning, and names the dimension that was
+left.  Its limit: it cannot see holes inside the box (a hover judged by a model trained on circles has
+velocities inside the circles' range) - it catches new speeds, accelerations and inputs, not new
+combinations of them.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .checks import check_sequence
+
+QUANTILES = (0.005, 0.995)
+# A tanh network extrapolates smoothly a little past its data: samples within 10 % of the box's width
+# beyond its edges count as inside.
+MARGIN = 0.10
+# Flag a record when more than 5 % of its samples lie outside the widened box in some (flagged) dimension.
+# On Table I's 15 seeds per task (benchmarks/results/envelope_check_robot.md) this flags the robot's seed 7,
+# whose KNODE-UKF is worse than the prior UKF, and few of the seeds where the KNODE is fine.
+THRESHOLD = 0.05
+
+
+def training_envelope(zeta: ArrayLike, u: ArrayLike, names: list[str], invariant: tuple = ()) -> dict:
+    """The box of the training data, to store with the model.
+
+    Parameters
+    ----------
+    zeta : array_like, shape (T, n)
+        The observer's state estimates the network was trained on.
+    u : array_like, shape (T, p)
+        The inputs (p may be 0).
+    names : list of str
+        n + p names, states then inputs.
+    invariant : tuple of str
+        Dimensions the physics does not depend on (`System.invariant_states`): reported, never flagged.
+
+    Returns
+    -------
+    dict
+        ``names``, ``low`` and ``high`` (the QUANTILES, in each dimension's unit), ``quantiles``,
+        ``margin``, ``threshold``, ``invariant``, ``samples``.
+    """
+    data = _features(zeta, u)
+    low, high = np.quantile(data, QUANTILES, axis=0)
+    return {"names": list(names), "low": low.tolist(), "high": high.tolist(), "quantiles": list(QUANTILES),
+            "margin": MARGIN, "threshold": THRESHOLD, "invariant": [n for n in invariant if n in names],
+            "samples": len(data)}
+
+
+def envelope_report(envelope: dict, x: ArrayLike, u: ArrayLike) -> dict:
+    """How much of a record lies outside a stored training envelope.
+
+    Parameters
+    ----------
+    envelope : dict
+        `training_envelope`'s output.
+    x : array_like, shape (T, n)
+        State estimates of the record, from the same observer as the training data.
+    u : array_like, shape (T, p)
+        Its inputs.
+
+    Returns
+    -------
+    dict
+        ``fraction_outside`` (share of samples outside in any flagged dimension), ``per_state``
+        {name: share outside}, ``states_outside`` (flagged dimensions above the threshold, worst first),
+        ``outside_training_envelope`` (bool), ``threshold``, ``invariant`` (reported only).
+
+    Raises
+    ------
+    InvalidInput
+        If the record's width does not match the envelope's dimensions.
+    """
+    names = envelope["names"]
+    data = check_sequence("x and u", _features(x, u), cols=len(names))
+    low, high = np.asarray(envelope["low"]), np.asarray(envelope["high"])
+    slack = envelope.get("margin", MARGIN) * (high - low)
+    outside = (data < low - slack) | (data > high + slack)                       # (T, n + p)
+    threshold = envelope.get("threshold", THRESHOLD)
+    invariant = set(envelope.get("invariant", ()))
+    flagged = np.array([name not in invariant for name in names])
+    share = outside.mean(axis=0)
+    worst_first = [names[j] for j in np.argsort(-share) if flagged[j] and share[j] > threshold]
+    return {"fraction_outside": float(outside[:, flagged].any(axis=1).mean()) if flagged.any() else 0.0,
+            "per_state": {name: round(float(s), 4) for name, s in zip(names, share)},
+            "states_outside": worst_first, "outside_training_envelope": bool(worst_first),
+            "threshold": threshold, "invariant": sorted(invariant)}
+
+
+def _features(x: ArrayLike, u: ArrayLike) -> np.ndarray:
+    x = np.asarray(x, dtype=float)
+    return np.concatenate([x, np.asarray(u, dtype=float).reshape(len(x), -1)], axis=1)
