@@ -5,7 +5,7 @@ from learnest.service.experiments.table1 import ReproduceSettings, reproduce
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("task,samples,epochs", [("cartpole", 1500, None), ("robot", 1000, 2000)])
+@pytest.mark.parametrize("task,samples,epochs", [("cartpole", 1500, None), ("robot", 1000, 1000)])
 def test_quick_reproduction_shows_the_papers_ordering(task, samples, epochs):
     # observer_rounds=0: the paper's Algorithm 1 (the cartpole's default iteration would add ~1 min here;
     # tests/test_observers.py runs it, benchmarks/results/table1_observer_study.md measures it)
