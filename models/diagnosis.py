@@ -26,6 +26,7 @@ DELTA_BIC = 10.0          # "very strong" evidence on Kass & Raftery's scale
 MIN_CV_GAIN = 0.0         # and it must not raise the held-out (blocked CV) error: it has to transfer
 BOOTSTRAP_REPLICATES = 60
 ALIKE_COSINE = 0.9        # sensitivities this parallel are "the same effect on this data"
+MULTIPLE_SHARE = 1.05     # a rival's share of the chosen effect's gain from here up is told as a multiple
 # A rival that, in place of a chosen effect, removes this fraction of the residual the chosen one removes is
 # an alternative explanation, whatever the BIC says: with many samples a small misfit of the prior (a sensor
 # filter, drag) moves BIC_eff by tens, so a BIC margin alone would hide a tilt behind a bias.
@@ -229,7 +230,7 @@ def confounded_pairs(problem: ResidualProblem, chosen: list, values: dict, near_
     ``near_ties`` is a list of (chosen effect, rival effect, ΔBIC_eff[, fraction]) where fraction is the share
     of the chosen effect's RSS reduction the rival achieves in its place; ``chosen`` is not used.  An entry
     admitted by the fraction alone (ΔBIC_eff ≥ DELTA_BIC) has ``data_prefer`` = the chosen effect's id: the
-    data do choose, on the part of the record where the two differ; otherwise ``data_prefer`` is None.
+    criterion does choose (residual and number of parameters together); otherwise ``data_prefer`` is None.
     """
     allv = _all_values(problem.candidates, values)
     out = []
@@ -255,7 +256,7 @@ def confounded_pairs(problem: ResidualProblem, chosen: list, values: dict, near_
                    f"the data cannot choose between these explanations; more flights would")
         if not preferred or fraction is None:
             how_well = f"BIC_eff within {DELTA_BIC:g}"
-        elif fraction >= 1.05:
+        elif fraction >= MULTIPLE_SHARE:
             how_well = (f"it removes {fraction:.1f}× the residual {a.id} removes, but with more parameters its "
                         f"BIC_eff is {delta_bic:g} worse")
         else:

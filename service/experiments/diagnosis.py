@@ -26,7 +26,7 @@ from learnest.ingest.flight import Flight
 from learnest.models import crazyflie as cf
 from learnest.models.backend import rk4_step
 from learnest.models.crazyflie_residual import CRAZYFLIE_MIN_CV_GAIN, crazyflie_problem, specific_force_rmse
-from learnest.models.diagnosis import ResidualProblem, select_effects
+from learnest.models.diagnosis import MULTIPLE_SHARE, ResidualProblem, select_effects
 from learnest.models.effects import (
     LIBRARY,
     Effect,
@@ -499,7 +499,9 @@ def _public(selection):
 def how_much(fraction: float) -> str:
     """A rival's share of the residual the chosen effect removes, in words (it can exceed 1: a rival with
     more parameters can remove more and still have the worse BIC_eff)."""
-    return f"removes {fraction:.1f}× as much" if fraction >= 1.05 else f"explains {100 * fraction:.0f} % as much"
+    if fraction >= MULTIPLE_SHARE:
+        return f"removes {fraction:.1f}× as much"
+    return f"explains {100 * fraction:.0f} % as much"
 
 
 def confounded_label(pair: dict) -> str:
