@@ -11,6 +11,7 @@ import importlib.metadata
 import json
 import platform
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 
 from sqlalchemy import func, select
@@ -156,7 +157,7 @@ def drop_unfinished_versions(session: Session, job_id: int) -> list[str]:
     for name in {row.name for row in rows}:
         left = session.scalar(select(func.count()).select_from(ModelVersion).where(ModelVersion.name == name))
         aliases = session.scalar(select(func.count()).select_from(ModelAlias).where(ModelAlias.name == name))
-        model = session.get(RegisteredModel, name)
+        model = get_model(session, name)
         if not left and not aliases and not _had_deletions(model, rows):
             session.delete(model)
         elif model.last_version == max(row.version for row in rows if row.name == name):
@@ -164,7 +165,7 @@ def drop_unfinished_versions(session: Session, job_id: int) -> list[str]:
     return [f"{row.name}:{row.version}" for row in rows]
 
 
-def _had_deletions(model: RegisteredModel, dropped: list[ModelVersion]) -> bool:
+def _had_deletions(model: RegisteredModel, dropped: Sequence[ModelVersion]) -> bool:
     """Whether ``model`` handed out numbers besides the dropped ones (versions deleted since): then the
     name stays registered, so that those numbers are never reused."""
     return (model.last_version or 0) > sum(row.name == model.name for row in dropped)

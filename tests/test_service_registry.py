@@ -2,6 +2,7 @@
 columns, versions compared side by side, lineage as links, search by name, deletes that list their
 dependents first, and the pages that show all of it.  Also /docs and /redoc without a CDN."""
 import re
+import time
 
 import numpy as np
 import pytest
@@ -151,6 +152,69 @@ def test_openapi_docs_work_offline(registry_app):
     assert "/docs-assets/swagger-ui-bundle.js" in client.get("/docs").text
     assert "/docs-assets/redoc.standalone.js" in client.get("/redoc").text
     assert client.get("/docs/oauth2-redirect").status_code == 200
+
+
+def _stages_while(client, job_id: int, timeout: float = 120.0) -> tuple[list[tuple], dict]:
+    """(the distinct (stage, eta known) pairs seen while the job ran, the finished job)."""
+    seen: list[tuple] = []
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        job = client.get(f"/jobs/{job_id}").json()
+        if job["state"] not in ("queued", "running"):
+            return seen, job
+        if job["stage"] and (job["stage"], job["eta_s"] is not None) not in seen:
+            seen.append((job["stage"], job["eta_s"] is not None))
+            assert job["eta_s"] is None or 0 <= job["eta_s"] < 600
+        time.sleep(0.02)
+    raise AssertionError(f"job {job_id} did not finish")
+
+
+def test_jobs_name_their_stage_with_an_eta_and_training_reports_both_times(registry_app):
+    client = registry_app["client"]
+    a, b, c = registry_app["flights"]
+    epochs = 150   # about 3 s: several progress reports, one per second
+    accepted = client.post("/models", json={"name": "staged", "flight_id": a["id"], "epochs": epochs, "hidden": 8})
+    seen, job = _stages_while(client, accepted.json()["job_id"])
+    assert job["state"] == "succeeded" and job["stage"] is None and job["eta_s"] is None   # only while running
+    epochs_seen = [(stage, eta) for stage, eta in seen if stage.startswith("epoch ")]
+    assert epochs_seen and all(re.fullmatch(rf"epoch \d+/{epochs}", stage) for stage, _ in epochs_seen)
+    assert any(eta for _, eta in epochs_seen)            # the pace of the epochs gives an ETA
+    stages, observer = [stage for stage, _ in seen], "observer (pre-training state estimates)"
+    if observer in stages:   # seen only when the poll falls into it
+        assert stages.index(observer) < stages.index(epochs_seen[0][0])
+    # the epochs' time and the whole job's, both reported
+    result = job["result"]
+    assert 0 < result["seconds"] <= result["total_seconds"]
+    assert f"training {result['seconds']:.1f} s (the epochs), {result['total_seconds']:.1f} s in all" in \
+        client.get(f"/ui/jobs/{job['id']}").text
+
+    response = client.post("/evaluations", json={"model": "staged:1", "flights": [b["id"], c["id"]],
+                                                 "methods": FAST_METHODS})
+    seen, job = _stages_while(client, response.json()["job_id"])
+    assert job["state"] == "succeeded"
+    method_stages = [stage for stage, _ in seen if " on " in stage]
+    assert method_stages, seen
+    names = {b["name"], c["name"]}
+    for stage in method_stages:   # "knode-ukf on flight11 (2/2)"
+        method, flight = re.fullmatch(r"(\S+) on (\S+) \([12]/2\)", stage).groups()
+        assert method in FAST_METHODS and flight in names
+
+
+def test_seconds_left_counts_down_from_the_estimate():
+    from datetime import timedelta
+
+    from learnest.service.jobs.runner import progress_values, seconds_left
+    from learnest.service.storage.tables import Job
+
+    values = progress_values(0.5, "epoch 5/10", 20.0)
+    job = Job(state="running", **values)
+    assert (job.progress, job.stage) == (0.5, "epoch 5/10")
+    assert seconds_left(job, now=values["progress_at"] + timedelta(seconds=5)) == pytest.approx(15.0)
+    assert seconds_left(job, now=values["progress_at"] + timedelta(seconds=50)) == 0.0
+    assert progress_values(None, "ukf on f (1/2)") == {"stage": "ukf on f (1/2)"}   # the ETA stays
+    assert progress_values(2.0)["progress"] == 1.0 and progress_values(0.3)["eta_s"] is None
+    job.state = "succeeded"
+    assert seconds_left(job) is None
 
 
 # -- deletes (last: they change the module's registry) ---------------------------------------------------------
