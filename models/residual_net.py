@@ -71,6 +71,8 @@ class ResidualNet(torch.nn.Module):
 
     mean: torch.Tensor  # buffers registered in __init__
     std: torch.Tensor
+    input_mask: torch.Tensor
+    output_mask: torch.Tensor
 
     def __init__(self, n_in: int, n_out: int, hidden: int, mean: np.ndarray, std: np.ndarray,
                  input_mask: np.ndarray | None = None, output_mask: np.ndarray | None = None):
