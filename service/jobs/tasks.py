@@ -15,6 +15,7 @@ from sqlalchemy import update
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight, json_compatible
 from learnest.models.knode import HybridModel
+from learnest.models.presets import SG_WINDOW
 
 from .. import registry
 from ..storage.database import Database, dml_rowcount
@@ -104,7 +105,8 @@ def evaluate_task(model_json: bytes, flight_bytes: bytes, settings: dict) -> dic
     flight = flight_from_bytes(flight_bytes)
     kept: list[bytes] = []
     report = evaluate_flights(model, [flight], list(settings["methods"]), include_bad=settings["include_bad"],
-                              horizon=settings["horizon"], on_estimates=lambda _i, e: kept.append(e.to_bytes()))
+                              horizon=settings["horizon"], sg_window=settings.get("sg_window", SG_WINDOW),
+                              on_estimates=lambda _i, e: kept.append(e.to_bytes()))
     return {"entry": report["flights"][0], "estimates": kept[0] if kept else None}
 
 
