@@ -259,7 +259,7 @@ def embedded_figure(html: str, plot_id: str) -> dict:
 def test_report_plots_come_from_the_stored_estimates_with_the_chosen_sg_window(registry_home):
     """Issue 12, section 3: the report's time series are the stored estimates minus the reference (per group),
     the paired dots are the table's MSE x 1e3, the SG window is a setting (its own cache key) shown on the
-    page, and plotly.js is served by the server itself."""
+    page, plotly.js is served by the server itself; the flight page embeds its channels the same way."""
     import io
 
     import numpy as np
@@ -296,6 +296,12 @@ def test_report_plots_come_from_the_stored_estimates_with_the_chosen_sg_window(r
         assert client.get(url, params={"group": "q"}).status_code == 422
         bad = client.post("/evaluations", json={"model": "quad:1", "flights": ids[1:], "sg_window": 2})
         assert bad.status_code == 422 and "sg_window" in bad.text
+        flight_page = client.get(f"/ui/flights/{ids[1]}").text      # the flight page's channels, same script
+        channels = embedded_figure(flight_page, "channels-plot")
+        assert "<script src='/vendor/plotly.min.js'></script>" in flight_page
+        assert {t["name"] for t in channels["data"]} >= {"x", "y", "z", "roll", "pitch", "yaw"}
+        assert any(s["x0"] == 0.0 and s["fillcolor"] == "#999999" for s in channels["layout"]["shapes"])  # take-off
+        assert client.get("/static/plots.js").status_code == 200
         js = client.get("/vendor/plotly.min.js")
         assert js.status_code == 200 and js.headers["content-type"].startswith("text/javascript")
         assert "plotly" in js.text[:2000].lower() and len(js.content) > 1e6

@@ -25,6 +25,7 @@ RMS_WINDOW_S = 1.0
 SCALE = 1e3   # the table shows MSE × 1e-3: values are multiplied by this to be read in those units
 SHORT_SG_S = 0.21   # the SG window the reference is compared with: keeps 99 % of a 0.5-Hz, 96 % of a 1-Hz swing
 PEAK_PERCENTILE = 99
+MOVING_SHARE = 0.05   # axes whose peak speed is below this share of the fastest axis' are not compared
 
 
 def running_rms(errors: np.ndarray, dt: float, window_s: float = RMS_WINDOW_S) -> np.ndarray:
@@ -177,7 +178,10 @@ def reference_clipping(estimates: FlightEstimates, window_used: int) -> dict | N
     # the 99th percentile: the peak, without the odd spike a short window lets through
     fast = np.percentile(np.abs(sg_references(position, dt, short)["v"]), PEAK_PERCENTILE, axis=0)
     smooth = np.percentile(np.abs(np.asarray(estimates.reference)[:, 3:6]), PEAK_PERCENTILE, axis=0)
-    clipped = np.where(fast > 0, 1.0 - smooth / np.where(fast > 0, fast, 1.0), 0.0)
+    moving = fast > max(MOVING_SHARE * float(fast.max()), 1e-9)   # an axis barely moving has no peak to clip
+    clipped = np.where(moving, 1.0 - smooth / np.where(moving, fast, 1.0), -np.inf)
     k = int(np.argmax(clipped))
+    if not moving[k]:
+        return None
     return {"window_s": window_used * dt, "short_s": short * dt, "axis": "xyz"[k],
             "peak_reference": float(smooth[k]), "peak_short": float(fast[k]), "clipped_pct": 100.0 * clipped[k]}

@@ -49,7 +49,7 @@ from ..jobs.services import Services
 from ..jobs.training import start_training
 from ..storage.tables import Diagnosis, Evaluation, FlightRecord, Job
 from ..uploads import add_flight
-from . import evaluation_plots, figures, forms, zoomable
+from . import evaluation_plots, figures, flight_plots, forms, zoomable
 from .report_figures import velocity_figure
 
 log = logging.getLogger("learnest.web")
@@ -73,7 +73,9 @@ TEMPLATES.globals.update(NAME_PATTERN=references.NAME, METHODS=METHODS, MHE_HORI
                          VELOCITY_METHODS=figures.VELOCITY_METHODS, MAX_VEHICLE=forms.MAX_VEHICLE,
                          MAX_NOTES=forms.MAX_NOTES, PAGE_SIZE=PAGE_SIZE,
                          DEFAULT_EPOCHS=CRAZYFLIE_TRAINING.epochs, SG_WINDOW=SG_WINDOW,
-                         SG_WINDOW_RANGE=SG_WINDOW_RANGE, PLOTLY_JS_ROUTE=zoomable.PLOTLY_JS_ROUTE)
+                         SG_WINDOW_RANGE=SG_WINDOW_RANGE, PLOTLY_JS_ROUTE=zoomable.PLOTLY_JS_ROUTE,
+                         MIN_GAP_S=flight_plots.MIN_GAP_S,
+                         VELOCITY_SG_S=flight_plots.VELOCITY_SG_S)
 
 
 def page(template: str, title: str, status: int = 200, refresh_s: float | None = None, **context) -> HTMLResponse:
@@ -151,12 +153,14 @@ def flight_page(request: Request, flight_id: RowId, services: Services = Depends
 
 
 def _trajectory(services: Services, row: FlightRecord) -> dict:
-    """{"png": data URI} or {"error": why}: a missing or damaged blob is said, the rest of the page shown."""
+    """{"png": data URI of the top view, "channels": zoomable spec of every channel} or {"error": why}: a
+    missing or damaged blob is said, the rest of the page shown."""
     try:
         flight = CanonicalFlight.from_bytes(services.blobs.read_bytes(row.flight_blob))
     except (OSError, ValueError, KeyError) as err:
         return {"error": type(err).__name__}
-    return {"png": figures.png_data_uri(figures.trajectory(flight, row.name))}
+    return {"png": figures.png_data_uri(figures.trajectory(flight, row.name)),
+            "channels": zoomable.embed(flight_plots.flight_figure(flight))}
 
 
 # -- models ----------------------------------------------------------------------------------------------

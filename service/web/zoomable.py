@@ -65,25 +65,28 @@ def stacked_layout(ylabels: Sequence[str], xlabel: str = "t (s)", title: str | N
     """Layout of ``len(ylabels)`` rows sharing one x axis (top to bottom), each with its y label."""
     rows = len(ylabels)
     layout: dict = {"grid": {"rows": rows, "columns": 1, "pattern": "coupled", "roworder": "top to bottom"},
-                    "height": 90 + row_height * rows, "margin": {"l": 70, "r": 20, "t": 40 if title else 20,
-                                                                  "b": 45},
+                    "height": 110 + row_height * rows, "margin": {"l": 70, "r": 20, "t": 75 if title else 40,
+                                                                   "b": 45},
                     "hovermode": "x unified", "legend": {"orientation": "h", "y": 1.0, "yanchor": "bottom"},
                     "xaxis": {"title": {"text": xlabel}, "showgrid": True}, "shapes": [], "annotations": []}
     if title:
-        layout["title"] = {"text": title, "font": {"size": 14}}
+        layout["title"] = {"text": title, "font": {"size": 14}, "y": 0.995, "yanchor": "top",
+                           "yref": "container"}
     for k, label in enumerate(ylabels, start=1):
         layout["yaxis" if k == 1 else f"yaxis{k}"] = {"title": {"text": label, "font": {"size": 11}},
                                                       "zeroline": True}
     return layout
 
 
-def shade(layout: dict, start: float, stop: float, colour: str, label: str | None = None) -> None:
-    """A band over every row between x = ``start`` and ``stop``, with ``label`` at its top left."""
+def shade(layout: dict, start: float, stop: float, colour: str, label: str | None = None,
+          label_y: float = 1.0) -> None:
+    """A band over every row between x = ``start`` and ``stop``, with ``label`` at its left, its bottom at
+    ``label_y`` (figure fraction: 1 is the top of the plotting area)."""
     layout["shapes"].append({"type": "rect", "xref": "x", "yref": "paper", "x0": float(start), "x1": float(stop),
                              "y0": 0, "y1": 1, "fillcolor": colour, "opacity": 0.25, "line": {"width": 0},
                              "layer": "below"})
     if label:
-        layout["annotations"].append({"x": float(start), "xref": "x", "y": 1.0, "yref": "paper", "text": label,
+        layout["annotations"].append({"x": float(start), "xref": "x", "y": label_y, "yref": "paper", "text": label,
                                       "showarrow": False, "xanchor": "left", "yanchor": "bottom",
                                       "font": {"size": 10, "color": "#444"}})
 
