@@ -84,8 +84,7 @@ REAL_FLIGHTS_README = """# Sample logs
 
 | file(s) | format | trajectory | flight |
 |---|---|---|---|
-| `B2_circle_fast_rep1.csv` + `B2_circle_fast_rep1_metadata.yaml` | nanobench | circle r 1 m, 1 m/s, z 1 m | 26.8 s recorded, 18.2 s kept after the take-off/landing cut |
-| `B3_figure8_medium_rep1.csv` + `B3_figure8_medium_rep1_metadata.yaml` | nanobench | figure-eight 1 m, 0.7 m/s, z 1 m | 24.8 s recorded, 15.3 s kept |
+{rows}
 
 Two unmodified flights of a Crazyflie 2.1 (CF_01) under Vicon at 100 Hz with its onboard IMU, motors, battery,
 setpoints and onboard estimates, from the public NanoBench dataset (repository syediu/nanobench-iros2026,
@@ -97,7 +96,11 @@ License: BSD-3-Clause, `LICENSE-nanobench.txt` (the dataset's LICENSE, unchanged
 S. I. Ullah and J. Baca, "NanoBench: A Multi-Task Benchmark Dataset for Nano-Quadrotor System
 Identification, Control, and State Estimation", arXiv:2603.09908, 2026.
 
-"""
+""".format(rows="\n".join([
+    "| `B2_circle_fast_rep1.csv` + `B2_circle_fast_rep1_metadata.yaml` | nanobench | circle r 1 m, 1 m/s, z 1 m "
+    "| 26.8 s recorded, 18.2 s kept after the take-off/landing cut |",
+    "| `B3_figure8_medium_rep1.csv` + `B3_figure8_medium_rep1_metadata.yaml` | nanobench | figure-eight 1 m, "
+    "0.7 m/s, z 1 m | 24.8 s recorded, 15.3 s kept |"]))
 
 
 def _readme(rows) -> str:

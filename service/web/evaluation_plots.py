@@ -88,14 +88,13 @@ def error_figure(estimates: FlightEstimates, group: str) -> dict:
     for method in _ordered(estimates.methods):
         style = _style(method)
         error = np.asarray(estimates.estimates[method])[:, columns] - reference
-        common = {"group": method}
         traces.append(zoomable.line(running_rms(error, dt), method.upper(), style["colour"], row=1,
-                                    width=style["width"], **common))
+                                    width=style["width"], group=method))
         for k in range(3):
             traces.append(zoomable.line(error[:, k], method.upper(), style["colour"], row=2 + k,
-                                        width=style["width"], legend=False, **common))
+                                        width=style["width"], legend=False, group=method))
             traces.append(zoomable.line(error[:, k] + reference[:, k], method.upper(), style["colour"],
-                                        row=5 + k, width=style["width"], legend=False, **common))
+                                        row=5 + k, width=style["width"], legend=False, group=method))
     for k in range(3):
         traces.append(zoomable.line(reference[:, k], "SG reference", zoomable.REFERENCE_COLOUR, row=5 + k,
                                     width=1.0, dash="dot", legend=k == 0, group="reference"))

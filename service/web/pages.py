@@ -40,8 +40,8 @@ from learnest.models.crazyflie import UNITS as CRAZYFLIE_UNITS
 from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON, SG_WINDOW, SG_WINDOW_RANGE
 
 from .. import catalog, references
-from ..exports import evaluation_estimates
 from ..api.deps import MAX_ROW_ID, Offset, RowId, get_services
+from ..exports import evaluation_estimates
 from ..jobs.evaluation import start_evaluation
 from ..jobs.result_cache import EstimatorSettings
 from ..jobs.runner import ACTIVE
