@@ -1,11 +1,11 @@
 """The web pages' routes: server-rendered HTML for people, on the same app as the JSON API (no JavaScript).
 
-Pages   /                       flights (newest first) and the upload form
+Pages   /                       flights (newest first; search: ?q=) and the upload form
         /ui/flights/{id}        metadata, quality, trajectory plot (x-y, z-t), models trained on it, train form
-        /ui/models              registered models
+        /ui/models              registered models (search: ?q=)
         /ui/models/{name}       versions, aliases (+ form), loss curves, evaluations, evaluate form
-        /ui/jobs, /ui/jobs/{id} state and progress; a job page reloads itself every second until it is done
-                                and has a cancel button while it is
+        /ui/jobs, /ui/jobs/{id} state, progress, stage and time left; a job page reloads itself every second
+                                until it is done and has a cancel button while it is
         /evaluations/{id}/report.html
                                 the Fig. 3-style box plot, per-flight MSE table, estimated vs reference velocity
                                 of one chosen flight (documented in the OpenAPI schema with the JSON report)
@@ -16,6 +16,8 @@ Forms   POST /ui/flights, /ui/models, /ui/evaluations, /ui/models/{name}/aliases
         same request models as the JSON routes (service.web.forms), call the same service functions (service.uploads,
         service.jobs, service.catalog) and answer 303 to the page of what they made, or an HTML error page
         with the API's status code and message.
+
+The evaluations list, version pages, comparisons and delete confirmations are service.web.registry_pages.
 
 Every page is a Jinja2 template extending templates/base.html with autoescaping on, so text from users
 (names, notes, file names, error messages) is escaped unless a template says otherwise - and none does.
@@ -44,7 +46,7 @@ from ..api.deps import MAX_ROW_ID, Offset, RowId, get_services
 from ..exports import evaluation_estimates
 from ..jobs.evaluation import start_evaluation
 from ..jobs.result_cache import EstimatorSettings
-from ..jobs.runner import ACTIVE
+from ..jobs.runner import ACTIVE, seconds_left
 from ..jobs.services import Services
 from ..jobs.training import start_training
 from ..storage.tables import Diagnosis, Evaluation, FlightRecord, Job
@@ -68,7 +70,18 @@ TEMPLATES = Environment(loader=PackageLoader("learnest.service.web", "templates"
                         undefined=StrictUndefined,          # a misspelt variable fails the page (and the tests)
                         finalize=lambda value: "" if value is None else value,  # None shows as nothing
                         trim_blocks=True, lstrip_blocks=True)
+def _duration(seconds: float) -> str:
+    """"42 s", "3 min 20 s", "1 h 05 min"."""
+    seconds = round(seconds)
+    if seconds < 60:
+        return f"{seconds} s"
+    if seconds < 3600:
+        return f"{seconds // 60} min {seconds % 60:02d} s"
+    return f"{seconds // 3600} h {seconds % 3600 // 60:02d} min"
+
+
 TEMPLATES.filters["when"] = _when
+TEMPLATES.filters["duration"] = _duration
 TEMPLATES.globals.update(NAME_PATTERN=references.NAME, METHODS=METHODS, MHE_HORIZON=MHE_HORIZON,
                          VELOCITY_METHODS=figures.VELOCITY_METHODS, MAX_VEHICLE=forms.MAX_VEHICLE,
                          MAX_NOTES=forms.MAX_NOTES, PAGE_SIZE=PAGE_SIZE,
@@ -121,10 +134,13 @@ pages = APIRouter(include_in_schema=False)
 
 # -- flights ---------------------------------------------------------------------------------------------
 @pages.get("/", response_class=HTMLResponse)
-def flights_page(request: Request, offset: Offset = 0, services: Services = Depends(get_services)):
-    """The home page: flights newest first (PAGE_SIZE per page, from `offset`) and the upload form."""
-    total, rows = catalog.list_flights(services.db, limit=PAGE_SIZE, offset=offset, newest_first=True)
-    return page("flights.html", "Flights", flights=rows, total=total, offset=offset,
+def flights_page(request: Request, offset: Offset = 0, q: str = Query("", max_length=200),
+                 services: Services = Depends(get_services)):
+    """The home page: flights newest first (PAGE_SIZE per page, from `offset`; those whose name contains `q`)
+    and the upload form."""
+    total, rows = catalog.list_flights(services.db, *catalog.name_contains(q.strip()), limit=PAGE_SIZE,
+                                       offset=offset, newest_first=True)
+    return page("flights.html", "Flights", flights=rows, total=total, offset=offset, q=q,
                 key=forms.key_state(request, services.settings))
 
 
@@ -178,9 +194,9 @@ def train_model_form(request: Request, name: str = Form(""), flight_id: str = Fo
 
 
 @pages.get("/ui/models", response_class=HTMLResponse)
-def models_page(services: Services = Depends(get_services)):
-    """The registered models."""
-    return page("models.html", "Models", models=catalog.list_models(services.db))
+def models_page(q: str = Query("", max_length=100), services: Services = Depends(get_services)):
+    """The registered models (those whose name contains `q`)."""
+    return page("models.html", "Models", models=catalog.list_models(services.db, q=q.strip() or None), q=q)
 
 
 @pages.get("/ui/models/{name}", response_class=HTMLResponse)
@@ -243,6 +259,7 @@ def job_page(request: Request, job_id: RowId, services: Services = Depends(get_s
     active, key = job.state in ACTIVE, forms.key_state(request, services.settings)
     # no reload while the cancel form asks for the key: a reload every second would wipe it mid-typing
     return page("job.html", f"Job {job.id}", refresh_s=1 if active and key != "ask" else None, job=job,
+                eta_s=seconds_left(job),
                 active=active, subject=job_subject(job), evaluation=evaluation, key=key, diagnosis=diagnosis,
                 model_name=evaluation.model_ref.split(":", 1)[0] if evaluation else None,
                 result=json.dumps(job.result, indent=1) if job.result else None)
