@@ -12,7 +12,14 @@ from typing import NoReturn
 from tqdm import tqdm
 
 from learnest.errors import InvalidInput, LearnestError
-from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON, PRODUCTION_ALIAS
+from learnest.models.presets import (
+    CRAZYFLIE_TRAINING,
+    METHODS,
+    MHE_HORIZON,
+    PRODUCTION_ALIAS,
+    SG_WINDOW,
+    SG_WINDOW_RANGE,
+)
 
 
 # -- argument types: refuse bad values before any import or ingest (one-line error, exit 2) -----------
@@ -33,6 +40,15 @@ def _positive_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"must be a whole number, got {text!r}") from None
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1, got {text!r}")
+    return value
+
+
+def _sg_window(text: str) -> int:
+    """A Savitzky-Golay window in samples, within `SG_WINDOW_RANGE`."""
+    value = _positive_int(text)
+    low, high = SG_WINDOW_RANGE
+    if not low <= value <= high:
+        raise argparse.ArgumentTypeError(f"must be {low} to {high} samples, got {text!r}")
     return value
 
 
@@ -183,7 +199,7 @@ def _evaluate(args) -> int:
     from learnest.models.presets import parse_methods
 
     from .local_registry import load_model
-    from .web.figures import mse_boxplot, save_figure
+    from .web.figures import paired_mse, save_figure
 
     if args.new:
         return _evaluate_new(args)
@@ -198,7 +214,7 @@ def _evaluate(args) -> int:
     ref = model.meta.get("ref", args.model)  # name:version, whatever form was asked for
     report = (_evaluate_stored if args.store else _evaluate_here)(args, model, ref, methods)
     if args.plot:
-        save_figure(mse_boxplot(report), args.plot, dpi=120)
+        save_figure(paired_mse(report), args.plot, dpi=120)
     if args.json:
         print(json.dumps(report, indent=2))
     else:
@@ -218,7 +234,7 @@ def _evaluate_stored(args, model, ref: str, methods: list[str]) -> dict:
     from .jobs.result_cache import EstimatorSettings
     from .local_registry import evaluate, export
 
-    settings = EstimatorSettings(tuple(methods), args.horizon, args.include_bad)
+    settings = EstimatorSettings(tuple(methods), args.horizon, args.include_bad, args.sg_window)
     with tqdm(total=1.0, desc="evaluating", unit="", file=sys.stderr,
               bar_format=STAGE_BAR) as bar:
         report = evaluate(args.files, ref, settings, progress=lambda f: bar.update(f - bar.n),
@@ -239,7 +255,7 @@ def _evaluate_here(args, model, ref: str, methods: list[str]) -> dict:
     kept: list = []
     with tqdm(total=len(flights), desc="evaluating", unit="flight", file=sys.stderr) as bar:
         report = evaluate_flights(model, flights, methods, include_bad=args.include_bad, horizon=args.horizon,
-                                  progress=lambda _f: bar.update(1),
+                                  sg_window=args.sg_window, progress=lambda _f: bar.update(1),
                                   on_estimates=(lambda _i, e: kept.append(e)) if args.export else None)
     report["model"] = ref
     if args.export and kept:
@@ -447,7 +463,7 @@ def _demo(args) -> int:
 
     from .experiments.flights import evaluate_flights
     from .local_registry import load_model, train
-    from .web.figures import mse_boxplot, save_figure
+    from .web.figures import paired_mse, save_figure
 
     _registry_grid(args.rate)
     folder = Path(args.folder)
@@ -480,8 +496,8 @@ def _demo(args) -> int:
     report["model"] = trained["ref"]
     print(format_report(report))
     if args.plot:
-        save_figure(mse_boxplot(report), args.plot, dpi=120)
-        print(f"box plot: {args.plot}")
+        save_figure(paired_mse(report), args.plot, dpi=120)
+        print(f"MSE per flight (prior vs KNODE): {args.plot}")
     return 0
 
 
@@ -617,8 +633,14 @@ def build_parser() -> argparse.ArgumentParser:
                          "(required unless --new)")
     ev.add_argument("--methods", default=",".join(METHODS))
     ev.add_argument("--json", action="store_true")
-    ev.add_argument("--plot", metavar="PNG", type=_new_file, help="write a Fig. 3-style box plot")
+    ev.add_argument("--plot", metavar="PNG", type=_new_file,
+                    help="write the per-flight MSE figure (prior vs KNODE, one line per flight; box plots from "
+                         "10 flights on)")
     ev.add_argument("--horizon", type=_positive_int, default=MHE_HORIZON, help="MHE horizon N")
+    ev.add_argument("--sg-window", type=_sg_window, default=SG_WINDOW, metavar="SAMPLES",
+                    help=f"Savitzky-Golay window of the reference states, samples (default {SG_WINDOW}, the "
+                         "paper's, about 1.5 s at 100 Hz; it clips the velocity peaks of fast manoeuvres: "
+                         "shorter follows them)")
     ev.add_argument("--rate", type=_positive_float, default=100.0)
     ev.add_argument("--include-bad", action="store_true", help="also score flights that fail quality checks")
     ev.add_argument("--system", default=None, choices=["quadrotor", "crazyflie"],

@@ -6,7 +6,14 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON, parse_methods
+from learnest.models.presets import (
+    CRAZYFLIE_TRAINING,
+    METHODS,
+    MHE_HORIZON,
+    SG_WINDOW,
+    SG_WINDOW_RANGE,
+    parse_methods,
+)
 
 from ..references import NAME
 
@@ -168,6 +175,10 @@ class EvaluationRequest(Strict):
     methods: list[str] = Field(default_factory=lambda: list(METHODS), description=f"any of {', '.join(METHODS)}")
     horizon: int = Field(MHE_HORIZON, ge=1, le=500, description="MHE horizon N")
     include_bad: bool = Field(False, description="also score flights that fail the quality checks")
+    sg_window: int = Field(SG_WINDOW, ge=SG_WINDOW_RANGE[0], le=SG_WINDOW_RANGE[1],
+                           description="Savitzky-Golay window of the reference states, samples (default: the "
+                                       "paper's 150, about 1.5 s at 100 Hz; shorter follows fast manoeuvres, "
+                                       "whose velocity peaks a 1.5-s window clips)")
 
     @field_validator("methods")
     @classmethod

@@ -141,7 +141,7 @@ def _is_training_flight(knode: HybridModel, flight: Flight) -> bool:
 def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequence[str], include_bad: bool = False,
                      horizon: int = MHE_HORIZON, progress: Callable[[dict], None] | None = None,
                      on_estimates: Callable[[int, FlightEstimates], None] | None = None,
-                     on_stage: Callable[[str], object] | None = None) -> dict:
+                     on_stage: Callable[[str], object] | None = None, sg_window: int = SG_WINDOW) -> dict:
     """The report of `learnest evaluate --json`: per flight, median, improvement %, ``units`` of the numbers.
 
     Flights that fail the quality checks (unless ``include_bad``) and the model's own training flight are
@@ -150,7 +150,8 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
     and listed in ``outside_training_envelope``.  ``progress`` is called with each flight's entry;
     ``on_estimates(index, FlightEstimates)`` with the per-step estimates of each scored flight (index into
     ``flights``), when given; ``on_stage`` with each method's name before it runs and "MHE build (...)"
-    before an MHE is built (`estimators.evaluate.evaluate_sequence`).
+    before an MHE is built (`estimators.evaluate.evaluate_sequence`).  ``sg_window`` is the Savitzky–Golay
+    window of the references, samples.
     """
     reports: list[dict] = []
     mhe_cache: dict[tuple, MHE] = {}
@@ -162,8 +163,8 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
         elif _is_training_flight(knode, flight):
             entry.update(excluded=True, reason="training flight (never scored on its own training data)")
         else:
-            out = evaluate_flight(knode, flight, methods, horizon, keep_estimates=on_estimates is not None,
-                                  mhe_cache=mhe_cache, on_stage=on_stage)
+            out = evaluate_flight(knode, flight, methods, horizon, sg_window=sg_window,
+                                  keep_estimates=on_estimates is not None, mhe_cache=mhe_cache, on_stage=on_stage)
             results = out["results"]
             if on_estimates is not None:
                 on_estimates(index, out["estimates"])

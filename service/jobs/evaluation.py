@@ -66,8 +66,7 @@ def run_evaluation(services: Services, ctx: JobContext, evaluation_id: int) -> N
     with services.db.transaction() as session:
         evaluation = get_row(session, Evaluation, evaluation_id, "evaluation")
         version = get_row(session, ModelVersion, evaluation.model_version_id, "model version")
-        settings = EstimatorSettings(tuple(evaluation.settings["methods"]), evaluation.settings["horizon"],
-                                     evaluation.settings["include_bad"])
+        settings = EstimatorSettings.from_dict(evaluation.settings)
         flights = flights_by_id(session, evaluation.flight_ids)
         entries = cached_entries(session, version.id, settings.key, [f.sha256 for f in flights.values()])
         model_json = services.blobs.read_bytes(registry.weights_of(version))

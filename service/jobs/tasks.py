@@ -15,6 +15,7 @@ from sqlalchemy import update
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight, json_compatible
 from learnest.models.knode import HybridModel
+from learnest.models.presets import SG_WINDOW
 
 from .. import registry
 from ..storage.database import Database, dml_rowcount
@@ -126,7 +127,8 @@ def evaluate_task(model_json: bytes, flight_bytes: bytes, settings: dict,
         report_progress(progress_target, None, f"{stage} on {label or flight.name}")
 
     report = evaluate_flights(model, [flight], list(settings["methods"]), include_bad=settings["include_bad"],
-                              horizon=settings["horizon"], on_estimates=lambda _i, e: kept.append(e.to_bytes()),
+                              horizon=settings["horizon"], sg_window=settings.get("sg_window", SG_WINDOW),
+                              on_estimates=lambda _i, e: kept.append(e.to_bytes()),
                               on_stage=on_stage if progress_target else None)
     return {"entry": report["flights"][0], "estimates": kept[0] if kept else None}
 

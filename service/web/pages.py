@@ -28,19 +28,22 @@ import functools
 import json
 import logging
 from collections.abc import Callable
+from typing import Literal
 
 from fastapi import APIRouter, Depends, File, Form, Query, Request, UploadFile
-from fastapi.responses import HTMLResponse
+from fastapi.responses import FileResponse, HTMLResponse
 from jinja2 import Environment, PackageLoader, StrictUndefined, select_autoescape
 from pydantic import ValidationError
 
 from learnest.errors import LearnestError
+from learnest.ingest.baseline import centred_window
 from learnest.ingest.flight import Flight as CanonicalFlight
 from learnest.models.crazyflie import UNITS as CRAZYFLIE_UNITS
-from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON
+from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON, SG_WINDOW, SG_WINDOW_RANGE
 
 from .. import catalog, references
 from ..api.deps import MAX_ROW_ID, Offset, RowId, get_services
+from ..exports import evaluation_estimates
 from ..jobs.evaluation import start_evaluation
 from ..jobs.result_cache import EstimatorSettings
 from ..jobs.runner import ACTIVE, seconds_left
@@ -48,7 +51,7 @@ from ..jobs.services import Services
 from ..jobs.training import start_training
 from ..storage.tables import Diagnosis, Evaluation, FlightRecord, Job
 from ..uploads import add_flight
-from . import figures, forms
+from . import evaluation_plots, figures, flight_plots, forms, zoomable
 from .report_figures import velocity_figure
 
 log = logging.getLogger("learnest.web")
@@ -82,7 +85,10 @@ TEMPLATES.filters["duration"] = _duration
 TEMPLATES.globals.update(NAME_PATTERN=references.NAME, METHODS=METHODS, MHE_HORIZON=MHE_HORIZON,
                          VELOCITY_METHODS=figures.VELOCITY_METHODS, MAX_VEHICLE=forms.MAX_VEHICLE,
                          MAX_NOTES=forms.MAX_NOTES, PAGE_SIZE=PAGE_SIZE,
-                         DEFAULT_EPOCHS=CRAZYFLIE_TRAINING.epochs)
+                         DEFAULT_EPOCHS=CRAZYFLIE_TRAINING.epochs, SG_WINDOW=SG_WINDOW,
+                         SG_WINDOW_RANGE=SG_WINDOW_RANGE, PLOTLY_JS_ROUTE=zoomable.PLOTLY_JS_ROUTE,
+                         MIN_GAP_S=flight_plots.MIN_GAP_S,
+                         VELOCITY_SG_S=flight_plots.VELOCITY_SG_S)
 
 
 def page(template: str, title: str, status: int = 200, refresh_s: float | None = None, **context) -> HTMLResponse:
@@ -163,12 +169,14 @@ def flight_page(request: Request, flight_id: RowId, services: Services = Depends
 
 
 def _trajectory(services: Services, row: FlightRecord) -> dict:
-    """{"png": data URI} or {"error": why}: a missing or damaged blob is said, the rest of the page shown."""
+    """{"png": data URI of the top view, "channels": zoomable spec of every channel} or {"error": why}: a
+    missing or damaged blob is said, the rest of the page shown."""
     try:
         flight = CanonicalFlight.from_bytes(services.blobs.read_bytes(row.flight_blob))
     except (OSError, ValueError, KeyError) as err:
         return {"error": type(err).__name__}
-    return {"png": figures.png_data_uri(figures.trajectory(flight, row.name))}
+    return {"png": figures.png_data_uri(figures.trajectory(flight, row.name)),
+            "channels": zoomable.embed(flight_plots.flight_figure(flight))}
 
 
 # -- models ----------------------------------------------------------------------------------------------
@@ -220,12 +228,12 @@ def alias_form_post(request: Request, name: str, alias: str = Form(""), version:
 @html_errors
 def evaluate_form_post(request: Request, model: str = Form(""), flights: list[str] = Form(default=[]),
                        methods: list[str] = Form(default=[]), horizon: str = Form(str(MHE_HORIZON)),
-                       include_bad: str | None = Form(None), api_key: str = Form(""),
+                       include_bad: str | None = Form(None), sg_window: str = Form(""), api_key: str = Form(""),
                        services: Services = Depends(get_services)):
     """Evaluate form: start an evaluation job (as POST /evaluations does), then 303 to the job's page."""
     forms.require_key(request, services.settings, api_key)
-    body = forms.evaluation_request(model, flights, methods, horizon, include_bad)
-    settings = EstimatorSettings(tuple(body.methods), body.horizon, body.include_bad)
+    body = forms.evaluation_request(model, flights, methods, horizon, include_bad, sg_window)
+    settings = EstimatorSettings(tuple(body.methods), body.horizon, body.include_bad, body.sg_window)
     job_id, _evaluation_id, _state = start_evaluation(services, body.model, body.flights, settings)
     return forms.redirect(f"/ui/jobs/{job_id}", services.settings, api_key)
 
@@ -289,31 +297,63 @@ reports = APIRouter(tags=["evaluations"])
                         409: {"description": "the evaluation job failed"}})
 def evaluation_report_page(evaluation_id: RowId,
                            flight: int | None = Query(None, ge=1, le=MAX_ROW_ID,
-                                                      description="flight id of the velocity plot "
+                                                      description="flight id of the time series "
                                                                   "(default: the first scored flight)"),
+                           group: Literal["p", "v", "a"] = Query("v", description="state group of the time "
+                                                                "series: position, velocity or acceleration"),
                            services: Services = Depends(get_services)):
-    """The evaluation report for people: box plot, per-flight MSE table, velocity of one flight."""
+    """The evaluation report for people: per-flight MSE table and paired dots (prior vs KNODE), and for one
+    flight the error over time with its running RMS and the estimates against the reference (zoomable),
+    read from the stored estimates."""
     evaluation, job = catalog.row_and_job(services.db, Evaluation, evaluation_id, "evaluation")
     if job.state != "succeeded":
         return page("report_pending.html", f"Evaluation {evaluation.id}", status=202, refresh_s=2, job=job)
     report = evaluation.report
     title = f"Evaluation {evaluation.id}: model {report.get('model')}"
-    scored = [(fid, entry["flight"]) for fid, entry in zip(evaluation.flight_ids, report["flights"], strict=True)
-              if not entry.get("excluded")]
+    entries = dict(zip(evaluation.flight_ids, report["flights"], strict=True))
+    scored = [(fid, entry["flight"]) for fid, entry in entries.items() if not entry.get("excluded")]
     chosen = flight if flight in {fid for fid, _ in scored} else (scored[0][0] if scored else None)
-    velocity = _velocity(services, evaluation, chosen)
+    settings = EstimatorSettings.from_dict(evaluation.settings)
+    series = _stored_series(services, evaluation, chosen, group, centred_window(settings.sg_window))
+    # evaluated before estimates were stored: the velocity figure computed once by a task (report_figures)
+    velocity = _velocity(services, evaluation, chosen) if chosen is not None and "figure" not in series else {}
     waiting = velocity.get("pending") or velocity.get("busy")
+    paired = evaluation_plots.paired_figure(report)
     return page("report.html", title, refresh_s=2 if waiting else None, evaluation=evaluation, report=report,
                 methods=list(report.get("median", {})), settings=evaluation.settings,
-                boxplot=figures.png_data_uri(figures.mse_boxplot(report), dpi=120) if figures.has_scores(report)
+                sg_window=settings.sg_window, sg_window_used=centred_window(settings.sg_window),
+                paired=zoomable.embed(paired) if paired else None,
+                paired_png=figures.png_data_uri(figures.paired_mse(report), dpi=110) if figures.has_scores(report)
                 else None,
-                scored=scored, chosen=chosen, velocity=velocity,
-                model_name=evaluation.model_ref.split(":", 1)[0])
+                scored=scored, chosen=chosen, chosen_entry=entries.get(chosen), group=group,
+                GROUPS=evaluation_plots.GROUPS, MSE_UNITS=evaluation_plots.MSE_UNITS, series=series,
+                velocity=velocity, model_name=evaluation.model_ref.split(":", 1)[0])
 
 
-def _velocity(services: Services, evaluation: Evaluation, flight_id: int | None) -> dict:
-    """The stored figure, or that it is being computed (service.web.report_figures); {} without a flight."""
-    return {} if flight_id is None else velocity_figure(services, evaluation, flight_id)
+def _stored_series(services: Services, evaluation: Evaluation, flight_id: int | None, group: str,
+                   window_used: int) -> dict:
+    """{"figure": spec JSON, "clipping": `reference_clipping`} from the flight's stored estimates, or
+    {"missing": why} (no flight, or evaluated before estimates were stored)."""
+    if flight_id is None:
+        return {"missing": "no scored flight"}
+    try:
+        [estimates] = evaluation_estimates(services.db, services.blobs, evaluation.id, flight_id)
+    except LearnestError as err:
+        return {"missing": str(err)}
+    return {"figure": zoomable.embed(evaluation_plots.error_figure(estimates, group)),
+            "clipping": evaluation_plots.reference_clipping(estimates, window_used)}
+
+
+def _velocity(services: Services, evaluation: Evaluation, flight_id: int) -> dict:
+    """The stored velocity figure, or that it is being computed (service.web.report_figures)."""
+    return velocity_figure(services, evaluation, flight_id)
+
+
+@pages.get(zoomable.PLOTLY_JS_ROUTE)
+def plotly_js():
+    """plotly.js from the installed `plotly` package (pages need no CDN); cached by browsers for a day."""
+    return FileResponse(zoomable.plotly_js_path(), media_type="text/javascript",
+                        headers={"Cache-Control": "public, max-age=86400"})
 
 
 # -- the diagnosis report -----------------------------------------------------------------------------------
