@@ -130,7 +130,8 @@ FIRMWARE_VARIABLES: dict[str, tuple[tuple[str, ...], str, Callable[[np.ndarray],
     "vbat": (("pm.vbat",), "f", lambda x: x),                                        # V
     "setpoint": (("ctrltarget.x", "ctrltarget.y", "ctrltarget.z"), "f", lambda x: x),  # m
 }
-CANONICAL_FORMATS = ("nanobench", "usd", "usd-v1", "vicon+cfclient")
+CANONICAL_FORMATS = ("nanobench", "usd", "usd-v1", "vicon+cfclient", "mcap-ros2")
+ROBOT = "cf1"   # the crazyswarm2 robot name of the ROS 2 recording: its topics are /cf1/...
 
 
 def _acc_body_g(flight: Flight) -> np.ndarray:
@@ -154,6 +155,28 @@ def _firmware_columns(flight: Flight) -> dict:
     return columns
 
 
+def _write_canonical_ros2(flight: Flight, path: Path, acc_g: np.ndarray) -> list[Path]:
+    """A ROS 2 MCAP bag as crazyswarm2 records one: the mocap pose (PoseStamped), the IMU (sensor_msgs/Imu) and
+    one LogDataGeneric custom topic /cf1/<channel> per input the Flight carries (FIRMWARE_VARIABLES, firmware
+    units), with the crazyflies.yaml that declares those topics beside it (<stem>_crazyflies.yaml)."""
+    import yaml
+
+    t = np.asarray(flight.t, float)
+    custom_topics = {}
+    with mcap_writer.Ros2BagWriter(path) as bag:
+        bag.add_pose(f"/mocap/{ROBOT}/pose", t, flight.p, flight.quat)
+        bag.add_imu(f"/{ROBOT}/imu", t, acc_g)
+        for channel, (names, _, to_firmware) in FIRMWARE_VARIABLES.items():
+            if channel in flight.channels:
+                values = np.asarray(to_firmware(np.asarray(flight.channels[channel], dtype=float)), dtype=float)
+                bag.add_log_data(f"/{ROBOT}/{channel}", t, values.reshape(len(t), -1))
+                custom_topics[channel] = {"frequency": int(round(flight.rate_hz)), "vars": list(names)}
+    config = {"robots": {ROBOT: {"enabled": True, "type": "cf21"}},
+              "all": {"firmware_logging": {"enabled": True, "custom_topics": custom_topics}}}
+    path.with_name(f"{path.stem}_crazyflies.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
+    return [path]
+
+
 def write_canonical_flight(flight: Flight, fmt: str, directory, stem: str) -> list[Path]:
     """Write a Flight, with the inputs it carries (motor PWM, battery voltage, gyro, setpoint), as a log.
 
@@ -165,7 +188,9 @@ def write_canonical_flight(flight: Flight, fmt: str, directory, stem: str) -> li
     fmt : str
         One of CANONICAL_FORMATS: "nanobench" (CSV, SI units, Unix time), "usd" / "usd-v1" (uSD binary,
         firmware variables, time since boot), "vicon+cfclient" (a Vicon export at the Flight's rate and a
-        cfclient log of the onboard variables, on the two clocks `write_flight` uses).
+        cfclient log of the onboard variables, on the two clocks `write_flight` uses), "mcap-ros2" (a ROS 2
+        MCAP bag as crazyswarm2 records it: pose, sensor_msgs/Imu, one LogDataGeneric topic per input, and the
+        ``<stem>_crazyflies.yaml`` that names their variables, which the reader finds beside it).
     directory, stem : where to write; file names as in `write_flight`.
 
     Returns
@@ -199,4 +224,6 @@ def write_canonical_flight(flight: Flight, fmt: str, directory, stem: str) -> li
         extra = {name: values for name, (_, values) in _firmware_columns(flight).items()}
         write_cfclient_csv(cfclient_path, CFCLIENT_BOOT_S + t, acc_g, extra)
         return [vicon_path, cfclient_path]
+    if fmt == "mcap-ros2":
+        return _write_canonical_ros2(flight, directory / f"{stem}.mcap", acc_g)
     raise ValueError(f"unknown format {fmt!r} for a Flight (one of {', '.join(CANONICAL_FORMATS)})")

@@ -3,7 +3,8 @@ simulator and the tests.
 
 Modules: `schemas` (the message types read and written), `container` (the file scanned front to back:
 schemas, channels, messages, damage), `channels` (which channel is pose, which is acceleration),
-`extractors` (one decoded message -> time stamp, values, unit), `reader` (`read`: topic choice, decoding,
+`extractors` (one decoded message -> time stamp, values, unit), `inputs` (the Crazyflie's inputs from
+LogDataGeneric topics, crazyflies.yaml), `reader` (`read`: topic choice, decoding,
 cleaning, the Flight), `writer` (ROS 2 bags and JSON MCAPs of a flight).
 
 What is read
@@ -16,6 +17,15 @@ What is read
                   variable names; without an entry, a topic whose last name part contains "acc" is read
                   as [acc.x, acc.y, acc.z] in g (what the Crazyflie logs).  `timestamp` (ms since boot)
                   is another clock and is not used.
+    inputs        crazyflie_interfaces/msg/LogDataGeneric topics whose variables (from `log_variables`) include
+                  Crazyflie variables of ingest.formats.crazyflie_variables (motor.m1..m4, pwm.m1_pwm..,
+                  pm.vbat, pm.vbatMV, rpm.m1..m4, controller.cmd_thrust, ctrlLee.thrustSI, gyro.x/y/z, ...)
+                  become the Flight channels a uSD or cfclient log gives (motors, vbat, rotor_speed,
+                  thrust_cmd, thrust_si, gyro, ...), converted by the same unit converters, on the pose's
+                  clock (`inputs`; which topic gave which channel: meta["mcap"]["inputs"]).
+  log_variables: given to `read`, or else taken from crazyswarm2's configuration beside the recording,
+  `<stem>_crazyflies.yaml` or `crazyflies.yaml` (its firmware_logging.custom_topics under all, robot_types
+  and robots: topic NAME of robot ROBOT is /ROBOT/NAME).
   JSON channels (message encoding "json"):
     pose          foxglove.PoseInFrame  {timestamp: {sec, nsec}, frame_id, pose: {position: {x, y, z},
                                          orientation: {x, y, z, w}}}

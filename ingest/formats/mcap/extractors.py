@@ -128,6 +128,20 @@ def log_data(msg, indices: list[int], expected: int):
     return _ros_stamp_ns(msg.header), tuple(float(values[i]) for i in indices), "g"
 
 
+def log_values(msg, expected: int):
+    """crazyflie_interfaces/LogDataGeneric -> (header stamp ns, every value of the log block, None).
+
+    Raises
+    ------
+    Rejected
+        The message does not hold `expected` values.
+    """
+    values = msg.values
+    if len(values) != expected:
+        raise Rejected(f"{len(values)} values instead of {expected}")
+    return _ros_stamp_ns(msg.header), tuple(float(v) for v in values), None
+
+
 def _json_field(obj, key: str):
     if not isinstance(obj, dict) or key not in obj:
         raise Rejected(f"no field {key!r}")

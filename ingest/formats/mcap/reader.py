@@ -24,6 +24,7 @@ from ...limits import MAX_DURATION_S, QUATERNION_NORM_TOLERANCE
 from .channels import ONBOARD, Channel, Reading, classify
 from .container import MAGIC, McapChannel, scan
 from .decoding import Decoded, DecoderFor, decode
+from .inputs import input_channels, sidecar_log_variables
 from .selection import ROLE_WORDS, Candidate, candidates, choose, listing
 
 # A flight's median specific force is ≈ 1 g (hover or rest); outside these bounds the unit is wrong.
@@ -189,15 +190,20 @@ def read_channels(path: Path, channels: Sequence[Channel], warnings: list[str], 
     container : str
         "mcap" or "rosbag": the meta key and the adapter name's prefix.
     pose_topic, accel_topic, rate_hz, log_variables
-        As in `read`.
+        As in `read`.  Without log_variables, those of a crazyswarm2 ``crazyflies.yaml`` beside the file
+        (`inputs.sidecar_log_variables`); known Crazyflie variables among them become optional channels
+        (motors, vbat, ...: `inputs.input_channels`).
 
     Returns
     -------
     Flight
         With meta["topics"] (the chosen topics and where the pose comes from), meta["warnings"] (an onboard
-        estimate taken as the truth) and meta[container] (the details).
+        estimate taken as the truth) and meta[container] (the details; "inputs": which topic and variables
+        gave each input channel).
     """
     notes = list(warnings)
+    if log_variables is None:   # crazyswarm2's crazyflies.yaml beside the recording names its LogDataGeneric values
+        log_variables = sidecar_log_variables(path, notes)
     readings = {c.id: r for c in channels if (r := classify(c, log_variables)) is not None}
     if (error := _no_usable_topics(path, channels, notes, readings)) is not None:
         raise error
@@ -219,6 +225,8 @@ def read_channels(path: Path, channels: Sequence[Channel], warnings: list[str], 
     t_pose, mocap, pose_report = _stream(path, pose, pose_choice.label, t_pose_ns, origin_ns, notes)
     t_acc, acc_g, acc_report = _stream(path, accel, accel_choice.label, t_acc_ns, origin_ns, notes)
     _check_acc_magnitude(path, accel_choice.label, acc_g)
+    inputs, inputs_meta = input_channels(path, channels, log_variables, decoder_for, use_stamps=use_stamps,
+                                         origin_ns=origin_ns, notes=notes)
     overlap = min(t_pose[-1], t_acc[-1]) - max(t_pose[0], t_acc[0])
     if overlap > MAX_DURATION_S:
         raise IngestError(path, f"pose and acceleration overlap for {overlap:.6g} s, more than "
@@ -238,11 +246,12 @@ def read_channels(path: Path, channels: Sequence[Channel], warnings: list[str], 
         container: {"pose_topic": pose_choice.label, "accel_topic": accel_choice.label,
                     "pose_type": pose_choice.type_name, "accel_type": accel_choice.type_name,
                     "time_source": {"pose": pose_source, "accel": acc_source}, "time_origin_ns": origin_ns,
-                    "streams": {"pose": pose_report, "accel": acc_report}, "warnings": notes},
+                    "streams": {"pose": pose_report, "accel": acc_report}, "inputs": inputs_meta,
+                    "warnings": notes},
     }
     if pose_choice.body:
         meta["vehicle"] = pose_choice.body
-    return build_flight(path, t_mocap=t_pose, p=mocap[:, :3], quat=mocap[:, 3:7], t_acc=t_acc,
+    return build_flight(path, t_mocap=t_pose, p=mocap[:, :3], quat=mocap[:, 3:7], t_acc=t_acc, channels=inputs,
                         acc_body_g=acc_g, rate_hz=rate_hz, meta=meta)
 
 
