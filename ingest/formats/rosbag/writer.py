@@ -30,7 +30,7 @@ def _typestore(ros1: bool):
 
 
 class BagWriter:
-    """A bag of pose, multi-body pose and IMU streams; messages are written in receive-time order on close.
+    """A bag of pose, multi-body pose, IMU and (ROS 2) LogDataGeneric streams; messages are written in receive-time order on close.
 
     Parameters
     ----------
@@ -146,6 +146,20 @@ class BagWriter:
                 angular_velocity_covariance=np.zeros(9),
                 linear_acceleration=self._vector("geometry_msgs/msg/Vector3", acc[i]),
                 linear_acceleration_covariance=np.zeros(9))
+        self._add(topic, type_name, t, log_t, make)
+
+    def add_log_data(self, topic: str, t, values, *, frame_id: str = "cf1", log_t=None,
+                     boot_offset_s: float = 12.0) -> None:
+        """crazyflie_interfaces/LogDataGeneric rows, values (N, k) in log-block order (crazyswarm2's custom
+        topics; ROS 2 only); `timestamp` is ms since the Crazyflie booted, boot_offset_s before t = 0."""
+        if self.storage == "ros1":
+            raise ValueError("LogDataGeneric is a ROS 2 type (crazyswarm2); a ROS 1 bag cannot carry it")
+        values = np.asarray(values, float).reshape(len(t), -1)
+        type_name = "crazyflie_interfaces/msg/LogDataGeneric"
+
+        def make(i, stamp_ns):
+            return self._type(type_name)(header=self._header(stamp_ns, frame_id),
+                                         timestamp=int(round((t[i] + boot_offset_s) * 1000)), values=values[i])
         self._add(topic, type_name, t, log_t, make)
 
     # -- writing ---------------------------------------------------------------------------------------
