@@ -29,6 +29,7 @@ from sqlalchemy import select
 
 from learnest.errors import Conflict, InvalidInput, LearnestError, NotFound
 from learnest.ingest.flight import existing_file
+from learnest.ingest.sidecar import info_sidecar
 from learnest.models.knode import HybridModel
 
 from . import catalog, registry
@@ -71,7 +72,8 @@ def local_services(settings: Settings | None = None, executor: Executor | None =
 
 # -- flights -----------------------------------------------------------------------------------------------
 def flight_files(paths) -> list[Path]:
-    """The given files plus, for a NanoBench CSV, the *_metadata.yaml next to it (the reader would use it)."""
+    """The given files plus the sidecars their readers would use: for a NanoBench CSV the *_metadata.yaml
+    next to it, for a uSD log logNNN crazyswarm2's infoNNN.yaml."""
     files: dict[Path, Path] = {}
     for path in map(Path, paths):
         existing_file(path, "flight log")
@@ -79,29 +81,34 @@ def flight_files(paths) -> list[Path]:
         sidecar = path.with_name(f"{path.stem}_metadata.yaml")
         if path.suffix.lower() == ".csv" and sidecar.is_file():
             files.setdefault(sidecar.resolve(), sidecar)
+        info = info_sidecar(path)
+        if info is not None:
+            files.setdefault(info.resolve(), info)
     return list(files.values())
 
 
 def add_flight(services: Services, paths, *, pose_topic: str | None = None,
-               imu_topic: str | None = None) -> tuple[FlightRecord, bool]:
+               imu_topic: str | None = None, cut: str | None = None) -> tuple[FlightRecord, bool]:
     """Store the log file(s) of one flight exactly as an upload would (with the topics chosen, for MCAP
-    recordings and ROS bags).  -> (row, created); created is False when the same content was stored before
+    recordings and ROS bags, and the cut, `learnest.ingest.align.parse_cut`).  -> (row, created); created is False when the same content was stored before
     (its existing row)."""
     with ExitStack() as stack:
         uploads = [LocalFile(path.name, stack.enter_context(open(path, "rb"))) for path in flight_files(paths)]
-        return add_uploaded_flight(services.db, services.blobs, uploads, pose_topic=pose_topic, imu_topic=imu_topic)
+        return add_uploaded_flight(services.db, services.blobs, uploads, pose_topic=pose_topic, imu_topic=imu_topic,
+                                   cut=cut)
 
 
 # -- training ----------------------------------------------------------------------------------------------
 def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = False,
           progress: Callable[[float], None] | None = None, settings: Settings | None = None,
-          system: str = "quadrotor", pose_topic: str | None = None, imu_topic: str | None = None) -> dict:
+          system: str = "quadrotor", pose_topic: str | None = None, imu_topic: str | None = None,
+          cut: str | None = None) -> dict:
     """Store the flight, train the next version of `name` on it and wait; `progress(fraction)` while it trains.
     Returns what `learnest train --json` prints."""
     registry.check_name(name)  # before any work
     settings = settings or cli_settings()
     with local_services(settings) as services:
-        row, created = add_flight(services, paths, pose_topic=pose_topic, imu_topic=imu_topic)
+        row, created = add_flight(services, paths, pose_topic=pose_topic, imu_topic=imu_topic, cut=cut)
         if not row.quality_ok and not include_bad:  # checked here too, to name the CLI's flag
             raise InvalidInput(f"{row.name} failed the quality checks ({'; '.join(row.quality.get('issues', []))}); "
                              "pass --include-bad to train on it anyway")

@@ -254,7 +254,7 @@ def _read_metadata(path: Path, warnings: list[str]) -> dict | None:
 
 
 # -- public entry ---------------------------------------------------------------------------------------
-def read(path, rate_hz: float = 100.0, cut: bool = True) -> Flight:
+def read(path, rate_hz: float = 100.0, cut: bool | tuple = True) -> Flight:
     """Parse a NanoBench CSV into a Flight (mocap + accelerometer required, other streams optional)."""
     path = Path(path)
     columns = _check_file(path)
