@@ -29,9 +29,6 @@ GROUND_PERCENTILE = 1.0
 # A vehicle at rest moves only by the mocap's noise (< 1 cm over 0.5 s); one climbing or sinking faster than
 # this over the first HEAD_S is flying.
 RESTING_SPEED_M_S = 0.1
-# Motors above a fifth of full scale lift a Crazyflie off (hover is ~40-60 %); idle spin on the ground is < 10 %.
-PWM_FULL_SCALE = 65535.0
-RUNNING_MOTOR_SHARE = 0.2
 
 # Anti-aliasing before a stream sampled faster than the grid is brought to it: a zero-phase Butterworth
 # low-pass (order ANTI_ALIAS_ORDER, run forwards and backwards) with its cut-off at ANTI_ALIAS_CUTOFF of the
@@ -93,8 +90,7 @@ def resample_quaternions(t_src: ArrayLike, quat: ArrayLike, t_grid: np.ndarray) 
     return out / np.linalg.norm(out, axis=1, keepdims=True)
 
 
-def flying_window(t: np.ndarray, p: np.ndarray, rate_hz: float, motors: np.ndarray | None = None
-                  ) -> tuple[int, int, str]:
+def flying_window(t: np.ndarray, p: np.ndarray, rate_hz: float) -> tuple[int, int, str]:
     """Indices [start, stop) of the flying part and the rule that chose them.
 
     ``p`` (T, 3) is the position, m (z up).  The ground is the median height of the first 0.5 s, unless the log
@@ -109,11 +105,9 @@ def flying_window(t: np.ndarray, p: np.ndarray, rate_hz: float, motors: np.ndarr
         Position, m, z up.
     rate_hz : float
         Grid rate, Hz.
-    motors : ndarray, shape (T, 4), optional
-        Motor PWM (0..65535): running motors at the start also tell an in-air start.
     """
     head = max(1, int(HEAD_S * rate_hz))
-    in_air, why = started_in_air(p, rate_hz, motors)
+    in_air, why = started_in_air(p, rate_hz)
     z = p[:, 2]
     ground = float(np.percentile(z, GROUND_PERCENTILE)) if in_air else float(np.median(z[:head]))
     airborne = np.flatnonzero(z > ground + FLYING_HEIGHT_M)
@@ -131,13 +125,14 @@ def flying_window(t: np.ndarray, p: np.ndarray, rate_hz: float, motors: np.ndarr
     return int(start), int(stop), f"kept {first} {last}"
 
 
-def started_in_air(p: np.ndarray, rate_hz: float, motors: np.ndarray | None = None) -> tuple[bool, str]:
+def started_in_air(p: np.ndarray, rate_hz: float) -> tuple[bool, str]:
     """(whether the log starts with the vehicle in the air, why).
 
     In the air at the start: the first 0.5 s lie FLYING_HEIGHT_M above the log's lowest height (it comes
     down later), or the vehicle moves sideways faster than a resting one can (mocap noise; a take-off that
-    begins within the first 0.5 s climbs, it does not slide), or its motors run above an idle share of
-    full scale.  ``p`` (T, 3) m; ``motors`` (T, 4) PWM, optional.
+    begins within the first 0.5 s climbs, it does not slide).  ``p`` (T, 3) m, z up.  A log that starts
+    hovering at its lowest height and never moves sideways at first cannot be told from one on a shelf: the
+    user's cut (`parse_cut`) decides then.
     """
     head = max(2, int(HEAD_S * rate_hz))
     z = p[:, 2]
@@ -150,10 +145,6 @@ def started_in_air(p: np.ndarray, rate_hz: float, motors: np.ndarray | None = No
         speed = float(moved) * rate_hz / (head - tenth)
         if speed > RESTING_SPEED_M_S:
             return True, f"moving sideways at {speed:.2f} m/s in the first {HEAD_S:g} s"
-    if motors is not None and len(motors) >= head:
-        share = float(np.nanmedian(np.asarray(motors, dtype=float)[:head])) / PWM_FULL_SCALE
-        if share > RUNNING_MOTOR_SHARE:
-            return True, f"motors at {share:.0%} of full scale in the first {HEAD_S:g} s"
     return False, ""
 
 
@@ -206,7 +197,7 @@ def cut_text(cut: bool | tuple) -> str:
 
 def _window(flight: Flight, rate_hz: float, cut: bool | tuple) -> tuple[int, int, str]:
     if cut is True:
-        return flying_window(flight.t, flight.p, rate_hz, flight.channels.get("motors"))
+        return flying_window(flight.t, flight.p, rate_hz)
     if cut is False:
         return 0, len(flight.t), "whole recording kept (no cut asked)"
     start_s, stop_s = cut
