@@ -65,7 +65,8 @@ def collect_logs(paths: Iterable[str | Path]) -> tuple[list[Path], list[str]]:
 
     Metadata sidecars (NanoBench ``*_metadata.yaml``, crazyswarm2 ``infoNNN.yaml``) are left out: their
     log's reader reads them from beside the log.  In a folder, documents and files no adapter recognises
-    are left out too (as `learnest demo` does); a file named on its own must be a log.
+    are left out too (as `learnest demo` does); of the files named on their own, documents (LICENSE,
+    README.md, ...: what a shell glob brings along) are left out, and any other must be a log.
 
     Returns
     -------
@@ -87,8 +88,7 @@ def collect_logs(paths: Iterable[str | Path]) -> tuple[list[Path], list[str]]:
             for member in sorted(m for m in path.iterdir() if m.is_file()):
                 if sidecar_log_names(member.name) is not None:
                     sidecars.append(member)
-                elif member.suffix.lower() in DOCUMENT_SUFFIXES or member.stem.lower() in DOCUMENT_NAMES \
-                        or member.name.startswith("."):
+                elif _is_document(member) or member.name.startswith("."):
                     notes.append(f"skipped {member}: not a flight log")
                 else:
                     try:
@@ -98,6 +98,8 @@ def collect_logs(paths: Iterable[str | Path]) -> tuple[list[Path], list[str]]:
                         notes.append(f"skipped {err}")
         elif sidecar_log_names(path.name) is not None and path.is_file():
             sidecars.append(path)
+        elif path.is_file() and _is_document(path):   # a shell glob brings the folder's LICENSE, README...
+            notes.append(f"skipped {path}: not a flight log")
         else:
             logs.append(path)
     names = {log.name for log in logs} | {str(log) for log in logs}
@@ -108,6 +110,10 @@ def collect_logs(paths: Iterable[str | Path]) -> tuple[list[Path], list[str]]:
         else:
             notes.append(f"skipped {sidecar}: metadata sidecar without its log ({owners[0]}) among the files given")
     return logs, notes
+
+
+def _is_document(path: Path) -> bool:
+    return path.suffix.lower() in DOCUMENT_SUFFIXES or path.stem.lower() in DOCUMENT_NAMES
 
 
 def group_files(paths: Iterable[str | Path]) -> list[tuple[str, list[Path]]]:

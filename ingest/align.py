@@ -222,7 +222,7 @@ def position_resolution(p: ArrayLike) -> float:
         return 0.0
     ratio = steps / quantum
     on_multiples = np.mean(np.abs(ratio - np.round(ratio)) < 0.1)
-    return round(quantum, 9) if on_multiples >= 0.9 else 0.0
+    return float(f"{quantum:.3g}") if on_multiples >= 0.9 else 0.0   # 3 digits: float32 logs hold 0.000999987
 
 
 def anti_alias(t_src: ArrayLike, values: ArrayLike, rate_hz: float) -> tuple[np.ndarray, np.ndarray, bool]:
