@@ -90,8 +90,8 @@ def flight_files(paths) -> list[Path]:
 def add_flight(services: Services, paths, *, pose_topic: str | None = None,
                imu_topic: str | None = None, cut: str | None = None) -> tuple[FlightRecord, bool]:
     """Store the log file(s) of one flight exactly as an upload would (with the topics chosen, for MCAP
-    recordings and ROS bags, and the cut, `learnest.ingest.align.parse_cut`).  -> (row, created); created is False when the same content was stored before
-    (its existing row)."""
+    recordings and ROS bags, and the cut, `learnest.ingest.align.parse_cut`).  -> (row, created); created is
+    False when the same content was stored before (its existing row)."""
     with ExitStack() as stack:
         uploads = [LocalFile(path.name, stack.enter_context(open(path, "rb"))) for path in flight_files(paths)]
         return add_uploaded_flight(services.db, services.blobs, uploads, pose_topic=pose_topic, imu_topic=imu_topic,

@@ -148,7 +148,8 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
     of it lies outside what the model saw in training (`flight_envelope`); such flights are still scored,
     and listed in ``outside_training_envelope``.  Each scored flight's ``warnings`` say how it differs from
     the training flight in vehicle, sensor rates, attitude source, mass or controller
-    (`ingest.profile.profile_mismatches`; none for a model that recorded no ``training_profile``).  ``progress`` is called with each flight's entry;
+    (`ingest.profile.profile_mismatches`; none for a model that recorded no ``training_profile``).
+    ``progress`` is called with each flight's entry;
     ``on_estimates(index, FlightEstimates)`` with the per-step estimates of each scored flight (index into
     ``flights``), when given.
     """

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ... import clock
 import numpy as np
 
+from ... import clock
 from ...align import build_flight, position_resolution, samples_per_second
 from ...flight import Flight, IngestError, sha256_file
 from ...limits import QUATERNION_NORM_TOLERANCE
