@@ -180,22 +180,19 @@ def test_the_cut_can_be_chosen_and_is_shown(airborne_start):
 
 
 def test_the_upload_takes_a_cut_and_keys_on_it(airborne_start, tmp_path):
-    from learnest.service.config import Settings
-    from learnest.service.jobs.services import open_services
-    from learnest.service.uploads import LocalFile, add_flight
+    from utils.service import running_app, upload
 
     path, _ = airborne_start
-    services = open_services(Settings(home=tmp_path / "home", database_url=None))
-    try:
-        with open(path, "rb") as handle:
-            auto, created_auto = add_flight(services.db, services.blobs, [LocalFile("in_air.csv", handle)])
-            chosen, created_chosen = add_flight(services.db, services.blobs, [LocalFile("in_air.csv", handle)],
-                                                cut="1:6")
-        assert created_auto and created_chosen and auto.id != chosen.id   # another stretch, another flight
-        stored = Flight.from_bytes(services.blobs.read_bytes(chosen.flight_blob))
-        assert stored.duration_s == pytest.approx(5.0) and stored.meta["cut_choice"] == "1:6"
-    finally:
-        services.close()
+    with running_app(tmp_path / "home") as client:
+        auto = upload(client, path)
+        chosen = upload(client, path, cut="1:6")
+        assert auto.status_code == 201 and chosen.status_code == 201      # another stretch, another flight
+        assert chosen.json()["duration_s"] == pytest.approx(5.0)
+        detail = client.get(f"/flights/{chosen.json()['id']}").json()
+        assert detail["meta"]["cut_choice"] == "1:6" and detail["meta"]["flying_window"]["start_s"] == 1.0
+        assert upload(client, path, cut="1:6").status_code == 200        # the same stretch again: stored once
+        refused = upload(client, path, cut="6:1")
+        assert refused.status_code == 422 and "START must come before STOP" in refused.text
 
 
 # -- poses rounded to 1 mm -------------------------------------------------------------------------------------
