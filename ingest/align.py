@@ -112,7 +112,8 @@ def flying_window(t: np.ndarray, p: np.ndarray, rate_hz: float) -> tuple[int, in
     ground = float(np.percentile(z, GROUND_PERCENTILE)) if in_air else float(np.median(z[:head]))
     airborne = np.flatnonzero(z > ground + FLYING_HEIGHT_M)
     if airborne.size == 0:
-        return 0, len(t), "never rose above the resting height: whole recording kept"
+        return 0, len(t), (f"never {FLYING_HEIGHT_M:g} m above the height of its first {HEAD_S:g} s (a log that "
+                           f"starts in the air and stays level, or no flight): whole recording kept")
     ends_in_air = bool(np.median(z[-head:]) > ground + FLYING_HEIGHT_M)
     start = 0 if in_air else airborne[0] + int(TAKEOFF_SETTLE_S * rate_hz)
     stop = len(t) if ends_in_air else airborne[-1] + 1 - int(LANDING_SETTLE_S * rate_hz)
