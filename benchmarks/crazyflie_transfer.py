@@ -45,8 +45,9 @@ def markdown(result: dict) -> str:
              "", f"Command: `{result['command']}`  ({result['seconds']:.0f} s wall, 2 shared cores)", ""]
     for direction, by_system in result["runs"].items():
         lines += [f"## {direction}", "", "| prior | scored | " + " | ".join(f"median {m}" for m in METHODS)
-                  + " | KNODE-UKF vs UKF | KNODE-MHE vs MHE | flights KNODE-UKF better | flights KNODE-MHE better |",
-                  "|---" * (6 + len(METHODS)) + "|"]
+                  + " | KNODE-UKF vs UKF | KNODE-MHE vs MHE | flights KNODE-UKF better | flights KNODE-MHE better "
+                    "| median per-flight gain UKF / MHE |",
+                  "|---" * (7 + len(METHODS)) + "|"]
         for system, run in by_system.items():
             med = run["report"]["median"]
             imp = run["report"]["improvement_pct"]
@@ -56,7 +57,10 @@ def markdown(result: dict) -> str:
                          + " | ".join(f"{med.get(m, float('nan')):.5f}" for m in METHODS)
                          + f" | {imp.get('knode-ukf_vs_ukf', float('nan')):+.1f} % | "
                            f"{imp.get('knode-mhe_vs_mhe', float('nan')):+.1f} % | {better['ukf']}/{len(per)} | "
-                           f"{better['mhe']}/{len(per)} |")
+                           f"{better['mhe']}/{len(per)} | "
+                           + " / ".join(f"{np.median([g[b] for g in per.values() if b in g]):+.1f} %"
+                                        if any(b in g for g in per.values()) else "–" for b in ("ukf", "mhe"))
+                           + " |")
         lines += [""]
         for system, run in by_system.items():
             lines.append(f"- {system}: median MSE by state group (p, v, a) — "

@@ -7,7 +7,7 @@ improvement of each KNODE estimator over its prior-only counterpart (the paper: 
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -54,9 +54,11 @@ def score(estimates: np.ndarray, reference: np.ndarray, groups: dict[str, slice]
 def evaluate_sequence(methods: Sequence[str], prior_model: StateSpaceModel, knode_model: StateSpaceModel,
                       y: np.ndarray, u: np.ndarray, dt: float, Q: np.ndarray, R: np.ndarray, x0: np.ndarray,
                       P0: np.ndarray, reference: np.ndarray, horizon: int = MHE_HORIZON,
-                      keep_estimates: bool = False, mhe_cache: dict | None = None) -> dict:
+                      keep_estimates: bool = False, mhe_cache: dict | None = None,
+                      on_stage: Callable[[str], object] | None = None) -> dict:
     """{method: {"mse", "groups", "ms_per_step"[, "estimates"]}} for one flight; pass one `mhe_cache`
-    dict for all flights of a batch so each MHE is built once.
+    dict for all flights of a batch so each MHE is built once.  ``on_stage`` is told each method before it
+    runs ("knode-ukf") and an MHE build before it starts ("MHE build (knode-mhe)").
 
     ``knode-*`` methods run ``knode_model``, the others ``prior_model``.  y (T, m), u (T, p), x0 (n,),
     Q and P0 (n, n), R (m, m), reference (T, n); dt in s; ``ms_per_step`` is wall time per sample, ms.
@@ -65,7 +67,11 @@ def evaluate_sequence(methods: Sequence[str], prior_model: StateSpaceModel, knod
     results = {}
     for method in methods:
         model = knode_model if method.startswith("knode-") else prior_model
+        if on_stage and not method.endswith("ukf"):
+            on_stage(f"MHE build ({method})")
         mhe = None if method.endswith("ukf") else _mhe_for(mhe_cache, model, dt, Q, R, P0, horizon)
+        if on_stage:
+            on_stage(method)
         started = time.perf_counter()
         estimates = run_ukf(model, y, u, dt=dt, Q=Q, R=R, x0=x0, P0=P0).means if mhe is None else mhe.run(y, u, x0)
         results[method] = {**score(estimates, reference),

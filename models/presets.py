@@ -12,6 +12,7 @@ from learnest.errors import InvalidInput
 
 MHE_HORIZON = 20                 # MHE window N (paper Sec. V)
 SG_WINDOW = 150                  # Savitzky–Golay reference window, samples (paper Sec. VI)
+SG_WINDOW_RANGE = (3, 2001)      # windows a user may choose, samples (order 2 needs 3; 2001 = 20 s at 100 Hz)
 METHODS = ("ukf", "mhe", "knode-ukf", "knode-mhe")   # the four estimators of the Crazyflie experiment
 PRODUCTION_ALIAS = "production"  # the alias scheduled evaluations use
 

@@ -71,8 +71,11 @@ class ResidualNet(torch.nn.Module):
 
     mean: torch.Tensor  # buffers registered in __init__
     std: torch.Tensor
+    input_mask: torch.Tensor
+    output_mask: torch.Tensor
 
-    def __init__(self, n_in: int, n_out: int, hidden: int, mean: np.ndarray, std: np.ndarray):
+    def __init__(self, n_in: int, n_out: int, hidden: int, mean: np.ndarray, std: np.ndarray,
+                 input_mask: np.ndarray | None = None, output_mask: np.ndarray | None = None):
         super().__init__()
         self.hidden_layer = torch.nn.Linear(n_in, hidden, dtype=torch.float64)
         self.output_layer = torch.nn.Linear(hidden, n_out, dtype=torch.float64)
@@ -80,9 +83,14 @@ class ResidualNet(torch.nn.Module):
         torch.nn.init.zeros_(self.output_layer.bias)
         self.register_buffer("mean", torch.as_tensor(mean))
         self.register_buffer("std", torch.as_tensor(std))
+        # masks (`System.residual_masks`): inputs Δθ does not see, derivatives it does not correct
+        self.register_buffer("input_mask", torch.ones(n_in, dtype=torch.float64) if input_mask is None
+                             else torch.as_tensor(input_mask, dtype=torch.float64))
+        self.register_buffer("output_mask", torch.ones(n_out, dtype=torch.float64) if output_mask is None
+                             else torch.as_tensor(output_mask, dtype=torch.float64))
 
     def forward(self, z):
-        """Δθ = W₂ tanh(W₁ (z - mean) / std + b₁) + b₂.
+        """Δθ = m_out ⊙ (W₂ tanh(W₁ (m_in ⊙ (z - mean) / std) + b₁) + b₂).
 
         Parameters
         ----------
@@ -93,12 +101,15 @@ class ResidualNet(torch.nn.Module):
         -------
         (..., n_out) float64 tensor
         """
-        return self.output_layer(torch.tanh(self.hidden_layer((z - self.mean) / self.std)))
+        hidden = torch.tanh(self.hidden_layer(self.input_mask * (z - self.mean) / self.std))
+        return self.output_mask * self.output_layer(hidden)
 
     def export(self) -> Residual:
-        """Fold the standardisation into the first layer: W(z-m)/s + b = (W/s) z + (b - W m/s)."""
-        w1 = self.hidden_layer.weight.detach().numpy() / self.std.numpy()
+        """Fold the standardisation and the masks into the weights: W(m_in(z-μ)/s) + b = (W m_in/s) z +
+        (b - (W m_in/s) μ); masked outputs become zero rows.  The exported network is the trained one."""
+        w1 = self.hidden_layer.weight.detach().numpy() * (self.input_mask.numpy() / self.std.numpy())
         b1 = self.hidden_layer.bias.detach().numpy() - w1 @ self.mean.numpy()
+        out = self.output_mask.numpy()
         return Residual([(w1.copy(), b1.copy()),
-                         (self.output_layer.weight.detach().numpy().copy(),
-                          self.output_layer.bias.detach().numpy().copy())])
+                         (self.output_layer.weight.detach().numpy() * out[:, None],
+                          self.output_layer.bias.detach().numpy() * out)])

@@ -116,7 +116,8 @@ def _train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, confi
     torch.manual_seed(config.seed)
     features = np.concatenate([zeta, u], axis=1)
     std = features.std(axis=0)
-    mlp = ResidualNet(features.shape[1], system.n, config.hidden, features.mean(axis=0), np.where(std > 1e-9, std, 1.0))
+    mlp = ResidualNet(features.shape[1], system.n, config.hidden, features.mean(axis=0), np.where(std > 1e-9, std, 1.0),
+                      *system.residual_masks())
 
     pairs = len(zeta) - 1
     fit_rows, val_rows = _split_rows(pairs, config.validation_fraction if pairs >= 10 else 0.0,

@@ -52,6 +52,11 @@ def list_flights(db: Database, *conditions: ColumnElement[bool], limit: int, off
     return total, list(rows)
 
 
+def name_contains(q: str | None) -> list[ColumnElement[bool]]:
+    """The condition "flight name contains ``q``" (case-insensitive; % and _ match themselves), or none."""
+    return [FlightRecord.name.icontains(q, autoescape=True)] if q else []
+
+
 def versions_trained_on(db: Database, flight_id: int) -> list[ModelVersion]:
     """Every model version trained on the flight (any status), by name and version."""
     with db.transaction() as session:
@@ -78,10 +83,13 @@ class ModelDetail(NamedTuple):
     versions: list[ModelVersion]
 
 
-def list_models(db: Database) -> list[ModelSummary]:
-    """Every registered model, by name."""
+def list_models(db: Database, q: str | None = None) -> list[ModelSummary]:
+    """Every registered model, by name; with ``q``, those whose name contains it (case-insensitive)."""
+    query = select(RegisteredModel).order_by(RegisteredModel.name)
+    if q:
+        query = query.where(RegisteredModel.name.icontains(q, autoescape=True))
     with db.transaction() as session:
-        models = session.scalars(select(RegisteredModel).order_by(RegisteredModel.name)).all()
+        models = session.scalars(query).all()
         return [ModelSummary(m, registry.aliases_of(session, m.name), _latest_ready(session, m.name),
                              session.scalar(select(func.count(ModelVersion.id)).where(ModelVersion.name == m.name))
                              or 0)

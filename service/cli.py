@@ -5,13 +5,21 @@ import argparse
 import json
 import math
 import sys
+import time
 from pathlib import Path
 from typing import NoReturn
 
 from tqdm import tqdm
 
 from learnest.errors import InvalidInput, LearnestError
-from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON, PRODUCTION_ALIAS
+from learnest.models.presets import (
+    CRAZYFLIE_TRAINING,
+    METHODS,
+    MHE_HORIZON,
+    PRODUCTION_ALIAS,
+    SG_WINDOW,
+    SG_WINDOW_RANGE,
+)
 
 
 # -- argument types: refuse bad values before any import or ingest (one-line error, exit 2) -----------
@@ -35,12 +43,31 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _sg_window(text: str) -> int:
+    """A Savitzky-Golay window in samples, within `SG_WINDOW_RANGE`."""
+    value = _positive_int(text)
+    low, high = SG_WINDOW_RANGE
+    if not low <= value <= high:
+        raise argparse.ArgumentTypeError(f"must be {low} to {high} samples, got {text!r}")
+    return value
+
+
 def _model_ref(text: str) -> str:
     """A registry reference, checked for its form only (whether it exists needs the registry)."""
     from .references import parse_ref
 
     try:
         return str(parse_ref(text))
+    except InvalidInput as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
+def _name(text: str) -> str:
+    """A registered model or alias name (references.NAME), checked before any import of the service."""
+    from .references import check_name
+
+    try:
+        return check_name(text)
     except InvalidInput as err:
         raise argparse.ArgumentTypeError(str(err)) from None
 
@@ -157,19 +184,32 @@ def _train(args) -> int:
     from .local_registry import train
 
     _registry_grid(args.rate)
-    with tqdm(total=args.epochs or CRAZYFLIE_TRAINING.epochs, desc=f"training {args.name}", unit="epoch",
-              file=sys.stderr) as bar:
+    with tqdm(total=1000, desc=f"training {args.name}", file=sys.stderr, bar_format=STAGE_BAR) as bar:
         out = train(args.files, args.name, epochs=args.epochs, include_bad=args.include_bad, progress=_advance(bar),
-                    system=args.system, **_topics(args), cut=args.cut)
+                    system=args.system, on_stage=_show_stage(bar), **_topics(args), cut=args.cut)
+    out["command_seconds"] = time.perf_counter() - _command_started[0]
     print(json.dumps(out, indent=2) if args.json else
           f"registered {out['ref']} ({out['system']} prior): trained on {out['training_flight']} "
-          f"(flight {out['flight_id']}) "
-          f"in {out['seconds']:.1f} s; registry in {out['home']}")
+          f"(flight {out['flight_id']}): {out['epochs']} epochs in {out['seconds']:.1f} s; "
+          f"{out['command_seconds']:.1f} s in all (this command: imports, storing the flight, starting a worker, the "
+          f"pre-training observer, the epochs, storing the model); registry in {out['home']}")
     return 0
 
 
+STAGE_BAR = "{desc}: {percentage:3.0f}%|{bar}| [{elapsed}{postfix}]"   # postfix: ", epoch 12/150, about 20 s left"
+_command_started = [time.perf_counter()]   # reset by main(): the command's whole time, imports included
+
+
+def _show_stage(bar):
+    """A job's stage and seconds left -> the bar's postfix ("epoch 12/150, about 20 s left")."""
+    def show(stage: str, seconds_left: float | None) -> None:
+        left = f", about {seconds_left:.0f} s left" if seconds_left is not None else ""
+        bar.set_postfix_str(f"{stage}{left}", refresh=True)
+    return show
+
+
 def _advance(bar):
-    """A job's progress (0..1) -> a tqdm bar counting epochs."""
+    """A job's progress (0..1) -> a tqdm bar of ``bar.total`` steps."""
     return lambda fraction: bar.update(max(0, round(fraction * bar.total) - bar.n))
 
 
@@ -185,7 +225,7 @@ def _evaluate(args) -> int:
     from learnest.models.presets import parse_methods
 
     from .local_registry import load_model
-    from .web.figures import mse_boxplot, save_figure
+    from .web.figures import paired_mse, save_figure
 
     if args.new:
         return _evaluate_new(args)
@@ -200,7 +240,7 @@ def _evaluate(args) -> int:
     ref = model.meta.get("ref", args.model)  # name:version, whatever form was asked for
     report = (_evaluate_stored if args.store else _evaluate_here)(args, model, ref, methods)
     if args.plot:
-        save_figure(mse_boxplot(report), args.plot, dpi=120)
+        save_figure(paired_mse(report), args.plot, dpi=120)
     if args.json:
         print(json.dumps(report, indent=2))
     else:
@@ -220,10 +260,11 @@ def _evaluate_stored(args, model, ref: str, methods: list[str]) -> dict:
     from .jobs.result_cache import EstimatorSettings
     from .local_registry import evaluate, export
 
-    settings = EstimatorSettings(tuple(methods), args.horizon, args.include_bad)
+    settings = EstimatorSettings(tuple(methods), args.horizon, args.include_bad, args.sg_window)
     with tqdm(total=1.0, desc="evaluating", unit="", file=sys.stderr,
-              bar_format="{desc}: {percentage:3.0f}%|{bar}| [{elapsed}]") as bar:
-        report = evaluate(args.files, ref, settings, progress=lambda f: bar.update(f - bar.n), **_topics(args))
+              bar_format=STAGE_BAR) as bar:
+        report = evaluate(args.files, ref, settings, progress=lambda f: bar.update(f - bar.n),
+                          on_stage=_show_stage(bar), **_topics(args))
         bar.update(1.0 - bar.n)
     if args.export and report["flights_scored"]:
         export(report["evaluation_id"], args.export, _export_format(args.export))
@@ -240,7 +281,7 @@ def _evaluate_here(args, model, ref: str, methods: list[str]) -> dict:
     kept: list = []
     with tqdm(total=len(flights), desc="evaluating", unit="flight", file=sys.stderr) as bar:
         report = evaluate_flights(model, flights, methods, include_bad=args.include_bad, horizon=args.horizon,
-                                  progress=lambda _f: bar.update(1),
+                                  sg_window=args.sg_window, progress=lambda _f: bar.update(1),
                                   on_estimates=(lambda _i, e: kept.append(e)) if args.export else None)
     report["model"] = ref
     if args.export and kept:
@@ -304,6 +345,105 @@ def _evaluate_new(args) -> int:
     return 0
 
 
+def _flights_list(args) -> int:
+    """The stored flights (service.local_registry.list_flights)."""
+    from .local_registry import list_flights
+
+    out = list_flights(args.q)
+    if args.json:
+        print(json.dumps(out, indent=2))
+        return 0
+    print(f"{out['total']} flight(s)" + (f" whose name contains {args.q!r}" if args.q else ""))
+    if out["items"]:
+        print(f"{'id':>5}  {'name':<32}{'format':<16}{'duration':>9}  {'quality':<8}uploaded (UTC)")
+    for f in out["items"]:
+        quality = "ok" if f["quality"].get("ok") else "BAD"
+        print(f"{f['id']:>5}  {f['name']:<32}{f['adapter']:<16}{f['duration_s']:>7.1f} s  {quality:<8}"
+              f"{f['created_at'][:19].replace('T', ' ')}")
+    return 0
+
+
+def _models_list(args) -> int:
+    """The registered models (service.local_registry.list_models)."""
+    from .local_registry import list_models
+
+    out = list_models(args.q)
+    if args.json:
+        print(json.dumps(out, indent=2))
+        return 0
+    print(f"{out['total']} model(s)" + (f" whose name contains {args.q!r}" if args.q else ""))
+    if out["items"]:
+        print(f"{'name':<24}{'versions':>9}{'latest ready':>14}  aliases")
+    for m in out["items"]:
+        aliases = ", ".join(f"@{a} -> {v}" for a, v in m["aliases"].items()) or "-"
+        latest = "-" if m["latest_version"] is None else str(m["latest_version"])
+        print(f"{m['name']:<24}{m['versions']:>9}{latest:>14}  {aliases}")
+    return 0
+
+
+def _models_show(args) -> int:
+    """A model's versions, or one version with its lineage and evaluations."""
+    from .local_registry import show_model
+
+    out = show_model(args.ref)
+    print(json.dumps(out, indent=2, default=str) if args.json else format_model(out))
+    return 0
+
+
+def format_model(out: dict) -> str:
+    """`learnest models show`'s text: a model's versions table, or one version's details."""
+    if "versions" in out:
+        aliases = ", ".join(f"@{a} -> {v}" for a, v in out["aliases"].items()) or "none"
+        lines = [f"model {out['name']}: latest ready version {out['latest_version']}; aliases {aliases}",
+                 f"{'version':>7}  {'status':<9}{'training flight':<28}{'epochs':>7}{'final loss':>12}"
+                 f"{'train s':>9}  parent"]
+        for v in out["versions"]:
+            loss, seconds = (v["metrics"] or {}).get("final_loss"), v["training_seconds"]
+            loss_text = "-" if loss is None else f"{loss:.4g}"
+            seconds_text = "-" if seconds is None else f"{seconds:.1f}"
+            lines.append(f"{v['version']:>7}  {v['status']:<9}{str(v['training_flight']['name']):<28}"
+                         f"{str((v['hyperparameters'] or {}).get('epochs')):>7}{loss_text:>12}{seconds_text:>9}"
+                         f"  {v['parent'] or '-'}" + (f"  @{', @'.join(v['aliases'])}" if v["aliases"] else ""))
+        return "\n".join(lines)
+    lineage, hp, metrics = out["lineage"], out["hyperparameters"] or {}, out["metrics"] or {}
+    flight = lineage["training_flight"]
+    made = lineage["diagnosis"]
+    lines = [f"{out['ref']}: {out['status']}" + (f" ({out['error']})" if out["error"] else "")
+             + (f", aliases @{', @'.join(out['aliases'])}" if out["aliases"] else ""),
+             f"  prior {hp.get('system', 'quadrotor')}; "
+             + ", ".join(f"{k} {v}" for k, v in hp.items() if k != "system"),
+             "  metrics: " + (", ".join(f"{k} {v:.4g}" for k, v in metrics.items() if isinstance(v, (int, float)))
+                              or "none"),
+             f"  training time {out['training_seconds']:.1f} s (the epochs)" if out["training_seconds"] else
+             "  training time -",
+             f"  trained on flight {flight['id']} ({flight['name']})" + ("" if flight["exists"] else ", deleted since"),
+             f"  parent {lineage['parent']['ref'] if lineage['parent'] else 'none'}"
+             + ("" if not lineage["parent"] or lineage["parent"]["exists"] else " (deleted)"),
+             f"  children {', '.join(c['ref'] for c in lineage['children']) or 'none'}"]
+    if made:
+        lines.append(f"  made by {'diagnosis ' + str(made['id']) if made['id'] else 'a diagnosis'}, adding "
+                     f"{', '.join(made['effects_added']) or 'no effect'}")
+    lines.append(f"  evaluations: {len(lineage['evaluations'])}")
+    for e in lineage["evaluations"]:
+        mse = ", ".join(f"{m} {x * 1e3:.3f}" for m, x in e["median_mse"].items())
+        better = ", ".join(f"{k.replace('_vs_', ' vs ')} {x:+.1f} %" for k, x in e["improvement_pct"].items())
+        lines.append(f"    {e['id']}: {e['state']} on flights {', '.join(map(str, e['flight_ids']))}"
+                     + (f"; median MSE x 1e-3: {mse}" if mse else "") + (f"; {better}" if better else ""))
+    return "\n".join(lines)
+
+
+def _alias_set(args) -> int:
+    """Point NAME@ALIAS at VERSION (service.local_registry.set_alias)."""
+    from .local_registry import set_alias
+
+    out = set_alias(args.name, args.version, args.alias)
+    before = out["previous_version"]
+    print(json.dumps(out, indent=2) if args.json else
+          f"{out['name']}@{out['alias']} -> version {out['version']}"
+          + ("" if before is None else f" (was {before})" if before != out["version"] else " (unchanged)"))
+    return 0
+
+
 def _serve(args) -> int:
     """The HTTP service (FastAPI app factory service.api.app:create_app under uvicorn); docs at /docs."""
     import os
@@ -349,7 +489,7 @@ def _demo(args) -> int:
 
     from .experiments.flights import evaluate_flights
     from .local_registry import load_model, train
-    from .web.figures import mse_boxplot, save_figure
+    from .web.figures import paired_mse, save_figure
 
     _registry_grid(args.rate)
     folder = Path(args.folder)
@@ -373,7 +513,8 @@ def _demo(args) -> int:
         raise InvalidInput(f"no clean flight named {args.train!r} in {folder}")
     with tqdm(total=CRAZYFLIE_TRAINING.epochs, desc=f"training on {chosen[0].name}", unit="epoch",
               file=sys.stderr) as bar:
-        trained = train([source["path"] for source in chosen[0].meta["sources"]], args.name, progress=_advance(bar))
+        trained = train([source["path"] for source in chosen[0].meta["sources"]], args.name, progress=_advance(bar),
+                        on_stage=_show_stage(bar))
     print(f"registered {trained['ref']} in {trained['home']}")
     with tqdm(total=len(flights), desc="evaluating", unit="flight", file=sys.stderr) as bar:
         report = evaluate_flights(load_model(trained["ref"]), flights, parse_methods(args.methods),
@@ -381,8 +522,8 @@ def _demo(args) -> int:
     report["model"] = trained["ref"]
     print(format_report(report))
     if args.plot:
-        save_figure(mse_boxplot(report), args.plot, dpi=120)
-        print(f"box plot: {args.plot}")
+        save_figure(paired_mse(report), args.plot, dpi=120)
+        print(f"MSE per flight (prior vs KNODE): {args.plot}")
     return 0
 
 
@@ -524,8 +665,14 @@ def build_parser() -> argparse.ArgumentParser:
                          "(required unless --new)")
     ev.add_argument("--methods", default=",".join(METHODS))
     ev.add_argument("--json", action="store_true")
-    ev.add_argument("--plot", metavar="PNG", type=_new_file, help="write a Fig. 3-style box plot")
+    ev.add_argument("--plot", metavar="PNG", type=_new_file,
+                    help="write the per-flight MSE figure (prior vs KNODE, one line per flight; box plots from "
+                         "10 flights on)")
     ev.add_argument("--horizon", type=_positive_int, default=MHE_HORIZON, help="MHE horizon N")
+    ev.add_argument("--sg-window", type=_sg_window, default=SG_WINDOW, metavar="SAMPLES",
+                    help=f"Savitzky-Golay window of the reference states, samples (default {SG_WINDOW}, the "
+                         "paper's, about 1.5 s at 100 Hz; it clips the velocity peaks of fast manoeuvres: "
+                         "shorter follows them)")
     ev.add_argument("--rate", type=_positive_float, default=100.0)
     ev.add_argument("--include-bad", action="store_true", help="also score flights that fail quality checks")
     ev.add_argument("--system", default=None, choices=["quadrotor", "crazyflie"],
@@ -551,6 +698,34 @@ def build_parser() -> argparse.ArgumentParser:
     exp.add_argument("--flight", type=_positive_int, default=None, metavar="ID",
                      help="only this flight (default: every scored flight)")
     exp.set_defaults(func=_export)
+
+    fl = sub.add_parser("flights", help="the flights stored in the registry (LEARNEST_HOME)")
+    fl_sub = fl.add_subparsers(dest="action", required=True)
+    fl_list = fl_sub.add_parser("list", help="stored flights by id")
+    fl_list.add_argument("--q", "--search", dest="q", metavar="TEXT", help="only names containing TEXT")
+    fl_list.add_argument("--json", action="store_true")
+    fl_list.set_defaults(func=_flights_list)
+
+    mo = sub.add_parser("models", help="the registered models (LEARNEST_HOME)")
+    mo_sub = mo.add_subparsers(dest="action", required=True)
+    mo_list = mo_sub.add_parser("list", help="registered models with versions and aliases")
+    mo_list.add_argument("--q", "--search", dest="q", metavar="TEXT", help="only names containing TEXT")
+    mo_list.add_argument("--json", action="store_true")
+    mo_list.set_defaults(func=_models_list)
+    mo_show = mo_sub.add_parser("show", help="NAME: its versions; NAME:N or NAME@ALIAS: that version with its "
+                                             "metrics, lineage and evaluations")
+    mo_show.add_argument("ref", type=_model_ref, metavar="REF")
+    mo_show.add_argument("--json", action="store_true")
+    mo_show.set_defaults(func=_models_show)
+
+    al = sub.add_parser("alias", help="move a model's aliases")
+    al_sub = al.add_subparsers(dest="action", required=True)
+    al_set = al_sub.add_parser("set", help="point NAME@ALIAS at VERSION (creating or moving the alias)")
+    al_set.add_argument("name", type=_name, metavar="NAME")
+    al_set.add_argument("version", type=_positive_int, metavar="VERSION")
+    al_set.add_argument("alias", type=_name, metavar="ALIAS")
+    al_set.add_argument("--json", action="store_true")
+    al_set.set_defaults(func=_alias_set)
 
     srv = sub.add_parser("serve", help="run the HTTP service (uvicorn; OpenAPI docs at /docs)")
     srv.add_argument("--host", default="127.0.0.1")
@@ -596,12 +771,17 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# commands that only read or move registry rows: no torch, no worker set-up
+REGISTRY_COMMANDS = (_flights_list, _models_list, _models_show, _alias_set)
+
+
 def main(argv=None) -> int:
     """Run the `learnest` command line on `argv` (default: sys.argv[1:]) and return the exit status.
 
     0 on success or --help; 2 for a bad argument or a LearnestError (printed on one line, no traceback);
     otherwise the subcommand's status (e.g. `ingest --strict` returns 1 when a flight fails the quality checks).
     """
+    _command_started[0] = time.perf_counter()
     try:
         args = build_parser().parse_args(argv)
     except SystemExit as stop:  # a bad argument (argparse printed usage and why) or --help
@@ -614,7 +794,7 @@ def main(argv=None) -> int:
         except InvalidInput as err:
             print(f"learnest export: error: {err} (or give --format)", file=sys.stderr)
             return 2
-    if args.func not in (_ingest, _serve, _export):  # the rest run the networks here; ingest/export skip torch
+    if args.func not in (_ingest, _serve, _export) + REGISTRY_COMMANDS:  # the rest run the networks here
         from .jobs.executors import init_worker
 
         init_worker()  # the networks are tiny: extra threads only add contention

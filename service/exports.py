@@ -52,8 +52,7 @@ def evaluation_estimates(db: Database, blobs: BlobStore, evaluation_id: int,
         if pairs[0][1].get("excluded"):
             raise Conflict(f"flight {flight_id} was not scored in evaluation {evaluation_id}: {pairs[0][1]['reason']}")
     scored = [(i, entry) for i, entry in pairs if not entry.get("excluded")]
-    key = EstimatorSettings(tuple(evaluation.settings["methods"]), evaluation.settings["horizon"],
-                            evaluation.settings["include_bad"]).key
+    key = EstimatorSettings.from_dict(evaluation.settings).key
     with db.transaction() as session:
         rows = flights_by_id(session, [i for i, _ in scored])
         shas = {i: row.sha256 for i, row in rows.items()}

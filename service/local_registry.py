@@ -20,6 +20,7 @@ replaces the plain file store of the ingest issue (home/models/NAME.json files a
 """
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
@@ -37,7 +38,7 @@ from .config import Settings
 from .jobs.evaluation import start_evaluation
 from .jobs.executors import Executor, InlineExecutor
 from .jobs.result_cache import EstimatorSettings
-from .jobs.runner import ACTIVE
+from .jobs.runner import ACTIVE, seconds_left
 from .jobs.services import Services, open_services
 from .jobs.tasks import diagnosis_metrics
 from .jobs.training import start_training, training_config
@@ -102,11 +103,16 @@ def add_flight(services: Services, paths, *, pose_topic: str | None = None,
 def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = False,
           progress: Callable[[float], None] | None = None, settings: Settings | None = None,
           system: str = "quadrotor", pose_topic: str | None = None, imu_topic: str | None = None,
-          cut: str | None = None) -> dict:
-    """Store the flight, train the next version of `name` on it and wait; `progress(fraction)` while it trains.
-    Returns what `learnest train --json` prints."""
+          cut: str | None = None, on_stage: Callable[[str, float | None], None] | None = None) -> dict:
+    """Store the flight, train the next version of `name` on it and wait; `progress(fraction)` while it trains,
+    `on_stage(stage, seconds_left)` as the job's stage changes ("ingest", "observer ...", "epoch 12/150").
+    ``cut``: the stretch of the log to keep (`learnest.ingest.align.parse_cut`).
+    Returns what `learnest train --json` prints: ``seconds`` is the epochs' time, ``total_seconds`` the
+    job's (observer, epochs, storing)."""
     registry.check_name(name)  # before any work
     settings = settings or cli_settings()
+    if on_stage:
+        on_stage("ingest", None)
     with local_services(settings) as services:
         row, created = add_flight(services, paths, pose_topic=pose_topic, imu_topic=imu_topic, cut=cut)
         if not row.quality_ok and not include_bad:  # checked here too, to name the CLI's flag
@@ -115,7 +121,7 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
         job, version = start_training(services, name, row.id, {"epochs": epochs, "system": system},
                                       include_bad=include_bad)
         try:
-            job = wait_for_job(services, job.id, progress)
+            job = wait_for_job(services, job.id, progress, on_stage=on_stage)
         except BaseException:  # Ctrl-C (KeyboardInterrupt) or a failure while waiting
             abandon_training(services, job.id)
             raise
@@ -128,7 +134,7 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
             "system": version.hyperparameters.get("system", "quadrotor"),
             "epochs": version.hyperparameters["epochs"], "best_epoch": (version.metrics or {}).get("best_epoch"),
             "final_loss": version.losses[-1] if version.losses else None, "seconds": version.training_seconds,
-            "home": str(settings.home)}
+            "total_seconds": (job.result or {}).get("total_seconds"), "home": str(settings.home)}
 
 
 def abandon_training(services: Services, job_id: int) -> None:
@@ -143,21 +149,52 @@ def abandon_training(services: Services, job_id: int) -> None:
 
 
 def wait_for_job(services: Services, job_id: int, progress: Callable[[float], None] | None = None,
-                 poll_s: float = 0.25) -> Job:
-    """Poll the job row (the worker writes its progress there) until it is finished."""
+                 poll_s: float = 0.25, on_stage: Callable[[str, float | None], None] | None = None) -> Job:
+    """Poll the job row (the worker writes its progress, stage and ETA there) until it is finished."""
     while True:
         job = catalog.get_job(services.db, job_id)
         if progress:
             progress(job.progress)
+        if on_stage and job.state in ACTIVE:
+            on_stage(job.stage or "starting a worker", seconds_left(job))
         if job.state not in ACTIVE:
             return job
         time.sleep(poll_s)
 
 
+@contextmanager
+def watching_stages(services: Services, on_stage: Callable[[str, float | None], None] | None,
+                    poll_s: float = 0.25) -> Iterator[None]:
+    """While the block runs, call ``on_stage(stage, seconds_left)`` whenever the stage of this process's
+    running job changes (a job run here and now, whose worker writes its stage to the database)."""
+    if on_stage is None:
+        yield
+        return
+    stop = threading.Event()
+
+    def watch() -> None:
+        seen = None
+        while not stop.wait(poll_s):
+            with services.db.transaction() as session:
+                job = session.scalar(select(Job).where(Job.owner == services.runner.owner, Job.state == "running")
+                                     .order_by(Job.id.desc()).limit(1))
+            if job is not None and job.stage and (job.stage, job.eta_s) != seen:
+                seen = (job.stage, job.eta_s)
+                on_stage(job.stage, seconds_left(job))
+
+    thread = threading.Thread(target=watch, name="learnest-stages", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
+
+
 # -- evaluation ----------------------------------------------------------------------------------------------
 def evaluate(paths, model_ref: str, estimator_settings: EstimatorSettings, *, pose_topic: str | None = None,
              imu_topic: str | None = None, progress: Callable[[float], None] | None = None,
-             settings: Settings | None = None) -> dict:
+             settings: Settings | None = None, on_stage: Callable[[str, float | None], None] | None = None) -> dict:
     """Store the flights of ``paths`` (grouped as `learnest.ingest.group_files` does; stored ones are found
     by content) and evaluate ``model_ref`` on them as an evaluation job run in this process.
 
@@ -177,7 +214,11 @@ def evaluate(paths, model_ref: str, estimator_settings: EstimatorSettings, *, po
     settings = settings or cli_settings()
     groups = group_files(paths)  # sniffs the formats only: a bad file is named before anything is stored
     with local_services(settings, executor=InlineExecutor()) as services:
-        ids = [add_flight(services, files, pose_topic=pose_topic, imu_topic=imu_topic)[0].id for _, files in groups]
+        ids = []
+        for k, (_, files) in enumerate(groups, start=1):
+            if on_stage:
+                on_stage(f"ingest {k}/{len(groups)}", None)
+            ids.append(add_flight(services, files, pose_topic=pose_topic, imu_topic=imu_topic)[0].id)
         done = [0]
 
         def advance() -> None:  # called by the job as each flight is done
@@ -186,8 +227,9 @@ def evaluate(paths, model_ref: str, estimator_settings: EstimatorSettings, *, po
                 progress(done[0] / len(ids))
 
         # interrupted (Ctrl-C), the job is failed by the runner's shutdown when the services close
-        job_id, evaluation_id, _ = start_evaluation(services, model_ref, ids, estimator_settings, wait=True,
-                                                    on_progress=advance)
+        with watching_stages(services, on_stage):
+            job_id, evaluation_id, _ = start_evaluation(services, model_ref, ids, estimator_settings, wait=True,
+                                                        on_progress=advance)
         job = catalog.get_job(services.db, job_id)
         if job.state != "succeeded":
             raise Conflict(f"evaluation {evaluation_id} {job.state}: {job.error}")
@@ -261,3 +303,79 @@ def known_models(settings: Settings) -> list[str]:
             return list(session.scalars(select(RegisteredModel.name).order_by(RegisteredModel.name)))
     finally:
         database.dispose()
+
+
+# -- browsing the registry (learnest flights list, models list|show, alias set) ----------------------------------
+@contextmanager
+def registry_database(settings: Settings | None = None) -> Iterator[Database]:
+    """The registry's database for reading (or a small write such as an alias), never migrated; NotFound when
+    nothing is stored under LEARNEST_HOME yet, Conflict when its schema is older than this learnest."""
+    settings = settings or cli_settings()
+    if settings.database_url is None and not (settings.home / "learnest.db").is_file():
+        raise NotFound(f"nothing is stored under {settings.home} (LEARNEST_HOME) yet: `learnest train`, "
+                       "`learnest evaluate` or `learnest serve` store flights and models there")
+    database = Database(settings.url)
+    try:
+        database.require_current_schema()
+        yield database
+    finally:
+        database.dispose()
+
+
+def list_flights(q: str | None = None, limit: int = 1000, settings: Settings | None = None) -> dict:
+    """{"items": [...], "total"}: the stored flights by id (those whose name contains ``q``)."""
+    with registry_database(settings) as db:
+        total, rows = catalog.list_flights(db, *catalog.name_contains(q), limit=limit)
+    return {"total": total, "items": [{
+        "id": r.id, "name": r.name, "adapter": r.adapter, "vehicle": r.vehicle, "duration_s": r.duration_s,
+        "rate_hz": r.rate_hz, "samples": r.samples, "quality": r.quality, "sha256": r.sha256,
+        "created_at": r.created_at.isoformat()} for r in rows]}
+
+
+def list_models(q: str | None = None, settings: Settings | None = None) -> dict:
+    """{"items": [...], "total"}: the registered models by name (those whose name contains ``q``)."""
+    with registry_database(settings) as db:
+        models = catalog.list_models(db, q=q)
+    return {"total": len(models), "items": [{
+        "name": m.model.name, "versions": m.version_count, "latest_version": m.latest_version,
+        "aliases": m.aliases, "created_at": m.model.created_at.isoformat()} for m in models]}
+
+
+def show_model(ref: str, settings: Settings | None = None) -> dict:
+    """"NAME": the model with its versions and aliases; "NAME:N" or "NAME@ALIAS": that version with its
+    hyperparameters, metrics, timing, lineage and evaluations (service.comparison.version_lineage)."""
+    from .comparison import version_lineage
+    from .references import parse_ref
+
+    parsed = parse_ref(ref)
+    with registry_database(settings) as db:
+        if parsed.version is None and parsed.alias is None:
+            detail = catalog.get_model(db, parsed.name)
+            return {"name": parsed.name, "aliases": detail.aliases, "latest_version": detail.latest_version,
+                    "versions": [_version_json(v, detail.aliases) for v in detail.versions]}
+        with db.transaction() as session:
+            row = registry.get_version(session, parsed.name, parsed.version) if parsed.version is not None \
+                else registry.resolve(session, parsed)
+            aliases = registry.aliases_of(session, parsed.name)
+        lineage = version_lineage(db, row.name, row.version)
+    lineage["evaluations"] = [{**e, "created_at": e["created_at"].isoformat()} for e in lineage["evaluations"]]
+    return {**_version_json(row, aliases), "prior": row.prior, "code_version": row.code_version,
+            "lineage": lineage}
+
+
+def _version_json(row, aliases: dict[str, int]) -> dict:
+    return {"ref": f"{row.name}:{row.version}", "name": row.name, "version": row.version, "status": row.status,
+            "error": row.error, "aliases": sorted(a for a, v in aliases.items() if v == row.version),
+            "training_flight": {"id": row.training_flight_id, "name": row.training_flight_name},
+            "parent": row.parent, "hyperparameters": row.hyperparameters, "metrics": row.metrics,
+            "training_seconds": row.training_seconds, "created_at": row.created_at.isoformat()}
+
+
+def set_alias(name: str, version: int, alias: str, settings: Settings | None = None) -> dict:
+    """Point NAME@ALIAS at VERSION (as PUT /models/{name}/aliases/{alias}); returns what it did, with the
+    version the alias pointed at before (None if it is new)."""
+    with registry_database(settings) as db:
+        with db.transaction() as session:
+            before = registry.aliases_of(session, name).get(alias)
+            registry.set_alias(session, name, alias, version)
+    return {"name": name, "alias": alias, "version": version, "previous_version": before}

@@ -11,6 +11,7 @@ import importlib.metadata
 import json
 import platform
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 
 from sqlalchemy import func, select
@@ -80,10 +81,15 @@ def reserve_version(session: Session, name: str, *, job_id: int | None, flight: 
     """Take the next version number of `name` (status "training").  Two concurrent requests may pick the
     same number: the unique (name, version) constraint rejects one, and the caller retries."""
     check_name(name)
-    if session.get(RegisteredModel, name) is None:
-        session.add(RegisteredModel(name=name, created_at=utcnow()))
+    model = session.get(RegisteredModel, name)
+    if model is None:
+        model = RegisteredModel(name=name, created_at=utcnow(), last_version=0)
+        session.add(model)
         session.flush()
-    latest = session.scalar(select(func.max(ModelVersion.version)).where(ModelVersion.name == name)) or 0
+    # never a number handed out before, also when that version was deleted since (last_version)
+    latest = max(session.scalar(select(func.max(ModelVersion.version)).where(ModelVersion.name == name)) or 0,
+                 model.last_version or 0)
+    model.last_version = latest + 1
     row = ModelVersion(name=name, version=latest + 1, status="training", job_id=job_id,
                        training_flight_id=flight.id, training_flight_sha256=flight.sha256,
                        training_flight_name=flight.name, parent=parent, hyperparameters=hyperparameters,
@@ -151,9 +157,18 @@ def drop_unfinished_versions(session: Session, job_id: int) -> list[str]:
     for name in {row.name for row in rows}:
         left = session.scalar(select(func.count()).select_from(ModelVersion).where(ModelVersion.name == name))
         aliases = session.scalar(select(func.count()).select_from(ModelAlias).where(ModelAlias.name == name))
-        if not left and not aliases:
-            session.delete(session.get(RegisteredModel, name))
+        model = get_model(session, name)
+        if not left and not aliases and not _had_deletions(model, rows):
+            session.delete(model)
+        elif model.last_version == max(row.version for row in rows if row.name == name):
+            model.last_version -= 1  # the number was never announced: the next training takes it
     return [f"{row.name}:{row.version}" for row in rows]
+
+
+def _had_deletions(model: RegisteredModel, dropped: Sequence[ModelVersion]) -> bool:
+    """Whether ``model`` handed out numbers besides the dropped ones (versions deleted since): then the
+    name stays registered, so that those numbers are never reused."""
+    return (model.last_version or 0) > sum(row.name == model.name for row in dropped)
 
 
 def set_alias(session: Session, name: str, alias: str, version: int) -> ModelAlias:

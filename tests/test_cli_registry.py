@@ -197,3 +197,60 @@ def test_training_on_an_unreadable_file_registers_nothing(tmp_path, monkeypatch,
     assert "100 Hz" in capsys.readouterr().err
     with running_app(tmp_path / "home") as client:
         assert client.get("/models").json()["total"] == 0 and client.get("/flights").json()["total"] == 0
+
+
+def test_flights_list_models_list_show_and_alias_set(trained, monkeypatch, capsys):
+    """The registry from the shell: what `learnest train` stored, listed and shown, and an alias moved; the
+    same rows the API shows."""
+    from learnest.service.cli import main
+
+    use_home(monkeypatch, trained["home"])
+    flights = run_json(capsys, "flights", "list")
+    assert [f["name"] for f in flights["items"]][0] == "circle_rep1" and flights["total"] >= 1
+    assert run_json(capsys, "flights", "list", "--q", "REP1")["total"] == 1
+    assert run_json(capsys, "flights", "list", "--q", "no-such")["items"] == []
+    models = run_json(capsys, "models", "list")
+    assert [(m["name"], m["versions"], m["latest_version"]) for m in models["items"]] == [("circle", 2, 2)]
+    assert run_json(capsys, "models", "list", "--q", "zzz") == {"total": 0, "items": []}
+
+    model = run_json(capsys, "models", "show", "circle")
+    assert [v["ref"] for v in model["versions"]] == ["circle:1", "circle:2"]
+    assert model["versions"][0]["hyperparameters"]["epochs"] == 2
+    version = run_json(capsys, "models", "show", "circle:2")
+    assert version["lineage"]["training_flight"]["name"] == "circle_rep1"
+    assert version["lineage"]["training_flight"]["exists"] is True
+    assert version["metrics"]["final_loss"] == trained["outputs"][1]["final_loss"]
+
+    assert run_json(capsys, "alias", "set", "circle", "2", "staging") == \
+        {"name": "circle", "alias": "staging", "version": 2, "previous_version": None}
+    assert run_json(capsys, "models", "show", "circle@staging")["ref"] == "circle:2"
+    capsys.readouterr()
+    assert main(["alias", "set", "circle", "1", "staging"]) == 0
+    assert capsys.readouterr().out.strip() == "circle@staging -> version 1 (was 2)"
+    assert main(["models", "show", "circle"]) == 0
+    text = capsys.readouterr().out
+    assert "aliases" in text and "@staging" in text and "circle_rep1" in text
+    assert main(["models", "show", "circle:1"]) == 0
+    assert "trained on flight" in capsys.readouterr().out
+    # a version or model that does not exist: exit 2, one line
+    assert main(["alias", "set", "circle", "9", "staging"]) == 2
+    assert "no version 9" in capsys.readouterr().err
+    assert main(["models", "show", "nothing"]) == 2
+    assert "no registered model named 'nothing'" in capsys.readouterr().err
+
+
+def test_registry_command_arguments_are_checked_before_any_import(tmp_path):
+    """A bad name, version or reference is exit 2 from argparse, before SQLAlchemy, the registry or torch load."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from learnest.service.cli import main; "
+            "codes = [main(a) for a in (['alias', 'set', 'bad name', '1', 'p'], ['alias', 'set', 'm', '0', 'p'], "
+            "['alias', 'set', 'm', '1', '@p'], ['models', 'show', 'm:x'], ['models', 'frob'])]; "
+            "print(codes, ','.join(m for m in ('sqlalchemy', 'learnest.service.registry', 'torch') "
+            "if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=tmp_path,
+                         env={"LEARNEST_HOME": str(tmp_path / "home"), "PATH": "/usr/bin:/bin"})
+    assert out.stdout.strip() == "[2, 2, 2, 2, 2]", out.stdout + out.stderr
+    assert "must be at least 1" in out.stderr and "model name 'bad name'" in out.stderr
+    assert not (tmp_path / "home").exists()

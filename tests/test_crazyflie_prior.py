@@ -152,3 +152,23 @@ def test_knode_on_the_crazyflie_prior_learns_a_payload_it_was_not_told_about():
         return np.mean((pred[:, 6:] - test.x[1:, 6:]) ** 2)
 
     assert one_step_error(model) < 0.5 * one_step_error(prior_model)
+
+
+def test_the_crazyflie_residual_corrects_only_the_acceleration_rows_and_ignores_where_the_vehicle_is():
+    """ṗ = v and v̇ = a are definitions and px, py are not physics: a trained residual leaves the first
+    six derivatives exactly alone and gives the same correction anywhere in the room.  The paper's
+    kinematic prior keeps its full residual."""
+    system = make_system("crazyflie", n_samples=200)
+    run = system.with_true_params(m_kg=system.prior_params["m_kg"] * 1.2).simulate(4)
+    model = train_knode(system, run.x, run.u, system.dt, TrainingConfig(hidden=8, epochs=5, lr=1e-2)).model
+    rng = np.random.default_rng(0)
+    x, u = rng.normal(size=(7, 9)), random_inputs(rng, 7)
+    delta = model.residual(x, u)
+    assert np.all(delta[:, :6] == 0.0) and np.all(np.abs(delta[:, 6:]) > 0)
+    moved = x.copy()
+    moved[:, :2] += rng.normal(0, 5, (7, 2))
+    assert np.array_equal(model.residual(moved, u), delta)
+    moved[:, 2] += 0.3       # the height is physics (ground effect): it is seen
+    assert not np.array_equal(model.residual(moved, u), delta)
+    inputs, outputs = make_system("quadrotor").residual_masks()
+    assert inputs.all() and outputs.all()

@@ -212,17 +212,24 @@ def test_cli_evaluate_new_output(registry_home, monkeypatch, capsys):
 
 
 def test_the_report_page_computes_its_velocity_figure_once_and_keeps_it(registry_home):
-    """Issue 10, item 7: a report view starts one executor task for the figure (never a second one while it
-    runs, however many views), the page reloads until it is stored, and later views read the stored one."""
-    from sqlalchemy import func, select
+    """Issue 10, item 7, for an evaluation whose estimates were not stored (made before they were kept): a
+    report view starts one executor task for the figure (never a second one while it runs, however many
+    views), the page reloads until it is stored, and later views read the stored one."""
+    from sqlalchemy import func, select, update
 
-    from learnest.service.storage.tables import ReportFigure
+    from learnest.service.jobs.result_cache import EstimatorSettings
+    from learnest.service.storage.tables import ReportFigure, Result
     from learnest.service.web import report_figures
 
     home, ids = registry_home["home"], registry_home["ids"]
     with running_app(home) as client:
         accepted, _ = evaluate(client, "quad:1", [ids[2]], methods=["ukf"])   # settings no other test uses
         page_url = f"/evaluations/{accepted['evaluation_id']}/report.html"
+        assert "id='error-plot'" in client.get(page_url).text              # drawn from the stored estimates
+        only_this = Result.settings_key == EstimatorSettings(("ukf",)).key
+        with client.app.state.services.db.transaction() as session:          # as before estimates were kept
+            kept = session.scalar(select(Result.estimates_blob).where(only_this))
+            session.execute(update(Result).where(only_this).values(estimates_blob=None))
         first = [client.get(page_url) for _ in range(5)]
         assert all(r.status_code == 200 and "being computed" in r.text and "http-equiv='refresh'" in r.text
                    or "velocity-plot" in r.text for r in first)
@@ -239,6 +246,65 @@ def test_the_report_page_computes_its_velocity_figure_once_and_keeps_it(registry
         assert stored == 1
         started = time.monotonic()
         assert "id='velocity-plot'" in client.get(page_url).text and time.monotonic() - started < 2
+        with services.db.transaction() as session:
+            session.execute(update(Result).where(only_this).values(estimates_blob=kept))
+
+
+def embedded_figure(html: str, plot_id: str) -> dict:
+    """The figure spec a report page embeds for static/plots.js (a JSON script block)."""
+    start = html.index(f"data-plot='{plot_id}'>") + len(f"data-plot='{plot_id}'>")
+    return json.loads(html[start:html.index("</script>", start)])
+
+
+def test_report_plots_come_from_the_stored_estimates_with_the_chosen_sg_window(registry_home):
+    """Issue 12, section 3: the report's time series are the stored estimates minus the reference (per group),
+    the paired dots are the table's MSE x 1e3, the SG window is a setting (its own cache key) shown on the
+    page, plotly.js is served by the server itself; the flight page embeds its channels the same way."""
+    import io
+
+    import numpy as np
+    import pandas as pd
+
+    home, ids = registry_home["home"], registry_home["ids"]
+    with running_app(home) as client:
+        accepted, report = evaluate(client, "quad:1", ids[1:], sg_window=51)
+        assert client.get(f"/evaluations/{accepted['evaluation_id']}").status_code == 200
+        assert client.get(f"/jobs/{accepted['job_id']}").json()["result"]["computed"] == 2  # not the 150 cache
+        _, default = evaluate(client, "quad:1", ids[1:])
+        assert report["flights"][0]["mse"]["ukf"] != pytest.approx(default["flights"][0]["mse"]["ukf"], rel=1e-3)
+
+        url = f"/evaluations/{accepted['evaluation_id']}/report.html"
+        html = client.get(url, params={"flight": ids[2], "group": "a"}).text
+        assert "Savitzky-Golay reference window 51 samples" in html and "id='sg-caveat'" in html
+        assert "/vendor/plotly.min.js" in html and "/static/plots.js" in html and "cdn" not in html.lower()
+        spec = embedded_figure(html, "error-plot")
+        frame = pd.read_csv(io.BytesIO(client.get(f"/evaluations/{accepted['evaluation_id']}/estimates",
+                                                  params={"flight": ids[2]}).content))
+        ukf = frame[frame["method"] == "ukf"]
+        error_x = [t for t in spec["data"] if t["name"] == "UKF" and t["yaxis"] == "y2"]
+        assert len(error_x) == 1 and len(spec["t"]) == len(ukf)
+        np.testing.assert_allclose(error_x[0]["y"], ukf["err_a_x_m_s2"], rtol=1e-4, atol=1e-9)
+        assert spec["layout"]["yaxis2"]["title"]["text"] == "ax error (m/s²)"
+
+        paired = embedded_figure(html, "paired-plot")
+        lines = [t for t in paired["data"] if t.get("text")]
+        assert len(lines) == 2 * 4    # 2 flights x 4 panels (overall, p, v, a) of the one pair run
+        entry = report["flights"][1]
+        overall = [t for t in lines if t["xaxis"] == "x" and t["text"][0] == entry["flight"]]
+        assert overall[0]["y"] == pytest.approx([entry["mse"]["ukf"] * 1e3, entry["mse"]["knode-ukf"] * 1e3])
+
+        assert client.get(url, params={"group": "q"}).status_code == 422
+        bad = client.post("/evaluations", json={"model": "quad:1", "flights": ids[1:], "sg_window": 2})
+        assert bad.status_code == 422 and "sg_window" in bad.text
+        flight_page = client.get(f"/ui/flights/{ids[1]}").text      # the flight page's channels, same script
+        channels = embedded_figure(flight_page, "channels-plot")
+        assert "<script src='/vendor/plotly.min.js'></script>" in flight_page
+        assert {t["name"] for t in channels["data"]} >= {"x", "y", "z", "roll", "pitch", "yaw"}
+        assert any(s["x0"] == 0.0 and s["fillcolor"] == "#999999" for s in channels["layout"]["shapes"])  # take-off
+        assert client.get("/static/plots.js").status_code == 200
+        js = client.get("/vendor/plotly.min.js")
+        assert js.status_code == 200 and js.headers["content-type"].startswith("text/javascript")
+        assert "plotly" in js.text[:2000].lower() and len(js.content) > 1e6
 
 
 def test_estimates_download_as_csv_parquet_and_mcap(registry_home):

@@ -22,7 +22,7 @@ from learnest.ingest.sim import (
 )
 from learnest.ingest.align import anti_alias
 from learnest.ingest.sim.export import CFCLIENT_CLOCK_OFFSET_S
-from learnest.ingest.sim.samples import SAMPLE_FLIGHTS, sample_flight
+from learnest.ingest.sim.samples import REAL_FLIGHTS, REAL_FLIGHTS_README, SAMPLE_FLIGHTS, sample_flight
 
 SAMPLE_LOGS = Path(__file__).resolve().parents[1] / "sample_logs"
 MOCAP_RATE_HZ = 100.0
@@ -276,20 +276,32 @@ def test_nanobench_write_layout_and_metadata(ideal_sim, tmp_path):
 
 # -- sample_logs/ -----------------------------------------------------------------------------------------
 def sample_files():
+    """Every file of sample_logs/ but its README (logs, NanoBench sidecars, the NanoBench licence)."""
     files = sorted(path for path in SAMPLE_LOGS.iterdir() if path.name != "README.md")
     if not files:
         pytest.skip("sample_logs/ is empty: run python -m learnest.ingest.sim.samples sample_logs")
     return files
 
 
+def is_real(path) -> bool:
+    return path.name.split(".")[0].removesuffix("_metadata") in REAL_FLIGHTS or path.name == "LICENSE-nanobench.txt"
+
+
 def test_sample_logs_are_small_documented_and_clean():
     files = sample_files()
-    assert sum(path.stat().st_size for path in files) < 5e6
+    real = [path for path in files if is_real(path)]
+    assert sum(path.stat().st_size for path in files if path not in real) < 5e6
+    assert sum(path.stat().st_size for path in real) < 4e6                  # a few MB of real flights
     readme = (SAMPLE_LOGS / "README.md").read_text(encoding="utf-8")
     assert all(f"`{path.name}`" in readme for path in files)
-    flights = read_flights(files)
-    assert len(flights) == len(SAMPLE_FLIGHTS)
+    assert readme.startswith(REAL_FLIGHTS_README)                            # what make_sample_logs writes
+    assert "BSD 3-Clause" in (SAMPLE_LOGS / "LICENSE-nanobench.txt").read_text() and "arXiv:2603.09908" in readme
+    flights = read_flights([path for path in files if path.suffix in (".csv", ".mcap", "")
+                            and path.name != "LICENSE-nanobench.txt"])
+    assert len(flights) == len(SAMPLE_FLIGHTS) + len(REAL_FLIGHTS)
     assert all(flight.quality["ok"] for flight in flights), [f.quality for f in flights]
+    real_flights = [f for f in flights if f.name in REAL_FLIGHTS]
+    assert [f.meta["vehicle"] for f in real_flights] == ["CF_01", "CF_01"]   # the sidecars were read
     circles = [f for f in flights if f.meta["adapter"] == "nanobench" and f.name.startswith("circle_rep")]
     assert len(circles) >= 4 and {f.meta["adapter"] for f in flights} >= {"nanobench", "usd", "vicon+cfclient",
                                                                         "mcap-ros2", "mcap-json"}

@@ -82,3 +82,27 @@ def test_loading_a_model_never_migrates_an_older_database(tmp_path):
     with database.engine.connect() as connection:
         assert connection.exec_driver_sql("SELECT version_num FROM alembic_version").scalar() == "0002"
     database.dispose()
+
+
+def test_migrating_to_0006_keeps_each_models_highest_version_so_a_deleted_number_is_never_reused(tmp_path):
+    from sqlalchemy import text
+
+    from learnest.service.storage.database import Database
+
+    database = Database(f"sqlite:///{tmp_path / 'old.db'}")
+    _upgrade(database, "0005")
+    with database.engine.begin() as connection:
+        flight_id = _insert_flight(connection, "f1")
+        for name in ("quad", "empty"):
+            connection.execute(text("INSERT INTO registered_models (name, created_at) "
+                                    f"VALUES ('{name}', '2026-01-01')"))
+        for version in (1, 3):
+            connection.execute(text(
+                "INSERT INTO model_versions (name, version, status, training_flight_id, hyperparameters, created_at) "
+                f"VALUES ('quad', {version}, 'ready', {flight_id}, '{{}}', '2026-01-01')"))
+    database.migrate()
+    with database.engine.begin() as connection:
+        rows = dict(connection.execute(text("SELECT name, last_version FROM registered_models")).all())
+        assert rows == {"quad": 3, "empty": 0}
+        assert connection.execute(text("SELECT count(*) FROM jobs WHERE stage IS NOT NULL")).scalar() == 0
+    database.dispose()

@@ -75,10 +75,38 @@ def _trajectory_text(trajectory: Trajectory) -> str:
     return type(trajectory).__name__
 
 
+# The real flights copied next to the simulated ones (not written by `make_sample_logs`): NanoBench CSVs with
+# their metadata sidecars; BSD-3-Clause asks for the licence and the citation beside them.
+REAL_FLIGHTS = ("B2_circle_fast_rep1", "B3_figure8_medium_rep1")
+REAL_FLIGHTS_README = """# Sample logs
+
+## Real flights (NanoBench)
+
+| file(s) | format | trajectory | flight |
+|---|---|---|---|
+{rows}
+
+Two unmodified flights of a Crazyflie 2.1 (CF_01) under Vicon at 100 Hz with its onboard IMU, motors, battery,
+setpoints and onboard estimates, from the public NanoBench dataset (repository syediu/nanobench-iros2026,
+commit 0ae7d689). `learnest demo sample_logs` reads the folder in name order, so it trains on the real circle
+and shows the real figure-eight first. Both pass the quality checks; the onboard streams came over the radio
+and have the dataset's 20-ms gaps (the flight page shades longer ones).
+
+License: BSD-3-Clause, `LICENSE-nanobench.txt` (the dataset's LICENSE, unchanged). Cite:
+S. I. Ullah and J. Baca, "NanoBench: A Multi-Task Benchmark Dataset for Nano-Quadrotor System
+Identification, Control, and State Estimation", arXiv:2603.09908, 2026.
+
+""".format(rows="\n".join([
+    "| `B2_circle_fast_rep1.csv` + `B2_circle_fast_rep1_metadata.yaml` | nanobench | circle r 1 m, 1 m/s, z 1 m "
+    "| 26.8 s recorded, 18.2 s kept after the take-off/landing cut |",
+    "| `B3_figure8_medium_rep1.csv` + `B3_figure8_medium_rep1_metadata.yaml` | nanobench | figure-eight 1 m, "
+    "0.7 m/s, z 1 m | 24.8 s recorded, 15.3 s kept |"]))
+
+
 def _readme(rows) -> str:
     nominal = SensorModel()
     lines = [
-        "# Sample logs (simulated)",
+        REAL_FLIGHTS_README + "## Simulated flights",
         "",
         "Written by `python -m learnest.ingest.sim.samples sample_logs` (`make_sample_logs` in",
         "`learnest.ingest.sim.samples`): a closed-loop Crazyflie simulation (32 g, linear rotor drag 0.007 kg/s,",

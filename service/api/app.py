@@ -19,7 +19,8 @@ from ..jobs.decoding import DecodePool
 from ..jobs.executors import Executor
 from ..jobs.scheduler import Scheduler
 from ..jobs.services import open_services, sweep_orphan_blobs
-from ..web import pages
+from ..web import pages, registry_pages
+from .docs import install_docs
 from .errors import install_error_handlers
 from .request_guard import RequestGuard
 from .routes import diagnoses, evaluations, flights, jobs, models
@@ -51,7 +52,7 @@ def create_app(settings: Settings | None = None, *, executor: Executor | None = 
                 app.state.scheduler.stop()
             services.close()
 
-    app = FastAPI(title="learnest", version=_version(), lifespan=lifespan,
+    app = FastAPI(title="learnest", version=_version(), lifespan=lifespan, docs_url=None, redoc_url=None,
                   description="Upload Crazyflie flight logs, train KNODE models into a registry, and batch-"
                               "evaluate KNODE-UKF / KNODE-MHE against Savitzky-Golay references. Writes need "
                               "the X-API-Key header when the server has LEARNEST_API_KEY set.")
@@ -63,10 +64,13 @@ def create_app(settings: Settings | None = None, *, executor: Executor | None = 
     app.add_middleware(RequestGuard, allowed_hosts=settings.allowed_host_names, api_key=settings.api_key,
                        throttle=app.state.key_throttle)
     install_error_handlers(app)
-    for router in (flights.router, models.router, jobs.router, evaluations.router, diagnoses.router):
+    for router in (flights.router, models.router, models.compare_router, jobs.router, evaluations.router,
+                   diagnoses.router):
         app.include_router(router)
     app.include_router(pages.router)  # the HTML pages for people (/, /ui/..., report.html): service/web/
+    app.include_router(registry_pages.router)  # evaluations list, version pages, compare, delete pages
     app.mount("/static", StaticFiles(packages=[("learnest.service.web", "static")]), name="static")
+    install_docs(app)  # /docs and /redoc with packaged assets (no CDN)
 
     # async: answered on the event loop, never queued behind uploads and pages in the worker threads
     @app.get("/health", tags=["service"])

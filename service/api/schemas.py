@@ -6,7 +6,14 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON, parse_methods
+from learnest.models.presets import (
+    CRAZYFLIE_TRAINING,
+    METHODS,
+    MHE_HORIZON,
+    SG_WINDOW,
+    SG_WINDOW_RANGE,
+    parse_methods,
+)
 
 from ..references import NAME
 
@@ -104,6 +111,9 @@ class VersionSummary(BaseModel):
 class VersionOut(VersionSummary):
     prior: dict[str, Any] | None
     losses: list[float | None] | None = Field(description="training loss per epoch")
+    validation_losses: list[float | None] | None = Field(
+        None, description="validation loss per epoch (the held-out tail of the flight; None for versions "
+                          "stored before it was kept, or made by a diagnosis)")
     training_seconds: float | None
     code_version: dict[str, Any] | None
     library_versions: dict[str, Any] | None
@@ -147,6 +157,10 @@ class JobOut(BaseModel):
     kind: str
     state: Literal["queued", "running", "succeeded", "failed", "cancelled"]
     progress: float
+    stage: str | None = Field(None, description='what the job does now: "observer", "epoch 12/150", '
+                                                '"knode-mhe on flight3 (2/4)", "MHE build (mhe) on ..."')
+    eta_s: float | None = Field(None, description="seconds left, estimated from the pace so far (None: not "
+                                                  "known yet, or the job is not running)")
     error: str | None
     result: dict[str, Any] | None
     created_at: datetime
@@ -161,6 +175,10 @@ class EvaluationRequest(Strict):
     methods: list[str] = Field(default_factory=lambda: list(METHODS), description=f"any of {', '.join(METHODS)}")
     horizon: int = Field(MHE_HORIZON, ge=1, le=500, description="MHE horizon N")
     include_bad: bool = Field(False, description="also score flights that fail the quality checks")
+    sg_window: int = Field(SG_WINDOW, ge=SG_WINDOW_RANGE[0], le=SG_WINDOW_RANGE[1],
+                           description="Savitzky-Golay window of the reference states, samples (default: the "
+                                       "paper's 150, about 1.5 s at 100 Hz; shorter follows fast manoeuvres, "
+                                       "whose velocity peaks a 1.5-s window clips)")
 
     @field_validator("methods")
     @classmethod
@@ -214,3 +232,44 @@ class DiagnosisPending(BaseModel):
     job_id: int
     state: str
     progress: float
+
+
+# -- the registry across rows: dependents, evaluations list, lineage, comparison ---------------------------
+class DependentItem(BaseModel):
+    kind: str = Field(description='"evaluation", "alias", "results", "model version", "diagnosis", "job", ...')
+    label: str
+    href: str | None = None
+    model_config = ConfigDict(extra="allow")
+
+
+class Dependents(BaseModel):
+    target: dict[str, Any]
+    deleted_with_it: list[DependentItem] = Field(description="deleted together with the object")
+    keeps_a_record: list[DependentItem] = Field(description="stays, keeping the object's id/name as lineage text")
+    requires_force: bool = Field(description="DELETE answers 409 unless force=true (things a user made or points "
+                                             "at would be deleted with it)")
+    blocked: str | None = Field(description="why it cannot be deleted now, whatever force says (still computing)")
+
+
+class EvaluationItem(BaseModel):
+    id: int
+    job_id: int
+    state: str
+    model_ref: str
+    model: str
+    version: int | None
+    flight_ids: list[int]
+    flights_scored: int | None
+    methods: list[str]
+    median_mse: dict[str, float] = Field(description="median over the scored flights of the MSE over [p, v, a]")
+    improvement_pct: dict[str, float] = Field(description='"knode-ukf_vs_ukf": 100 (1 - KNODE/prior), positive '
+                                                          "is better")
+    created_at: datetime
+    links: dict[str, str]
+
+
+class EvaluationPage(BaseModel):
+    items: list[EvaluationItem]
+    total: int
+    limit: int
+    offset: int

@@ -75,7 +75,8 @@ def corrected_flight(flight: Flight, values: dict) -> Flight:
 
 def evaluate_flight(knode: HybridModel, flight: Flight, methods: Sequence[str], horizon: int = MHE_HORIZON,
                     sg_window: int = SG_WINDOW, keep_estimates: bool = False,
-                    mhe_cache: dict[tuple, MHE] | None = None) -> dict:
+                    mhe_cache: dict[tuple, MHE] | None = None,
+                    on_stage: Callable[[str], object] | None = None) -> dict:
     """Scores of every method on one flight, against SG references of its mocap position.
 
     The prior-only rows use the model's own prior (which a diagnosis may have extended), and a model
@@ -97,7 +98,8 @@ def evaluate_flight(knode: HybridModel, flight: Flight, methods: Sequence[str], 
         measured = corrected_flight(flight, knode.meta["measurement_effects"])
     results = evaluate_sequence(methods, prior, knode, measured.measurements(), system_inputs(flight, system),
                                 flight.dt, system.Q, system.R, initial_state(measured), system.P0, reference,
-                                horizon=horizon, keep_estimates=keep_estimates, mhe_cache=mhe_cache)
+                                horizon=horizon, keep_estimates=keep_estimates, mhe_cache=mhe_cache,
+                                on_stage=on_stage)
     if not keep_estimates:
         return {"results": results, "reference": None, "estimates": None}
     estimates = FlightEstimates(flight.name, flight.t, reference, measured.measurements(), flight.quat,
@@ -140,7 +142,8 @@ def _is_training_flight(knode: HybridModel, flight: Flight) -> bool:
 
 def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequence[str], include_bad: bool = False,
                      horizon: int = MHE_HORIZON, progress: Callable[[dict], None] | None = None,
-                     on_estimates: Callable[[int, FlightEstimates], None] | None = None) -> dict:
+                     on_estimates: Callable[[int, FlightEstimates], None] | None = None,
+                     on_stage: Callable[[str], object] | None = None, sg_window: int = SG_WINDOW) -> dict:
     """The report of `learnest evaluate --json`: per flight, median, improvement %, ``units`` of the numbers.
 
     Flights that fail the quality checks (unless ``include_bad``) and the model's own training flight are
@@ -151,7 +154,9 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
     (`ingest.profile.profile_mismatches`; none for a model that recorded no ``training_profile``).
     ``progress`` is called with each flight's entry;
     ``on_estimates(index, FlightEstimates)`` with the per-step estimates of each scored flight (index into
-    ``flights``), when given.
+    ``flights``), when given; ``on_stage`` with each method's name before it runs and "MHE build (...)"
+    before an MHE is built (`estimators.evaluate.evaluate_sequence`).  ``sg_window`` is the Savitzky–Golay
+    window of the references, samples.
     """
     reports: list[dict] = []
     mhe_cache: dict[tuple, MHE] = {}
@@ -163,8 +168,8 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
         elif _is_training_flight(knode, flight):
             entry.update(excluded=True, reason="training flight (never scored on its own training data)")
         else:
-            out = evaluate_flight(knode, flight, methods, horizon, keep_estimates=on_estimates is not None,
-                                  mhe_cache=mhe_cache)
+            out = evaluate_flight(knode, flight, methods, horizon, sg_window=sg_window,
+                                  keep_estimates=on_estimates is not None, mhe_cache=mhe_cache, on_stage=on_stage)
             results = out["results"]
             if on_estimates is not None:
                 on_estimates(index, out["estimates"])

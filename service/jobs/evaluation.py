@@ -3,6 +3,7 @@ result (`result_cache`), then the report (the shape of service.experiments.fligh
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Callable, Iterable, Sequence
 
 from sqlalchemy import select
@@ -65,8 +66,7 @@ def run_evaluation(services: Services, ctx: JobContext, evaluation_id: int) -> N
     with services.db.transaction() as session:
         evaluation = get_row(session, Evaluation, evaluation_id, "evaluation")
         version = get_row(session, ModelVersion, evaluation.model_version_id, "model version")
-        settings = EstimatorSettings(tuple(evaluation.settings["methods"]), evaluation.settings["horizon"],
-                                     evaluation.settings["include_bad"])
+        settings = EstimatorSettings.from_dict(evaluation.settings)
         flights = flights_by_id(session, evaluation.flight_ids)
         entries = cached_entries(session, version.id, settings.key, [f.sha256 for f in flights.values()])
         model_json = services.blobs.read_bytes(registry.weights_of(version))
@@ -75,15 +75,17 @@ def run_evaluation(services: Services, ctx: JobContext, evaluation_id: int) -> N
         model_ref, version_id, flight_ids = evaluation.model_ref, version.id, list(evaluation.flight_ids)
 
     total, done, failed = len(flight_ids), len(flight_ids) - len(todo), 0
+    ctx.progress(done / total, f"{len(todo)} of {total} flight(s) to compute ({done} from the results cache)")
     futures = {}
-    for flight_id, (name, sha, blob) in todo.items():
+    for k, (flight_id, (name, sha, blob)) in enumerate(todo.items(), start=1):
         try:
             flight_bytes = services.blobs.read_bytes(blob)
         except FileNotFoundError:  # deleted while this job was starting
             entries[sha], done = _missing_entry(flight_id), done + 1
             continue
-        futures[services.executor.submit(evaluate_task, model_json, flight_bytes, settings.as_dict())] = \
-            (flight_id, name, sha)
+        futures[services.executor.submit(evaluate_task, model_json, flight_bytes, settings.as_dict(),
+                                         ctx.progress_target, f"{name} ({k}/{len(todo)})")] = (flight_id, name, sha)
+    started, computed = time.monotonic(), 0
     for future in ctx.finished(services.executor, futures):  # JobAborted when cancelled: no report stored
         flight_id, name, sha = futures[future]
         entry, estimates, error = _outcome(future, name)
@@ -93,8 +95,10 @@ def run_evaluation(services: Services, ctx: JobContext, evaluation_id: int) -> N
             replaced = store_result(services.db, sha, version_id, settings.key, flight_id, entry, error, kept)
         discard_blobs(services.db, services.blobs, [replaced] if replaced else [])
         entries[sha] = entry
-        done += 1
-        ctx.progress(done / total)
+        done, computed = done + 1, computed + 1
+        # the pace of the flights computed so far, for the ones left
+        ctx.progress(done / total, f"{done}/{total} flight(s) done",
+                     (time.monotonic() - started) / computed * (len(futures) - computed))
 
     report = assemble_report(model_ref, [entries[sha] if sha else _missing_entry(i)
                                          for i, sha in zip(flight_ids, order)], flight_ids, order)

@@ -12,7 +12,7 @@ from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from learnest.models.presets import METHODS, MHE_HORIZON
+from learnest.models.presets import METHODS, MHE_HORIZON, SG_WINDOW
 
 from ..storage.database import Database
 from ..storage.tables import FlightRecord, Result, utcnow
@@ -32,22 +32,36 @@ class EstimatorSettings:
         MHE window N, samples.
     include_bad : bool
         Also score flights that failed the quality checks.
+    sg_window : int
+        Savitzky–Golay window of the reference states, samples (an even one is used as the next odd
+        length, `ingest.baseline.centred_window`); the paper's 150 (≈ 1.5 s at 100 Hz) by default.  Shorter
+        windows follow fast manoeuvres (a 1.5-s window clips the velocity peaks of fast figure-eights).
     """
 
     methods: tuple[str, ...] = METHODS
     horizon: int = MHE_HORIZON
     include_bad: bool = False
+    sg_window: int = SG_WINDOW
+
+    @classmethod
+    def from_dict(cls, settings: dict) -> EstimatorSettings:
+        """Inverse of `as_dict`; an evaluation stored before the window could be chosen used `SG_WINDOW`."""
+        return cls(tuple(settings["methods"]), settings["horizon"], settings["include_bad"],
+                   settings.get("sg_window", SG_WINDOW))
 
     def as_dict(self) -> dict:
         """The fields as JSON-able values."""
-        return {"methods": list(self.methods), "horizon": self.horizon, "include_bad": self.include_bad}
+        return {"methods": list(self.methods), "horizon": self.horizon, "include_bad": self.include_bad,
+                "sg_window": self.sg_window}
 
     @property
     def key(self) -> str:
-        """Cache key part: what changes a flight's entry besides the flight and the model."""
-        canonical = json.dumps({"methods": sorted(self.methods), "horizon": self.horizon,
-                                "include_bad": self.include_bad}, sort_keys=True)
-        return hashlib.sha256(canonical.encode()).hexdigest()
+        """Cache key part: what changes a flight's entry besides the flight and the model.  The default SG
+        window is left out, so results cached before the window could be chosen keep their key."""
+        fields: dict = {"methods": sorted(self.methods), "horizon": self.horizon, "include_bad": self.include_bad}
+        if self.sg_window != SG_WINDOW:
+            fields["sg_window"] = self.sg_window
+        return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()
 
 
 def cached_entries(session: Session, version_id: int, key: str, shas: Iterable[str],

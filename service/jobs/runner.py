@@ -75,9 +75,10 @@ class JobContext:
     on_progress: Callable[[], object] | None = None   # e.g. the scheduler renewing its lease
     completed: bool = False
 
-    def progress(self, fraction: float) -> None:
-        """Record progress (clipped to 0..1) of a running job and call ``on_progress``."""
-        self.runner.set_progress(self.job_id, fraction)
+    def progress(self, fraction: float, stage: str | None = None, eta_s: float | None = None) -> None:
+        """Record progress (clipped to 0..1) of a running job, with its stage and the seconds left when
+        given, and call ``on_progress``."""
+        self.runner.set_progress(self.job_id, fraction, stage, eta_s)
         if self.on_progress:
             self.on_progress()
 
@@ -287,11 +288,12 @@ class JobRunner:
         with self.db.transaction() as session:
             return session.scalar(select(Job.state).where(Job.id == job_id)) == "running"
 
-    def set_progress(self, job_id: int, fraction: float) -> None:
-        """Write a running job's progress, clipped to 0..1."""
+    def set_progress(self, job_id: int, fraction: float, stage: str | None = None,
+                     eta_s: float | None = None) -> None:
+        """Write a running job's progress (clipped to 0..1), and its stage and ETA when given."""
         with self.db.transaction() as session:
             session.execute(update(Job).where(Job.id == job_id, Job.state == "running")
-                            .values(progress=max(0.0, min(1.0, float(fraction)))))
+                            .values(progress_values(fraction, stage, eta_s)))
 
     # -- crashed servers ----------------------------------------------------------------------------------
     def sweep(self, reason: str = "server restarted") -> list[int]:
@@ -318,6 +320,28 @@ class JobRunner:
         for job in jobs:
             job.state, job.error, job.finished_at = "failed", reason, utcnow()
         return [job.id for job in jobs]
+
+
+def progress_values(fraction: float | None, stage: str | None = None, eta_s: float | None = None) -> dict:
+    """The job columns a progress report sets: with a ``fraction``, the progress (clipped to 0..1) and a new
+    ETA (``eta_s``, None: unknown) stamped now (``progress_at``); the stage when given.  A stage alone
+    (a worker naming the method it runs) leaves the progress and the job's ETA as they are."""
+    values: dict = {}
+    if fraction is not None:
+        values.update(progress=max(0.0, min(1.0, float(fraction))), progress_at=utcnow(),
+                      eta_s=None if eta_s is None else max(0.0, float(eta_s)))
+    if stage is not None:
+        values["stage"] = stage[:200]
+    return values
+
+
+def seconds_left(job: Job, now=None) -> float | None:
+    """A job's ETA as of ``now`` (default: now): the estimate written at ``progress_at`` minus the time
+    since; None when the job is not running or no estimate was written."""
+    if job.state != "running" or job.eta_s is None or job.progress_at is None:
+        return None
+    elapsed = ((now or utcnow()) - job.progress_at).total_seconds()
+    return max(0.0, job.eta_s - elapsed)
 
 
 def _dead_here(owner: str | None) -> bool:

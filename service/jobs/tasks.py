@@ -15,11 +15,13 @@ from sqlalchemy import update
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight, json_compatible
 from learnest.models.knode import HybridModel
+from learnest.models.presets import SG_WINDOW
 
 from .. import registry
 from ..storage.database import Database, dml_rowcount
 from ..storage.tables import Job
 from .executors import init_worker
+from .runner import progress_values
 
 log = logging.getLogger("learnest.jobs")
 
@@ -31,9 +33,10 @@ class TaskCancelled(RuntimeError):
     """The task's job is no longer running (cancelled, or failed by a sweep): its work is dropped."""
 
 
-def report_progress(target: tuple[str, int] | None, fraction: float) -> bool:
-    """Write a job's progress from a worker; best effort (a remote Dask worker may not reach the DB).
-    Returns False only when the database says the job is no longer running."""
+def report_progress(target: tuple[str, int] | None, fraction: float | None, stage: str | None = None,
+                    eta_s: float | None = None) -> bool:
+    """Write a job's progress (None: leave it), stage and ETA from a worker; best effort (a remote Dask
+    worker may not reach the DB).  Returns False only when the database says the job is no longer running."""
     if target is None:
         return True
     url, job_id = target
@@ -41,7 +44,7 @@ def report_progress(target: tuple[str, int] | None, fraction: float) -> bool:
         database = _worker_databases.get(url) or _worker_databases.setdefault(url, Database(url))
         with database.transaction() as session:
             return bool(dml_rowcount(session.execute(update(Job).where(Job.id == job_id, Job.state == "running")
-                                                     .values(progress=max(0.0, min(1.0, fraction))))))
+                                                     .values(progress_values(fraction, stage, eta_s)))))
     except Exception:
         log.debug("progress of job %s not written", job_id, exc_info=True)
         return True
@@ -52,33 +55,46 @@ def train_task(flight_bytes: bytes, config: dict, progress_target: tuple[str, in
     """Algorithm 1 on one flight (service.experiments.flights.train_on_flight); the model comes back as JSON.
 
     ``config`` holds `TrainingConfig`'s fields; ``meta`` is added to the model's meta.  Returns
-    ``model_json``, ``losses``, ``seconds``, ``library_versions``, ``code_version`` and ``metrics``.
-    The worker exits if its parent process dies; `TaskCancelled` when the job stops running (checked with
-    each progress report, about every PROGRESS_EVERY_S).
+    ``model_json``, ``losses``, ``validation_losses``, ``seconds`` (the epochs), ``total_seconds`` (the
+    whole task: reading the flight, the pre-training observer and the epochs), ``library_versions``,
+    ``code_version`` and ``metrics``.  Stages: "observer", then "epoch i/n" with an ETA from the epochs'
+    pace.  The worker exits if its parent process dies; `TaskCancelled` when the job stops running
+    (checked with each progress report, about every PROGRESS_EVERY_S).
     """
     from learnest.models.training import TrainingConfig
 
     from ..experiments.flights import train_on_flight
 
+    started = time.perf_counter()
     init_worker()
-    last, parent = [0.0], os.getppid()
+    last, parent, first_epoch_done = [0.0], os.getppid(), [0.0]
+    epochs = config["epochs"]
 
     def on_epoch(epoch: int, _loss: float) -> None:
         if os.getppid() != parent:  # the server died: an orphaned worker must not train on for hours
             os._exit(1)             # (and nobody is left to read an exception)
-        if time.monotonic() - last[0] >= PROGRESS_EVERY_S:
-            last[0] = time.monotonic()
-            if not report_progress(progress_target, 0.99 * (epoch + 1) / config["epochs"]):
+        now = time.monotonic()
+        if epoch == 0:
+            first_epoch_done[0] = now
+        if now - last[0] >= PROGRESS_EVERY_S or epoch + 1 == epochs:
+            last[0] = now
+            # the pace of the epochs after the first (which may carry one-time set-up)
+            eta = (now - first_epoch_done[0]) / epoch * (epochs - epoch - 1) if epoch else None
+            if not report_progress(progress_target, 0.02 + 0.97 * (epoch + 1) / epochs,
+                                   f"epoch {epoch + 1}/{epochs}", eta):
                 raise TaskCancelled(f"job {progress_target and progress_target[1]} is no longer running")
 
     hyper = dict(config)
     system = hyper.pop("system", "quadrotor")
-    result = train_on_flight(flight_from_bytes(flight_bytes), TrainingConfig(**hyper), progress=on_epoch,
-                             system=system)
+    flight = flight_from_bytes(flight_bytes)
+    report_progress(progress_target, 0.01, "observer (pre-training state estimates)")
+    result = train_on_flight(flight, TrainingConfig(**hyper), progress=on_epoch, system=system)
     model = result.model
     model.meta.update(meta or {})
     return {"model_json": registry.model_to_json(model), "losses": [float(x) for x in result.losses],
-            "seconds": float(result.seconds), "library_versions": registry.library_versions(),
+            "validation_losses": [float(x) for x in result.validation_losses],
+            "seconds": float(result.seconds), "total_seconds": time.perf_counter() - started,
+            "library_versions": registry.library_versions(),
             "code_version": registry.code_version(),
             "metrics": training_metrics(model)}
 
@@ -91,11 +107,14 @@ def flight_from_bytes(data: bytes) -> Flight:
         raise InvalidInput(f"the stored normalized flight is unreadable ({type(err).__name__})") from None
 
 
-def evaluate_task(model_json: bytes, flight_bytes: bytes, settings: dict) -> dict:
+def evaluate_task(model_json: bytes, flight_bytes: bytes, settings: dict,
+                  progress_target: tuple[str, int] | None = None, label: str = "") -> dict:
     """One flight's entry of service.experiments.flights.evaluate_flights' report and its estimates.
 
     ``settings`` is `EstimatorSettings.as_dict()`.  Returns ``entry`` and ``estimates``: the per-step
-    estimates as `FlightEstimates.to_bytes` (None when the flight was not scored).
+    estimates as `FlightEstimates.to_bytes` (None when the flight was not scored).  With ``progress_target``
+    the job's stage says which method runs on which flight ("knode-ukf on flight3 (2/4)", ``label`` being
+    "flight3 (2/4)") and when an MHE is being built.
     """
     from ..experiments.flights import evaluate_flights
 
@@ -103,8 +122,14 @@ def evaluate_task(model_json: bytes, flight_bytes: bytes, settings: dict) -> dic
     model = registry.model_from_json(model_json)
     flight = flight_from_bytes(flight_bytes)
     kept: list[bytes] = []
+
+    def on_stage(stage: str) -> None:
+        report_progress(progress_target, None, f"{stage} on {label or flight.name}")
+
     report = evaluate_flights(model, [flight], list(settings["methods"]), include_bad=settings["include_bad"],
-                              horizon=settings["horizon"], on_estimates=lambda _i, e: kept.append(e.to_bytes()))
+                              horizon=settings["horizon"], sg_window=settings.get("sg_window", SG_WINDOW),
+                              on_estimates=lambda _i, e: kept.append(e.to_bytes()),
+                              on_stage=on_stage if progress_target else None)
     return {"entry": report["flights"][0], "estimates": kept[0] if kept else None}
 
 

@@ -70,7 +70,9 @@ def start_training(services: Services, name: str, flight_id: int, overrides: dic
 
 
 def run_training(services: Services, ctx: JobContext, version_id: int) -> None:
-    """The training job's work: train on the executor, store the weights, mark the version ready."""
+    """The training job's work: train on the executor, store the weights, mark the version ready.  The job's
+    result has ``seconds`` (the epochs alone) and ``total_seconds`` (the job from start to stored weights)."""
+    started_at = utcnow()
     with services.db.transaction() as session:
         version = get_row(session, ModelVersion, version_id, "model version")
         flight = session.get(FlightRecord, version.training_flight_id)
@@ -80,6 +82,7 @@ def run_training(services: Services, ctx: JobContext, version_id: int) -> None:
         config, blob = dict(version.hyperparameters), flight.flight_blob
     out = ctx.wait(services.executor, services.executor.submit(train_task, services.blobs.read_bytes(blob), config,
                                                                ctx.progress_target, meta))
+    ctx.progress(0.995, "storing the weights")
     weights = None
     try:
         with services.blobs.writing():  # the weights blob exists before the row that names it commits
@@ -89,11 +92,13 @@ def run_training(services: Services, ctx: JobContext, version_id: int) -> None:
                 version.status, version.weights_blob, version.ready_at = "ready", weights, utcnow()
                 version.prior = registry.prior_of(out["model_json"])
                 version.losses, version.training_seconds = out["losses"], out["seconds"]
+                version.validation_losses = out.get("validation_losses") or None
                 version.metrics, version.code_version = out["metrics"], out["code_version"]
                 version.library_versions = out["library_versions"]
                 ctx.complete(session, {"name": version.name, "version": version.version,
                                        "final_loss": out["losses"][-1] if out["losses"] else None,
-                                       "seconds": out["seconds"]})
+                                       "seconds": out["seconds"],
+                                       "total_seconds": (utcnow() - started_at).total_seconds()})
     except BaseException:  # cancelled at the last moment, or the row failed: no weights without their version
         if weights is not None:
             discard_blobs(services.db, services.blobs, [weights])

@@ -69,6 +69,8 @@ class RegisteredModel(Base):
 
     name: Mapped[str] = mapped_column(String(100), primary_key=True)
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+    # the highest version number ever handed out: a deleted version's number is never reused (see 0006)
+    last_version: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
 
 
 class ModelVersion(Base):
@@ -91,6 +93,7 @@ class ModelVersion(Base):
     hyperparameters: Mapped[dict] = mapped_column(JSON)
     prior: Mapped[dict | None] = mapped_column(JSON)
     losses: Mapped[list | None] = mapped_column(JSON)
+    validation_losses: Mapped[list | None] = mapped_column(JSON)   # per epoch (None before 0006 / no split)
     training_seconds: Mapped[float | None] = mapped_column(Float)
     metrics: Mapped[dict | None] = mapped_column(JSON)
     code_version: Mapped[dict | None] = mapped_column(JSON)
@@ -114,7 +117,8 @@ class ModelAlias(Base):
 
 class Job(Base):
     """A background job: ``kind`` training/evaluation/diagnosis, ``state`` queued -> running -> succeeded |
-    failed | cancelled, ``progress`` 0..1, ``owner`` the server process running it."""
+    failed | cancelled, ``progress`` 0..1, ``stage`` what it does now with ``eta_s`` (the seconds left as
+    estimated at ``progress_at``), ``owner`` the server process running it."""
 
     __tablename__ = "jobs"
     __table_args__ = {"sqlite_autoincrement": True}  # an id is never handed out twice (see 0003)
@@ -123,6 +127,9 @@ class Job(Base):
     kind: Mapped[str] = mapped_column(String(20))
     state: Mapped[str] = mapped_column(String(20), index=True, default="queued")
     progress: Mapped[float] = mapped_column(Float, default=0.0)
+    stage: Mapped[str | None] = mapped_column(String(200))       # "observer", "epoch 12/150", ...
+    eta_s: Mapped[float | None] = mapped_column(Float)           # seconds left, as estimated at progress_at
+    progress_at: Mapped[datetime | None] = mapped_column(DateTime)
     error: Mapped[str | None] = mapped_column(Text)
     result: Mapped[dict | None] = mapped_column(JSON)
     payload: Mapped[dict | None] = mapped_column(JSON)

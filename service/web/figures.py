@@ -133,6 +133,44 @@ def mse_boxplot(report: dict, title: str | None = None) -> Figure:
     return fig
 
 
+BOX_MIN_FLIGHTS = 10   # below this many flights a box plot's quartiles are guesses: the dots alone are drawn
+PAIRS = (("ukf", "knode-ukf"), ("mhe", "knode-mhe"))   # (prior-only, KNODE): the comparisons of the paper
+
+
+def paired_mse(report: dict, title: str | None = None) -> Figure:
+    """Per scored flight, each prior-only method and its KNODE variant (UKF → KNODE-UKF, MHE → KNODE-MHE)
+    as two dots joined by a line (green: KNODE lower, red: higher), the medians as bars, in MSE × 1e-3 (the
+    units of the report's table) on a linear axis from zero; box plots behind the dots from
+    `BOX_MIN_FLIGHTS` flights on.  Methods run without their pair are drawn alone."""
+    scored = [f for f in report["flights"] if not f.get("excluded") and f.get("mse")]
+    ran = [m for m in BOX_ORDER if any(m in f["mse"] for f in scored)]
+    columns: list[tuple[str, ...]] = [p for p in PAIRS if p[0] in ran and p[1] in ran]
+    columns += [(m,) for m in ran if not any(m in p for p in columns)]
+    fig = _figure(figsize=(6.5, 4), layout="constrained")
+    ax = fig.subplots()
+    ticks, labels, x = [], [], 0
+    for column in columns:
+        positions = list(range(x, x + len(column)))
+        values = [[f["mse"][m] * 1e3 for f in scored if all(c in f["mse"] for c in column)] for m in column]
+        if len(values[0]) >= BOX_MIN_FLIGHTS:
+            ax.boxplot(values, positions=positions, widths=0.5, showfliers=False,
+                       medianprops={"color": "tab:orange", "linewidth": 2})
+        for row in zip(*values, strict=True):
+            colour = "grey" if len(row) == 1 else ("tab:green" if row[1] < row[0] else "tab:red")
+            ax.plot(positions, row, color=colour, lw=0.9, marker="o", ms=4, alpha=0.8)
+        for position, v in zip(positions, values, strict=True):
+            ax.hlines(np.median(v), position - 0.25, position + 0.25, color="black", lw=2.5)
+        ticks += positions
+        labels += [m.upper() for m in column]
+        x += len(column) + 1
+    ax.set_xticks(ticks, labels)
+    ax.set_ylim(bottom=0)
+    ax.set_ylabel("overall MSE over [p, v, a]  (× 1e-3)")
+    ax.set_title(title or f"model {report.get('model')}: {len(scored)} flights, one line per flight")
+    ax.grid(axis="y", alpha=0.3)
+    return fig
+
+
 SPECIFIC_FORCE = "specific_force_rmse"   # a diagnosis' before/after key that is an RMSE in m/s², not an MSE
 
 

@@ -115,12 +115,16 @@ def alias_version(version: str) -> int:
 
 
 def evaluation_request(model: str, flights: list[str], methods: list[str], horizon: str,
-                       include_bad: str | None) -> EvaluationRequest:
-    """The evaluate form as POST /evaluations' body; no flight checked means "all-other"."""
+                       include_bad: str | None, sg_window: str = "") -> EvaluationRequest:
+    """The evaluate form as POST /evaluations' body; no flight checked means "all-other", an empty SG window
+    the default."""
     if not methods:
         raise InvalidInput("choose at least one estimator")
-    return EvaluationRequest.model_validate({"model": model, "flights": flights or "all-other", "methods": methods,
-                                             "horizon": horizon, "include_bad": include_bad is not None})
+    body = {"model": model, "flights": flights or "all-other", "methods": methods, "horizon": horizon,
+            "include_bad": include_bad is not None}
+    if sg_window.strip():
+        body["sg_window"] = sg_window.strip()
+    return EvaluationRequest.model_validate(body)
 
 
 def validation_message(err: ValidationError) -> str:

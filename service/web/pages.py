@@ -1,11 +1,11 @@
 """The web pages' routes: server-rendered HTML for people, on the same app as the JSON API (no JavaScript).
 
-Pages   /                       flights (newest first) and the upload form
+Pages   /                       flights (newest first; search: ?q=) and the upload form
         /ui/flights/{id}        metadata, quality, trajectory plot (x-y, z-t), models trained on it, train form
-        /ui/models              registered models
+        /ui/models              registered models (search: ?q=)
         /ui/models/{name}       versions, aliases (+ form), loss curves, evaluations, evaluate form
-        /ui/jobs, /ui/jobs/{id} state and progress; a job page reloads itself every second until it is done
-                                and has a cancel button while it is
+        /ui/jobs, /ui/jobs/{id} state, progress, stage and time left; a job page reloads itself every second
+                                until it is done and has a cancel button while it is
         /evaluations/{id}/report.html
                                 the Fig. 3-style box plot, per-flight MSE table, estimated vs reference velocity
                                 of one chosen flight (documented in the OpenAPI schema with the JSON report)
@@ -17,6 +17,8 @@ Forms   POST /ui/flights, /ui/models, /ui/evaluations, /ui/models/{name}/aliases
         service.jobs, service.catalog) and answer 303 to the page of what they made, or an HTML error page
         with the API's status code and message.
 
+The evaluations list, version pages, comparisons and delete confirmations are service.web.registry_pages.
+
 Every page is a Jinja2 template extending templates/base.html with autoescaping on, so text from users
 (names, notes, file names, error messages) is escaped unless a template says otherwise - and none does.
 """
@@ -26,27 +28,30 @@ import functools
 import json
 import logging
 from collections.abc import Callable
+from typing import Literal
 
 from fastapi import APIRouter, Depends, File, Form, Query, Request, UploadFile
-from fastapi.responses import HTMLResponse
+from fastapi.responses import FileResponse, HTMLResponse
 from jinja2 import Environment, PackageLoader, StrictUndefined, select_autoescape
 from pydantic import ValidationError
 
 from learnest.errors import LearnestError
+from learnest.ingest.baseline import centred_window
 from learnest.ingest.flight import Flight as CanonicalFlight
 from learnest.models.crazyflie import UNITS as CRAZYFLIE_UNITS
-from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON
+from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON, SG_WINDOW, SG_WINDOW_RANGE
 
 from .. import catalog, references
 from ..api.deps import MAX_ROW_ID, Offset, RowId, get_services
+from ..exports import evaluation_estimates
 from ..jobs.evaluation import start_evaluation
 from ..jobs.result_cache import EstimatorSettings
-from ..jobs.runner import ACTIVE
+from ..jobs.runner import ACTIVE, seconds_left
 from ..jobs.services import Services
 from ..jobs.training import start_training
 from ..storage.tables import Diagnosis, Evaluation, FlightRecord, Job
 from ..uploads import add_flight
-from . import figures, forms
+from . import evaluation_plots, figures, flight_plots, forms, zoomable
 from .report_figures import velocity_figure
 
 log = logging.getLogger("learnest.web")
@@ -65,11 +70,25 @@ TEMPLATES = Environment(loader=PackageLoader("learnest.service.web", "templates"
                         undefined=StrictUndefined,          # a misspelt variable fails the page (and the tests)
                         finalize=lambda value: "" if value is None else value,  # None shows as nothing
                         trim_blocks=True, lstrip_blocks=True)
+def _duration(seconds: float) -> str:
+    """"42 s", "3 min 20 s", "1 h 05 min"."""
+    seconds = round(seconds)
+    if seconds < 60:
+        return f"{seconds} s"
+    if seconds < 3600:
+        return f"{seconds // 60} min {seconds % 60:02d} s"
+    return f"{seconds // 3600} h {seconds % 3600 // 60:02d} min"
+
+
 TEMPLATES.filters["when"] = _when
+TEMPLATES.filters["duration"] = _duration
 TEMPLATES.globals.update(NAME_PATTERN=references.NAME, METHODS=METHODS, MHE_HORIZON=MHE_HORIZON,
                          VELOCITY_METHODS=figures.VELOCITY_METHODS, MAX_VEHICLE=forms.MAX_VEHICLE,
                          MAX_NOTES=forms.MAX_NOTES, PAGE_SIZE=PAGE_SIZE,
-                         DEFAULT_EPOCHS=CRAZYFLIE_TRAINING.epochs)
+                         DEFAULT_EPOCHS=CRAZYFLIE_TRAINING.epochs, SG_WINDOW=SG_WINDOW,
+                         SG_WINDOW_RANGE=SG_WINDOW_RANGE, PLOTLY_JS_ROUTE=zoomable.PLOTLY_JS_ROUTE,
+                         MIN_GAP_S=flight_plots.MIN_GAP_S,
+                         VELOCITY_SG_S=flight_plots.VELOCITY_SG_S)
 
 
 def page(template: str, title: str, status: int = 200, refresh_s: float | None = None, **context) -> HTMLResponse:
@@ -115,10 +134,13 @@ pages = APIRouter(include_in_schema=False)
 
 # -- flights ---------------------------------------------------------------------------------------------
 @pages.get("/", response_class=HTMLResponse)
-def flights_page(request: Request, offset: Offset = 0, services: Services = Depends(get_services)):
-    """The home page: flights newest first (PAGE_SIZE per page, from `offset`) and the upload form."""
-    total, rows = catalog.list_flights(services.db, limit=PAGE_SIZE, offset=offset, newest_first=True)
-    return page("flights.html", "Flights", flights=rows, total=total, offset=offset,
+def flights_page(request: Request, offset: Offset = 0, q: str = Query("", max_length=200),
+                 services: Services = Depends(get_services)):
+    """The home page: flights newest first (PAGE_SIZE per page, from `offset`; those whose name contains `q`)
+    and the upload form."""
+    total, rows = catalog.list_flights(services.db, *catalog.name_contains(q.strip()), limit=PAGE_SIZE,
+                                       offset=offset, newest_first=True)
+    return page("flights.html", "Flights", flights=rows, total=total, offset=offset, q=q,
                 key=forms.key_state(request, services.settings))
 
 
@@ -149,12 +171,14 @@ def flight_page(request: Request, flight_id: RowId, services: Services = Depends
 
 
 def _trajectory(services: Services, row: FlightRecord) -> dict:
-    """{"png": data URI} or {"error": why}: a missing or damaged blob is said, the rest of the page shown."""
+    """{"png": data URI of the top view, "channels": zoomable spec of every channel} or {"error": why}: a
+    missing or damaged blob is said, the rest of the page shown."""
     try:
         flight = CanonicalFlight.from_bytes(services.blobs.read_bytes(row.flight_blob))
     except (OSError, ValueError, KeyError) as err:
         return {"error": type(err).__name__}
-    return {"png": figures.png_data_uri(figures.trajectory(flight, row.name))}
+    return {"png": figures.png_data_uri(figures.trajectory(flight, row.name)),
+            "channels": zoomable.embed(flight_plots.flight_figure(flight))}
 
 
 # -- models ----------------------------------------------------------------------------------------------
@@ -172,9 +196,9 @@ def train_model_form(request: Request, name: str = Form(""), flight_id: str = Fo
 
 
 @pages.get("/ui/models", response_class=HTMLResponse)
-def models_page(services: Services = Depends(get_services)):
-    """The registered models."""
-    return page("models.html", "Models", models=catalog.list_models(services.db))
+def models_page(q: str = Query("", max_length=100), services: Services = Depends(get_services)):
+    """The registered models (those whose name contains `q`)."""
+    return page("models.html", "Models", models=catalog.list_models(services.db, q=q.strip() or None), q=q)
 
 
 @pages.get("/ui/models/{name}", response_class=HTMLResponse)
@@ -206,12 +230,12 @@ def alias_form_post(request: Request, name: str, alias: str = Form(""), version:
 @html_errors
 def evaluate_form_post(request: Request, model: str = Form(""), flights: list[str] = Form(default=[]),
                        methods: list[str] = Form(default=[]), horizon: str = Form(str(MHE_HORIZON)),
-                       include_bad: str | None = Form(None), api_key: str = Form(""),
+                       include_bad: str | None = Form(None), sg_window: str = Form(""), api_key: str = Form(""),
                        services: Services = Depends(get_services)):
     """Evaluate form: start an evaluation job (as POST /evaluations does), then 303 to the job's page."""
     forms.require_key(request, services.settings, api_key)
-    body = forms.evaluation_request(model, flights, methods, horizon, include_bad)
-    settings = EstimatorSettings(tuple(body.methods), body.horizon, body.include_bad)
+    body = forms.evaluation_request(model, flights, methods, horizon, include_bad, sg_window)
+    settings = EstimatorSettings(tuple(body.methods), body.horizon, body.include_bad, body.sg_window)
     job_id, _evaluation_id, _state = start_evaluation(services, body.model, body.flights, settings)
     return forms.redirect(f"/ui/jobs/{job_id}", services.settings, api_key)
 
@@ -237,6 +261,7 @@ def job_page(request: Request, job_id: RowId, services: Services = Depends(get_s
     active, key = job.state in ACTIVE, forms.key_state(request, services.settings)
     # no reload while the cancel form asks for the key: a reload every second would wipe it mid-typing
     return page("job.html", f"Job {job.id}", refresh_s=1 if active and key != "ask" else None, job=job,
+                eta_s=seconds_left(job),
                 active=active, subject=job_subject(job), evaluation=evaluation, key=key, diagnosis=diagnosis,
                 model_name=evaluation.model_ref.split(":", 1)[0] if evaluation else None,
                 result=json.dumps(job.result, indent=1) if job.result else None)
@@ -274,31 +299,63 @@ reports = APIRouter(tags=["evaluations"])
                         409: {"description": "the evaluation job failed"}})
 def evaluation_report_page(evaluation_id: RowId,
                            flight: int | None = Query(None, ge=1, le=MAX_ROW_ID,
-                                                      description="flight id of the velocity plot "
+                                                      description="flight id of the time series "
                                                                   "(default: the first scored flight)"),
+                           group: Literal["p", "v", "a"] = Query("v", description="state group of the time "
+                                                                "series: position, velocity or acceleration"),
                            services: Services = Depends(get_services)):
-    """The evaluation report for people: box plot, per-flight MSE table, velocity of one flight."""
+    """The evaluation report for people: per-flight MSE table and paired dots (prior vs KNODE), and for one
+    flight the error over time with its running RMS and the estimates against the reference (zoomable),
+    read from the stored estimates."""
     evaluation, job = catalog.row_and_job(services.db, Evaluation, evaluation_id, "evaluation")
     if job.state != "succeeded":
         return page("report_pending.html", f"Evaluation {evaluation.id}", status=202, refresh_s=2, job=job)
     report = evaluation.report
     title = f"Evaluation {evaluation.id}: model {report.get('model')}"
-    scored = [(fid, entry["flight"]) for fid, entry in zip(evaluation.flight_ids, report["flights"], strict=True)
-              if not entry.get("excluded")]
+    entries = dict(zip(evaluation.flight_ids, report["flights"], strict=True))
+    scored = [(fid, entry["flight"]) for fid, entry in entries.items() if not entry.get("excluded")]
     chosen = flight if flight in {fid for fid, _ in scored} else (scored[0][0] if scored else None)
-    velocity = _velocity(services, evaluation, chosen)
+    settings = EstimatorSettings.from_dict(evaluation.settings)
+    series = _stored_series(services, evaluation, chosen, group, centred_window(settings.sg_window))
+    # evaluated before estimates were stored: the velocity figure computed once by a task (report_figures)
+    velocity = _velocity(services, evaluation, chosen) if chosen is not None and "figure" not in series else {}
     waiting = velocity.get("pending") or velocity.get("busy")
+    paired = evaluation_plots.paired_figure(report)
     return page("report.html", title, refresh_s=2 if waiting else None, evaluation=evaluation, report=report,
                 methods=list(report.get("median", {})), settings=evaluation.settings,
-                boxplot=figures.png_data_uri(figures.mse_boxplot(report), dpi=120) if figures.has_scores(report)
+                sg_window=settings.sg_window, sg_window_used=centred_window(settings.sg_window),
+                paired=zoomable.embed(paired) if paired else None,
+                paired_png=figures.png_data_uri(figures.paired_mse(report), dpi=110) if figures.has_scores(report)
                 else None,
-                scored=scored, chosen=chosen, velocity=velocity,
-                model_name=evaluation.model_ref.split(":", 1)[0])
+                scored=scored, chosen=chosen, chosen_entry=entries.get(chosen), group=group,
+                GROUPS=evaluation_plots.GROUPS, MSE_UNITS=evaluation_plots.MSE_UNITS, series=series,
+                velocity=velocity, model_name=evaluation.model_ref.split(":", 1)[0])
 
 
-def _velocity(services: Services, evaluation: Evaluation, flight_id: int | None) -> dict:
-    """The stored figure, or that it is being computed (service.web.report_figures); {} without a flight."""
-    return {} if flight_id is None else velocity_figure(services, evaluation, flight_id)
+def _stored_series(services: Services, evaluation: Evaluation, flight_id: int | None, group: str,
+                   window_used: int) -> dict:
+    """{"figure": spec JSON, "clipping": `reference_clipping`} from the flight's stored estimates, or
+    {"missing": why} (no flight, or evaluated before estimates were stored)."""
+    if flight_id is None:
+        return {"missing": "no scored flight"}
+    try:
+        [estimates] = evaluation_estimates(services.db, services.blobs, evaluation.id, flight_id)
+    except LearnestError as err:
+        return {"missing": str(err)}
+    return {"figure": zoomable.embed(evaluation_plots.error_figure(estimates, group)),
+            "clipping": evaluation_plots.reference_clipping(estimates, window_used)}
+
+
+def _velocity(services: Services, evaluation: Evaluation, flight_id: int) -> dict:
+    """The stored velocity figure, or that it is being computed (service.web.report_figures)."""
+    return velocity_figure(services, evaluation, flight_id)
+
+
+@pages.get(zoomable.PLOTLY_JS_ROUTE)
+def plotly_js():
+    """plotly.js from the installed `plotly` package (pages need no CDN); cached by browsers for a day."""
+    return FileResponse(zoomable.plotly_js_path(), media_type="text/javascript",
+                        headers={"Cache-Control": "public, max-age=86400"})
 
 
 # -- the diagnosis report -----------------------------------------------------------------------------------

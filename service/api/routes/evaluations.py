@@ -12,6 +12,7 @@ from starlette.background import BackgroundTask
 
 from learnest.estimators.export import FORMATS, MEDIA_TYPES
 
+from ... import comparison, deletion
 from ...catalog import row_and_job
 from ...exports import export_evaluation, export_filename
 from ...jobs.evaluation import start_evaluation
@@ -20,8 +21,8 @@ from ...jobs.services import Services
 from ...storage.blobs import BlobStore
 from ...storage.database import Database
 from ...storage.tables import Evaluation
-from ..deps import MAX_ROW_ID, RowId, get_blobs, get_db, get_services, pending, require_api_key
-from ..schemas import EvaluationAccepted, EvaluationPending, EvaluationRequest
+from ..deps import MAX_ROW_ID, Offset, RowId, get_blobs, get_db, get_services, pending, require_api_key
+from ..schemas import Dependents, EvaluationAccepted, EvaluationPage, EvaluationPending, EvaluationRequest
 
 router = APIRouter(prefix="/evaluations", tags=["evaluations"])
 
@@ -30,10 +31,38 @@ router = APIRouter(prefix="/evaluations", tags=["evaluations"])
 def create_evaluation(body: EvaluationRequest, response: Response, services: Services = Depends(get_services)):
     """Flights already evaluated with this model version and these settings come from the results cache;
     when all of them do, the job is already "succeeded" in this answer."""
-    settings = EstimatorSettings(tuple(body.methods), body.horizon, body.include_bad)
+    settings = EstimatorSettings(tuple(body.methods), body.horizon, body.include_bad, body.sg_window)
     job_id, evaluation_id, state = start_evaluation(services, body.model, body.flights, settings)
     response.headers["Location"] = f"/evaluations/{evaluation_id}"
     return {"job_id": job_id, "evaluation_id": evaluation_id, "state": state}
+
+
+@router.get("", response_model=EvaluationPage)
+def list_evaluations(q: str | None = Query(None, max_length=220, description="only evaluations whose model "
+                                                                            "reference contains this"),
+                     model: str | None = Query(None, max_length=100, description="only this model's evaluations"),
+                     limit: int = Query(50, ge=1, le=500), offset: Offset = 0, db: Database = Depends(get_db)):
+    """One page of evaluations, newest first: state, model version, median MSE per method and the KNODE
+    improvements in percent, with links to the report, the model version and the job."""
+    total, items = comparison.list_evaluations(db, q=q, model=model, limit=limit, offset=offset)
+    return {"items": items, "total": total, "limit": limit, "offset": offset}
+
+
+@router.get("/{evaluation_id}/dependents", response_model=Dependents)
+def evaluation_dependents(evaluation_id: RowId, db: Database = Depends(get_db)):
+    """What a DELETE of this evaluation deletes with it (its report figures) and what stays (its job)."""
+    return deletion.evaluation_dependents(db, evaluation_id)
+
+
+@router.delete("/{evaluation_id}", status_code=204, dependencies=[Depends(require_api_key)],
+               responses={404: {"description": "no such evaluation"},
+                          409: {"description": "its job is still queued or running: cancel it first"}})
+def delete_evaluation(evaluation_id: RowId, db: Database = Depends(get_db)):
+    """Delete an evaluation and its report figures.  The per-flight results it used stay cached (they are
+    shared by every evaluation of that version with those settings, and go with the version or the flight);
+    its job stays in the job list."""
+    deletion.delete_evaluation(db, evaluation_id)
+    return Response(status_code=204)
 
 
 @router.get("/{evaluation_id}", responses={200: {"description": "the report (evaluate_flights' JSON)"},

@@ -17,20 +17,19 @@ from typing import Literal
 import numpy as np
 from fastapi import APIRouter, Depends, File, Form, Query, Response, UploadFile
 from fastapi.responses import FileResponse
-from sqlalchemy import delete, select
 from starlette.background import BackgroundTask
 
-from learnest.errors import InvalidInput, NotFound
+from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight as CanonicalFlight
 
-from ... import catalog
+from ... import catalog, deletion
 from ...jobs.services import Services
 from ...storage.blobs import CHUNK, BlobStore
-from ...storage.database import Database, blob_is_referenced
-from ...storage.tables import FlightRecord, Result
+from ...storage.database import Database
+from ...storage.tables import FlightRecord
 from ...uploads import add_flight
 from ..deps import Offset, RowId, get_blobs, get_db, get_services, require_api_key
-from ..schemas import FlightDetail, FlightOut, FlightPage
+from ..schemas import Dependents, FlightDetail, FlightOut, FlightPage
 
 router = APIRouter(prefix="/flights", tags=["flights"])
 
@@ -86,10 +85,12 @@ def list_flights(vehicle: str | None = None,
                                                                                "the quality checks"),
                  since: datetime | None = Query(None, description="uploaded at or after (ISO 8601; UTC if no zone)"),
                  until: datetime | None = Query(None, description="uploaded before (ISO 8601; UTC if no zone)"),
+                 q: str | None = Query(None, max_length=200, description="only flights whose name contains this "
+                                                                         "(case-insensitive)"),
                  limit: int = Query(50, ge=1, le=500), offset: Offset = 0,
                  db: Database = Depends(get_db)):
-    """One page of flights by id, filtered by vehicle, quality and upload time."""
-    conditions = []
+    """One page of flights by id, filtered by name, vehicle, quality and upload time."""
+    conditions = catalog.name_contains(q)
     if vehicle is not None:
         conditions.append(FlightRecord.vehicle == vehicle)
     if quality is not None:
@@ -162,18 +163,17 @@ def _unique(name: str, used: set[str]) -> str:
     return candidate
 
 
+@router.get("/{flight_id}/dependents", response_model=Dependents)
+def flight_dependents(flight_id: RowId, db: Database = Depends(get_db)):
+    """What a DELETE of this flight deletes with it (its cached results and their stored estimates) and what
+    keeps a record of it (versions trained on it, evaluations and diagnoses that used it)."""
+    return deletion.flight_dependents(db, flight_id)
+
+
 @router.delete("/{flight_id}", status_code=204, dependencies=[Depends(require_api_key)])
 def delete_flight(flight_id: RowId, db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
     """Removes the flight, its cached results (with their stored estimates) and its blobs (unless another row
-    still uses them).  Model versions trained on it keep its id and sha256 (lineage)."""
-    with db.transaction() as session:
-        row = session.get(FlightRecord, flight_id)
-        if row is None:
-            raise NotFound(f"flight {flight_id} not found")
-        candidates = [row.flight_blob] + [f.sha256 for f in row.files]
-        results = select(Result.estimates_blob).where(Result.flight_sha256 == row.sha256)
-        candidates += [sha for sha in session.scalars(results) if sha]
-        session.execute(delete(Result).where(Result.flight_sha256 == row.sha256))
-        session.delete(row)
-    blobs.collect(candidates, lambda sha: blob_is_referenced(db, sha))
+    still uses them), never refused: model versions trained on it keep its id and sha256, evaluations and
+    diagnoses their reports (lineage; see GET .../dependents)."""
+    deletion.delete_flight(db, blobs, flight_id)
     return Response(status_code=204)

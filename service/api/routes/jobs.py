@@ -6,6 +6,7 @@ from typing import Literal
 from fastapi import APIRouter, Depends, Query
 
 from ... import catalog
+from ...jobs.runner import seconds_left
 from ...jobs.services import Services
 from ...storage.database import Database
 from ...storage.tables import Job
@@ -17,7 +18,8 @@ router = APIRouter(prefix="/jobs", tags=["jobs"])
 
 def job_out(job: Job) -> dict:
     """A job row as the API's JSON (JobOut)."""
-    return {"id": job.id, "kind": job.kind, "state": job.state, "progress": job.progress, "error": job.error,
+    return {"id": job.id, "kind": job.kind, "state": job.state, "progress": job.progress,
+            "stage": job.stage if job.state == "running" else None, "eta_s": seconds_left(job), "error": job.error,
             "result": job.result, "created_at": job.created_at, "started_at": job.started_at,
             "finished_at": job.finished_at}
 

@@ -2,16 +2,16 @@
 weights.  MLflow's concepts: registered model -> immutable integer versions -> movable aliases."""
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Response
+from fastapi import APIRouter, Depends, Query, Response
 
-from ... import catalog, registry
+from ... import catalog, comparison, deletion, registry
 from ...jobs.services import Services
 from ...jobs.training import start_training
 from ...storage.blobs import BlobStore
 from ...storage.database import Database
 from ...storage.tables import ModelVersion
 from ..deps import RowId, get_blobs, get_db, get_services, require_api_key
-from ..schemas import AliasIn, AliasOut, ModelOut, ModelPage, TrainAccepted, TrainRequest, VersionOut
+from ..schemas import AliasIn, AliasOut, Dependents, ModelOut, ModelPage, TrainAccepted, TrainRequest, VersionOut
 
 router = APIRouter(prefix="/models", tags=["models"])
 
@@ -27,7 +27,8 @@ def version_out(row: ModelVersion, aliases: dict[str, int], full: bool = True) -
            "error": row.error, "aliases": sorted(a for a, v in aliases.items() if v == row.version),
            "created_at": row.created_at, "ready_at": row.ready_at}
     if full:
-        out.update({"prior": row.prior, "losses": row.losses, "training_seconds": row.training_seconds,
+        out.update({"prior": row.prior, "losses": row.losses, "validation_losses": row.validation_losses,
+                    "training_seconds": row.training_seconds,
                     "code_version": row.code_version, "library_versions": row.library_versions,
                     "weights_sha256": row.weights_blob})
     return out
@@ -46,10 +47,14 @@ def train_model(body: TrainRequest, response: Response, services: Services = Dep
 
 
 @router.get("", response_model=ModelPage)
-def list_models(db: Database = Depends(get_db)):
-    """Every registered model by name, with its aliases, latest ready version and version count."""
+def list_models(q: str | None = Query(None, max_length=100, description="only names containing this "
+                                                                        "(case-insensitive)"),
+                db: Database = Depends(get_db)):
+    """Every registered model by name (or those whose name contains `q`), with its aliases, latest ready
+    version and version count."""
     items = [{"name": m.model.name, "created_at": m.model.created_at, "aliases": m.aliases,
-              "latest_version": m.latest_version, "version_count": m.version_count} for m in catalog.list_models(db)]
+              "latest_version": m.latest_version, "version_count": m.version_count}
+             for m in catalog.list_models(db, q=q)]
     return {"items": items, "total": len(items)}
 
 
@@ -68,6 +73,36 @@ def version_detail(name: str, version: RowId, db: Database = Depends(get_db)):
     with db.transaction() as session:
         row = registry.get_version(session, name, version)
         return version_out(row, registry.aliases_of(session, name))
+
+
+@router.get("/{name}/versions/{version}/lineage",
+            responses={200: {"description": "links to the training flight, parent, children, the diagnosis that "
+                                            "produced it (and the effects it added), its job, evaluations, "
+                                            "aliases; `exists: false` for a deleted one"}})
+def version_lineage(name: str, version: RowId, db: Database = Depends(get_db)) -> dict:
+    """Where a version comes from and what was made from it; 404 when there is no such version."""
+    return comparison.version_lineage(db, name, version)
+
+
+@router.get("/{name}/versions/{version}/dependents", response_model=Dependents)
+def version_dependents(name: str, version: RowId, db: Database = Depends(get_db)):
+    """What a DELETE of this version would delete with it (its evaluations, aliases on it, cached results),
+    what keeps a record of it (children, diagnoses), and whether it needs force or is blocked."""
+    return deletion.version_dependents(db, name, version)
+
+
+@router.delete("/{name}/versions/{version}", status_code=204, dependencies=[Depends(require_api_key)],
+               responses={404: {"description": "no such version"},
+                          409: {"description": "still training or evaluated right now, or it has evaluations or "
+                                               "aliases and force is not set (the message lists them)"}})
+def delete_version(name: str, version: RowId,
+                   force: bool = Query(False, description="also delete its evaluations and the aliases on it"),
+                   db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
+    """Delete a version (see GET .../dependents first): its cached results go with it, its evaluations and
+    aliases only with force=true; children and diagnoses keep its "name:version" as lineage text.  Its
+    number is never handed out again; the weights blob is removed after the commit."""
+    deletion.delete_version(db, blobs, name, version, force=force)
+    return Response(status_code=204)
 
 
 @router.get("/{name}/versions/{version}/weights", response_class=Response,
@@ -104,3 +139,16 @@ def delete_alias(name: str, alias: str, db: Database = Depends(get_db)):
     with db.transaction() as session:
         registry.delete_alias(session, name, alias)
     return Response(status_code=204)
+
+
+compare_router = APIRouter(tags=["models"])
+
+
+@compare_router.get("/compare", responses={400: {"description": "fewer than 2 or more than 10 versions"},
+                                           404: {"description": "a reference names nothing"}})
+def compare(refs: list[str] = Query(..., description="2-10 references (repeat the parameter or separate with "
+                                                      "commas): name:version, name@alias or name"),
+            db: Database = Depends(get_db)) -> dict:
+    """Versions side by side: hyperparameters and metrics (with the keys that differ), training and validation
+    loss per epoch, and the MSE per method on the flights every version was evaluated on."""
+    return comparison.compare_versions(db, [r.strip() for text in refs for r in text.split(",") if r.strip()])
