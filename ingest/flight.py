@@ -23,13 +23,18 @@ if TYPE_CHECKING:
 
 REQUIRED = ("t", "p", "a_meas", "quat")
 OPTIONAL = ("gyro", "motors", "vbat", "rotor_speed", "thrust_cmd", "thrust_si", "setpoint", "v_onboard",
-            "p_onboard", "acc_body")
+            "p_onboard", "acc_body", "quat_onboard", "rpy_onboard", "acc_onboard", "torque_cmd", "attitude_cmd",
+            "yaw_setpoint")
 # units of every array a Flight may carry (DataFrame export, API, reports); a channel not listed has none.
 # Adapters convert to these with the converters of ingest.units.  "motors" is the duty cycle the firmware
 # logs (after its battery compensation); "thrust_cmd" the controller's collective command in firmware units.
 UNITS = {"t": "s", "p": "m", "a_meas": "m/s^2", "quat": "1", "gyro": "rad/s", "motors": "PWM (0-65535)",
          "vbat": "V", "rotor_speed": "rad/s", "thrust_cmd": "firmware thrust units (0-65535)", "thrust_si": "N",
-         "setpoint": "m", "v_onboard": "m/s", "p_onboard": "m", "acc_body": "m/s^2"}
+         "setpoint": "m", "v_onboard": "m/s", "p_onboard": "m", "acc_body": "m/s^2",
+         # the onboard estimator's attitude (scalar-last quaternion; Lee controller's roll/pitch/yaw) and
+         # acceleration (world frame, gravity removed), the controller's torque and attitude commands
+         "quat_onboard": "1", "rpy_onboard": "rad", "acc_onboard": "m/s^2", "torque_cmd": "N m",
+         "attitude_cmd": "deg", "yaw_setpoint": "deg"}
 _AXES = {3: ("x", "y", "z"), 4: ("x", "y", "z", "w")}
 
 
@@ -145,7 +150,8 @@ class Flight:
         """The flight as a pandas DataFrame, one row per sample.
 
         Columns are ``t`` (s) and one column per array axis: ``p_x, p_y, p_z`` (m), ``a_meas_x..z``
-        (m/s², world, gravity removed), ``quat_x..w`` and each channel (``gyro_x..z``, ``vbat``, ...;
+        (m/s², world, gravity removed), ``quat_x..w`` and each channel (``gyro_x..z``, ``vbat``,
+        ``quat_onboard_x..w``, ...;
         a channel of other width k gives ``name_0..name_{k-1}``: ``motors_0..3`` are m1..m4).
         ``df.attrs`` holds ``units``
         ({column: unit}) and ``meta`` (the flight's metadata), so `from_dataframe` restores the flight.
@@ -260,7 +266,8 @@ def _split_columns(name: str, values: np.ndarray) -> dict:
         return {name: values}
     # x, y, z for vectors and the quaternion's x, y, z, w; any other width (4 motors, 4 rotor speeds) 0..k-1
     width = values.shape[1]
-    axes = _AXES[width] if width == 3 or (width == 4 and name == "quat") else tuple(str(i) for i in range(width))
+    quaternion = width == 4 and name.startswith("quat")
+    axes = _AXES[width] if width == 3 or quaternion else tuple(str(i) for i in range(width))
     return {f"{name}_{axis}": values[:, i] for i, axis in enumerate(axes)}
 
 

@@ -57,6 +57,11 @@ MAX_GAP_FRACTION = 0.25
 # Vicon/OptiTrack report sub-millimetre noise at µm resolution, so a flying vehicle never repeats its
 # position exactly; 0.1 s of identical positions is a frozen or held mocap stream.
 FROZEN_MOCAP_S = 0.1
+# A pose rounded to a coarse step (1 mm: crazyswarm2's extpos as uSD locSrv) repeats while a hovering vehicle
+# moves less than the step.  A stretch (constant or interpolated) across which the position changes by at most
+# RESOLUTION_STEPS steps is explained by the rounding: neither frozen nor a gap.  A held pose while the vehicle
+# moved on ends with a jump of many steps.
+RESOLUTION_STEPS = 2.0
 
 # Unit mix-up for positions: a motion-capture room is < 20 m across.
 
@@ -186,10 +191,11 @@ def _check_spikes(flight) -> list[str]:
 def _check_gaps(flight) -> list[str]:
     gaps = flight.meta.get("gaps", {}) or {}
     issues = []
-    for stream, values in (("mocap", flight.p), ("acc", _acc_body(flight))):
+    resolution = mocap_resolution(flight)
+    for stream, values, step in (("mocap", flight.p, resolution), ("acc", _acc_body(flight), 0.0)):
         # The adapter may know of gaps the grid cannot show (a stream that stopped in mid-air ends the grid).
         reported = gaps.get(f"{stream}_longest_gap_airborne_s") or 0.0
-        longest = max(interpolated_stretch_s(values, flight.dt), reported)
+        longest = max(interpolated_stretch_s(values, flight.dt, step), reported)
         if longest > MAX_GAP_S:
             issues.append(f"{stream} stream missing for {longest:.2f} s in flight (longest gap; allowed "
                           f"{MAX_GAP_S:g} s) — link lost or occluded")
@@ -201,28 +207,49 @@ def _check_gaps(flight) -> list[str]:
     return issues
 
 
-def interpolated_stretch_s(values: ArrayLike, dt: float) -> float:
+def interpolated_stretch_s(values: ArrayLike, dt: float, resolution: float = 0.0) -> float:
     """Longest stretch (s) over which a resampled stream is a straight line: build_flight interpolates
     linearly across missing samples, while measured data is never collinear to 1e-9 (sensor noise).
-    A held (constant) stream counts too: it is a line of slope zero."""
+    A held (constant) stream counts too: it is a line of slope zero.
+
+    ``resolution`` (the step the values are rounded to, 0 for none; see `mocap_resolution`): a stretch
+    across which the values change by at most RESOLUTION_STEPS steps is the rounding, not a gap.
+    """
     values = np.asarray(values, dtype=float)
     if len(values) < 3 or not np.isfinite(dt):
         return 0.0
     midpoint = 0.5 * (values[:-2] + values[2:])
     tolerance = COLLINEAR_RTOL * np.maximum(1.0, np.abs(values[1:-1]))
     on_line = np.all(np.abs(values[1:-1] - midpoint) <= tolerance, axis=1)
-    longest_run = max((stop - start for start, stop in _runs(on_line)), default=0)
+    longest_run = 0
+    for start, stop in _runs(on_line):   # samples start+1 .. stop lie on the line from start to stop+1
+        change = np.max(np.abs(values[stop + 1] - values[start]))
+        if resolution > 0 and change <= RESOLUTION_STEPS * resolution * (1 + 1e-6):
+            continue
+        longest_run = max(longest_run, stop - start)
     return float((longest_run + 1) * dt) if longest_run else 0.0
+
+
+def mocap_resolution(flight: Flight) -> float:
+    """The step (m) the flight's mocap positions are rounded to: ``meta["mocap_resolution_m"]`` as
+    `ingest.align.build_flight` measured it on the samples, else 0 (Vicon-grade)."""
+    return float(flight.meta.get("mocap_resolution_m") or 0.0)
 
 
 def _check_frozen_mocap(flight) -> list[str]:
     min_run = max(2, int(round(FROZEN_MOCAP_S / flight.dt))) if len(flight.t) > 1 else 2
     same_as_previous = np.r_[False, np.all(np.diff(flight.p, axis=0) == 0, axis=1)]
     acc = _acc_body(flight)
+    resolution = mocap_resolution(flight)
     issues = []
     for start, stop in _runs(same_as_previous):
         start -= 1  # the first sample of the frozen value
         if stop - start < min_run:
+            continue
+        # rounded to a coarse step, a slowly moving vehicle repeats its position: the rounding, unless the
+        # position jumps by more than a step or two when it moves again (the vehicle went on while held)
+        after = flight.p[min(stop, len(flight.p) - 1)]
+        if resolution > 0 and np.max(np.abs(after - flight.p[start])) <= RESOLUTION_STEPS * resolution * (1 + 1e-6):
             continue
         # The accelerometer still reports a changing airframe: the mocap froze, not the vehicle.
         if np.ptp(acc[start:stop], axis=0).max() > 0:

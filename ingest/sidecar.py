@@ -11,7 +11,7 @@ from pathlib import Path
 
 import yaml
 
-from .flight import IngestError
+from .flight import IngestError, json_compatible
 
 MAX_SIDECAR_BYTES = 1 << 20   # a metadata sidecar is a few kB; anything past 1 MiB is not one
 MAX_SIDECAR_NODES = 100_000   # scalars + collections, counted on the parse events
@@ -76,3 +76,67 @@ def read_sidecar(path) -> object:
     # document nested thousands of levels deep (PyYAML builds it recursively)
     except (OSError, UnicodeDecodeError, ValueError, RecursionError, yaml.YAMLError) as err:
         raise IngestError(path, f"unreadable YAML ({type(err).__name__}: {str(err)[:200]})") from None
+
+
+# -- which files are sidecars, and whose ----------------------------------------------------------------------
+# NanoBench: <stem>_metadata.yaml next to <stem>.csv; crazyswarm2-tools: infoNNN.yaml next to the uSD log logNNN
+# (an upload stages it as <log>_info.yaml next to the staged log).
+NANOBENCH_SIDECAR = re.compile(r"^(?P<stem>.+)_metadata\.ya?ml$", re.IGNORECASE)
+INFO_SIDECAR = re.compile(r"^(?:info(?P<number>\d+)|(?P<stem>.+)_info)\.ya?ml$", re.IGNORECASE)
+
+
+def sidecar_log_names(name: str) -> list[str] | None:
+    """The file names of the log a sidecar belongs to (any one of them), or None if ``name`` is no sidecar.
+
+    >>> sidecar_log_names("B2_circle_rep1_metadata.yaml")
+    ['B2_circle_rep1.csv', 'B2_circle_rep1']
+    >>> sidecar_log_names("info182.yaml")
+    ['log182']
+    """
+    nanobench = NANOBENCH_SIDECAR.match(name)
+    if nanobench:
+        return [f"{nanobench['stem']}.csv", nanobench["stem"]]
+    info = INFO_SIDECAR.match(name)
+    if info:
+        return [f"log{info['number']}"] if info["number"] else [info["stem"]]
+    return None
+
+
+def info_sidecar(log_path: str | Path) -> Path | None:
+    """The crazyswarm2 info sidecar of a uSD log, if there is one: ``infoNNN.yaml`` next to ``logNNN``, or
+    ``<log>_info.yaml`` next to the log."""
+    log_path = Path(log_path)
+    number = re.fullmatch(r"log(\d+)", log_path.name)
+    names = [f"info{number[1]}.yaml", f"info{number[1]}.yml"] if number else []
+    names += [f"{log_path.name}_info.yaml", f"{log_path.name}_info.yml"]
+    return next((log_path.with_name(n) for n in names if log_path.with_name(n).is_file()), None)
+
+
+def vehicle_info(path: Path, log_variables: set[str], warnings: list[str]) -> dict:
+    """What a crazyswarm2 ``info*.yaml`` says about the vehicle: ``mass_kg``, ``controller`` and the whole
+    record (``info``).  A sidecar that cannot be read is a warning, not a failure (the log is still a flight);
+    a sidecar past a cap (`SidecarTooLarge`) is refused with the log.
+
+    The controller is the sidecar's ``controller`` entry, else "lee" when the log carries the Lee
+    controller's variables (``ctrlLee.*``; crazyswarm2-tools' info files list its gains Kpos/KR/Kw).
+    """
+    try:
+        record = read_sidecar(path)
+    except SidecarTooLarge:
+        raise
+    except IngestError as err:
+        warnings.append(f"{path.name}: {err.problem}; sidecar ignored")
+        return {}
+    if not isinstance(record, dict):
+        warnings.append(f"{path.name}: not a YAML mapping; sidecar ignored")
+        return {}
+    mass = record.get("mass")
+    if not (isinstance(mass, (int, float)) and not isinstance(mass, bool) and 0.0 < mass < 10.0):
+        if mass is not None:
+            warnings.append(f"{path.name}: mass = {str(mass)[:40]!r} is not a mass in kg: ignored")
+        mass = None
+    controller = record.get("controller")
+    if not isinstance(controller, str):
+        controller = "lee" if any(name.startswith("ctrlLee.") for name in log_variables) else None
+    return {"mass_kg": None if mass is None else float(mass), "controller": controller,
+            "info": json_compatible(record), "path": str(path)}

@@ -20,6 +20,13 @@ def millimetres(values):
     return np.asarray(values, dtype=float) * 1e-3
 
 
+def standard_gravities(values):
+    """g -> m/s² (`stateEstimate.ax/ay/az`, the onboard estimate's acceleration, logged in g)."""
+    from .frames import GRAVITY
+
+    return np.asarray(values, dtype=float) * GRAVITY
+
+
 def degrees_per_second(values):
     """deg/s -> rad/s (`gyro.*`)."""
     return np.asarray(values, dtype=float) * (np.pi / 180.0)

@@ -96,6 +96,23 @@ def _topics(args) -> dict:
     return {"pose_topic": getattr(args, "pose_topic", None), "imu_topic": getattr(args, "imu_topic", None)}
 
 
+def _cut(text: str) -> str:
+    """The take-off/landing cut, checked for its form before any work (`learnest.ingest.align.parse_cut`)."""
+    from learnest.ingest.align import cut_text, parse_cut
+
+    try:
+        return cut_text(parse_cut(text))
+    except InvalidInput as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
+def _add_cut_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--cut", type=_cut, default="auto", metavar="auto|none|START:STOP",
+                        help="the stretch of each recording to keep: auto (default: the flying part, take-off and "
+                             "landing cut; a log that starts in the air keeps its start), none (everything) or "
+                             "START:STOP in seconds from the recording's start, e.g. 2.5:14 (either side may be empty)")
+
+
 def _new_file(text: str) -> str:
     """An output path whose folder exists: a typo must not cost a whole evaluation."""
     folder = Path(text).expanduser().resolve().parent
@@ -120,16 +137,21 @@ def _reproduce(args) -> int:
     return 0
 
 
-def _read(paths, rate_hz, topics: dict | None = None):
+def _read(paths, rate_hz, topics: dict | None = None, cut: str | None = None):
     from learnest.ingest import read_flights
 
-    return read_flights(paths, rate_hz=rate_hz, **(topics or {}))
+    return read_flights(paths, rate_hz=rate_hz, **(topics or {}), cut=cut)
 
 
 def _ingest(args) -> int:
-    from learnest.ingest import summary
+    from learnest.ingest import collect_logs, summary
 
-    flights = _read(args.files, args.rate, _topics(args))
+    files, notes = collect_logs(args.files)   # a folder stands for its logs; sidecars are read with their logs
+    for note in notes:
+        print(note, file=sys.stderr)
+    if not files:
+        raise InvalidInput(f"no flight logs in {', '.join(args.files)}")
+    flights = _read(files, args.rate, _topics(args), args.cut)
     if args.json:
         print(json.dumps({"flights": [summary(f) for f in flights]}, indent=2))
     else:
@@ -139,6 +161,10 @@ def _ingest(args) -> int:
             offset = "" if s["clock_offset_s"] is None else f", clock offset {s['clock_offset_s']:+.3f} s"
             print(f"{f.name}: {s['adapter']}, {s['duration_s']:.1f} s at {s['rate_hz']:.0f} Hz "
                   f"({s['samples']} samples{offset}) — {state}")
+            if s["kept"]:
+                k = s["kept"]
+                print(f"  kept {k['start_s']:.2f}-{k['stop_s']:.2f} s of the {k['recording_s']:.2f}-s recording: "
+                      f"{k['rule']} (--cut to change)")
             if s["topics"]:
                 t = s["topics"]
                 print(f"  pose from {t['pose']} ({t['pose_type']}, {t['pose_source']}); "
@@ -160,7 +186,7 @@ def _train(args) -> int:
     _registry_grid(args.rate)
     with tqdm(total=1000, desc=f"training {args.name}", file=sys.stderr, bar_format=STAGE_BAR) as bar:
         out = train(args.files, args.name, epochs=args.epochs, include_bad=args.include_bad, progress=_advance(bar),
-                    system=args.system, on_stage=_show_stage(bar), **_topics(args))
+                    system=args.system, on_stage=_show_stage(bar), **_topics(args), cut=args.cut)
     out["command_seconds"] = time.perf_counter() - _command_started[0]
     print(json.dumps(out, indent=2) if args.json else
           f"registered {out['ref']} ({out['system']} prior): trained on {out['training_flight']} "
@@ -546,7 +572,8 @@ def _diagnose(args) -> int:
 
 def format_report(report: dict) -> str:
     """An evaluation report (evaluate_flights' JSON) as a text table: per-flight and median MSE (x 1e-3) per method
-    and the share of the flight outside the model's training envelope, then the improvements in %.
+    and the share of the flight outside the model's training envelope, then the improvements in %, then a
+    warning per flight that differs from the training flight (vehicle, sensor rates, attitude source).
     """
     methods = list(report["median"])
     prior = f" ({report['system']} prior)" if report.get("system") else ""
@@ -564,6 +591,8 @@ def format_report(report: dict) -> str:
     outside = report.get("outside_training_envelope")
     if outside:
         lines.append(f"outside what this model saw in training: {', '.join(outside)}")
+    for f in report["flights"]:   # another vehicle, sensor rate or attitude source than the training flight's
+        lines += [f"WARNING {f['flight']}: {warning}" for warning in f.get("warnings") or []]
     return "\n".join(lines)
 
 
@@ -604,11 +633,13 @@ def build_parser() -> argparse.ArgumentParser:
     rep.set_defaults(func=_reproduce)
 
     ing = sub.add_parser("ingest", help="read flight logs, normalise them and check their quality")
-    ing.add_argument("files", nargs="+")
+    ing.add_argument("files", nargs="+", help="log files or folders (a folder's logs are read; NanoBench "
+                                              "*_metadata.yaml and crazyswarm2 infoNNN.yaml are read with their logs)")
     ing.add_argument("--json", action="store_true")
     ing.add_argument("--rate", type=_positive_float, default=100.0, help="grid rate in Hz (default 100)")
     ing.add_argument("--strict", action="store_true", help="exit with status 1 if any flight fails the quality checks")
     _add_topic_arguments(ing)
+    _add_cut_argument(ing)
     ing.set_defaults(func=_ingest)
 
     tr = sub.add_parser("train", help="train a KNODE on one flight (Algorithm 1) and register it as the next "
@@ -624,6 +655,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the prior: the paper's kinematic chain (default) or the Crazyflie driven by its motors "
                          "and battery (needs motor PWM and battery voltage in the log)")
     _add_topic_arguments(tr)
+    _add_cut_argument(tr)
     tr.set_defaults(func=_train)
 
     ev = sub.add_parser("evaluate", help="run UKF/MHE/KNODE-UKF/KNODE-MHE on flights and score them")

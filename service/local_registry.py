@@ -30,6 +30,7 @@ from sqlalchemy import select
 
 from learnest.errors import Conflict, InvalidInput, LearnestError, NotFound
 from learnest.ingest.flight import existing_file
+from learnest.ingest.sidecar import info_sidecar
 from learnest.models.knode import HybridModel
 
 from . import catalog, registry
@@ -72,7 +73,8 @@ def local_services(settings: Settings | None = None, executor: Executor | None =
 
 # -- flights -----------------------------------------------------------------------------------------------
 def flight_files(paths) -> list[Path]:
-    """The given files plus, for a NanoBench CSV, the *_metadata.yaml next to it (the reader would use it)."""
+    """The given files plus the sidecars their readers would use: for a NanoBench CSV the *_metadata.yaml
+    next to it, for a uSD log logNNN crazyswarm2's infoNNN.yaml."""
     files: dict[Path, Path] = {}
     for path in map(Path, paths):
         existing_file(path, "flight log")
@@ -80,26 +82,31 @@ def flight_files(paths) -> list[Path]:
         sidecar = path.with_name(f"{path.stem}_metadata.yaml")
         if path.suffix.lower() == ".csv" and sidecar.is_file():
             files.setdefault(sidecar.resolve(), sidecar)
+        info = info_sidecar(path)
+        if info is not None:
+            files.setdefault(info.resolve(), info)
     return list(files.values())
 
 
 def add_flight(services: Services, paths, *, pose_topic: str | None = None,
-               imu_topic: str | None = None) -> tuple[FlightRecord, bool]:
+               imu_topic: str | None = None, cut: str | None = None) -> tuple[FlightRecord, bool]:
     """Store the log file(s) of one flight exactly as an upload would (with the topics chosen, for MCAP
-    recordings and ROS bags).  -> (row, created); created is False when the same content was stored before
-    (its existing row)."""
+    recordings and ROS bags, and the cut, `learnest.ingest.align.parse_cut`).  -> (row, created); created is
+    False when the same content was stored before (its existing row)."""
     with ExitStack() as stack:
         uploads = [LocalFile(path.name, stack.enter_context(open(path, "rb"))) for path in flight_files(paths)]
-        return add_uploaded_flight(services.db, services.blobs, uploads, pose_topic=pose_topic, imu_topic=imu_topic)
+        return add_uploaded_flight(services.db, services.blobs, uploads, pose_topic=pose_topic, imu_topic=imu_topic,
+                                   cut=cut)
 
 
 # -- training ----------------------------------------------------------------------------------------------
 def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = False,
           progress: Callable[[float], None] | None = None, settings: Settings | None = None,
           system: str = "quadrotor", pose_topic: str | None = None, imu_topic: str | None = None,
-          on_stage: Callable[[str, float | None], None] | None = None) -> dict:
+          cut: str | None = None, on_stage: Callable[[str, float | None], None] | None = None) -> dict:
     """Store the flight, train the next version of `name` on it and wait; `progress(fraction)` while it trains,
     `on_stage(stage, seconds_left)` as the job's stage changes ("ingest", "observer ...", "epoch 12/150").
+    ``cut``: the stretch of the log to keep (`learnest.ingest.align.parse_cut`).
     Returns what `learnest train --json` prints: ``seconds`` is the epochs' time, ``total_seconds`` the
     job's (observer, epochs, storing)."""
     registry.check_name(name)  # before any work
@@ -107,7 +114,7 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
     if on_stage:
         on_stage("ingest", None)
     with local_services(settings) as services:
-        row, created = add_flight(services, paths, pose_topic=pose_topic, imu_topic=imu_topic)
+        row, created = add_flight(services, paths, pose_topic=pose_topic, imu_topic=imu_topic, cut=cut)
         if not row.quality_ok and not include_bad:  # checked here too, to name the CLI's flag
             raise InvalidInput(f"{row.name} failed the quality checks ({'; '.join(row.quality.get('issues', []))}); "
                              "pass --include-bad to train on it anyway")

@@ -50,7 +50,7 @@ def safe_stem(name: str) -> str:
 
 # -- reading ------------------------------------------------------------------------------------------
 def read_uploaded_flight(staged: list[StagedFile], pose_topic: str | None = None,
-                         imu_topic: str | None = None) -> CanonicalFlight:
+                         imu_topic: str | None = None, cut: str | None = None) -> CanonicalFlight:
     """The adapters decide the format; every failure is InvalidInput naming the client's file."""
     originals = {str(f.path): f.original_name for f in staged}
     logs = [f.path for f in staged if f.role == "log"]
@@ -60,7 +60,7 @@ def read_uploaded_flight(staged: list[StagedFile], pose_topic: str | None = None
             raise InvalidInput(f"one flight per upload: {', '.join(originals.values())} make {len(groups)} flights; "
                           "upload each flight's file(s) separately")
         adapter, files = groups[0]
-        flight = read_group(adapter, files, pose_topic=pose_topic, imu_topic=imu_topic)
+        flight = read_group(adapter, files, pose_topic=pose_topic, imu_topic=imu_topic, cut=cut)
     except IngestError as err:
         name = originals.get(err.path, Path(err.path).name)
         raise InvalidInput(f"{name}: {_scrub(err.problem, originals)}") from None

@@ -23,6 +23,7 @@ from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 
 from learnest.errors import Conflict
+from learnest.ingest.align import cut_text, parse_cut
 from learnest.ingest.flight import Flight as CanonicalFlight
 
 from .reading import StagedFile, read_uploaded_flight
@@ -33,6 +34,7 @@ from .storage.tables import FlightFile, FlightRecord, utcnow
 log = logging.getLogger("learnest.uploads")
 
 SIDECAR_SUFFIXES = ("_metadata.yaml", "_metadata.yml")   # NanoBench: <stem>_metadata.yaml next to <stem>.csv
+INFO_SIDECAR = re.compile(r"info(\d+)\.ya?ml")            # crazyswarm2-tools: infoNNN.yaml next to the uSD log logNNN
 
 
 class Upload(Protocol):
@@ -57,7 +59,8 @@ class LocalFile:
 
 def add_flight(db: Database, blobs: BlobStore, uploads: Sequence[Upload], vehicle: str | None = None,
                notes: str | None = None, *, pose_topic: str | None = None, imu_topic: str | None = None,
-               decode: Callable[..., CanonicalFlight] | None = None) -> tuple[FlightRecord, bool]:
+               cut: str | None = None, decode: Callable[..., CanonicalFlight] | None = None
+               ) -> tuple[FlightRecord, bool]:
     """Store the log file(s) of one flight, unless the same content is stored already.
 
     Parameters
@@ -71,6 +74,9 @@ def add_flight(db: Database, blobs: BlobStore, uploads: Sequence[Upload], vehicl
     pose_topic, imu_topic
         For MCAP recordings and ROS bags: the topics to read (see learnest.ingest.read_group); checked
         before anything is stored.
+    cut
+        The stretch to keep (`learnest.ingest.align.parse_cut`: "auto", "none", "START:STOP" s); checked before
+        anything is stored.  A cut other than "auto" is part of the dedupe key (another stretch, another flight).
     decode
         ``decode(staged, pose_topic=..., imu_topic=...)`` -> the flight: the server passes its decoder pool's
         (service.jobs.decoding: worker processes, a time limit); default `read_uploaded_flight`, here.
@@ -89,13 +95,15 @@ def add_flight(db: Database, blobs: BlobStore, uploads: Sequence[Upload], vehicl
     """
     topics = {"pose_topic": _topic_or_none(pose_topic, "pose_topic"),
               "imu_topic": _topic_or_none(imu_topic, "imu_topic")}
+    window = cut_text(parse_cut(cut))   # InvalidInput (422) for a malformed cut, before anything is stored
+    choice = {**topics, "cut": None if window == "auto" else window}
     with blobs.temp_dir() as directory:
         staged = stage_uploads(uploads, directory)
-        sha = content_sha256(staged, topics)
+        sha = content_sha256(staged, choice)
         row = find_by_sha(db, sha)
         if row is not None:
             return row, False
-        flight = (decode or read_uploaded_flight)(staged, **topics)
+        flight = (decode or read_uploaded_flight)(staged, **topics, cut=window)
         return store_flight(db, blobs, staged, flight, sha, vehicle, notes)
 
 
@@ -112,24 +120,31 @@ def _safe_suffix(name: str) -> str:
     return suffix.lower() if re.fullmatch(r"\.[A-Za-z0-9]{1,10}", suffix) else ""
 
 
-def _sidecar_owner(name: str, log_stems: dict[str, int]) -> int | None:
+def _sidecar_owner(name: str, log_stems: dict[str, int]) -> tuple[int, str] | None:
+    """(index of the log a sidecar belongs to, the name the reader looks for next to that log's staged copy)."""
     for suffix in SIDECAR_SUFFIXES:
         if name.endswith(suffix) and name[:-len(suffix)] in log_stems:
-            return log_stems[name[:-len(suffix)]]
+            return log_stems[name[:-len(suffix)]], "_metadata.yaml"
+    info = INFO_SIDECAR.fullmatch(name)
+    if info and f"log{info[1]}" in log_stems:
+        return log_stems[f"log{info[1]}"], "_info.yaml"
     return None
 
 
 def stage_uploads(uploads: Sequence[Upload], directory: Path) -> list[StagedFile]:
     """Copy the uploads to `directory` as upload_<i><.ext> (never the client's name), hashing on the way.
-    A NanoBench metadata YAML uploaded with its CSV is staged where the reader looks for it."""
+    A NanoBench metadata YAML uploaded with its CSV, or a crazyswarm2 infoNNN.yaml with its uSD log logNNN, is
+    staged where the reader looks for it."""
     names = [original_basename(upload.filename, i) for i, upload in enumerate(uploads)]
     log_stems = {Path(name).stem: i for i, name in enumerate(names)
-                 if not name.endswith(SIDECAR_SUFFIXES)}
+                 if not name.endswith(SIDECAR_SUFFIXES) and not INFO_SIDECAR.fullmatch(name)}
     staged = []
     for i, (upload, name) in enumerate(zip(uploads, names, strict=True)):
         owner = _sidecar_owner(name, log_stems)
-        if owner is not None:
-            path, role = directory / f"upload_{owner}_metadata.yaml", "sidecar"
+        if owner is not None:   # staged where the reader looks: upload_<i>_metadata.yaml / upload_<i><ext>_info.yaml
+            index, suffix = owner
+            log_name = f"upload_{index}{_safe_suffix(names[index])}" if suffix == "_info.yaml" else f"upload_{index}"
+            path, role = directory / f"{log_name}{suffix}", "sidecar"
         else:
             path, role = directory / f"upload_{i}{_safe_suffix(name)}", "log"
         with storage_errors("accept uploads"):

@@ -146,7 +146,11 @@ def test_real_log_becomes_a_plausible_flight(name):
     assert np.abs(flight.a_meas.mean(axis=0)).max() < 0.3            # gravity removed, bounded trajectory
     assert np.abs(flight.channels["p_onboard"] - flight.p).max() < 0.05   # onboard estimate tracks mocap
     assert flight.meta["adapter"] == "usd"
-    assert flight.meta["sources"] == [{"path": str(path), "sha256": sha256_file(path)}]
+    info = path.with_name(f"info{name[3:]}.yaml")   # crazyswarm2's sidecar: mass and controller gains
+    assert flight.meta["sources"] == [{"path": str(path), "sha256": sha256_file(path)},
+                                      {"path": str(info), "sha256": sha256_file(info)}]
+    assert flight.meta["mass_kg"] == pytest.approx(0.032) and flight.meta["controller"] == "lee"
+    assert flight.meta["vehicle_info"]["Kpos_Px"] == pytest.approx(17.0)
     assert flight.meta["clock_offset_s"] is None
     assert 245 < flight.meta["original_rates"]["acc"] < 255
     assert 60 < flight.meta["original_rates"]["mocap"] < 110

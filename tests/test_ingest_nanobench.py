@@ -37,7 +37,8 @@ def synthetic_table(seconds=20.0, seed=0) -> pd.DataFrame:
     table.update(zip(nanobench_reader.ACC_COLUMNS, acc.T))
     level_and_noise = {"gyro": (0, 0.05), "motors": (40000, 500), "vbat": (3.7, 0.01), "thrust_cmd": (40000, 500),
                        "setpoint": (0, 0.01),
-                       "p_onboard": (0, 0.01), "v_onboard": (0, 0.01)}
+                       "p_onboard": (0, 0.01), "v_onboard": (0, 0.01), "acc_onboard": (0, 0.01),
+                       "quat_onboard": (0.5, 0.01), "attitude_cmd": (0, 0.5), "yaw_setpoint": (0, 0.01)}
     for name, columns in nanobench_reader.OPTIONAL_STREAMS.items():
         level, noise = level_and_noise[name]
         for column in columns:

@@ -26,4 +26,8 @@ OPTIONAL_SOURCES = (
     ("rotor_speed", ("rpm.m1", "rpm.m2", "rpm.m3", "rpm.m4"), units.rpm),
     ("thrust_cmd", ("controller.cmd_thrust",), units.identity),
     ("thrust_si", ("ctrlLee.thrustSI",), units.identity),
+    ("quat_onboard", ("stateEstimate.qx", "stateEstimate.qy", "stateEstimate.qz", "stateEstimate.qw"), units.identity),
+    ("rpy_onboard", ("ctrlLee.rpyx", "ctrlLee.rpyy", "ctrlLee.rpyz"), units.identity),              # rad
+    ("acc_onboard", ("stateEstimate.ax", "stateEstimate.ay", "stateEstimate.az"), units.standard_gravities),
+    ("torque_cmd", ("ctrlLee.torquex", "ctrlLee.torquey", "ctrlLee.torquez"), units.identity),      # N m
 )

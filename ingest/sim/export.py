@@ -26,9 +26,10 @@ CFCLIENT_RATE_HZ = 100.0                # a cfclient log block runs at ≤ 100 H
 # The mocap pose the vehicle received, as the firmware logs it (position m, quaternion scalar last).
 LOCSRV_POSE = ("locSrv.x", "locSrv.y", "locSrv.z", "locSrv.qx", "locSrv.qy", "locSrv.qz", "locSrv.qw")
 
-FORMATS = ("nanobench", "usd", "usd-v1", "vicon+cfclient", "mcap-ros2", "mcap-json")
+FORMATS = ("nanobench", "usd", "usd-v1", "vicon+cfclient", "cfclient", "mcap-ros2", "mcap-json")
 SOURCE_TIME_AT_SIM_ZERO = {"nanobench": NANOBENCH_EPOCH_S, "usd": USD_BOOT_S, "usd-v1": USD_BOOT_S,
-                           "vicon+cfclient": -VICON_START_S, "mcap-ros2": 0.0, "mcap-json": 0.0}
+                           "vicon+cfclient": -VICON_START_S, "cfclient": CFCLIENT_BOOT_S, "mcap-ros2": 0.0,
+                           "mcap-json": 0.0}
 
 
 def _on_times(t_from, values, t_to) -> np.ndarray:
@@ -92,6 +93,20 @@ def _write_vicon_cfclient(sim: SimulatedFlight, vicon_path: Path, cfclient_path:
     return [vicon_path, cfclient_path]
 
 
+def _write_cfclient_with_pose(sim: SimulatedFlight, path: Path) -> list[Path]:
+    """A cfclient "Log to file" CSV that carries the received mocap pose (locSrv.*: the last frame received at
+    each log row) next to acc.*, gyro.* and the setpoint: a flight of its own, on the Crazyflie's clock."""
+    mocap = sim.mocap
+    t, acc, gyro, setpoint = _decimated(sim.imu, CFCLIENT_RATE_HZ)
+    latest = np.searchsorted(mocap.t, t + 1e-9, side="right") - 1     # the last frame received
+    pose = np.column_stack([mocap.p, mocap.quat])[latest]
+    extra = {name: pose[:, j] for j, name in enumerate(LOCSRV_POSE)}
+    extra.update({f"gyro.{axis}": np.degrees(gyro[:, j]) for j, axis in enumerate("xyz")})
+    extra.update({f"ctrltarget.{axis}": setpoint[:, j] for j, axis in enumerate("xyz")})
+    write_cfclient_csv(path, CFCLIENT_BOOT_S + t, acc, extra)
+    return [path]
+
+
 def write_flight(sim: SimulatedFlight, fmt: str, directory, stem: str, *, usd_pose_stream: str = "fixed") -> list[Path]:
     """Write one simulated flight in format `fmt` (see FORMATS) into directory; returns the files to give to
     ingest.read_flights (the Vicon export first for "vicon+cfclient")."""
@@ -103,6 +118,8 @@ def write_flight(sim: SimulatedFlight, fmt: str, directory, stem: str, *, usd_po
         return _write_usd(sim, directory / stem, 2 if fmt == "usd" else 1, usd_pose_stream)
     if fmt == "vicon+cfclient":
         return _write_vicon_cfclient(sim, directory / f"{stem}_vicon.csv", directory / f"{stem}_cfclient.csv")
+    if fmt == "cfclient":
+        return _write_cfclient_with_pose(sim, directory / f"{stem}_cfclient.csv")
     if fmt in ("mcap-ros2", "mcap-json"):
         path = directory / f"{stem}.mcap"
         writer = mcap_writer.write_ros2 if fmt == "mcap-ros2" else mcap_writer.write_json

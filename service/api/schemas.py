@@ -36,7 +36,7 @@ class SourceFile(BaseModel):
     name: str = Field(description="the client's file name (metadata only)")
     sha256: str
     size_bytes: int
-    role: str = Field(description='"log", or "sidecar" for a NanoBench *_metadata.yaml')
+    role: str = Field(description='"log", or "sidecar" for a NanoBench *_metadata.yaml or a crazyswarm2 infoNNN.yaml')
 
 
 class FlightOut(BaseModel):

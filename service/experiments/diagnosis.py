@@ -23,6 +23,7 @@ from learnest.estimators.observers import pretraining_observer
 from learnest.estimators.ukf import run_ukf
 from learnest.ingest.baseline import sg_references
 from learnest.ingest.flight import Flight
+from learnest.ingest.profile import flight_profile
 from learnest.models import crazyflie as cf
 from learnest.models.backend import rk4_step
 from learnest.models.crazyflie_residual import CRAZYFLIE_MIN_CV_GAIN, crazyflie_problem, specific_force_rmse
@@ -323,6 +324,7 @@ def _diagnose_quadrotor(flights: list[Flight], knode: HybridModel | None, method
         "effects": [e["id"] for e in accel["effects"] + dynamics["effects"]],
         "training_flight": fitting[0].name,
         "training_flight_sha256": [s["sha256"] for s in fitting[0].meta.get("sources", [])],
+        "training_profile": flight_profile(fitting[0]),
         "parent": knode_before.meta.get("name")})
     before: dict[str, list[float]] = {m: [] for m in methods}
     after: dict[str, list[float]] = {m: [] for m in methods}
@@ -373,7 +375,8 @@ def _crazyflie_model(flight: Flight, params: dict, train: bool, config) -> Hybri
     zeta = pretraining_observer(system, flight.measurements(), u, system.dt)
     model = train_knode(system, zeta, u, system.dt, config).model
     model.meta.update({"system": "crazyflie", "training_flight": flight.name,
-                       "training_flight_sha256": [s["sha256"] for s in flight.meta.get("sources", [])]})
+                       "training_flight_sha256": [s["sha256"] for s in flight.meta.get("sources", [])],
+                       "training_profile": flight_profile(flight)})
     return model
 
 

@@ -14,6 +14,7 @@ from learnest.estimators.mhe import MHE
 from learnest.estimators.observers import pretraining_observer
 from learnest.ingest.baseline import references
 from learnest.ingest.flight import Flight
+from learnest.ingest.profile import flight_profile, profile_mismatches
 from learnest.models.effects import correct_acc_body, world_from_body
 from learnest.models.envelope import envelope_report
 from learnest.models.inputs import system_inputs
@@ -59,7 +60,8 @@ def train_on_flight(flight: Flight, config: TrainingConfig = CRAZYFLIE_TRAINING,
     zeta = pretraining_observer(prior, y, u, prior.dt)
     result = train_knode(prior, zeta, u, prior.dt, config, progress=progress)
     result.model.meta.update({"system": prior.name, "training_flight": flight.name,
-                              "training_flight_sha256": [s["sha256"] for s in flight.meta.get("sources", [])]})
+                              "training_flight_sha256": [s["sha256"] for s in flight.meta.get("sources", [])],
+                              "training_profile": flight_profile(flight)})
     return result
 
 
@@ -147,7 +149,10 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
     Flights that fail the quality checks (unless ``include_bad``) and the model's own training flight are
     listed as excluded, with the reason, and not scored.  Each scored flight's ``envelope`` says how much
     of it lies outside what the model saw in training (`flight_envelope`); such flights are still scored,
-    and listed in ``outside_training_envelope``.  ``progress`` is called with each flight's entry;
+    and listed in ``outside_training_envelope``.  Each scored flight's ``warnings`` say how it differs from
+    the training flight in vehicle, sensor rates, attitude source, mass or controller
+    (`ingest.profile.profile_mismatches`; none for a model that recorded no ``training_profile``).
+    ``progress`` is called with each flight's entry;
     ``on_estimates(index, FlightEstimates)`` with the per-step estimates of each scored flight (index into
     ``flights``), when given; ``on_stage`` with each method's name before it runs and "MHE build (...)"
     before an MHE is built (`estimators.evaluate.evaluate_sequence`).  ``sg_window`` is the Savitzky–Golay
@@ -172,6 +177,8 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
             entry["groups"] = {m: r["groups"] for m, r in results.items()}
             entry["ms_per_step"] = {m: r["ms_per_step"] for m, r in results.items()}
             entry["envelope"] = flight_envelope(knode, flight)
+        # a flight from another vehicle, sensor rate or attitude source: scored, with a warning
+        entry["warnings"] = profile_mismatches(knode.meta.get("training_profile"), flight_profile(flight))
         reports.append(entry)
         if progress:
             progress(entry)

@@ -68,7 +68,7 @@ class DecodePool:
     timeout_s : float
         Seconds one upload's decode may take (from when a worker starts on it), s.
     read : callable
-        What runs in the worker: ``read(staged, pose_topic, imu_topic)`` -> flight, a module-level function
+        What runs in the worker: ``read(staged, pose_topic, imu_topic[, cut=...])`` -> flight, a module-level function
         (default `read_uploaded_flight`; tests pass slow ones).
     """
 
@@ -99,7 +99,7 @@ class DecodePool:
             future.result(timeout=STARTUP_LIMIT_S)
 
     def decode(self, staged: list[StagedFile], pose_topic: str | None = None,
-               imu_topic: str | None = None) -> CanonicalFlight:
+               imu_topic: str | None = None, cut: str | None = None) -> CanonicalFlight:
         """`read_uploaded_flight` in a worker process.
 
         Raises
@@ -117,7 +117,8 @@ class DecodePool:
             try:
                 pool = pool or self._new_pool()
                 self._started[pool].result(timeout=STARTUP_LIMIT_S)
-                future = pool.submit(self.read, staged, pose_topic, imu_topic)
+                chosen = {"cut": cut} if cut not in (None, "auto") else {}   # a read without a cut keeps working
+                future = pool.submit(self.read, staged, pose_topic, imu_topic, **chosen)
                 try:
                     return future.result(timeout=self.timeout_s)
                 except concurrent.futures.TimeoutError:

@@ -149,7 +149,8 @@ def diagnose_task(flights_bytes: list[bytes], model_json: bytes | None, methods:
 
 def training_metrics(model: HybridModel) -> dict:
     """What the registry keeps of a training run besides its weights and losses."""
-    return {key: model.meta.get(key) for key in ("final_loss", "best_epoch", "best_validation_loss", "envelope")}
+    return {key: model.meta.get(key) for key in ("final_loss", "best_epoch", "best_validation_loss", "envelope",
+                                                 "training_profile")}
 
 
 def diagnosis_metrics(model: HybridModel, report: dict) -> dict:

@@ -148,12 +148,14 @@ def flights_page(request: Request, offset: Offset = 0, q: str = Query("", max_le
 @html_errors
 def upload_flight_form(request: Request, files: list[UploadFile | str] = File(default=[]),
                        vehicle: str = Form(""), notes: str = Form(""), pose_topic: str = Form(""),
-                       imu_topic: str = Form(""), api_key: str = Form(""), services: Services = Depends(get_services)):
+                       imu_topic: str = Form(""), cut: str = Form(""), api_key: str = Form(""),
+                       services: Services = Depends(get_services)):
     """Upload form: store the chosen file(s) as one flight (as POST /flights does), then 303 to its page."""
     forms.require_key(request, services.settings, api_key)
     chosen = forms.chosen_files(files)
     row, _created = add_flight(services.db, services.blobs, chosen, *forms.upload_text(vehicle, notes),
-                               pose_topic=pose_topic, imu_topic=imu_topic, decode=services.decoder.decode)
+                               pose_topic=pose_topic, imu_topic=imu_topic, cut=cut.strip() or None,
+                               decode=services.decoder.decode)
     return forms.redirect(f"/ui/flights/{row.id}", services.settings, api_key)
 
 

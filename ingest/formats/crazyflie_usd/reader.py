@@ -7,9 +7,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...align import build_flight, resample_quaternions, samples_per_second
+from ...align import build_flight, position_resolution, resample_quaternions, samples_per_second
 from ...flight import Flight, IngestError, sha256_file
 from ...limits import MAX_DURATION_S, QUATERNION_NORM_TOLERANCE
+from ...sidecar import info_sidecar, vehicle_info
 from ..crazyflie_variables import ACC, OPTIONAL_SOURCES
 from .decoder import UsdLog, decode, parse_header
 from .layout import FIXED_FREQUENCY
@@ -161,7 +162,7 @@ def _optional_channels(log: UsdLog, window) -> dict:
     return channels
 
 
-def read(path, rate_hz: float = 100.0) -> Flight:
+def read(path, rate_hz: float = 100.0, cut: bool | tuple = True) -> Flight:
     """A uSD log as a Flight.
 
     Accelerometer from acc.x/y/z (g, body frame).  Mocap pose from locSrv.* (its own event stream if there
@@ -169,6 +170,8 @@ def read(path, rate_hz: float = 100.0) -> Flight:
     quaternion, or from the onboard estimate when the quaternion is all zero (position-only mocap; noted in
     meta["usd"]["warnings"] and meta["attitude_source"]).  Optional channels: p_onboard, v_onboard (from
     stateEstimateZ.*, mm -> m), gyro (deg/s -> rad/s), setpoint (ctrltargetZ.*, mm -> m), motors, vbat.
+    A crazyswarm2 ``infoNNN.yaml`` next to ``logNNN`` gives meta["mass_kg"], meta["controller"] and the
+    whole record (meta["vehicle_info"]).  ``cut`` as `ingest.align.build_flight` takes it.
     """
     log = decode(path)
     notes = list(log.warnings)
@@ -183,22 +186,37 @@ def read(path, rate_hz: float = 100.0) -> Flight:
                                 f"corrupt timestamps?")
     acc, pose = acc.within(window), pose.within(window)
     pose = _after_first_frame(pose)
+    alive = None
     if pose.event == FIXED_FREQUENCY:
+        # a repeat of a pose rounded to 1 mm is most often a new frame at the same place: with such a
+        # pose, gaps are told from every record (a held pose while the vehicle moves on is "frozen" in
+        # ingest.quality); with a finer pose a repeat is a held value, and its stretch a gap
+        alive = pose.t if position_resolution(pose.values[:, :3]) > 0 else None
         pose = _distinct_frames(pose)
     if len(pose.t) < 2:
         raise IngestError(path, f"fewer than 2 mocap frames (locSrv) in this uSD log ({len(pose.t)})")
     pose, quat, attitude_source = _attitude(log, pose, window, notes)
 
+    sources = [{"path": str(path), "sha256": sha256_file(path)}]
+    info_path = info_sidecar(path)
+    info = {}
+    if info_path is not None:
+        variables = set().union(*(columns.keys() for columns in log.events.values()))
+        info = vehicle_info(info_path, variables, notes)
+        if info:
+            sources.append({"path": str(info_path), "sha256": sha256_file(info_path)})
     meta = {
         "adapter": "usd",
-        "sources": [{"path": str(path), "sha256": sha256_file(path)}],
+        "sources": sources,
         "original_rates": {"acc": samples_per_second(acc.t), "mocap": samples_per_second(pose.t)},
         "clock_offset_s": None,
         "attitude_source": attitude_source,
         "usd": {"version": log.version, "crc_ok": log.crc_ok, "warnings": notes,
                 "records": {event: int(len(columns["t"])) for event, columns in log.events.items()}},
     }
+    if info:   # crazyswarm2's infoNNN.yaml: the vehicle's mass and controller
+        meta.update(mass_kg=info["mass_kg"], controller=info["controller"], vehicle_info=info["info"])
     return build_flight(path, t_mocap=pose.t, p=pose.values[:, :3], quat=quat, t_acc=acc.t,
                         acc_body_g=acc.values, channels=_optional_channels(log, window), rate_hz=rate_hz,
-                        meta=meta)
+                        meta=meta, cut=cut, mocap_alive_t=alive)
 

@@ -155,17 +155,19 @@ def _stream(path: Path, decoded: Decoded, label: str, t_ns: list[int], origin_ns
 
 
 def read(path, pose_topic: str | None = None, accel_topic: str | None = None, rate_hz: float = 100.0, *,
-         log_variables: dict[str, list[str]] | None = None) -> Flight:
+         log_variables: dict[str, list[str]] | None = None, cut: bool | tuple = True) -> Flight:
     """An MCAP recording as a Flight (see the module docstring for the supported topics).
 
     pose_topic / accel_topic choose the topics when the automatic choice is ambiguous (a body of a multi-body
     topic is "topic:name", e.g. "/poses:cf1").  log_variables maps LogDataGeneric topics to the names of their
-    values, e.g. {"/cf1/imu": ["gyro.x", "gyro.y", "gyro.z", "acc.x", "acc.y", "acc.z"]}.
+    values, e.g. {"/cf1/imu": ["gyro.x", "gyro.y", "gyro.z", "acc.x", "acc.y", "acc.z"]}.  ``cut`` as
+    `ingest.align.build_flight` takes it.
     """
     path = Path(path)
     content = scan(path)
     return read_channels(path, content.channels, content.warnings, _payload_decoder, container="mcap",
-                         pose_topic=pose_topic, accel_topic=accel_topic, rate_hz=rate_hz, log_variables=log_variables)
+                         pose_topic=pose_topic, accel_topic=accel_topic, rate_hz=rate_hz, log_variables=log_variables,
+                         cut=cut)
 
 
 ADAPTER_NAMES = {frozenset({"cdr"}): "ros2", frozenset({"ros1"}): "ros1", frozenset({"json"}): "json"}
@@ -173,7 +175,8 @@ ADAPTER_NAMES = {frozenset({"cdr"}): "ros2", frozenset({"ros1"}): "ros1", frozen
 
 def read_channels(path: Path, channels: Sequence[Channel], warnings: list[str], decoder_for: DecoderFor, *,
                   container: str, pose_topic: str | None = None, accel_topic: str | None = None,
-                  rate_hz: float = 100.0, log_variables: dict[str, list[str]] | None = None) -> Flight:
+                  rate_hz: float = 100.0, log_variables: dict[str, list[str]] | None = None,
+                  cut: bool | tuple = True) -> Flight:
     """The Flight of a recording's channels, whatever container they come from (MCAP here, ROS bags in
     formats.rosbag): topic choice, decoding, one clock, cleaning, the Flight.
 
@@ -252,7 +255,7 @@ def read_channels(path: Path, channels: Sequence[Channel], warnings: list[str], 
     if pose_choice.body:
         meta["vehicle"] = pose_choice.body
     return build_flight(path, t_mocap=t_pose, p=mocap[:, :3], quat=mocap[:, 3:7], t_acc=t_acc, channels=inputs,
-                        acc_body_g=acc_g, rate_hz=rate_hz, meta=meta)
+                        acc_body_g=acc_g, rate_hz=rate_hz, meta=meta, cut=cut)
 
 
 def _vehicle_mismatch(pose: Candidate, accel: Candidate, found: list[Candidate]) -> list[str]:

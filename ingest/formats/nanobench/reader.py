@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ... import units
 from ...align import FLYING_HEIGHT_M, build_flight
 from ...flight import Flight, IngestError, existing_file, json_compatible, sha256_file
 from ...frames import GRAVITY
@@ -33,7 +34,15 @@ OPTIONAL_STREAMS = {
     "setpoint": ("sp_ctrltarget_x", "sp_ctrltarget_y", "sp_ctrltarget_z"),
     "p_onboard": ("est_stateEstimate_x", "est_stateEstimate_y", "est_stateEstimate_z"),
     "v_onboard": ("est_stateEstimate_vx", "est_stateEstimate_vy", "est_stateEstimate_vz"),
+    "acc_onboard": ("est_stateEstimate_ax", "est_stateEstimate_ay", "est_stateEstimate_az"),   # g -> m/s²
+    "quat_onboard": ("att_stateEstimate_qx", "att_stateEstimate_qy", "att_stateEstimate_qz", "att_stateEstimate_qw"),
+    "attitude_cmd": ("pid_controller_roll", "pid_controller_pitch", "pid_controller_yaw"),      # deg
+    "yaw_setpoint": ("sp_ctrltarget_yaw",),                                                    # deg
 }
+# Columns kept in their own unit but logged in another: converted after cleaning (ingest.units).
+CONVERTED_STREAMS = {"acc_onboard": units.standard_gravities}
+# Columns not kept: derived from the Vicon pose by the recorder (roll/pitch/yaw, vx..vz, wx..wz_vicon: the
+# Flight has the pose itself), or the onboard estimate's roll/pitch/yaw (its quaternion is kept).
 
 # Sensor streams whose noise makes an exact repeat of a whole row impossible: a repeat is a stale value
 # held by the logger.  (Motors, setpoints, battery can legitimately stay constant, e.g. 0 on the ground.)
@@ -254,7 +263,7 @@ def _read_metadata(path: Path, warnings: list[str]) -> dict | None:
 
 
 # -- public entry ---------------------------------------------------------------------------------------
-def read(path, rate_hz: float = 100.0, cut: bool = True) -> Flight:
+def read(path, rate_hz: float = 100.0, cut: bool | tuple = True) -> Flight:
     """Parse a NanoBench CSV into a Flight (mocap + accelerometer required, other streams optional)."""
     path = Path(path)
     columns = _check_file(path)
@@ -272,7 +281,7 @@ def read(path, rate_hz: float = 100.0, cut: bool = True) -> Flight:
     for name, cols in streams.items():
         t_s, v_s, reports[name] = clean_stream(name, t, table[list(cols)].to_numpy())
         if len(t_s) >= 2:
-            cleaned[name] = (t_s, v_s)
+            cleaned[name] = (t_s, CONVERTED_STREAMS[name](v_s) if name in CONVERTED_STREAMS else v_s)
         elif name in ("mocap", "acc"):
             raise IngestError(path, f"{name} stream has {len(t_s)} usable row(s) of {len(t)}")
         else:

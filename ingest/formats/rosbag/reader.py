@@ -15,7 +15,7 @@ def sniff(path) -> bool:
 
 
 def read(path, pose_topic: str | None = None, accel_topic: str | None = None, rate_hz: float = 100.0, *,
-         log_variables: dict[str, list[str]] | None = None) -> Flight:
+         log_variables: dict[str, list[str]] | None = None, cut: bool | tuple = True) -> Flight:
     """A ROS bag as a Flight.
 
     Parameters
@@ -29,6 +29,8 @@ def read(path, pose_topic: str | None = None, accel_topic: str | None = None, ra
         Grid rate of the Flight, Hz.
     log_variables : dict, optional
         LogDataGeneric topic -> names of its values (see formats.mcap.reader.read).
+    cut : bool or (start_s, stop_s)
+        The stretch to keep, as `ingest.align.build_flight` takes it.
 
     Returns
     -------
@@ -44,4 +46,5 @@ def read(path, pose_topic: str | None = None, accel_topic: str | None = None, ra
     path = existing_file(path, "ROS bag")
     with open_bag(path) as (channels, decoder_for):
         return read_channels(path, channels, [], decoder_for, container="rosbag", pose_topic=pose_topic,
-                             accel_topic=accel_topic, rate_hz=rate_hz, log_variables=log_variables)
+                             accel_topic=accel_topic, rate_hz=rate_hz, log_variables=log_variables,
+                             cut=cut)

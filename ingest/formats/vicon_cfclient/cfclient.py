@@ -12,6 +12,12 @@ from ...limits import MAX_DURATION_S
 from ..crazyflie_variables import ACC, OPTIONAL_SOURCES
 from .csv_text import SNIFF_BYTES, is_blank, parse_numbers, read_lines, split_cells, string_table
 
+# The pose the vehicle received from the mocap (m, scalar-last quaternion), as the firmware logs it: with it a
+# cfclient log is a flight of its own (no Vicon export needed).  Without a usable quaternion (position-only
+# mocap) the onboard attitude estimate stateEstimate.q* is used.
+POSE = ("locSrv.x", "locSrv.y", "locSrv.z", "locSrv.qx", "locSrv.qy", "locSrv.qz", "locSrv.qw")
+ONBOARD_QUATERNION = ("stateEstimate.qx", "stateEstimate.qy", "stateEstimate.qz", "stateEstimate.qw")
+
 # cfclient logs acc.* in g; a median |acc| above 4 g is m/s² (≈ 9.8) or garbage (as in the NanoBench reader).
 MAX_PLAUSIBLE_MEDIAN_ACC_G = 4.0
 
@@ -25,6 +31,17 @@ class CfclientLog:
     rows: int                  # data rows in the file
     columns: list
     warnings: list = field(default_factory=list)
+    pose: dict = field(default_factory=dict)   # "t" (K,) s, "values" (K, 7) locSrv, "onboard_quat" (K, 4) or None
+
+
+def has_pose(path) -> bool:
+    """True when a cfclient log's header carries the received mocap position (locSrv.x/y/z)."""
+    try:
+        with open(path, "rb") as handle:
+            first = handle.read(SNIFF_BYTES).decode("utf-8-sig", errors="replace").splitlines()[:1]
+    except OSError:
+        return False
+    return bool(first) and set(POSE[:3]) <= set(split_cells(first[0]))
 
 
 def sniff_cfclient(path) -> bool:
@@ -58,7 +75,8 @@ def read_cfclient_csv(path) -> CfclientLog:
     if not present.any():
         raise IngestError(path, "no data rows after the header")
     # Only the variables this adapter uses are parsed: other columns may hold anything.
-    wanted = ("Timestamp",) + ACC + tuple(name for _, names, _ in OPTIONAL_SOURCES for name in names)
+    wanted = ("Timestamp",) + ACC + POSE + ONBOARD_QUATERNION + tuple(name for _, names, _ in OPTIONAL_SOURCES
+                                                                    for name in names)
     column_of = {name: header.index(name) for name in dict.fromkeys(wanted) if name in header}
     try:
         table = string_table(data_lines, sorted(set(column_of.values())))
@@ -79,7 +97,22 @@ def read_cfclient_csv(path) -> CfclientLog:
     if median_acc > MAX_PLAUSIBLE_MEDIAN_ACC_G:
         raise IngestError(path, f"median |acc| = {median_acc:.4g} is not ≈ 1 g: acc.x/y/z must be in g")
     return CfclientLog(t=t, acc_g=acc, channels=_cfclient_channels(t_ms / 1000.0, numbers, usable),
-                       rows=int(present.sum()), columns=[name for name in header if name], warnings=warnings)
+                       rows=int(present.sum()), columns=[name for name in header if name], warnings=warnings,
+                       pose=_pose(t_ms / 1000.0, numbers, usable))
+
+
+def _pose(t: np.ndarray, numbers: dict, usable: np.ndarray) -> dict:
+    """locSrv rows (position m, quaternion; zero quaternion cells when only x/y/z are logged) and the onboard
+    quaternion on the same rows, or {} when the log has no locSrv position."""
+    if not all(name in numbers for name in POSE[:3]):
+        return {}
+    columns = [numbers[name] if name in numbers else np.zeros(len(t)) for name in POSE]
+    values = np.column_stack(columns)
+    keep = usable & np.all(np.isfinite(values), axis=1)
+    onboard = None
+    if all(name in numbers for name in ONBOARD_QUATERNION):
+        onboard = np.column_stack([numbers[name] for name in ONBOARD_QUATERNION])[keep]
+    return {"t": t[keep], "values": values[keep], "onboard_quat": onboard}
 
 
 def _increasing_finite(t_ms: np.ndarray, acc: np.ndarray, present: np.ndarray, warnings: list[str]) -> np.ndarray:

@@ -1,12 +1,16 @@
-"""`read_pair`: a Vicon export and the cfclient log of the same flight as one Flight on the Vicon clock."""
+"""`read_pair`: a Vicon export and the cfclient log of the same flight as one Flight on the Vicon clock;
+`read_single`: a cfclient log that carries the pose the vehicle received (locSrv.*) as a Flight of its own."""
 from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from ... import clock
-from ...align import build_flight, samples_per_second
+from ...align import build_flight, position_resolution, samples_per_second
 from ...flight import Flight, IngestError, sha256_file
-from .cfclient import read_cfclient_csv
+from ...limits import QUATERNION_NORM_TOLERANCE
+from .cfclient import ONBOARD_QUATERNION, POSE, read_cfclient_csv
 from .vicon import read_vicon_csv
 
 # Clock alignment is trusted when the specific-force magnitudes correlate at least this well (clean
@@ -15,8 +19,67 @@ MIN_CLOCK_SCORE = 0.5
 MAX_RUNNER_UP_RATIO = 0.9
 
 
+def read_single(path, rate_hz: float = 100.0, *, cut: bool | tuple = True) -> Flight:
+    """A cfclient "Log to file" CSV with the received mocap pose (locSrv.*) and acc.* as a Flight.
+
+    The pose is what the vehicle received from the motion capture (as in a uSD log): one clock, no
+    alignment.  Repeated rows of the pose (the log block samples the last frame received) are dropped;
+    rows before the first frame (all zero) too.  Attitude from locSrv.qx..qw, or from the onboard estimate
+    stateEstimate.qx..qw when the locSrv quaternion is not logged or zero (position-only mocap).
+
+    Raises
+    ------
+    IngestError
+        Naming the file: no locSrv position, fewer than 2 frames, no usable attitude.
+    """
+    path = Path(path)
+    log = read_cfclient_csv(path)
+    pose = log.pose
+    if not pose:
+        raise IngestError(path, f"a cfclient log without the received mocap pose ({', '.join(POSE[:3])}) needs a "
+                                f"Vicon export of the same flight given with it")
+    t, values, onboard = pose["t"], pose["values"], pose["onboard_quat"]
+    received = np.flatnonzero(np.any(values[:, :3] != 0, axis=1))   # locSrv reads zero until the first frame
+    first = received[0] if received.size else len(t)
+    t, values = t[first:], values[first:]
+    onboard = None if onboard is None else onboard[first:]
+    resolution = position_resolution(values[:, :3])
+    alive = t if resolution > 0 else None   # see the uSD reader: a rounded pose repeats without a gap
+    distinct = np.r_[True, np.any(np.diff(values, axis=0) != 0, axis=1)] if len(t) else np.zeros(0, bool)
+    notes = [f"{path.name}: {w}" for w in log.warnings]
+    unit = np.abs(np.linalg.norm(values[:, 3:], axis=1) - 1.0) < QUATERNION_NORM_TOLERANCE
+    if unit.any():
+        keep = distinct & unit
+        quat, attitude_source = values[keep, 3:], "mocap (locSrv quaternion)"
+    elif onboard is not None and np.any(np.abs(np.linalg.norm(onboard, axis=1) - 1.0) < QUATERNION_NORM_TOLERANCE):
+        keep = distinct & (np.abs(np.linalg.norm(onboard, axis=1) - 1.0) < QUATERNION_NORM_TOLERANCE)
+        quat, attitude_source = onboard[keep], "onboard estimate (stateEstimate.q*), locSrv quaternion is zero"
+        notes.append("locSrv has no attitude (quaternion not logged or zero: position-only mocap); attitude taken "
+                     "from the onboard estimate stateEstimate.qx/qy/qz/qw")
+    else:
+        raise IngestError(path, f"no attitude: locSrv.qx..qw is not logged or not a unit quaternion, and there is "
+                                f"no onboard estimate ({', '.join(ONBOARD_QUATERNION)}) to use instead")
+    if keep.sum() < 2:
+        raise IngestError(path, f"fewer than 2 mocap frames (locSrv) in this cfclient log ({int(keep.sum())})")
+    meta = {
+        "adapter": "cfclient",
+        "sources": [{"path": str(path), "sha256": sha256_file(path)}],
+        "original_rates": {"acc": samples_per_second(log.t), "mocap": samples_per_second(t[keep])},
+        "clock_offset_s": None,
+        "attitude_source": attitude_source,
+        "mocap_source": "locSrv: the pose the vehicle received from the motion capture (its clock, radio latency "
+                        "included)",
+        "cfclient": {"rows": log.rows, "rows_used": int(len(log.t)), "columns": log.columns,
+                     "t_first_since_boot_s": float(log.t[0])},
+        "warnings": notes,
+    }
+    return build_flight(path, t_mocap=t[keep], p=values[keep, :3], quat=quat, t_acc=log.t, acc_body_g=log.acc_g,
+                        channels=log.channels, rate_hz=rate_hz, meta=meta, cut=cut, mocap_alive_t=alive)
+
+
 def read_pair(vicon_path, cfclient_path, rate_hz: float = 100.0, *, clock_offset_s: float | None = None,
-              max_lag_s: float = clock.DEFAULT_MAX_LAG_S, segment: str | None = None, cut: bool = True) -> Flight:
+              max_lag_s: float = clock.DEFAULT_MAX_LAG_S, segment: str | None = None,
+              cut: bool | tuple = True) -> Flight:
     """A Vicon CSV export and the cfclient log of the same flight as one Flight on the Vicon clock.
 
     clock_offset_s: t_vicon = t_cfclient_s + clock_offset_s (t_cfclient_s = Timestamp / 1000).  None:

@@ -65,12 +65,15 @@ def upload_flight(response: Response,
                       "default: the only motion-capture topic")),
                   imu_topic: str | None = Form(None, max_length=300, description=(
                       "MCAP/ROS bag: the acceleration topic (sensor_msgs/Imu or LogDataGeneric), e.g. /cf1/imu")),
+                  cut: str | None = Form(None, max_length=60, description=(
+                      "the stretch to keep: auto (default: the flying part, take-off and landing cut), none (the "
+                      "whole recording) or START:STOP in seconds from the recording's start, e.g. 2.5:14")),
                   services: Services = Depends(get_services)):
     """One flight's file(s) (see service.uploads): 201 and the new flight, or 200 and the flight that
     already holds identical content (and the same topic choice).  The file(s) are decoded in a worker process
     within LEARNEST_DECODE_TIMEOUT_S (service.jobs.decoding); the answer comes when the flight is stored."""
     row, created = add_flight(services.db, services.blobs, files, vehicle, notes, pose_topic=pose_topic,
-                              imu_topic=imu_topic, decode=services.decoder.decode)
+                              imu_topic=imu_topic, cut=cut, decode=services.decoder.decode)
     response.status_code = 201 if created else 200
     response.headers["Location"] = f"/flights/{row.id}"
     return flight_out(row)
