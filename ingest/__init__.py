@@ -6,6 +6,7 @@ Flight per flight.  Every problem is an `IngestError` naming the file.
 """
 from __future__ import annotations
 
+import fnmatch
 import importlib
 from collections.abc import Iterable
 from pathlib import Path
@@ -63,8 +64,8 @@ DOCUMENT_NAMES = ("license", "licence", "readme", "citation", "notice")
 def collect_logs(paths: Iterable[str | Path]) -> tuple[list[Path], list[str]]:
     """The log files among ``paths`` (a folder stands for the files in it) and what was left out, and why.
 
-    Metadata sidecars (NanoBench ``*_metadata.yaml``, crazyswarm2 ``infoNNN.yaml``) are left out: their
-    log's reader reads them from beside the log.  In a folder, documents and files no adapter recognises
+    Metadata sidecars (NanoBench ``*_metadata.yaml``, crazyswarm2 ``infoNNN.yaml`` and ``crazyflies.yaml``) are
+    left out: their log's reader reads them from beside the log.  In a folder, documents and files no adapter recognises
     are left out too (as `learnest demo` does); of the files named on their own, documents (LICENSE,
     README.md, ...: what a shell glob brings along) are left out, and any other must be a log.
 
@@ -105,7 +106,7 @@ def collect_logs(paths: Iterable[str | Path]) -> tuple[list[Path], list[str]]:
     names = {log.name for log in logs} | {str(log) for log in logs}
     for sidecar in sidecars:
         owners = sidecar_log_names(sidecar.name) or []
-        if any(name in names or str(sidecar.with_name(name)) in names for name in owners):
+        if any(fnmatch.filter(names, name) or fnmatch.filter(names, str(sidecar.with_name(name))) for name in owners):
             notes.append(f"{sidecar.name}: metadata of {owners[0]}, read with it")
         else:
             notes.append(f"skipped {sidecar}: metadata sidecar without its log ({owners[0]}) among the files given")

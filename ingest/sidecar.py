@@ -83,6 +83,10 @@ def read_sidecar(path) -> object:
 # (an upload stages it as <log>_info.yaml next to the staged log).
 NANOBENCH_SIDECAR = re.compile(r"^(?P<stem>.+)_metadata\.ya?ml$", re.IGNORECASE)
 INFO_SIDECAR = re.compile(r"^(?:info(?P<number>\d+)|(?P<stem>.+)_info)\.ya?ml$", re.IGNORECASE)
+# crazyswarm2's configuration (its firmware_logging names the values of the LogDataGeneric topics) beside an MCAP
+# recording or a ROS 2 bag's .db3: <stem>_crazyflies.yaml for that recording, crazyflies.yaml for the folder's.
+CRAZYSWARM_CONFIG = re.compile(r"^(?:(?P<stem>.+)_)?crazyflies\.ya?ml$", re.IGNORECASE)
+RECORDING_SUFFIXES = (".mcap", ".db3")
 
 
 def sidecar_log_names(name: str) -> list[str] | None:
@@ -92,6 +96,8 @@ def sidecar_log_names(name: str) -> list[str] | None:
     ['B2_circle_rep1.csv', 'B2_circle_rep1']
     >>> sidecar_log_names("info182.yaml")
     ['log182']
+    >>> sidecar_log_names("crazyflies.yaml")    # crazyswarm2's configuration: every recording of its folder
+    ['*.mcap', '*.db3']
     """
     nanobench = NANOBENCH_SIDECAR.match(name)
     if nanobench:
@@ -99,6 +105,9 @@ def sidecar_log_names(name: str) -> list[str] | None:
     info = INFO_SIDECAR.match(name)
     if info:
         return [f"log{info['number']}"] if info["number"] else [info["stem"]]
+    crazyswarm = CRAZYSWARM_CONFIG.match(name)
+    if crazyswarm:
+        return [f"{crazyswarm['stem'] or '*'}{suffix}" for suffix in RECORDING_SUFFIXES]
     return None
 
 

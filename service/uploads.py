@@ -25,6 +25,7 @@ from sqlalchemy.exc import IntegrityError
 from learnest.errors import Conflict
 from learnest.ingest.align import cut_text, parse_cut
 from learnest.ingest.flight import Flight as CanonicalFlight
+from learnest.ingest.sidecar import CRAZYSWARM_CONFIG
 
 from .reading import StagedFile, read_uploaded_flight
 from .storage.blobs import CHUNK, BlobStore, storage_errors
@@ -128,20 +129,26 @@ def _sidecar_owner(name: str, log_stems: dict[str, int]) -> tuple[int, str] | No
     info = INFO_SIDECAR.fullmatch(name)
     if info and f"log{info[1]}" in log_stems:
         return log_stems[f"log{info[1]}"], "_info.yaml"
+    crazyswarm = CRAZYSWARM_CONFIG.fullmatch(name)   # <stem>_crazyflies.yaml, or crazyflies.yaml with one recording
+    if crazyswarm and (crazyswarm["stem"] in log_stems or (crazyswarm["stem"] is None and len(log_stems) == 1)):
+        return log_stems[crazyswarm["stem"]] if crazyswarm["stem"] else next(iter(log_stems.values())), \
+            "_crazyflies.yaml"
     return None
 
 
 def stage_uploads(uploads: Sequence[Upload], directory: Path) -> list[StagedFile]:
     """Copy the uploads to `directory` as upload_<i><.ext> (never the client's name), hashing on the way.
-    A NanoBench metadata YAML uploaded with its CSV, or a crazyswarm2 infoNNN.yaml with its uSD log logNNN, is
-    staged where the reader looks for it."""
+    A NanoBench metadata YAML uploaded with its CSV, a crazyswarm2 infoNNN.yaml with its uSD log logNNN, or a
+    crazyswarm2 crazyflies.yaml with its MCAP recording / ROS 2 bag, is staged where the reader looks for it."""
     names = [original_basename(upload.filename, i) for i, upload in enumerate(uploads)]
     log_stems = {Path(name).stem: i for i, name in enumerate(names)
-                 if not name.endswith(SIDECAR_SUFFIXES) and not INFO_SIDECAR.fullmatch(name)}
+                 if not name.endswith(SIDECAR_SUFFIXES) and not INFO_SIDECAR.fullmatch(name)
+                 and not CRAZYSWARM_CONFIG.fullmatch(name)}
     staged = []
     for i, (upload, name) in enumerate(zip(uploads, names, strict=True)):
         owner = _sidecar_owner(name, log_stems)
-        if owner is not None:   # staged where the reader looks: upload_<i>_metadata.yaml / upload_<i><ext>_info.yaml
+        if owner is not None:   # where the reader looks: upload_<i>_metadata.yaml, upload_<i><ext>_info.yaml,
+            # upload_<i>_crazyflies.yaml
             index, suffix = owner
             log_name = f"upload_{index}{_safe_suffix(names[index])}" if suffix == "_info.yaml" else f"upload_{index}"
             path, role = directory / f"{log_name}{suffix}", "sidecar"

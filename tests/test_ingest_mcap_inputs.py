@@ -115,3 +115,28 @@ def test_crazyflies_yaml_topics_merge_all_robot_type_and_robot_scopes():
     assert crazyswarm_log_variables(config) == {"/cf1/power": ["pm.vbatMV"], "/cf1/motors": motors,
                                                 "/cf2/power": ["pm.vbat"], "/broken/power": ["pm.vbat"]}
     assert crazyswarm_log_variables(["not", "a", "config"]) == {}
+
+
+def test_crazyflies_yaml_beside_a_recording_is_read_with_it_from_a_folder_and_an_upload(flight, tmp_path):
+    from learnest.ingest import collect_logs
+    from learnest.service.reading import read_uploaded_flight
+    from learnest.service.uploads import LocalFile, stage_uploads
+
+    folder = tmp_path / "run"
+    write_canonical_flight(flight, "mcap-ros2", folder, "flight")
+    (folder / "flight_crazyflies.yaml").rename(folder / "crazyflies.yaml")    # the folder's configuration
+    logs, notes = collect_logs([folder])
+    assert logs == [folder / "flight.mcap"]
+    assert any(note.startswith("crazyflies.yaml: metadata of") for note in notes)
+    read = read_flights(logs)[0]
+    assert {"motors", "vbat"} <= set(read.channels)
+    assert [s["path"] for s in read.meta["sources"]] == [str(folder / "flight.mcap"), str(folder / "crazyflies.yaml")]
+
+    staging = tmp_path / "staging"           # uploaded together (web form, POST /flights)
+    staging.mkdir()
+    with open(folder / "crazyflies.yaml", "rb") as config, open(folder / "flight.mcap", "rb") as recording:
+        staged = stage_uploads([LocalFile("crazyflies.yaml", config), LocalFile("flight.mcap", recording)], staging)
+    assert [f.role for f in staged] == ["sidecar", "log"]
+    uploaded = read_uploaded_flight(staged)
+    assert {"motors", "vbat"} <= set(uploaded.channels)
+    assert [s["path"] for s in uploaded.meta["sources"]] == ["flight.mcap", "crazyflies.yaml"]   # the client's names

@@ -22,8 +22,9 @@ from .channels import Channel, Reading
 from .decoding import DecoderFor, decode
 from .schemas import LOG_DATA_GENERIC, ROS_ENCODINGS, ros_type
 
-# Beside a recording: "<file stem>_crazyflies.yaml" (one per recording), else "crazyflies.yaml" (the folder's).
-CRAZYSWARM_CONFIG = "crazyflies.yaml"
+# Beside a recording: "<file stem>_crazyflies.yaml" (one per recording), else "crazyflies.yaml" (the folder's);
+# ingest.sidecar.CRAZYSWARM_CONFIG recognises the same names.
+CRAZYSWARM_CONFIG_NAMES = ("{stem}_crazyflies.yaml", "{stem}_crazyflies.yml", "crazyflies.yaml", "crazyflies.yml")
 INPUT_VARIABLES = frozenset(name for _, names, _ in OPTIONAL_SOURCES for name in names)
 
 
@@ -72,14 +73,15 @@ def crazyswarm_log_variables(config: object) -> dict[str, list[str]]:
     return found
 
 
-def sidecar_log_variables(path: Path, notes: list[str]) -> dict[str, list[str]] | None:
-    """The log variables of the crazyswarm2 configuration beside a recording, or None without one.
+def sidecar_log_variables(path: Path, notes: list[str]) -> tuple[dict[str, list[str]] | None, Path | None]:
+    """The log variables of the crazyswarm2 configuration beside a recording, and the configuration's path.
 
-    Looks for ``<stem>_crazyflies.yaml``, then ``crazyflies.yaml``, in the recording's folder.  An unreadable
-    configuration is a note (the recording is still a flight); one past the sidecar caps is refused.
+    Looks for ``<stem>_crazyflies.yaml``, then ``crazyflies.yaml`` (or ``.yml``), in the recording's folder;
+    (None, None) without one.  An unreadable configuration is a note (the recording is still a flight:
+    (None, its path)); one past the sidecar caps is refused (`ingest.sidecar.SidecarTooLarge`).
     """
-    for name in (f"{path.stem}_{CRAZYSWARM_CONFIG}", CRAZYSWARM_CONFIG):
-        config = path.with_name(name)
+    for name in CRAZYSWARM_CONFIG_NAMES:
+        config = path.with_name(name.format(stem=path.stem))
         if not config.is_file():
             continue
         try:
@@ -88,12 +90,12 @@ def sidecar_log_variables(path: Path, notes: list[str]) -> dict[str, list[str]] 
             raise
         except IngestError as err:
             notes.append(f"{config.name}: {err.problem}; its log variables are not used")
-            return None
+            return None, config
         found = crazyswarm_log_variables(record)
         notes.append(f"{config.name}: LogDataGeneric variables of {len(found)} topic(s) "
                      f"({', '.join(sorted(found)) or 'none declared'})")
-        return found
-    return None
+        return found, config
+    return None, None
 
 
 def _on_clock(decoded, use_stamps: bool, origin_ns: int) -> tuple[np.ndarray, str]:

@@ -205,8 +205,9 @@ def read_channels(path: Path, channels: Sequence[Channel], warnings: list[str], 
         gave each input channel).
     """
     notes = list(warnings)
+    config = None
     if log_variables is None:   # crazyswarm2's crazyflies.yaml beside the recording names its LogDataGeneric values
-        log_variables = sidecar_log_variables(path, notes)
+        log_variables, config = sidecar_log_variables(path, notes)
     readings = {c.id: r for c in channels if (r := classify(c, log_variables)) is not None}
     if (error := _no_usable_topics(path, channels, notes, readings)) is not None:
         raise error
@@ -239,7 +240,7 @@ def read_channels(path: Path, channels: Sequence[Channel], warnings: list[str], 
     source, why = pose_choice.source
     meta = {
         "adapter": f"{container}-{ADAPTER_NAMES.get(encodings, 'ros2+json')}",
-        "sources": [{"path": str(path), "sha256": sha256_file(path)}],
+        "sources": [{"path": str(p), "sha256": sha256_file(p)} for p in (path, config) if p is not None],
         "original_rates": {"mocap": samples_per_second(t_pose), "acc": samples_per_second(t_acc)},
         "clock_offset_s": None,     # one recorder clock for every topic in a bag
         "topics": {"pose": pose_choice.label, "pose_type": pose_choice.type_name, "pose_source": source,
