@@ -165,14 +165,14 @@ def input_channels(path: Path, channels: Sequence[Channel], log_variables: dict[
         streams[topic] = (names, t, np.array(decoded.values, dtype=float), time_source)
     found: dict = {}
     meta: dict = {}
-    for channel, variables, to_unit in OPTIONAL_SOURCES:
+    for output, variables, to_unit in OPTIONAL_SOURCES:
         for topic, (names, t, values, time_source) in streams.items():
-            if channel in found or not set(variables) <= set(names):
+            if output in found or not set(variables) <= set(names):
                 continue
             converted = to_unit(values[:, [names.index(name) for name in variables]]).reshape(len(t), -1)
             t_kept, kept = _clean(t, converted)
             if len(t_kept) >= 2:
-                found[channel] = (t_kept, kept)
-                meta[channel] = {"topic": topic, "variables": list(variables), "time_source": time_source,
+                found[output] = (t_kept, kept)
+                meta[output] = {"topic": topic, "variables": list(variables), "time_source": time_source,
                                  "samples": len(t_kept)}
     return found, meta

@@ -30,7 +30,8 @@ def _typestore(ros1: bool):
 
 
 class BagWriter:
-    """A bag of pose, multi-body pose, IMU and (ROS 2) LogDataGeneric streams; messages are written in receive-time order on close.
+    """A bag of pose, multi-body pose, IMU and (ROS 2) LogDataGeneric streams; messages are written in
+    receive-time order on close.
 
     Parameters
     ----------
