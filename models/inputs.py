@@ -15,8 +15,10 @@ from .systems import System
 
 # channel -> what carries it in each supported format (for the error message)
 CHANNEL_SOURCES = {
-    "motors": "motor PWM: NanoBench motor_motor_m1..m4, uSD/cfclient motor.m1..m4 or pwm.m1_pwm..m4_pwm",
-    "vbat": "battery voltage: NanoBench pwr_pm_vbat, uSD/cfclient pm.vbat or pm.vbatMV",
+    "motors": "motor PWM: NanoBench motor_motor_m1..m4, uSD/cfclient motor.m1..m4 or pwm.m1_pwm..m4_pwm, "
+              "MCAP/ROS 2 LogDataGeneric topics named in a crazyflies.yaml beside the recording",
+    "vbat": "battery voltage: NanoBench pwr_pm_vbat, uSD/cfclient pm.vbat or pm.vbatMV, "
+            "MCAP/ROS 2 LogDataGeneric topics named in a crazyflies.yaml beside the recording",
 }
 # system name -> the Flight channels its inputs come from, in input order after the attitude
 NEEDED = {"crazyflie": ("motors", "vbat")}
