@@ -3,8 +3,8 @@
 The browser test starts `learnest serve` (python -m service.cli serve) on a free loopback port with its own
 LEARNEST_HOME and an API key, and drives Debian's headless Chromium through chromedriver with selenium:
 upload two sample logs with the upload form, train a model from the flight page (3 epochs), wait for the
-job page, evaluate from the model page, wait, and read the report (box plot, per-flight table, velocity
-plot).  It is skipped, with the reason, when selenium, /usr/bin/chromium or /usr/bin/chromedriver is
+job page, evaluate from the model page, wait, and read the report (per-flight paired dots and error-over-time
+plots drawn by plotly.js, per-flight table).  It is skipped, with the reason, when selenium, /usr/bin/chromium or /usr/bin/chromedriver is
 missing (CI installs them: see .ci/run).  Selenium is given the driver's path and Selenium Manager is
 disabled, so nothing is ever downloaded.
 """
@@ -183,15 +183,17 @@ def test_upload_train_evaluate_and_report_in_chromium(server, browser):
     by_css(browser, "#report-link").click()
     wait_for_url(browser, r"/evaluations/\d+/report\.html")
 
-    # the report (on the site's template: its nav and stylesheet): box plot, per-flight table, velocity plot
+    # the report (on the site's template: its nav and stylesheet): per-flight paired dots and the error-over-time
+    # plots drawn by plotly.js (served by the app, no CDN) from the stored estimates, and the per-flight table
     assert "Evaluation" in by_css(browser, "h1").text and "models" in by_css(browser, "nav").text
     assert browser.execute_script("return getComputedStyle(document.querySelector('nav')).borderBottomStyle") == "solid"
-    assert image_loaded(browser, "img[alt='MSE box plot']")
+    from selenium.webdriver.support.ui import WebDriverWait
+    for plot in ("#paired-plot", "#error-plot"):
+        WebDriverWait(browser, 30).until(
+            lambda driver, plot=plot: driver.execute_script(
+                f"return document.querySelectorAll('{plot} svg.main-svg').length") > 0)
     table = by_css(browser, "table").text
     assert "circle_rep2" in table and "knode-ukf" in table and "median" in table
-    # the velocity plot is computed once by an executor task; the page reloads itself until it is stored
-    from selenium.webdriver.support.ui import WebDriverWait
-    WebDriverWait(browser, 60).until(lambda driver: image_loaded(driver, "#velocity-plot"))
     assert "circle_rep2" in by_css(browser, "select[name=flight]").text
 
 
