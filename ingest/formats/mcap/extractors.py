@@ -122,10 +122,8 @@ def log_data(msg, indices: list[int], expected: int):
     Rejected
         The message does not hold `expected` values.
     """
-    values = msg.values
-    if len(values) != expected:
-        raise Rejected(f"{len(values)} values instead of {expected}")
-    return _ros_stamp_ns(msg.header), tuple(float(values[i]) for i in indices), "g"
+    stamp, values, _ = log_values(msg, expected)
+    return stamp, tuple(values[i] for i in indices), "g"
 
 
 def log_values(msg, expected: int):
