@@ -5,8 +5,10 @@ from learnest.service.experiments.table1 import ReproduceSettings, reproduce
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("task,samples,epochs", [("cartpole", 1500, None), ("robot", 1000, 1000)])
+@pytest.mark.parametrize("task,samples,epochs", [("cartpole", 1500, None), ("robot", 1000, 500)])
 def test_quick_reproduction_shows_the_papers_ordering(task, samples, epochs):
+    # robot: 500 epochs (not the paper's 10000) keep KNODE-MHE/UKF 16x/19x better than MHE/UKF on these two
+    # seeds, far past the 2x asserted, in half the time of 1000.
     # observer_rounds=0: the paper's Algorithm 1 (the cartpole's default iteration would add ~1 min here;
     # tests/test_observers.py runs it, benchmarks/results/table1_observer_study.md measures it)
     report = reproduce(ReproduceSettings(task, eval_samples=samples, epochs=epochs, observer_rounds=0), seeds=2,
