@@ -191,3 +191,32 @@ def test_upload_with_pose_topic_one_flight_per_vehicle(tmp_path):
         page = client.get(f"/ui/flights/{onboard.json()['id']}").text
         assert "/cf1/pose" in page and "onboard estimate, not motion capture" in page
         assert upload(client, path, pose_topic="/poses;rm").status_code == 422
+
+
+def true_gyro(t):
+    """A known body rate (rad/s), slow enough that the 100 Hz grid and the anti-alias filter keep it."""
+    return np.column_stack([0.3 * np.sin(2.0 * t), -0.2 * np.cos(1.3 * t), 0.5 * np.sin(0.7 * t) + 0.1])
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "ros1", "mcap"])
+def test_the_imus_angular_velocity_is_the_gyro_channel_and_a_zero_one_is_noted(tmp_path, storage):
+    t, t_acc = mocap_times(), imu_times()
+    p, q, acc = true_position(t), true_quaternion(t), accelerometer_g(t_acc)
+    paths = {}
+    for name, gyro in (("with", true_gyro(t_acc)), ("not_provided", None), ("zeros", np.zeros((len(t_acc), 3)))):
+        path = tmp_path / name / (f"{name}.bag" if storage == "ros1" else name)
+        path.parent.mkdir()
+        with BagWriter(path, storage) as bag:
+            bag.add_pose("/mocap/cf1/pose", t, p, q)
+            bag.add_imu("/cf1/imu", t_acc, acc, gyro_rad_s=gyro)
+        paths[name] = bag.storage_file
+    container = "mcap" if storage == "mcap" else "rosbag"
+    flight = read_flights([paths["with"]])[0]
+    source_t = flight.t + flight.meta["t0_source_s"] + flight.meta.get("flying_window", {}).get("start_s", 0.0)
+    np.testing.assert_allclose(flight.channels["gyro"], true_gyro(source_t), atol=1e-4)
+    assert flight.meta[container]["inputs"]["gyro"]["topic"] == "/cf1/imu"
+    # covariance -1: the driver declares no angular velocity, nothing to say; zeros throughout: said
+    not_provided, zeros = (read_flights([paths[name]])[0] for name in ("not_provided", "zeros"))
+    assert "gyro" not in not_provided.channels and not_provided.meta[container]["warnings"] == []
+    assert "gyro" not in zeros.channels
+    assert any("angular_velocity is zero" in note for note in zeros.meta[container]["warnings"])

@@ -99,10 +99,25 @@ def _xyzw(quaternion) -> tuple[float, float, float, float]:
 def imu(msg):
     """sensor_msgs/Imu -> (header stamp ns, linear_acceleration (x, y, z), "m/s^2").
 
-    Orientation and angular velocity are ignored; the stamp is None when the header's stamp is zero.
+    Orientation is ignored, the angular velocity read apart (`imu_gyro`); the stamp is None when the header's
+    stamp is zero.
     """
     acc = msg.linear_acceleration
     return _ros_stamp_ns(msg.header), (acc.x, acc.y, acc.z), "m/s^2"
+
+
+def imu_gyro(msg):
+    """sensor_msgs/Imu -> (header stamp ns, angular_velocity (x, y, z), "rad/s"), body (IMU) frame.
+
+    Raises
+    ------
+    Rejected
+        The message says it has no angular velocity (element 0 of its covariance is -1, the ROS convention).
+    """
+    if len(msg.angular_velocity_covariance) and msg.angular_velocity_covariance[0] == -1:
+        raise Rejected("no angular velocity (covariance -1)")
+    rate = msg.angular_velocity
+    return _ros_stamp_ns(msg.header), (rate.x, rate.y, rate.z), "rad/s"
 
 
 def log_data(msg, indices: list[int], expected: int):

@@ -176,3 +176,29 @@ def input_channels(path: Path, channels: Sequence[Channel], log_variables: dict[
                 meta[output] = {"topic": topic, "variables": list(variables), "time_source": time_source,
                                  "samples": len(t_kept)}
     return found, meta
+
+
+def imu_gyro_channel(path: Path, accel_channels: Sequence[Channel], decoder_for: DecoderFor, *, use_stamps: bool,
+                     origin_ns: int, notes: list[str]) -> tuple[tuple[np.ndarray, np.ndarray], dict] | None:
+    """The gyro (rad/s, body frame) of the sensor_msgs/Imu topic chosen for the acceleration.
+
+    Returns
+    -------
+    ((t (K,) s since origin_ns, values (K, 3) rad/s), meta) or None
+        None when the messages say they carry no angular velocity (covariance -1, silently: the driver
+        declares it) or carry zeros throughout (a driver that leaves the field unset: noted in ``notes``).
+    """
+    topic = accel_channels[0].topic
+    try:
+        decoded = decode(path, accel_channels, Reading("inputs", extractors.imu_gyro, "header.stamp"), decoder_for)
+    except IngestError:
+        return None
+    t, time_source = _on_clock(decoded, use_stamps, origin_ns)
+    t, values = _clean(t, np.array(decoded.values, dtype=float).reshape(len(t), 3))
+    if len(t) < 2 or not np.any(values):
+        notes.append(f"{topic}: angular_velocity is zero in every Imu message (not logged): no gyro")
+        return None
+    return (t, values), {"topic": topic, "variables": ["angular_velocity.x", "angular_velocity.y",
+                                                       "angular_velocity.z"], "time_source": time_source,
+                         "samples": len(t)}
+

@@ -21,10 +21,11 @@ from ...align import build_flight, samples_per_second
 from ...flight import Flight, IngestError, sha256_file
 from ...frames import GRAVITY
 from ...limits import MAX_DURATION_S, QUATERNION_NORM_TOLERANCE
+from . import extractors
 from .channels import ONBOARD, Channel, Reading, classify
 from .container import MAGIC, McapChannel, scan
 from .decoding import Decoded, DecoderFor, decode
-from .inputs import input_channels, sidecar_log_variables
+from .inputs import imu_gyro_channel, input_channels, sidecar_log_variables
 from .selection import ROLE_WORDS, Candidate, candidates, choose, listing
 
 # A flight's median specific force is ≈ 1 g (hover or rest); outside these bounds the unit is wrong.
@@ -231,6 +232,12 @@ def read_channels(path: Path, channels: Sequence[Channel], warnings: list[str], 
     _check_acc_magnitude(path, accel_choice.label, acc_g)
     inputs, inputs_meta = input_channels(path, channels, log_variables, decoder_for, use_stamps=use_stamps,
                                          origin_ns=origin_ns, notes=notes)
+    if "gyro" not in inputs and accel_choice.reading.extract is extractors.imu:
+        # a LogDataGeneric gyro the user named wins; else the Imu's own angular velocity, when it has one
+        gyro = imu_gyro_channel(path, accel_choice.channels, decoder_for, use_stamps=use_stamps,
+                                origin_ns=origin_ns, notes=notes)
+        if gyro is not None:
+            inputs["gyro"], inputs_meta["gyro"] = gyro
     overlap = min(t_pose[-1], t_acc[-1]) - max(t_pose[0], t_acc[0])
     if overlap > MAX_DURATION_S:
         raise IngestError(path, f"pose and acceleration overlap for {overlap:.6g} s, more than "

@@ -134,16 +134,20 @@ class Ros2BagWriter(_BufferedRecording):
             raise ValueError(f"pose message_type must be PoseStamped or TransformStamped, not {message_type!r}")
         self._add(topic, (type_name, ros2msg_definition(type_name)), t, log_t, message)
 
-    def add_imu(self, topic: str, t, acc_body_g, *, frame_id: str = "cf1", stamp_headers: bool = True, log_t=None):
-        """sensor_msgs/Imu with linear_acceleration = acc_body_g · g (m/s²); no orientation (covariance
-        -1 by the ROS convention), zero angular velocity."""
+    def add_imu(self, topic: str, t, acc_body_g, *, gyro_rad_s=None, frame_id: str = "cf1",
+                stamp_headers: bool = True, log_t=None):
+        """sensor_msgs/Imu with linear_acceleration = acc_body_g · g (m/s²) and angular_velocity = gyro_rad_s
+        (N, 3) when given; what is not given (orientation, and the angular velocity without gyro_rad_s) has
+        element 0 of its covariance at -1, the ROS convention for "not provided"."""
         acc = np.asarray(acc_body_g, float) * GRAVITY
-        no_orientation = [-1.0] + [0.0] * 8
+        gyro = None if gyro_rad_s is None else np.asarray(gyro_rad_s, float)
+        not_provided = [-1.0] + [0.0] * 8
 
         def message(i, stamp_ns):
+            rate, rate_cov = ((0.0, 0.0, 0.0), not_provided) if gyro is None else (gyro[i], [0.0] * 9)
             return {"header": self._header(stamp_ns, frame_id, stamp_headers),
-                    "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}, "orientation_covariance": no_orientation,
-                    "angular_velocity": _xyz_dict((0.0, 0.0, 0.0)), "angular_velocity_covariance": [0.0] * 9,
+                    "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}, "orientation_covariance": not_provided,
+                    "angular_velocity": _xyz_dict(rate), "angular_velocity_covariance": rate_cov,
                     "linear_acceleration": _xyz_dict(acc[i]), "linear_acceleration_covariance": [0.0] * 9}
         self._add(topic, (IMU, ros2msg_definition(IMU)), t, log_t, message)
 
@@ -235,11 +239,12 @@ class JsonMcapWriter(_BufferedRecording):
             writer.finish()
 
 
-def write_ros2(path, t, p, quat_xyzw, acc_body_g, *, t_acc=None, pose_type: str = "PoseStamped",
+def write_ros2(path, t, p, quat_xyzw, acc_body_g, *, t_acc=None, gyro_rad_s=None, pose_type: str = "PoseStamped",
                accel_type: str = "Imu", pose_topic: str | None = None, accel_topic: str | None = None,
                stamp_headers: bool = True, start_ns: int = DEFAULT_START_NS, chunk_size: int = DEFAULT_CHUNK_SIZE,
                compression: str = "zstd") -> None:
-    """A ROS 2 bag of one flight: mocap pose at times t, accelerometer (g, body frame) at t_acc (default t).
+    """A ROS 2 bag of one flight: mocap pose at times t, accelerometer (g, body frame) at t_acc (default t),
+    and, with accel_type "Imu", the gyro (rad/s, body frame) at t_acc when gyro_rad_s is given.
 
     pose_type "PoseStamped" (default topic /mocap/cf1/pose) or "TransformStamped" (vicon_bridge's
     /vicon/cf1/cf1); accel_type "Imu" (m/s², /cf1/imu) or "LogDataGeneric" ([acc.x, acc.y, acc.z] in g,
@@ -251,7 +256,8 @@ def write_ros2(path, t, p, quat_xyzw, acc_body_g, *, t_acc=None, pose_type: str 
         bag.add_pose(pose_topic or default_pose_topic, t, p, quat_xyzw, message_type=pose_type,
                      stamp_headers=stamp_headers)
         if accel_type == "Imu":
-            bag.add_imu(accel_topic or "/cf1/imu", t_acc, acc_body_g, stamp_headers=stamp_headers)
+            bag.add_imu(accel_topic or "/cf1/imu", t_acc, acc_body_g, gyro_rad_s=gyro_rad_s,
+                        stamp_headers=stamp_headers)
         elif accel_type == "LogDataGeneric":
             bag.add_log_data(accel_topic or "/cf1/acc", t_acc, acc_body_g, stamp_headers=stamp_headers)
         else:

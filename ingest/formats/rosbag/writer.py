@@ -133,18 +133,21 @@ class BagWriter:
             raise ValueError(f"message_type must be NamedPoseArray or TFMessage, not {message_type!r}")
         self._add(topic, type_name, t, log_t, make)
 
-    def add_imu(self, topic: str, t, acc_body_g, *, frame_id: str = "cf1", log_t=None) -> None:
-        """sensor_msgs/Imu with linear_acceleration = acc_body_g (N, 3) · g in m/s²; no orientation."""
+    def add_imu(self, topic: str, t, acc_body_g, *, gyro_rad_s=None, frame_id: str = "cf1", log_t=None) -> None:
+        """sensor_msgs/Imu with linear_acceleration = acc_body_g (N, 3) · g in m/s² and angular_velocity =
+        gyro_rad_s (N, 3) when given; no orientation (covariance -1), nor angular velocity without gyro_rad_s."""
         acc = np.asarray(acc_body_g, float) * GRAVITY
-        no_orientation = np.array([-1.0] + [0.0] * 8)
+        gyro = None if gyro_rad_s is None else np.asarray(gyro_rad_s, float)
+        not_provided = np.array([-1.0] + [0.0] * 8)
         type_name = "sensor_msgs/msg/Imu"
 
         def make(i, stamp_ns):
+            rate, rate_cov = ((0, 0, 0), not_provided) if gyro is None else (gyro[i], np.zeros(9))
             return self._type(type_name)(
                 header=self._header(stamp_ns, frame_id), orientation=self._quaternion((0, 0, 0, 1)),
-                orientation_covariance=no_orientation,
-                angular_velocity=self._vector("geometry_msgs/msg/Vector3", (0, 0, 0)),
-                angular_velocity_covariance=np.zeros(9),
+                orientation_covariance=not_provided,
+                angular_velocity=self._vector("geometry_msgs/msg/Vector3", rate),
+                angular_velocity_covariance=rate_cov,
                 linear_acceleration=self._vector("geometry_msgs/msg/Vector3", acc[i]),
                 linear_acceleration_covariance=np.zeros(9))
         self._add(topic, type_name, t, log_t, make)
