@@ -82,6 +82,11 @@ class CompiledFunction(_Buffers):
                            self._iw.ctypes.data, self._w.ctypes.data, self._mem)
         self._lib = lib  # keep the library loaded as long as the callable lives
 
+    def pointers(self) -> tuple:
+        """(function, arg, res, iw, w, mem) as integers: what C code needs to call this function itself
+        (`estimators/gn.c`), valid as long as this object lives."""
+        return (ctypes.cast(self._fn, ctypes.c_void_p).value, *self._call_args)
+
     def __call__(self):
         if self._fn(*self._call_args):
             raise RuntimeError("compiled CasADi function returned an error")
