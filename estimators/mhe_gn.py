@@ -89,19 +89,22 @@ class GaussNewtonWindowSolver:
         node = ca.Function("lrn_node", [x, u, xn, y, md, mm], [lam_w, grad])
         F, H = ca.densify(ca.jacobian(f, x)), ca.densify(ca.jacobian(hx, x))
         jac = ca.Function("lrn_jac", [x, u], [f, F, H])
+        # one node with h too: gn.c calls it per node and forms the next gradient from its outputs
+        jac1 = ca.Function("lrn_jac1", [x, u], [f, F, H, hx])
         self.linear = not (ca.depends_on(F, x) or ca.depends_on(H, x))
         # one exact step solves a quadratic problem; the new node's H is borrowed from its predecessor,
         # exact only when H does not depend on u
         self.one_step = self.linear and not ca.depends_on(H, u)
-        self.sweep, self.jac2, self.jac_all = compiled(
+        self.sweep, self.jac2, self.jac_all, self.jac1 = compiled(
             [node.map("lrn_sweep", "serial", self.Lmax, [], []), jac.map("lrn_jac2", "serial", 2, [], []),
-             jac.map("lrn_jacn", "serial", self.Lmax, [], [])], cache_dir=cache_dir, compiler=compiler)
+             jac.map("lrn_jacn", "serial", self.Lmax, [], []), jac1], cache_dir=cache_dir, compiler=compiler)
         self.backend = self.sweep.backend
         self.linalg = BlockTridiagonal(n, m, self.Lmax, self.Qi, self.Ri, cache_dir, compiler)
-        self.stats = {"solves": 0, "iterations": 0, "relinearisations": 0, "ipopt_fallbacks": 0, "failures": 0}
+        self.stats = {"solves": 0, "iterations": 0, "relinearisations": 0, "node_jacobians": 0, "ipopt_fallbacks": 0,
+                      "failures": 0}
         self._mask_length = -1
         self._native = None
-        if self.sweep.backend == "c" and self.jac_all.backend == "c" and self.linalg.lib is not None:
+        if self.sweep.backend == "c" and self.linalg.lib is not None and max(n, m) <= 64:   # gn.c's stack arrays
             self._native = _NativeWindow(self)
 
     # -- evaluations ------------------------------------------------------------------------------------
@@ -142,6 +145,7 @@ class GaussNewtonWindowSolver:
         F[:L] = np.swapaxes(Ft.reshape(self.Lmax, n, n)[:L], 1, 2)
         H[:L] = np.swapaxes(Ht.reshape(self.Lmax, n, m)[:L], 1, 2)
         self.stats["relinearisations"] += 1
+        self.stats["node_jacobians"] += L
 
     def _jac2(self, xa, ua, xb, ub):
         """f, F, H at two points (one compiled call)."""
@@ -242,7 +246,9 @@ class GaussNewtonWindowSolver:
             F[L - 1], H[L - 1] = Fs[1], Hs[1]
             slides = k + 1 - N > start
             if slides:
-                if mhe.arrival == "ekf":
+                if mhe.arrival == "ekf" and self._native is not None:
+                    self._native.arrival(Fs[0], Hs[0], P_arrival, P_inv)
+                elif mhe.arrival == "ekf":
                     P_arrival = _ekf_update(Fs[0], Hs[0], P_arrival, mhe.Q, mhe.R)
                     P_inv = np.linalg.inv(P_arrival)
                 x_bar = X[1].copy()
@@ -270,11 +276,11 @@ class _Fn(ctypes.Structure):
 class _Problem(ctypes.Structure):
     """gn.c's lrn_gn: sizes, stopping rule, functions, matrices and scratch of one window solver."""
 
-    _fields_ = [("n", ctypes.c_int), ("m", ctypes.c_int), ("Lmax", ctypes.c_int), ("limit", ctypes.c_int),
-                ("one_step", ctypes.c_int), ("bounded", ctypes.c_int), ("tol", ctypes.c_double),
-                ("rate_regime", ctypes.c_double), ("sweep", _Fn), ("jac", _Fn),
-                *[(name, ctypes.c_void_p) for name in ("Qi", "Ri", "Pinv", "R", "C", "work", "g", "dx")],
-                ("iterations", ctypes.c_longlong), ("relinearisations", ctypes.c_longlong)]
+    _fields_ = [*[(name, ctypes.c_int) for name in ("n", "m", "p", "Lmax", "limit", "one_step", "bounded")],
+                ("tol", ctypes.c_double), ("rate_regime", ctypes.c_double),
+                ("sweep", _Fn), ("jac", _Fn),
+                *[(name, ctypes.c_void_p) for name in ("Qi", "Ri", "Pinv", "R", "C", "work", "g", "dx", "f", "h")],
+                *[(name, ctypes.c_longlong) for name in ("iterations", "relinearisations", "node_jacobians")]]
 
 
 class _NativeWindow:
@@ -287,40 +293,53 @@ class _NativeWindow:
         self.gn, mhe, linalg = gn, gn.mhe, gn.linalg
         n, Lmax = mhe.n, gn.Lmax
         self.X, self.x_bar = np.zeros((Lmax, n)), np.zeros(n)
-        self.g, self.dx = np.zeros((Lmax, n)), np.zeros((Lmax, n))
-        problem = _Problem(n=n, m=mhe.m, Lmax=Lmax, limit=gn.max_iter or 30, one_step=int(gn.one_step),
+        self.g, self.dx, self.f, self.h = np.zeros((Lmax, n)), np.zeros((Lmax, n)), np.zeros((Lmax, n)), np.zeros((Lmax, mhe.m))
+        self.ekf_work = np.zeros(3 * n * n + 2 * n * mhe.m + mhe.m ** 2)
+        self.Q, self.R = np.ascontiguousarray(mhe.Q, dtype=float), np.ascontiguousarray(mhe.R, dtype=float)
+        problem = _Problem(n=n, m=mhe.m, p=mhe.p, Lmax=Lmax, limit=gn.max_iter or 30, one_step=int(gn.one_step),
                            bounded=int(gn.max_iter is not None), tol=gn.tol, rate_regime=RATE_REGIME,
-                           sweep=_Fn(*gn.sweep.pointers()), jac=_Fn(*gn.jac_all.pointers()),
+                           sweep=_Fn(*gn.sweep.pointers()), jac=_Fn(*gn.jac1.pointers()),
                            Qi=_address(linalg.Qi), Ri=_address(linalg.Ri), Pinv=_address(linalg._pinv),
                            R=_address(linalg.R), C=_address(linalg.C), work=_address(linalg.work),
-                           g=_address(self.g), dx=_address(self.dx))
+                           g=_address(self.g), dx=_address(self.dx), f=_address(self.f), h=_address(self.h))
         self.problem = problem
         self._call = linalg.lib.lrn_gn_window
         self._call.argtypes = [ctypes.c_void_p, ctypes.c_int] + [ctypes.c_void_p] * 4
         self._call.restype = ctypes.c_int
         self._fixed = (ctypes.addressof(problem),)
+        self._ekf = linalg.lib.lrn_ekf_arrival
+        self._ekf.argtypes = [ctypes.c_int] * 2 + [ctypes.c_void_p] * 7
+        self._ekf.restype = ctypes.c_int
+        self._ekf_fixed = (_address(self.Q), _address(self.R))
         self._X, self._x_bar = _address(self.X), _address(self.x_bar)
 
     def solve(self, X, u_win, y_win, x_bar, P_inv, F, H):
         gn, L = self.gn, len(X)
         gn._set_masks(L)
-        sweep_in, jac_in = gn.sweep.inputs, gn.jac_all.inputs
+        sweep_in = gn.sweep.inputs
         sweep_in[3][:L] = y_win
-        if gn.mhe.p:
-            for buffer in (sweep_in[1], jac_in[1]):
-                buffer[:L], buffer[L:] = u_win, u_win[-1]
+        if gn.mhe.p:   # gn.c's Jacobians read u from here too
+            sweep_in[1][:L], sweep_in[1][L:] = u_win, u_win[-1]
         gn.linalg._pinv[...] = P_inv
         self.X[:L], self.x_bar[...] = X, x_bar
         problem = self.problem
-        problem.iterations = problem.relinearisations = 0
+        problem.iterations = problem.relinearisations = problem.node_jacobians = 0
         status = self._call(*self._fixed, L, self._X, self._x_bar, _address(F), _address(H))
         gn.stats["iterations"] += problem.iterations
         gn.stats["relinearisations"] += problem.relinearisations
+        gn.stats["node_jacobians"] += problem.node_jacobians
         if status == -1:
             raise RuntimeError("compiled CasADi function returned an error")
         if status < -1:
             raise np.linalg.LinAlgError(f"MHE Gauss-Newton matrix not positive definite (row {-status - 3})")
         return self.X[:L].copy(), bool(status)
+
+    def arrival(self, F, H, P, P_inv):
+        """`_ekf_update` of P (n, n) in place and P_inv := P⁻¹, in C (F (n, n), H (m, n) C-contiguous)."""
+        mhe = self.gn.mhe
+        if self._ekf(mhe.n, mhe.m, _address(F), _address(H), _address(P), self._ekf_fixed[0], self._ekf_fixed[1],
+                     _address(P_inv), _address(self.ekf_work)):
+            raise np.linalg.LinAlgError("MHE arrival covariance not positive definite")
 
 
 def _ekf_update(F, H, P, Q, R):
