@@ -10,19 +10,32 @@ only names w_i).  Its Gauss–Newton matrix is block tridiagonal (L blocks of n�
 positive definite (the arrival and Q terms alone make it so), so one step costs a block Cholesky of
 ~80k flops for L = 21, n = 9, not a sparse KKT solve.
 
-Where the time goes, and why this design (measured on the 9-state, 16-unit quadrotor KNODE, N = 20):
+Where the time goes, and why this design (measured on the 9-state, 16-unit quadrotor KNODE, N = 20, on a
+2-core machine at load ~3; benchmarks/results/mhe_speed.md):
 - Calling a CasADi `Function` from Python costs 30-80 µs of conversions (numpy -> DM -> numpy), so the
   model's arithmetic is CasADi-generated C, compiled once and called through ctypes
   (`estimators.codegen`, cached by content hash; CasADi's interpreter when there is no compiler).
   One window of IPOPT, warm-started, is 1.5 ms (prior) to 11 ms (KNODE).  CasADi's structure-
   exploiting NLP solvers (sqpmethod + qrqp/hpipm, fatrop) would solve the same problem, but each call
   pays the same conversions plus a generic QP setup; a problem this regular needs neither.
+- Even through ctypes, driving the iterations from Python cost as much as their arithmetic (~1 ms of
+  numpy/ctypes overhead per KNODE window), so a window's whole loop runs in C (`gn.c`, `_NativeWindow`),
+  calling the compiled CasADi functions through pointers; so does the EKF arrival update (~150 µs per
+  step in numpy for ~5k flops).  `_solve` below is the same loop in Python, used with the interpreter.
 - The exact Jacobian of one RK4 step of the network costs ~23k CasADi instructions (8x the step), its
   vector-Jacobian product ~5.5k.  So every iterate gets the exact gradient (reverse mode over the
   window, one compiled call: "sweep"), and full Jacobians are taken only when they pay: once per window
   after the first step, and again whenever the contraction is slow.  Between, each node keeps the
   Jacobian of its last linearisation (shifted with the window).  The fixed point is the exact
-  stationary point whatever Jacobians the matrix uses; they only set the rate.
+  stationary point whatever Jacobians the matrix uses; they only set the rate.  Right after a
+  re-linearisation the gradient comes from those Jacobians (F'λ, H'λ) instead of a sweep.  Per KNODE
+  window: 2 sweeps (~100 µs each), 21 node Jacobians (~10 µs each), 2 factorisations (~50-85 µs), 3
+  solves (~10 µs).
+- Tried and dropped: re-linearising only the nodes that moved.  After the first step every node moves
+  by 0.6-1.0 of the largest node step (the acceleration states shift along the whole window), and
+  re-linearising only the last 4-12 nodes raised the iterations from 3.05 to ~4 per window: slower.
+  -O2 instead of -O1 for the model's functions: within noise for the sweep (96 vs 89 µs), not faster for
+  the Jacobian, and 3x the compile time.
 - The Gauss–Newton matrix is factored by a block Cholesky (Riccati-type) recursion in C (`btd.c`),
   O(L n³); LAPACK's banded dpbtrf on the same matrix took 200 µs-3 ms here (blocking overhead and
   threads for 9x9 blocks), it remains the fallback without a compiler.
@@ -293,7 +306,8 @@ class _NativeWindow:
         self.gn, mhe, linalg = gn, gn.mhe, gn.linalg
         n, Lmax = mhe.n, gn.Lmax
         self.X, self.x_bar = np.zeros((Lmax, n)), np.zeros(n)
-        self.g, self.dx, self.f, self.h = np.zeros((Lmax, n)), np.zeros((Lmax, n)), np.zeros((Lmax, n)), np.zeros((Lmax, mhe.m))
+        self.g, self.dx, self.f = np.zeros((Lmax, n)), np.zeros((Lmax, n)), np.zeros((Lmax, n))
+        self.h = np.zeros((Lmax, mhe.m))
         self.ekf_work = np.zeros(3 * n * n + 2 * n * mhe.m + mhe.m ** 2)
         self.Q, self.R = np.ascontiguousarray(mhe.Q, dtype=float), np.ascontiguousarray(mhe.R, dtype=float)
         problem = _Problem(n=n, m=mhe.m, p=mhe.p, Lmax=Lmax, limit=gn.max_iter or 30, one_step=int(gn.one_step),
@@ -351,7 +365,8 @@ def _ekf_update(F, H, P, Q, R):
 
 
 class BlockTridiagonal:
-    """Factor and solve the window's Gauss–Newton matrix from node Jacobians F (L, n, n), H (L, m, n).
+    """Factor and solve the window's Gauss–Newton matrix from node Jacobians F (L, n, n), H (L, m, n);
+    Qi and Ri must be symmetric (btd.c uses F'Qi = (Qi F)').
 
     The compiled Riccati-type recursion of `btd.c` (block Cholesky, O(L n³)); without a compiler,
     LAPACK's banded Cholesky on the same matrix (same numbers to rounding, ~10x slower for these tiny

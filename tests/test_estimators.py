@@ -103,7 +103,8 @@ def test_the_compiled_sigma_point_model_gives_the_numpy_filter_s_estimates():
     α = 1e-3 weights, as against filterpy above)."""
     system = make_system("cartpole")
     rng = np.random.default_rng(0)
-    residual = Residual([(rng.normal(0, 0.5, (8, 5)), rng.normal(0, 0.1, 8)), (rng.normal(0, 0.2, (4, 8)), np.zeros(4))])
+    residual = Residual([(rng.normal(0, 0.5, (8, 5)), rng.normal(0, 0.1, 8)),
+                         (rng.normal(0, 0.2, (4, 8)), np.zeros(4))])
     model, run = HybridModel(system, "knode", residual), system.simulate(2, n_samples=200)
     args = dict(dt=system.dt, Q=system.Q, R=system.R, x0=run.x_noisy[0], P0=system.P0)
     plain = run_ukf(model, run.y, run.u, **args).means

@@ -135,7 +135,8 @@ def test_the_compiled_arrival_update_equals_the_numpy_recursion():
     if gn._native is None:
         pytest.skip("no C compiler")
     rng = np.random.default_rng(1)
-    _, F, H = gn._jac2(rng.normal(size=system.n), np.ones(system.n_inputs), np.zeros(system.n), np.zeros(system.n_inputs))
+    u = np.ones(system.n_inputs)
+    _, F, H = gn._jac2(rng.normal(size=system.n), u, np.zeros(system.n), u)
     A = rng.normal(size=(system.n, system.n))
     P = A @ A.T + np.eye(system.n)
     expected = _ekf_update(F[0], H[0], P, system.Q, system.R)
