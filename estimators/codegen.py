@@ -29,7 +29,10 @@ import numpy as np
 DEFAULT_CACHE = Path.home() / ".cache" / "learnest" / "codegen"
 # -O1: CasADi's long straight-line functions compile in a fraction of -O2's time (the KNODE's exact
 # Jacobian, 23k instructions: -O0 2.7 s, -O1 5 s, -O2 24 s) and run within ~1.6x of -O2's code
-# (21 Jacobians: 870 vs 550 µs on a busy machine); a new model must not wait half a minute
+# (21 Jacobians: 870 vs 550 µs on a busy machine); a new model must not wait half a minute.  Re-measured
+# (issue 11) one node's Jacobian -O1 vs -O2: 10 vs 18 µs, compile 4.8 vs 13.4 s; the gradient sweep
+# 96 vs 89 µs, 1.2 vs 2.1 s (noisy, load ~3): -O2 does not pay here.  btd.c/gn.c, small and hand-written,
+# use -O2 (mhe_gn.BlockTridiagonal)
 CFLAGS = ("-O1", "-fPIC", "-shared")
 
 
@@ -81,6 +84,11 @@ class CompiledFunction(_Buffers):
         self._call_args = (ctypes.addressof(self._arg), ctypes.addressof(self._res),
                            self._iw.ctypes.data, self._w.ctypes.data, self._mem)
         self._lib = lib  # keep the library loaded as long as the callable lives
+
+    def pointers(self) -> tuple:
+        """(function, arg, res, iw, w, mem) as integers: what C code needs to call this function itself
+        (`estimators/gn.c`), valid as long as this object lives."""
+        return (ctypes.cast(self._fn, ctypes.c_void_p).value, *self._call_args)
 
     def __call__(self):
         if self._fn(*self._call_args):

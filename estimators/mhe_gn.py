@@ -10,19 +10,32 @@ only names w_i).  Its Gauss–Newton matrix is block tridiagonal (L blocks of n�
 positive definite (the arrival and Q terms alone make it so), so one step costs a block Cholesky of
 ~80k flops for L = 21, n = 9, not a sparse KKT solve.
 
-Where the time goes, and why this design (measured on the 9-state, 16-unit quadrotor KNODE, N = 20):
+Where the time goes, and why this design (measured on the 9-state, 16-unit quadrotor KNODE, N = 20, on a
+2-core machine at load ~3; benchmarks/results/mhe_speed.md):
 - Calling a CasADi `Function` from Python costs 30-80 µs of conversions (numpy -> DM -> numpy), so the
   model's arithmetic is CasADi-generated C, compiled once and called through ctypes
   (`estimators.codegen`, cached by content hash; CasADi's interpreter when there is no compiler).
   One window of IPOPT, warm-started, is 1.5 ms (prior) to 11 ms (KNODE).  CasADi's structure-
   exploiting NLP solvers (sqpmethod + qrqp/hpipm, fatrop) would solve the same problem, but each call
   pays the same conversions plus a generic QP setup; a problem this regular needs neither.
+- Even through ctypes, driving the iterations from Python cost as much as their arithmetic (~1 ms of
+  numpy/ctypes overhead per KNODE window), so a window's whole loop runs in C (`gn.c`, `_NativeWindow`),
+  calling the compiled CasADi functions through pointers; so does the EKF arrival update (~150 µs per
+  step in numpy for ~5k flops).  `_solve` below is the same loop in Python, used with the interpreter.
 - The exact Jacobian of one RK4 step of the network costs ~23k CasADi instructions (8x the step), its
   vector-Jacobian product ~5.5k.  So every iterate gets the exact gradient (reverse mode over the
   window, one compiled call: "sweep"), and full Jacobians are taken only when they pay: once per window
   after the first step, and again whenever the contraction is slow.  Between, each node keeps the
   Jacobian of its last linearisation (shifted with the window).  The fixed point is the exact
-  stationary point whatever Jacobians the matrix uses; they only set the rate.
+  stationary point whatever Jacobians the matrix uses; they only set the rate.  Right after a
+  re-linearisation the gradient comes from those Jacobians (F'λ, H'λ) instead of a sweep.  Per KNODE
+  window: 2 sweeps (~100 µs each), 21 node Jacobians (~10 µs each), 2 factorisations (~50-85 µs), 3
+  solves (~10 µs).
+- Tried and dropped: re-linearising only the nodes that moved.  After the first step every node moves
+  by 0.6-1.0 of the largest node step (the acceleration states shift along the whole window), and
+  re-linearising only the last 4-12 nodes raised the iterations from 3.05 to ~4 per window: slower.
+  -O2 instead of -O1 for the model's functions: within noise for the sweep (96 vs 89 µs), not faster for
+  the Jacobian, and 3x the compile time.
 - The Gauss–Newton matrix is factored by a block Cholesky (Riccati-type) recursion in C (`btd.c`),
   O(L n³); LAPACK's banded dpbtrf on the same matrix took 200 µs-3 ms here (blocking overhead and
   threads for 9x9 blocks), it remains the fallback without a compiler.
@@ -89,16 +102,23 @@ class GaussNewtonWindowSolver:
         node = ca.Function("lrn_node", [x, u, xn, y, md, mm], [lam_w, grad])
         F, H = ca.densify(ca.jacobian(f, x)), ca.densify(ca.jacobian(hx, x))
         jac = ca.Function("lrn_jac", [x, u], [f, F, H])
+        # one node with h too: gn.c calls it per node and forms the next gradient from its outputs
+        jac1 = ca.Function("lrn_jac1", [x, u], [f, F, H, hx])
         self.linear = not (ca.depends_on(F, x) or ca.depends_on(H, x))
         # one exact step solves a quadratic problem; the new node's H is borrowed from its predecessor,
         # exact only when H does not depend on u
         self.one_step = self.linear and not ca.depends_on(H, u)
-        self.sweep, self.jac2, self.jac_all = compiled(
+        self.sweep, self.jac2, self.jac_all, self.jac1 = compiled(
             [node.map("lrn_sweep", "serial", self.Lmax, [], []), jac.map("lrn_jac2", "serial", 2, [], []),
-             jac.map("lrn_jacn", "serial", self.Lmax, [], [])], cache_dir=cache_dir, compiler=compiler)
+             jac.map("lrn_jacn", "serial", self.Lmax, [], []), jac1], cache_dir=cache_dir, compiler=compiler)
         self.backend = self.sweep.backend
         self.linalg = BlockTridiagonal(n, m, self.Lmax, self.Qi, self.Ri, cache_dir, compiler)
-        self.stats = {"solves": 0, "iterations": 0, "relinearisations": 0, "ipopt_fallbacks": 0, "failures": 0}
+        self.stats = {"solves": 0, "iterations": 0, "relinearisations": 0, "node_jacobians": 0, "ipopt_fallbacks": 0,
+                      "failures": 0}
+        self._mask_length = -1
+        self._native = None
+        if self.sweep.backend == "c" and self.linalg.lib is not None and max(n, m) <= 64:   # gn.c's stack arrays
+            self._native = _NativeWindow(self)
 
     # -- evaluations ------------------------------------------------------------------------------------
     def _gradient(self, X, u_win, y_win, x_bar, P_inv):
@@ -119,6 +139,9 @@ class GaussNewtonWindowSolver:
         return g
 
     def _set_masks(self, L):
+        if L == self._mask_length:   # constant once the window has stopped growing
+            return
+        self._mask_length = L
         ins = self.sweep.inputs
         ins[4][:] = 0.0
         ins[4][:L - 1] = 1.0
@@ -135,6 +158,7 @@ class GaussNewtonWindowSolver:
         F[:L] = np.swapaxes(Ft.reshape(self.Lmax, n, n)[:L], 1, 2)
         H[:L] = np.swapaxes(Ht.reshape(self.Lmax, n, m)[:L], 1, 2)
         self.stats["relinearisations"] += 1
+        self.stats["node_jacobians"] += L
 
     def _jac2(self, xa, ua, xb, ub):
         """f, F, H at two points (one compiled call)."""
@@ -147,6 +171,8 @@ class GaussNewtonWindowSolver:
     # -- one window -------------------------------------------------------------------------------------
     def _solve(self, X, u_win, y_win, x_bar, P_inv, F, H):
         """(X*, converged): full Gauss–Newton steps from the warm start X (L, n)."""
+        if self._native is not None:
+            return self._native.solve(X, u_win, y_win, x_bar, P_inv, F, H)
         L = len(X)
         self._set_masks(L)
         factor = self.linalg.factor(L, F, H, P_inv)
@@ -233,7 +259,9 @@ class GaussNewtonWindowSolver:
             F[L - 1], H[L - 1] = Fs[1], Hs[1]
             slides = k + 1 - N > start
             if slides:
-                if mhe.arrival == "ekf":
+                if mhe.arrival == "ekf" and self._native is not None:
+                    self._native.arrival(Fs[0], Hs[0], P_arrival, P_inv)
+                elif mhe.arrival == "ekf":
                     P_arrival = _ekf_update(Fs[0], Hs[0], P_arrival, mhe.Q, mhe.R)
                     P_inv = np.linalg.inv(P_arrival)
                 x_bar = X[1].copy()
@@ -251,6 +279,83 @@ class GaussNewtonWindowSolver:
         return estimates
 
 
+class _Fn(ctypes.Structure):
+    """gn.c's lrn_fn: a compiled CasADi function and its argument and work arrays."""
+
+    _fields_ = [("fn", ctypes.c_void_p), ("arg", ctypes.c_void_p), ("res", ctypes.c_void_p),
+                ("iw", ctypes.c_void_p), ("w", ctypes.c_void_p), ("mem", ctypes.c_longlong)]
+
+
+class _Problem(ctypes.Structure):
+    """gn.c's lrn_gn: sizes, stopping rule, functions, matrices and scratch of one window solver."""
+
+    _fields_ = [*[(name, ctypes.c_int) for name in ("n", "m", "p", "Lmax", "limit", "one_step", "bounded")],
+                ("tol", ctypes.c_double), ("rate_regime", ctypes.c_double),
+                ("sweep", _Fn), ("jac", _Fn),
+                *[(name, ctypes.c_void_p) for name in ("Qi", "Ri", "Pinv", "R", "C", "work", "g", "dx", "f", "h")],
+                *[(name, ctypes.c_longlong) for name in ("iterations", "relinearisations", "node_jacobians")]]
+
+
+class _NativeWindow:
+    """`GaussNewtonWindowSolver._solve` as one C call (`gn.c`: the same loop, same stopping rule).
+
+    Why: the Python loop spent more time in numpy and ctypes overhead than in the arithmetic (per
+    KNODE window ~1 ms of overhead around ~0.7 ms of compiled code, measured under load)."""
+
+    def __init__(self, gn: GaussNewtonWindowSolver):
+        self.gn, mhe, linalg = gn, gn.mhe, gn.linalg
+        n, Lmax = mhe.n, gn.Lmax
+        self.X, self.x_bar = np.zeros((Lmax, n)), np.zeros(n)
+        self.g, self.dx, self.f = np.zeros((Lmax, n)), np.zeros((Lmax, n)), np.zeros((Lmax, n))
+        self.h = np.zeros((Lmax, mhe.m))
+        self.ekf_work = np.zeros(3 * n * n + 2 * n * mhe.m + mhe.m ** 2)
+        self.Q, self.R = np.ascontiguousarray(mhe.Q, dtype=float), np.ascontiguousarray(mhe.R, dtype=float)
+        problem = _Problem(n=n, m=mhe.m, p=mhe.p, Lmax=Lmax, limit=gn.max_iter or 30, one_step=int(gn.one_step),
+                           bounded=int(gn.max_iter is not None), tol=gn.tol, rate_regime=RATE_REGIME,
+                           sweep=_Fn(*gn.sweep.pointers()), jac=_Fn(*gn.jac1.pointers()),
+                           Qi=_address(linalg.Qi), Ri=_address(linalg.Ri), Pinv=_address(linalg._pinv),
+                           R=_address(linalg.R), C=_address(linalg.C), work=_address(linalg.work),
+                           g=_address(self.g), dx=_address(self.dx), f=_address(self.f), h=_address(self.h))
+        self.problem = problem
+        self._call = linalg.lib.lrn_gn_window
+        self._call.argtypes = [ctypes.c_void_p, ctypes.c_int] + [ctypes.c_void_p] * 4
+        self._call.restype = ctypes.c_int
+        self._fixed = (ctypes.addressof(problem),)
+        self._ekf = linalg.lib.lrn_ekf_arrival
+        self._ekf.argtypes = [ctypes.c_int] * 2 + [ctypes.c_void_p] * 7
+        self._ekf.restype = ctypes.c_int
+        self._ekf_fixed = (_address(self.Q), _address(self.R))
+        self._X, self._x_bar = _address(self.X), _address(self.x_bar)
+
+    def solve(self, X, u_win, y_win, x_bar, P_inv, F, H):
+        gn, L = self.gn, len(X)
+        gn._set_masks(L)
+        sweep_in = gn.sweep.inputs
+        sweep_in[3][:L] = y_win
+        if gn.mhe.p:   # gn.c's Jacobians read u from here too
+            sweep_in[1][:L], sweep_in[1][L:] = u_win, u_win[-1]
+        gn.linalg._pinv[...] = P_inv
+        self.X[:L], self.x_bar[...] = X, x_bar
+        problem = self.problem
+        problem.iterations = problem.relinearisations = problem.node_jacobians = 0
+        status = self._call(*self._fixed, L, self._X, self._x_bar, _address(F), _address(H))
+        gn.stats["iterations"] += problem.iterations
+        gn.stats["relinearisations"] += problem.relinearisations
+        gn.stats["node_jacobians"] += problem.node_jacobians
+        if status == -1:
+            raise RuntimeError("compiled CasADi function returned an error")
+        if status < -1:
+            raise np.linalg.LinAlgError(f"MHE Gauss-Newton matrix not positive definite (row {-status - 3})")
+        return self.X[:L].copy(), bool(status)
+
+    def arrival(self, F, H, P, P_inv):
+        """`_ekf_update` of P (n, n) in place and P_inv := P⁻¹, in C (F (n, n), H (m, n) C-contiguous)."""
+        mhe = self.gn.mhe
+        if self._ekf(mhe.n, mhe.m, _address(F), _address(H), _address(P), self._ekf_fixed[0], self._ekf_fixed[1],
+                     _address(P_inv), _address(self.ekf_work)):
+            raise np.linalg.LinAlgError("MHE arrival covariance not positive definite")
+
+
 def _ekf_update(F, H, P, Q, R):
     """The arrival weight's EKF recursion (the same formula as the IPOPT version's)."""
     S = H @ P @ H.T + R
@@ -260,7 +365,8 @@ def _ekf_update(F, H, P, Q, R):
 
 
 class BlockTridiagonal:
-    """Factor and solve the window's Gauss–Newton matrix from node Jacobians F (L, n, n), H (L, m, n).
+    """Factor and solve the window's Gauss–Newton matrix from node Jacobians F (L, n, n), H (L, m, n);
+    Qi and Ri must be symmetric (btd.c uses F'Qi = (Qi F)').
 
     The compiled Riccati-type recursion of `btd.c` (block Cholesky, O(L n³)); without a compiler,
     LAPACK's banded Cholesky on the same matrix (same numbers to rounding, ~10x slower for these tiny
@@ -270,8 +376,11 @@ class BlockTridiagonal:
     def __init__(self, n, m, Lmax, Qi, Ri, cache_dir=None, compiler="auto"):
         self.n, self.m = n, m
         self.Qi, self.Ri = np.ascontiguousarray(Qi), np.ascontiguousarray(Ri)
-        source = Path(__file__).with_name("btd.c").read_text()
-        self.lib = load_source(source, cache_dir, compiler, flags=("-O2", "-fPIC", "-shared"))
+        # gn.c (the MHE's window loop) shares this library: it calls btd.c's factor and solve
+        source = "\n".join(Path(__file__).with_name(name).read_text() for name in ("btd.c", "gn.c"))
+        # sizes as compile-time constants (see btd.c); a small file, compiled in well under a second
+        self.lib = load_source(source, cache_dir, compiler,
+                               flags=("-O2", "-fPIC", "-shared", f"-DLRN_N={n}", f"-DLRN_M={m}"))
         self.backend = "c" if self.lib is not None else "lapack"
         if self.lib is not None:
             self.R, self.C = np.zeros((Lmax, n, n)), np.zeros((Lmax, n, n))

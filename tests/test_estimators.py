@@ -5,7 +5,7 @@ import pytest
 from learnest.estimators.kf import linearize, run_kf
 from learnest.estimators.mhe import MHE
 from learnest.estimators.ukf import make_ukf, run_ukf, spd_factor
-from learnest.models.knode import HybridModel
+from learnest.models.knode import HybridModel, Residual
 from learnest.models.systems import make_system
 
 
@@ -96,6 +96,20 @@ def test_batched_ukf_matches_filterpy_step_for_step_on_a_nonlinear_system():
     np.testing.assert_allclose(ours.x, plain.x, rtol=0, atol=1e-7)  # α = 1e-3 weights amplify rounding
     np.testing.assert_allclose(ours.P, plain.P, rtol=1e-6, atol=1e-14)
     assert ours.log_likelihood == pytest.approx(plain.log_likelihood, rel=1e-6)
+
+
+def test_the_compiled_sigma_point_model_gives_the_numpy_filter_s_estimates():
+    """run_ukf(compiled=True) on a cartpole KNODE with inputs: the same filter to rounding (amplified by the
+    α = 1e-3 weights, as against filterpy above)."""
+    system = make_system("cartpole")
+    rng = np.random.default_rng(0)
+    residual = Residual([(rng.normal(0, 0.5, (8, 5)), rng.normal(0, 0.1, 8)),
+                         (rng.normal(0, 0.2, (4, 8)), np.zeros(4))])
+    model, run = HybridModel(system, "knode", residual), system.simulate(2, n_samples=200)
+    args = dict(dt=system.dt, Q=system.Q, R=system.R, x0=run.x_noisy[0], P0=system.P0)
+    plain = run_ukf(model, run.y, run.u, **args).means
+    fast = run_ukf(model, run.y, run.u, compiled=True, **args).means
+    np.testing.assert_allclose(fast, plain, rtol=0, atol=1e-7)
 
 
 def test_spd_factor_repairs_an_indefinite_covariance_and_the_kept_covariance_is_read_only():

@@ -124,3 +124,23 @@ def test_a_window_gauss_newton_cannot_solve_is_solved_by_ipopt():
     fallback = gn.run(run.y[:40], run.u[:40], run.x_noisy[0])
     np.testing.assert_allclose(fallback, ipopt, rtol=0, atol=1e-6)
     assert gn.stats["ipopt_fallbacks"] == 40
+
+
+def test_the_compiled_arrival_update_equals_the_numpy_recursion():
+    """gn.c's EKF arrival update (and P⁻¹) against `_ekf_update` + inv on a nonlinear model's Jacobians."""
+    from learnest.estimators.mhe_gn import _ekf_update
+
+    system = make_system("robot")
+    gn = MHE(HybridModel(system, "true"), system.dt, system.Q, system.R, system.P0)._gn
+    if gn._native is None:
+        pytest.skip("no C compiler")
+    rng = np.random.default_rng(1)
+    u = np.ones(system.n_inputs)
+    _, F, H = gn._jac2(rng.normal(size=system.n), u, np.zeros(system.n), u)
+    A = rng.normal(size=(system.n, system.n))
+    P = A @ A.T + np.eye(system.n)
+    expected = _ekf_update(F[0], H[0], P, system.Q, system.R)
+    P_inv = np.zeros_like(P)
+    gn._native.arrival(F[0], H[0], P, P_inv)
+    np.testing.assert_allclose(P, expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+    np.testing.assert_allclose(P_inv @ P, np.eye(system.n), atol=1e-10)
