@@ -23,7 +23,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench_service import estimator_seconds, flight_samples, machine, warm, without_timing
+from bench_service import flight_samples, machine, warm, without_timing
 from sqlalchemy import delete, select
 
 from learnest.service.config import Settings
@@ -53,6 +53,11 @@ def store_and_train(home: Path) -> list[str]:
         job, _ = start_training(services, "bench", rows[TRAINING_FLIGHT].id, {})
         assert wait_for_job(services, job.id).state == "succeeded", "training failed"
     return [name for name in rows if name != TRAINING_FLIGHT]
+
+
+def estimator_seconds(report: dict, steps: dict[str, int]) -> float:
+    """Time the workers spent in the estimators (ms_per_step x steps), summed over the scored flights."""
+    return sum(ms * steps[f["flight"]] / 1e3 for f in report["flights"] for ms in f.get("ms_per_step", {}).values())
 
 
 def evaluate(home: Path, executor, workers: int, names: list[str], repeats: int) -> tuple[list[float], dict]:

@@ -8,7 +8,9 @@ OUT=benchmarks/results/crazyflie
 export LEARNEST_HOME=${LEARNEST_HOME:-.learnest}
 mkdir -p "$OUT"
 declare -A TRAIN=([circle]=B2_circle_medium_rep2 [figure8]=B3_figure8_medium_rep2)
-for name in "${@:-circle figure8}"; do
+families=("$@")
+[ ${#families[@]} -eq 0 ] && families=(circle figure8)   # "${@:-a b}" would be the one word "a b"
+for name in "${families[@]}"; do
   train=${TRAIN[$name]}
   start=$(date +%s)
   .venv/bin/learnest train "$DATA/$train.csv" --name "nanobench-$name" --json > "$OUT/train_$name.json"
