@@ -23,17 +23,12 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench_service import flight_samples, machine, warm, without_timing
-from sqlalchemy import delete, select
+from bench_service import flight_samples, machine, timed_evaluations, without_timing
 
 from learnest.service.config import Settings
-from learnest.service.jobs.evaluation import start_evaluation
 from learnest.service.jobs.executors import DaskExecutor, LocalPoolExecutor
-from learnest.service.jobs.result_cache import EstimatorSettings
-from learnest.service.jobs.services import open_services
 from learnest.service.jobs.training import start_training
 from learnest.service.local_registry import add_flight, local_services, wait_for_job
-from learnest.service.storage.tables import Evaluation, FlightRecord, Result
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data" / "nanobench"
@@ -60,28 +55,6 @@ def estimator_seconds(report: dict, steps: dict[str, int]) -> float:
     return sum(ms * steps[f["flight"]] / 1e3 for f in report["flights"] for ms in f.get("ms_per_step", {}).values())
 
 
-def evaluate(home: Path, executor, workers: int, names: list[str], repeats: int) -> tuple[list[float], dict]:
-    warm(executor, workers)
-    services = open_services(Settings(home=home), executor)
-    try:
-        with services.db.transaction() as session:
-            ids = [session.scalar(select(FlightRecord.id).where(FlightRecord.name == n)) for n in names]
-        start_evaluation(services, "bench:1", ids[:1], EstimatorSettings(METHODS), wait=True)  # compiled code cached
-        seconds = []
-        for _ in range(repeats):
-            with services.db.transaction() as session:  # every flight computed, none from the cache
-                session.execute(delete(Result))
-            started = time.perf_counter()
-            _, evaluation_id, _ = start_evaluation(services, "bench:1", ids, EstimatorSettings(METHODS), wait=True)
-            seconds.append(time.perf_counter() - started)
-            with services.db.transaction() as session:
-                report = session.get(Evaluation, evaluation_id).report
-    finally:
-        services.close()
-        executor.shutdown()
-    return seconds, report
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=1)
@@ -100,7 +73,8 @@ def main(argv=None) -> int:
                                      ("Dask LocalCluster, 2 worker processes",
                                       lambda: DaskExecutor(None, processes=True, n_workers=2, threads_per_worker=1),
                                       2)):
-            seconds, report = evaluate(home, make(), workers, names, args.repeats)
+            seconds, report = timed_evaluations(home, make(), workers, names, METHODS, args.repeats,
+                                                compile_first=True)
             scored = [f for f in report["flights"] if not f["excluded"]]
             runs[label] = {"workers": workers, "seconds": [round(x, 2) for x in seconds],
                            "best_s": round(min(seconds), 2), "flights_scored": len(scored),

@@ -159,25 +159,28 @@ def _flight_id(services, name: str) -> int:
         return session.scalar(select(FlightRecord.id).where(FlightRecord.name == name))
 
 
-def timed_evaluations(home: Path, executor, workers: int, flight_names: list[str]) -> tuple[list[float], dict]:
-    """REPEATS evaluations of the flights on one warm executor; -> (wall seconds of each, the last report)."""
+def timed_evaluations(home: Path, executor, workers: int, flight_names: list[str], methods=METHODS,
+                      repeats: int = REPEATS, compile_first: bool = False) -> tuple[list[float], dict]:
+    """`repeats` evaluations of the flights with bench:1 on one warm executor (with compile_first, after an
+    untimed one of the first flight, so the model's compiled code is cached); -> (wall seconds, last report)."""
     warm(executor, workers)
     services = open_services(Settings(home=home), executor)
     seconds = []
     try:
         ids = [_flight_id(services, name) for name in flight_names]
-        for _ in range(REPEATS):
+        if compile_first:
+            start_evaluation(services, "bench:1", ids[:1], EstimatorSettings(methods), wait=True)
+        for _ in range(repeats):
             with services.db.transaction() as session:  # every flight computed, none from the cache
                 session.execute(delete(Result))
             started = time.perf_counter()
-            _, evaluation_id, _ = start_evaluation(services, "bench:1", ids, EstimatorSettings(METHODS), wait=True)
+            _, evaluation_id, _ = start_evaluation(services, "bench:1", ids, EstimatorSettings(methods), wait=True)
             seconds.append(time.perf_counter() - started)
             with services.db.transaction() as session:
                 report = session.get(Evaluation, evaluation_id).report
     finally:
         services.close()
         executor.shutdown()
-    assert sum(not f["excluded"] for f in report["flights"]) == len(flight_names), report
     return seconds, report
 
 
@@ -209,6 +212,7 @@ def bench_evaluation(home: Path, flight_names: list[str]) -> dict:
                                  ("Dask LocalCluster, 2 worker processes",
                                   lambda: DaskExecutor(None, processes=True, n_workers=2, threads_per_worker=1), 2)):
         seconds, report = timed_evaluations(home, make(), workers, flight_names)
+        assert sum(not f["excluded"] for f in report["flights"]) == len(flight_names), report
         runs[label] = {"workers": workers, "seconds": [round(x, 2) for x in seconds], "best_s": round(min(seconds), 2),
                        "flights_per_s": round(len(flight_names) / min(seconds), 3),
                        "estimator_s_in_workers": round(estimator_seconds(report, steps), 2)}
