@@ -7,6 +7,10 @@ Here a `Function` is turned into C with CasADi's own code generator, compiled wi
 compiler (`cc -O1 -shared`), kept in a cache directory under the hash of its source, and called with
 pointers to preallocated numpy buffers: a call costs ~1-2 µs plus the arithmetic.
 
+What is compiled is the model's structure, not its numbers: the estimators pass a model's weights,
+physical parameters and dt (and the MHE's Q⁻¹, R⁻¹) as an input filled once (`estimators.parametric`),
+so every trained model of one architecture hits the library the first one built.
+
 `compiled(...)` returns one callable per function with the same interface whatever happened: when no
 compiler is found or compiling fails, the callable wraps the CasADi `Function` itself (slower, same
 numbers) and says so in its `backend` attribute.  Only dense inputs and outputs are supported; the
@@ -110,6 +114,26 @@ class InterpretedFunction(_Buffers):
         for out, value in zip(self.outputs, results):
             out[...] = np.asarray(value).T
         return self.outputs
+
+
+def mapped(fn: ca.Function, name: str, count: int, shared: tuple[int, ...] = ()) -> ca.Function:
+    """``fn`` evaluated on ``count`` columns of its inputs, except the ``shared`` inputs, which every
+    evaluation gets whole (a model's parameters): input i is (rows, count · cols), or as in ``fn`` when
+    shared; outputs side by side, (rows, count · cols).
+
+    Why not ``fn.map(name, "serial", count, shared, [])``: CasADi's map copies each shared input
+    ``count`` times into its work array on every call (repmat), ~6,600 doubles per MHE gradient sweep for
+    a 16-unit KNODE; here one function calls ``fn`` ``count`` times with the same pointer.
+    """
+    inputs = [ca.MX.sym(f"i{i}", fn.size1_in(i), fn.size2_in(i) * (1 if i in shared else count))
+              for i in range(fn.n_in())]
+    columns: list[list] = [[] for _ in range(fn.n_out())]
+    for k in range(count):
+        args = [inputs[i] if i in shared else inputs[i][:, k * fn.size2_in(i):(k + 1) * fn.size2_in(i)]
+                for i in range(fn.n_in())]
+        for j, out in enumerate(fn.call(args)):
+            columns[j].append(out)
+    return ca.Function(name, inputs, [ca.horzcat(*outs) for outs in columns])
 
 
 def compiled(functions: list[ca.Function], cache_dir: str | Path | None = None,
