@@ -108,8 +108,8 @@ def main():
                                                                 ("a", slice(6, 9)))}}
     print(rti_row, flush=True)
 
-    ukf_rows = [_ukf_speed(label, model, flight.dt, system, y, u, x0, args.repeats)
-                for label, model in (("quadrotor prior UKF (compiled)", prior), ("quadrotor KNODE-UKF (compiled)", knode))]
+    ukf_cases = (("quadrotor prior UKF (compiled)", prior), ("quadrotor KNODE-UKF (compiled)", knode))
+    ukf_rows = [_ukf_speed(label, model, flight.dt, system, y, u, x0, args.repeats) for label, model in ukf_cases]
     end_to_end = _end_to_end(knode, other, args.repeats)
     report = {"machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
                           "cpus": os.cpu_count(), "load_average_at_end": os.getloadavg()},

@@ -152,7 +152,8 @@ class HybridModel:
         names = self.system.symbolic_params(params)
         physical = ca.SX.sym("physical", len(names))
         symbolic = {**params, **{name: physical[i] for i, name in enumerate(names)}}
-        system = replace(self.system, **{field_name: symbolic})
+        system = replace(self.system, true_params=symbolic) if self.kind == "true" else \
+            replace(self.system, prior_params=symbolic)
         values = np.array([float(params[name]) for name in names])
         residual, weights, weight_values = None, ca.SX(0, 1), np.zeros(0)
         if self.residual is not None:

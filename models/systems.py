@@ -68,8 +68,8 @@ class System:
         """Names of ``params`` (sorted) that `dynamics` accepts as CasADi symbols: every real number not
         in ``NUMERIC_PARAMS``.  `HybridModel.parametric` makes them inputs of the compiled code, so models
         that differ only in these values (a diagnosis's repaired prior) share one compiled library."""
-        return tuple(sorted(k for k, v in params.items()
-                            if isinstance(v, numbers.Real) and not isinstance(v, bool) and k not in self.NUMERIC_PARAMS))
+        return tuple(sorted(k for k, v in params.items() if isinstance(v, numbers.Real)
+                            and not isinstance(v, bool) and k not in self.NUMERIC_PARAMS))
 
     def residual_masks(self) -> tuple[np.ndarray, np.ndarray]:
         """(input mask over [states, inputs], output mask over states), 1.0 where Δθ reaches, else 0.0."""

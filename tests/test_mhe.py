@@ -107,8 +107,9 @@ def test_models_of_one_architecture_share_one_compiled_library(tmp_path):
     model of the same architecture (other weights, another prior mass, another dt) compiles nothing new,
     and each model's MHE still equals IPOPT and its compiled UKF the numpy filter; masked residual rows are
     structural zeros, so exactly zero."""
-    import casadi as ca
     from dataclasses import replace
+
+    import casadi as ca
 
     from learnest.estimators.ukf import run_ukf
     models = [_masked_cartpole_knode(1)[1], _masked_cartpole_knode(2)[1]]
