@@ -8,10 +8,14 @@ Cases (N = 20, arrival "ekf"):
 - cartpole and robot MHE (prior models, Table I's "MHE" rows) on simulated runs;
 - the real-time iteration (one Gauss–Newton step per window) of the KNODE-MHE: speed and its error
   against the converged estimate;
+- the compiled UKF (prior and KNODE) per step on the same steps, medians of `--repeats` runs;
 - end to end on the 40-s flight: load the CSV, references, UKF, KNODE-UKF, MHE, KNODE-MHE (compiled
-  functions cached, as after the first evaluation of a model; the first-build cost is reported apart).
+  functions cached, as after the first evaluation of a model); the first use of a model is reported
+  apart, (a) compiling into an empty cache and (b) into a cache that holds another model of the same
+  architecture (trained on B2_circle_slow_rep2), with the number of libraries each leaves in the cache.
 
-Run:  .venv/bin/python benchmarks/bench_mhe.py   (writes benchmarks/results/mhe_speed.{json,md})
+Run:  .venv/bin/python benchmarks/bench_mhe.py [--baseline old.json]   (writes benchmarks/results/mhe_speed.{json,md});
+``--baseline`` puts the per-step numbers of an earlier run's json (another checkout) side by side.
 """
 from __future__ import annotations
 
@@ -33,7 +37,9 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from bench_core import timed_side_by_side  # noqa: E402  (the script folder is on sys.path)
 
+import learnest.estimators.codegen as codegen  # noqa: E402
 from learnest.estimators.mhe import MHE  # noqa: E402
+from learnest.estimators.ukf import run_ukf  # noqa: E402
 from learnest.ingest import read_flights  # noqa: E402
 from learnest.models.knode import HybridModel  # noqa: E402
 from learnest.models.systems import make_system  # noqa: E402
@@ -68,10 +74,15 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--steps", type=int, default=800, help="steps of the real flight for the MHE table")
+    parser.add_argument("--baseline", type=Path, help="an earlier run's mhe_speed.json: per-step numbers side by side")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    train_flight, flight = read_flights([DATA / "B2_circle_medium_rep2.csv", DATA / "B2_circle_fast_rep2.csv"])
-    knode = train_on_flight(train_flight, TrainingConfig(hidden=16, epochs=50, lr=1e-3)).model
+    train_flight, flight, other_flight = read_flights([DATA / "B2_circle_medium_rep2.csv",
+                                                       DATA / "B2_circle_fast_rep2.csv",
+                                                       DATA / "B2_circle_slow_rep2.csv"])
+    config = TrainingConfig(hidden=16, epochs=50, lr=1e-3)
+    knode = train_on_flight(train_flight, config).model
+    other = train_on_flight(other_flight, config).model   # same architecture, other weights
     system = quadrotor_for(flight)
     knode = HybridModel(replace(knode.system, dt=flight.dt), knode.kind, knode.residual, knode.meta)
     prior = HybridModel(system, "prior")
@@ -97,10 +108,12 @@ def main():
                                                                 ("a", slice(6, 9)))}}
     print(rti_row, flush=True)
 
-    end_to_end = _end_to_end(knode, args.repeats)
+    ukf_cases = (("quadrotor prior UKF (compiled)", prior), ("quadrotor KNODE-UKF (compiled)", knode))
+    ukf_rows = [_ukf_speed(label, model, flight.dt, system, y, u, x0, args.repeats) for label, model in ukf_cases]
+    end_to_end = _end_to_end(knode, other, args.repeats)
     report = {"machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
                           "cpus": os.cpu_count(), "load_average_at_end": os.getloadavg()},
-              "flight": flight.name, "mhe": rows, "knode_mhe_real_time_iteration": rti_row,
+              "flight": flight.name, "mhe": rows, "ukf": ukf_rows, "knode_mhe_real_time_iteration": rti_row,
               "end_to_end": end_to_end}
     OUT.mkdir(exist_ok=True)
     (OUT / "mhe_speed.json").write_text(json.dumps(report, indent=2))
@@ -120,7 +133,24 @@ def main():
            "of flight), load + references + UKF + KNODE-UKF + MHE + KNODE-MHE, compiled functions cached: "
            f"**{end_to_end['median_s']:.2f} s** (median of {args.repeats}; per method ms/step: "
            + ", ".join(f"{m} {v:.3f}" for m, v in end_to_end["ms_per_step"].items())
-           + f"). First use of a model (compiling its functions into an empty cache): {end_to_end['cold_s']:.2f} s."]
+           + ")."]
+    md += ["", "First use of a model, the same evaluation timed once (UKF, KNODE-UKF, MHE, KNODE-MHE; every compiled "
+           "function of both models goes through the cache):", "",
+           "| cache before the run | seconds | libraries in the cache before -> after |", "|---|---|---|",
+           f"| (a) empty | {end_to_end['cold_s']:.2f} | 0 -> {end_to_end['cold_libraries']} |",
+           f"| (b) holding another model of the same architecture | {end_to_end['same_architecture_s']:.2f} | "
+           f"{end_to_end['same_architecture_libraries'][0]} -> {end_to_end['same_architecture_libraries'][1]} |",
+           f"| filled by this model (the median above) | {end_to_end['median_s']:.2f} | - |"]
+    md += ["", "Per step (ms), compiled, medians of alternating runs:", "",
+           "| case | ms/step |" + (" baseline ms/step |" if args.baseline else ""),
+           "|---|---|" + ("---|" if args.baseline else "")]
+    baseline = _per_step(json.loads(args.baseline.read_text())) if args.baseline else {}
+    for case, value in _per_step(report).items():
+        md.append(f"| {case} | {value:.3f} |" + (f" {baseline[case]:.3f} |" if case in baseline else
+                                                 (" - |" if args.baseline else "")))
+    if args.baseline:
+        md += ["", f"Baseline: {args.baseline.name}, machine load at its end "
+               f"{json.loads(args.baseline.read_text())['machine']['load_average_at_end']}."]
     (OUT / "mhe_speed.md").write_text("\n".join(md) + "\n")
     print("\n".join(md))
 
@@ -134,34 +164,62 @@ def _time(fn, repeats):
     return times
 
 
-def _end_to_end(knode, repeats):
-    """Wall time of one flight's evaluation from its CSV, four methods, as `learnest evaluate` runs it."""
+def _ukf_speed(label, model, dt, system, y, u, x0, repeats):
+    """Compiled UKF ms/step (median of `repeats` runs, after one run that compiles or loads the functions)."""
+    def run():
+        return run_ukf(model, y, u, dt=dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0, compiled=True)
+
+    run()
+    row = {"case": label, "steps": len(y), "ms_per_step": 1e3 * statistics.median(_time(run, repeats)) / len(y)}
+    print(row, flush=True)
+    return row
+
+
+def _per_step(report):
+    """{case: ms/step} of a report (this script's json) for the side-by-side table."""
+    out = {f"{r['case']}, Gauss-Newton": r["gn_ms_per_step"] for r in report["mhe"]}
+    out.update({r["case"]: r["ms_per_step"] for r in report.get("ukf", [])})
+    out.update({f"end to end, {m}": v for m, v in report["end_to_end"]["ms_per_step"].items()})
+    return out
+
+
+def _end_to_end(knode, other, repeats):
+    """Wall time of one flight's evaluation from its CSV, four methods, as `learnest evaluate` runs it;
+    ``other`` is a model of the same architecture as ``knode`` (for the first use into a filled cache)."""
     path = DATA / "B2_circle_fast_rep2.csv"
     methods = ["ukf", "knode-ukf", "mhe", "knode-mhe"]
 
-    def once(cache_dir=None):
-        import learnest.estimators.evaluate as evaluate
-        if cache_dir is not None:   # a cold start: compile into an empty cache
-            original = evaluate.MHE
-            evaluate.MHE = lambda *a, **k: original(*a, codegen_dir=cache_dir, **k)
+    def once(model, cache_dir=None):
+        saved = codegen.DEFAULT_CACHE   # every compiled function (MHE and UKF) goes through this cache
+        if cache_dir is not None:
+            codegen.DEFAULT_CACHE = Path(cache_dir)
         try:
             start = time.perf_counter()
             flight = read_flights([path])[0]
-            result = evaluate_flight(knode, flight, methods)
+            result = evaluate_flight(model, flight, methods)
             return time.perf_counter() - start, flight, result
         finally:
-            if cache_dir is not None:
-                evaluate.MHE = original
+            codegen.DEFAULT_CACHE = saved
 
-    once()  # fills the cache for these models
+    def libraries(folder):
+        return len(list(Path(folder).glob("*.so")))
+
+    once(knode)  # fills the cache for these models
     times, flight, result = [], None, None
     for _ in range(repeats):
-        seconds, flight, result = once()
+        seconds, flight, result = once(knode)
         times.append(seconds)
-    with tempfile.TemporaryDirectory() as tmp:
-        cold, _, _ = once(Path(tmp))
+    with tempfile.TemporaryDirectory() as tmp:   # (a) a cold start: compile into an empty cache
+        cold, _, _ = once(knode, tmp)
+        cold_libraries = libraries(tmp)
+    with tempfile.TemporaryDirectory() as tmp:   # (b) the cache already holds a model of this architecture
+        once(other, tmp)
+        before = libraries(tmp)
+        same_architecture, _, _ = once(knode, tmp)
+        same_libraries = (before, libraries(tmp))
     row = {"flight": flight.name, "steps": len(flight.t), "seconds_of_flight": float(flight.t[-1] - flight.t[0]),
-           "median_s": statistics.median(times), "runs_s": times, "cold_s": cold,
+           "median_s": statistics.median(times), "runs_s": times, "cold_s": cold, "cold_libraries": cold_libraries,
+           "same_architecture_s": same_architecture, "same_architecture_libraries": same_libraries,
            "ms_per_step": {m: r["ms_per_step"] for m, r in result["results"].items()},
            "mse": {m: r["mse"] for m, r in result["results"].items()}}
     print(row, flush=True)

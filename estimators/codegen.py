@@ -7,6 +7,10 @@ Here a `Function` is turned into C with CasADi's own code generator, compiled wi
 compiler (`cc -O1 -shared`), kept in a cache directory under the hash of its source, and called with
 pointers to preallocated numpy buffers: a call costs ~1-2 µs plus the arithmetic.
 
+What is compiled is the model's structure, not its numbers: the estimators pass a model's weights,
+physical parameters and dt (and the MHE's Q⁻¹, R⁻¹) as an input filled once (`estimators.parametric`),
+so every trained model of one architecture hits the library the first one built.
+
 `compiled(...)` returns one callable per function with the same interface whatever happened: when no
 compiler is found or compiling fails, the callable wraps the CasADi `Function` itself (slower, same
 numbers) and says so in its `backend` attribute.  Only dense inputs and outputs are supported; the
@@ -31,8 +35,11 @@ DEFAULT_CACHE = Path.home() / ".cache" / "learnest" / "codegen"
 # Jacobian, 23k instructions: -O0 2.7 s, -O1 5 s, -O2 24 s) and run within ~1.6x of -O2's code
 # (21 Jacobians: 870 vs 550 µs on a busy machine); a new model must not wait half a minute.  Re-measured
 # (issue 11) one node's Jacobian -O1 vs -O2: 10 vs 18 µs, compile 4.8 vs 13.4 s; the gradient sweep
-# 96 vs 89 µs, 1.2 vs 2.1 s (noisy, load ~3): -O2 does not pay here.  btd.c/gn.c, small and hand-written,
-# use -O2 (mhe_gn.BlockTridiagonal)
+# 96 vs 89 µs, 1.2 vs 2.1 s (noisy, load ~3): -O2 does not pay here.  Re-measured once compiling became
+# once per architecture (weights as an input): the 16-unit KNODE's MHE functions compile in 17 s (-O1) vs
+# 42 s (-O2), its UKF's in 1.2 vs 2.3 s; KNODE-MHE 1.11 vs 1.07 ms/step, KNODE-UKF 0.47 vs 0.50 ms/step
+# (800 steps, medians of 5, load ~1.7): within noise, still not worth 25 s on every new architecture.
+# btd.c/gn.c, small and hand-written, use -O2 (mhe_gn.BlockTridiagonal)
 CFLAGS = ("-O1", "-fPIC", "-shared")
 
 
@@ -110,6 +117,26 @@ class InterpretedFunction(_Buffers):
         for out, value in zip(self.outputs, results):
             out[...] = np.asarray(value).T
         return self.outputs
+
+
+def mapped(fn: ca.Function, name: str, count: int, shared: tuple[int, ...] = ()) -> ca.Function:
+    """``fn`` evaluated on ``count`` columns of its inputs, except the ``shared`` inputs, which every
+    evaluation gets whole (a model's parameters): input i is (rows, count · cols), or as in ``fn`` when
+    shared; outputs side by side, (rows, count · cols).
+
+    Why not ``fn.map(name, "serial", count, shared, [])``: CasADi's map copies each shared input
+    ``count`` times into its work array on every call (repmat), ~6,600 doubles per MHE gradient sweep for
+    a 16-unit KNODE; here one function calls ``fn`` ``count`` times with the same pointer.
+    """
+    inputs = [ca.MX.sym(f"i{i}", fn.size1_in(i), fn.size2_in(i) * (1 if i in shared else count))
+              for i in range(fn.n_in())]
+    columns: list[list] = [[] for _ in range(fn.n_out())]
+    for k in range(count):
+        args = [inputs[i] if i in shared else inputs[i][:, k * fn.size2_in(i):(k + 1) * fn.size2_in(i)]
+                for i in range(fn.n_in())]
+        for j, out in enumerate(fn.call(args)):
+            columns[j].append(out)
+    return ca.Function(name, inputs, [ca.horzcat(*outs) for outs in columns])
 
 
 def compiled(functions: list[ca.Function], cache_dir: str | Path | None = None,

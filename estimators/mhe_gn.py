@@ -14,7 +14,9 @@ Where the time goes, and why this design (measured on the 9-state, 16-unit quadr
 2-core machine at load ~3; benchmarks/results/mhe_speed.md):
 - Calling a CasADi `Function` from Python costs 30-80 µs of conversions (numpy -> DM -> numpy), so the
   model's arithmetic is CasADi-generated C, compiled once and called through ctypes
-  (`estimators.codegen`, cached by content hash; CasADi's interpreter when there is no compiler).
+  (`estimators.codegen`, cached by content hash; CasADi's interpreter when there is no compiler).  The
+  model's numbers (weights, physical parameters, dt) and Q⁻¹, R⁻¹ are inputs of that code, not constants
+  in it, so it is compiled once per architecture, not once per trained model (`estimators.parametric`).
   One window of IPOPT, warm-started, is 1.5 ms (prior) to 11 ms (KNODE).  CasADi's structure-
   exploiting NLP solvers (sqpmethod + qrqp/hpipm, fatrop) would solve the same problem, but each call
   pays the same conversions plus a generic QP setup; a problem this regular needs neither.
@@ -61,7 +63,8 @@ from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from learnest.errors import NumericalWarning
 
-from .codegen import compiled, load_source
+from .codegen import compiled, load_source, mapped
+from .parametric import symbolic_model
 
 # The contraction estimate ρ = s_k/s_{k-1} predicts the remaining error only once both steps are small
 # (asymptotic regime); from a large first step it can promise too much (measured: 2e-6 off IPOPT).
@@ -93,24 +96,46 @@ class GaussNewtonWindowSolver:
         self.Qi, self.Ri = 0.5 * (self.Qi + self.Qi.T), 0.5 * (self.Ri + self.Ri.T)
         x, u, xn = ca.SX.sym("x", n), ca.SX.sym("u", p), ca.SX.sym("xn", n)
         y, md, mm = ca.SX.sym("y", m), ca.SX.sym("md"), ca.SX.sym("mm")
-        f, hx = mhe.model.step(x, u, mhe.dt), mhe.model.h(x, u)
-        lam_w = ca.DM(self.Qi) @ (md * (xn - f))          # Q⁻¹ w_i (0 on the last node and padding)
-        v = mm * (y - hx)
-        lam_v = ca.DM(self.Ri) @ v
+        # the model's numbers (dt, weights, physical parameters) and Q⁻¹, R⁻¹ are inputs, filled once
+        # below: the generated code depends on the architecture only, and a new model of it is no
+        # new compilation (`estimators.parametric`)
+        symbolic = symbolic_model(mhe.model, mhe.dt)
+        f, hx = symbolic.model.step(x, u, symbolic.dt), symbolic.model.h(x, u)
+        # diagonal Q and R (the systems' own) enter as their diagonals: a dense n×n input would add n²
+        # multiplications per node where constants folded to n (measured: the sweep ~10 % slower)
+        diagonal = not (np.count_nonzero(self.Qi - np.diag(np.diag(self.Qi)))
+                        or np.count_nonzero(self.Ri - np.diag(np.diag(self.Ri))))
+        if diagonal:
+            Qi, Ri = ca.SX.sym("Qi", n), ca.SX.sym("Ri", m)
+            weights = (np.diag(self.Qi)[None], np.diag(self.Ri)[None])
+            lam_w = Qi * (md * (xn - f))      # Q⁻¹ w_i (0 on the last node and padding)
+            v = mm * (y - hx)
+            lam_v = Ri * v
+        else:
+            Qi, Ri = ca.SX.sym("Qi", n, n), ca.SX.sym("Ri", m, m)
+            weights = (self.Qi.T, self.Ri.T)   # buffers are column-major: numpy sees the transpose
+            lam_w = Qi @ (md * (xn - f))
+            v = mm * (y - hx)
+            lam_v = Ri @ v
         # ∂cost/∂x_i (half of it) without the arrival and the Q⁻¹w_{i-1} terms: -Fᵢᵀ Q⁻¹wᵢ - Hᵢᵀ R⁻¹vᵢ
         grad = -ca.jtimes(f, x, lam_w, True) - ca.jtimes(hx, x, lam_v, True)
-        node = ca.Function("lrn_node", [x, u, xn, y, md, mm], [lam_w, grad])
+        theta = symbolic.params
+        node = ca.Function("lrn_node", [x, u, xn, y, md, mm, theta, Qi, Ri], [lam_w, grad])
         F, H = ca.densify(ca.jacobian(f, x)), ca.densify(ca.jacobian(hx, x))
-        jac = ca.Function("lrn_jac", [x, u], [f, F, H])
+        jac = ca.Function("lrn_jac", [x, u, theta], [f, F, H])
         # one node with h too: gn.c calls it per node and forms the next gradient from its outputs
-        jac1 = ca.Function("lrn_jac1", [x, u], [f, F, H, hx])
+        jac1 = ca.Function("lrn_jac1", [x, u, theta], [f, F, H, hx])
         self.linear = not (ca.depends_on(F, x) or ca.depends_on(H, x))
         # one exact step solves a quadratic problem; the new node's H is borrowed from its predecessor,
         # exact only when H does not depend on u
         self.one_step = self.linear and not ca.depends_on(H, u)
+        # mapped over the nodes; θ, Q⁻¹ and R⁻¹ are the same for every node (not repeated)
         self.sweep, self.jac2, self.jac_all, self.jac1 = compiled(
-            [node.map("lrn_sweep", "serial", self.Lmax, [], []), jac.map("lrn_jac2", "serial", 2, [], []),
-             jac.map("lrn_jacn", "serial", self.Lmax, [], []), jac1], cache_dir=cache_dir, compiler=compiler)
+            [mapped(node, "lrn_sweep", self.Lmax, (6, 7, 8)), mapped(jac, "lrn_jac2", 2, (2,)),
+             mapped(jac, "lrn_jacn", self.Lmax, (2,)), jac1], cache_dir=cache_dir, compiler=compiler)
+        for fn, index in ((self.sweep, 6), (self.jac2, 2), (self.jac_all, 2), (self.jac1, 2)):
+            fn.inputs[index][0] = symbolic.values
+        self.sweep.inputs[7][...], self.sweep.inputs[8][...] = weights
         self.backend = self.sweep.backend
         self.linalg = BlockTridiagonal(n, m, self.Lmax, self.Qi, self.Ri, cache_dir, compiler)
         self.stats = {"solves": 0, "iterations": 0, "relinearisations": 0, "node_jacobians": 0, "ipopt_fallbacks": 0,

@@ -7,6 +7,7 @@ is factorised once, with the factor kept for the next sigma points (filterpy fac
 """
 from __future__ import annotations
 
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -31,30 +32,37 @@ def _rows(u: np.ndarray, count: int) -> np.ndarray:
     return out
 
 
-def _compiled_sigma_functions(model: StateSpaceModel, dt: float) -> tuple | None:
+def _compiled_sigma_functions(model: StateSpaceModel, dt: float, cache_dir: str | Path | None = None) -> tuple | None:
     """fx(sigmas, dt, u) and hx(sigmas, u) over the 2n+1 sigma points as compiled C (`estimators.codegen`),
     or None without a working compiler (CasADi's interpreter would be slower than numpy here).
 
     Why: the numpy model costs one call per array operation, ~60 for a KNODE's RK4 step and ~40 for the
     quadrotor prior's (unstack/stack per stage): 0.4-0.8 ms per step on a busy 2-core machine, against
-    ~0.05 ms for the same arithmetic compiled.  Same numbers to rounding.
+    ~0.05 ms for the same arithmetic compiled.  Same numbers to rounding.  The model's numbers (weights,
+    physical parameters) and dt are an input (`estimators.parametric`): one library per architecture.
     """
     import casadi as ca
 
-    from .codegen import compiled
+    from .codegen import compiled, mapped
+    from .parametric import symbolic_model
 
     n, count = model.n, 2 * model.n + 1
     x, u = ca.SX.sym("x", n), ca.SX.sym("u", model.n_inputs)
-    step = ca.Function("lrn_ukf_f", [x, u], [model.step(x, u, dt)]).map(count)
-    meas = ca.Function("lrn_ukf_h", [x, u], [model.h(x, u)]).map(count)
-    f_c, h_c = compiled([step, meas])
+    symbolic = symbolic_model(model, dt)
+    theta = symbolic.params
+    step = ca.Function("lrn_ukf_f", [x, u, theta], [symbolic.model.step(x, u, symbolic.dt)])
+    meas = ca.Function("lrn_ukf_h", [x, u, theta], [symbolic.model.h(x, u)])
+    # mapped over the sigma points, θ shared (not repeated)
+    f_c, h_c = compiled([mapped(step, "lrn_ukf_fx", count, (2,)), mapped(meas, "lrn_ukf_hx", count, (2,))],
+                        cache_dir=cache_dir)
     if f_c.backend != "c":
         return None
+    f_c.inputs[2][0] = symbolic.values
+    h_c.inputs[2][0] = symbolic.values
 
     def fx(sigmas, step_dt, u):
-        if step_dt != dt:
-            raise ValueError(f"this filter was compiled for dt = {dt}, got {step_dt}")
         f_c.inputs[0][...], f_c.inputs[1][...] = sigmas, u
+        f_c.inputs[2][0, 0] = step_dt       # θ[0] is dt
         return f_c()[0].copy()
 
     def hx(sigmas, u):
@@ -65,19 +73,21 @@ def _compiled_sigma_functions(model: StateSpaceModel, dt: float) -> tuple | None
 
 
 def make_ukf(model: StateSpaceModel, dt: float, Q: np.ndarray, R: np.ndarray, x0: np.ndarray, P0: np.ndarray,
-             alpha: float = 1e-3, beta: float = 2.0, kappa: float = 0.0, compiled: bool = False) -> BatchedUKF:
+             alpha: float = 1e-3, beta: float = 2.0, kappa: float = 0.0, compiled: bool = False,
+             codegen_dir: str | Path | None = None) -> BatchedUKF:
     """A `BatchedUKF` for ``model`` with Merwe points (alpha, beta, kappa), x = x0 (n,), P = P0 (n, n).
 
     Q (n, n) and R (m, m) are used as given (no validation here; `run_ukf` validates).  ``predict`` and
     ``update`` take the input as the keyword ``u``, shape (p,).  ``compiled``: evaluate the model on the
     sigma points as compiled C (the model must accept CasADi symbols, as `HybridModel` does); the first
-    filter of a model compiles it (~1-5 s, cached by content like the MHE's functions).
+    filter of a model architecture compiles it (~1-5 s, cached in ``codegen_dir`` like the MHE's
+    functions; default ``~/.cache/learnest/codegen``).
     """
     from .ukf_filterpy import BatchedUKF, VectorizedMerwePoints  # filterpy on first use (module docstring)
 
     n = model.n
     points = VectorizedMerwePoints(n, alpha=alpha, beta=beta, kappa=kappa)
-    functions = _compiled_sigma_functions(model, dt) if compiled else None
+    functions = _compiled_sigma_functions(model, dt, codegen_dir) if compiled else None
     if functions is None:
         functions = (lambda sigmas, dt, u: model.step(sigmas, _rows(u, len(sigmas)), dt),
                      lambda sigmas, u: model.h(sigmas, _rows(u, len(sigmas))))
@@ -88,7 +98,8 @@ def make_ukf(model: StateSpaceModel, dt: float, Q: np.ndarray, R: np.ndarray, x0
 
 
 def run_ukf(model: StateSpaceModel, y: ArrayLike, u: ArrayLike | None = None, *, dt: float, Q: ArrayLike,
-            R: ArrayLike, x0: ArrayLike, P0: ArrayLike, alpha: float = 1e-3, compiled: bool = False) -> FilterResult:
+            R: ArrayLike, x0: ArrayLike, P0: ArrayLike, alpha: float = 1e-3, compiled: bool = False,
+            codegen_dir: str | Path | None = None) -> FilterResult:
     """Filter a whole sequence: update with y[0] at x0, then predict with u[k-1] and update with y[k].
 
     Parameters
@@ -113,7 +124,9 @@ def run_ukf(model: StateSpaceModel, y: ArrayLike, u: ArrayLike | None = None, *,
         Merwe sigma-point spread.
     compiled : bool
         Evaluate the model as compiled C (`make_ukf`); for a model used on many steps (an evaluation), not
-        for one built per fit (every new model compiles once).
+        for one built per fit (every new model architecture compiles once).
+    codegen_dir : path, optional
+        Where the compiled functions are cached (`estimators.codegen`; default ``~/.cache/learnest/codegen``).
 
     Returns
     -------
@@ -131,7 +144,7 @@ def run_ukf(model: StateSpaceModel, y: ArrayLike, u: ArrayLike | None = None, *,
     u = check_inputs(u, len(y), model.n_inputs)
     Q, R = check_covariance("Q", Q, n, allow_singular=True), check_covariance("R", R, y.shape[1])
     x0, P0 = check_vector("x0", x0, n), check_covariance("P0", P0, n)
-    ukf = make_ukf(model, dt, Q, R, x0, P0, alpha=alpha, compiled=compiled)
+    ukf = make_ukf(model, dt, Q, R, x0, P0, alpha=alpha, compiled=compiled, codegen_dir=codegen_dir)
     ukf.sigmas_f = ukf._sigmas()
     means, innovations = np.empty((len(y), n)), np.empty(y.shape)
     covariances = np.empty((len(y), n, n))

@@ -124,8 +124,11 @@ class CasadiOps:
         return ca.vertcat(*items)
 
     @staticmethod
-    def linear(z: Any, weight: np.ndarray, bias: np.ndarray) -> Any:
-        """y = W z + b for a column vector z; weight (out, in), bias (out,) numpy arrays as constants."""
+    def linear(z: Any, weight: Any, bias: Any) -> Any:
+        """y = W z + b for a column vector z; weight (out, in), bias (out,) numpy arrays as constants, or
+        CasADi matrices (out, in), (out, 1) of symbols (`Residual.parametric`: the weights as an input)."""
+        if isinstance(weight, (ca.SX, ca.MX)):
+            return weight @ z + bias
         return ca.DM(np.asarray(weight)) @ z + ca.DM(np.asarray(bias))
 
     @staticmethod

@@ -8,9 +8,10 @@ in which continuous vector field they hold.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
+import casadi as ca
 import numpy as np
 
 from learnest.errors import InvalidInput
@@ -41,6 +42,27 @@ class Residual:
             if i < len(self.layers) - 1:
                 z = ops.tanh(z)
         return z
+
+    def parametric(self) -> tuple[Residual, ca.SX, np.ndarray]:
+        """This network with its weights as CasADi symbols: (network, θ (k, 1), values (k,)).
+
+        Why: code generated from the symbols serves every network of this architecture (compiled once,
+        `estimators.codegen`), where numeric weights would make each trained network new code.  Only the
+        nonzero weights become symbols, in layer order (weight, then bias; CasADi's column-major order
+        within each); exact zeros stay structural zeros, so a masked output row (`System.residual_masks`)
+        is exactly zero and a blind input is never read.  The zero pattern is thus part of the architecture.
+        """
+        matrices = []
+        for weight, bias in self.layers:
+            matrices += [ca.sparsify(ca.DM(np.asarray(weight, dtype=float))),
+                         ca.sparsify(ca.DM(np.asarray(bias, dtype=float).reshape(-1, 1)))]
+        values = np.concatenate([np.asarray(m.nonzeros(), dtype=float) for m in matrices])
+        theta = ca.SX.sym("weights", len(values))
+        symbols, offset = [], 0
+        for m in matrices:
+            symbols.append(ca.SX(m.sparsity(), theta[offset:offset + m.nnz()]))
+            offset += m.nnz()
+        return Residual(list(zip(symbols[::2], symbols[1::2]))), theta, values
 
     def to_dict(self) -> dict:
         """``{"layers": [[weight, bias], ...]}`` as nested lists (JSON)."""
@@ -115,6 +137,29 @@ class HybridModel:
     def h(self, x: Array, u: Array | None = None) -> Array:
         """Predicted measurement(s) of the system: (n,) -> (m,), (B, n) -> (B, m)."""
         return self.system.h(x, u)
+
+    def parametric(self) -> tuple[HybridModel, ca.SX, np.ndarray]:
+        """This model with its numbers as CasADi symbols: (model, θ (k, 1), values (k,)).
+
+        θ = [the vector field's physical parameters that `System.symbolic_params` names (sorted by name),
+        the residual's nonzero weights (`Residual.parametric`)].  Code generated from the returned
+        model's ``step``/``h`` with θ as an input depends on the system, its numeric-only parameters
+        and the network's architecture and masks, not on the trained weights or identified parameters:
+        the estimators compile it once for all models of an architecture.
+        """
+        field_name = "true_params" if self.kind == "true" else "prior_params"
+        params = getattr(self.system, field_name)
+        names = self.system.symbolic_params(params)
+        physical = ca.SX.sym("physical", len(names))
+        symbolic = {**params, **{name: physical[i] for i, name in enumerate(names)}}
+        system = replace(self.system, true_params=symbolic) if self.kind == "true" else \
+            replace(self.system, prior_params=symbolic)
+        values = np.array([float(params[name]) for name in names])
+        residual, weights, weight_values = None, ca.SX(0, 1), np.zeros(0)
+        if self.residual is not None:
+            residual, weights, weight_values = self.residual.parametric()
+        model = HybridModel(system, self.kind, residual, self.meta)
+        return model, ca.vertcat(physical, weights), np.concatenate([values, weight_values])
 
     def __repr__(self) -> str:
         return f"HybridModel({self.system.name}, {self.kind})"

@@ -6,7 +6,9 @@ is silent (pole mass, wheelbase, sensor positions, excitation) the choice is sta
 """
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass, field, replace
+from typing import ClassVar
 
 import numpy as np
 
@@ -58,6 +60,16 @@ class System:
     # is) only lets the network tell training flights apart from others.
     residual_states: tuple | None = None
     residual_blind: tuple = ()
+
+    # parameters `dynamics` needs as numbers (it branches on them): they stay constants of compiled code
+    NUMERIC_PARAMS: ClassVar[tuple[str, ...]] = ()
+
+    def symbolic_params(self, params: dict) -> tuple[str, ...]:
+        """Names of ``params`` (sorted) that `dynamics` accepts as CasADi symbols: every real number not
+        in ``NUMERIC_PARAMS``.  `HybridModel.parametric` makes them inputs of the compiled code, so models
+        that differ only in these values (a diagnosis's repaired prior) share one compiled library."""
+        return tuple(sorted(k for k, v in params.items() if isinstance(v, numbers.Real)
+                            and not isinstance(v, bool) and k not in self.NUMERIC_PARAMS))
 
     def residual_masks(self) -> tuple[np.ndarray, np.ndarray]:
         """(input mask over [states, inputs], output mask over states), 1.0 where Δθ reaches, else 0.0."""
@@ -379,6 +391,8 @@ class Crazyflie(System):
 
     # a lag below this is treated as this (ȧ would be stiff for RK4 at 100 Hz: dt/τ must stay < ~2.8)
     MIN_TAU_S = 0.005
+    # tau_s is clamped to MIN_TAU_S and the ground effect applies only for r_m > 0 (`dynamics`)
+    NUMERIC_PARAMS: ClassVar[tuple[str, ...]] = ("r_m", "tau_s")
 
     def dynamics(self, x, u, params):
         ops = ops_for(x)

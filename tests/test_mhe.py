@@ -90,6 +90,61 @@ def test_compiled_functions_are_cached_by_content(tmp_path):
     np.testing.assert_array_equal(again()[0].ravel(), [1.0, 4.0, 9.0])
 
 
+def _masked_cartpole_knode(seed):
+    """A cartpole KNODE whose residual corrects only the velocities and does not see the cart position
+    (masks folded into the weights as `ResidualNet.export` does), random weights of one architecture."""
+    from dataclasses import replace
+    system = replace(make_system("cartpole"), residual_states=("p_dot", "alpha_dot"), residual_blind=("p",))
+    inputs, outputs = system.residual_masks()
+    rng = np.random.default_rng(seed)
+    residual = Residual([(rng.normal(0, 0.5, (6, 5)) * inputs, rng.normal(0, 0.1, 6)),
+                         (rng.normal(0, 0.3, (4, 6)) * outputs[:, None], rng.normal(0, 0.1, 4) * outputs)])
+    return system, HybridModel(system, "knode", residual)
+
+
+def test_models_of_one_architecture_share_one_compiled_library(tmp_path):
+    """Weights, physical parameters and dt are inputs of the compiled code, not constants in it: a second
+    model of the same architecture (other weights, another prior mass, another dt) compiles nothing new,
+    and each model's MHE still equals IPOPT and its compiled UKF the numpy filter; masked residual rows are
+    structural zeros, so exactly zero."""
+    from dataclasses import replace
+
+    import casadi as ca
+
+    from learnest.estimators.ukf import run_ukf
+    models = [_masked_cartpole_knode(1)[1], _masked_cartpole_knode(2)[1]]
+    second = models[1]
+    models[1] = HybridModel(replace(second.system, prior_params={**second.system.prior_params, "m_c": 1.2}),
+                            "knode", second.residual)
+    run = models[0].system.simulate(3, n_samples=40)
+    libraries, estimates = [], []
+    for model, dt in zip(models, (0.002, 0.0025)):
+        system = model.system
+        y, u, x0 = run.y, run.u, run.x_noisy[0]
+        gn = MHE(model, dt, system.Q, system.R, system.P0, horizon=8, codegen_dir=tmp_path)
+        if gn._gn.backend != "c":
+            pytest.skip("no C compiler here")
+        ours = gn.run(y, u, x0)
+        ipopt = MHE(model, dt, system.Q, system.R, system.P0, horizon=8, solver="ipopt").run(y, u, x0)
+        np.testing.assert_allclose(ours, ipopt, rtol=0, atol=1e-6)
+        args = dict(dt=dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0)
+        fast = run_ukf(model, y, u, compiled=True, codegen_dir=tmp_path, **args).means
+        np.testing.assert_allclose(fast, run_ukf(model, y, u, **args).means, rtol=0, atol=1e-7)
+        libraries.append(sorted(path.name for path in tmp_path.glob("*.so")))
+        estimates.append(ours)
+    # the MHE's model functions, its linear algebra (btd.c/gn.c) and the UKF's: built once, then loaded
+    assert len(libraries[0]) == 3 and libraries[1] == libraries[0]
+    assert np.abs(estimates[0] - estimates[1]).max() > 1e-3      # the second model's weights were used
+    symbolic, theta, values = models[0].parametric()
+    x, u = ca.SX.sym("x", 4), ca.SX.sym("u", 1)
+    residual = ca.Function("residual", [x, u, theta], [symbolic.residual(x, u)])
+    assert residual.sparsity_out(0).row() == [1, 3]                  # p and alpha rows: structural zeros
+    assert not ca.depends_on(symbolic.residual(x, u), x[0])          # the blind input is never read
+    out = np.asarray(residual(run.x[5], run.u[5], values)).ravel()   # zeros as numbers, masked rows exact
+    np.testing.assert_allclose(out, models[0].residual(run.x[5:6], run.u[5:6])[0], rtol=0, atol=1e-14)
+    assert out[0] == 0.0 and out[2] == 0.0
+
+
 def test_mhe_rejects_an_unknown_solver():
     system = make_system("quadrotor")
     model = HybridModel(system, "prior")
