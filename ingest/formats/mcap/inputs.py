@@ -201,4 +201,3 @@ def imu_gyro_channel(path: Path, accel_channels: Sequence[Channel], decoder_for:
     return (t, values), {"topic": topic, "variables": ["angular_velocity.x", "angular_velocity.y",
                                                        "angular_velocity.z"], "time_source": time_source,
                          "samples": len(t)}
-
