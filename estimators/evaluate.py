@@ -16,7 +16,7 @@ from learnest.models.presets import MHE_HORIZON
 
 from .mhe import MHE
 from .protocols import StateSpaceModel
-from .ukf import run_ukf
+from .ukf import compiled_sigma_functions, run_ukf
 
 STATE_GROUPS = {"p": slice(0, 3), "v": slice(3, 6), "a": slice(6, 9)}
 # the units of an evaluation report's numbers (the report's "units"); the overall MSE averages the squared
@@ -26,14 +26,29 @@ MSE_UNITS = {"mse": "mean of squared errors of p (m^2), v (m^2/s^2) and a (m^2/s
              "ms_per_step": "ms of wall time per sample", "improvement_pct": "% (100 (1 - knode / prior-only))"}
 
 
+def _model_key(model, dt) -> tuple:
+    """What tells the models of one evaluation apart (they outlive the cache, so their ids stay unique)."""
+    system = model.system
+    return (model.kind, id(model.residual), system.name, tuple(sorted(system.prior_params.items())),
+            tuple(sorted(system.true_params.items())), float(dt))
+
+
 def _mhe_for(cache: dict, model, dt, Q, R, P0, horizon: int) -> MHE:
     """One MHE per model and tuning, built before any timing: a batch of flights reuses it (compiling the
-    Gauss–Newton functions or building the IPOPT problems costs seconds; the models of one evaluation
-    outlive the cache)."""
-    key = (model.kind, id(model.residual), model.system.name, tuple(sorted(model.system.prior_params.items())),
-           float(dt), horizon, Q.tobytes(), R.tobytes(), P0.tobytes())
+    Gauss–Newton functions or building the IPOPT problems costs seconds)."""
+    key = ("mhe", *_model_key(model, dt), horizon, Q.tobytes(), R.tobytes(), P0.tobytes())
     if key not in cache:
         cache[key] = MHE(model, dt, Q, R, P0, horizon=horizon).prepare()
+    return cache[key]
+
+
+def _ukf_functions_for(cache: dict, model, dt) -> tuple | None:
+    """The UKF's compiled sigma-point functions of a model, built once per batch before any timing
+    (generating and loading the code costs ~0.1 s per flight, a first compile seconds: neither belongs in
+    ms_per_step); None, so numpy, for a model that does not take CasADi symbols (no ``parametric``)."""
+    key = ("ukf", *_model_key(model, dt))
+    if key not in cache:
+        cache[key] = compiled_sigma_functions(model, dt) if hasattr(model, "parametric") else None
     return cache[key]
 
 
@@ -57,8 +72,9 @@ def evaluate_sequence(methods: Sequence[str], prior_model: StateSpaceModel, knod
                       keep_estimates: bool = False, mhe_cache: dict | None = None,
                       on_stage: Callable[[str], object] | None = None) -> dict:
     """{method: {"mse", "groups", "ms_per_step"[, "estimates"]}} for one flight; pass one `mhe_cache`
-    dict for all flights of a batch so each MHE is built once.  ``on_stage`` is told each method before it
-    runs ("knode-ukf") and an MHE build before it starts ("MHE build (knode-mhe)").
+    dict for all flights of a batch so each MHE (and each UKF's compiled model) is built once, untimed.
+    ``on_stage`` is told each method before it runs ("knode-ukf") and an MHE build before it starts
+    ("MHE build (knode-mhe)").
 
     ``knode-*`` methods run ``knode_model``, the others ``prior_model``.  y (T, m), u (T, p), x0 (n,),
     Q and P0 (n, n), R (m, m), reference (T, n); dt in s; ``ms_per_step`` is wall time per sample, ms.
@@ -70,12 +86,13 @@ def evaluate_sequence(methods: Sequence[str], prior_model: StateSpaceModel, knod
         if on_stage and not method.endswith("ukf"):
             on_stage(f"MHE build ({method})")
         mhe = None if method.endswith("ukf") else _mhe_for(mhe_cache, model, dt, Q, R, P0, horizon)
+        # compiled sigma-point model: an evaluation runs thousands of steps on one model (see make_ukf)
+        functions = _ukf_functions_for(mhe_cache, model, dt) if mhe is None else None
         if on_stage:
             on_stage(method)
         started = time.perf_counter()
-        # compiled sigma-point model: an evaluation runs thousands of steps on one model (see make_ukf)
-        estimates = run_ukf(model, y, u, dt=dt, Q=Q, R=R, x0=x0, P0=P0, compiled=True).means if mhe is None \
-            else mhe.run(y, u, x0)
+        estimates = run_ukf(model, y, u, dt=dt, Q=Q, R=R, x0=x0, P0=P0, sigma_functions=functions).means \
+            if mhe is None else mhe.run(y, u, x0)
         results[method] = {**score(estimates, reference),
                            "ms_per_step": 1e3 * (time.perf_counter() - started) / len(y)}
         if keep_estimates:

@@ -32,7 +32,7 @@ def _rows(u: np.ndarray, count: int) -> np.ndarray:
     return out
 
 
-def _compiled_sigma_functions(model: StateSpaceModel, dt: float, cache_dir: str | Path | None = None) -> tuple | None:
+def compiled_sigma_functions(model: StateSpaceModel, dt: float, cache_dir: str | Path | None = None) -> tuple | None:
     """fx(sigmas, dt, u) and hx(sigmas, u) over the 2n+1 sigma points as compiled C (`estimators.codegen`),
     or None without a working compiler (CasADi's interpreter would be slower than numpy here).
 
@@ -74,20 +74,24 @@ def _compiled_sigma_functions(model: StateSpaceModel, dt: float, cache_dir: str 
 
 def make_ukf(model: StateSpaceModel, dt: float, Q: np.ndarray, R: np.ndarray, x0: np.ndarray, P0: np.ndarray,
              alpha: float = 1e-3, beta: float = 2.0, kappa: float = 0.0, compiled: bool = False,
-             codegen_dir: str | Path | None = None) -> BatchedUKF:
+             codegen_dir: str | Path | None = None, sigma_functions: tuple | None = None) -> BatchedUKF:
     """A `BatchedUKF` for ``model`` with Merwe points (alpha, beta, kappa), x = x0 (n,), P = P0 (n, n).
 
     Q (n, n) and R (m, m) are used as given (no validation here; `run_ukf` validates).  ``predict`` and
     ``update`` take the input as the keyword ``u``, shape (p,).  ``compiled``: evaluate the model on the
     sigma points as compiled C (the model must accept CasADi symbols, as `HybridModel` does); the first
     filter of a model architecture compiles it (~1-5 s, cached in ``codegen_dir`` like the MHE's
-    functions; default ``~/.cache/learnest/codegen``).
+    functions; default ``~/.cache/learnest/codegen``).  ``sigma_functions``: the (fx, hx) pair of
+    `compiled_sigma_functions`, built once and reused for many filters of one model (then ``compiled`` is
+    not consulted); filters sharing a pair must run one after the other (it writes into shared buffers).
     """
     from .ukf_filterpy import BatchedUKF, VectorizedMerwePoints  # filterpy on first use (module docstring)
 
     n = model.n
     points = VectorizedMerwePoints(n, alpha=alpha, beta=beta, kappa=kappa)
-    functions = _compiled_sigma_functions(model, dt, codegen_dir) if compiled else None
+    functions = sigma_functions
+    if functions is None and compiled:
+        functions = compiled_sigma_functions(model, dt, codegen_dir)
     if functions is None:
         functions = (lambda sigmas, dt, u: model.step(sigmas, _rows(u, len(sigmas)), dt),
                      lambda sigmas, u: model.h(sigmas, _rows(u, len(sigmas))))
@@ -99,7 +103,7 @@ def make_ukf(model: StateSpaceModel, dt: float, Q: np.ndarray, R: np.ndarray, x0
 
 def run_ukf(model: StateSpaceModel, y: ArrayLike, u: ArrayLike | None = None, *, dt: float, Q: ArrayLike,
             R: ArrayLike, x0: ArrayLike, P0: ArrayLike, alpha: float = 1e-3, compiled: bool = False,
-            codegen_dir: str | Path | None = None) -> FilterResult:
+            codegen_dir: str | Path | None = None, sigma_functions: tuple | None = None) -> FilterResult:
     """Filter a whole sequence: update with y[0] at x0, then predict with u[k-1] and update with y[k].
 
     Parameters
@@ -127,6 +131,8 @@ def run_ukf(model: StateSpaceModel, y: ArrayLike, u: ArrayLike | None = None, *,
         for one built per fit (every new model architecture compiles once).
     codegen_dir : path, optional
         Where the compiled functions are cached (`estimators.codegen`; default ``~/.cache/learnest/codegen``).
+    sigma_functions : tuple, optional
+        A prebuilt (fx, hx) pair of `compiled_sigma_functions` for this model and dt (`make_ukf`).
 
     Returns
     -------
@@ -144,7 +150,8 @@ def run_ukf(model: StateSpaceModel, y: ArrayLike, u: ArrayLike | None = None, *,
     u = check_inputs(u, len(y), model.n_inputs)
     Q, R = check_covariance("Q", Q, n, allow_singular=True), check_covariance("R", R, y.shape[1])
     x0, P0 = check_vector("x0", x0, n), check_covariance("P0", P0, n)
-    ukf = make_ukf(model, dt, Q, R, x0, P0, alpha=alpha, compiled=compiled, codegen_dir=codegen_dir)
+    ukf = make_ukf(model, dt, Q, R, x0, P0, alpha=alpha, compiled=compiled, codegen_dir=codegen_dir,
+                   sigma_functions=sigma_functions)
     ukf.sigmas_f = ukf._sigmas()
     means, innovations = np.empty((len(y), n)), np.empty(y.shape)
     covariances = np.empty((len(y), n, n))
