@@ -506,3 +506,31 @@ def test_chunks_within_the_expansion_cap_are_read(tmp_path):
     write_flight(path, "PoseStamped+Imu")
     content = mcap_container.scan(path)
     assert content.warnings == [] and content.channels
+
+
+def test_chunk_records_must_end_where_their_length_field_says():
+    """A message shorter than its 22-byte header would swallow the rest of its chunk, a channel longer than its
+    length field would desynchronise every record after it: both make the chunk damaged, by name.  A record
+    longer than the fields read (a later spec version's) is read and its extra bytes skipped."""
+    import struct
+
+    from mcap.data_stream import RecordBuilder
+    from mcap.records import Channel, Chunk
+
+    def chunk(data: bytes) -> Chunk:
+        return Chunk(compression="", data=data, message_start_time=0, message_end_time=0, uncompressed_crc=0,
+                     uncompressed_size=len(data))
+
+    short_message = b"\x05" + struct.pack("<Q", 5) + bytes(5)
+    with pytest.raises(ValueError, match="claims 5 bytes, less than its header"):
+        mcap_container._records_of(chunk(short_message))
+    builder = RecordBuilder()
+    Channel(id=1, schema_id=0, topic="/cf1/imu", message_encoding="cdr", metadata={}).write(builder)
+    record = builder.end()
+    (size,) = struct.unpack_from("<Q", record, 1)
+    truncated = record[:1] + struct.pack("<Q", size - 4) + record[9:]
+    with pytest.raises(ValueError, match=f"ends at byte {9 + size}, its length field says {5 + size}"):
+        mcap_container._records_of(chunk(truncated))
+    extended = record[:1] + struct.pack("<Q", size + 4) + record[9:] + b"new!"
+    [channel, again] = mcap_container._records_of(chunk(extended + record))
+    assert channel.topic == again.topic == "/cf1/imu"

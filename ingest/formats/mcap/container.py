@@ -34,6 +34,8 @@ MAX_DECOMPRESSED_BYTES = 4 << 30
 # Payloads of messages whose channel is not declared yet are kept (the declaration may come later, in
 # the summary) only up to this many bytes; past it they are counted and dropped.
 MAX_PENDING_BYTES = 32 << 20
+# A message record's fixed fields: channel id (2), sequence (4), log and publish times (8 + 8).
+MESSAGE_HEADER_BYTES = 22
 
 # What the mcap reader raises on damaged framing (cut-off reads, bad lengths, bad UTF-8, CRC mismatch,
 # corrupt compressed data; lz4 reports corruption as RuntimeError).
@@ -161,13 +163,18 @@ def _chunk_records(chunk: Chunk) -> list:
 def _records_of(chunk: Chunk) -> list:
     """`mcap.stream_reader.breakup_chunk`, but refusing opcode 0x00 (reserved as invalid by the MCAP
     spec): zeros parse as ~10^6 empty records per 16 MiB in pure Python (8 s), and zeros are what a
-    bomb's chunk holds.  Other unknown opcodes are skipped, as the spec asks of readers."""
+    bomb's chunk holds.  A record must also fit in its length field (the library's readers trust it only
+    for messages, and a message shorter than its 22-byte header would swallow the rest of the chunk);
+    bytes past the fields read are skipped (a later spec version's fields), as are unknown opcodes."""
     stream, length = get_chunk_data_stream(chunk, validate_crc=True)
     records: list = []
     while stream.count < length:
+        start = stream.count
         opcode, size = stream.read1(), stream.read8()
         if opcode == 0:
-            raise ValueError(f"chunk record at byte {stream.count - 9} has opcode 0x00 (invalid)")
+            raise ValueError(f"chunk record at byte {start} has opcode 0x00 (invalid)")
+        if opcode == Opcode.MESSAGE and size < MESSAGE_HEADER_BYTES:
+            raise ValueError(f"message record at byte {start} claims {size} bytes, less than its header")
         if opcode == Opcode.CHANNEL:
             records.append(Channel.read(stream))
         elif opcode == Opcode.MESSAGE:
@@ -176,6 +183,11 @@ def _records_of(chunk: Chunk) -> list:
             records.append(Schema.read(stream))
         else:
             stream.read(size)
+        end = start + 9 + size
+        if stream.count > end:
+            raise ValueError(f"chunk record at byte {start} (opcode 0x{opcode:02x}) ends at byte {stream.count}, "
+                             f"its length field says {end}")
+        stream.read(end - stream.count)      # fields of a later spec version: skipped, as the spec asks
     return records
 
 

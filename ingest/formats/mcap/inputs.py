@@ -195,7 +195,10 @@ def imu_gyro_channel(path: Path, accel_channels: Sequence[Channel], decoder_for:
         return None
     t, time_source = _on_clock(decoded, use_stamps, origin_ns)
     t, values = _clean(t, np.array(decoded.values, dtype=float).reshape(len(t), 3))
-    if len(t) < 2 or not np.any(values):
+    if len(t) < 2:
+        notes.append(f"{topic}: fewer than 2 usable angular velocities (non-finite or repeated times): no gyro")
+        return None
+    if not np.any(values):
         notes.append(f"{topic}: angular_velocity is zero in every Imu message (not logged): no gyro")
         return None
     return (t, values), {"topic": topic, "variables": ["angular_velocity.x", "angular_velocity.y",
