@@ -6,7 +6,7 @@ Same training flights as benchmarks/run_crazyflie.sh (medium speed, repetition 2
 (service.experiment.CRAZYFLIE_TRAINING, MHE horizon 20, Savitzky–Golay references of window 150).
 
 Run from the repository root (needs ../shared/data):
-    .venv/bin/python benchmarks/crazyflie_transfer.py [--out benchmarks/results/crazyflie_transfer]
+    .venv/bin/python benchmarks/crazyflie_transfer.py [--systems crazyflie] [--out benchmarks/results/crazyflie_transfer]
 """
 from __future__ import annotations
 
@@ -84,6 +84,7 @@ def main(argv=None) -> int:
     parser.add_argument("--methods", default=",".join(METHODS), help="estimators to score (MHE dominates the time)")
     parser.add_argument("--flights", default="", help="comma-separated names: score only these flights of the "
                                                            "other family (default: all of them)")
+    parser.add_argument("--systems", default=",".join(SYSTEMS), help="priors to train and score")
     parser.add_argument("--tag", default="", help="suffix of the result files (transfer<tag>.json/.md)")
     args = parser.parse_args(argv)
     started = time.perf_counter()
@@ -102,7 +103,7 @@ def main(argv=None) -> int:
             test = [f for f in test if f.name in args.flights.split(",")]
         direction = f"trained on {TRAIN[family]}, scored on the {OTHER[family]}s"
         runs[direction] = {}
-        for system in SYSTEMS:
+        for system in args.systems.split(","):
             t0 = time.perf_counter()
             trained = train_on_flight(by_name[TRAIN[family]], system=system)
             report = evaluate_flights(trained.model, test, methods)

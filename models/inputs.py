@@ -12,6 +12,7 @@ from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 
 from .systems import System
+from .thrust_axis import calibrated_attitude, thrust_axis_offset
 
 # channel -> what carries it in each supported format (for the error message)
 CHANNEL_SOURCES = {
@@ -22,6 +23,11 @@ CHANNEL_SOURCES = {
 }
 # system name -> the Flight channels its inputs come from, in input order after the attitude
 NEEDED = {"crazyflie": ("motors", "vbat")}
+# systems whose prior turns thrust into acceleration through the attitude: their attitude input is the
+# mocap attitude rotated onto the flight's thrust axis (`models.thrust_axis`)
+THRUST_THROUGH_ATTITUDE = frozenset({"crazyflie"})
+# what a model trained on such inputs records in meta["attitude_input"]
+ATTITUDE_CALIBRATED = "mocap attitude calibrated onto the thrust axis"
 
 
 class MissingInputs(InvalidInput):
@@ -33,8 +39,23 @@ def missing_inputs(flight: Flight, system_name: str) -> list[str]:
     return [name for name in NEEDED.get(system_name, ()) if name not in flight.channels]
 
 
+def flight_thrust_axis(flight: Flight) -> np.ndarray:
+    """(d_x, d_y), rad: the flight's thrust axis in its mocap body frame (`models.thrust_axis`).
+
+    Raises
+    ------
+    InvalidInput
+        Naming the flight, if the offset is implausibly large.
+    """
+    try:
+        return thrust_axis_offset(flight.p, flight.quat, flight.dt)
+    except ValueError as err:
+        raise InvalidInput(f"{flight.name}: {err}") from None
+
+
 def system_inputs(flight: Flight, system: System) -> np.ndarray:
-    """u (T, system.n_inputs) for this flight: empty for input-free systems, [quat, PWM x4, vbat] for crazyflie."""
+    """u (T, system.n_inputs) for this flight: empty for input-free systems, [quat, PWM x4, vbat] for crazyflie,
+    whose attitude is calibrated onto the flight's thrust axis (`flight_thrust_axis`)."""
     if system.n_inputs == 0:
         return np.zeros((len(flight.t), 0))
     if system.name not in NEEDED:
@@ -44,7 +65,10 @@ def system_inputs(flight: Flight, system: System) -> np.ndarray:
         what = "; ".join(CHANNEL_SOURCES[name] for name in missing)
         raise MissingInputs(f"{flight.name}: the {system.name!r} prior needs inputs this flight does not carry "
                             f"({what}). The kinematic prior (system 'quadrotor') works without them.")
-    columns = [flight.quat] + [np.asarray(flight.channels[name], float).reshape(len(flight.t), -1)
+    quat = flight.quat
+    if system.name in THRUST_THROUGH_ATTITUDE:
+        quat = calibrated_attitude(quat, flight_thrust_axis(flight))
+    columns = [quat] + [np.asarray(flight.channels[name], float).reshape(len(flight.t), -1)
                                for name in NEEDED[system.name]]
     u = np.column_stack(columns)
     if u.shape[1] != system.n_inputs:

@@ -12,8 +12,9 @@ from learnest.ingest.formats.rosbag import reader as rosbag_reader
 from learnest.ingest.formats.rosbag.writer import BagWriter
 from learnest.ingest.frames import GRAVITY
 from learnest.ingest.sim import write_canonical_flight
-from learnest.models.inputs import MissingInputs, system_inputs
+from learnest.models.inputs import MissingInputs, flight_thrust_axis, system_inputs
 from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
+from learnest.models.thrust_axis import calibrated_attitude
 from learnest.models.systems import Crazyflie, Quadrotor
 
 INNER = slice(5, -5)    # the grid's ends hold the first/last sample
@@ -45,7 +46,9 @@ def test_a_ros2_mcap_with_crazyswarm_topics_gives_the_crazyflie_prior_its_inputs
         assert np.abs(got - expected)[INNER].max() < tolerance, name
     u = system_inputs(read, Crazyflie())
     assert u.shape == (len(read.t), Crazyflie().n_inputs)
-    np.testing.assert_allclose(u[:, :4], read.quat)
+    # the attitude, calibrated onto the thrust axis: the simulator's motors push along its body z
+    assert np.degrees(np.abs(flight_thrust_axis(read))).max() < 0.3
+    np.testing.assert_allclose(u[:, :4], calibrated_attitude(read.quat, flight_thrust_axis(read)))
     np.testing.assert_allclose(u[:, 4:8], read.channels["motors"])
     np.testing.assert_allclose(u[:, 8], np.ravel(read.channels["vbat"]))
     assert 3.4 - 1e-6 <= u[:, 8].min() < u[:, 8].max() <= 4.1 + 1e-6

@@ -17,7 +17,7 @@ from learnest.ingest.flight import Flight
 from learnest.ingest.profile import flight_profile, profile_mismatches
 from learnest.models.effects import correct_acc_body, world_from_body
 from learnest.models.envelope import envelope_report
-from learnest.models.inputs import system_inputs
+from learnest.models.inputs import ATTITUDE_CALIBRATED, THRUST_THROUGH_ATTITUDE, flight_thrust_axis, system_inputs
 from learnest.models.knode import HybridModel
 from learnest.models.presets import CRAZYFLIE_TRAINING, MHE_HORIZON, SG_WINDOW, TrainingConfig
 from learnest.models.systems import System, make_system
@@ -59,6 +59,8 @@ def train_on_flight(flight: Flight, config: TrainingConfig = CRAZYFLIE_TRAINING,
     y, u = flight.measurements(), system_inputs(flight, prior)
     zeta = pretraining_observer(prior, y, u, prior.dt)
     result = train_knode(prior, zeta, u, prior.dt, config, progress=progress)
+    if prior.name in THRUST_THROUGH_ATTITUDE:   # evaluations check it: older models saw the raw attitude
+        result.model.meta["attitude_input"] = ATTITUDE_CALIBRATED
     result.model.meta.update({"system": prior.name, "training_flight": flight.name,
                               "training_flight_sha256": [s["sha256"] for s in flight.meta.get("sources", [])],
                               "training_profile": flight_profile(flight)})
@@ -140,6 +142,13 @@ def _is_training_flight(knode: HybridModel, flight: Flight) -> bool:
     return bool(trained_on & sources) or flight.name == knode.meta.get("training_flight")
 
 
+def _trained_on_raw_attitude(knode: HybridModel) -> bool:
+    """A KNODE of a thrust-through-attitude prior trained before the thrust-axis calibration (its residual
+    learned from the raw mocap attitude; evaluations now feed it the calibrated one)."""
+    return (knode.kind == "knode" and knode.system.name in THRUST_THROUGH_ATTITUDE
+            and knode.meta.get("attitude_input") != ATTITUDE_CALIBRATED)
+
+
 def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequence[str], include_bad: bool = False,
                      horizon: int = MHE_HORIZON, progress: Callable[[dict], None] | None = None,
                      on_estimates: Callable[[int, FlightEstimates], None] | None = None,
@@ -152,6 +161,8 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
     and listed in ``outside_training_envelope``.  Each scored flight's ``warnings`` say how it differs from
     the training flight in vehicle, sensor rates, attitude source, mass or controller
     (`ingest.profile.profile_mismatches`; none for a model that recorded no ``training_profile``).
+    A prior that turns thrust into acceleration through the attitude (the Crazyflie's) gets the mocap
+    attitude calibrated onto each flight's thrust axis; ``thrust_axis_offset_deg`` [x, y] says by how much.
     ``progress`` is called with each flight's entry;
     ``on_estimates(index, FlightEstimates)`` with the per-step estimates of each scored flight (index into
     ``flights``), when given; ``on_stage`` with each method's name before it runs and "MHE build (...)"
@@ -177,8 +188,14 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
             entry["groups"] = {m: r["groups"] for m, r in results.items()}
             entry["ms_per_step"] = {m: r["ms_per_step"] for m, r in results.items()}
             entry["envelope"] = flight_envelope(knode, flight)
+            if knode.system.name in THRUST_THROUGH_ATTITUDE:   # the calibration the prior's attitude input got
+                entry["thrust_axis_offset_deg"] = [round(float(np.degrees(d)), 3) for d in flight_thrust_axis(flight)]
         # a flight from another vehicle, sensor rate or attitude source: scored, with a warning
-        entry["warnings"] = profile_mismatches(knode.meta.get("training_profile"), flight_profile(flight))
+        warnings = profile_mismatches(knode.meta.get("training_profile"), flight_profile(flight))
+        if not entry["excluded"] and _trained_on_raw_attitude(knode):
+            warnings.append("the model was trained on the mocap attitude as logged, before the attitude input was "
+                            "calibrated onto the thrust axis: retrain it for consistent inputs")
+        entry["warnings"] = warnings
         reports.append(entry)
         if progress:
             progress(entry)

@@ -1,0 +1,93 @@
+"""The thrust axis against the mocap body frame: one small constant rotation per flight, calibrated from the
+mocap pose alone.
+
+Why: the Crazyflie prior turns thrust into world acceleration through the mocap attitude, R(q)·[0, 0, T].
+A quadrotor's thrust acts along its motor axes, so the specific force R(q)ᵀ(p̈ + g e₃) points along the
+thrust axis whatever the vehicle does (rotor drag adds a few hundredths of g and averages out over a
+flight).  On the NanoBench flights its mean direction sits 0.3-3.1° off the mocap body z axis, different
+from flight to flight (`benchmarks/results/crazyflie_thrust_axis`): 2.7° is 0.46 m/s² of horizontal
+acceleration at hover, and the three flights with the largest offset are the three where the Crazyflie
+prior lost most to the kinematic one.  The mocap frame is where the markers are, not where the motors
+point; the offset is calibrated per flight, from mocap position and attitude only (no accelerometer, no
+estimate): two numbers per flight, reported with the evaluation.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from learnest.ingest.frames import GRAVITY, quat_to_matrix
+
+# p̈ from twice-differentiated mocap position is noise above a few Hz; the mean direction needs the slow part
+LOWPASS_HZ = 2.0
+EDGE_S = 0.5          # the zero-phase filter's edges are left out
+MIN_SECONDS = 3.0     # a shorter record gives no calibration (zero offset)
+MAX_OFFSET_RAD = np.radians(10.0)   # beyond this the record is not a flight with mocap on the vehicle
+
+
+def thrust_axis_offset(p: np.ndarray, quat: np.ndarray, dt: float) -> np.ndarray:
+    """The mean direction of the specific force in the mocap body frame, as small angles.
+
+    Parameters
+    ----------
+    p : ndarray, shape (T, 3)
+        Mocap position, world frame (z up), m.
+    quat : ndarray, shape (T, 4)
+        Mocap attitude, scalar-last unit quaternions (body -> world).
+    dt : float
+        Sample time, s.
+
+    Returns
+    -------
+    ndarray, shape (2,)
+        (d_x, d_y), rad: the body-frame x and y components of the thrust axis's unit vector (d_x > 0: the
+        thrust leans towards the mocap body's +x).  Zero for a record shorter than `MIN_SECONDS`.
+
+    Raises
+    ------
+    ValueError
+        If the offset exceeds `MAX_OFFSET_RAD` (the attitude is not the vehicle's, or the record is not
+        a flight).
+    """
+    from learnest.models.identify import lowpass
+
+    p, quat = np.asarray(p, dtype=float), np.asarray(quat, dtype=float)
+    edge = int(round(EDGE_S / dt))
+    if len(p) * dt < MIN_SECONDS:
+        return np.zeros(2)
+    acc = lowpass(np.gradient(np.gradient(p, dt, axis=0), dt, axis=0), dt, LOWPASS_HZ)
+    force_world = acc + np.array([0.0, 0.0, GRAVITY])
+    force_body = np.einsum("tji,tj->ti", quat_to_matrix(quat), force_world)[edge:len(p) - edge]
+    direction = (force_body / np.linalg.norm(force_body, axis=1, keepdims=True)).mean(axis=0)
+    direction /= np.linalg.norm(direction)
+    if np.hypot(direction[0], direction[1]) > np.sin(MAX_OFFSET_RAD):
+        raise ValueError(f"the specific force leans {np.degrees(np.arcsin(np.hypot(*direction[:2]))):.1f}° off the "
+                         f"mocap body z axis on average (at most {np.degrees(MAX_OFFSET_RAD):.0f}° expected): "
+                         "is the mocap attitude the vehicle's?")
+    return direction[:2].copy()
+
+
+def calibrated_attitude(quat: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """The attitude whose body z axis is the thrust axis: q ⊗ q_δ, with q_δ the shortest rotation taking e₃
+    to the unit vector (d_x, d_y, √(1 − d_x² − d_y²)) of `thrust_axis_offset`.
+
+    Parameters
+    ----------
+    quat : ndarray, shape (T, 4)
+        Mocap attitude, scalar-last.
+    offset : ndarray, shape (2,)
+        (d_x, d_y), rad.
+
+    Returns
+    -------
+    ndarray, shape (T, 4)
+        Scalar-last quaternions with R(q ⊗ q_δ) e₃ = R(q) d.
+    """
+    from scipy.spatial.transform import Rotation  # scipy.spatial costs ~0.5 s to import: on first use
+
+    dx, dy = float(offset[0]), float(offset[1])
+    sine = np.hypot(dx, dy)
+    if sine == 0.0:
+        return np.asarray(quat, dtype=float).copy()
+    axis = np.array([-dy, dx, 0.0]) / sine          # e₃ × d, normalised
+    delta = Rotation.from_rotvec(axis * np.arcsin(min(sine, 1.0)))
+    return (Rotation.from_quat(quat) * delta).as_quat()
