@@ -132,8 +132,9 @@ def test_models_of_one_architecture_share_one_compiled_library(tmp_path):
         np.testing.assert_allclose(fast, run_ukf(model, y, u, **args).means, rtol=0, atol=1e-7)
         libraries.append(sorted(path.name for path in tmp_path.glob("*.so")))
         estimates.append(ours)
-    # the MHE's model functions, its linear algebra (btd.c/gn.c) and the UKF's: built once, then loaded
-    assert len(libraries[0]) == 3 and libraries[1] == libraries[0]
+    # the MHE's model functions, its linear algebra (btd.c/gn.c), the UKF's and its loop (ukf.c): built
+    # once, then loaded
+    assert len(libraries[0]) == 4 and libraries[1] == libraries[0]
     assert np.abs(estimates[0] - estimates[1]).max() > 1e-3      # the second model's weights were used
     symbolic, theta, values = models[0].parametric()
     x, u = ca.SX.sym("x", 4), ca.SX.sym("u", 1)
