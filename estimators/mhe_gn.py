@@ -63,7 +63,7 @@ from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from learnest.errors import NumericalWarning
 
-from .codegen import compiled, load_source, mapped
+from .codegen import compiled, load_source, mapped, model_key
 from .parametric import symbolic_model
 
 # The contraction estimate ρ = s_k/s_{k-1} predicts the remaining error only once both steps are small
@@ -130,9 +130,12 @@ class GaussNewtonWindowSolver:
         # exact only when H does not depend on u
         self.one_step = self.linear and not ca.depends_on(H, u)
         # mapped over the nodes; θ, Q⁻¹ and R⁻¹ are the same for every node (not repeated)
+        # everything above is derived from f and h by this code with Lmax and `diagonal` as its only
+        # choices: the key that lets a second MHE of this model in this process skip code generation
+        key = model_key(ca.Function("lrn_model", [x, u, theta], [f, hx]), "mhe_gn", self.Lmax, diagonal)
         self.sweep, self.jac2, self.jac_all, self.jac1 = compiled(
             [mapped(node, "lrn_sweep", self.Lmax, (6, 7, 8)), mapped(jac, "lrn_jac2", 2, (2,)),
-             mapped(jac, "lrn_jacn", self.Lmax, (2,)), jac1], cache_dir=cache_dir, compiler=compiler)
+             mapped(jac, "lrn_jacn", self.Lmax, (2,)), jac1], cache_dir=cache_dir, compiler=compiler, key=key)
         for fn, index in ((self.sweep, 6), (self.jac2, 2), (self.jac_all, 2), (self.jac1, 2)):
             fn.inputs[index][0] = symbolic.values
         self.sweep.inputs[7][...], self.sweep.inputs[8][...] = weights
@@ -141,6 +144,8 @@ class GaussNewtonWindowSolver:
         self.stats = {"solves": 0, "iterations": 0, "relinearisations": 0, "node_jacobians": 0, "ipopt_fallbacks": 0,
                       "failures": 0}
         self._mask_length = -1
+        fs, Fs, Hs = np.zeros((2, n)), np.zeros((2, n, n)), np.zeros((2, m, n))
+        self._jac2_out = (fs, Fs, Hs, ((fs[0], fs[1]), (Fs[0], Fs[1]), (Hs[0], Hs[1])))
         self._native = None
         if self.sweep.backend == "c" and self.linalg.lib is not None and max(n, m) <= 64:   # gn.c's stack arrays
             self._native = _NativeWindow(self)
@@ -186,12 +191,18 @@ class GaussNewtonWindowSolver:
         self.stats["node_jacobians"] += L
 
     def _jac2(self, xa, ua, xb, ub):
-        """f, F, H at two points (one compiled call)."""
+        """f (2, n), F (2, n, n), H (2, m, n) at two points (one compiled call), each a pair of arrays
+        overwritten by the next call: the same array objects every time (`_NativeWindow` keeps their
+        addresses; a fresh copy per step cost more than the call)."""
         ins = self.jac2.inputs
         ins[0][0], ins[0][1], ins[1][0], ins[1][1] = xa, xb, ua, ub
         f, Ft, Ht = self.jac2()
         n, m = self.mhe.n, self.mhe.m
-        return f.copy(), np.swapaxes(Ft.reshape(2, n, n), 1, 2).copy(), np.swapaxes(Ht.reshape(2, n, m), 1, 2).copy()
+        fs, Fs, Hs, pairs = self._jac2_out
+        fs[...] = f
+        np.copyto(Fs, np.swapaxes(Ft.reshape(2, n, n), 1, 2))
+        np.copyto(Hs, np.swapaxes(Ht.reshape(2, n, m), 1, 2))
+        return pairs
 
     # -- one window -------------------------------------------------------------------------------------
     def _solve(self, X, u_win, y_win, x_bar, P_inv, F, H):
@@ -262,14 +273,17 @@ class GaussNewtonWindowSolver:
         F, H = np.zeros((self.Lmax, n, n)), np.zeros((self.Lmax, m, n))
         P_arrival = mhe.P0.copy()
         P_inv = np.linalg.inv(P_arrival)
+        # the window's states live in one (Lmax, n) array, shifted in place (gn.c solves in it directly);
+        # F, H, P and P⁻¹ too: their addresses are taken once per run (`_NativeWindow.start`)
+        window = self._native.start(F, H, P_arrival, P_inv) if self._native is not None else np.zeros((self.Lmax, n))
         _, Fs, Hs = self._jac2(x_bar, u[0], x_bar, u[0])
         F[0], H[0] = Fs[0], Hs[0]
-        X = x_bar[None].copy()
+        window[0] = x_bar
         estimates = np.empty((T, n))
         for k in range(T):
             start = max(0, k - N)
             L = k - start + 1
-            X, ok = self._solve(X, u[start:k + 1], y[start:k + 1], x_bar, P_inv, F, H)
+            X, ok = self._solve(window[:L], u[start:k + 1], y[start:k + 1], x_bar, P_inv, F, H)
             self.stats["solves"] += 1
             if not ok and self.max_iter is None:
                 # Gauss–Newton drops the dynamics' curvature weighted by Q⁻¹w; with a very curved model
@@ -277,6 +291,7 @@ class GaussNewtonWindowSolver:
                 X, ok = mhe.solve_window_ipopt(X, u[start:k + 1], y[start:k + 1], x_bar, P_inv)
                 self.stats["ipopt_fallbacks"] += 1
             self.stats["failures"] += int(not ok)
+            window[:L] = X
             estimates[k] = X[-1]
             # Jacobians at the solution's first node (arrival update) and last node (its edge to the
             # next node, and the prediction x_{k+1} = f(x̂_k) that starts the next window)
@@ -287,14 +302,15 @@ class GaussNewtonWindowSolver:
                 if mhe.arrival == "ekf" and self._native is not None:
                     self._native.arrival(Fs[0], Hs[0], P_arrival, P_inv)
                 elif mhe.arrival == "ekf":
-                    P_arrival = _ekf_update(Fs[0], Hs[0], P_arrival, mhe.Q, mhe.R)
-                    P_inv = np.linalg.inv(P_arrival)
-                x_bar = X[1].copy()
-                X = np.vstack([X[1:], fs[1]])
-                F[:L - 1], H[:L - 1] = F[1:L].copy(), H[1:L].copy()
+                    P_arrival[...] = _ekf_update(Fs[0], Hs[0], P_arrival, mhe.Q, mhe.R)
+                    P_inv[...] = np.linalg.inv(P_arrival)
+                x_bar = window[1].copy()
+                window[:L - 1] = window[1:L]   # numpy copies overlapping slices correctly
+                window[L - 1] = fs[1]
+                F[:L - 1], H[:L - 1] = F[1:L], H[1:L]
                 F[L - 1], H[L - 1] = Fs[1], Hs[1]   # the new node: linearised at its predecessor until solved
             else:
-                X = np.vstack([X, fs[1]])
+                window[L] = fs[1]
                 F[L], H[L] = Fs[1], Hs[1]
             if progress:
                 progress(k)
@@ -349,8 +365,23 @@ class _NativeWindow:
         self._ekf = linalg.lib.lrn_ekf_arrival
         self._ekf.argtypes = [ctypes.c_int] * 2 + [ctypes.c_void_p] * 7
         self._ekf.restype = ctypes.c_int
-        self._ekf_fixed = (_address(self.Q), _address(self.R))
+        self._ekf_fixed = (_address(self.Q), _address(self.R), _address(self.ekf_work))
+        self._addresses: dict[int, tuple] = {}
         self._X, self._x_bar = _address(self.X), _address(self.x_bar)
+
+    def start(self, F, H, P, P_inv) -> np.ndarray:
+        """Take the addresses of a run's F, H, P and P⁻¹ once (~5 µs per lookup, 7 per step otherwise);
+        returns the (Lmax, n) window array `solve` works in."""
+        self._addresses = {id(a): (a, _address(a)) for a in (F, H, P, P_inv)}
+        return self.X
+
+    def _address(self, array):
+        """_address, remembered for the arrays of the current run (held, so their ids stay theirs)."""
+        known = self._addresses.get(id(array))
+        if known is not None and known[0] is array:
+            return known[1]
+        address = self._addresses[id(array)] = (array, _address(array))
+        return address[1]
 
     def solve(self, X, u_win, y_win, x_bar, P_inv, F, H):
         gn, L = self.gn, len(X)
@@ -360,10 +391,10 @@ class _NativeWindow:
         if gn.mhe.p:   # gn.c's Jacobians read u from here too
             sweep_in[1][:L], sweep_in[1][L:] = u_win, u_win[-1]
         gn.linalg._pinv[...] = P_inv
-        self.X[:L], self.x_bar[...] = X, x_bar
+        self.X[:L], self.x_bar[...] = X, x_bar   # run() hands over self.X[:L] itself: a no-op copy
         problem = self.problem
         problem.iterations = problem.relinearisations = problem.node_jacobians = 0
-        status = self._call(*self._fixed, L, self._X, self._x_bar, _address(F), _address(H))
+        status = self._call(*self._fixed, L, self._X, self._x_bar, self._address(F), self._address(H))
         gn.stats["iterations"] += problem.iterations
         gn.stats["relinearisations"] += problem.relinearisations
         gn.stats["node_jacobians"] += problem.node_jacobians
@@ -371,13 +402,13 @@ class _NativeWindow:
             raise RuntimeError("compiled CasADi function returned an error")
         if status < -1:
             raise np.linalg.LinAlgError(f"MHE Gauss-Newton matrix not positive definite (row {-status - 3})")
-        return self.X[:L].copy(), bool(status)
+        return self.X[:L], bool(status)
 
     def arrival(self, F, H, P, P_inv):
         """`_ekf_update` of P (n, n) in place and P_inv := P⁻¹, in C (F (n, n), H (m, n) C-contiguous)."""
-        mhe = self.gn.mhe
-        if self._ekf(mhe.n, mhe.m, _address(F), _address(H), _address(P), self._ekf_fixed[0], self._ekf_fixed[1],
-                     _address(P_inv), _address(self.ekf_work)):
+        mhe, address = self.gn.mhe, self._address
+        if self._ekf(mhe.n, mhe.m, address(F), address(H), address(P), self._ekf_fixed[0], self._ekf_fixed[1],
+                     address(P_inv), self._ekf_fixed[2]):
             raise np.linalg.LinAlgError("MHE arrival covariance not positive definite")
 
 

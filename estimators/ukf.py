@@ -66,7 +66,7 @@ def compiled_sigma_functions(model: StateSpaceModel, dt: float,
     """
     import casadi as ca
 
-    from .codegen import compiled, mapped
+    from .codegen import compiled, mapped, model_key
     from .parametric import symbolic_model
     from .ukf_native import NativeUKF, load_library
 
@@ -74,11 +74,13 @@ def compiled_sigma_functions(model: StateSpaceModel, dt: float,
     x, u = ca.SX.sym("x", n), ca.SX.sym("u", model.n_inputs)
     symbolic = symbolic_model(model, dt)
     theta = symbolic.params
-    step = ca.Function("lrn_ukf_f", [x, u, theta], [symbolic.model.step(x, u, symbolic.dt)])
-    meas = ca.Function("lrn_ukf_h", [x, u, theta], [symbolic.model.h(x, u)])
+    f, h = symbolic.model.step(x, u, symbolic.dt), symbolic.model.h(x, u)
+    step, meas = ca.Function("lrn_ukf_f", [x, u, theta], [f]), ca.Function("lrn_ukf_h", [x, u, theta], [h])
+    # a second filter of this model in this process loads its library without generating code
+    key = model_key(ca.Function("lrn_model", [x, u, theta], [f, h]), "ukf", count)
     # mapped over the sigma points, θ shared (not repeated)
     f_c, h_c = compiled([mapped(step, "lrn_ukf_fx", count, (2,)), mapped(meas, "lrn_ukf_hx", count, (2,))],
-                        cache_dir=cache_dir)
+                        cache_dir=cache_dir, key=key)
     if f_c.backend != "c":
         return None
     f_c.inputs[2][0] = symbolic.values

@@ -102,6 +102,40 @@ def _masked_cartpole_knode(seed):
     return system, HybridModel(system, "knode", residual)
 
 
+def test_a_second_model_of_an_architecture_skips_code_generation_in_this_process(tmp_path, monkeypatch):
+    """`compiled(key=...)`: the UKF functions of a second model of the same architecture (other weights)
+    reuse the library loaded for the first without generating C; a model whose residual masks differ
+    (same layer sizes) is another key, gets its own code, and each filter equals the numpy one."""
+    import casadi as ca
+
+    from learnest.estimators.ukf import compiled_sigma_functions, run_ukf
+    generated = []
+
+    class CountingGenerator(ca.CodeGenerator):
+        def add(self, fn, *args):
+            generated.append(fn.name())
+            return super().add(fn, *args)
+
+    monkeypatch.setattr(ca, "CodeGenerator", CountingGenerator)
+    system, first = _masked_cartpole_knode(1)
+    (w1, b1), second_layer = _masked_cartpole_knode(3)[1].residual.layers
+    w1 = w1.copy()
+    w1[:, 1] = 0.0   # one more blind input: the zero pattern is part of the architecture (Residual.parametric)
+    run = system.simulate(3, n_samples=40)
+    models = [first, _masked_cartpole_knode(2)[1], HybridModel(system, "knode", Residual([(w1, b1), second_layer]))]
+    counts = []
+    for model in models:
+        before = len(generated)
+        functions = compiled_sigma_functions(model, system.dt, tmp_path)
+        if functions is None:
+            pytest.skip("no C compiler here")
+        counts.append(len(generated) - before)
+        args = dict(dt=system.dt, Q=system.Q, R=system.R, x0=run.x_noisy[0], P0=system.P0)
+        np.testing.assert_allclose(run_ukf(model, run.y, run.u, sigma_functions=functions, **args).means,
+                                   run_ukf(model, run.y, run.u, **args).means, rtol=0, atol=1e-7)
+    assert counts == [2, 0, 2]
+
+
 def test_models_of_one_architecture_share_one_compiled_library(tmp_path):
     """Weights, physical parameters and dt are inputs of the compiled code, not constants in it: a second
     model of the same architecture (other weights, another prior mass, another dt) compiles nothing new,
