@@ -171,7 +171,8 @@ def compiled(functions: list[ca.Function], cache_dir: str | Path | None = None,
     memo = None
     if key is not None:
         names = ",".join(fn.name() for fn in functions)
-        memo = hashlib.sha256("\0".join([key, names, str(cache_dir), str(compiler), *CFLAGS]).encode()).hexdigest()
+        cache = Path(cache_dir) if cache_dir is not None else DEFAULT_CACHE   # as load_source resolves it
+        memo = hashlib.sha256("\0".join([key, names, str(cache), str(compiler), *CFLAGS]).encode()).hexdigest()
     lib = _LOADED.get(memo) if memo is not None else None
     if lib is None:
         generator = ca.CodeGenerator("learnest_fn.c", {"with_header": False})

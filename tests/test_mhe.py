@@ -204,14 +204,23 @@ def test_the_quadrotor_observer_batch_solve_equals_the_kalman_rts_smoother():
 
 
 def test_a_window_gauss_newton_cannot_solve_is_solved_by_ipopt():
-    """The fallback path: every window reported unconverged goes to IPOPT, from the same warm start,
-    arrival weight and data, so the recursion equals the IPOPT solver's."""
+    """The fallback path, in C (gn.c's recursion hands the window back to Python, one step at a time when
+    progress is reported) and in the Python loop: every window reported unconverged goes to IPOPT, from the
+    same warm start, arrival weight and data, so the recursion equals the IPOPT solver's."""
     system = make_system("cartpole")
     run = system.simulate(5, n_samples=40)
     model = HybridModel(system, "true")
     gn, _, ipopt = both(model, system, run, 40, horizon=6)
+    args = (run.y[:40], run.u[:40], run.x_noisy[0])
+    if gn._gn._native is not None:
+        gn._gn._native.problem.limit = 0   # no Gauss–Newton iteration: every window unconverged
+        steps = []
+        np.testing.assert_allclose(gn.run(*args, progress=steps.append), ipopt, rtol=0, atol=1e-6)
+        assert gn.stats["ipopt_fallbacks"] == 40 and steps == list(range(40))
+        gn = MHE(model, system.dt, system.Q, system.R, system.P0, horizon=6)
+        gn._gn._native = None               # the Python loop
     gn._gn._solve = lambda X, *args: (X, False)   # Gauss–Newton "fails" on every window
-    fallback = gn.run(run.y[:40], run.u[:40], run.x_noisy[0])
+    fallback = gn.run(*args)
     np.testing.assert_allclose(fallback, ipopt, rtol=0, atol=1e-6)
     assert gn.stats["ipopt_fallbacks"] == 40
 
