@@ -235,3 +235,91 @@ int lrn_ekf_arrival(int n, int m, const double *F, const double *H, double *P, c
     solve_r_cols(n, n, U, Pinv);
     return 0;
 }
+
+/* The MHE recursion over a whole sequence (mhe_gn.GaussNewtonWindowSolver.run, the same steps): per k the
+ * window's data into the sweep's inputs, lrn_gn_window, the Jacobians at the solution's first and last
+ * node, the arrival update and the window's shift.  Why: around the window solver, Python spent ~80 us
+ * per step (two KNODE-MHE and MHE runs of a 3290-step flight: 0.55 s) on slicing, copies and ctypes
+ * calls.  A window Gauss-Newton cannot solve goes back to Python (IPOPT), and the loop resumes. */
+typedef struct {
+    int T, N, ekf, k_end;
+    const double *y, *u;        /* (T, m), (T, p) */
+    double *estimates;          /* (T, n) */
+    double *X, *x_bar;          /* window (Lmax, n), arrival mean (n) */
+    double *F, *H;              /* node Jacobians (Lmax, n, n), (Lmax, m, n) */
+    double *P;                  /* arrival covariance (n, n), updated in place; P^{-1} is the solver's Pinv */
+    const double *Q, *R;
+    double *ekf_work;           /* 3 n n + 2 m n + m m */
+    double *fa, *Fa, *Ha;       /* f, F, H at the window's first node (n), (n, n), (m, n) */
+    double *fb, *Fb, *Hb;       /* and at its last node */
+    int k, stage, ok;           /* resume point; ok: Python's verdict on a window it solved */
+    long long failures, fallbacks;
+} lrn_mhe;
+
+/* f, F, H (row-major) at one node with the one-node Jacobian function */
+static int node_jacobian(lrn_gn *p, const double *x, const double *u, double *f, double *F, double *H) {
+    int n = p->n, m = p->m;
+    memcpy(p->jac.arg[0], x, sizeof(double) * n);
+    if (p->p) memcpy(p->jac.arg[1], u, sizeof(double) * p->p);
+    if (call(&p->jac)) return -1;
+    const double *Ft = p->jac.res[1], *Ht = p->jac.res[2];
+    memcpy(f, p->jac.res[0], sizeof(double) * n);
+    for (int r = 0; r < n; ++r)
+        for (int c = 0; c < n; ++c) F[r * n + c] = Ft[c * n + r];
+    for (int r = 0; r < m; ++r)
+        for (int c = 0; c < n; ++c) H[r * n + c] = Ht[c * m + r];
+    return 0;
+}
+
+/* Steps r->k .. r->k_end - 1.  Returns 0 when there, 1 when window r->k needs IPOPT (Python solves X[:L],
+ * sets r->ok and calls again: r->stage is 1), -1 a CasADi function failed, -2 - i the Gauss-Newton matrix
+ * is not positive definite (row i - 1), -1000 the arrival covariance is not. */
+int lrn_mhe_run(lrn_gn *p, lrn_mhe *r) {
+    int n = p->n, m = p->m, np_ = p->p, Lmax = p->Lmax, N = r->N;
+    double *u_in = p->sweep.arg[1], *y_in = p->sweep.arg[3], *md = p->sweep.arg[4], *mm = p->sweep.arg[5];
+    while (r->k < r->k_end) {
+        int k = r->k, start = k > N ? k - N : 0, L = k - start + 1;
+        if (r->stage == 0) {
+            for (int i = 0; i < Lmax; ++i) {
+                md[i] = i < L - 1 ? 1.0 : 0.0;
+                mm[i] = i < L ? 1.0 : 0.0;
+            }
+            memcpy(y_in, r->y + (size_t)start * m, sizeof(double) * L * m);
+            if (np_) {   /* the Jacobians read u from here too; padding repeats the last input */
+                memcpy(u_in, r->u + (size_t)start * np_, sizeof(double) * L * np_);
+                for (int i = L; i < Lmax; ++i) memcpy(u_in + i * np_, r->u + (size_t)k * np_, sizeof(double) * np_);
+            }
+            int status = lrn_gn_window(p, L, r->X, r->x_bar, r->F, r->H);
+            if (status < 0) return status;
+            if (status == 0 && !p->bounded) {
+                r->stage = 1;
+                r->fallbacks++;
+                return 1;
+            }
+            r->ok = status;
+        }
+        r->failures += !r->ok;
+        r->stage = 0;
+        memcpy(r->estimates + (size_t)k * n, r->X + (L - 1) * n, sizeof(double) * n);
+        /* Jacobians at the solution's first node (arrival update) and last node (its edge to the next
+         * node, and the prediction x_{k+1} = f(x_k) that starts the next window) */
+        if (node_jacobian(p, r->X, r->u + (size_t)start * np_, r->fa, r->Fa, r->Ha)) return -1;
+        if (node_jacobian(p, r->X + (L - 1) * n, r->u + (size_t)k * np_, r->fb, r->Fb, r->Hb)) return -1;
+        memcpy(r->F + (L - 1) * n * n, r->Fb, sizeof(double) * n * n);   /* the last node's edge */
+        memcpy(r->H + (L - 1) * m * n, r->Hb, sizeof(double) * m * n);
+        int slides = k + 1 - N > start, row = slides ? L - 1 : L;
+        if (slides) {
+            if (r->ekf && lrn_ekf_arrival(n, m, r->Fa, r->Ha, r->P, r->Q, r->R, p->Pinv, r->ekf_work)) return -1000;
+            memcpy(r->x_bar, r->X + n, sizeof(double) * n);
+            memmove(r->X, r->X + n, sizeof(double) * (L - 1) * n);
+            memmove(r->F, r->F + n * n, sizeof(double) * (L - 1) * n * n);
+            memmove(r->H, r->H + m * n, sizeof(double) * (L - 1) * m * n);
+        }
+        /* the new node: the prediction, linearised at its predecessor until solved */
+        memcpy(r->X + row * n, r->fb, sizeof(double) * n);
+        memcpy(r->F + row * n * n, r->Fb, sizeof(double) * n * n);
+        memcpy(r->H + row * m * n, r->Hb, sizeof(double) * m * n);
+        r->k = k + 1;
+    }
+    return 0;
+}

@@ -23,7 +23,9 @@ Where the time goes, and why this design (measured on the 9-state, 16-unit quadr
 - Even through ctypes, driving the iterations from Python cost as much as their arithmetic (~1 ms of
   numpy/ctypes overhead per KNODE window), so a window's whole loop runs in C (`gn.c`, `_NativeWindow`),
   calling the compiled CasADi functions through pointers; so does the EKF arrival update (~150 µs per
-  step in numpy for ~5k flops).  `_solve` below is the same loop in Python, used with the interpreter.
+  step in numpy for ~5k flops), and so, since, does the recursion around the windows (the shift, the
+  two nodes' Jacobians: ~80 µs per step in Python, 0.55 s of a 3290-step flight's MHE and KNODE-MHE).
+  `_solve` and `_run` below are the same loops in Python, used with the interpreter.
 - The exact Jacobian of one RK4 step of the network costs ~23k CasADi instructions (8x the step), its
   vector-Jacobian product ~5.5k.  So every iterate gets the exact gradient (reverse mode over the
   window, one compiled call: "sweep"), and full Jacobians are taken only when they pay: once per window
@@ -63,7 +65,7 @@ from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from learnest.errors import NumericalWarning
 
-from .codegen import compiled, load_source, mapped
+from .codegen import compiled, load_source, mapped, model_key
 from .parametric import symbolic_model
 
 # The contraction estimate ρ = s_k/s_{k-1} predicts the remaining error only once both steps are small
@@ -130,9 +132,12 @@ class GaussNewtonWindowSolver:
         # exact only when H does not depend on u
         self.one_step = self.linear and not ca.depends_on(H, u)
         # mapped over the nodes; θ, Q⁻¹ and R⁻¹ are the same for every node (not repeated)
+        # everything above is derived from f and h by this code with Lmax and `diagonal` as its only
+        # choices: the key that lets a second MHE of this model in this process skip code generation
+        key = model_key(ca.Function("lrn_model", [x, u, theta], [f, hx]), "mhe_gn", self.Lmax, diagonal)
         self.sweep, self.jac2, self.jac_all, self.jac1 = compiled(
             [mapped(node, "lrn_sweep", self.Lmax, (6, 7, 8)), mapped(jac, "lrn_jac2", 2, (2,)),
-             mapped(jac, "lrn_jacn", self.Lmax, (2,)), jac1], cache_dir=cache_dir, compiler=compiler)
+             mapped(jac, "lrn_jacn", self.Lmax, (2,)), jac1], cache_dir=cache_dir, compiler=compiler, key=key)
         for fn, index in ((self.sweep, 6), (self.jac2, 2), (self.jac_all, 2), (self.jac1, 2)):
             fn.inputs[index][0] = symbolic.values
         self.sweep.inputs[7][...], self.sweep.inputs[8][...] = weights
@@ -141,6 +146,8 @@ class GaussNewtonWindowSolver:
         self.stats = {"solves": 0, "iterations": 0, "relinearisations": 0, "node_jacobians": 0, "ipopt_fallbacks": 0,
                       "failures": 0}
         self._mask_length = -1
+        fs, Fs, Hs = np.zeros((2, n)), np.zeros((2, n, n)), np.zeros((2, m, n))
+        self._jac2_out = (fs, Fs, Hs, ((fs[0], fs[1]), (Fs[0], Fs[1]), (Hs[0], Hs[1])))
         self._native = None
         if self.sweep.backend == "c" and self.linalg.lib is not None and max(n, m) <= 64:   # gn.c's stack arrays
             self._native = _NativeWindow(self)
@@ -186,18 +193,23 @@ class GaussNewtonWindowSolver:
         self.stats["node_jacobians"] += L
 
     def _jac2(self, xa, ua, xb, ub):
-        """f, F, H at two points (one compiled call)."""
+        """f (2, n), F (2, n, n), H (2, m, n) at two points (one compiled call), each a pair of arrays
+        overwritten by the next call: the same array objects every time (`_NativeWindow` keeps their
+        addresses; a fresh copy per step cost more than the call)."""
         ins = self.jac2.inputs
         ins[0][0], ins[0][1], ins[1][0], ins[1][1] = xa, xb, ua, ub
         f, Ft, Ht = self.jac2()
         n, m = self.mhe.n, self.mhe.m
-        return f.copy(), np.swapaxes(Ft.reshape(2, n, n), 1, 2).copy(), np.swapaxes(Ht.reshape(2, n, m), 1, 2).copy()
+        fs, Fs, Hs, pairs = self._jac2_out
+        fs[...] = f
+        np.copyto(Fs, np.swapaxes(Ft.reshape(2, n, n), 1, 2))
+        np.copyto(Hs, np.swapaxes(Ht.reshape(2, n, m), 1, 2))
+        return pairs
 
     # -- one window -------------------------------------------------------------------------------------
     def _solve(self, X, u_win, y_win, x_bar, P_inv, F, H):
-        """(X*, converged): full Gauss–Newton steps from the warm start X (L, n)."""
-        if self._native is not None:
-            return self._native.solve(X, u_win, y_win, x_bar, P_inv, F, H)
+        """(X*, converged): full Gauss–Newton steps from the warm start X (L, n) (the Python loop; with a
+        compiler the whole recursion runs in `gn.c`, `_NativeWindow.run`)."""
         L = len(X)
         self._set_masks(L)
         factor = self.linalg.factor(L, F, H, P_inv)
@@ -257,19 +269,31 @@ class GaussNewtonWindowSolver:
             Some windows did not converge (even after the IPOPT fallback).  The count comes from `stats`, which
             accumulates over calls.
         """
+        if self._native is not None:
+            estimates = self._native.run(y, u, x_bar, progress)
+        else:
+            estimates = self._run(y, u, x_bar, progress)
+        if self.stats["failures"]:
+            warnings.warn(f"MHE Gauss-Newton: {self.stats['failures']} of {self.stats['solves']} windows did not "
+                          "converge", NumericalWarning, stacklevel=3)
+        return estimates
+
+    def _run(self, y, u, x_bar, progress):
+        """`run` in Python (CasADi's interpreter, no compiler); `gn.c`'s lrn_mhe_run is the same loop."""
         mhe = self.mhe
         n, m, N, T = mhe.n, mhe.m, mhe.horizon, len(y)
         F, H = np.zeros((self.Lmax, n, n)), np.zeros((self.Lmax, m, n))
         P_arrival = mhe.P0.copy()
         P_inv = np.linalg.inv(P_arrival)
+        window = np.zeros((self.Lmax, n))   # the window's states, shifted in place
         _, Fs, Hs = self._jac2(x_bar, u[0], x_bar, u[0])
         F[0], H[0] = Fs[0], Hs[0]
-        X = x_bar[None].copy()
+        window[0] = x_bar
         estimates = np.empty((T, n))
         for k in range(T):
             start = max(0, k - N)
             L = k - start + 1
-            X, ok = self._solve(X, u[start:k + 1], y[start:k + 1], x_bar, P_inv, F, H)
+            X, ok = self._solve(window[:L], u[start:k + 1], y[start:k + 1], x_bar, P_inv, F, H)
             self.stats["solves"] += 1
             if not ok and self.max_iter is None:
                 # Gauss–Newton drops the dynamics' curvature weighted by Q⁻¹w; with a very curved model
@@ -277,6 +301,7 @@ class GaussNewtonWindowSolver:
                 X, ok = mhe.solve_window_ipopt(X, u[start:k + 1], y[start:k + 1], x_bar, P_inv)
                 self.stats["ipopt_fallbacks"] += 1
             self.stats["failures"] += int(not ok)
+            window[:L] = X
             estimates[k] = X[-1]
             # Jacobians at the solution's first node (arrival update) and last node (its edge to the
             # next node, and the prediction x_{k+1} = f(x̂_k) that starts the next window)
@@ -284,23 +309,19 @@ class GaussNewtonWindowSolver:
             F[L - 1], H[L - 1] = Fs[1], Hs[1]
             slides = k + 1 - N > start
             if slides:
-                if mhe.arrival == "ekf" and self._native is not None:
-                    self._native.arrival(Fs[0], Hs[0], P_arrival, P_inv)
-                elif mhe.arrival == "ekf":
-                    P_arrival = _ekf_update(Fs[0], Hs[0], P_arrival, mhe.Q, mhe.R)
-                    P_inv = np.linalg.inv(P_arrival)
-                x_bar = X[1].copy()
-                X = np.vstack([X[1:], fs[1]])
-                F[:L - 1], H[:L - 1] = F[1:L].copy(), H[1:L].copy()
+                if mhe.arrival == "ekf":
+                    P_arrival[...] = _ekf_update(Fs[0], Hs[0], P_arrival, mhe.Q, mhe.R)
+                    P_inv[...] = np.linalg.inv(P_arrival)
+                x_bar = window[1].copy()
+                window[:L - 1] = window[1:L]   # numpy copies overlapping slices correctly
+                window[L - 1] = fs[1]
+                F[:L - 1], H[:L - 1] = F[1:L], H[1:L]
                 F[L - 1], H[L - 1] = Fs[1], Hs[1]   # the new node: linearised at its predecessor until solved
             else:
-                X = np.vstack([X, fs[1]])
+                window[L] = fs[1]
                 F[L], H[L] = Fs[1], Hs[1]
             if progress:
                 progress(k)
-        if self.stats["failures"]:
-            warnings.warn(f"MHE Gauss-Newton: {self.stats['failures']} of {self.stats['solves']} windows did not "
-                          "converge", NumericalWarning, stacklevel=3)
         return estimates
 
 
@@ -321,62 +342,100 @@ class _Problem(ctypes.Structure):
                 *[(name, ctypes.c_longlong) for name in ("iterations", "relinearisations", "node_jacobians")]]
 
 
-class _NativeWindow:
-    """`GaussNewtonWindowSolver._solve` as one C call (`gn.c`: the same loop, same stopping rule).
+class _Run(ctypes.Structure):
+    """gn.c's lrn_mhe: one run of the recursion (sequence, window, arrival, scratch, resume point)."""
 
-    Why: the Python loop spent more time in numpy and ctypes overhead than in the arithmetic (per
-    KNODE window ~1 ms of overhead around ~0.7 ms of compiled code, measured under load)."""
+    _fields_ = [*[(name, ctypes.c_int) for name in ("T", "N", "ekf", "k_end")],
+                *[(name, ctypes.c_void_p) for name in ("y", "u", "estimates", "X", "x_bar", "F", "H", "P", "Q", "R",
+                                                       "ekf_work", "fa", "Fa", "Ha", "fb", "Fb", "Hb")],
+                *[(name, ctypes.c_int) for name in ("k", "stage", "ok")],
+                ("failures", ctypes.c_longlong), ("fallbacks", ctypes.c_longlong)]
+
+
+class _NativeWindow:
+    """`GaussNewtonWindowSolver.run` in C (`gn.c`: lrn_mhe_run around lrn_gn_window, the same loop, the
+    same stopping rule), back in Python only for a window IPOPT must solve.
+
+    Why: driving each window from Python cost as much as its arithmetic (~1 ms of numpy and ctypes
+    overhead per KNODE window, measured under load), and once the window loop was C, the recursion around
+    it still cost ~80 µs per step (0.55 s of a 3290-step flight's two MHE runs)."""
 
     def __init__(self, gn: GaussNewtonWindowSolver):
         self.gn, mhe, linalg = gn, gn.mhe, gn.linalg
-        n, Lmax = mhe.n, gn.Lmax
+        n, m, Lmax = mhe.n, mhe.m, gn.Lmax
         self.X, self.x_bar = np.zeros((Lmax, n)), np.zeros(n)
         self.g, self.dx, self.f = np.zeros((Lmax, n)), np.zeros((Lmax, n)), np.zeros((Lmax, n))
-        self.h = np.zeros((Lmax, mhe.m))
-        self.ekf_work = np.zeros(3 * n * n + 2 * n * mhe.m + mhe.m ** 2)
+        self.h = np.zeros((Lmax, m))
+        self.ekf_work = np.zeros(3 * n * n + 2 * n * m + m ** 2)
+        self.scratch = {name: np.zeros(shape) for name, shape in (("fa", n), ("Fa", (n, n)), ("Ha", (m, n)),
+                                                                  ("fb", n), ("Fb", (n, n)), ("Hb", (m, n)))}
         self.Q, self.R = np.ascontiguousarray(mhe.Q, dtype=float), np.ascontiguousarray(mhe.R, dtype=float)
-        problem = _Problem(n=n, m=mhe.m, p=mhe.p, Lmax=Lmax, limit=gn.max_iter or 30, one_step=int(gn.one_step),
+        problem = _Problem(n=n, m=m, p=mhe.p, Lmax=Lmax, limit=gn.max_iter or 30, one_step=int(gn.one_step),
                            bounded=int(gn.max_iter is not None), tol=gn.tol, rate_regime=RATE_REGIME,
                            sweep=_Fn(*gn.sweep.pointers()), jac=_Fn(*gn.jac1.pointers()),
                            Qi=_address(linalg.Qi), Ri=_address(linalg.Ri), Pinv=_address(linalg._pinv),
                            R=_address(linalg.R), C=_address(linalg.C), work=_address(linalg.work),
                            g=_address(self.g), dx=_address(self.dx), f=_address(self.f), h=_address(self.h))
         self.problem = problem
-        self._call = linalg.lib.lrn_gn_window
-        self._call.argtypes = [ctypes.c_void_p, ctypes.c_int] + [ctypes.c_void_p] * 4
-        self._call.restype = ctypes.c_int
-        self._fixed = (ctypes.addressof(problem),)
+        self._run = linalg.lib.lrn_mhe_run
+        self._run.argtypes, self._run.restype = [ctypes.c_void_p] * 2, ctypes.c_int
         self._ekf = linalg.lib.lrn_ekf_arrival
         self._ekf.argtypes = [ctypes.c_int] * 2 + [ctypes.c_void_p] * 7
         self._ekf.restype = ctypes.c_int
-        self._ekf_fixed = (_address(self.Q), _address(self.R))
-        self._X, self._x_bar = _address(self.X), _address(self.x_bar)
 
-    def solve(self, X, u_win, y_win, x_bar, P_inv, F, H):
-        gn, L = self.gn, len(X)
-        gn._set_masks(L)
-        sweep_in = gn.sweep.inputs
-        sweep_in[3][:L] = y_win
-        if gn.mhe.p:   # gn.c's Jacobians read u from here too
-            sweep_in[1][:L], sweep_in[1][L:] = u_win, u_win[-1]
-        gn.linalg._pinv[...] = P_inv
-        self.X[:L], self.x_bar[...] = X, x_bar
-        problem = self.problem
+    def run(self, y, u, x_bar, progress=None) -> np.ndarray:
+        """Estimates (T, n), as `GaussNewtonWindowSolver.run`; ``progress`` makes it return to Python after
+        every step to call it."""
+        gn, mhe, problem = self.gn, self.gn.mhe, self.problem
+        n, m, N, T = mhe.n, mhe.m, mhe.horizon, len(y)
+        y, u = np.ascontiguousarray(y, dtype=float), np.ascontiguousarray(u, dtype=float).reshape(T, mhe.p)
+        F, H = np.zeros((gn.Lmax, n, n)), np.zeros((gn.Lmax, m, n))
+        P = np.array(mhe.P0, dtype=float)
+        P_inv = gn.linalg._pinv   # gn.c's Pinv: the window solver reads it, the arrival update writes it
+        P_inv[...] = np.linalg.inv(P)
+        _, Fs, Hs = gn._jac2(x_bar, u[0], x_bar, u[0])
+        F[0], H[0] = Fs[0], Hs[0]
+        self.X[0], self.x_bar[...] = x_bar, x_bar
+        estimates = np.empty((T, n))
+        arrays = {"y": y, "u": u, "estimates": estimates, "X": self.X, "x_bar": self.x_bar, "F": F, "H": H, "P": P,
+                  "Q": self.Q, "R": self.R, "ekf_work": self.ekf_work, **self.scratch}
+        run = _Run(T=T, N=N, ekf=int(mhe.arrival == "ekf"), k=0, stage=0,
+                   **{name: _address(a) for name, a in arrays.items()})
         problem.iterations = problem.relinearisations = problem.node_jacobians = 0
-        status = self._call(*self._fixed, L, self._X, self._x_bar, _address(F), _address(H))
-        gn.stats["iterations"] += problem.iterations
-        gn.stats["relinearisations"] += problem.relinearisations
-        gn.stats["node_jacobians"] += problem.node_jacobians
-        if status == -1:
-            raise RuntimeError("compiled CasADi function returned an error")
-        if status < -1:
-            raise np.linalg.LinAlgError(f"MHE Gauss-Newton matrix not positive definite (row {-status - 3})")
-        return self.X[:L].copy(), bool(status)
+        try:
+            while run.k < T:
+                run.k_end = T if progress is None else run.k + 1
+                while (status := self._run(ctypes.addressof(problem), ctypes.addressof(run))) == 1:
+                    # Gauss–Newton did not converge on window k (see `run`): IPOPT solves it, same problem
+                    k = run.k
+                    start = max(0, k - N)
+                    L = k - start + 1
+                    X, ok = mhe.solve_window_ipopt(self.X[:L].copy(), u[start:k + 1], y[start:k + 1],
+                                                   self.x_bar.copy(), P_inv.copy())
+                    self.X[:L], run.ok = X, int(ok)
+                if status == -1:
+                    raise RuntimeError("compiled CasADi function returned an error")
+                if status == -1000:
+                    raise np.linalg.LinAlgError("MHE arrival covariance not positive definite")
+                if status < -1:
+                    raise np.linalg.LinAlgError(f"MHE Gauss-Newton matrix not positive definite (row {-status - 3})")
+                if progress:
+                    progress(run.k - 1)
+        finally:
+            stats = gn.stats
+            stats["solves"] += run.k
+            stats["iterations"] += problem.iterations
+            stats["relinearisations"] += problem.relinearisations
+            stats["node_jacobians"] += problem.node_jacobians
+            stats["ipopt_fallbacks"] += run.fallbacks
+            stats["failures"] += run.failures
+            gn._mask_length = -1   # gn.c wrote the masks: the Python loop's cache of them is stale
+        return estimates
 
     def arrival(self, F, H, P, P_inv):
         """`_ekf_update` of P (n, n) in place and P_inv := P⁻¹, in C (F (n, n), H (m, n) C-contiguous)."""
         mhe = self.gn.mhe
-        if self._ekf(mhe.n, mhe.m, _address(F), _address(H), _address(P), self._ekf_fixed[0], self._ekf_fixed[1],
+        if self._ekf(mhe.n, mhe.m, _address(F), _address(H), _address(P), _address(self.Q), _address(self.R),
                      _address(P_inv), _address(self.ekf_work)):
             raise np.linalg.LinAlgError("MHE arrival covariance not positive definite")
 

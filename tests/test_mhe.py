@@ -102,6 +102,40 @@ def _masked_cartpole_knode(seed):
     return system, HybridModel(system, "knode", residual)
 
 
+def test_a_second_model_of_an_architecture_skips_code_generation_in_this_process(tmp_path, monkeypatch):
+    """`compiled(key=...)`: the UKF functions of a second model of the same architecture (other weights)
+    reuse the library loaded for the first without generating C; a model whose residual masks differ
+    (same layer sizes) is another key, gets its own code, and each filter equals the numpy one."""
+    import casadi as ca
+
+    from learnest.estimators.ukf import compiled_sigma_functions, run_ukf
+    generated = []
+
+    class CountingGenerator(ca.CodeGenerator):
+        def add(self, fn, *args):
+            generated.append(fn.name())
+            return super().add(fn, *args)
+
+    monkeypatch.setattr(ca, "CodeGenerator", CountingGenerator)
+    system, first = _masked_cartpole_knode(1)
+    (w1, b1), second_layer = _masked_cartpole_knode(3)[1].residual.layers
+    w1 = w1.copy()
+    w1[:, 1] = 0.0   # one more blind input: the zero pattern is part of the architecture (Residual.parametric)
+    run = system.simulate(3, n_samples=40)
+    models = [first, _masked_cartpole_knode(2)[1], HybridModel(system, "knode", Residual([(w1, b1), second_layer]))]
+    counts = []
+    for model in models:
+        before = len(generated)
+        functions = compiled_sigma_functions(model, system.dt, tmp_path)
+        if functions is None:
+            pytest.skip("no C compiler here")
+        counts.append(len(generated) - before)
+        args = dict(dt=system.dt, Q=system.Q, R=system.R, x0=run.x_noisy[0], P0=system.P0)
+        np.testing.assert_allclose(run_ukf(model, run.y, run.u, sigma_functions=functions, **args).means,
+                                   run_ukf(model, run.y, run.u, **args).means, rtol=0, atol=1e-7)
+    assert counts == [2, 0, 2]
+
+
 def test_models_of_one_architecture_share_one_compiled_library(tmp_path):
     """Weights, physical parameters and dt are inputs of the compiled code, not constants in it: a second
     model of the same architecture (other weights, another prior mass, another dt) compiles nothing new,
@@ -132,8 +166,9 @@ def test_models_of_one_architecture_share_one_compiled_library(tmp_path):
         np.testing.assert_allclose(fast, run_ukf(model, y, u, **args).means, rtol=0, atol=1e-7)
         libraries.append(sorted(path.name for path in tmp_path.glob("*.so")))
         estimates.append(ours)
-    # the MHE's model functions, its linear algebra (btd.c/gn.c) and the UKF's: built once, then loaded
-    assert len(libraries[0]) == 3 and libraries[1] == libraries[0]
+    # the MHE's model functions, its linear algebra (btd.c/gn.c), the UKF's and its loop (ukf.c): built
+    # once, then loaded
+    assert len(libraries[0]) == 4 and libraries[1] == libraries[0]
     assert np.abs(estimates[0] - estimates[1]).max() > 1e-3      # the second model's weights were used
     symbolic, theta, values = models[0].parametric()
     x, u = ca.SX.sym("x", 4), ca.SX.sym("u", 1)
@@ -169,14 +204,23 @@ def test_the_quadrotor_observer_batch_solve_equals_the_kalman_rts_smoother():
 
 
 def test_a_window_gauss_newton_cannot_solve_is_solved_by_ipopt():
-    """The fallback path: every window reported unconverged goes to IPOPT, from the same warm start,
-    arrival weight and data, so the recursion equals the IPOPT solver's."""
+    """The fallback path, in C (gn.c's recursion hands the window back to Python, one step at a time when
+    progress is reported) and in the Python loop: every window reported unconverged goes to IPOPT, from the
+    same warm start, arrival weight and data, so the recursion equals the IPOPT solver's."""
     system = make_system("cartpole")
     run = system.simulate(5, n_samples=40)
     model = HybridModel(system, "true")
     gn, _, ipopt = both(model, system, run, 40, horizon=6)
+    args = (run.y[:40], run.u[:40], run.x_noisy[0])
+    if gn._gn._native is not None:
+        gn._gn._native.problem.limit = 0   # no Gauss–Newton iteration: every window unconverged
+        steps = []
+        np.testing.assert_allclose(gn.run(*args, progress=steps.append), ipopt, rtol=0, atol=1e-6)
+        assert gn.stats["ipopt_fallbacks"] == 40 and steps == list(range(40))
+        gn = MHE(model, system.dt, system.Q, system.R, system.P0, horizon=6)
+        gn._gn._native = None               # the Python loop
     gn._gn._solve = lambda X, *args: (X, False)   # Gauss–Newton "fails" on every window
-    fallback = gn.run(run.y[:40], run.u[:40], run.x_noisy[0])
+    fallback = gn.run(*args)
     np.testing.assert_allclose(fallback, ipopt, rtol=0, atol=1e-6)
     assert gn.stats["ipopt_fallbacks"] == 40
 
