@@ -273,7 +273,7 @@ static int node_jacobian(lrn_gn *p, const double *x, const double *u, double *f,
 
 /* Steps r->k .. r->k_end - 1.  Returns 0 when there, 1 when window r->k needs IPOPT (Python solves X[:L],
  * sets r->ok and calls again: r->stage is 1), -1 a CasADi function failed, -2 - i the Gauss-Newton matrix
- * is not positive definite (row i - 1), -1000 the arrival covariance is not. */
+ * is not positive definite (row i - 1), 2 the arrival covariance is not (a code no row index can take). */
 int lrn_mhe_run(lrn_gn *p, lrn_mhe *r) {
     int n = p->n, m = p->m, np_ = p->p, Lmax = p->Lmax, N = r->N;
     double *u_in = p->sweep.arg[1], *y_in = p->sweep.arg[3], *md = p->sweep.arg[4], *mm = p->sweep.arg[5];
@@ -309,7 +309,7 @@ int lrn_mhe_run(lrn_gn *p, lrn_mhe *r) {
         memcpy(r->H + (L - 1) * m * n, r->Hb, sizeof(double) * m * n);
         int slides = k + 1 - N > start, row = slides ? L - 1 : L;
         if (slides) {
-            if (r->ekf && lrn_ekf_arrival(n, m, r->Fa, r->Ha, r->P, r->Q, r->R, p->Pinv, r->ekf_work)) return -1000;
+            if (r->ekf && lrn_ekf_arrival(n, m, r->Fa, r->Ha, r->P, r->Q, r->R, p->Pinv, r->ekf_work)) return 2;
             memcpy(r->x_bar, r->X + n, sizeof(double) * n);
             memmove(r->X, r->X + n, sizeof(double) * (L - 1) * n);
             memmove(r->F, r->F + n * n, sizeof(double) * (L - 1) * n * n);

@@ -415,7 +415,7 @@ class _NativeWindow:
                     self.X[:L], run.ok = X, int(ok)
                 if status == -1:
                     raise RuntimeError("compiled CasADi function returned an error")
-                if status == -1000:
+                if status == 2:
                     raise np.linalg.LinAlgError("MHE arrival covariance not positive definite")
                 if status < -1:
                     raise np.linalg.LinAlgError(f"MHE Gauss-Newton matrix not positive definite (row {-status - 3})")

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from learnest.errors import InvalidInput
+
 from .covariance_factor import spd_factor
 from .results import FilterResult
 
@@ -81,8 +83,22 @@ class NativeUKF:
 
     def run(self, y: np.ndarray, u: np.ndarray, dt: float, Q: np.ndarray, R: np.ndarray, x0: np.ndarray,
             P0: np.ndarray, alpha: float, beta: float = 2.0, kappa: float = 0.0) -> FilterResult:
-        """The filter over y (T, m) with inputs u (T, p), checked by the caller (`run_ukf`)."""
+        """The filter over y (T, m) with inputs u (T, p), checked by the caller (`run_ukf`) against its model.
+
+        Raises
+        ------
+        InvalidInput
+            If the sizes are not the ones these functions were compiled for (C would read and write past
+            the arrays: a ``sigma_functions`` built for another model).
+        """
         n, m, T = self.n, self.m, len(y)
+        expected = {"y": (T, m), "u": (T, self.p), "Q": (n, n), "R": (m, m), "x0": (n,), "P0": (n, n)}
+        wrong = [f"{name} {np.shape(a)} (expected {expected[name]})" for name, a in
+                 (("y", y), ("u", np.reshape(u, (T, -1)) if np.size(u) else np.zeros((T, 0))), ("Q", Q), ("R", R),
+                  ("x0", x0), ("P0", P0)) if np.shape(a) != expected[name]]
+        if wrong:
+            raise InvalidInput(f"the compiled UKF functions were built for a model with n={n}, m={m}, p={self.p}: "
+                               f"got {', '.join(wrong)}")
         Wm, Wc, scale = merwe_weights(n, alpha, beta, kappa)
         y, u = _c(y), _c(u.reshape(T, self.p))
         Q, R = _c(Q), _c(R)

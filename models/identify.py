@@ -78,6 +78,9 @@ def flight_arrays(flight: Flight) -> FlightArrays:
     keep[:edge] = False
     keep[len(keep) - edge:] = False
     v = lowpass(np.gradient(flight.p, dt, axis=0), dt)
+    # the mocap attitude as logged, not `models.inputs.system_inputs`' thrust-axis calibration: the body-z
+    # specific force fitted here moves by cos(3°) - 1 < 0.2 % with it (only k_xy's v_b would see it), and
+    # `models.crazyflie.IDENTIFIED` was fitted this way
     u = np.column_stack([flight.quat, flight.channels["motors"], np.asarray(flight.channels["vbat"]).reshape(-1, 1)])
     return FlightArrays(flight.name, dt, lowpass(acc, dt), v, flight.p[:, 2].copy(), u, keep)
 

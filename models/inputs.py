@@ -53,6 +53,12 @@ def flight_thrust_axis(flight: Flight) -> np.ndarray:
         raise InvalidInput(f"{flight.name}: {err}") from None
 
 
+def training_meta(system: System) -> dict:
+    """What a model trained on `system_inputs` of this system records about them in its meta: evaluations
+    compare it (a model trained on the raw attitude is scored with a warning)."""
+    return {"attitude_input": ATTITUDE_CALIBRATED} if system.name in THRUST_THROUGH_ATTITUDE else {}
+
+
 def system_inputs(flight: Flight, system: System) -> np.ndarray:
     """u (T, system.n_inputs) for this flight: empty for input-free systems, [quat, PWM x4, vbat] for crazyflie,
     whose attitude is calibrated onto the flight's thrust axis (`flight_thrust_axis`)."""
@@ -67,7 +73,11 @@ def system_inputs(flight: Flight, system: System) -> np.ndarray:
                             f"({what}). The kinematic prior (system 'quadrotor') works without them.")
     quat = flight.quat
     if system.name in THRUST_THROUGH_ATTITUDE:
-        quat = calibrated_attitude(quat, flight_thrust_axis(flight))
+        offset = flight_thrust_axis(flight)
+        try:
+            quat = calibrated_attitude(quat, offset)
+        except ValueError as err:
+            raise InvalidInput(f"{flight.name}: {err}") from None
     columns = [quat] + [np.asarray(flight.channels[name], float).reshape(len(flight.t), -1)
                                for name in NEEDED[system.name]]
     u = np.column_stack(columns)

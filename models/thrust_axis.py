@@ -4,12 +4,15 @@ mocap pose alone.
 Why: the Crazyflie prior turns thrust into world acceleration through the mocap attitude, R(q)·[0, 0, T].
 A quadrotor's thrust acts along its motor axes, so the specific force R(q)ᵀ(p̈ + g e₃) points along the
 thrust axis whatever the vehicle does (rotor drag adds a few hundredths of g and averages out over a
-flight).  On the NanoBench flights its mean direction sits 0.3-3.1° off the mocap body z axis, different
+flight).  On the NanoBench flights its mean direction sits 0.4-3.0° off the mocap body z axis, different
 from flight to flight (`benchmarks/results/crazyflie_thrust_axis`): 2.7° is 0.46 m/s² of horizontal
 acceleration at hover, and the three flights with the largest offset are the three where the Crazyflie
 prior lost most to the kinematic one.  The mocap frame is where the markers are, not where the motors
 point; the offset is calibrated per flight, from mocap position and attitude only (no accelerometer, no
-estimate): two numbers per flight, reported with the evaluation.
+estimate): two numbers per flight, reported with the evaluation.  The calibration is offline: it averages
+over the whole record, later samples included (two numbers from thousands of samples), so an estimator fed
+the calibrated attitude is not strictly causal; a record too short or too coarse to calibrate keeps its
+attitude as logged (zero offset).
 """
 from __future__ import annotations
 
@@ -21,6 +24,7 @@ from learnest.ingest.frames import GRAVITY, quat_to_matrix
 LOWPASS_HZ = 2.0
 EDGE_S = 0.5          # the zero-phase filter's edges are left out
 MIN_SECONDS = 3.0     # a shorter record gives no calibration (zero offset)
+MIN_RATE_HZ = 2.5 * LOWPASS_HZ   # below this the low-pass is not defined: no calibration
 MAX_OFFSET_RAD = np.radians(10.0)   # beyond this the record is not a flight with mocap on the vehicle
 
 
@@ -39,21 +43,25 @@ def thrust_axis_offset(p: np.ndarray, quat: np.ndarray, dt: float) -> np.ndarray
     Returns
     -------
     ndarray, shape (2,)
-        (d_x, d_y), rad: the body-frame x and y components of the thrust axis's unit vector (d_x > 0: the
-        thrust leans towards the mocap body's +x).  Zero for a record shorter than `MIN_SECONDS`.
+        (d_x, d_y): the body-frame x and y components of the thrust axis's unit vector, the sines of its lean
+        towards the mocap body's +x and +y (≈ the angles in rad at these few degrees).  Zero for a record
+        shorter than `MIN_SECONDS` or sampled below `MIN_RATE_HZ`.
 
     Raises
     ------
     ValueError
         If the offset exceeds `MAX_OFFSET_RAD` (the attitude is not the vehicle's, or the record is not
-        a flight).
+        a flight), or position or attitude hold non-finite values.
     """
     from learnest.models.identify import lowpass
 
     p, quat = np.asarray(p, dtype=float), np.asarray(quat, dtype=float)
     edge = int(round(EDGE_S / dt))
-    if len(p) * dt < MIN_SECONDS:
+    if len(p) * dt < MIN_SECONDS or 1.0 / dt < MIN_RATE_HZ:
         return np.zeros(2)
+    if not np.isfinite(p).all():
+        raise ValueError("the mocap position holds non-finite values")
+    _check_attitude(quat)
     acc = lowpass(np.gradient(np.gradient(p, dt, axis=0), dt, axis=0), dt, LOWPASS_HZ)
     force_world = acc + np.array([0.0, 0.0, GRAVITY])
     force_body = np.einsum("tji,tj->ti", quat_to_matrix(quat), force_world)[edge:len(p) - edge]
@@ -84,6 +92,7 @@ def calibrated_attitude(quat: np.ndarray, offset: np.ndarray) -> np.ndarray:
     """
     from scipy.spatial.transform import Rotation  # scipy.spatial costs ~0.5 s to import: on first use
 
+    _check_attitude(quat)
     dx, dy = float(offset[0]), float(offset[1])
     sine = np.hypot(dx, dy)
     if sine == 0.0:
@@ -91,3 +100,10 @@ def calibrated_attitude(quat: np.ndarray, offset: np.ndarray) -> np.ndarray:
     axis = np.array([-dy, dx, 0.0]) / sine          # e₃ × d, normalised
     delta = Rotation.from_rotvec(axis * np.arcsin(min(sine, 1.0)))
     return (Rotation.from_quat(quat) * delta).as_quat()
+
+
+def _check_attitude(quat: np.ndarray) -> None:
+    norms = np.linalg.norm(quat, axis=-1)
+    if not (np.isfinite(norms).all() and (norms > 0).all()):
+        bad = np.flatnonzero(~(np.isfinite(norms) & (norms > 0)))
+        raise ValueError(f"the attitude holds non-finite or zero quaternions ({len(bad)} rows, first at row {bad[0]})")

@@ -170,12 +170,13 @@ def _train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, confi
     if best[1] is not None:
         mlp.load_state_dict(best[1])
     seconds = time.perf_counter() - started
-    model = HybridModel(system, "knode", mlp.export(),
+    residual = mlp.export()
+    model = HybridModel(system, "knode", residual,
                         meta={"training": config.as_dict(), "final_loss": losses[-1], "seconds": seconds,
                               # the epoch whose weights are kept: the last one when nothing is held out
                               "best_epoch": best[2] if n_val else config.epochs - 1,
                               "best_validation_loss": best[0] if n_val else None,
                               # where the training data lie: evaluations report records outside it
                               "envelope": training_envelope(zeta, u, [*system.state_names, *system.input_names],
-                                                            system.invariant_states)})
+                                                            system.invariant_states, residual)})
     return TrainingResult(model, losses, seconds, val_losses)

@@ -597,11 +597,16 @@ def format_report(report: dict) -> str:
 
 
 def _envelope_text(envelope: dict | None) -> str:
-    """'12 % (vx, az) OUTSIDE', '0 %', or '-' for a model stored without an envelope."""
+    """'12 % (vx, az) OUTSIDE', '40 % (vbat), residual unaffected', '0 %', or '-' for a model stored
+    without an envelope."""
     if not envelope:
         return "-"
-    states = f" ({', '.join(envelope['states_outside'])}) OUTSIDE" if envelope["outside_training_envelope"] else ""
-    return f"{100 * envelope['fraction_outside']:.0f} %{states}"
+    states = ", ".join(envelope["states_outside"])
+    if envelope["outside_training_envelope"]:
+        return f"{100 * envelope['fraction_outside']:.0f} % ({states}) OUTSIDE"
+    if states and envelope.get("residual_checked"):   # outside the box where the residual does not care
+        return f"{100 * envelope['fraction_outside']:.0f} % ({states}), residual unaffected"
+    return f"{100 * envelope['fraction_outside']:.0f} %"
 
 
 class _Parser(argparse.ArgumentParser):

@@ -40,6 +40,37 @@ def test_box_fraction_outside_is_the_analytic_share():
         envelope_report(envelope, test[:, :1], test[:, 2:])
 
 
+def test_with_the_residual_a_record_is_flagged_only_where_the_network_answer_depends_on_the_new_region():
+    """Δθ = [c, 0]: it reads input c and ignores state b.  Leaving the box in b changes nothing; leaving it in
+    c moves Δθ by (c - edge) once clipped, more than SENSITIVITY × the training RMS of |c| (√(1/3)) beyond
+    c* = edge + 0.5·√(1/3): for c ~ U(0, 3) a share (3 - c*) / 3 of the samples."""
+    from learnest.models.envelope import SENSITIVITY
+
+    def residual(x, u):
+        return np.column_stack([u[:, 0], np.zeros(len(u))])
+
+    rng = np.random.default_rng(1)
+    train = rng.uniform(0.0, 1.0, size=(20_000, 3))
+    envelope = training_envelope(train[:, :2], train[:, 2:], ["a", "b", "c"], residual=residual)
+    assert envelope["residual_rms"] == pytest.approx(np.sqrt(1 / 3), rel=0.01)
+
+    wide_b = rng.uniform(0.0, 1.0, size=(20_000, 3))
+    wide_b[:, 1] *= 2.0
+    box_only = envelope_report(envelope, wide_b[:, :2], wide_b[:, 2:])
+    checked = envelope_report(envelope, wide_b[:, :2], wide_b[:, 2:], residual=residual)
+    assert box_only["outside_training_envelope"] and box_only["states_outside"] == ["b"]
+    assert checked["states_outside"] == ["b"] and checked["fraction_extrapolating"] == 0.0
+    assert not checked["outside_training_envelope"] and checked["residual_checked"]
+
+    wide_c = rng.uniform(0.0, 1.0, size=(20_000, 3))
+    wide_c[:, 2] *= 3.0
+    checked = envelope_report(envelope, wide_c[:, :2], wide_c[:, 2:], residual=residual)
+    edge = np.array(envelope["high"][2]) + MARGIN * (envelope["high"][2] - envelope["low"][2])
+    c_star = edge + SENSITIVITY * envelope["residual_rms"]
+    assert checked["fraction_extrapolating"] == pytest.approx((3.0 - c_star) / 3.0, abs=0.01)
+    assert checked["outside_training_envelope"] and checked["states_outside"] == ["c"]
+
+
 @pytest.fixture(scope="module")
 def circles(tmp_path_factory):
     """A slow training circle, a similar slow one and a fast one (8 s of circling each)."""

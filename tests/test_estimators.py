@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 
+from learnest.errors import InvalidInput
 from learnest.estimators.kf import linearize, run_kf
 from learnest.estimators.mhe import MHE
 from learnest.estimators.ukf import make_ukf, run_ukf, spd_factor
@@ -141,6 +142,12 @@ def test_the_c_filter_loop_equals_the_python_filter_step_for_step():
             np.testing.assert_allclose(ours.innovations[k], ukf.y, rtol=0, atol=1e-7)
         # the eigenvalue lift leaves the smallest eigenvalue at spd_factor's floor (~1e-15)
         assert (np.linalg.eigvalsh(ours.covariances[-1]).min() < 1e-12) == repaired
+    # functions compiled for this model refuse another model's sizes (C would write past the arrays)
+    robot = make_system("robot")
+    T = len(run.y)
+    with pytest.raises(InvalidInput, match=r"built for a model with n=4, m=2, p=1: got y \(150, 5\) \(expected"):
+        run_ukf(HybridModel(robot, "prior"), np.zeros((T, 5)), np.zeros((T, 2)), dt=system.dt, Q=robot.Q, R=robot.R,
+                x0=np.zeros(4), P0=robot.P0, sigma_functions=functions)
 
 
 def test_spd_factor_repairs_an_indefinite_covariance_and_the_kept_covariance_is_read_only():

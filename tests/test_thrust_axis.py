@@ -10,7 +10,8 @@ from scipy.spatial.transform import Rotation
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 from learnest.ingest.frames import GRAVITY, quat_to_matrix
-from learnest.models.inputs import flight_thrust_axis, system_inputs
+from learnest.models.inputs import ATTITUDE_CALIBRATED, flight_thrust_axis, system_inputs
+from learnest.models.systems import make_system
 from learnest.models.thrust_axis import calibrated_attitude, thrust_axis_offset
 
 NANOBENCH = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "nanobench"
@@ -62,6 +63,12 @@ def test_a_short_record_is_not_calibrated_and_a_wrong_attitude_is_refused_with_t
     flight = Flight(t, p, np.zeros_like(p), tilted, {}, {"name": "tilted markers"})
     with pytest.raises(InvalidInput, match=r"tilted markers: .*30\.0° off the mocap body z axis"):
         flight_thrust_axis(flight)
+    broken = quat.copy()
+    broken[100] = 0.0                         # a zero quaternion: a dropped mocap frame written as zeros
+    flight = Flight(t, p, np.zeros_like(p), broken, {"motors": np.full((len(t), 4), 40000.0),
+                                                    "vbat": np.full((len(t), 1), 3.7)}, {"name": "dropped frame"})
+    with pytest.raises(InvalidInput, match=r"dropped frame: .*non-finite or zero quaternions"):
+        system_inputs(flight, make_system("crazyflie"))
 
 
 @needs_data
@@ -108,3 +115,14 @@ def test_a_crazyflie_knode_trained_before_the_calibration_is_scored_with_a_warni
         assert not entry["excluded"]
         assert any("trained on the mocap attitude as logged" in w for w in entry["warnings"]) == warned
         assert np.hypot(*entry["thrust_axis_offset_deg"]) < 0.3     # the simulator's motors push along body z
+
+
+def test_the_model_a_crazyflie_diagnosis_repairs_records_its_calibrated_attitude_input():
+    """The repaired model a diagnosis registers was trained on `system_inputs`: its meta must say so, or every
+    evaluation of it would carry the warning for models trained on the raw attitude."""
+    from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
+    from learnest.service.experiments.diagnosis import diagnose_flights
+
+    flights = [simulate_crazyflie(SimulatedFlight(duration_s=8), seed=seed) for seed in (0, 1)]
+    _, repaired = diagnose_flights(flights, methods=("ukf",), epochs=1, return_model=True, system="crazyflie")
+    assert repaired.kind == "knode" and repaired.meta["attitude_input"] == ATTITUDE_CALIBRATED

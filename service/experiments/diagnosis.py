@@ -38,7 +38,7 @@ from learnest.models.effects import (
     unidentifiable_scales,
 )
 from learnest.models.identify import LOWPASS_HZ, lowpass
-from learnest.models.inputs import system_inputs
+from learnest.models.inputs import system_inputs, training_meta
 from learnest.models.knode import HybridModel
 from learnest.models.presets import CRAZYFLIE_TRAINING, PAPER_TRAINING
 from learnest.models.systems import System, make_system
@@ -376,7 +376,7 @@ def _crazyflie_model(flight: Flight, params: dict, train: bool, config) -> Hybri
     model = train_knode(system, zeta, u, system.dt, config).model
     model.meta.update({"system": "crazyflie", "training_flight": flight.name,
                        "training_flight_sha256": [s["sha256"] for s in flight.meta.get("sources", [])],
-                       "training_profile": flight_profile(flight)})
+                       "training_profile": flight_profile(flight), **training_meta(system)})
     return model
 
 

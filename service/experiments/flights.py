@@ -17,7 +17,13 @@ from learnest.ingest.flight import Flight
 from learnest.ingest.profile import flight_profile, profile_mismatches
 from learnest.models.effects import correct_acc_body, world_from_body
 from learnest.models.envelope import envelope_report
-from learnest.models.inputs import ATTITUDE_CALIBRATED, THRUST_THROUGH_ATTITUDE, flight_thrust_axis, system_inputs
+from learnest.models.inputs import (
+    ATTITUDE_CALIBRATED,
+    THRUST_THROUGH_ATTITUDE,
+    flight_thrust_axis,
+    system_inputs,
+    training_meta,
+)
 from learnest.models.knode import HybridModel
 from learnest.models.presets import CRAZYFLIE_TRAINING, MHE_HORIZON, SG_WINDOW, TrainingConfig
 from learnest.models.systems import System, make_system
@@ -59,8 +65,7 @@ def train_on_flight(flight: Flight, config: TrainingConfig = CRAZYFLIE_TRAINING,
     y, u = flight.measurements(), system_inputs(flight, prior)
     zeta = pretraining_observer(prior, y, u, prior.dt)
     result = train_knode(prior, zeta, u, prior.dt, config, progress=progress)
-    if prior.name in THRUST_THROUGH_ATTITUDE:   # evaluations check it: older models saw the raw attitude
-        result.model.meta["attitude_input"] = ATTITUDE_CALIBRATED
+    result.model.meta.update(training_meta(prior))   # evaluations check it: older models saw the raw attitude
     result.model.meta.update({"system": prior.name, "training_flight": flight.name,
                               "training_flight_sha256": [s["sha256"] for s in flight.meta.get("sources", [])],
                               "training_profile": flight_profile(flight)})
@@ -132,7 +137,8 @@ def flight_envelope(knode: HybridModel, flight: Flight) -> dict | None:
     measured = corrected_flight(flight, knode.meta["measurement_effects"]) \
         if knode.meta.get("measurement_effects") else flight
     u = system_inputs(flight, system)
-    return envelope_report(envelope, pretraining_observer(system, measured.measurements(), u, system.dt), u)
+    return envelope_report(envelope, pretraining_observer(system, measured.measurements(), u, system.dt), u,
+                           residual=knode.residual)
 
 
 def _is_training_flight(knode: HybridModel, flight: Flight) -> bool:
