@@ -572,8 +572,9 @@ def _diagnose(args) -> int:
 
 def format_report(report: dict) -> str:
     """An evaluation report (evaluate_flights' JSON) as a text table: per-flight and median MSE (x 1e-3) per method
-    and the share of the flight outside the model's training envelope, then the improvements in %, then a
-    warning per flight that differs from the training flight (vehicle, sensor rates, attitude source).
+    and the share of the flight outside the model's training envelope, then the improvements in %, the thrust-axis
+    calibration of each flight (Crazyflie prior), then a warning per flight that differs from the training
+    flight (vehicle, sensor rates, attitude source).
     """
     methods = list(report["median"])
     prior = f" ({report['system']} prior)" if report.get("system") else ""
@@ -591,6 +592,10 @@ def format_report(report: dict) -> str:
     outside = report.get("outside_training_envelope")
     if outside:
         lines.append(f"outside what this model saw in training: {', '.join(outside)}")
+    axes = {f["flight"]: f["thrust_axis_offset_deg"] for f in report["flights"] if f.get("thrust_axis_offset_deg")}
+    if axes:   # the calibration the prior's attitude input got (models.thrust_axis)
+        lines.append("thrust axis vs mocap frame (deg, x/y): "
+                     + ", ".join(f"{name} {x:+.1f}/{y:+.1f}" for name, (x, y) in axes.items()))
     for f in report["flights"]:   # another vehicle, sensor rate or attitude source than the training flight's
         lines += [f"WARNING {f['flight']}: {warning}" for warning in f.get("warnings") or []]
     return "\n".join(lines)

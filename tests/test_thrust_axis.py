@@ -104,6 +104,7 @@ def test_a_crazyflie_knode_trained_before_the_calibration_is_scored_with_a_warni
     from learnest.models.knode import HybridModel, Residual
     from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
     from learnest.models.systems import make_system
+    from learnest.service.cli import format_report
     from learnest.service.experiments.flights import evaluate_flights
 
     system = make_system("crazyflie")
@@ -115,6 +116,7 @@ def test_a_crazyflie_knode_trained_before_the_calibration_is_scored_with_a_warni
         assert not entry["excluded"]
         assert any("trained on the mocap attitude as logged" in w for w in entry["warnings"]) == warned
         assert np.hypot(*entry["thrust_axis_offset_deg"]) < 0.3     # the simulator's motors push along body z
+        assert "thrust axis vs mocap frame (deg, x/y): " in format_report(report)
 
 
 def test_the_model_a_crazyflie_diagnosis_repairs_records_its_calibrated_attitude_input():
