@@ -40,7 +40,8 @@ def missing_inputs(flight: Flight, system_name: str) -> list[str]:
 
 
 def flight_thrust_axis(flight: Flight) -> np.ndarray:
-    """(d_x, d_y), rad: the flight's thrust axis in its mocap body frame (`models.thrust_axis`).
+    """(d_x, d_y), sines of the lean (≈ rad): the flight's thrust axis in its mocap body frame
+    (`models.thrust_axis`).
 
     Raises
     ------

@@ -83,7 +83,7 @@ def calibrated_attitude(quat: np.ndarray, offset: np.ndarray) -> np.ndarray:
     quat : ndarray, shape (T, 4)
         Mocap attitude, scalar-last.
     offset : ndarray, shape (2,)
-        (d_x, d_y), rad.
+        (d_x, d_y), the sines `thrust_axis_offset` returns.
 
     Returns
     -------
