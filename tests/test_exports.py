@@ -152,7 +152,9 @@ def test_evaluation_keeps_the_estimates_an_independent_ukf_run_gives(tmp_path):
     report = evaluate_flights(prior, [flight], ["ukf"], on_estimates=lambda i, e: kept.append((i, e)))
     [(index, estimates)] = kept
     assert index == 0 and estimates.flight == flight.name and estimates.methods == ["ukf"]
-    np.testing.assert_allclose(estimates.estimates["ukf"], le.ukf(prior, flight).means, rtol=0, atol=1e-12)
+    # evaluations run the UKF's loop in C (Cholesky solve of S), le.ukf the numpy filter: equal to the rounding
+    # that the α = 1e-3 sigma weights amplify (8.7e-8 at most, benchmarks/results/mhe_speed.md)
+    np.testing.assert_allclose(estimates.estimates["ukf"], le.ukf(prior, flight).means, rtol=0, atol=2e-7)
     np.testing.assert_array_equal(estimates.reference, references(flight))
     np.testing.assert_array_equal(estimates.measurement, flight.measurements())
     start_s = flight.meta["t0_source_s"] + flight.meta["flying_window"]["start_s"]
