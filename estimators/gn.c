@@ -180,10 +180,41 @@ static void solve_r_cols(int n, int k, const double *U, double *X) {
         }
 }
 
+/* Solves A X = B in place (A n x n, destroyed; B n x k; both row-major) by Gaussian elimination with
+ * partial pivoting, numpy's LU route.  Why: the arrival update's S and P are symmetric positive definite
+ * in exact arithmetic, but rounding can make them indefinite; Cholesky then fails where numpy's solve/inv
+ * go on, and an evaluation must not end on a matrix numpy accepts.  Returns 1 on an exactly zero pivot
+ * (singular: numpy raises too). */
+static int lu_solve(int n, int k, double *A, double *B) {
+    for (int c = 0; c < n; ++c) {
+        int piv = c;
+        for (int r = c + 1; r < n; ++r)
+            if (fabs(A[r * n + c]) > fabs(A[piv * n + c])) piv = r;
+        if (A[piv * n + c] == 0.0) return 1;
+        if (piv != c) {
+            for (int j = 0; j < n; ++j) { double t = A[c * n + j]; A[c * n + j] = A[piv * n + j]; A[piv * n + j] = t; }
+            for (int j = 0; j < k; ++j) { double t = B[c * k + j]; B[c * k + j] = B[piv * k + j]; B[piv * k + j] = t; }
+        }
+        for (int r = c + 1; r < n; ++r) {
+            double f = A[r * n + c] / A[c * n + c];
+            if (f == 0.0) continue;
+            for (int j = c; j < n; ++j) A[r * n + j] -= f * A[c * n + j];
+            for (int j = 0; j < k; ++j) B[r * k + j] -= f * B[c * k + j];
+        }
+    }
+    for (int c = n - 1; c >= 0; --c)
+        for (int j = 0; j < k; ++j) {
+            double t = B[c * k + j];
+            for (int q = c + 1; q < n; ++q) t -= A[c * n + q] * B[q * k + j];
+            B[c * k + j] = t / A[c * n + c];
+        }
+    return 0;
+}
+
 /* The arrival weight's EKF recursion (mhe_gn._ekf_update, in place) and its inverse:
- *     P := F (P - P H' (H P H' + R)^{-1} H P) F' + Q,  symmetrised;  Pinv := P^{-1} (via Cholesky).
- * In numpy this was ~100-200 us per step of call overhead for ~5k flops.  work: 3 n n + 2 m n + m m.
- * Returns 0, or 1 when S or P is not positive definite. */
+ *     P := F (P - P H' (H P H' + R)^{-1} H P) F' + Q,  symmetrised;  Pinv := P^{-1} (via Cholesky, LU
+ * when Cholesky refuses an S or P that rounding made indefinite).  In numpy this was ~100-200 us per step
+ * of call overhead for ~5k flops.  work: 3 n n + 2 m n + 2 m m.  Returns 0, or 1 when S or P is singular. */
 int lrn_ekf_arrival(int n, int m, const double *F, const double *H, double *P, const double *Q,
                     const double *R, double *Pinv, double *work) {
 #ifdef LRN_N
@@ -191,6 +222,7 @@ int lrn_ekf_arrival(int n, int m, const double *F, const double *H, double *P, c
     m = LRN_M;
 #endif
     double *HP = work, *S = HP + m * n, *Z = S + m * m, *T = Z + m * n, *W = T + n * n, *U = W + n * n;
+    double *Sc = U + n * n;                    /* a copy of S for lu_solve when Cholesky refuses it */
     for (int i = 0; i < m; ++i)
         for (int b = 0; b < n; ++b) {
             double t = 0.0;
@@ -203,10 +235,14 @@ int lrn_ekf_arrival(int n, int m, const double *F, const double *H, double *P, c
             for (int a = 0; a < n; ++a) t += HP[i * n + a] * H[j * n + a];
             S[i * m + j] = t;
         }
-    if (chol_upper(m, S)) return 1;
+    memcpy(Sc, S, sizeof(double) * m * m);
     memcpy(Z, HP, sizeof(double) * m * n);     /* Z = S^{-1} H P */
-    solve_rt(m, n, S, Z);
-    solve_r_cols(m, n, S, Z);
+    if (chol_upper(m, S) == 0) {
+        solve_rt(m, n, S, Z);
+        solve_r_cols(m, n, S, Z);
+    } else if (lu_solve(m, n, Sc, Z)) {
+        return 1;
+    }
     for (int a = 0; a < n; ++a)                /* T = P - (H P)' Z */
         for (int b = 0; b < n; ++b) {
             double t = 0.0;
@@ -228,12 +264,15 @@ int lrn_ekf_arrival(int n, int m, const double *F, const double *H, double *P, c
     for (int r = 0; r < n; ++r)
         for (int c = 0; c < n; ++c) P[r * n + c] = 0.5 * (T[r * n + c] + T[c * n + r]);
     memcpy(U, P, sizeof(double) * n * n);
-    if (chol_upper(n, U)) return 1;
     for (int r = 0; r < n; ++r)
         for (int c = 0; c < n; ++c) Pinv[r * n + c] = (r == c);
-    solve_rt(n, n, U, Pinv);
-    solve_r_cols(n, n, U, Pinv);
-    return 0;
+    if (chol_upper(n, U) == 0) {
+        solve_rt(n, n, U, Pinv);
+        solve_r_cols(n, n, U, Pinv);
+        return 0;
+    }
+    memcpy(U, P, sizeof(double) * n * n);      /* Cholesky refused P: P^{-1} by LU, as numpy's inv */
+    return lu_solve(n, n, U, Pinv);
 }
 
 /* The MHE recursion over a whole sequence (mhe_gn.GaussNewtonWindowSolver.run, the same steps): per k the
@@ -273,7 +312,8 @@ static int node_jacobian(lrn_gn *p, const double *x, const double *u, double *f,
 
 /* Steps r->k .. r->k_end - 1.  Returns 0 when there, 1 when window r->k needs IPOPT (Python solves X[:L],
  * sets r->ok and calls again: r->stage is 1), -1 a CasADi function failed, -2 - i the Gauss-Newton matrix
- * is not positive definite (row i - 1), 2 the arrival covariance is not (a code no row index can take). */
+ * is not positive definite (row i - 1), 2 the arrival update met a singular matrix (a code no row index can
+ * take). */
 int lrn_mhe_run(lrn_gn *p, lrn_mhe *r) {
     int n = p->n, m = p->m, np_ = p->p, Lmax = p->Lmax, N = r->N;
     double *u_in = p->sweep.arg[1], *y_in = p->sweep.arg[3], *md = p->sweep.arg[4], *mm = p->sweep.arg[5];

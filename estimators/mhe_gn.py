@@ -366,7 +366,7 @@ class _NativeWindow:
         self.X, self.x_bar = np.zeros((Lmax, n)), np.zeros(n)
         self.g, self.dx, self.f = np.zeros((Lmax, n)), np.zeros((Lmax, n)), np.zeros((Lmax, n))
         self.h = np.zeros((Lmax, m))
-        self.ekf_work = np.zeros(3 * n * n + 2 * n * m + m ** 2)
+        self.ekf_work = np.zeros(3 * n * n + 2 * n * m + 2 * m ** 2)   # gn.c lrn_ekf_arrival's layout
         self.scratch = {name: np.zeros(shape) for name, shape in (("fa", n), ("Fa", (n, n)), ("Ha", (m, n)),
                                                                   ("fb", n), ("Fb", (n, n)), ("Hb", (m, n)))}
         self.Q, self.R = np.ascontiguousarray(mhe.Q, dtype=float), np.ascontiguousarray(mhe.R, dtype=float)
@@ -416,7 +416,7 @@ class _NativeWindow:
                 if status == -1:
                     raise RuntimeError("compiled CasADi function returned an error")
                 if status == 2:
-                    raise np.linalg.LinAlgError("MHE arrival covariance not positive definite")
+                    raise np.linalg.LinAlgError("MHE arrival covariance singular")
                 if status < -1:
                     raise np.linalg.LinAlgError(f"MHE Gauss-Newton matrix not positive definite (row {-status - 3})")
                 if progress:
@@ -437,7 +437,7 @@ class _NativeWindow:
         mhe = self.gn.mhe
         if self._ekf(mhe.n, mhe.m, _address(F), _address(H), _address(P), _address(self.Q), _address(self.R),
                      _address(P_inv), _address(self.ekf_work)):
-            raise np.linalg.LinAlgError("MHE arrival covariance not positive definite")
+            raise np.linalg.LinAlgError("MHE arrival covariance singular")
 
 
 def _ekf_update(F, H, P, Q, R):

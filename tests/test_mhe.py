@@ -243,3 +243,12 @@ def test_the_compiled_arrival_update_equals_the_numpy_recursion():
     gn._native.arrival(F[0], H[0], P, P_inv)
     np.testing.assert_allclose(P, expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
     np.testing.assert_allclose(P_inv @ P, np.eye(system.n), atol=1e-10)
+
+    # an indefinite P (what rounding can leave after many updates): Cholesky refuses S and the new P, and the
+    # C update goes on by LU, as numpy's solve and inv do, instead of ending the evaluation
+    P = -(A @ A.T + np.eye(system.n))
+    expected = _ekf_update(F[0], H[0], P, system.Q, system.R)
+    assert np.linalg.eigvalsh(H[0] @ P @ H[0].T + system.R).min() < 0 and np.linalg.eigvalsh(expected).min() < 0
+    gn._native.arrival(F[0], H[0], P, P_inv)
+    np.testing.assert_allclose(P, expected, rtol=1e-10, atol=1e-10 * np.abs(expected).max())
+    np.testing.assert_allclose(P_inv, np.linalg.inv(expected), rtol=1e-8, atol=1e-8 * np.abs(P_inv).max())
