@@ -1,5 +1,5 @@
 /* One MHE window's Gauss-Newton iterations in C (estimators/mhe_gn.py, `_solve` is the same loop in
- * Python, kept for CasADi's interpreter).  Compiled together with btd.c.
+ * Python, kept for CasADi's interpreter).  Compiled together with lu.c and btd.c.
  *
  * Why: in Python each iteration paid ~150-300 us of numpy and ctypes overhead around ~150 us of
  * arithmetic (the gradient sweep, the solve); here the loop calls the compiled CasADi functions through
@@ -178,37 +178,6 @@ static void solve_r_cols(int n, int k, const double *U, double *X) {
             for (int q = i + 1; q < n; ++q) t -= U[i * n + q] * X[q * k + c];
             X[i * k + c] = t / U[i * n + i];
         }
-}
-
-/* Solves A X = B in place (A n x n, destroyed; B n x k; both row-major) by Gaussian elimination with
- * partial pivoting, numpy's LU route.  Why: the arrival update's S and P are symmetric positive definite
- * in exact arithmetic, but rounding can make them indefinite; Cholesky then fails where numpy's solve/inv
- * go on, and an evaluation must not end on a matrix numpy accepts.  Returns 1 on an exactly zero pivot
- * (singular: numpy raises too). */
-static int lu_solve(int n, int k, double *A, double *B) {
-    for (int c = 0; c < n; ++c) {
-        int piv = c;
-        for (int r = c + 1; r < n; ++r)
-            if (fabs(A[r * n + c]) > fabs(A[piv * n + c])) piv = r;
-        if (A[piv * n + c] == 0.0) return 1;
-        if (piv != c) {
-            for (int j = 0; j < n; ++j) { double t = A[c * n + j]; A[c * n + j] = A[piv * n + j]; A[piv * n + j] = t; }
-            for (int j = 0; j < k; ++j) { double t = B[c * k + j]; B[c * k + j] = B[piv * k + j]; B[piv * k + j] = t; }
-        }
-        for (int r = c + 1; r < n; ++r) {
-            double f = A[r * n + c] / A[c * n + c];
-            if (f == 0.0) continue;
-            for (int j = c; j < n; ++j) A[r * n + j] -= f * A[c * n + j];
-            for (int j = 0; j < k; ++j) B[r * k + j] -= f * B[c * k + j];
-        }
-    }
-    for (int c = n - 1; c >= 0; --c)
-        for (int j = 0; j < k; ++j) {
-            double t = B[c * k + j];
-            for (int q = c + 1; q < n; ++q) t -= A[c * n + q] * B[q * k + j];
-            B[c * k + j] = t / A[c * n + c];
-        }
-    return 0;
 }
 
 /* The arrival weight's EKF recursion (mhe_gn._ekf_update, in place) and its inverse:

@@ -461,7 +461,7 @@ class BlockTridiagonal:
         self.n, self.m = n, m
         self.Qi, self.Ri = np.ascontiguousarray(Qi), np.ascontiguousarray(Ri)
         # gn.c (the MHE's window loop) shares this library: it calls btd.c's factor and solve
-        source = "\n".join(Path(__file__).with_name(name).read_text() for name in ("btd.c", "gn.c"))
+        source = "\n".join(Path(__file__).with_name(name).read_text() for name in ("lu.c", "btd.c", "gn.c"))
         # sizes as compile-time constants (see btd.c); a small file, compiled in well under a second
         self.lib = load_source(source, cache_dir, compiler,
                                flags=("-O2", "-fPIC", "-shared", f"-DLRN_N={n}", f"-DLRN_M={m}"))

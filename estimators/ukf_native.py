@@ -50,10 +50,11 @@ def merwe_weights(n: int, alpha: float, beta: float = 2.0, kappa: float = 0.0) -
 
 
 def load_library(cache_dir=None, compiler="auto"):
-    """ukf.c compiled and loaded (cached by its hash like the model's code), or None without a compiler."""
+    """lu.c + ukf.c compiled and loaded (cached by its hash like the model's code), or None without a compiler."""
     from .codegen import load_source
 
-    return load_source(Path(__file__).with_name("ukf.c").read_text(), cache_dir, compiler, flags=C_FLAGS)
+    source = "\n".join(Path(__file__).with_name(name).read_text() for name in ("lu.c", "ukf.c"))
+    return load_source(source, cache_dir, compiler, flags=C_FLAGS)
 
 
 class NativeUKF:
