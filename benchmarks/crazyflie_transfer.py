@@ -63,11 +63,42 @@ def markdown(result: dict) -> str:
                            + " |")
         lines += [""]
         for system, run in by_system.items():
+            lines += [f"### {system}: per flight, and the two flags (no ground truth in either)", "",
+                      "| flight | KNODE-UKF gain | KNODE-MHE gain | position innovations KNODE / prior | predicts worse "
+                      "| outside envelope |", "|---|---|---|---|---|---|"]
+            for entry in run["report"]["flights"]:
+                if entry["excluded"]:
+                    continue
+                g, check = run["gains"][entry["flight"]], entry.get("prediction_check") or {}
+                lines.append(f"| {entry['flight']} | {g.get('ukf', float('nan')):+.1f} % | {g.get('mhe', float('nan')):+.1f} % | "
+                             f"{check.get('innovation_ratio', float('nan')):.3f} | "
+                             f"{'yes' if check.get('knode_predicts_worse') else ''} | "
+                             f"{'yes' if (entry.get('envelope') or {}).get('outside_training_envelope') else ''} |")
+            unflagged = unflagged_losses(run)
+            lines += ["", f"Flights where the KNODE is worse than its prior and neither flag is raised: UKF "
+                          f"{len(unflagged['ukf'])} ({', '.join(unflagged['ukf']) or 'none'}), MHE {len(unflagged['mhe'])} "
+                          f"({', '.join(unflagged['mhe']) or 'none'}).", ""]
+        for system, run in by_system.items():
             lines.append(f"- {system}: median MSE by state group (p, v, a) — "
                          + "; ".join(f"{m}: " + ", ".join(f"{g} {v:.5f}" for g, v in run["median_groups"][m].items())
                                      for m in METHODS if m in run["median_groups"]))
         lines += [""]
     return "\n".join(lines)
+
+
+def unflagged_losses(run: dict) -> dict:
+    """Per base estimator: the flights where the KNODE variant is worse than it and the report raises neither
+    the prediction check nor the envelope flag (a loss the user would not be warned about)."""
+    out = {"ukf": [], "mhe": []}
+    for entry in run["report"]["flights"]:
+        if entry["excluded"]:
+            continue
+        flagged = (entry.get("prediction_check") or {}).get("knode_predicts_worse") or \
+            (entry.get("envelope") or {}).get("outside_training_envelope")
+        for base, gain in run["gains"][entry["flight"]].items():
+            if gain < 0 and not flagged:
+                out[base].append(entry["flight"])
+    return out
 
 
 def median_groups(report: dict) -> dict:

@@ -10,6 +10,7 @@ import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from learnest.models.checks import check_sequence
 from learnest.models.presets import MHE_HORIZON
@@ -71,13 +72,15 @@ def evaluate_sequence(methods: Sequence[str], prior_model: StateSpaceModel, knod
                       P0: np.ndarray, reference: np.ndarray, horizon: int = MHE_HORIZON,
                       keep_estimates: bool = False, mhe_cache: dict | None = None,
                       on_stage: Callable[[str], object] | None = None) -> dict:
-    """{method: {"mse", "groups", "ms_per_step"[, "estimates"]}} for one flight; pass one `mhe_cache`
+    """{method: {"mse", "groups", "ms_per_step"[, "innovation_ms"][, "estimates"]}} for one flight; pass one `mhe_cache`
     dict for all flights of a batch so each MHE (and each UKF's compiled model) is built once, untimed.
     ``on_stage`` is told each method before it runs ("knode-ukf") and an MHE build before it starts
     ("MHE build (knode-mhe)").
 
     ``knode-*`` methods run ``knode_model``, the others ``prior_model``.  y (T, m), u (T, p), x0 (n,),
-    Q and P0 (n, n), R (m, m), reference (T, n); dt in s; ``ms_per_step`` is wall time per sample, ms.
+    Q and P0 (n, n), R (m, m), reference (T, n); dt in s; ``ms_per_step`` is wall time per sample, ms;
+    ``innovation_ms`` (UKF methods) is the mean square of the one-step innovations per measurement channel,
+    (m,) in the measurements' squared units (`prediction_check`).
     """
     mhe_cache = {} if mhe_cache is None else mhe_cache
     results = {}
@@ -91,13 +94,58 @@ def evaluate_sequence(methods: Sequence[str], prior_model: StateSpaceModel, knod
         if on_stage:
             on_stage(method)
         started = time.perf_counter()
-        estimates = run_ukf(model, y, u, dt=dt, Q=Q, R=R, x0=x0, P0=P0, sigma_functions=functions).means \
-            if mhe is None else mhe.run(y, u, x0)
+        if mhe is None:
+            filtered = run_ukf(model, y, u, dt=dt, Q=Q, R=R, x0=x0, P0=P0, sigma_functions=functions)
+            estimates = filtered.means
+        else:
+            filtered, estimates = None, mhe.run(y, u, x0)
         results[method] = {**score(estimates, reference),
                            "ms_per_step": 1e3 * (time.perf_counter() - started) / len(y)}
+        if filtered is not None:
+            results[method]["innovation_ms"] = np.mean(filtered.innovations**2, axis=0).tolist()
         if keep_estimates:
             results[method]["estimates"] = estimates
     return results
+
+
+def one_step_innovation_ms(model: StateSpaceModel, y: np.ndarray, u: np.ndarray, dt: float, Q: np.ndarray,
+                           R: np.ndarray, x0: np.ndarray, P0: np.ndarray, cache: dict | None = None) -> np.ndarray:
+    """Mean square of the UKF's one-step innovations y_k − h(f(x̂_{k−1})) per measurement channel, (m,): how
+    well ``model`` predicts the next measurement of this record.  ``cache`` as `evaluate_sequence`'s."""
+    functions = _ukf_functions_for({} if cache is None else cache, model, dt)
+    filtered = run_ukf(model, y, u, dt=dt, Q=Q, R=R, x0=x0, P0=P0, sigma_functions=functions)
+    return np.mean(filtered.innovations**2, axis=0)
+
+
+def prediction_check(prior_ms: ArrayLike, knode_ms: ArrayLike, channels: Sequence[int],
+                     names: Sequence[str]) -> dict:
+    """Does the KNODE predict this record's measurements worse than its prior?  A check without ground truth.
+
+    The ratio of the two filters' mean squared one-step innovations, summed over ``channels``: above 1, the
+    learned model predicts the flight's next measurement worse than the physics alone, so its estimates
+    should not be trusted there, whatever the cause (another regime, a wrong learned effect, extrapolation).
+    The threshold is 1 by construction (no tuning): "worse than the prior" is the question the user asks.
+
+    Parameters
+    ----------
+    prior_ms, knode_ms : array_like, (m,)
+        `one_step_innovation_ms` of the prior-only and the KNODE model on the same record.
+    channels : sequence of int
+        Measurement channels compared (for flights: the mocap position; see `evaluate_flight`).
+    names : sequence of str
+        Names of all m channels.
+
+    Returns
+    -------
+    dict
+        ``channels`` (names), ``innovation_ratio`` (KNODE / prior), ``knode_predicts_worse`` (ratio > 1 + 1e-9).
+    """
+    prior = float(np.sum(np.asarray(prior_ms, dtype=float)[list(channels)]))
+    knode = float(np.sum(np.asarray(knode_ms, dtype=float)[list(channels)]))
+    ratio = knode / prior if prior > 0 else float("nan")
+    # equal up to rounding (a residual that is zero on this record) is not worse
+    return {"channels": [names[c] for c in channels], "innovation_ratio": ratio,
+            "knode_predicts_worse": bool(ratio > 1.0 + 1e-9)}
 
 
 def summarize(flight_reports: list[dict]) -> dict:
@@ -107,8 +155,9 @@ def summarize(flight_reports: list[dict]) -> dict:
     -------
     dict
         ``median`` {method: MSE}, ``improvement_pct`` {"knode-ukf_vs_ukf": 100 (1 - knode/base), ...},
-        ``flights_scored`` and ``outside_training_envelope`` (names of the scored flights whose
-        ``envelope`` entry flags them: their scores judge the model outside what it was trained on).
+        ``flights_scored``, ``outside_training_envelope`` (names of the scored flights whose
+        ``envelope`` entry flags them: their scores judge the model outside what it was trained on) and
+        ``knode_predicts_worse`` (names of the scored flights whose ``prediction_check`` flags them).
     """
     scored = [f for f in flight_reports if not f.get("excluded")]
     methods = sorted({m for f in scored for m in f["mse"]})
@@ -118,5 +167,6 @@ def summarize(flight_reports: list[dict]) -> dict:
         if base in median and f"knode-{base}" in median:
             improvement[f"knode-{base}_vs_{base}"] = 100.0 * (1.0 - median[f"knode-{base}"] / median[base])
     outside = [f["flight"] for f in scored if (f.get("envelope") or {}).get("outside_training_envelope")]
+    worse = [f["flight"] for f in scored if (f.get("prediction_check") or {}).get("knode_predicts_worse")]
     return {"median": median, "improvement_pct": improvement, "flights_scored": len(scored),
-            "outside_training_envelope": outside}
+            "outside_training_envelope": outside, "knode_predicts_worse": worse}

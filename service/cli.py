@@ -572,8 +572,9 @@ def _diagnose(args) -> int:
 
 def format_report(report: dict) -> str:
     """An evaluation report (evaluate_flights' JSON) as a text table: per-flight and median MSE (x 1e-3) per method
-    and the share of the flight outside the model's training envelope, then the improvements in %, the thrust-axis
-    calibration of each flight (Crazyflie prior), then a warning per flight that differs from the training
+    and the share of the flight outside the model's training envelope, then the improvements in %, the prediction
+    check of each flight (KNODE vs prior one-step innovations), the thrust-axis calibration of each flight
+    (Crazyflie prior), then a warning per flight that differs from the training
     flight (vehicle, sensor rates, attitude source).
     """
     methods = list(report["median"])
@@ -592,6 +593,13 @@ def format_report(report: dict) -> str:
     outside = report.get("outside_training_envelope")
     if outside:
         lines.append(f"outside what this model saw in training: {', '.join(outside)}")
+    checks = {f["flight"]: f["prediction_check"] for f in report["flights"] if f.get("prediction_check")}
+    if checks:   # estimators.evaluate.prediction_check: no ground truth, only the flight's own measurements
+        lines.append("one-step position innovations, KNODE / prior (above 1: the KNODE predicts the flight worse): "
+                     + ", ".join(f"{name} {c['innovation_ratio']:.2f}" for name, c in checks.items()))
+    worse = report.get("knode_predicts_worse")
+    if worse:
+        lines.append(f"do not trust the KNODE on: {', '.join(worse)} (it predicts these flights worse than its prior)")
     axes = {f["flight"]: f["thrust_axis_offset_deg"] for f in report["flights"] if f.get("thrust_axis_offset_deg")}
     if axes:   # the calibration the prior's attitude input got (models.thrust_axis)
         lines.append("thrust axis vs mocap frame (deg, x/y): "

@@ -60,7 +60,9 @@ def assert_same_numbers(report: dict, expected: dict) -> None:
     assert report["flights_scored"] == expected["flights_scored"]
     for got, want in zip(report["flights"], expected["flights"]):
         assert got.get("envelope") == want.get("envelope")
+        assert got.get("prediction_check") == want.get("prediction_check")
     assert report["outside_training_envelope"] == expected["outside_training_envelope"]
+    assert report["knode_predicts_worse"] == expected["knode_predicts_worse"]
 
 
 def test_report_equals_evaluate_flights_and_is_cached(registry_home):
@@ -95,6 +97,8 @@ def test_report_equals_evaluate_flights_and_is_cached(registry_home):
         assert html.status_code == 200 and html.headers["content-type"].startswith("text/html")
         assert "data:image/png;base64," in html.text and report["flights"][0]["flight"] in html.text
         assert "outside what this model saw" in html.text      # the training-envelope column
+        ratio = report["flights"][1]["prediction_check"]["innovation_ratio"]
+        assert "id='prediction-check'" in html.text and f"{ratio:.2f}" in html.text
         assert report["flights"][0]["envelope"]["threshold"] > 0
         # the envelope is stored with the version (registry metadata), not only in the weights file
         metrics = client.get("/models/quad").json()

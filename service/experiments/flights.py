@@ -9,7 +9,13 @@ import numpy as np
 
 from learnest.errors import InvalidInput
 from learnest.estimators.estimates import FlightEstimates
-from learnest.estimators.evaluate import MSE_UNITS, evaluate_sequence, summarize
+from learnest.estimators.evaluate import (
+    MSE_UNITS,
+    evaluate_sequence,
+    one_step_innovation_ms,
+    prediction_check,
+    summarize,
+)
 from learnest.estimators.mhe import MHE
 from learnest.estimators.observers import pretraining_observer
 from learnest.ingest.baseline import references
@@ -32,6 +38,11 @@ from learnest.models.training import TrainingResult, train_knode
 # Systems a model of a real flight may use: the paper's kinematic chain, or the Crazyflie prior driven by
 # the motors and the battery (needs those channels in the flight).
 FLIGHT_SYSTEMS = ("quadrotor", "crazyflie")
+# The measurements the prediction check compares (`estimators.evaluate.prediction_check`): the mocap position,
+# which a model must predict through its dynamics.  The accelerometer reads the state a almost directly and its
+# innovations are dominated by vibration: on the 16 NanoBench transfer flights (benchmarks/crazyflie_transfer.py)
+# the position-innovation ratio is above 1 on both flights the Crazyflie KNODE loses on, the accelerometer's on neither.
+PREDICTION_CHANNELS = ("px", "py", "pz")
 
 
 def system_for(flight: Flight, name: str = "quadrotor") -> System:
@@ -83,7 +94,7 @@ def corrected_flight(flight: Flight, values: dict) -> Flight:
 def evaluate_flight(knode: HybridModel, flight: Flight, methods: Sequence[str], horizon: int = MHE_HORIZON,
                     sg_window: int = SG_WINDOW, keep_estimates: bool = False,
                     mhe_cache: dict[tuple, MHE] | None = None,
-                    on_stage: Callable[[str], object] | None = None) -> dict:
+                    on_stage: Callable[[str], object] | None = None, check_prediction: bool = False) -> dict:
     """Scores of every method on one flight, against SG references of its mocap position.
 
     The prior-only rows use the model's own prior (which a diagnosis may have extended), and a model
@@ -94,7 +105,10 @@ def evaluate_flight(knode: HybridModel, flight: Flight, methods: Sequence[str], 
     -------
     dict
         ``results`` {method: `evaluate_sequence`'s entry}; ``reference`` (the SG references) and
-        ``estimates`` (a `FlightEstimates` of every method) when ``keep_estimates``, else None.
+        ``estimates`` (a `FlightEstimates` of every method) when ``keep_estimates``, else None;
+        ``prediction_check`` (`estimators.evaluate.prediction_check` on the mocap position) when
+        ``check_prediction`` and the model is a KNODE, else None.  It reuses the UKF rows' innovations and
+        runs the (untimed) UKF of a model whose row was not asked for.
     """
     system = replace(system_for(flight, knode.system.name), prior_params=dict(knode.system.prior_params))
     knode = HybridModel(replace(knode.system, dt=flight.dt), knode.kind, knode.residual, knode.meta)
@@ -103,15 +117,24 @@ def evaluate_flight(knode: HybridModel, flight: Flight, methods: Sequence[str], 
     measured = flight
     if knode.meta.get("measurement_effects"):
         measured = corrected_flight(flight, knode.meta["measurement_effects"])
-    results = evaluate_sequence(methods, prior, knode, measured.measurements(), system_inputs(flight, system),
-                                flight.dt, system.Q, system.R, initial_state(measured), system.P0, reference,
+    y, u, x0 = measured.measurements(), system_inputs(flight, system), initial_state(measured)
+    mhe_cache = {} if mhe_cache is None else mhe_cache
+    results = evaluate_sequence(methods, prior, knode, y, u, flight.dt, system.Q, system.R, x0, system.P0, reference,
                                 horizon=horizon, keep_estimates=keep_estimates, mhe_cache=mhe_cache,
                                 on_stage=on_stage)
+    check = None
+    if check_prediction and knode.kind == "knode":
+        ms = {}
+        for method, model in (("ukf", prior), ("knode-ukf", knode)):
+            ms[method] = results[method]["innovation_ms"] if method in results else \
+                one_step_innovation_ms(model, y, u, flight.dt, system.Q, system.R, x0, system.P0, cache=mhe_cache)
+        names = list(system.meas_names)
+        check = prediction_check(ms["ukf"], ms["knode-ukf"], [names.index(c) for c in PREDICTION_CHANNELS], names)
     if not keep_estimates:
-        return {"results": results, "reference": None, "estimates": None}
-    estimates = FlightEstimates(flight.name, flight.t, reference, measured.measurements(), flight.quat,
+        return {"results": results, "reference": None, "estimates": None, "prediction_check": check}
+    estimates = FlightEstimates(flight.name, flight.t, reference, y, flight.quat,
                                 {m: r["estimates"] for m, r in results.items()}, log_start_ns(flight))
-    return {"results": results, "reference": reference, "estimates": estimates}
+    return {"results": results, "reference": reference, "estimates": estimates, "prediction_check": check}
 
 
 def log_start_ns(flight: Flight) -> int:
@@ -164,7 +187,10 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
     Flights that fail the quality checks (unless ``include_bad``) and the model's own training flight are
     listed as excluded, with the reason, and not scored.  Each scored flight's ``envelope`` says how much
     of it lies outside what the model saw in training (`flight_envelope`); such flights are still scored,
-    and listed in ``outside_training_envelope``.  Each scored flight's ``warnings`` say how it differs from
+    and listed in ``outside_training_envelope``.  Each scored flight's ``prediction_check`` says whether the
+    KNODE predicts its mocap position one step ahead worse than the prior does (no ground truth needed: a
+    flight where the learned model should not be trusted); such flights are listed in ``knode_predicts_worse``.
+    Each scored flight's ``warnings`` say how it differs from
     the training flight in vehicle, sensor rates, attitude source, mass or controller
     (`ingest.profile.profile_mismatches`; none for a model that recorded no ``training_profile``).
     A prior that turns thrust into acceleration through the attitude (the Crazyflie's) gets the mocap
@@ -186,7 +212,8 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
             entry.update(excluded=True, reason="training flight (never scored on its own training data)")
         else:
             out = evaluate_flight(knode, flight, methods, horizon, sg_window=sg_window,
-                                  keep_estimates=on_estimates is not None, mhe_cache=mhe_cache, on_stage=on_stage)
+                                  keep_estimates=on_estimates is not None, mhe_cache=mhe_cache, on_stage=on_stage,
+                                  check_prediction=True)
             results = out["results"]
             if on_estimates is not None:
                 on_estimates(index, out["estimates"])
@@ -194,6 +221,7 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
             entry["groups"] = {m: r["groups"] for m, r in results.items()}
             entry["ms_per_step"] = {m: r["ms_per_step"] for m, r in results.items()}
             entry["envelope"] = flight_envelope(knode, flight)
+            entry["prediction_check"] = out["prediction_check"]
             if knode.system.name in THRUST_THROUGH_ATTITUDE:   # the calibration the prior's attitude input got
                 entry["thrust_axis_offset_deg"] = [round(float(np.degrees(d)), 3) for d in flight_thrust_axis(flight)]
         # a flight from another vehicle, sensor rate or attitude source: scored, with a warning

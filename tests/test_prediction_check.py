@@ -1,0 +1,76 @@
+"""The prediction check: does a KNODE predict a flight's measurements worse than its prior (no ground truth)?"""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from learnest.estimators.evaluate import prediction_check
+from learnest.ingest import read_flights
+from learnest.ingest.sim import Circle, simulate, write_flight
+from learnest.models.knode import HybridModel, Residual
+from learnest.models.systems import make_system
+from learnest.service.cli import format_report
+from learnest.service.experiments.flights import evaluate_flights
+
+RADIUS, SPEED = 0.5, 1.0          # m, m/s: ω = 2 rad/s, a centripetal jerk of ω³ r = 4 m/s³
+
+
+def test_the_ratio_compares_the_chosen_channels_only_and_flags_above_one():
+    names = ["px", "py", "pz", "ax", "ay", "az"]
+    prior, knode = [1.0, 2.0, 1.0, 5.0, 5.0, 5.0], [1.0, 2.0, 2.0, 0.1, 0.1, 0.1]
+    check = prediction_check(prior, knode, [0, 1, 2], names)
+    assert check["channels"] == ["px", "py", "pz"]
+    assert check["innovation_ratio"] == pytest.approx(5.0 / 4.0)
+    assert check["knode_predicts_worse"]
+    assert not prediction_check(prior, knode, [3, 4, 5], names)["knode_predicts_worse"]   # 0.3 / 15
+    same = prediction_check(prior, [x * (1 + 1e-12) for x in prior], [0, 1, 2], names)
+    assert not same["knode_predicts_worse"]          # equal up to rounding is not worse
+
+
+def _circle_jerk_knode(sign: float) -> HybridModel:
+    """The kinematic prior plus a residual jerk sign·(−ω² v) in the plane: sign +1 is the true physics of a
+    circle at constant speed (ȧ = −ω² v), sign −1 the same effect with the wrong sign."""
+    system = make_system("quadrotor")
+    assert system.prior_params["omega"] == 0.0          # the prior has no jerk at all
+    w2 = (SPEED / RADIUS) ** 2
+    weight, bias = np.zeros((9, 9)), np.zeros(9)
+    weight[6, 3] = weight[7, 4] = -sign * w2
+    return HybridModel(system, "knode", Residual([(weight, bias)]), {"name": f"jerk{sign:+.0f}"})
+
+
+@pytest.fixture(scope="module")
+def circle(tmp_path_factory):
+    sim = simulate(Circle(radius=RADIUS, speed=SPEED, duration_s=8.0), seed=3, name="circle")
+    return read_flights(write_flight(sim, "nanobench", tmp_path_factory.mktemp("check"), "circle"))[0]
+
+
+def test_the_true_effect_predicts_better_and_the_wrong_sign_is_flagged(circle):
+    right = evaluate_flights(_circle_jerk_knode(+1.0), [circle], ["ukf", "knode-ukf"])
+    wrong = evaluate_flights(_circle_jerk_knode(-1.0), [circle], ["ukf", "knode-ukf"])
+    right_check, wrong_check = right["flights"][0]["prediction_check"], wrong["flights"][0]["prediction_check"]
+    assert right_check["channels"] == ["px", "py", "pz"]
+    assert right_check["innovation_ratio"] < 1.0 and not right_check["knode_predicts_worse"]
+    assert wrong_check["innovation_ratio"] > 1.0 and wrong_check["knode_predicts_worse"]
+    # and the check agrees with the ground truth it never saw: the flagged model's estimates are worse
+    assert wrong["flights"][0]["mse"]["knode-ukf"] > wrong["flights"][0]["mse"]["ukf"]
+    assert right["flights"][0]["mse"]["knode-ukf"] < right["flights"][0]["mse"]["ukf"]
+    assert wrong["knode_predicts_worse"] == [circle.name] and right["knode_predicts_worse"] == []
+    json.dumps(wrong)
+    table = format_report(wrong)
+    assert f"do not trust the KNODE on: {circle.name}" in table
+    assert f"{circle.name} {wrong_check['innovation_ratio']:.2f}" in table
+
+
+def test_the_check_runs_the_filters_itself_when_only_the_mhe_rows_are_asked_for(circle):
+    with_ukf = evaluate_flights(_circle_jerk_knode(-1.0), [circle], ["ukf", "knode-ukf"])["flights"][0]
+    mhe_only = evaluate_flights(_circle_jerk_knode(-1.0), [circle], ["mhe"])["flights"][0]
+    assert set(mhe_only["mse"]) == {"mhe"}
+    assert mhe_only["prediction_check"]["innovation_ratio"] == pytest.approx(
+        with_ukf["prediction_check"]["innovation_ratio"], rel=1e-9)
+
+
+def test_a_prior_only_model_gets_no_check(circle):
+    report = evaluate_flights(HybridModel(make_system("quadrotor"), "prior"), [circle], ["ukf"])
+    assert report["flights"][0]["prediction_check"] is None and report["knode_predicts_worse"] == []
