@@ -8,8 +8,9 @@ import pytest
 from learnest.ingest.flight import Flight
 from learnest.ingest.frames import GRAVITY
 from learnest.models import crazyflie as cf
-from learnest.models.identify import (FULL, VARIANTS, Variant, fit_z, flight_arrays, interpolated_rows, rmse_constant,
-                             rmse_z)
+from learnest.models import thrust_map
+from learnest.models.identify import (FULL, VARIANTS, FlightArrays, Variant, first_order_lag, fit_z, flight_arrays,
+                                      interpolated_rows, lowpass, rmse_constant, rmse_z)
 from learnest.models.systems import make_system
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -81,17 +82,59 @@ def test_real_flights_held_out_family_prediction_beats_constant_and_two_paramete
         assert full < 0.85 * rmse_z(fit_z(two_parameter, train), test)
 
 
+def _synthetic_arrays(seed: int, coef: np.ndarray, tau_s: float, vbat_tau_s: float) -> FlightArrays:
+    """30 s of inputs (motor duty, a sagging battery with fast fluctuation, tilt, climb) whose body-z specific
+    force is exactly the thrust map with ``coef`` and the two time constants, plus white noise."""
+    rng = np.random.default_rng(seed)
+    n, dt = 3000, 0.01
+    t = np.arange(n) * dt
+    pwm = 57000 + 3000 * np.sin(2 * np.pi * (0.3 + 0.1 * rng.random(4)) * t[:, None] + rng.uniform(0, 6, 4))
+    vbat = np.linspace(3.6, 3.3, n) + 0.03 * rng.normal(size=n)
+    tilt = 0.1 * np.sin(2 * np.pi * 0.2 * t + rng.uniform(0, 6))
+    quat = np.column_stack([np.sin(tilt / 2), np.zeros(n), np.zeros(n), np.cos(tilt / 2)])
+    v_world = np.column_stack([np.zeros(n), np.zeros(n), 0.4 * np.sin(2 * np.pi * 0.15 * t)])
+    keep = np.ones(n, dtype=bool)
+    keep[:50] = keep[-50:] = False
+    arrays = FlightArrays(f"synthetic{seed}", dt, np.zeros((n, 3)), v_world, np.ones(n),
+                          np.column_stack([quat, pwm, vbat]), keep)
+    cols = thrust_map.columns(arrays, vbat_tau_s)
+    X = np.column_stack([cols[name] for name in thrust_map.TERMS])
+    arrays.acc_body[:, 2] = lowpass(first_order_lag(X, tau_s, dt), dt) @ coef + rng.normal(0, 0.01, n)
+    return arrays
+
+
+def test_thrust_map_recovers_its_coefficients_and_both_time_constants():
+    # coefficients of the order the real flights give (m/s² per unit of each term)
+    coef = np.array([-20.0, 8.0, 2.0, -1.2, 4.0, 2.0, -0.3, 3.0, -0.5, 0.4])
+    flights = [_synthetic_arrays(seed, coef, tau_s=0.05, vbat_tau_s=1.0) for seed in (1, 2)]
+    fitted = thrust_map.fit_thrust_map(flights)
+    assert fitted.tau_s == 0.05 and fitted.vbat_tau_s == 1.0          # both on the grid, both found
+    held_out = _synthetic_arrays(3, coef, tau_s=0.05, vbat_tau_s=1.0)
+    assert fitted.rmse([held_out]) < 0.0105                            # the noise floor: 0.01
+    assert np.max(np.abs(fitted.predict(held_out) - lowpass(held_out.acc_body[:, 2], 0.01))[held_out.keep]) < 0.05
+    raw = thrust_map.fit_thrust_map(flights, vbat_taus_s=(0.0,))       # the voltage as logged: noise in a regressor
+    assert raw.rmse([held_out]) > 2 * fitted.rmse([held_out])
+    with pytest.raises(ValueError, match="no usable samples"):
+        thrust_map.fit_thrust_map([FlightArrays("empty", 0.01, *(np.zeros((10, k)) for k in (3, 3)), np.zeros(10),
+                                                np.zeros((10, 9)), np.zeros(10, dtype=bool))])
+
+
 @needs_data
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="issue 14's target (<= 0.15 m/s² and <= 60 % of the constant on both "
-                                       "held-out families) is not reached: the thrust map drifts within each flight "
-                                       "(benchmarks/results/crazyflie_residual_screen)")
 def test_real_flights_meet_issue_14_target():
+    """Issue 14's target on the real flights: body-z specific force from the inputs alone, both sides low-passed
+    at 5 Hz, fit on one family and scored on the other: RMSE <= 0.15 m/s² and <= 60 % of the constant 1 g.
+    The physics prior alone (above) reaches 73 / 88 %; the identified thrust map (`models.thrust_map`) 54.6 /
+    53.7 % (0.117 / 0.113 m/s², benchmarks/results/crazyflie_thrust_map)."""
     from learnest.ingest import read_flights
     flights = [f for f in read_flights(sorted(NANOBENCH.glob("B*.csv"))) if f.quality["ok"]]
     arrays = [flight_arrays(f) for f in flights]
     circles = [a for a in arrays if "circle" in a.name]
     eights = [a for a in arrays if "figure8" in a.name]
     for train, test in ((circles, eights), (eights, circles)):
-        full = rmse_z(fit_z(FULL, train), test)
-        assert full <= 0.15 and full <= 0.6 * rmse_constant(test)
+        fitted = thrust_map.fit_thrust_map(train)
+        held_out = fitted.rmse(test)
+        assert held_out <= 0.15 and held_out <= 0.6 * rmse_constant(test)
+        assert fitted.vbat_tau_s > 0                                    # the filtered voltage wins on real data
+        raw = thrust_map.fit_thrust_map(train, vbat_taus_s=(0.0,))
+        assert held_out < 0.95 * raw.rmse(test)
