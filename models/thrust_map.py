@@ -26,11 +26,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from learnest.ingest.frames import quat_to_matrix
+from learnest.ingest.frames import GRAVITY, quat_to_matrix
 
 from .identify import FlightArrays, first_order_lag, lowpass, rmse_constant
 
-__all__ = ["TERMS", "ThrustMap", "columns", "design", "fit_thrust_map", "rmse_constant", "stacked"]
+__all__ = ["TERMS", "ThrustMap", "columns", "design", "fit_thrust_map", "r2", "readings", "rmse_constant", "stacked"]
 
 TERMS = ("1", "Σp", "Σp^2", "split", "V", "V·Σp", "V^2", "tilt", "vz+", "vz-")
 # Motor lags a 7-mm brushed motor can have (tens of ms; the physics fit finds 61 ms).  A longer grid lets the
@@ -70,7 +70,8 @@ def design(arrays: FlightArrays, terms: tuple, tau_s: float, vbat_tau_s: float) 
     return X[arrays.keep], arrays.acc_body[arrays.keep, 2]
 
 
-def stacked(flights: list[FlightArrays], terms: tuple, tau_s: float, vbat_tau_s: float) -> tuple[np.ndarray, np.ndarray]:
+def stacked(flights: list[FlightArrays], terms: tuple, tau_s: float,
+            vbat_tau_s: float) -> tuple[np.ndarray, np.ndarray]:
     """`design` of several flights, rows stacked."""
     parts = [design(a, terms, tau_s, vbat_tau_s) for a in flights]
     return np.vstack([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
@@ -121,3 +122,27 @@ def fit_thrust_map(flights: list[FlightArrays], terms: tuple = TERMS, motor_taus
                 best = ThrustMap(tuple(terms), coef, tau, vbat_tau, rmse)
     assert best is not None
     return best
+
+
+def readings(thrust_map: ThrustMap, flights: list[FlightArrays]) -> dict[str, float]:
+    """The map's slopes at the mean PWM and voltage of ``flights`` (kept samples), for a map with the full
+    `TERMS`:
+
+    - ``dfz_dV``: m/s² per volt of battery at constant PWM (``percent_g_per_V``: the same in % of g);
+    - ``dfz_dsplit``: m/s² per unit of the CW/CCW duty split p1 − p2 + p3 − p4 (the yaw command);
+    - ``dfz_dsum``: m/s² per unit of the summed duty Σp (the collective map's slope)."""
+    c = dict(zip(thrust_map.terms, thrust_map.coef))
+    p = np.concatenate([a.u[a.keep, 4:8] for a in flights]) / 65535.0
+    volts = float(np.mean(np.concatenate([a.u[a.keep, 8] for a in flights])))
+    total = float(p.sum(1).mean())
+    dV = c["V"] + c["V·Σp"] * total + 2 * c["V^2"] * volts
+    # Σp² ≈ (Σp)²/4 near equal motors: d(Σp²)/d(Σp) = 2 p_i = Σp / 2
+    dsum = c["Σp"] + c["Σp^2"] * total / 2 + c["V·Σp"] * volts
+    return {"dfz_dV": float(dV), "percent_g_per_V": float(100 * dV / GRAVITY), "dfz_dsplit": float(c["split"]),
+            "dfz_dsum": float(dsum)}
+
+
+def r2(thrust_map: ThrustMap, flights: list[FlightArrays]) -> float:
+    """Coefficient of determination of the prediction on the kept samples of ``flights`` (pooled)."""
+    X, y = stacked(flights, thrust_map.terms, thrust_map.tau_s, thrust_map.vbat_tau_s)
+    return float(1.0 - np.sum((X @ thrust_map.coef - y) ** 2) / np.sum((y - y.mean()) ** 2))

@@ -137,6 +137,24 @@ def _reproduce(args) -> int:
     return 0
 
 
+def _thrust_map(args) -> int:
+    from learnest.ingest import collect_logs
+
+    from .experiments.thrust_map import format_thrust_map, thrust_map_report
+
+    sets = {}
+    for role, given in (("fit", args.fit), ("score", args.score)):
+        files, notes = collect_logs(given)
+        for note in notes:
+            print(note, file=sys.stderr)
+        if not files:
+            raise InvalidInput(f"no flight logs in {', '.join(given)} (--{role})")
+        sets[role] = _read(files, args.rate)
+    report = thrust_map_report(sets["fit"], sets["score"])
+    print(json.dumps(report, indent=2) if args.json else format_thrust_map(report))
+    return 0
+
+
 def _read(paths, rate_hz, topics: dict | None = None, cut: str | None = None):
     from learnest.ingest import read_flights
 
@@ -776,6 +794,15 @@ def build_parser() -> argparse.ArgumentParser:
     dia.add_argument("--rate", type=_positive_float, default=100.0)
     _add_topic_arguments(dia)
     dia.set_defaults(func=_diagnose)
+
+    thr = sub.add_parser("thrust-map", help="identify the Crazyflie thrust map (body-z specific force from motor PWM, "
+                                            "battery and attitude) on some flights and score it on others")
+    thr.add_argument("--fit", nargs="+", required=True, metavar="FILE", help="flight logs (or folders) to fit on")
+    thr.add_argument("--score", nargs="+", required=True, metavar="FILE",
+                     help="flight logs (or folders) to score on, held out whole")
+    thr.add_argument("--json", action="store_true")
+    thr.add_argument("--rate", type=_positive_float, default=100.0, help="grid rate in Hz (default 100)")
+    thr.set_defaults(func=_thrust_map)
 
     demo = sub.add_parser("demo", help="ingest, train on one flight and evaluate the others, for a folder")
     demo.add_argument("folder")
