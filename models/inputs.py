@@ -12,7 +12,7 @@ from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 
 from .systems import System
-from .thrust_axis import calibrated_attitude, thrust_axis_offset
+from .thrust_axis import calibrated_attitude, heading_removed, thrust_axis_offset
 
 # channel -> what carries it in each supported format (for the error message)
 CHANNEL_SOURCES = {
@@ -24,10 +24,10 @@ CHANNEL_SOURCES = {
 # system name -> the Flight channels its inputs come from, in input order after the attitude
 NEEDED = {"crazyflie": ("motors", "vbat")}
 # systems whose prior turns thrust into acceleration through the attitude: their attitude input is the
-# mocap attitude rotated onto the flight's thrust axis (`models.thrust_axis`)
+# mocap attitude rotated onto the flight's thrust axis, with the heading removed (`models.thrust_axis`)
 THRUST_THROUGH_ATTITUDE = frozenset({"crazyflie"})
 # what a model trained on such inputs records in meta["attitude_input"]
-ATTITUDE_CALIBRATED = "mocap attitude calibrated onto the thrust axis"
+ATTITUDE_CALIBRATED = "mocap attitude calibrated onto the thrust axis, heading removed"
 
 
 class MissingInputs(InvalidInput):
@@ -62,7 +62,8 @@ def training_meta(system: System) -> dict:
 
 def system_inputs(flight: Flight, system: System) -> np.ndarray:
     """u (T, system.n_inputs) for this flight: empty for input-free systems, [quat, PWM x4, vbat] for crazyflie,
-    whose attitude is calibrated onto the flight's thrust axis (`flight_thrust_axis`)."""
+    whose attitude is calibrated onto the flight's thrust axis (`flight_thrust_axis`) and has its heading
+    removed (`models.thrust_axis.heading_removed`: the prior depends on the body z axis only)."""
     if system.n_inputs == 0:
         return np.zeros((len(flight.t), 0))
     if system.name not in NEEDED:
@@ -76,7 +77,8 @@ def system_inputs(flight: Flight, system: System) -> np.ndarray:
     if system.name in THRUST_THROUGH_ATTITUDE:
         offset = flight_thrust_axis(flight)
         try:
-            quat = calibrated_attitude(quat, offset)
+            # the heading is no physics to such a prior, and a residual must not learn the training flight's
+            quat = heading_removed(calibrated_attitude(quat, offset))
         except ValueError as err:
             raise InvalidInput(f"{flight.name}: {err}") from None
     columns = [quat] + [np.asarray(flight.channels[name], float).reshape(len(flight.t), -1)

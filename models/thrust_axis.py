@@ -102,6 +102,38 @@ def calibrated_attitude(quat: np.ndarray, offset: np.ndarray) -> np.ndarray:
     return (Rotation.from_quat(quat) * delta).as_quat()
 
 
+def heading_removed(quat: np.ndarray) -> np.ndarray:
+    """The attitude with the same body z axis and no heading: the shortest rotation taking e₃ to R(q) e₃.
+
+    Why: the Crazyflie prior's world-frame acceleration depends on the attitude only through the body z axis
+    (the thrust direction; its rotor drag is the same along body x and y, so R diag(k_xy, k_xy, k_z) Rᵀ
+    depends on R e₃ alone), so the heading is no physics to it, as the position is none.  A KNODE residual
+    that reads the heading learns the training flight's: on the real flights, a figure-eight flown at another
+    heading than the training circle (all of its samples outside the training box in qw) lost 8.9 % with
+    KNODE-UKF, and gains 1.7 % on the heading-free input (`benchmarks/README.md`, "Transfer across families").
+
+    Parameters
+    ----------
+    quat : ndarray, shape (T, 4)
+        Scalar-last unit quaternions (body -> world).
+
+    Returns
+    -------
+    ndarray, shape (T, 4)
+        Scalar-last unit quaternions with qz = 0 and the same R e₃.  A vehicle upside down (R e₃ = −e₃) has
+        no shortest rotation; it maps to a roll of π.
+    """
+    _check_attitude(quat)
+    body_z = quat_to_matrix(quat)[:, :, 2]
+    # half-angle form of the rotation e₃ -> z about e₃ × z: (e₃ × z, 1 + e₃·z), normalised
+    q = np.column_stack([-body_z[:, 1], body_z[:, 0], np.zeros(len(body_z)), 1.0 + body_z[:, 2]])
+    norms = np.linalg.norm(q, axis=1)
+    flipped = norms < 1e-9
+    q[flipped] = [1.0, 0.0, 0.0, 0.0]
+    norms[flipped] = 1.0
+    return q / norms[:, None]
+
+
 def _check_attitude(quat: np.ndarray) -> None:
     norms = np.linalg.norm(quat, axis=-1)
     if not (np.isfinite(norms).all() and (norms > 0).all()):

@@ -12,7 +12,7 @@ from learnest.ingest.flight import Flight
 from learnest.ingest.frames import GRAVITY, quat_to_matrix
 from learnest.models.inputs import ATTITUDE_CALIBRATED, flight_thrust_axis, system_inputs
 from learnest.models.systems import make_system
-from learnest.models.thrust_axis import calibrated_attitude, thrust_axis_offset
+from learnest.models.thrust_axis import calibrated_attitude, heading_removed, thrust_axis_offset
 
 NANOBENCH = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "nanobench"
 needs_data = pytest.mark.skipif(not NANOBENCH.is_dir(), reason="../shared/data/nanobench not present")
@@ -47,6 +47,25 @@ def test_offset_of_an_exact_circle_is_recovered_and_the_calibrated_attitude_poin
     raw_z = quat_to_matrix(quat)[:, :, 2]
     assert np.degrees(np.arccos(np.clip(np.sum(body_z * thrust_dir, axis=1), -1, 1))).max() < 0.02
     assert np.degrees(np.arccos(np.clip(np.sum(raw_z * thrust_dir, axis=1), -1, 1))).min() > 1.9   # 2.1° before
+
+
+def test_removing_the_heading_keeps_the_body_z_axis_and_the_crazyflie_prior_exactly():
+    rng = np.random.default_rng(4)
+    tilted = Rotation.from_rotvec(np.column_stack([rng.normal(0, 0.3, (200, 2)), rng.uniform(-3, 3, 200)]))
+    spun = tilted * Rotation.from_euler("z", rng.uniform(-np.pi, np.pi, (200, 1)))     # another heading, same body z
+    free = heading_removed(tilted.as_quat())
+    assert np.abs(free[:, 2]).max() == 0.0 and np.allclose(np.linalg.norm(free, axis=1), 1.0)
+    np.testing.assert_allclose(quat_to_matrix(free)[:, :, 2], tilted.as_matrix()[:, :, 2], atol=1e-12)
+    np.testing.assert_allclose(heading_removed(spun.as_quat()), free, atol=1e-12)
+    # the prior's vector field (thrust along body z, rotor drag the same along body x and y) does not change
+    system = make_system("crazyflie")
+    x = np.column_stack([rng.normal(0, 1, (200, 3)), rng.normal(0, 1.5, (200, 3)), rng.normal(0, 2, (200, 3))])
+    u = np.column_stack([tilted.as_quat(), rng.uniform(40000, 65000, (200, 4)), rng.uniform(3.2, 4.1, 200)])
+    u_free = u.copy()
+    u_free[:, :4] = free
+    np.testing.assert_allclose(system.f_prior(x, u_free), system.f_prior(x, u), rtol=1e-10, atol=1e-10)
+    upside_down = heading_removed(Rotation.from_euler("x", np.pi).as_quat()[None])
+    np.testing.assert_allclose(quat_to_matrix(upside_down)[0, :, 2], [0.0, 0.0, -1.0], atol=1e-12)
 
 
 def test_no_offset_gives_zero_and_the_attitude_unchanged():
@@ -110,11 +129,14 @@ def test_a_crazyflie_knode_trained_before_the_calibration_is_scored_with_a_warni
     system = make_system("crazyflie")
     zero_net = Residual([(np.zeros((4, system.n + system.n_inputs)), np.zeros(4)), (np.zeros((9, 4)), np.zeros(9))])
     flight = simulate_crazyflie(SimulatedFlight(duration_s=6, vbat=(4.0, 3.8)))
-    for meta, warned in (({}, True), ({"attitude_input": "mocap attitude calibrated onto the thrust axis"}, False)):
+    for meta, warned in (({}, "the mocap attitude as logged"),
+                         ({"attitude_input": "mocap attitude calibrated onto the thrust axis"}, "onto the thrust axis)"),
+                         ({"attitude_input": ATTITUDE_CALIBRATED}, None)):
         report = evaluate_flights(HybridModel(system, "knode", zero_net, meta), [flight], ["ukf"])
         entry = report["flights"][0]
         assert not entry["excluded"]
-        assert any("trained on the mocap attitude as logged" in w for w in entry["warnings"]) == warned
+        warnings = [w for w in entry["warnings"] if "trained on another attitude input" in w]
+        assert (warnings and warned in warnings[0]) if warned else not warnings
         assert np.hypot(*entry["thrust_axis_offset_deg"]) < 0.3     # the simulator's motors push along body z
         assert "thrust axis vs mocap frame (deg, x/y): " in format_report(report)
 

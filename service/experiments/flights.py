@@ -171,9 +171,9 @@ def _is_training_flight(knode: HybridModel, flight: Flight) -> bool:
     return bool(trained_on & sources) or flight.name == knode.meta.get("training_flight")
 
 
-def _trained_on_raw_attitude(knode: HybridModel) -> bool:
-    """A KNODE of a thrust-through-attitude prior trained before the thrust-axis calibration (its residual
-    learned from the raw mocap attitude; evaluations now feed it the calibrated one)."""
+def _trained_on_other_attitude(knode: HybridModel) -> bool:
+    """A KNODE of a thrust-through-attitude prior trained on another attitude input than evaluations now feed
+    it: before the thrust-axis calibration (the raw mocap attitude) or before the heading was removed."""
     return (knode.kind == "knode" and knode.system.name in THRUST_THROUGH_ATTITUDE
             and knode.meta.get("attitude_input") != ATTITUDE_CALIBRATED)
 
@@ -226,9 +226,10 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
                 entry["thrust_axis_offset_deg"] = [round(float(np.degrees(d)), 3) for d in flight_thrust_axis(flight)]
         # a flight from another vehicle, sensor rate or attitude source: scored, with a warning
         warnings = profile_mismatches(knode.meta.get("training_profile"), flight_profile(flight))
-        if not entry["excluded"] and _trained_on_raw_attitude(knode):
-            warnings.append("the model was trained on the mocap attitude as logged, before the attitude input was "
-                            "calibrated onto the thrust axis: retrain it for consistent inputs")
+        if not entry["excluded"] and _trained_on_other_attitude(knode):
+            trained_on = knode.meta.get("attitude_input") or "the mocap attitude as logged"
+            warnings.append(f"the model was trained on another attitude input ({trained_on}) than evaluations now "
+                            f"use ({ATTITUDE_CALIBRATED}): retrain it for consistent inputs")
         entry["warnings"] = warnings
         reports.append(entry)
         if progress:
