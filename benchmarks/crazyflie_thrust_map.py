@@ -38,12 +38,14 @@ import itertools
 import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 import learnest.ingest.align as align
-from learnest.ingest.frames import GRAVITY, quat_to_matrix
+from learnest.ingest.frames import GRAVITY
+from learnest.models import thrust_map
 from learnest.models.identify import first_order_lag, flight_arrays, lowpass
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -92,6 +94,9 @@ HEATING = (
      BEST[1] + (heat(init="fast"), heat(init="slow"))),
 )
 # not heating: a drift in time that knows nothing of power or of the pauses between flights
+# the battery voltage through models.thrust_map's ~1-s causal filter (stop 15), alone and with the heating
+FILTERED = (("battery voltage filtered (models.thrust_map)", BEST[1]),
+            ("+ motor heating (carried over), filtered voltage", BEST[1] + (heat(init="carried"),)))
 COMPARISON = (("+ time since the motors started (comparison)", BEST[1] + ("time",)),)
 ROWS = LADDER + HEATING + COMPARISON
 
@@ -100,15 +105,7 @@ def columns(arrays, tau_th: dict | None = None) -> dict[str, np.ndarray]:
     """Every candidate regressor of one flight, on its grid (before lag and low-pass); the heating columns
     (`heat`) of each initial-state kind in tau_th {kind: τ_th (s)}, when the flight carries the thermal
     states (`attach_heating`)."""
-    p = arrays.u[:, 4:8] / 65535.0
-    volts = arrays.u[:, 8]
-    R = quat_to_matrix(arrays.u[:, :4])
-    vz = arrays.v_world[:, 2]
-    out = {"1": np.ones(len(volts)), "Σp": p.sum(1), "Σp^2": (p**2).sum(1), "V": volts, "V·Σp": volts * p.sum(1),
-           "V^2": volts**2, "split": p[:, 0] - p[:, 1] + p[:, 2] - p[:, 3], "tilt": 1.0 - R[:, 2, 2], "vz+": np.maximum(vz, 0.0), "vz-": np.minimum(vz, 0.0)}
-    for i in range(4):
-        out[f"p{i + 1}"] = p[:, i]
-        out[f"p{i + 1}^2"] = p[:, i] ** 2
+    out = thrust_map.columns(arrays)     # the package's terms, the voltage as the arrays hold it
     if "time" in arrays.extra:
         out["time"] = arrays.extra["time"]
     for kind in tau_th or {}:
@@ -207,20 +204,15 @@ def constant(flights) -> float:
 
 
 def readings(flights, coef, names) -> dict[str, float]:
-    """The physical reading of a fit of `BEST`, at the flights' mean PWM and voltage:
+    """The physical reading of a fit of `BEST` at the flights' mean PWM and voltage (`models.thrust_map.readings`)."""
+    return thrust_map.readings(thrust_map.ThrustMap(tuple(names), np.asarray(coef), 0.0, 0.0, 0.0), flights)
 
-    - ``dfz_dV``: m/s² per volt of battery at constant PWM (``percent_g_per_V``: the same in % of g);
-    - ``dfz_dsplit``: m/s² per unit of the CW/CCW duty split p1 − p2 + p3 − p4 (the yaw command);
-    - ``dfz_dsum``: m/s² per unit of the summed duty Σp (the collective map's slope)."""
-    c = dict(zip(names, coef))
-    p = np.concatenate([a.u[a.keep, 4:8] for a in flights]) / 65535.0
-    volts = float(np.mean(np.concatenate([a.u[a.keep, 8] for a in flights])))
-    total = float(p.sum(1).mean())
-    dV = c["V"] + c["V·Σp"] * total + 2 * c["V^2"] * volts
-    # Σp² ≈ (Σp)²/4 near equal motors: d(Σp²)/d(Σp) = 2 p_i = Σp / 2
-    dsum = c["Σp"] + c["Σp^2"] * total / 2 + c["V·Σp"] * volts
-    return {"dfz_dV": float(dV), "percent_g_per_V": float(100 * dV / GRAVITY), "dfz_dsplit": float(c["split"]),
-            "dfz_dsum": float(dsum)}
+
+def with_filtered_voltage(arrays, vbat_tau_s: float):
+    """The flight's arrays with the battery voltage through `models.thrust_map`'s causal filter (own cache)."""
+    u = arrays.u.copy()
+    u[:, 8] = first_order_lag(u[:, 8], vbat_tau_s, arrays.dt)
+    return replace(arrays, u=u, extra={k: v for k, v in arrays.extra.items() if k != "filtered"})
 
 
 def held_out_row(label, names, train, test, c0) -> dict:
@@ -264,6 +256,11 @@ def window(flights_by_window: dict, name: str, n_boot: int) -> dict:
     for train, test in (("circle", "figure8"), ("figure8", "circle")):
         c0 = constant(fams[test])
         rows = [held_out_row(label, names, fams[train], fams[test], c0) for label, names in ROWS]
+        # the package's map (`models.thrust_map`): the voltage filter's τ picked on the training family first
+        vbat_tau = thrust_map.fit_thrust_map(fams[train]).vbat_tau_s
+        filtered = {k: [with_filtered_voltage(a, vbat_tau) for a in fams[k]] for k in (train, test)}
+        rows += [{**held_out_row(label, names, filtered[train], filtered[test], c0), "vbat_tau_s": vbat_tau}
+                 for label, names in FILTERED]
         forms = [held_out_row(f"{form} ({proxy}, {init})", BEST[1] + (heat(form, init, proxy),), fams[train],
                               fams[test], c0)
                  for form in HEAT_FORMS for proxy in POWER_PROXIES for init in ("cold", "carried")]
@@ -308,7 +305,8 @@ def markdown(result: dict) -> str:
                       "| model | τ (s) | τ_th (s) | RMSE train | RMSE held-out | fraction of constant | target |",
                       "|---|---|---|---|---|---|---|"]
             for r in split["rows"]:
-                lines.append(f"| {r['model']} | {r['tau_s']:.2f} | {tau_th_text(r['tau_th_s'])} | "
+                label = r["model"] + (f" (V filter {r['vbat_tau_s']:g} s)" if "vbat_tau_s" in r else "")
+                lines.append(f"| {label} | {r['tau_s']:.2f} | {tau_th_text(r['tau_th_s'])} | "
                              f"{r['rmse_train']:.3f} | {r['rmse_test']:.3f} | {100 * r['fraction_of_constant']:.1f} % | "
                              f"{'met' if r['meets_target'] else 'not met'} |")
             lines += ["", "Heating forms tried (one column on top of the best rung, τ and τ_th picked on the "
