@@ -15,7 +15,9 @@ carries thrust the collective does not (most likely the transients of the yaw lo
 are the airframe's inflow.  Why the battery filter: the logged voltage carries 0.01-0.03 V of fast
 fluctuation (the 10-Hz power stream resampled to 100 Hz, ADC noise, load sag) that the thrust does not follow;
 fed raw, it is noise in a regressor.  Filtered over ~1 s it is the battery's state, and the held-out error on
-the real flights falls by 8-13 %.  The filter is causal, so the map can run inside an estimator.
+the real flights falls by 9-13 %.  The voltage filter and the motor lag are causal; the 5 Hz low-pass is the
+evaluation protocol's (zero phase, applied alike to every column and to the measured force), so the fitted
+coefficients also hold for the unfiltered, causal map.
 
 Physical parameters (mass, voltage exponent) are not read off this map: it is the identified *predictor* of
 the thrust; `models.crazyflie` is the physical model with named, bounded parameters.

@@ -40,7 +40,8 @@ def test_fit_on_two_flights_score_on_a_third_and_name_the_one_without_motors(log
     # thrust grows with the battery at constant duty (gamma = 0.42 in the simulated truth)
     assert report["readings"]["dfz_dV"] > 0
     (excluded,) = report["excluded"]
-    assert excluded["flight"] == "no_motors" and excluded["role"] == "score" and "motors" in excluded["reason"]
+    assert excluded["flight"] == "no_motors" and excluded["role"] == "score" and "motor PWM" in excluded["reason"]
+    assert excluded["file"] == logs["no_motors"]                      # the file, not only the flight's name
 
     assert main(["thrust-map", "--fit", *logs["fit"], "--score", logs["score"]]) == 0
     text = capsys.readouterr().out
@@ -50,4 +51,14 @@ def test_fit_on_two_flights_score_on_a_third_and_name_the_one_without_motors(log
 def test_nothing_usable_to_fit_on_is_a_clear_error(logs, capsys):
     assert main(["thrust-map", "--fit", logs["no_motors"], "--score", logs["score"]]) == 2
     err = capsys.readouterr().err
-    assert "no usable flight to fit on" in err and "no_motors" in err and "motors" in err
+    assert "no usable flight to fit on" in err and logs["no_motors"] in err and "motor PWM" in err
+
+
+def test_a_flight_given_to_both_fit_and_score_is_not_scored_as_held_out(logs, capsys):
+    assert main(["thrust-map", "--fit", *logs["fit"], "--score", logs["fit"][0], logs["score"], "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert [f["flight"] for f in report["flights"]] == ["score"]
+    (excluded,) = report["excluded"]
+    assert excluded["flight"] == "fit0" and "also in --fit" in excluded["reason"]
+    assert main(["thrust-map", "--fit", *logs["fit"], "--score", *logs["fit"]]) == 2
+    assert "no usable flight to score" in capsys.readouterr().err

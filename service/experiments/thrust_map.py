@@ -11,6 +11,7 @@ from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 from learnest.models import thrust_map as tm
 from learnest.models.identify import LOWPASS_HZ, FlightArrays, flight_arrays
+from learnest.models.inputs import CHANNEL_SOURCES
 
 PROTOCOL = {"target": "accelerometer body-frame z specific force, m/s²",
             "inputs": "motor PWM m1..m4, battery voltage, mocap attitude and velocity (no accelerometer)",
@@ -18,17 +19,34 @@ PROTOCOL = {"target": "accelerometer body-frame z specific force, m/s²",
             "left_out": "samples interpolated across radio gaps (±5 samples) and the first/last 0.5 s"}
 
 
-def _usable(flights: list[Flight], role: str) -> tuple[list[FlightArrays], list[dict]]:
+def _sources(flight: Flight) -> set[str]:
+    return {s["sha256"] for s in flight.meta.get("sources", []) if s.get("sha256")}
+
+
+def _source_path(flight: Flight) -> str:
+    """The log file a flight came from (its name when the reader recorded none)."""
+    sources = flight.meta.get("sources") or [{}]
+    return str(sources[0].get("path") or flight.name)
+
+
+def _usable(flights: list[Flight], role: str,
+            fitted_on: frozenset[str] = frozenset()) -> tuple[list[FlightArrays], list[dict]]:
+    """The flights' arrays, and an exclusion {flight, file, role, reason} for each one that cannot be used:
+    failed quality, missing inputs, or (``fitted_on``: source sha256s) a score flight also fitted on."""
     arrays, excluded = [], []
     for flight in flights:
-        if not flight.quality["ok"]:
-            excluded.append({"flight": flight.name, "role": role,
-                             "reason": "quality: " + "; ".join(flight.quality["issues"])})
-            continue
-        try:
+        reason = None
+        missing = [name for name in ("motors", "vbat", "acc_body") if name not in flight.channels]
+        if _sources(flight) & fitted_on:
+            reason = "also in --fit: a flight the map was fitted on is not held out"
+        elif not flight.quality["ok"]:
+            reason = "quality: " + "; ".join(flight.quality["issues"])
+        elif missing:
+            reason = "no " + "; no ".join(CHANNEL_SOURCES.get(name, "body-frame accelerometer") for name in missing)
+        if reason is None:
             arrays.append(flight_arrays(flight))
-        except ValueError as err:      # names the flight and the channels it lacks
-            excluded.append({"flight": flight.name, "role": role, "reason": str(err)})
+        else:
+            excluded.append({"flight": flight.name, "file": _source_path(flight), "role": role, "reason": reason})
     return arrays, excluded
 
 
@@ -48,8 +66,9 @@ def thrust_map_report(fit_flights: list[Flight], score_flights: list[Flight]) ->
         ``protocol``; ``fit_on`` (names); ``map`` {``terms``, ``coef`` {term: m/s² per unit}, ``tau_s``,
         ``vbat_tau_s`` (s), ``rmse_train`` (m/s²)}; ``readings`` (`models.thrust_map.readings` at the fit
         flights' mean); ``flights`` [{``flight``, ``rmse``, ``r2``, ``constant_rmse``,
-        ``fraction_of_constant``}] and ``held_out`` (the same, pooled); ``excluded`` [{``flight``, ``role``,
-        ``reason``}].
+        ``fraction_of_constant``}] and ``held_out`` (the same, pooled); ``excluded`` [{``flight``, ``file``,
+        ``role``, ``reason``}]: failed quality, missing inputs, or a score flight that is also a fit flight
+        (same source file content), which would not be held out.
 
     Raises
     ------
@@ -57,9 +76,10 @@ def thrust_map_report(fit_flights: list[Flight], score_flights: list[Flight]) ->
         If no fitting flight, or no flight to score, is usable (each exclusion's reason is in the message).
     """
     fit_arrays, excluded = _usable(fit_flights, "fit")
-    score_arrays, excluded_score = _usable(score_flights, "score")
+    fitted_on = frozenset().union(*(_sources(f) for f in fit_flights if f.name in {a.name for a in fit_arrays}))
+    score_arrays, excluded_score = _usable(score_flights, "score", fitted_on)
     excluded += excluded_score
-    reasons = "; ".join(f"{e['flight']}: {e['reason']}" for e in excluded)
+    reasons = "; ".join(f"{e['file']}: {e['reason']}" for e in excluded)
     if not fit_arrays:
         raise InvalidInput(f"thrust map: no usable flight to fit on ({reasons or 'none given'})")
     if not score_arrays:
@@ -86,5 +106,5 @@ def format_thrust_map(report: dict) -> str:
     for f in [*report["flights"], {"flight": "all held-out", **report["held_out"]}]:
         lines.append(f"{f['flight']:<28}{f['rmse']:>11.3f}{f['r2']:>8.2f}{f['constant_rmse']:>14.3f}"
                      f"{100 * f['fraction_of_constant']:>9.0f}%")
-    lines += [f"excluded ({e['role']}): {e['flight']}: {e['reason']}" for e in report["excluded"]]
+    lines += [f"excluded ({e['role']}): {e['file']}: {e['reason']}" for e in report["excluded"]]
     return "\n".join(lines)

@@ -20,6 +20,12 @@ from ..storage.tables import FlightRecord, Result, utcnow
 log = logging.getLogger("learnest.jobs")
 
 
+# What a cached flight entry holds and how it was computed.  2 (stop 15): each entry has a `prediction_check`,
+# and a Crazyflie model's attitude input has no heading; an entry of format 1 would show "nothing flagged"
+# where nothing was checked, and mix inputs with newly computed flights of the same model.
+ENTRY_FORMAT = 2
+
+
 @dataclass(frozen=True)
 class EstimatorSettings:
     """Settings of an evaluation that change a flight's result (part of the result cache key).
@@ -57,8 +63,10 @@ class EstimatorSettings:
     @property
     def key(self) -> str:
         """Cache key part: what changes a flight's entry besides the flight and the model.  The default SG
-        window is left out, so results cached before the window could be chosen keep their key."""
-        fields: dict = {"methods": sorted(self.methods), "horizon": self.horizon, "include_bad": self.include_bad}
+        window is left out, so results cached before the window could be chosen keep their key; the entry
+        format (`ENTRY_FORMAT`) is in it, so entries computed by older code are computed again."""
+        fields: dict = {"methods": sorted(self.methods), "horizon": self.horizon, "include_bad": self.include_bad,
+                        "entry_format": ENTRY_FORMAT}
         if self.sg_window != SG_WINDOW:
             fields["sg_window"] = self.sg_window
         return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()
