@@ -24,6 +24,7 @@ the thrust; `models.crazyflie` is the physical model with named, bounded paramet
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -103,9 +104,11 @@ class ThrustMap:
 
 
 def fit_thrust_map(flights: list[FlightArrays], terms: tuple = TERMS, motor_taus_s: tuple = MOTOR_TAUS_S,
-                   vbat_taus_s: tuple = VBAT_TAUS_S) -> ThrustMap:
+                   vbat_taus_s: tuple = VBAT_TAUS_S,
+                   progress: Callable[[int, int], object] | None = None) -> ThrustMap:
     """Least squares of ``terms`` on the training ``flights``; the two time constants are the grid pair with
-    the lowest training RMSE (the training flights only: a held-out score stays held out).
+    the lowest training RMSE (the training flights only: a held-out score stays held out).  ``progress`` is
+    called as ``progress(grid points done, grid points)`` after each pair.
 
     Raises
     ------
@@ -115,13 +118,15 @@ def fit_thrust_map(flights: list[FlightArrays], terms: tuple = TERMS, motor_taus
     if not sum(int(a.keep.sum()) for a in flights):
         raise ValueError("thrust map: the flights have no usable samples")
     best = None
-    for vbat_tau in vbat_taus_s:
-        for tau in motor_taus_s:
-            X, y = stacked(flights, terms, tau, vbat_tau)
-            coef, *_ = np.linalg.lstsq(X, y, rcond=None)
-            rmse = float(np.sqrt(np.mean((X @ coef - y) ** 2)))
-            if best is None or rmse < best.rmse_train:
-                best = ThrustMap(tuple(terms), coef, tau, vbat_tau, rmse)
+    grid = [(vbat_tau, tau) for vbat_tau in vbat_taus_s for tau in motor_taus_s]
+    for done, (vbat_tau, tau) in enumerate(grid, start=1):
+        X, y = stacked(flights, terms, tau, vbat_tau)
+        coef, *_ = np.linalg.lstsq(X, y, rcond=None)
+        rmse = float(np.sqrt(np.mean((X @ coef - y) ** 2)))
+        if best is None or rmse < best.rmse_train:
+            best = ThrustMap(tuple(terms), coef, tau, vbat_tau, rmse)
+        if progress:
+            progress(done, len(grid))
     assert best is not None
     return best
 

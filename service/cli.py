@@ -150,7 +150,13 @@ def _thrust_map(args) -> int:
         if not files:
             raise InvalidInput(f"no flight logs in {', '.join(given)} (--{role})")
         sets[role] = _read(files, args.rate)
-    report = thrust_map_report(sets["fit"], sets["score"])
+    with tqdm(total=1, desc="thrust map", unit="", file=sys.stderr, bar_format=STAGE_BAR) as bar:
+        def stage(name: str, done: int, total: int) -> None:
+            bar.set_description_str(f"thrust map: {name}")
+            bar.total, bar.n = total, done
+            bar.refresh()
+
+        report = thrust_map_report(sets["fit"], sets["score"], progress=stage)
     print(json.dumps(report, indent=2) if args.json else format_thrust_map(report))
     return 0
 

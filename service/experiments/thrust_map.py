@@ -7,6 +7,8 @@ interpolated across gaps and the filter edges left out); the model is `models.th
 """
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 from learnest.models import thrust_map as tm
@@ -56,9 +58,11 @@ def _scores(fitted: tm.ThrustMap, arrays: list[FlightArrays]) -> dict:
             "fraction_of_constant": rmse / constant}
 
 
-def thrust_map_report(fit_flights: list[Flight], score_flights: list[Flight]) -> dict:
+def thrust_map_report(fit_flights: list[Flight], score_flights: list[Flight],
+                      progress: Callable[[str, int, int], object] | None = None) -> dict:
     """Fit `models.thrust_map` on ``fit_flights`` and score it on each of ``score_flights`` (whole flights
-    held out).
+    held out).  ``progress(stage, done, total)`` is told the stages "fitting" (grid points of the two time
+    constants) and "scoring" (flights).
 
     Returns
     -------
@@ -84,12 +88,18 @@ def thrust_map_report(fit_flights: list[Flight], score_flights: list[Flight]) ->
         raise InvalidInput(f"thrust map: no usable flight to fit on ({reasons or 'none given'})")
     if not score_arrays:
         raise InvalidInput(f"thrust map: no usable flight to score ({reasons or 'none given'})")
-    fitted = tm.fit_thrust_map(fit_arrays)
+    fitted = tm.fit_thrust_map(fit_arrays, progress=(lambda done, total: progress("fitting", done, total))
+                               if progress else None)
+    scores = []
+    for done, arrays in enumerate(score_arrays, start=1):
+        scores.append({"flight": arrays.name, **_scores(fitted, [arrays])})
+        if progress:
+            progress("scoring", done, len(score_arrays))
     return {"protocol": PROTOCOL, "fit_on": [a.name for a in fit_arrays],
             "map": {"terms": list(fitted.terms), "coef": dict(zip(fitted.terms, map(float, fitted.coef))),
                     "tau_s": fitted.tau_s, "vbat_tau_s": fitted.vbat_tau_s, "rmse_train": fitted.rmse_train},
             "readings": tm.readings(fitted, fit_arrays),
-            "flights": [{"flight": a.name, **_scores(fitted, [a])} for a in score_arrays],
+            "flights": scores,
             "held_out": _scores(fitted, score_arrays), "excluded": excluded}
 
 
