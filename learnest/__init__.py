@@ -8,6 +8,7 @@ The notebook API::
     post = le.ukf(knode.model_, flights[1])            # FilterResult(t, means, covariances, innovations)
     report = le.evaluate(knode.model_, flights[1:])    # MSE per method and flight, medians, improvement
     diagnosis = le.diagnose(flights, model=knode.model_)
+    thrust = le.thrust_map(flights[:8], flights[8:])   # thrust map fitted on some flights, scored on others
 
 Names are imported on first use, so ``import learnest`` stays fast (torch, CasADi and filterpy load only
 when a model or an estimator is touched).
@@ -47,11 +48,12 @@ _LAZY = {
     "mhe": "learnest.service.experiments.estimation",
     "evaluate": "learnest.service.experiments.estimation",
     "diagnose": "learnest.service.experiments.diagnosis",
+    "thrust_map": "learnest.service.experiments.thrust_map",
 }
 
 __all__ = ["KNODE", "Conflict", "FilterResult", "Flight", "HybridModel", "IngestError", "InvalidInput",
            "LearnestError", "MHEResult", "NotFound", "NumericalWarning", "__version__", "diagnose", "evaluate",
-           "make_system", "mhe", "read_flights", "ukf"]
+           "make_system", "mhe", "read_flights", "thrust_map", "ukf"]
 
 
 def __getattr__(name: str) -> Any:
@@ -75,3 +77,4 @@ if TYPE_CHECKING:  # what type checkers and IDEs see
     from .service.experiments.diagnosis import diagnose
     from .service.experiments.estimation import MHEResult, evaluate, mhe, ukf
     from .service.experiments.knode import KNODE
+    from .service.experiments.thrust_map import thrust_map

@@ -48,6 +48,14 @@ def test_fit_on_two_flights_score_on_a_third_and_name_the_one_without_motors(log
     assert "all held-out" in text and "battery voltage filtered over" in text
 
 
+def test_the_notebook_api_gives_the_same_report(logs, capsys):
+    import learnest as le
+
+    report = le.thrust_map(le.read_flights(logs["fit"]), le.read_flights([logs["score"]]))
+    assert main(["thrust-map", "--fit", *logs["fit"], "--score", logs["score"], "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["held_out"] == pytest.approx(report["held_out"])
+
+
 def test_nothing_usable_to_fit_on_is_a_clear_error(logs, capsys):
     assert main(["thrust-map", "--fit", logs["no_motors"], "--score", logs["score"]]) == 2
     err = capsys.readouterr().err

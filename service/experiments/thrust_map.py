@@ -103,6 +103,10 @@ def thrust_map_report(fit_flights: list[Flight], score_flights: list[Flight],
             "held_out": _scores(fitted, score_arrays), "excluded": excluded}
 
 
+# the notebook API's name (`learnest.thrust_map(fit_flights, score_flights)`)
+thrust_map = thrust_map_report
+
+
 def format_thrust_map(report: dict) -> str:
     """The report as text: the map, then one line per scored flight and the pooled held-out score."""
     m, r = report["map"], report["readings"]
