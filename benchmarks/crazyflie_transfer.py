@@ -43,6 +43,7 @@ def gains(report: dict) -> dict:
 def markdown(result: dict) -> str:
     lines = ["# Transfer across trajectory families: kinematic prior vs Crazyflie prior (real NanoBench flights)",
              "", f"Command: `{result['command']}`  ({result['seconds']:.0f} s wall, 2 shared cores)", ""]
+    lines += pooled(result)
     for direction, by_system in result["runs"].items():
         lines += [f"## {direction}", "", "| prior | scored | " + " | ".join(f"median {m}" for m in METHODS)
                   + " | KNODE-UKF vs UKF | KNODE-MHE vs MHE | flights KNODE-UKF better | flights KNODE-MHE better "
@@ -61,6 +62,23 @@ def markdown(result: dict) -> str:
                            + " / ".join(f"{np.median([g[b] for g in per.values() if b in g]):+.1f} %"
                                         if any(b in g for g in per.values()) else "–" for b in ("ukf", "mhe"))
                            + " |")
+        lines += ["", "The recommended estimate (`estimators.evaluate.recommended_model`): per flight the KNODE's, "
+                      "or its prior's where the prediction check flags the flight.", "",
+                  "| prior | median UKF | median MHE | vs prior's median UKF / MHE | flights worse than prior UKF / MHE "
+                  "| prior's estimate used on | median per-flight gain UKF / MHE |", "|---|---|---|---|---|---|---|"]
+        for system, run in by_system.items():
+            rec = run["report"].get("recommended")
+            if not rec:
+                continue
+            per = recommended_gains(run)
+            lines.append(f"| {system} | {rec['median'].get('ukf', float('nan')):.5f} | "
+                         f"{rec['median'].get('mhe', float('nan')):.5f} | "
+                         + " / ".join(f"{rec['improvement_pct'][b]:+.1f} %" for b in ("ukf", "mhe")
+                                      if b in rec["improvement_pct"])
+                         + " | " + " / ".join(str(len(rec["flights_worse_than_prior"].get(b, []))) for b in ("ukf", "mhe"))
+                         + f" | {', '.join(rec['prior_on']) or 'none'} | "
+                         + " / ".join(f"{np.median([g[b] for g in per.values() if b in g]):+.1f} %"
+                                      for b in ("ukf", "mhe")) + " |")
         lines += [""]
         for system, run in by_system.items():
             lines += [f"### {system}: per flight, and the two flags (no ground truth in either)", "",
@@ -84,6 +102,35 @@ def markdown(result: dict) -> str:
                                      for m in METHODS if m in run["median_groups"]))
         lines += [""]
     return "\n".join(lines)
+
+
+def recommended_gains(run: dict) -> dict:
+    """Per scored flight: the recommended estimate's gain over the prior-only estimator (%): the KNODE's gain,
+    or 0 where the prediction check recommends the prior's estimate."""
+    out = {}
+    for entry in run["report"]["flights"]:
+        if entry["excluded"]:
+            continue
+        use_prior = (entry.get("prediction_check") or {}).get("knode_predicts_worse")
+        out[entry["flight"]] = {b: 0.0 if use_prior else g for b, g in run["gains"][entry["flight"]].items()}
+    return out
+
+
+def pooled(result: dict) -> list[str]:
+    """Both directions together, per prior: the issue's criterion (not worse than the prior on any flight of
+    the other family, median gain across families positive), for the KNODE and for the recommended estimate."""
+    lines = ["## Both directions pooled (16 flights per prior)", "",
+             "| prior | estimate | flights worse than prior UKF / MHE | median per-flight gain UKF / MHE |",
+             "|---|---|---|---|"]
+    systems = sorted({system for by_system in result["runs"].values() for system in by_system})
+    for system in systems:
+        runs = [by_system[system] for by_system in result["runs"].values() if system in by_system]
+        for label, per_run in (("KNODE", lambda run: run["gains"]), ("recommended", recommended_gains)):
+            per = [g for run in runs for g in per_run(run).values()]
+            worse = " / ".join(str(sum(1 for g in per if g.get(b, 0) < 0)) for b in ("ukf", "mhe"))
+            median = " / ".join(f"{np.median([g[b] for g in per if b in g]):+.1f} %" for b in ("ukf", "mhe"))
+            lines.append(f"| {system} | {label} | {worse} | {median} |")
+    return lines + [""]
 
 
 def unflagged_losses(run: dict) -> dict:

@@ -148,6 +148,40 @@ def prediction_check(prior_ms: ArrayLike, knode_ms: ArrayLike, channels: Sequenc
             "knode_predicts_worse": bool(ratio > 1.0 + 1e-9)}
 
 
+def recommended_model(flight_report: dict) -> str | None:
+    """The model whose estimates learnest recommends for one scored flight: "knode", or "prior" where the
+    flight's ``prediction_check`` says the KNODE predicts it worse than its prior; None without a check.
+
+    A choice between the two models by their one-step predictive fit on the flight itself (prequential
+    model selection): it uses the flight's measurements only, never the references, so it is available
+    on every flight a user evaluates, and it is decided before any score is looked at.
+    """
+    check = flight_report.get("prediction_check")
+    if not check:
+        return None
+    return "prior" if check["knode_predicts_worse"] else "knode"
+
+
+def _recommended_summary(scored: list[dict], median: dict[str, float]) -> dict | None:
+    """Median MSE of the recommended estimate (`recommended_model` per flight) for each base estimator, its
+    improvement on the prior's median, and the flights where the prior's estimate was recommended."""
+    summary: dict = {"median": {}, "improvement_pct": {}, "flights_worse_than_prior": {}}
+    for base in ("ukf", "mhe"):
+        chosen = [(f, recommended_model(f)) for f in scored if base in f["mse"] and f"knode-{base}" in f["mse"]]
+        chosen = [(f, model) for f, model in chosen if model is not None]
+        if not chosen:
+            continue
+        mse = [f["mse"][f"knode-{base}" if model == "knode" else base] for f, model in chosen]
+        summary["median"][base] = float(np.median(mse))
+        summary["improvement_pct"][base] = 100.0 * (1.0 - summary["median"][base] / median[base])
+        summary["flights_worse_than_prior"][base] = [f["flight"] for (f, _), value in zip(chosen, mse)
+                                                     if value > f["mse"][base]]
+    if not summary["median"]:
+        return None
+    summary["prior_on"] = [f["flight"] for f in scored if recommended_model(f) == "prior"]
+    return summary
+
+
 def summarize(flight_reports: list[dict]) -> dict:
     """Median MSE over the scored flights and the KNODE improvements on those medians.
 
@@ -156,8 +190,13 @@ def summarize(flight_reports: list[dict]) -> dict:
     dict
         ``median`` {method: MSE}, ``improvement_pct`` {"knode-ukf_vs_ukf": 100 (1 - knode/base), ...},
         ``flights_scored``, ``outside_training_envelope`` (names of the scored flights whose
-        ``envelope`` entry flags them: their scores judge the model outside what it was trained on) and
-        ``knode_predicts_worse`` (names of the scored flights whose ``prediction_check`` flags them).
+        ``envelope`` entry flags them: their scores judge the model outside what it was trained on),
+        ``knode_predicts_worse`` (names of the scored flights whose ``prediction_check`` flags them) and
+        ``recommended`` (None without prediction checks): the estimate learnest recommends per flight
+        (`recommended_model`: the KNODE's, or its prior's where the check flags the flight), scored as one
+        estimator per base method: ``median`` {"ukf": MSE, "mhe": MSE}, ``improvement_pct`` {"ukf": %
+        on the prior's median, ...}, ``flights_worse_than_prior`` {"ukf": [names], ...} and ``prior_on``
+        (names of the flights where the prior's estimate is recommended).
     """
     scored = [f for f in flight_reports if not f.get("excluded")]
     methods = sorted({m for f in scored for m in f["mse"]})
@@ -169,4 +208,5 @@ def summarize(flight_reports: list[dict]) -> dict:
     outside = [f["flight"] for f in scored if (f.get("envelope") or {}).get("outside_training_envelope")]
     worse = [f["flight"] for f in scored if (f.get("prediction_check") or {}).get("knode_predicts_worse")]
     return {"median": median, "improvement_pct": improvement, "flights_scored": len(scored),
-            "outside_training_envelope": outside, "knode_predicts_worse": worse}
+            "outside_training_envelope": outside, "knode_predicts_worse": worse,
+            "recommended": _recommended_summary(scored, median)}

@@ -13,6 +13,7 @@ from learnest.ingest.flight import Flight
 
 from .systems import System
 from .thrust_axis import calibrated_attitude, heading_removed, thrust_axis_offset
+from .thrust_gain import thrust_gain, with_thrust_gain
 
 # channel -> what carries it in each supported format (for the error message)
 CHANNEL_SOURCES = {
@@ -26,8 +27,11 @@ NEEDED = {"crazyflie": ("motors", "vbat")}
 # systems whose prior turns thrust into acceleration through the attitude: their attitude input is the
 # mocap attitude rotated onto the flight's thrust axis, with the heading removed (`models.thrust_axis`)
 THRUST_THROUGH_ATTITUDE = frozenset({"crazyflie"})
-# what a model trained on such inputs records in meta["attitude_input"]
+# what a model trained on such inputs records in meta["attitude_input"]; since stop 16 the battery voltage
+# also carries the flight's thrust gain (`models.thrust_gain`).  A model keeps being fed the inputs it was
+# trained on: one of these two, else it is scored with a warning to retrain.
 ATTITUDE_CALIBRATED = "mocap attitude calibrated onto the thrust axis, heading removed"
+THRUST_GAIN_CALIBRATED = ATTITUDE_CALIBRATED + "; thrust gain calibrated per flight"
 
 
 class MissingInputs(InvalidInput):
@@ -54,16 +58,43 @@ def flight_thrust_axis(flight: Flight) -> np.ndarray:
         raise InvalidInput(f"{flight.name}: {err}") from None
 
 
-def training_meta(system: System) -> dict:
+def flight_thrust_gain(flight: Flight, system: System, u: np.ndarray) -> float:
+    """The flight's thrust gain against ``system``'s thrust map (`models.thrust_gain`), from the prior's inputs
+    ``u`` (T, 9) with the attitude already calibrated.
+
+    Raises
+    ------
+    InvalidInput
+        Naming the flight, if the gain is implausible (the channels are not this vehicle's).
+    """
+    try:
+        return thrust_gain(flight.p, u, flight.dt, system.prior_params)
+    except ValueError as err:
+        raise InvalidInput(f"{flight.name}: {err}") from None
+
+
+def training_meta(system: System, thrust_gain: bool = True) -> dict:
     """What a model trained on `system_inputs` of this system records about them in its meta: evaluations
-    compare it (a model trained on the raw attitude is scored with a warning)."""
-    return {"attitude_input": ATTITUDE_CALIBRATED} if system.name in THRUST_THROUGH_ATTITUDE else {}
+    feed it the same inputs (`calibrates_thrust_gain`; a model trained on the raw attitude is scored with a
+    warning)."""
+    if system.name not in THRUST_THROUGH_ATTITUDE:
+        return {}
+    return {"attitude_input": THRUST_GAIN_CALIBRATED if thrust_gain else ATTITUDE_CALIBRATED}
 
 
-def system_inputs(flight: Flight, system: System) -> np.ndarray:
+def calibrates_thrust_gain(meta: dict | None, kind: str) -> bool:
+    """Whether a model's inputs carry the per-flight thrust gain: prior-only models and models whose meta
+    says they were trained on it; a KNODE trained before it (or by the diagnosis) keeps its own inputs."""
+    return kind == "prior" or (meta or {}).get("attitude_input") == THRUST_GAIN_CALIBRATED
+
+
+def system_inputs(flight: Flight, system: System, thrust_gain: bool = False) -> np.ndarray:
     """u (T, system.n_inputs) for this flight: empty for input-free systems, [quat, PWM x4, vbat] for crazyflie,
     whose attitude is calibrated onto the flight's thrust axis (`flight_thrust_axis`) and has its heading
-    removed (`models.thrust_axis.heading_removed`: the prior depends on the body z axis only)."""
+    removed (`models.thrust_axis.heading_removed`: the prior depends on the body z axis only).  With
+    ``thrust_gain``, the battery voltage is scaled so the prior's thrust carries the flight's thrust gain
+    (`flight_thrust_gain`, `models.thrust_gain.with_thrust_gain`); estimation asks for it, the diagnosis not
+    (the gain would absorb the payload and thrust effects it looks for)."""
     if system.n_inputs == 0:
         return np.zeros((len(flight.t), 0))
     if system.name not in NEEDED:
@@ -87,4 +118,6 @@ def system_inputs(flight: Flight, system: System) -> np.ndarray:
     if u.shape[1] != system.n_inputs:
         raise MissingInputs(f"{flight.name}: expected {system.n_inputs} input columns for {system.name!r}, got "
                             f"{u.shape[1]} (channels {', '.join(NEEDED[system.name])})")
+    if thrust_gain and system.name in THRUST_THROUGH_ATTITUDE:
+        u = with_thrust_gain(u, flight_thrust_gain(flight, system, u), system.prior_params["gamma"])
     return u

@@ -624,10 +624,21 @@ def format_report(report: dict) -> str:
     worse = report.get("knode_predicts_worse")
     if worse:
         lines.append(f"do not trust the KNODE on: {', '.join(worse)} (it predicts these flights worse than its prior)")
+    recommended = report.get("recommended")
+    if recommended:   # estimators.evaluate.recommended_model per flight, scored as one estimator
+        scores = ", ".join(f"{base.upper()} {value * 1e3:.3f} ({recommended['improvement_pct'][base]:+.1f} % vs prior)"
+                           for base, value in recommended["median"].items())
+        prior_on = ", ".join(recommended["prior_on"]) or "none"
+        lines.append(f"recommended estimate (the KNODE's; the prior's where the check flags the flight): median "
+                     f"{scores}; prior's used on: {prior_on}")
     axes = {f["flight"]: f["thrust_axis_offset_deg"] for f in report["flights"] if f.get("thrust_axis_offset_deg")}
     if axes:   # the calibration the prior's attitude input got (models.thrust_axis)
         lines.append("thrust axis vs mocap frame (deg, x/y): "
                      + ", ".join(f"{name} {x:+.1f}/{y:+.1f}" for name, (x, y) in axes.items()))
+    gains = {f["flight"]: f["thrust_gain"] for f in report["flights"] if f.get("thrust_gain")}
+    if gains:   # the thrust gain the prior got per flight (models.thrust_gain)
+        lines.append("thrust gain vs the prior's thrust map (mocap / map): "
+                     + ", ".join(f"{name} {gain:.3f}" for name, gain in gains.items()))
     for f in report["flights"]:   # another vehicle, sensor rate or attitude source than the training flight's
         lines += [f"WARNING {f['flight']}: {warning}" for warning in f.get("warnings") or []]
     return "\n".join(lines)

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from learnest.estimators.evaluate import prediction_check
+from learnest.estimators.evaluate import prediction_check, recommended_model, summarize
 from learnest.ingest import read_flights
 from learnest.ingest.sim import Circle, simulate, write_flight
 from learnest.models.knode import HybridModel, Residual
@@ -61,6 +61,34 @@ def test_the_true_effect_predicts_better_and_the_wrong_sign_is_flagged(circle):
     table = format_report(wrong)
     assert f"do not trust the KNODE on: {circle.name}" in table
     assert f"{circle.name} {wrong_check['innovation_ratio']:.2f}" in table
+    # the recommended estimate falls back to the prior exactly where the check flags the flight
+    assert wrong["recommended"]["prior_on"] == [circle.name] and right["recommended"]["prior_on"] == []
+    assert wrong["recommended"]["median"]["ukf"] == wrong["flights"][0]["mse"]["ukf"]
+    assert right["recommended"]["median"]["ukf"] == right["flights"][0]["mse"]["knode-ukf"]
+    assert wrong["recommended"]["flights_worse_than_prior"]["ukf"] == []
+    assert "recommended estimate" in table and "prior's used on: " + circle.name in table
+
+
+def _scored(name: str, mse: dict[str, float], ratio: float) -> dict:
+    return {"flight": name, "excluded": False, "mse": mse,
+            "prediction_check": prediction_check([1.0], [ratio], [0], ["px"])}
+
+
+def test_the_recommended_estimate_is_scored_per_base_method_against_the_prior_median():
+    flights = [_scored("gains", {"ukf": 4.0, "knode-ukf": 2.0, "mhe": 3.0, "knode-mhe": 1.0}, 0.8),
+               _scored("loses_flagged", {"ukf": 1.0, "knode-ukf": 5.0, "mhe": 2.0, "knode-mhe": 6.0}, 1.3),
+               _scored("loses_unflagged", {"ukf": 3.0, "knode-ukf": 3.5, "mhe": 5.0, "knode-mhe": 4.0}, 0.9),
+               {"flight": "bad", "excluded": True, "mse": {}}]
+    assert [recommended_model(f) for f in flights] == ["knode", "prior", "knode", None]
+    report = summarize(flights)
+    recommended = report["recommended"]
+    # UKF: chosen 2.0 (knode), 1.0 (prior), 3.5 (knode) -> median 2.0; prior median of 4, 1, 3 = 3
+    assert recommended["median"] == {"ukf": 2.0, "mhe": 2.0}           # MHE: 1.0, 2.0, 4.0 vs 3, 2, 5
+    assert recommended["improvement_pct"] == pytest.approx({"ukf": 100 * (1 - 2.0 / 3.0), "mhe": 100 * (1 - 2 / 3)})
+    assert recommended["flights_worse_than_prior"] == {"ukf": ["loses_unflagged"], "mhe": []}
+    assert recommended["prior_on"] == ["loses_flagged"]
+    assert summarize([{"flight": "x", "excluded": False, "mse": {"ukf": 1.0}, "prediction_check": None}]
+                     )["recommended"] is None
 
 
 def test_the_check_runs_the_filters_itself_when_only_the_mhe_rows_are_asked_for(circle):

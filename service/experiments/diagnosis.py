@@ -376,7 +376,7 @@ def _crazyflie_model(flight: Flight, params: dict, train: bool, config) -> Hybri
     model = train_knode(system, zeta, u, system.dt, config).model
     model.meta.update({"system": "crazyflie", "training_flight": flight.name,
                        "training_flight_sha256": [s["sha256"] for s in flight.meta.get("sources", [])],
-                       "training_profile": flight_profile(flight), **training_meta(system)})
+                       "training_profile": flight_profile(flight), **training_meta(system, thrust_gain=False)})
     return model
 
 
@@ -442,8 +442,12 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
         b = {"specific_force_rmse": specific_force_rmse(held_out)}
         a = {"specific_force_rmse": specific_force_rmse(held_out, values)}
         if methods:
-            scored_b = evaluate_flight(model_before, flight, methods, mhe_cache=mhe_cache)["results"]
-            scored_a = evaluate_flight(model_after, flight, methods, mhe_cache=mhe_cache)["results"]
+            # the diagnosis's priors see the thrust as the map predicts it: a per-flight thrust gain would
+            # absorb the payload and battery effects it fits (a user's model keeps the inputs it was trained on)
+            scored_b = evaluate_flight(model_before, flight, methods, mhe_cache=mhe_cache,
+                                       thrust_gain=None if model_before is knode else False)["results"]
+            scored_a = evaluate_flight(model_after, flight, methods, mhe_cache=mhe_cache,
+                                       thrust_gain=False)["results"]
             b.update({m: scored_b[m]["mse"] for m in methods})
             a.update({m: scored_a[m]["mse"] for m in methods})
         per_flight.append({"flight": flight.name, "before": b, "after": a})

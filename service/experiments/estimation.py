@@ -18,7 +18,7 @@ from learnest.estimators.mhe import MHE
 from learnest.estimators.results import FilterResult
 from learnest.estimators.ukf import run_ukf
 from learnest.ingest.flight import Flight
-from learnest.models.inputs import system_inputs
+from learnest.models.inputs import calibrates_thrust_gain, system_inputs
 from learnest.models.knode import HybridModel
 from learnest.models.presets import METHODS, MHE_HORIZON, parse_methods
 
@@ -56,7 +56,8 @@ def _checked(model: HybridModel, flight: Flight):
     system = system_for(flight, model.system.name)
     if model.meta.get("measurement_effects"):  # a model a diagnosis repaired sees the flight as evaluate does
         flight = corrected_flight(flight, model.meta["measurement_effects"])
-    return system, flight.measurements(), system_inputs(flight, system), initial_state(flight)
+    u = system_inputs(flight, system, thrust_gain=calibrates_thrust_gain(model.meta, model.kind))
+    return system, flight.measurements(), u, initial_state(flight)
 
 
 def ukf(model: HybridModel, flight: Flight, alpha: float = 1e-3) -> FilterResult:

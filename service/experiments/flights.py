@@ -25,8 +25,11 @@ from learnest.models.effects import correct_acc_body, world_from_body
 from learnest.models.envelope import envelope_report
 from learnest.models.inputs import (
     ATTITUDE_CALIBRATED,
+    THRUST_GAIN_CALIBRATED,
     THRUST_THROUGH_ATTITUDE,
+    calibrates_thrust_gain,
     flight_thrust_axis,
+    flight_thrust_gain,
     system_inputs,
     training_meta,
 )
@@ -73,7 +76,7 @@ def train_on_flight(flight: Flight, config: TrainingConfig = CRAZYFLIE_TRAINING,
     in its meta.  ``progress`` is called as ``progress(epoch, mean_training_loss)``.  Raises
     `models.inputs.MissingInputs` when the prior needs inputs the flight lacks."""
     prior = system_for(flight, system)
-    y, u = flight.measurements(), system_inputs(flight, prior)
+    y, u = flight.measurements(), system_inputs(flight, prior, thrust_gain=True)
     zeta = pretraining_observer(prior, y, u, prior.dt)
     result = train_knode(prior, zeta, u, prior.dt, config, progress=progress)
     result.model.meta.update(training_meta(prior))   # evaluations check it: older models saw the raw attitude
@@ -94,12 +97,15 @@ def corrected_flight(flight: Flight, values: dict) -> Flight:
 def evaluate_flight(knode: HybridModel, flight: Flight, methods: Sequence[str], horizon: int = MHE_HORIZON,
                     sg_window: int = SG_WINDOW, keep_estimates: bool = False,
                     mhe_cache: dict[tuple, MHE] | None = None,
-                    on_stage: Callable[[str], object] | None = None, check_prediction: bool = False) -> dict:
+                    on_stage: Callable[[str], object] | None = None, check_prediction: bool = False,
+                    thrust_gain: bool | None = None) -> dict:
     """Scores of every method on one flight, against SG references of its mocap position.
 
     The prior-only rows use the model's own prior (which a diagnosis may have extended), and a model
     that carries measurement effects sees the flight with them corrected; the references always come
-    from the original mocap position.
+    from the original mocap position.  ``thrust_gain`` says whether the prior's thrust is scaled by the
+    flight's thrust gain (`models.inputs.system_inputs`); None decides by the model
+    (`models.inputs.calibrates_thrust_gain`), the diagnosis passes False.
 
     Returns
     -------
@@ -117,7 +123,10 @@ def evaluate_flight(knode: HybridModel, flight: Flight, methods: Sequence[str], 
     measured = flight
     if knode.meta.get("measurement_effects"):
         measured = corrected_flight(flight, knode.meta["measurement_effects"])
-    y, u, x0 = measured.measurements(), system_inputs(flight, system), initial_state(measured)
+    if thrust_gain is None:
+        thrust_gain = calibrates_thrust_gain(knode.meta, knode.kind)
+    u = system_inputs(flight, system, thrust_gain=thrust_gain)
+    y, x0 = measured.measurements(), initial_state(measured)
     mhe_cache = {} if mhe_cache is None else mhe_cache
     results = evaluate_sequence(methods, prior, knode, y, u, flight.dt, system.Q, system.R, x0, system.P0, reference,
                                 horizon=horizon, keep_estimates=keep_estimates, mhe_cache=mhe_cache,
@@ -159,7 +168,7 @@ def flight_envelope(knode: HybridModel, flight: Flight) -> dict | None:
     system = system_for(flight, knode.system.name)
     measured = corrected_flight(flight, knode.meta["measurement_effects"]) \
         if knode.meta.get("measurement_effects") else flight
-    u = system_inputs(flight, system)
+    u = system_inputs(flight, system, thrust_gain=calibrates_thrust_gain(knode.meta, knode.kind))
     return envelope_report(envelope, pretraining_observer(system, measured.measurements(), u, system.dt), u,
                            residual=knode.residual)
 
@@ -172,10 +181,11 @@ def _is_training_flight(knode: HybridModel, flight: Flight) -> bool:
 
 
 def _trained_on_other_attitude(knode: HybridModel) -> bool:
-    """A KNODE of a thrust-through-attitude prior trained on another attitude input than evaluations now feed
-    it: before the thrust-axis calibration (the raw mocap attitude) or before the heading was removed."""
+    """A KNODE of a thrust-through-attitude prior trained on an attitude input evaluations no longer make:
+    before the thrust-axis calibration (the raw mocap attitude) or before the heading was removed.  One
+    trained before the per-flight thrust gain is fed its own inputs (`calibrates_thrust_gain`)."""
     return (knode.kind == "knode" and knode.system.name in THRUST_THROUGH_ATTITUDE
-            and knode.meta.get("attitude_input") != ATTITUDE_CALIBRATED)
+            and knode.meta.get("attitude_input") not in (ATTITUDE_CALIBRATED, THRUST_GAIN_CALIBRATED))
 
 
 def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequence[str], include_bad: bool = False,
@@ -194,7 +204,9 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
     the training flight in vehicle, sensor rates, attitude source, mass or controller
     (`ingest.profile.profile_mismatches`; none for a model that recorded no ``training_profile``).
     A prior that turns thrust into acceleration through the attitude (the Crazyflie's) gets the mocap
-    attitude calibrated onto each flight's thrust axis; ``thrust_axis_offset_deg`` [x, y] says by how much.
+    attitude calibrated onto each flight's thrust axis; ``thrust_axis_offset_deg`` [x, y] says by how much;
+    and, unless the model was trained before it, its thrust map scaled by the flight's ``thrust_gain``
+    (`models.thrust_gain`).
     ``progress`` is called with each flight's entry;
     ``on_estimates(index, FlightEstimates)`` with the per-step estimates of each scored flight (index into
     ``flights``), when given; ``on_stage`` with each method's name before it runs and "MHE build (...)"
@@ -224,12 +236,15 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
             entry["prediction_check"] = out["prediction_check"]
             if knode.system.name in THRUST_THROUGH_ATTITUDE:   # the calibration the prior's attitude input got
                 entry["thrust_axis_offset_deg"] = [round(float(np.degrees(d)), 3) for d in flight_thrust_axis(flight)]
+                if calibrates_thrust_gain(knode.meta, knode.kind):   # and the thrust gain its prior got
+                    entry["thrust_gain"] = round(flight_thrust_gain(flight, knode.system, system_inputs(
+                        flight, system_for(flight, knode.system.name))), 5)
         # a flight from another vehicle, sensor rate or attitude source: scored, with a warning
         warnings = profile_mismatches(knode.meta.get("training_profile"), flight_profile(flight))
         if not entry["excluded"] and _trained_on_other_attitude(knode):
             trained_on = knode.meta.get("attitude_input") or "the mocap attitude as logged"
             warnings.append(f"the model was trained on another attitude input ({trained_on}) than evaluations now "
-                            f"use ({ATTITUDE_CALIBRATED}): retrain it for consistent inputs")
+                            f"use ({THRUST_GAIN_CALIBRATED}): retrain it for consistent inputs")
         entry["warnings"] = warnings
         reports.append(entry)
         if progress:

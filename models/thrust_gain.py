@@ -1,0 +1,110 @@
+"""The Crazyflie prior's thrust gain on one flight: one number, calibrated from the mocap pose and the inputs.
+
+Why: the prior's thrust map has one set of parameters for a vehicle, but the thrust per PWM and volt moves
+from flight to flight: the motors warm over a session (`benchmarks/motor_heating.py`: 2-3 % of thrust per
+flight), a battery sags differently, a payload changes what the thrust must carry.  On the NanoBench flights
+the mean body-z specific force the mocap sees is 0.98-1.01 of what the identified map predicts, and a 1 %
+error is 0.1 m/s² of vertical acceleration all flight long.  The KNODE residual learned its training flight's
+offset and carried it to the others, where it fits or not by chance (`benchmarks/README.md`, "Per-flight
+thrust gain").  Calibrated per flight, the prior-only UKF's median MSE falls by 1 % on the figure-eights and
+11 % on the circles, and every estimator's median falls in both transfer directions.
+
+The gain c is the ratio of the mocap's to the prior's body-z specific force, summed over the airborne samples:
+mocap R(q)ᵀ(p̈ + g e₃)·e₃ with p̈ from twice-differentiated position, low-passed at 2 Hz like the thrust axis
+(`models.thrust_axis`), against `models.crazyflie.specific_force_body` on the same attitude, velocity, height
+and inputs.  It is applied through the battery voltage the prior sees, V → V·c^(1/γ): the prior's thrust is
+∝ (V/V_ref)^γ, so this multiplies it by c exactly and keeps the inputs' shape (stored models, generated code).
+
+Offline, like the thrust axis: one number from the whole record, later samples included.  It needs a
+flight: a record with less than `MIN_AIRBORNE_S` above the floor, or a prior whose |γ| is below `MIN_GAMMA`
+(the voltage cannot carry the gain), keeps gain 1.  The diagnosis does not calibrate it: a payload or a
+thrust-gain effect is what it looks for, and the gain would absorb it.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from learnest.ingest.align import FLYING_HEIGHT_M
+from learnest.ingest.frames import GRAVITY
+
+from . import crazyflie as cf
+from .thrust_axis import EDGE_S, LOWPASS_HZ
+
+MIN_AIRBORNE_S = 3.0
+MIN_GAMMA = 0.1
+GAIN_BOUNDS = (1.0 / 3.0, 3.0)    # beyond these the thrust map is not this vehicle's, or the inputs are wrong
+VBAT = cf.INPUT_NAMES.index("vbat")
+
+
+def thrust_gain(p: np.ndarray, u: np.ndarray, dt: float, params: dict) -> float:
+    """The flight's thrust gain against the prior's thrust map.
+
+    Parameters
+    ----------
+    p : ndarray, shape (T, 3)
+        Mocap position, world frame (z up, the floor at 0), m.
+    u : ndarray, shape (T, 9)
+        The prior's inputs (`models.crazyflie.INPUT_NAMES`): attitude (scalar-last quaternion, already on the
+        thrust axis), PWM of motors 1..4, battery voltage (V).
+    dt : float
+        Sample time, s.
+    params : dict
+        The prior's parameters (`models.crazyflie.IDENTIFIED` keys).
+
+    Returns
+    -------
+    float
+        c, the mocap's body-z specific force over the prior's, summed over the airborne samples (1 for a
+        record with less than `MIN_AIRBORNE_S` airborne or sampled too coarsely to low-pass).
+
+    Raises
+    ------
+    ValueError
+        If c lies outside `GAIN_BOUNDS` (the thrust map, the PWM or the voltage are not this vehicle's).
+    """
+    from learnest.models.identify import lowpass
+
+    p, u = np.asarray(p, dtype=float), np.asarray(u, dtype=float)
+    edge = int(round(EDGE_S / dt))
+    if 1.0 / dt < 2.5 * LOWPASS_HZ or len(p) <= 2 * edge + 2:
+        return 1.0
+    velocity = np.gradient(p, dt, axis=0)
+    acceleration = lowpass(np.gradient(velocity, dt, axis=0), dt, LOWPASS_HZ)
+    R = np.array(cf.rotation_columns(*u[:, :4].T))                       # (3, 3, T), body -> world
+    measured = np.einsum("it,ti->t", R[:, 2, :], acceleration + np.array([0.0, 0.0, GRAVITY]))
+    predicted = np.asarray(cf.specific_force_body(list(lowpass(velocity, dt, LOWPASS_HZ).T), p[:, 2],
+                                                  list(u.T), params)[0][2], dtype=float)
+    airborne = np.zeros(len(p), dtype=bool)
+    airborne[edge:len(p) - edge] = p[edge:len(p) - edge, 2] > FLYING_HEIGHT_M
+    airborne &= np.isfinite(measured) & np.isfinite(predicted)
+    if airborne.sum() * dt < MIN_AIRBORNE_S:
+        return 1.0
+    gain = float(np.sum(measured[airborne]) / np.sum(predicted[airborne]))
+    if not GAIN_BOUNDS[0] <= gain <= GAIN_BOUNDS[1]:
+        raise ValueError(f"the mocap sees {gain:.2f} times the thrust the prior's map predicts from the motors and "
+                         f"the battery (expected within {GAIN_BOUNDS[0]:.2f}-{GAIN_BOUNDS[1]:.0f}): are the PWM and "
+                         "voltage channels this vehicle's, in their units?")
+    return gain
+
+
+def with_thrust_gain(u: np.ndarray, gain: float, gamma: float) -> np.ndarray:
+    """The inputs with the battery voltage scaled by gain^(1/gamma), so the prior's thrust is scaled by gain.
+
+    Parameters
+    ----------
+    u : ndarray, shape (T, 9)
+        `models.crazyflie.INPUT_NAMES` inputs.
+    gain : float
+        `thrust_gain`.
+    gamma : float
+        The prior's voltage exponent (thrust ∝ V^gamma); below `MIN_GAMMA` in magnitude u is returned as is.
+
+    Returns
+    -------
+    ndarray, shape (T, 9)
+        A copy, voltage column scaled.
+    """
+    u = np.array(u, dtype=float)
+    if abs(gamma) >= MIN_GAMMA and gain != 1.0:
+        u[:, VBAT] *= gain ** (1.0 / gamma)
+    return u
