@@ -22,8 +22,9 @@ log = logging.getLogger("learnest.jobs")
 
 # What a cached flight entry holds and how it was computed.  2 (stop 15): each entry has a `prediction_check`,
 # and a Crazyflie model's attitude input has no heading; an entry of format 1 would show "nothing flagged"
-# where nothing was checked, and mix inputs with newly computed flights of the same model.
-ENTRY_FORMAT = 2
+# where nothing was checked, and mix inputs with newly computed flights of the same model.  3 (stop 16): a
+# Crazyflie prior scales its thrust by the flight's thrust gain (entries carry `thrust_gain`).
+ENTRY_FORMAT = 3
 
 
 @dataclass(frozen=True)
@@ -90,6 +91,7 @@ def store_result(db: Database, sha: str, version_id: int, key: str, flight_id: i
     """Insert or update the result of one flight (failed when ``error`` is given), with the blob of its
     per-step estimates (`FlightEstimates.to_bytes`, written before this call); retried on a concurrent
     insert; after three conflicts the result is not cached (logged: the evaluation's report still has it).
+    A failure never replaces a stored success of the same flight, model version and settings.
 
     Returns the estimates blob the update replaced (for the caller to collect), else None."""
     state = "failed" if error else "succeeded"
@@ -102,6 +104,12 @@ def store_result(db: Database, sha: str, version_id: int, key: str, flight_id: i
                     session.add(Result(flight_sha256=sha, model_version_id=version_id, settings_key=key,
                                        flight_id=flight_id, state=state, entry=entry, error=error,
                                        estimates_blob=estimates_blob, created_at=utcnow()))
+                    return None
+                if error and row.state == "succeeded":
+                    # the same code on the same flight, model and settings succeeded before: this failure is
+                    # the machine's (a server shutting down, a lost worker), so the stored result is kept
+                    log.warning("flight %s (version %s) failed (%s); its earlier result is kept", flight_id,
+                                version_id, error)
                     return None
                 previous = row.estimates_blob
                 row.state, row.entry, row.error, row.created_at = state, entry, error, utcnow()
