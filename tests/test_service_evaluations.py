@@ -63,6 +63,10 @@ def assert_same_numbers(report: dict, expected: dict) -> None:
         assert got.get("prediction_check") == want.get("prediction_check")
     assert report["outside_training_envelope"] == expected["outside_training_envelope"]
     assert report["knode_predicts_worse"] == expected["knode_predicts_worse"]
+    assert (report["recommended"] is None) == (expected["recommended"] is None)
+    if expected["recommended"] is not None:
+        assert report["recommended"]["prior_on"] == expected["recommended"]["prior_on"]
+        assert report["recommended"]["median"] == pytest.approx(expected["recommended"]["median"], rel=1e-9)
 
 
 def test_report_equals_evaluate_flights_and_is_cached(registry_home):
@@ -99,6 +103,8 @@ def test_report_equals_evaluate_flights_and_is_cached(registry_home):
         assert "outside what this model saw" in html.text      # the training-envelope column
         ratio = report["flights"][1]["prediction_check"]["innovation_ratio"]
         assert "id='prediction-check'" in html.text and f"{ratio:.2f}" in html.text
+        recommended_ukf = report["recommended"]["median"]["ukf"]
+        assert "id='recommended'" in html.text and f"UKF {recommended_ukf * 1e3:.3f}" in html.text
         assert report["flights"][0]["envelope"]["threshold"] > 0
         # the envelope is stored with the version (registry metadata), not only in the weights file
         metrics = client.get("/models/quad").json()
@@ -140,6 +146,7 @@ def test_dask_executor_gives_the_local_pool_numbers(registry_home):
             accepted = client.post("/evaluations", json=request).json()
             assert accepted["state"] == "queued"   # computed, not cached
             dask_report = evaluate(client, request["model"], request["flights"], horizon=7)[1]
+            assert wait_for_job(client, accepted["job_id"])["state"] == "succeeded"  # not cut off by the exit
     finally:
         executor.shutdown()
     assert without_timing(dask_report) == without_timing(local)
@@ -387,3 +394,30 @@ def test_estimates_download_as_csv_parquet_and_mcap(registry_home):
         assert kept and None not in kept and kept <= blob_files(home)
         assert client.delete(f"/flights/{ids[2]}").status_code == 204
         assert not kept & blob_files(home)
+
+
+def test_a_failure_never_replaces_a_stored_success(registry_home):
+    """A flight that succeeded and then fails with the same model and settings (a server shutting down
+    under a running job, a lost Dask worker) keeps its stored result and estimates."""
+    from sqlalchemy import select
+
+    from learnest.service.jobs.result_cache import store_result
+    from learnest.service.storage.tables import Result
+
+    home, ids = registry_home["home"], registry_home["ids"]
+    with running_app(home) as client:
+        evaluate(client, "quad:1", [ids[1]])       # computed, or answered from the results cache
+        database = client.app.state.services.db
+        with database.transaction() as session:
+            row = session.scalars(select(Result).where(Result.state == "succeeded", Result.flight_id == ids[1],
+                                                       Result.estimates_blob.is_not(None))).first()
+            before = (row.flight_sha256, row.model_version_id, row.settings_key, row.flight_id, row.entry,
+                      row.estimates_blob)
+        sha, version_id, key, flight_id, entry, blob = before
+        failure = {"flight": "x", "excluded": True, "reason": "failed: worker lost", "mse": {}, "failed": True}
+        assert store_result(database, sha, version_id, key, flight_id, failure, "worker lost") is None
+        with database.transaction() as session:
+            kept = session.scalar(select(Result).where(Result.flight_sha256 == sha, Result.settings_key == key,
+                                                       Result.model_version_id == version_id))
+            assert (kept.state, kept.entry, kept.estimates_blob, kept.error) == ("succeeded", entry, blob, None)
+        assert client.get(f"/flights/{flight_id}").status_code == 200
