@@ -21,6 +21,10 @@ Specific force in the body frame (what the accelerometer reads, m/s²), with v_b
 
 G(z) = 1 / (1 − (r_m / (4 z))²) is Cheeseman & Bennett's ground-effect factor (z above the floor, z = 0
 in the mocap frame), and the world acceleration is a = R f_b − g e₃.
+
+Motor heating (`kappa_th`, `tau_th_s`) multiplies the thrust by 1 − kappa_th·h, h a thermal state of the
+inputs' history (`models.motor_heating`); it is not a function of (x, u) at one instant, so it is applied to
+the inputs before they reach these functions (`models.inputs.system_inputs`, `models.identify`).
 """
 from __future__ import annotations
 
@@ -75,6 +79,10 @@ PUBLIC = {
     # of magnitude of small brushed motors and the value issue 14's simulated tests use.
     "tau_s": 0.03,
     "v_ref": V_REF,
+    # No published thermal model of the Crazyflie's motors was found: no heating, and the identified time
+    # constant (models.motor_heating).
+    "kappa_th": 0.0,
+    "tau_th_s": 75.0,
 }
 
 # Fitted on the 16 usable NanoBench flights of CF_01 (benchmarks/crazyflie_physics.py, all flights
@@ -90,6 +98,10 @@ IDENTIFIED = {
     "r_m": BITCRAZE_ROTOR_RADIUS_M,   # not identifiable at 1 m flying height: the public value is kept
     "tau_s": 0.061,
     "v_ref": V_REF,
+    # motor heating (models.motor_heating), fitted after the rest with a free thrust gain per flight
+    # (benchmarks/crazyflie_heating_prior.py): thrust × (1 − kappa_th·h), τ_th ḣ = P − h
+    "kappa_th": 0.055,
+    "tau_th_s": 75.0,
 }
 
 # Plausible ranges: fits are constrained to them and the effect library may use them as priors.
@@ -102,10 +114,12 @@ BOUNDS = {
     "r_m": (0.0, 0.1),
     "tau_s": (0.0, 0.3),
     "v_ref": (V_REF, V_REF),
+    "kappa_th": (0.0, 0.3),
+    "tau_th_s": (5.0, 600.0),
 }
 
 UNITS = {"m_kg": "kg", "gamma": "1", "q_pwm2": "1", "k_xy": "1/s", "k_z": "1/s", "r_m": "m", "tau_s": "s",
-         "v_ref": "V"}
+         "v_ref": "V", "kappa_th": "1", "tau_th_s": "s"}
 
 # Issue 14's effect contract: effect id -> its parameters and the one-line equation it adds to the prior.
 # Nominal values: PUBLIC (published) and IDENTIFIED (NanoBench); ranges: BOUNDS; units: UNITS.

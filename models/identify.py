@@ -20,6 +20,7 @@ from learnest.ingest.flight import Flight
 from learnest.ingest.frames import quat_to_matrix
 
 from .crazyflie import BOUNDS, GRAVITY, PUBLIC, specific_force_body
+from .motor_heating import with_motor_heating
 
 LOWPASS_HZ = 5.0
 EDGE_S = 0.5
@@ -97,8 +98,10 @@ def first_order_lag(x: np.ndarray, tau: float, dt: float) -> np.ndarray:
 
 
 def predict_body_force(arrays: FlightArrays, params: dict) -> np.ndarray:
-    """(T, 3) body-frame specific force predicted from the inputs, lagged by tau_s, low-passed."""
-    f_b, _ = specific_force_body(list(arrays.v_world.T), arrays.z, list(arrays.u.T), params)
+    """(T, 3) body-frame specific force predicted from the inputs (the motors' heating applied when ``params``
+    has ``kappa_th``, `models.motor_heating`), lagged by tau_s, low-passed."""
+    u, _ = with_motor_heating(arrays.u, arrays.dt, params)
+    f_b, _ = specific_force_body(list(arrays.v_world.T), arrays.z, list(u.T), params)
     f_b = np.column_stack([np.broadcast_to(c, arrays.z.shape) for c in f_b])
     return lowpass(first_order_lag(f_b, params.get("tau_s", 0.0), arrays.dt), arrays.dt)
 

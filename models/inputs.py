@@ -11,6 +11,7 @@ import numpy as np
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 
+from .motor_heating import with_motor_heating
 from .systems import System
 from .thrust_axis import calibrated_attitude, heading_removed, thrust_axis_offset
 from .thrust_gain import thrust_gain, with_thrust_gain
@@ -29,9 +30,11 @@ NEEDED = {"crazyflie": ("motors", "vbat")}
 THRUST_THROUGH_ATTITUDE = frozenset({"crazyflie"})
 # what a model trained on such inputs records in meta["attitude_input"]; since stop 16 the battery voltage
 # also carries the flight's thrust gain (`models.thrust_gain`).  A model keeps being fed the inputs it was
-# trained on: one of these two, else it is scored with a warning to retrain.
+# trained on: one of these two, else it is scored with a warning to retrain.  (The motors' heating, since stop
+# 17, is a parameter of the prior, `kappa_th`: a model trained before it has none in its stored prior.)
 ATTITUDE_CALIBRATED = "mocap attitude calibrated onto the thrust axis, heading removed"
 THRUST_GAIN_CALIBRATED = ATTITUDE_CALIBRATED + "; thrust gain calibrated per flight"
+INPUT_CALIBRATIONS = (ATTITUDE_CALIBRATED, THRUST_GAIN_CALIBRATED)
 
 
 class MissingInputs(InvalidInput):
@@ -60,7 +63,7 @@ def flight_thrust_axis(flight: Flight) -> np.ndarray:
 
 def flight_thrust_gain(flight: Flight, system: System, u: np.ndarray) -> float:
     """The flight's thrust gain against ``system``'s thrust map (`models.thrust_gain`), from the prior's inputs
-    ``u`` (T, 9) with the attitude already calibrated.
+    ``u`` (T, 9) with the attitude already calibrated and the motors' heating applied.
 
     Raises
     ------
@@ -75,8 +78,8 @@ def flight_thrust_gain(flight: Flight, system: System, u: np.ndarray) -> float:
 
 def training_meta(system: System, thrust_gain: bool = True) -> dict:
     """What a model trained on `system_inputs` of this system records about them in its meta: evaluations
-    feed it the same inputs (`calibrates_thrust_gain`; a model trained on the raw attitude is scored with a
-    warning)."""
+    feed it the same inputs (`input_calibration`; a model trained on the raw attitude is scored with a
+    warning).  ``thrust_gain``: trained with the per-flight thrust gain."""
     if system.name not in THRUST_THROUGH_ATTITUDE:
         return {}
     return {"attitude_input": THRUST_GAIN_CALIBRATED if thrust_gain else ATTITUDE_CALIBRATED}
@@ -88,13 +91,27 @@ def calibrates_thrust_gain(meta: dict | None, kind: str) -> bool:
     return kind == "prior" or (meta or {}).get("attitude_input") == THRUST_GAIN_CALIBRATED
 
 
-def system_inputs(flight: Flight, system: System, thrust_gain: bool = False) -> np.ndarray:
+def thrust_calibration(flight: Flight, system: System) -> dict:
+    """What the prior's thrust carries on this flight, for reports: ``heating_thrust_loss_pct``, the largest
+    thrust loss to the motors' heating (%, `models.motor_heating`; only for a prior with ``kappa_th``), and
+    ``thrust_gain``, the flight's gain against the heated map (`flight_thrust_gain`)."""
+    u = system_inputs(flight, system, motor_heating=False)
+    out = {}
+    if system.prior_params.get("kappa_th"):
+        u, out["heating_thrust_loss_pct"] = with_motor_heating(u, flight.dt, system.prior_params)
+    out["thrust_gain"] = flight_thrust_gain(flight, system, u)
+    return out
+
+
+def system_inputs(flight: Flight, system: System, thrust_gain: bool = False,
+                  motor_heating: bool = True) -> np.ndarray:
     """u (T, system.n_inputs) for this flight: empty for input-free systems, [quat, PWM x4, vbat] for crazyflie,
     whose attitude is calibrated onto the flight's thrust axis (`flight_thrust_axis`) and has its heading
-    removed (`models.thrust_axis.heading_removed`: the prior depends on the body z axis only).  With
-    ``thrust_gain``, the battery voltage is scaled so the prior's thrust carries the flight's thrust gain
-    (`flight_thrust_gain`, `models.thrust_gain.with_thrust_gain`); estimation asks for it, the diagnosis not
-    (the gain would absorb the payload and thrust effects it looks for)."""
+    removed (`models.thrust_axis.heading_removed`: the prior depends on the body z axis only).  Its battery
+    voltage is scaled so the prior's thrust carries the motors' heating (`models.motor_heating`, from the
+    prior's ``kappa_th``, ``tau_th_s``; ``motor_heating=False`` leaves it to the caller, as `models.identify`
+    does) and, with ``thrust_gain``, the flight's thrust gain (`flight_thrust_gain`); estimation asks for the
+    gain, the diagnosis not (the gain would absorb the payload and thrust effects it looks for)."""
     if system.n_inputs == 0:
         return np.zeros((len(flight.t), 0))
     if system.name not in NEEDED:
@@ -118,6 +135,9 @@ def system_inputs(flight: Flight, system: System, thrust_gain: bool = False) -> 
     if u.shape[1] != system.n_inputs:
         raise MissingInputs(f"{flight.name}: expected {system.n_inputs} input columns for {system.name!r}, got "
                             f"{u.shape[1]} (channels {', '.join(NEEDED[system.name])})")
-    if thrust_gain and system.name in THRUST_THROUGH_ATTITUDE:
-        u = with_thrust_gain(u, flight_thrust_gain(flight, system, u), system.prior_params["gamma"])
+    if system.name in THRUST_THROUGH_ATTITUDE:
+        if motor_heating:
+            u, _ = with_motor_heating(u, flight.dt, system.prior_params)
+        if thrust_gain:
+            u = with_thrust_gain(u, flight_thrust_gain(flight, system, u), system.prior_params["gamma"])
     return u

@@ -4,7 +4,8 @@ A position controller flies the input-driven model closed-loop along a varied pa
 cm above the floor (ground effect), a climb, circles at several speeds with climbs and descents (thrust
 and airspeed vary), a descent and a landing hover.  The battery sags linearly over the flight.  What the
 truth differs in from the prior (payload mass, voltage exponent, rotor drag, motor lag, ground effect) is
-set by ``truth``; the controller flies with the prior's thrust map and an integrator, as the firmware does.
+set by ``truth`` (its ``kappa_th``, ``tau_th_s``: motors that lose thrust as they warm, `models.motor_heating`,
+from cold at the start); the controller flies with the prior's thrust map and an integrator, as the firmware does.
 
 The Flight carries what a NanoBench log carries: mocap position and attitude, the accelerometer's
 body-frame specific force (``acc_body``, white noise, optionally the sensor's low-pass), the four motor PWM
@@ -24,6 +25,7 @@ from learnest.ingest.frames import GRAVITY
 from . import crazyflie as cf
 from .effects import world_from_body
 from .identify import lowpass
+from .motor_heating import P_REF_V2, PWM_FULL_SCALE
 
 SUBSTEPS = 5                    # integration steps per logged sample (2 ms at 100 Hz)
 KP, KD, KI = 6.0, 4.5, 2.0      # position loop (1/s², 1/s, 1/s³): a tight tracker, as a tuned Crazyflie's
@@ -159,6 +161,9 @@ def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int 
         else np.r_[1.0, np.zeros(SUBSTEPS)]
     gravity = np.array([0.0, 0.0, GRAVITY])
     p, v = p_ref[0].copy(), np.zeros(3)
+    heat = {"h": 0.0}      # the motors' thermal state (models.motor_heating), cold at the start
+    kappa_th = float(truth.get("kappa_th", 0.0))
+    heat_decay = np.exp(-dt / truth["tau_th_s"]) if kappa_th else 0.0
 
     def step(k: int, trim: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(R, u, commanded body specific force) at sample k: the controller's inputs and their effect."""
@@ -167,7 +172,10 @@ def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int 
         per_motor = ctrl["m_kg"] * trim * float(force @ R[:, 2]) / 4.0
         u = np.concatenate([quat, _pwm_for(per_motor * (1 + spread[k]), volts[k], ctrl), [volts[k]]])
         f_b, _ = cf.specific_force_body(list(v), p[2], list(u), truth)
-        return R, u, np.array([float(c) for c in f_b])
+        f_b = np.array([float(c) for c in f_b])
+        if kappa_th:   # warm motors: the thrust the truth's map gives (the force at rest: no drag), × (1 − κ h)
+            f_b[2] -= kappa_th * heat["h"] * float(cf.specific_force_body([0.0, 0.0, 0.0], p[2], list(u), truth)[0][2])
+        return R, u, f_b
 
     # start in a steady hover: the trim makes the controller's thrust hold the true vehicle, as the
     # firmware's integrator has done by the time a flight's log starts
@@ -186,6 +194,9 @@ def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int 
             p = p + h * v
         f = f_cmd + (f - f_cmd) * decay[-1]
         trim += KI * (p_ref[k, 2] - p[2]) * dt / GRAVITY
+        if kappa_th:   # exact step of τ h' = P − h with the power of this sample's inputs held
+            power = float(np.sum((u[4:8] / PWM_FULL_SCALE * u[8]) ** 2)) / P_REF_V2
+            heat["h"] = heat_decay * heat["h"] + (1.0 - heat_decay) * power
 
     acc = log_f + settings.accel_noise * rng.standard_normal(log_f.shape)
     if settings.accel_lpf_hz:

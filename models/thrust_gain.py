@@ -28,10 +28,10 @@ from learnest.ingest.align import FLYING_HEIGHT_M
 from learnest.ingest.frames import GRAVITY
 
 from . import crazyflie as cf
+from .motor_heating import MIN_GAMMA
 from .thrust_axis import EDGE_S, LOWPASS_HZ
 
 MIN_AIRBORNE_S = 3.0
-MIN_GAMMA = 0.1
 GAIN_BOUNDS = (1.0 / 3.0, 3.0)    # beyond these the thrust map is not this vehicle's, or the inputs are wrong
 VBAT = cf.INPUT_NAMES.index("vbat")
 

@@ -639,6 +639,11 @@ def format_report(report: dict) -> str:
     if gains:   # the thrust gain the prior got per flight (models.thrust_gain)
         lines.append("thrust gain vs the prior's thrust map (mocap / map): "
                      + ", ".join(f"{name} {gain:.3f}" for name, gain in gains.items()))
+    heating = {f["flight"]: f["heating_thrust_loss_pct"] for f in report["flights"]
+               if f.get("heating_thrust_loss_pct") is not None}
+    if heating:   # the motors' heating the prior's thrust carried (models.motor_heating)
+        lines.append("largest thrust loss to motor heating over the flight (%): "
+                     + ", ".join(f"{name} {loss:.1f}" for name, loss in heating.items()))
     for f in report["flights"]:   # another vehicle, sensor rate or attitude source than the training flight's
         lines += [f"WARNING {f['flight']}: {warning}" for warning in f.get("warnings") or []]
     return "\n".join(lines)

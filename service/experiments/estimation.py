@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
@@ -53,7 +54,9 @@ def _checked(model: HybridModel, flight: Flight):
     if model.system.name not in FLIGHT_SYSTEMS:
         raise InvalidInput(f"a {model.system.name!r} model cannot run on a flight; flights need one of "
                            f"{', '.join(FLIGHT_SYSTEMS)}")
-    system = system_for(flight, model.system.name)
+    # the model's own prior parameters: a diagnosis may have extended them, and a model trained before the
+    # motors' heating has none (models.motor_heating)
+    system = replace(system_for(flight, model.system.name), prior_params=dict(model.system.prior_params))
     if model.meta.get("measurement_effects"):  # a model a diagnosis repaired sees the flight as evaluate does
         flight = corrected_flight(flight, model.meta["measurement_effects"])
     u = system_inputs(flight, system, thrust_gain=calibrates_thrust_gain(model.meta, model.kind))

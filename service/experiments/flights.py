@@ -24,13 +24,13 @@ from learnest.ingest.profile import flight_profile, profile_mismatches
 from learnest.models.effects import correct_acc_body, world_from_body
 from learnest.models.envelope import envelope_report
 from learnest.models.inputs import (
-    ATTITUDE_CALIBRATED,
+    INPUT_CALIBRATIONS,
     THRUST_GAIN_CALIBRATED,
     THRUST_THROUGH_ATTITUDE,
     calibrates_thrust_gain,
     flight_thrust_axis,
-    flight_thrust_gain,
     system_inputs,
+    thrust_calibration,
     training_meta,
 )
 from learnest.models.knode import HybridModel
@@ -168,7 +168,8 @@ def flight_envelope(knode: HybridModel, flight: Flight) -> dict | None:
     system = system_for(flight, knode.system.name)
     measured = corrected_flight(flight, knode.meta["measurement_effects"]) \
         if knode.meta.get("measurement_effects") else flight
-    u = system_inputs(flight, system, thrust_gain=calibrates_thrust_gain(knode.meta, knode.kind))
+    u = system_inputs(flight, replace(system, prior_params=dict(knode.system.prior_params)),
+                      thrust_gain=calibrates_thrust_gain(knode.meta, knode.kind))
     return envelope_report(envelope, pretraining_observer(system, measured.measurements(), u, system.dt), u,
                            residual=knode.residual)
 
@@ -185,7 +186,7 @@ def _trained_on_other_attitude(knode: HybridModel) -> bool:
     before the thrust-axis calibration (the raw mocap attitude) or before the heading was removed.  One
     trained before the per-flight thrust gain is fed its own inputs (`calibrates_thrust_gain`)."""
     return (knode.kind == "knode" and knode.system.name in THRUST_THROUGH_ATTITUDE
-            and knode.meta.get("attitude_input") not in (ATTITUDE_CALIBRATED, THRUST_GAIN_CALIBRATED))
+            and knode.meta.get("attitude_input") not in INPUT_CALIBRATIONS)
 
 
 def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequence[str], include_bad: bool = False,
@@ -205,8 +206,9 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
     (`ingest.profile.profile_mismatches`; none for a model that recorded no ``training_profile``).
     A prior that turns thrust into acceleration through the attitude (the Crazyflie's) gets the mocap
     attitude calibrated onto each flight's thrust axis; ``thrust_axis_offset_deg`` [x, y] says by how much;
-    and, unless the model was trained before it, its thrust map scaled by the flight's ``thrust_gain``
-    (`models.thrust_gain`).
+    its thrust map scaled by the motors' heating where its prior has it (the largest loss over the flight in
+    ``heating_thrust_loss_pct``, `models.motor_heating`) and, unless the model was trained before it, by the
+    flight's ``thrust_gain`` (`models.thrust_gain`).
     ``progress`` is called with each flight's entry;
     ``on_estimates(index, FlightEstimates)`` with the per-step estimates of each scored flight (index into
     ``flights``), when given; ``on_stage`` with each method's name before it runs and "MHE build (...)"
@@ -236,9 +238,10 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
             entry["prediction_check"] = out["prediction_check"]
             if knode.system.name in THRUST_THROUGH_ATTITUDE:   # the calibration the prior's attitude input got
                 entry["thrust_axis_offset_deg"] = [round(float(np.degrees(d)), 3) for d in flight_thrust_axis(flight)]
-                if calibrates_thrust_gain(knode.meta, knode.kind):   # and the thrust gain its prior got
-                    entry["thrust_gain"] = round(flight_thrust_gain(flight, knode.system, system_inputs(
-                        flight, system_for(flight, knode.system.name))), 5)
+                if calibrates_thrust_gain(knode.meta, knode.kind):   # and the thrust its prior got
+                    system = replace(system_for(flight, knode.system.name),
+                                     prior_params=dict(knode.system.prior_params))
+                    entry.update({name: round(value, 5) for name, value in thrust_calibration(flight, system).items()})
         # a flight from another vehicle, sensor rate or attitude source: scored, with a warning
         warnings = profile_mismatches(knode.meta.get("training_profile"), flight_profile(flight))
         if not entry["excluded"] and _trained_on_other_attitude(knode):
