@@ -130,6 +130,9 @@ EFFECTS = {
     "rotor_drag": {"params": ("k_xy", "k_z"), "equation": "f_b −= diag(k_xy, k_xy, k_z)·Rᵀ v"},
     "ground_effect": {"params": ("r_m",), "equation": "Σ T_i /= 1 − (r_m / (4 z))²  (Cheeseman–Bennett)"},
     "motor_lag": {"params": ("tau_s",), "equation": "ȧ = (a_cmd(v, z, u) − a) / tau_s"},
+    # tau_th_s is held at the prior's: flights of 20-40 s determine kappa_th/tau_th_s, not both (models.motor_heating)
+    "motor_heating": {"params": ("kappa_th",),
+                      "equation": "Σ T_i ×= 1 − kappa_th·h,  tau_th_s·ḣ = Σ (p_i V)² / P_ref − h  (cold at the start)"},
 }
 
 # The inputs the prior needs, in order: mocap attitude (scalar last), 4 motor PWM, battery voltage.

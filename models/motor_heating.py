@@ -45,8 +45,10 @@ def hover_power(params: dict) -> float:
     return 4.0 * (duty * params.get("v_ref", cf.V_REF)) ** 2
 
 
-# the electrical power scale of h: NanoBench's vehicle hovering at V_ref (≈ 36.7 V²)
-P_REF_V2 = hover_power(cf.IDENTIFIED)
+# the electrical power scale of h, V²: NanoBench's vehicle hovering at V_ref (`hover_power(cf.IDENTIFIED)` when
+# kappa_th was identified).  A number, not that call: a stored kappa_th means a loss per unit of this h, which
+# must not move if the thrust map's parameters are ever refitted.
+P_REF_V2 = 36.72689857119545
 
 
 def thermal_state(u: np.ndarray, dt: float, tau_th_s: float) -> np.ndarray:

@@ -9,11 +9,18 @@ import numpy as np
 import pytest
 
 from learnest.models import crazyflie as cf
-from learnest.models.inputs import THRUST_GAIN_CALIBRATED, flight_thrust_gain, system_inputs
+from learnest.models.inputs import (
+    ATTITUDE_CALIBRATED,
+    THRUST_GAIN_CALIBRATED,
+    flight_thrust_gain,
+    system_inputs,
+    thrust_calibration,
+)
 from learnest.models.knode import HybridModel, Residual
 from learnest.models.motor_heating import P_REF_V2, hover_power, thermal_state, with_motor_heating
 from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.models.systems import make_system
+from learnest.models.thrust_gain import with_thrust_gain
 from learnest.service.cli import format_report
 from learnest.service.experiments.flights import evaluate_flights
 
@@ -37,7 +44,8 @@ def test_the_thermal_state_is_the_first_order_step_response_and_causal():
     later = u.copy()
     later[1500:, 4:8] = 0.0                       # motors off from sample 1500: nothing before it changes
     np.testing.assert_array_equal(thermal_state(later, dt, tau)[:1501], h[:1501])
-    assert P_REF_V2 == pytest.approx(4 * (cf.hover_pwm(cf.IDENTIFIED) / 65535 * cf.V_REF) ** 2)
+    # the scale kappa_th was identified with: refitting the thrust map must not move it silently
+    assert P_REF_V2 == pytest.approx(hover_power(cf.IDENTIFIED), rel=1e-5)
     # a heavier vehicle works its motors harder and warms more: P_REF is a fixed electrical scale
     assert hover_power({**cf.IDENTIFIED, "m_kg": 0.023}) > 1.2 * P_REF_V2
 
@@ -109,3 +117,24 @@ def test_estimation_heats_the_motors_of_priors_that_have_it_and_reports_the_loss
     assert "heating_thrust_loss_pct" not in before and before["thrust_gain"] < 0.98 and not before["warnings"]
     assert entry["mse"]["ukf"] < before["mse"]["ukf"], (entry["mse"], before["mse"])
     assert f"{flight.name} {entry['heating_thrust_loss_pct']:.1f}" in format_report(reports["warm"])
+
+
+def test_estimation_inputs_are_the_heating_then_the_gain_and_reports_say_what_was_applied():
+    flight = _warm_flight(4)
+    system = replace(make_system("crazyflie"), dt=flight.dt, prior_params=dict(WARM))
+    raw = system_inputs(flight, system, motor_heating=False)
+    heated, loss = with_motor_heating(raw, flight.dt, WARM)
+    gain = flight_thrust_gain(flight, system, heated)
+    np.testing.assert_array_equal(system_inputs(flight, system), heated)
+    np.testing.assert_array_equal(system_inputs(flight, system, thrust_gain=True),
+                                  with_thrust_gain(heated, gain, WARM["gamma"]))
+    assert thrust_calibration(flight, system) == {"heating_thrust_loss_pct": loss, "thrust_gain": gain}
+    assert thrust_calibration(flight, system, thrust_gain=False) == {"heating_thrust_loss_pct": loss}
+    # a voltage exponent that cannot carry a factor: nothing applied, and the report says gain 1, no loss
+    flat = replace(system, prior_params={**WARM, "gamma": 0.05})
+    np.testing.assert_array_equal(system_inputs(flight, flat, thrust_gain=True), raw)
+    assert thrust_calibration(flight, flat) == {"heating_thrust_loss_pct": 0.0, "thrust_gain": 1.0}
+    # a model scored without the gain (a diagnosis's repaired one) still reports the heating its prior applied
+    report = evaluate_flights(_zero_knode(system, {"attitude_input": ATTITUDE_CALIBRATED}), [flight], ["ukf"])
+    entry = report["flights"][0]
+    assert entry["heating_thrust_loss_pct"] == pytest.approx(loss, abs=1e-5) and "thrust_gain" not in entry

@@ -390,7 +390,8 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
     sides low-passed at 5 Hz); effects are selected on the fitting flights (`_split_crazyflie`) and scored
     on the others: the RMSE of the specific force predicted from the inputs alone (``specific_force_rmse``,
     m/s²) and, for each of ``methods``, the estimator's MSE with the prior before and after (KNODE methods
-    train a KNODE on the first fitting flight, ``epochs`` epochs, on each prior).
+    train a KNODE on the first fitting flight, ``epochs`` epochs, on each prior).  ``prior`` holds the prior's
+    parameters (`models.crazyflie.IDENTIFIED` keys); by default ``knode``'s own, else ``IDENTIFIED``.
 
     Returns
     -------
@@ -409,7 +410,9 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
     if knode is not None and knode.system.name != "crazyflie":
         raise InvalidInput(f"model {knode.meta.get('name') or ''} has the {knode.system.name!r} prior: diagnosing "
                            "with --system crazyflie needs a model trained with the crazyflie prior")
-    prior = dict(cf.IDENTIFIED if prior is None else prior)
+    if prior is None:   # a user's model is diagnosed against its own prior (one trained before the heating has none)
+        prior = knode.system.prior_params if knode is not None else cf.IDENTIFIED
+    prior = dict(prior)
     flights = [f for f in flights if f.quality["ok"]] or flights
     for flight in flights:
         system_inputs(flight, system_for(flight, "crazyflie"))   # MissingInputs names what a flight lacks

@@ -238,10 +238,10 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
             entry["prediction_check"] = out["prediction_check"]
             if knode.system.name in THRUST_THROUGH_ATTITUDE:   # the calibration the prior's attitude input got
                 entry["thrust_axis_offset_deg"] = [round(float(np.degrees(d)), 3) for d in flight_thrust_axis(flight)]
-                if calibrates_thrust_gain(knode.meta, knode.kind):   # and the thrust its prior got
-                    system = replace(system_for(flight, knode.system.name),
-                                     prior_params=dict(knode.system.prior_params))
-                    entry.update({name: round(value, 5) for name, value in thrust_calibration(flight, system).items()})
+                # and what its prior's thrust carried: the motors' heating, the flight's thrust gain
+                system = replace(system_for(flight, knode.system.name), prior_params=dict(knode.system.prior_params))
+                thrust = thrust_calibration(flight, system, calibrates_thrust_gain(knode.meta, knode.kind))
+                entry.update({name: round(value, 5) for name, value in thrust.items()})
         # a flight from another vehicle, sensor rate or attitude source: scored, with a warning
         warnings = profile_mismatches(knode.meta.get("training_profile"), flight_profile(flight))
         if not entry["excluded"] and _trained_on_other_attitude(knode):
