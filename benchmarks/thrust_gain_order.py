@@ -17,7 +17,7 @@ from learnest.models.inputs import flight_thrust_gain, system_inputs
 from learnest.service.experiments.flights import log_start_ns, system_for
 
 DATA = Path("../shared/data/nanobench")
-BREAK_MIN = 5.0          # a gap this long since the previous log ended: the motors have cooled (τ_th ≈ 45 s)
+BREAK_MIN = 5.0          # a gap this long since the previous log ended: the motors have cooled (τ_th 45-75 s)
 
 
 def main(argv=None) -> int:
