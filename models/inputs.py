@@ -78,7 +78,7 @@ def flight_thrust_gain(flight: Flight, system: System, u: np.ndarray) -> float:
 
 def training_meta(system: System, thrust_gain: bool = True) -> dict:
     """What a model trained on `system_inputs` of this system records about them in its meta: evaluations
-    feed it the same inputs (`input_calibration`; a model trained on the raw attitude is scored with a
+    feed it the same inputs (`calibrates_thrust_gain`; a model trained on the raw attitude is scored with a
     warning).  ``thrust_gain``: trained with the per-flight thrust gain."""
     if system.name not in THRUST_THROUGH_ATTITUDE:
         return {}

@@ -165,11 +165,11 @@ def flight_envelope(knode: HybridModel, flight: Flight) -> dict | None:
     envelope = knode.meta.get("envelope")
     if not envelope:
         return None
-    system = system_for(flight, knode.system.name)
+    # the model's own prior, as in training: its parameters drive the observer and the motors' heating
+    system = replace(system_for(flight, knode.system.name), prior_params=dict(knode.system.prior_params))
     measured = corrected_flight(flight, knode.meta["measurement_effects"]) \
         if knode.meta.get("measurement_effects") else flight
-    u = system_inputs(flight, replace(system, prior_params=dict(knode.system.prior_params)),
-                      thrust_gain=calibrates_thrust_gain(knode.meta, knode.kind))
+    u = system_inputs(flight, system, thrust_gain=calibrates_thrust_gain(knode.meta, knode.kind))
     return envelope_report(envelope, pretraining_observer(system, measured.measurements(), u, system.dt), u,
                            residual=knode.residual)
 
