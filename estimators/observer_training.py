@@ -9,7 +9,10 @@ benchmarks/results/table1_observer_study.md):
   RTS smoother with the prior instead of the model-free kinematic KF + RTS);
 * ``rounds > 0``: after training, smooth the record again with the learned model (`model_smoother`) and
   train on those estimates; stop when the learned model explains the measurements no better than the
-  previous round's (mean squared forward innovation, whitened by R: it needs no ground truth).
+  previous round's (mean squared forward innovation, whitened by R: it needs no ground truth);
+* ``observer="joint"``: the filter's estimates only start a joint fit of the record's states and Δθ
+  (`models.joint_training.train_jointly`, the full-record MHE with the network free), so the states the
+  network learns from must also follow the learned model.
 """
 from __future__ import annotations
 
@@ -25,7 +28,7 @@ from learnest.models.training import TrainingResult, train_knode
 
 from .observers import model_smoother, observe_robot, pretraining_observer
 
-OBSERVER_KINDS = ("filter", "smoother")
+OBSERVER_KINDS = ("filter", "smoother", "joint")
 
 
 def first_observation(system: System, y: np.ndarray, u: np.ndarray, dt: float, observer: str) -> np.ndarray:
@@ -39,7 +42,7 @@ def first_observation(system: System, y: np.ndarray, u: np.ndarray, dt: float, o
     """
     if observer not in OBSERVER_KINDS:
         raise InvalidInput(f"observer must be one of {', '.join(OBSERVER_KINDS)}, got {observer!r}")
-    if observer == "filter" or system.name not in ("cartpole", "robot"):
+    if observer in ("filter", "joint") or system.name not in ("cartpole", "robot"):
         return pretraining_observer(system, y, u, dt)   # quadrotor/crazyflie: already KF + RTS
     if system.name == "robot":
         return observe_robot(system, y, u, dt, smooth=True)
@@ -71,10 +74,11 @@ def train_with_observer(system: System, y: ArrayLike, u: ArrayLike, dt: float, c
         Sample period, s.
     config : TrainingConfig
         Training settings, the same in every round (each round trains from the config's seed).
-    observer : {"filter", "smoother"}
-        First observer (`first_observation`).
+    observer : {"filter", "smoother", "joint"}
+        First observer (`first_observation`); "joint" starts `models.joint_training.train_jointly` from the
+        filter's estimates instead of training on them.
     rounds : int
-        Extra observer -> train rounds at most; 0 is Algorithm 1 as printed.
+        Extra observer -> train rounds at most; 0 is Algorithm 1 as printed (ignored with "joint").
     progress : callable, optional
         ``progress(epoch, loss)`` of every round's training.
 
@@ -94,6 +98,12 @@ def train_with_observer(system: System, y: ArrayLike, u: ArrayLike, dt: float, c
         raise InvalidInput(f"rounds must be at least 0, got {rounds}")
     y, u = np.asarray(y, dtype=float), np.asarray(u, dtype=float).reshape(len(y), -1)
     zeta = first_observation(system, y, u, dt, observer)
+    if observer == "joint":   # the observer's states start the joint fit; no rounds after it
+        from learnest.models.joint_training import train_jointly
+
+        result = train_jointly(system, y, u, dt, zeta, config, progress=progress)
+        result.model.meta["observer"] = {"kind": observer, "rounds": 0, "kept_round": 0, "misfit": []}
+        return result
     results = [train_knode(system, zeta, u, dt, config, progress=progress)]
     misfits: list[float] = []
     for round_ in range(rounds + 1 if rounds else 0):

@@ -127,7 +127,7 @@ def _reproduce(args) -> int:
     from .experiments.table1 import ReproduceSettings, format_table, reproduce
 
     settings = ReproduceSettings(task=args.task, eval_samples=args.samples, epochs=args.epochs, horizon=args.horizon,
-                                 observer_rounds=args.observer_rounds)
+                                 observer_rounds=args.observer_rounds, observer=args.observer)
     with tqdm(total=args.seeds, desc=f"Table I {args.task}", unit="seed", file=sys.stderr) as bar:
         report = reproduce(settings, args.seeds, workers=args.workers, progress=lambda _r: bar.update(1))
     print(format_table(report))
@@ -688,6 +688,9 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--observer-rounds", type=int, choices=range(0, 11), default=None, metavar="K",
                      help="observer -> train rounds of the KNODE rows, 0-10 (default: the task's, "
                           "models/presets.py PAPER_OBSERVER; 0 is the paper's Algorithm 1)")
+    rep.add_argument("--observer", choices=("filter", "smoother", "joint"), default=None,
+                     help="pre-training observer of the KNODE rows (default: the task's, PAPER_OBSERVER); 'joint' "
+                          "fits the record's states and the residual together (models/joint_training.py)")
     rep.set_defaults(func=_reproduce)
 
     ing = sub.add_parser("ingest", help="read flight logs, normalise them and check their quality")

@@ -54,6 +54,8 @@ class ReproduceSettings:
     observer_rounds : int, optional
         Observer -> train rounds of the partial-state KNODE (`train_with_observer`); None: the task's
         default in `PAPER_OBSERVER`.
+    observer : {"filter", "smoother", "joint"}, optional
+        The partial-state KNODE's pre-training observer; None: the task's in `PAPER_OBSERVER`.
     """
 
     task: str
@@ -62,6 +64,7 @@ class ReproduceSettings:
     epochs: int | None = None      # None: the paper's epochs
     horizon: int = MHE_HORIZON              # MHE window N
     observer_rounds: int | None = None      # None: PAPER_OBSERVER's
+    observer: str | None = None             # None: PAPER_OBSERVER's
 
 
 def run_seed(settings: ReproduceSettings, seed: int) -> dict:
@@ -80,6 +83,7 @@ def run_seed(settings: ReproduceSettings, seed: int) -> dict:
         config = TrainingConfig(**{**config.as_dict(), "epochs": settings.epochs})
     config = TrainingConfig(**{**config.as_dict(), "seed": seed})
     kind, rounds = PAPER_OBSERVER[settings.task]
+    kind = settings.observer or kind
     rounds = rounds if settings.observer_rounds is None else settings.observer_rounds
     zeta_full = full_state_observer(system, train.x_noisy, system.dt)          # every state measured
     models = {
