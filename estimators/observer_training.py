@@ -33,7 +33,8 @@ OBSERVER_KINDS = ("filter", "smoother", "joint")
 
 def first_observation(system: System, y: np.ndarray, u: np.ndarray, dt: float, observer: str) -> np.ndarray:
     """ζ (T, n) of the chosen observer before any learning: ``"filter"`` is `pretraining_observer` (the
-    paper's), ``"smoother"`` the smoothing variant described in the module docstring.
+    paper's), ``"smoother"`` the smoothing variant described in the module docstring; ``"joint"`` starts from
+    the filter's.
 
     Raises
     ------
@@ -102,7 +103,7 @@ def train_with_observer(system: System, y: ArrayLike, u: ArrayLike, dt: float, c
         from learnest.models.joint_training import train_jointly
 
         result = train_jointly(system, y, u, dt, zeta, config, progress=progress)
-        result.model.meta["observer"] = {"kind": observer, "rounds": 0, "kept_round": 0, "misfit": []}
+        result.model.meta["observer"] = {"kind": observer, "rounds": rounds, "kept_round": 0, "misfit": []}
         return result
     results = [train_knode(system, zeta, u, dt, config, progress=progress)]
     misfits: list[float] = []

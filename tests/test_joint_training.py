@@ -36,8 +36,18 @@ def test_the_joint_fit_learns_the_true_dynamics_better_than_the_observer_fit():
     adam_err = _derivative_error(adam, system, x, u)[rates]
     assert np.all(joint_err < 0.3 * prior_err), (joint_err, prior_err)
     assert np.all(joint_err < adam_err), (joint_err, adam_err)
-    assert joint.losses[-1] < joint.losses[0] and joint.model.meta["training"]["joint_iterations"] == 600
-    assert joint.model.meta["envelope"]                 # evaluations can say what lies outside its data
+
+
+def test_the_joint_observer_of_algorithm_1_records_what_it_ran():
+    from learnest.estimators.observer_training import train_with_observer
+
+    system = make_system("cartpole")
+    record = system.simulate(10_000, 300)
+    result = train_with_observer(system, record.y, record.u, system.dt, PAPER_TRAINING["cartpole"], "joint", 2)
+    meta = result.model.meta
+    assert meta["observer"] == {"kind": "joint", "rounds": 2, "kept_round": 0, "misfit": []}
+    assert meta["training"] == {"hidden": 8, "seed": 0, "joint_iterations": 3000}
+    assert len(result.losses) == 3000 // 500 and np.all(np.isfinite(result.losses))
 
 
 def test_the_joint_fit_refuses_mismatched_or_non_finite_records():

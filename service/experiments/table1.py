@@ -89,11 +89,13 @@ def run_seed(settings: ReproduceSettings, seed: int) -> dict:
     models = {
         "": HybridModel(system, "prior"),
         # partial measurements y: the task's observer, then `rounds` rounds of smoothing with the learned model
+        # (or, for "joint", the record's states fitted together with the residual from the filter's)
         "KNODE-": train_with_observer(system, train.y, train.u, system.dt, config, kind, rounds).model,
         "KNODE- (full state)": train_knode(system, zeta_full, train.u, system.dt, config).model,
         " (true dynamics)": HybridModel(system, "true"),
     }
-    # the evaluation run seen by the same observer as the training data, against the partial-state KNODE's box
+    # the evaluation run seen by the pre-training observer, against the partial-state KNODE's box (for "joint" the
+    # box holds the jointly fitted states, which lie close to the filter's)
     envelope = envelope_report(models["KNODE-"].meta["envelope"],
                                pretraining_observer(system, test.y, test.u, system.dt), test.u)
     x0 = test.x_noisy[0]
