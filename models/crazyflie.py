@@ -164,6 +164,16 @@ def rotation_columns(qx, qy, qz, qw):
             (2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)))
 
 
+def thrust_acceleration(z, u, params):
+    """Collective thrust over the mass, Σ T_i · G(z) / m_kg (m/s², along body z): the specific force at rest.
+
+    ``z`` the height above the floor (m), ``u`` the 9 `INPUT_NAMES` inputs; any array kind."""
+    thrust = sum(motor_thrust(p, u[8], params) for p in u[4:8])
+    if params.get("r_m", 0.0) > 0.0:
+        thrust = thrust * ground_effect(z, params["r_m"])
+    return thrust / params["m_kg"]
+
+
 def specific_force_body(v_world, z, u, params):
     """Body-frame specific force (m/s², the accelerometer's reading) predicted from the inputs.
 
@@ -182,13 +192,9 @@ def specific_force_body(v_world, z, u, params):
     -------
     (list of 3 body-frame components, R as nested tuples)
     """
-    qx, qy, qz, qw, p1, p2, p3, p4, vbat = u
-    R = rotation_columns(qx, qy, qz, qw)
+    R = rotation_columns(*u[:4])
     vb = [R[0][i] * v_world[0] + R[1][i] * v_world[1] + R[2][i] * v_world[2] for i in range(3)]  # Rᵀ v
-    thrust = sum(motor_thrust(p, vbat, params) for p in (p1, p2, p3, p4))
-    if params.get("r_m", 0.0) > 0.0:
-        thrust = thrust * ground_effect(z, params["r_m"])
-    fz = thrust / params["m_kg"] - params["k_z"] * vb[2]
+    fz = thrust_acceleration(z, u, params) - params["k_z"] * vb[2]
     return [-params["k_xy"] * vb[0], -params["k_xy"] * vb[1], fz], R
 
 

@@ -19,7 +19,7 @@ import numpy as np
 from learnest.ingest.flight import Flight
 from learnest.ingest.frames import quat_to_matrix
 
-from .crazyflie import BOUNDS, GRAVITY, PUBLIC, specific_force_body
+from .crazyflie import BOUNDS, GRAVITY, PUBLIC, specific_force_body, thrust_acceleration
 from .motor_heating import thermal_state
 
 LOWPASS_HZ = 5.0
@@ -103,10 +103,9 @@ def predict_body_force(arrays: FlightArrays, params: dict) -> np.ndarray:
     f_b, _ = specific_force_body(list(arrays.v_world.T), arrays.z, list(arrays.u.T), params)
     f_b = np.column_stack([np.broadcast_to(c, arrays.z.shape) for c in f_b])
     if params.get("kappa_th"):
-        # the thrust term (the force at rest: no drag) × (1 − κ h), directly: smooth in every parameter a fit
-        # moves, gamma included (the voltage route of `with_motor_heating` cannot carry it near gamma = 0)
-        thrust = np.broadcast_to(specific_force_body([0.0, 0.0, 0.0], arrays.z, list(arrays.u.T), params)[0][2],
-                                 arrays.z.shape)
+        # the thrust term × (1 − κ h), directly: smooth in every parameter a fit moves, gamma included (the
+        # voltage route of `with_motor_heating` cannot carry it near gamma = 0)
+        thrust = thrust_acceleration(arrays.z, list(arrays.u.T), params)
         f_b[:, 2] -= params["kappa_th"] * thermal_state(arrays.u, arrays.dt, params["tau_th_s"]) * thrust
     return lowpass(first_order_lag(f_b, params.get("tau_s", 0.0), arrays.dt), arrays.dt)
 

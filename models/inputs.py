@@ -11,7 +11,7 @@ import numpy as np
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 
-from .motor_heating import MIN_GAMMA, with_motor_heating
+from .motor_heating import with_motor_heating
 from .systems import System
 from .thrust_axis import calibrated_attitude, heading_removed, thrust_axis_offset
 from .thrust_gain import thrust_gain, with_thrust_gain
@@ -95,14 +95,13 @@ def thrust_calibration(flight: Flight, system: System, thrust_gain: bool = True)
     """What the prior's thrust carries on this flight, for reports: ``heating_thrust_loss_pct``, the largest
     thrust loss to the motors' heating (%, `models.motor_heating`; only for a prior with ``kappa_th``), and, with
     ``thrust_gain``, the flight's gain against the heated map (`flight_thrust_gain`; 1 for a prior whose voltage
-    exponent cannot carry it, as `models.thrust_gain.with_thrust_gain` then applies none)."""
+    exponent cannot carry it)."""
     u = system_inputs(flight, system, motor_heating=False)
     out = {}
     if system.prior_params.get("kappa_th"):
         u, out["heating_thrust_loss_pct"] = with_motor_heating(u, flight.dt, system.prior_params)
     if thrust_gain:
-        carried = abs(system.prior_params["gamma"]) >= MIN_GAMMA
-        out["thrust_gain"] = flight_thrust_gain(flight, system, u) if carried else 1.0
+        out["thrust_gain"] = flight_thrust_gain(flight, system, u)
     return out
 
 

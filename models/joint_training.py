@@ -29,7 +29,7 @@ from .envelope import training_envelope
 from .knode import HybridModel
 from .presets import TrainingConfig
 from .systems import System
-from .training import TrainingResult
+from .training import TrainingResult, new_residual
 
 ITERATIONS = 3000      # L-BFGS iterations in all: on cartpole seed 0 the test error stops falling near 3000
 CHUNK = 500            # iterations per L-BFGS call: progress is reported between calls
@@ -75,7 +75,7 @@ def train_jointly(system: System, y: ArrayLike, u: ArrayLike, dt: float, zeta: A
     import torch
     from torchdiffeq import odeint
 
-    from .residual_net import TRAINING_THREADS, ResidualNet, torch_threads
+    from .residual_net import TRAINING_THREADS, torch_threads
 
     y, zeta = np.asarray(y, dtype=float), np.asarray(zeta, dtype=float)
     u = np.asarray(u, dtype=float).reshape(len(zeta), -1)
@@ -88,10 +88,7 @@ def train_jointly(system: System, y: ArrayLike, u: ArrayLike, dt: float, zeta: A
         raise InvalidInput(f"iterations must be at least 1, got {iterations}")
     with torch_threads(TRAINING_THREADS):
         torch.manual_seed(config.seed)
-        features = np.concatenate([zeta, u], axis=1)
-        std = features.std(axis=0)
-        mlp = ResidualNet(features.shape[1], system.n, config.hidden, features.mean(axis=0),
-                          np.where(std > 1e-9, std, 1.0), *system.residual_masks())
+        mlp = new_residual(system, zeta, u, config.hidden)
         states = torch.tensor(zeta, dtype=torch.float64, requires_grad=True)
         measured, held = torch.as_tensor(y), torch.as_tensor(u[:-1])
         inputs = torch.as_tensor(u)

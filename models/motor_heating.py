@@ -51,6 +51,12 @@ def hover_power(params: dict) -> float:
 P_REF_V2 = 36.72689857119545
 
 
+def motor_power(u: np.ndarray) -> np.ndarray:
+    """P = Σ_i (p_i V)² / `P_REF_V2`, the drive of the thermal state, for inputs ``u`` of shape (..., 9)."""
+    u = np.asarray(u, dtype=float)
+    return ((u[..., PWM] / PWM_FULL_SCALE * u[..., [VBAT]]) ** 2).sum(axis=-1) / P_REF_V2
+
+
 def thermal_state(u: np.ndarray, dt: float, tau_th_s: float) -> np.ndarray:
     """The motors' thermal state over a record, cold at its first sample.
 
@@ -71,10 +77,8 @@ def thermal_state(u: np.ndarray, dt: float, tau_th_s: float) -> np.ndarray:
     """
     from scipy.signal import lfilter  # scipy.signal imports scipy.stats (~1.5 s): loaded on first use
 
-    u = np.asarray(u, dtype=float)
-    power = ((u[:, PWM] / PWM_FULL_SCALE * u[:, [VBAT]]) ** 2).sum(axis=1) / P_REF_V2
     decay = np.exp(-dt / tau_th_s)
-    h, _ = lfilter([0.0, 1.0 - decay], [1.0, -decay], power, zi=[0.0])   # h[k+1] = decay h[k] + (1-decay) P[k]
+    h, _ = lfilter([0.0, 1.0 - decay], [1.0, -decay], motor_power(u), zi=[0.0])   # h[k+1] = decay h[k] + (1-decay) P[k]
     return h
 
 

@@ -25,7 +25,7 @@ from learnest.ingest.frames import GRAVITY
 from . import crazyflie as cf
 from .effects import world_from_body
 from .identify import lowpass
-from .motor_heating import P_REF_V2, PWM_FULL_SCALE
+from .motor_heating import motor_power
 
 SUBSTEPS = 5                    # integration steps per logged sample (2 ms at 100 Hz)
 KP, KD, KI = 6.0, 4.5, 2.0      # position loop (1/s², 1/s, 1/s³): a tight tracker, as a tuned Crazyflie's
@@ -173,8 +173,8 @@ def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int 
         u = np.concatenate([quat, _pwm_for(per_motor * (1 + spread[k]), volts[k], ctrl), [volts[k]]])
         f_b, _ = cf.specific_force_body(list(v), p[2], list(u), truth)
         f_b = np.array([float(c) for c in f_b])
-        if kappa_th:   # warm motors: the thrust the truth's map gives (the force at rest: no drag), × (1 − κ h)
-            f_b[2] -= kappa_th * heat["h"] * float(cf.specific_force_body([0.0, 0.0, 0.0], p[2], list(u), truth)[0][2])
+        if kappa_th:   # warm motors: the thrust the truth's map gives, × (1 − κ h)
+            f_b[2] -= kappa_th * heat["h"] * float(cf.thrust_acceleration(p[2], list(u), truth))
         return R, u, f_b
 
     # start in a steady hover: the trim makes the controller's thrust hold the true vehicle, as the
@@ -195,8 +195,7 @@ def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int 
         f = f_cmd + (f - f_cmd) * decay[-1]
         trim += KI * (p_ref[k, 2] - p[2]) * dt / GRAVITY
         if kappa_th:   # exact step of τ h' = P − h with the power of this sample's inputs held
-            power = float(np.sum((u[4:8] / PWM_FULL_SCALE * u[8]) ** 2)) / P_REF_V2
-            heat["h"] = heat_decay * heat["h"] + (1.0 - heat_decay) * power
+            heat["h"] = heat_decay * heat["h"] + (1.0 - heat_decay) * float(motor_power(u))
 
     acc = log_f + settings.accel_noise * rng.standard_normal(log_f.shape)
     if settings.accel_lpf_hz:

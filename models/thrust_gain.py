@@ -3,7 +3,8 @@
 Why: the prior's thrust map has one set of parameters for a vehicle, but the thrust per PWM and volt moves
 from flight to flight: the motors warm over a session (`benchmarks/motor_heating.py`: 2-3 % of thrust per
 flight), a battery sags differently, a payload changes what the thrust must carry.  On the NanoBench flights
-the mean body-z specific force the mocap sees is 0.98-1.01 of what the identified map predicts, and a 1 %
+the mean body-z specific force the mocap sees is 0.98-1.01 of what the identified map predicts (0.99-1.02
+once the motors' heating is applied, `models.motor_heating`), and a 1 %
 error is 0.1 m/s² of vertical acceleration all flight long.  The KNODE residual learned its training flight's
 offset and carried it to the others, where it fits or not by chance (`benchmarks/README.md`, "Per-flight
 thrust gain").  Calibrated per flight, the prior-only UKF's median MSE falls by 1 % on the figure-eights and
@@ -55,7 +56,9 @@ def thrust_gain(p: np.ndarray, u: np.ndarray, dt: float, params: dict) -> float:
     -------
     float
         c, the mocap's body-z specific force over the prior's, summed over the airborne samples (1 for a
-        record with less than `MIN_AIRBORNE_S` airborne or sampled too coarsely to low-pass).
+        record with less than `MIN_AIRBORNE_S` airborne or sampled too coarsely to low-pass, and for a prior
+        whose |gamma| is below `MIN_GAMMA`).  With the motors' heating applied to ``u`` first
+        (`models.motor_heating`), it is the flight's level against the heated map.
 
     Raises
     ------
@@ -66,8 +69,8 @@ def thrust_gain(p: np.ndarray, u: np.ndarray, dt: float, params: dict) -> float:
 
     p, u = np.asarray(p, dtype=float), np.asarray(u, dtype=float)
     edge = int(round(EDGE_S / dt))
-    if 1.0 / dt < 2.5 * LOWPASS_HZ or len(p) <= 2 * edge + 2:
-        return 1.0
+    if abs(params["gamma"]) < MIN_GAMMA or 1.0 / dt < 2.5 * LOWPASS_HZ or len(p) <= 2 * edge + 2:
+        return 1.0   # the voltage cannot carry a gain (`with_thrust_gain`), or too little record to low-pass
     velocity = np.gradient(p, dt, axis=0)
     acceleration = lowpass(np.gradient(velocity, dt, axis=0), dt, LOWPASS_HZ)
     R = np.array(cf.rotation_columns(*u[:, :4].T))                       # (3, 3, T), body -> world

@@ -64,6 +64,17 @@ def _split_rows(pairs: int, fraction: float, layout: str):
     return torch.as_tensor(np.flatnonzero(~held)), torch.as_tensor(np.flatnonzero(held))
 
 
+def new_residual(system: System, zeta: np.ndarray, u: np.ndarray, hidden: int):
+    """A `models.residual_net.ResidualNet` at Δθ ≡ 0 whose inputs [ζ, u] (T, n + p) are standardised by the
+    training record's own mean and spread (constant columns left unscaled), with the system's masks."""
+    from .residual_net import ResidualNet
+
+    features = np.concatenate([zeta, u], axis=1)
+    std = features.std(axis=0)
+    return ResidualNet(features.shape[1], system.n, hidden, features.mean(axis=0), np.where(std > 1e-9, std, 1.0),
+                       *system.residual_masks())
+
+
 def train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, config: TrainingConfig | None = None,
                 progress: Callable[[int, float], None] | None = None) -> TrainingResult:
     """Fit Δθ so that one RK4 step of f_prior + Δθ from ζ_i lands on ζ_{i+1} (eqs. 7-8).
@@ -104,7 +115,7 @@ def _train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, confi
     import torch
     from torchdiffeq import odeint
 
-    from .residual_net import Adam, ResidualNet
+    from .residual_net import Adam
 
     zeta = check_sequence("zeta", zeta, cols=system.n)
     u = check_sequence("u", np.asarray(u, dtype=float).reshape(len(zeta), -1), rows=len(zeta), cols=system.n_inputs)
@@ -114,10 +125,7 @@ def _train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, confi
     if config.epochs < 1:
         raise InvalidInput(f"epochs must be at least 1, got {config.epochs}")
     torch.manual_seed(config.seed)
-    features = np.concatenate([zeta, u], axis=1)
-    std = features.std(axis=0)
-    mlp = ResidualNet(features.shape[1], system.n, config.hidden, features.mean(axis=0), np.where(std > 1e-9, std, 1.0),
-                      *system.residual_masks())
+    mlp = new_residual(system, zeta, u, config.hidden)
 
     pairs = len(zeta) - 1
     fit_rows, val_rows = _split_rows(pairs, config.validation_fraction if pairs >= 10 else 0.0,

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
@@ -23,7 +22,7 @@ from learnest.models.inputs import calibrates_thrust_gain, system_inputs
 from learnest.models.knode import HybridModel
 from learnest.models.presets import METHODS, MHE_HORIZON, parse_methods
 
-from .flights import FLIGHT_SYSTEMS, corrected_flight, evaluate_flights, initial_state, system_for
+from .flights import FLIGHT_SYSTEMS, corrected_flight, evaluate_flights, initial_state, model_system
 
 
 class MHEResult(NamedTuple):
@@ -54,9 +53,7 @@ def _checked(model: HybridModel, flight: Flight):
     if model.system.name not in FLIGHT_SYSTEMS:
         raise InvalidInput(f"a {model.system.name!r} model cannot run on a flight; flights need one of "
                            f"{', '.join(FLIGHT_SYSTEMS)}")
-    # the model's own prior parameters: a diagnosis may have extended them, and a model trained before the
-    # motors' heating has none (models.motor_heating)
-    system = replace(system_for(flight, model.system.name), prior_params=dict(model.system.prior_params))
+    system = model_system(model, flight)
     if model.meta.get("measurement_effects"):  # a model a diagnosis repaired sees the flight as evaluate does
         flight = corrected_flight(flight, model.meta["measurement_effects"])
     u = system_inputs(flight, system, thrust_gain=calibrates_thrust_gain(model.meta, model.kind))

@@ -55,6 +55,12 @@ def system_for(flight: Flight, name: str = "quadrotor") -> System:
     return make_system(name, dt=flight.dt, n_samples=len(flight.t))
 
 
+def model_system(model: HybridModel, flight: Flight) -> System:
+    """``model``'s system on this flight's grid with the model's own prior parameters: a diagnosis may have
+    extended them, and a model trained before the motors' heating has none (`models.motor_heating`)."""
+    return replace(system_for(flight, model.system.name), prior_params=dict(model.system.prior_params))
+
+
 def quadrotor_for(flight: Flight) -> System:
     """The paper's kinematic quadrotor on this flight's grid."""
     return system_for(flight, "quadrotor")
@@ -116,7 +122,7 @@ def evaluate_flight(knode: HybridModel, flight: Flight, methods: Sequence[str], 
         ``check_prediction`` and the model is a KNODE, else None.  It reuses the UKF rows' innovations and
         runs the (untimed) UKF of a model whose row was not asked for.
     """
-    system = replace(system_for(flight, knode.system.name), prior_params=dict(knode.system.prior_params))
+    system = model_system(knode, flight)
     knode = HybridModel(replace(knode.system, dt=flight.dt), knode.kind, knode.residual, knode.meta)
     prior = HybridModel(system, "prior")
     reference = references(flight, window=sg_window)
@@ -165,8 +171,7 @@ def flight_envelope(knode: HybridModel, flight: Flight) -> dict | None:
     envelope = knode.meta.get("envelope")
     if not envelope:
         return None
-    # the model's own prior, as in training: its parameters drive the observer and the motors' heating
-    system = replace(system_for(flight, knode.system.name), prior_params=dict(knode.system.prior_params))
+    system = model_system(knode, flight)   # as in training: its parameters drive the observer and the heating
     measured = corrected_flight(flight, knode.meta["measurement_effects"]) \
         if knode.meta.get("measurement_effects") else flight
     u = system_inputs(flight, system, thrust_gain=calibrates_thrust_gain(knode.meta, knode.kind))
@@ -239,8 +244,8 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
             if knode.system.name in THRUST_THROUGH_ATTITUDE:   # the calibration the prior's attitude input got
                 entry["thrust_axis_offset_deg"] = [round(float(np.degrees(d)), 3) for d in flight_thrust_axis(flight)]
                 # and what its prior's thrust carried: the motors' heating, the flight's thrust gain
-                system = replace(system_for(flight, knode.system.name), prior_params=dict(knode.system.prior_params))
-                thrust = thrust_calibration(flight, system, calibrates_thrust_gain(knode.meta, knode.kind))
+                thrust = thrust_calibration(flight, model_system(knode, flight),
+                                            calibrates_thrust_gain(knode.meta, knode.kind))
                 entry.update({name: round(value, 5) for name, value in thrust.items()})
         # a flight from another vehicle, sensor rate or attitude source: scored, with a warning
         warnings = profile_mismatches(knode.meta.get("training_profile"), flight_profile(flight))
