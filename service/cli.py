@@ -624,6 +624,10 @@ def format_report(report: dict) -> str:
     worse = report.get("knode_predicts_worse")
     if worse:
         lines.append(f"do not trust the KNODE on: {', '.join(worse)} (it predicts these flights worse than its prior)")
+    for base, names in (report.get("knode_clearly_worse") or {}).items():
+        # estimators.evaluate.gain_interval: the gain's 95 % block-bootstrap interval lies below 0
+        lines.append(f"KNODE-{base.upper()} worse than {base.upper()} beyond the flight's own variability (95 % "
+                     f"interval of the gain below 0) on: {', '.join(names) or 'no flight'}")
     recommended = report.get("recommended")
     if recommended:   # estimators.evaluate.recommended_model per flight, scored as one estimator
         scores = ", ".join(f"{base.upper()} {value * 1e3:.3f} ({recommended['improvement_pct'][base]:+.1f} % vs prior)"

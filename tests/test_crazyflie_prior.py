@@ -156,7 +156,8 @@ def test_knode_on_the_crazyflie_prior_learns_a_payload_it_was_not_told_about():
 
 def test_the_crazyflie_residual_corrects_only_the_acceleration_rows_and_ignores_where_the_vehicle_is():
     """ṗ = v and v̇ = a are definitions and px, py are not physics: a trained residual leaves the first
-    six derivatives exactly alone and gives the same correction anywhere in the room.  The paper's
+    six derivatives exactly alone and gives the same correction anywhere in the room and whatever the
+    acceleration state (the observer's filtered accelerometer, whose evolution is the trajectory's jerk).  The paper's
     kinematic prior keeps its full residual."""
     system = make_system("crazyflie", n_samples=200)
     run = system.with_true_params(m_kg=system.prior_params["m_kg"] * 1.2).simulate(4)
@@ -168,7 +169,12 @@ def test_the_crazyflie_residual_corrects_only_the_acceleration_rows_and_ignores_
     moved = x.copy()
     moved[:, :2] += rng.normal(0, 5, (7, 2))
     assert np.array_equal(model.residual(moved, u), delta)
+    moved[:, 6:9] += rng.normal(0, 3, (7, 3))  # the acceleration state is the observer's filtered accelerometer
+    assert np.array_equal(model.residual(moved, u), delta)
     moved[:, 2] += 0.3       # the height is physics (ground effect): it is seen
     assert not np.array_equal(model.residual(moved, u), delta)
+    faster = moved.copy()
+    faster[:, 3:6] += 0.5    # so is the velocity (rotor drag)
+    assert not np.array_equal(model.residual(faster, u), model.residual(moved, u))
     inputs, outputs = make_system("quadrotor").residual_masks()
     assert inputs.all() and outputs.all()

@@ -57,9 +57,15 @@ def test_the_true_effect_predicts_better_and_the_wrong_sign_is_flagged(circle):
     assert wrong["flights"][0]["mse"]["knode-ukf"] > wrong["flights"][0]["mse"]["ukf"]
     assert right["flights"][0]["mse"]["knode-ukf"] < right["flights"][0]["mse"]["ukf"]
     assert wrong["knode_predicts_worse"] == [circle.name] and right["knode_predicts_worse"] == []
+    # the wrong sign loses beyond the flight's own variability, the right one gains beyond it
+    assert wrong["flights"][0]["gain_interval_pct"]["knode-ukf_vs_ukf"][1] < 0
+    assert right["flights"][0]["gain_interval_pct"]["knode-ukf_vs_ukf"][0] > 0
+    assert wrong["knode_clearly_worse"] == {"ukf": [circle.name]} and right["knode_clearly_worse"] == {"ukf": []}
     json.dumps(wrong)
     table = format_report(wrong)
     assert f"do not trust the KNODE on: {circle.name}" in table
+    assert f"KNODE-UKF worse than UKF beyond the flight's own variability (95 % interval of the gain below 0) on: " \
+           f"{circle.name}" in table
     assert f"{circle.name} {wrong_check['innovation_ratio']:.2f}" in table
     # the recommended estimate falls back to the prior exactly where the check flags the flight
     assert wrong["recommended"]["prior_on"] == [circle.name] and right["recommended"]["prior_on"] == []

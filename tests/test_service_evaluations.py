@@ -63,6 +63,9 @@ def assert_same_numbers(report: dict, expected: dict) -> None:
         assert got.get("prediction_check") == want.get("prediction_check")
     assert report["outside_training_envelope"] == expected["outside_training_envelope"]
     assert report["knode_predicts_worse"] == expected["knode_predicts_worse"]
+    assert report["knode_clearly_worse"] == expected["knode_clearly_worse"]
+    for got, want in zip(report["flights"], expected["flights"]):
+        assert got.get("gain_interval_pct") == want.get("gain_interval_pct")
     assert (report["recommended"] is None) == (expected["recommended"] is None)
     if expected["recommended"] is not None:
         assert report["recommended"]["prior_on"] == expected["recommended"]["prior_on"]
@@ -105,6 +108,8 @@ def test_report_equals_evaluate_flights_and_is_cached(registry_home):
         assert "id='prediction-check'" in html.text and f"{ratio:.2f}" in html.text
         recommended_ukf = report["recommended"]["median"]["ukf"]
         assert "id='recommended'" in html.text and f"UKF {recommended_ukf * 1e3:.3f}" in html.text
+        low, high = report["flights"][1]["gain_interval_pct"]["knode-ukf_vs_ukf"]
+        assert low <= high and "id='gain-intervals'" in html.text and f"[{low:+.1f}, {high:+.1f}] %" in html.text
         assert report["flights"][0]["envelope"]["threshold"] > 0
         # the envelope is stored with the version (registry metadata), not only in the weights file
         metrics = client.get("/models/quad").json()
@@ -421,3 +426,31 @@ def test_a_failure_never_replaces_a_stored_success(registry_home):
                                                        Result.model_version_id == version_id))
             assert (kept.state, kept.entry, kept.estimates_blob, kept.error) == ("succeeded", entry, blob, None)
         assert client.get(f"/flights/{flight_id}").status_code == 200
+
+
+def test_a_crazyflie_report_page_shows_the_thrust_calibration_and_the_gain_intervals(tmp_path):
+    """The page of an evaluation with the Crazyflie prior says what its prior's thrust carried per flight (the
+    motors' heating, the flight's thrust gain) and the KNODE's gain with its 95 % interval, the JSON's numbers."""
+    from learnest.ingest.formats.nanobench import writer as nanobench
+    from learnest.models import crazyflie as cf
+    from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
+
+    paths = []
+    for seed in (0, 1):
+        f = simulate_crazyflie(SimulatedFlight(duration_s=15), seed=seed)
+        paths.append(tmp_path / f"cf{seed}.csv")
+        nanobench.write(paths[-1], f.t + 1.7e9, f.p, f.quat, f.channels["acc_body"] / cf.GRAVITY,
+                        motors=f.channels["motors"], vbat=f.channels["vbat"])
+    with running_app(tmp_path / "home") as client:
+        ids = [upload(client, p).json()["id"] for p in paths]
+        trained = client.post("/models", json={"name": "cf", "flight_id": ids[0], "epochs": 20, "system": "crazyflie"})
+        assert trained.status_code == 202, trained.text
+        assert wait_for_job(client, trained.json()["job_id"])["state"] == "succeeded"
+        accepted, report = evaluate(client, "cf:1", [ids[1]], methods=["ukf", "knode-ukf"])
+        entry = report["flights"][0]
+        page = client.get(f"/evaluations/{accepted['evaluation_id']}/report.html").text
+    assert 0.0 < entry["heating_thrust_loss_pct"] < 5.0
+    assert "id='motor-heating'" in page and f"{entry['heating_thrust_loss_pct']:.1f} %" in page
+    assert "id='thrust-gain'" in page and f"{entry['thrust_gain']:.3f}" in page
+    low, high = entry["gain_interval_pct"]["knode-ukf_vs_ukf"]
+    assert low <= high and f"[{low:+.1f}, {high:+.1f}] %" in page

@@ -206,6 +206,9 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
     and listed in ``outside_training_envelope``.  Each scored flight's ``prediction_check`` says whether the
     KNODE predicts its mocap position one step ahead worse than the prior does (no ground truth needed: a
     flight where the learned model should not be trusted); such flights are listed in ``knode_predicts_worse``.
+    Each scored flight's ``gain_interval_pct`` {"knode-ukf_vs_ukf": [low, high], ...} is the 95 % interval of
+    the KNODE's gain over its prior (`estimators.evaluate.gain_interval`); flights whose interval lies below 0
+    are listed in ``knode_clearly_worse``.
     Each scored flight's ``warnings`` say how it differs from
     the training flight in vehicle, sensor rates, attitude source, mass or controller
     (`ingest.profile.profile_mismatches`; none for a model that recorded no ``training_profile``).
@@ -239,6 +242,8 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
             entry["mse"] = {m: r["mse"] for m, r in results.items()}
             entry["groups"] = {m: r["groups"] for m, r in results.items()}
             entry["ms_per_step"] = {m: r["ms_per_step"] for m, r in results.items()}
+            entry["gain_interval_pct"] = {f"{m}_vs_{m.removeprefix('knode-')}": r["gain_interval_pct"]
+                                          for m, r in results.items() if "gain_interval_pct" in r}
             entry["envelope"] = flight_envelope(knode, flight)
             entry["prediction_check"] = out["prediction_check"]
             if knode.system.name in THRUST_THROUGH_ATTITUDE:   # the calibration the prior's attitude input got

@@ -24,8 +24,9 @@ log = logging.getLogger("learnest.jobs")
 # and a Crazyflie model's attitude input has no heading; an entry of format 1 would show "nothing flagged"
 # where nothing was checked, and mix inputs with newly computed flights of the same model.  3 (stop 16): a
 # Crazyflie prior scales its thrust by the flight's thrust gain (entries carry `thrust_gain`).  4 (stop 17): and
-# by the motors' heating before it (`heating_thrust_loss_pct`).
-ENTRY_FORMAT = 4
+# by the motors' heating before it (`heating_thrust_loss_pct`).  5 (stop 18): entries carry the KNODE's
+# `gain_interval_pct`.
+ENTRY_FORMAT = 5
 
 
 @dataclass(frozen=True)
