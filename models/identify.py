@@ -20,7 +20,7 @@ from learnest.ingest.flight import Flight
 from learnest.ingest.frames import quat_to_matrix
 
 from .crazyflie import BOUNDS, GRAVITY, PUBLIC, specific_force_body, thrust_acceleration
-from .motor_heating import thermal_state
+from .motor_heating import HISTORY_KEY, thermal_state
 
 LOWPASS_HZ = 5.0
 EDGE_S = 0.5
@@ -83,7 +83,8 @@ def flight_arrays(flight: Flight) -> FlightArrays:
     # specific force fitted here moves by cos(3°) - 1 < 0.2 % with it (only k_xy's v_b would see it), and
     # `models.crazyflie.IDENTIFIED` was fitted this way
     u = np.column_stack([flight.quat, flight.channels["motors"], np.asarray(flight.channels["vbat"]).reshape(-1, 1)])
-    return FlightArrays(flight.name, dt, lowpass(acc, dt), v, flight.p[:, 2].copy(), u, keep)
+    return FlightArrays(flight.name, dt, lowpass(acc, dt), v, flight.p[:, 2].copy(), u, keep,
+                        {HISTORY_KEY: flight.meta[HISTORY_KEY]} if flight.meta.get(HISTORY_KEY) else {})
 
 
 def first_order_lag(x: np.ndarray, tau: float, dt: float) -> np.ndarray:
@@ -106,7 +107,8 @@ def predict_body_force(arrays: FlightArrays, params: dict) -> np.ndarray:
         # the thrust term × (1 − κ h), directly: smooth in every parameter a fit moves, gamma included (the
         # voltage route of `with_motor_heating` cannot carry it near gamma = 0)
         thrust = thrust_acceleration(arrays.z, list(arrays.u.T), params)
-        f_b[:, 2] -= params["kappa_th"] * thermal_state(arrays.u, arrays.dt, params["tau_th_s"]) * thrust
+        h = thermal_state(arrays.u, arrays.dt, params["tau_th_s"], arrays.extra.get(HISTORY_KEY))
+        f_b[:, 2] -= params["kappa_th"] * h * thrust
     return lowpass(first_order_lag(f_b, params.get("tau_s", 0.0), arrays.dt), arrays.dt)
 
 

@@ -11,7 +11,7 @@ import numpy as np
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 
-from .motor_heating import with_motor_heating
+from .motor_heating import HISTORY_KEY, with_motor_heating
 from .systems import System
 from .thrust_axis import calibrated_attitude, heading_removed, thrust_axis_offset
 from .thrust_gain import thrust_gain, with_thrust_gain
@@ -99,7 +99,8 @@ def thrust_calibration(flight: Flight, system: System, thrust_gain: bool = True)
     u = system_inputs(flight, system, motor_heating=False)
     out = {}
     if system.prior_params.get("kappa_th"):
-        u, out["heating_thrust_loss_pct"] = with_motor_heating(u, flight.dt, system.prior_params)
+        u, out["heating_thrust_loss_pct"] = with_motor_heating(u, flight.dt, system.prior_params,
+                                                               flight.meta.get(HISTORY_KEY))
     if thrust_gain:
         out["thrust_gain"] = flight_thrust_gain(flight, system, u)
     return out
@@ -139,7 +140,7 @@ def system_inputs(flight: Flight, system: System, thrust_gain: bool = False,
                             f"{u.shape[1]} (channels {', '.join(NEEDED[system.name])})")
     if system.name in THRUST_THROUGH_ATTITUDE:
         if motor_heating:
-            u, _ = with_motor_heating(u, flight.dt, system.prior_params)
+            u, _ = with_motor_heating(u, flight.dt, system.prior_params, flight.meta.get(HISTORY_KEY))
         if thrust_gain:
             u = with_thrust_gain(u, flight_thrust_gain(flight, system, u), system.prior_params["gamma"])
     return u

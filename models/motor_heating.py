@@ -12,7 +12,9 @@ fixed electrical scale (a payload makes the motors work harder and warm faster, 
 h → 1 in a long hover of that vehicle and kappa_th is the fraction of thrust it then loses.
 
 Causal and from the inputs alone: h starts cold at the record's first sample and is integrated forward from
-the PWM and voltage (exact discretisation, inputs held over a step).  The parameters are the prior's
+the PWM and voltage (exact discretisation, inputs held over a step).  A record cut from a longer flight
+(`slice_keeping_heat`, the diagnosis's held-out part of one flight) carries the motor power before the cut in
+its meta (`HISTORY_KEY`), and starts as warm as the flight was there.  The parameters are the prior's
 (`models.crazyflie`: `kappa_th`, `tau_th_s`; a prior without them has no heating).  Heating is not a function
 of (x, u) at one instant, so it is applied to the inputs: through the battery voltage the prior sees,
 V → V·(1 − kappa_th h)^(1/gamma), which multiplies the prior's thrust by (1 − kappa_th h) exactly and keeps
@@ -35,6 +37,7 @@ from . import crazyflie as cf
 MIN_GAMMA = 0.1   # below this |gamma| the battery voltage cannot carry a thrust factor (models.thrust_gain too)
 
 PWM_FULL_SCALE = 65535.0
+HISTORY_KEY = "motor_power_before"   # Flight.meta: P of every sample before a slice's first, oldest first
 PWM = slice(4, 8)
 VBAT = cf.INPUT_NAMES.index("vbat")
 
@@ -57,8 +60,8 @@ def motor_power(u: np.ndarray) -> np.ndarray:
     return ((u[..., PWM] / PWM_FULL_SCALE * u[..., [VBAT]]) ** 2).sum(axis=-1) / P_REF_V2
 
 
-def thermal_state(u: np.ndarray, dt: float, tau_th_s: float) -> np.ndarray:
-    """The motors' thermal state over a record, cold at its first sample.
+def thermal_state(u: np.ndarray, dt: float, tau_th_s: float, power_before=None) -> np.ndarray:
+    """The motors' thermal state over a record, cold at its first sample unless its history is given.
 
     Parameters
     ----------
@@ -68,21 +71,39 @@ def thermal_state(u: np.ndarray, dt: float, tau_th_s: float) -> np.ndarray:
         Sample time, s.
     tau_th_s : float
         Thermal time constant, s.
+    power_before : array_like, shape (T0,), optional
+        `motor_power` of the T0 samples before the record (same grid), oldest first: the flight it was cut from.
 
     Returns
     -------
     ndarray, shape (T,)
-        h, 1 at the steady state of the reference hover (`P_REF_V2`); h[0] = 0 and h[k] uses the inputs
-        before sample k only.
+        h, 1 at the steady state of the reference hover (`P_REF_V2`); h[k] uses the inputs before sample k
+        only; h[0] = 0 without a history.
     """
     from scipy.signal import lfilter  # scipy.signal imports scipy.stats (~1.5 s): loaded on first use
 
+    before = np.zeros(0) if power_before is None else np.asarray(power_before, dtype=float).reshape(-1)
     decay = np.exp(-dt / tau_th_s)
-    h, _ = lfilter([0.0, 1.0 - decay], [1.0, -decay], motor_power(u), zi=[0.0])   # h[k+1] = decay h[k] + (1-decay) P[k]
-    return h
+    power = np.concatenate([before, motor_power(u)])
+    h, _ = lfilter([0.0, 1.0 - decay], [1.0, -decay], power, zi=[0.0])   # h[k+1] = decay h[k] + (1-decay) P[k]
+    return h[len(before):]
 
 
-def with_motor_heating(u: np.ndarray, dt: float, params: dict) -> tuple[np.ndarray, float]:
+def slice_keeping_heat(flight, start: int, stop: int):
+    """``flight.slice(start, stop)`` whose meta carries the motor power before ``start`` (`HISTORY_KEY`, after any
+    history ``flight`` itself carries), so the slice's motors start as warm as the flight's were there.  A flight
+    without motor PWM and battery voltage is sliced plainly."""
+    piece = flight.slice(start, stop)
+    if "motors" not in flight.channels or "vbat" not in flight.channels:
+        return piece
+    u = np.column_stack([flight.quat[:start], np.asarray(flight.channels["motors"], float)[:start],
+                         np.asarray(flight.channels["vbat"], float).reshape(-1)[:start]])
+    earlier = list(flight.meta.get(HISTORY_KEY) or [])
+    piece.meta[HISTORY_KEY] = earlier + motor_power(u).tolist()
+    return piece
+
+
+def with_motor_heating(u: np.ndarray, dt: float, params: dict, power_before=None) -> tuple[np.ndarray, float]:
     """The inputs with the battery voltage scaled so the prior's thrust carries the heating loss (1 − κ h).
 
     Parameters
@@ -94,6 +115,8 @@ def with_motor_heating(u: np.ndarray, dt: float, params: dict) -> tuple[np.ndarr
     params : dict
         The prior's parameters: ``kappa_th`` (1; absent or 0: no heating), ``tau_th_s`` (s) and ``gamma``
         (below `MIN_GAMMA` in magnitude the voltage cannot carry the loss: none applied).
+    power_before : array_like, optional
+        The record's history, as `thermal_state` takes it (a slice's ``meta[HISTORY_KEY]``).
 
     Returns
     -------
@@ -104,7 +127,7 @@ def with_motor_heating(u: np.ndarray, dt: float, params: dict) -> tuple[np.ndarr
     kappa, gamma = float(params.get("kappa_th", 0.0)), float(params["gamma"])
     if abs(gamma) < MIN_GAMMA or kappa == 0.0 or len(u) == 0:
         return u, 0.0
-    factor = 1.0 - kappa * thermal_state(u, dt, float(params["tau_th_s"]))
+    factor = 1.0 - kappa * thermal_state(u, dt, float(params["tau_th_s"]), power_before)
     factor = np.clip(factor, 0.5, 1.0)   # h is bounded by the motors' full power; never more than half the thrust
     u[:, VBAT] *= factor ** (1.0 / gamma)
     return u, float(100.0 * (1.0 - factor.min()))

@@ -17,7 +17,14 @@ from learnest.models.inputs import (
     thrust_calibration,
 )
 from learnest.models.knode import HybridModel, Residual
-from learnest.models.motor_heating import P_REF_V2, hover_power, thermal_state, with_motor_heating
+from learnest.models.identify import flight_arrays, predict_body_force
+from learnest.models.motor_heating import (
+    P_REF_V2,
+    hover_power,
+    slice_keeping_heat,
+    thermal_state,
+    with_motor_heating,
+)
 from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.models.systems import make_system
 from learnest.models.thrust_gain import with_thrust_gain
@@ -138,3 +145,28 @@ def test_estimation_inputs_are_the_heating_then_the_gain_and_reports_say_what_wa
     report = evaluate_flights(_zero_knode(system, {"attitude_input": ATTITUDE_CALIBRATED}), [flight], ["ukf"])
     entry = report["flights"][0]
     assert entry["heating_thrust_loss_pct"] == pytest.approx(loss, abs=1e-5) and "thrust_gain" not in entry
+
+
+def test_a_slice_of_a_flight_starts_as_warm_as_the_flight_was_there():
+    """The diagnosis scores the last 40 % of a single flight: sliced with its history the motors are as warm as
+    in the whole flight at that sample, so the slice's heated inputs and predicted specific force are the whole
+    flight's; sliced plainly they restart cold and the prior over-predicts the thrust."""
+    flight = _warm_flight(5)
+    system = replace(make_system("crazyflie"), dt=flight.dt, prior_params=dict(WARM))
+    cut = int(0.6 * len(flight.t))
+    # the motors and the heated voltage (the attitude's thrust-axis calibration is per record)
+    whole = system_inputs(flight, system)[cut:, 4:]
+    warm, cold = slice_keeping_heat(flight, cut, len(flight.t)), flight.slice(cut, len(flight.t))
+    np.testing.assert_allclose(system_inputs(warm, system)[:, 4:], whole, rtol=1e-12)
+    assert np.all(system_inputs(cold, system)[1:, 8] > whole[1:, 4])    # cold motors: more thrust per volt
+    # and the diagnosis's prediction of the body-z specific force from the inputs (before its low-pass)
+    full = thermal_state(flight_arrays(flight).u, flight.dt, WARM["tau_th_s"])[cut:]
+    arrays = flight_arrays(warm)
+    np.testing.assert_allclose(thermal_state(arrays.u, flight.dt, WARM["tau_th_s"], arrays.extra["motor_power_before"]),
+                               full, rtol=1e-12)
+    middle = slice(200, -200)   # away from the low-pass's edges
+    assert np.max(np.abs(predict_body_force(arrays, WARM)[middle, 2]
+                         - predict_body_force(flight_arrays(cold), WARM)[middle, 2])) > 0.05
+    # a slice of a slice carries the whole history
+    second = slice_keeping_heat(warm, 100, len(warm.t))
+    np.testing.assert_allclose(system_inputs(second, system)[:, 4:], whole[100:], rtol=1e-12)
