@@ -67,22 +67,37 @@ def score(estimates: np.ndarray, reference: np.ndarray, groups: dict[str, slice]
     return {"mse": float(err2.mean()), "groups": {name: float(err2[:, cols].mean()) for name, cols in groups.items()}}
 
 
-# Block length of the gain's bootstrap, s.  The per-step difference of two estimators' squared errors stays
-# correlated for 0.24-0.6 s on the NanoBench circles (autocorrelation below 0.05 after 24-60 steps at 100 Hz);
-# blocks several times longer keep that correlation inside them, so the interval is not falsely narrow.
+# Shortest block of the gain's bootstrap, s.  The per-step difference of two estimators' squared errors stays
+# correlated for 0.24-0.6 s on most NanoBench circles and 1.7 s on one (autocorrelation below 0.05 after 24-168
+# steps at 100 Hz): each record's blocks are 3x its own correlation length, and never shorter than this.
 GAIN_BLOCK_S = 2.0
+GAIN_MIN_BLOCKS = 3          # a record of fewer blocks has no interval: its resamples would all be alike
 GAIN_REPLICATES = 1000
 
 
-def gain_interval(prior_error: ArrayLike, knode_error: ArrayLike, block: int,
-                  replicates: int = GAIN_REPLICATES, seed: int = 0) -> list[float]:
+def correlation_steps(series: np.ndarray, level: float = 0.05) -> int:
+    """The first lag (steps) at which the autocorrelation of ``series`` (T,) falls below ``level``; T if never."""
+    centred = np.asarray(series, dtype=float) - np.mean(series)
+    steps = len(centred)
+    spectrum = np.fft.rfft(centred, 2 * steps)                       # zero-padded: the linear autocorrelation
+    autocorrelation = np.fft.irfft(spectrum * np.conj(spectrum))[:steps]
+    if autocorrelation[0] <= 0:
+        return 1
+    below = np.flatnonzero(autocorrelation / autocorrelation[0] < level)
+    return int(below[0]) if len(below) else steps
+
+
+def gain_interval(prior_error: ArrayLike, knode_error: ArrayLike, min_block: int,
+                  replicates: int = GAIN_REPLICATES, seed: int = 0) -> list[float] | None:
     """95 % interval of the KNODE's MSE gain over its prior on one record, by a paired circular block bootstrap.
 
     The gain is 100 (1 − Σ knode_error / Σ prior_error).  Both series are resampled with the same blocks of
-    ``block`` consecutive steps, so what the two estimators share (the flight's hard stretches) cancels,
-    and the errors' autocorrelation stays inside the blocks.  Blocks wrap around the record's end (Politis &
-    Romano's circular bootstrap): every step is drawn equally often, where plain moving blocks under-draw the
-    first and last steps, which hold the filters' start-up error, and shift the interval off the gain.
+    consecutive steps, so what the two estimators share (the flight's hard stretches) cancels, and the errors'
+    autocorrelation stays inside the blocks: a block is 3 times the lag at which the autocorrelation of the
+    per-step difference falls below 0.05 (`correlation_steps`), and at least ``min_block``.  Blocks wrap around
+    the record's end (Politis & Romano's circular bootstrap): every step is drawn equally often, where plain
+    moving blocks under-draw the first and last steps, which hold the filters' start-up error, and shift the
+    interval off the gain.  Each resample is T steps long, its last block cut short.
     Why not ``scipy.stats.bootstrap``: it resamples single observations, which for autocorrelated estimation
     errors gives intervals several times too narrow (`tests/test_gain_interval.py`).
 
@@ -91,8 +106,8 @@ def gain_interval(prior_error: ArrayLike, knode_error: ArrayLike, block: int,
     prior_error, knode_error : array_like, shape (T,)
         Squared estimation error per step (mean over the state's columns), of the prior-only and the KNODE
         estimator on the same steps, in the states' squared units.
-    block : int
-        Block length, steps (clipped to [1, T]).
+    min_block : int
+        Shortest block, steps.
     replicates : int
         Bootstrap replicates.
     seed : int
@@ -100,21 +115,41 @@ def gain_interval(prior_error: ArrayLike, knode_error: ArrayLike, block: int,
 
     Returns
     -------
-    list of float
+    list of float or None
         [2.5 %, 97.5 %] percentiles of the gain, %.  A flight whose upper bound is below 0 is worse with the
-        KNODE beyond what the flight's own variability explains.
+        KNODE beyond what the flight's own variability explains.  None when the record holds fewer than
+        `GAIN_MIN_BLOCKS` blocks or the prior's error is zero (no interval can be told).
     """
-    prior = np.asarray(prior_error, dtype=float)
-    knode = np.asarray(knode_error, dtype=float)
+    prior = np.asarray(prior_error, dtype=float).reshape(-1)
+    knode = np.asarray(knode_error, dtype=float).reshape(-1)
     steps = len(prior)
-    block = int(np.clip(block, 1, steps))
+    if steps == 0 or not np.sum(prior) > 0:
+        return None
+    block = max(int(min_block), 3 * correlation_steps(knode - prior), 1)
+    if steps < GAIN_MIN_BLOCKS * block:
+        return None
     # the sum of each block (starting anywhere, wrapping), from cumulative sums of the record with its first
-    # block - 1 steps appended: a replicate is a sum of ceil(T / block) of them
-    starts = np.random.default_rng(seed).integers(0, steps, size=(replicates, -(-steps // block)))
-    sums = [np.concatenate([[0.0], np.cumsum(np.concatenate([e, e[:block - 1]]))]) for e in (prior, knode)]
-    prior_sum, knode_sum = ((c[starts + block] - c[starts]).sum(axis=1) for c in sums)
-    gains = 100.0 * (1.0 - knode_sum / prior_sum)
+    # block - 1 steps appended; a resample is n_full whole blocks and one of the remaining length
+    n_full, rest = divmod(steps, block)
+    rng = np.random.default_rng(seed)
+    starts = rng.integers(0, steps, size=(replicates, n_full))
+    tail = rng.integers(0, steps, size=replicates)
+
+    def resampled_sums(error: np.ndarray) -> np.ndarray:
+        cumulative = np.concatenate([[0.0], np.cumsum(np.concatenate([error, error[:block - 1]]))])
+        whole = (cumulative[starts + block] - cumulative[starts]).sum(axis=1)
+        return whole + cumulative[tail + rest] - cumulative[tail]
+
+    prior_sum, knode_sum = resampled_sums(prior), resampled_sums(knode)
+    gains = 100.0 * (1.0 - knode_sum / np.maximum(prior_sum, np.finfo(float).tiny))
     return [float(np.percentile(gains, 2.5)), float(np.percentile(gains, 97.5))]
+
+
+def _step_errors(estimates: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Squared error per step, mean over the states, (T,) (shapes checked as `score` checks them)."""
+    estimates = check_sequence("estimates", estimates)
+    reference = check_sequence("reference", reference, rows=len(estimates), cols=estimates.shape[1])
+    return np.mean((estimates - reference) ** 2, axis=1)
 
 
 def evaluate_sequence(methods: Sequence[str], prior_model: StateSpaceModel, knode_model: StateSpaceModel,
@@ -131,7 +166,8 @@ def evaluate_sequence(methods: Sequence[str], prior_model: StateSpaceModel, knod
     Q and P0 (n, n), R (m, m), reference (T, n); dt in s; ``ms_per_step`` is wall time per sample, ms;
     ``innovation_ms`` (UKF methods) is the mean square of the one-step innovations per measurement channel,
     (m,) in the measurements' squared units (`prediction_check`); ``gain_interval_pct`` (a ``knode-*`` method
-    run beside its base) is `gain_interval` of its gain over the base method, %.
+    run beside its base) is `gain_interval` of its gain over the base method, %, or None for a record too short
+    to tell.
     """
     mhe_cache = {} if mhe_cache is None else mhe_cache
     results, step_errors = {}, {}
@@ -156,7 +192,7 @@ def evaluate_sequence(methods: Sequence[str], prior_model: StateSpaceModel, knod
             results[method]["innovation_ms"] = np.mean(filtered.innovations**2, axis=0).tolist()
         if keep_estimates:
             results[method]["estimates"] = estimates
-        step_errors[method] = np.mean((np.asarray(estimates) - reference) ** 2, axis=1)
+        step_errors[method] = _step_errors(estimates, reference)
     for method in results:
         base = method.removeprefix("knode-")
         if method != base and base in step_errors:
@@ -267,7 +303,7 @@ def summarize(flight_reports: list[dict]) -> dict:
     outside = [f["flight"] for f in scored if (f.get("envelope") or {}).get("outside_training_envelope")]
     worse = [f["flight"] for f in scored if (f.get("prediction_check") or {}).get("knode_predicts_worse")]
     clearly_worse = {base: [f["flight"] for f in scored
-                            if (f.get("gain_interval_pct") or {}).get(f"knode-{base}_vs_{base}", [0, 0])[1] < 0]
+                            if ((f.get("gain_interval_pct") or {}).get(f"knode-{base}_vs_{base}") or [0, 0])[1] < 0]
                      for base in ("ukf", "mhe") if f"knode-{base}_vs_{base}" in improvement}
     return {"median": median, "improvement_pct": improvement, "flights_scored": len(scored),
             "outside_training_envelope": outside, "knode_predicts_worse": worse,

@@ -134,10 +134,13 @@ class Flight:
         return np.column_stack([self.p, self.a_meas])
 
     def slice(self, start: int, stop: int) -> Flight:
-        """Rows [start, stop) as a new Flight, time restarted at zero; ``meta`` is copied (shallowly)."""
+        """Rows [start, stop) as a new Flight, time restarted at zero; ``meta`` is copied (shallowly), without
+        ``motor_power_before``: a history of the samples before the record holds for its own first sample only
+        (`learnest.models.motor_heating.slice_keeping_heat` makes a slice's)."""
         t = self.t[start:stop]
+        meta = {k: v for k, v in self.meta.items() if k != "motor_power_before"}
         return Flight(t - t[0], self.p[start:stop], self.a_meas[start:stop], self.quat[start:stop],
-                      {k: v[start:stop] for k, v in self.channels.items()}, dict(self.meta))
+                      {k: v[start:stop] for k, v in self.channels.items()}, meta)
 
     def __repr__(self) -> str:
         state = "ok" if self.quality.get("ok", True) else "FAILED quality"

@@ -37,7 +37,8 @@ from . import crazyflie as cf
 MIN_GAMMA = 0.1   # below this |gamma| the battery voltage cannot carry a thrust factor (models.thrust_gain too)
 
 PWM_FULL_SCALE = 65535.0
-HISTORY_KEY = "motor_power_before"   # Flight.meta: P of every sample before a slice's first, oldest first
+# Flight.meta: P of every sample before a slice's first, oldest first (a plain Flight.slice drops it)
+HISTORY_KEY = "motor_power_before"
 PWM = slice(4, 8)
 VBAT = cf.INPUT_NAMES.index("vbat")
 

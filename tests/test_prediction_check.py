@@ -42,7 +42,7 @@ def _circle_jerk_knode(sign: float) -> HybridModel:
 
 @pytest.fixture(scope="module")
 def circle(tmp_path_factory):
-    sim = simulate(Circle(radius=RADIUS, speed=SPEED, duration_s=8.0), seed=3, name="circle")
+    sim = simulate(Circle(radius=RADIUS, speed=SPEED, duration_s=20.0), seed=3, name="circle")
     return read_flights(write_flight(sim, "nanobench", tmp_path_factory.mktemp("check"), "circle"))[0]
 
 

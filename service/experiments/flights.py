@@ -207,8 +207,8 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
     KNODE predicts its mocap position one step ahead worse than the prior does (no ground truth needed: a
     flight where the learned model should not be trusted); such flights are listed in ``knode_predicts_worse``.
     Each scored flight's ``gain_interval_pct`` {"knode-ukf_vs_ukf": [low, high], ...} is the 95 % interval of
-    the KNODE's gain over its prior (`estimators.evaluate.gain_interval`); flights whose interval lies below 0
-    are listed in ``knode_clearly_worse``.
+    the KNODE's gain over its prior (`estimators.evaluate.gain_interval`; None for a flight too short to tell);
+    flights whose interval lies below 0 are listed in ``knode_clearly_worse``.
     Each scored flight's ``warnings`` say how it differs from
     the training flight in vehicle, sensor rates, attitude source, mass or controller
     (`ingest.profile.profile_mismatches`; none for a model that recorded no ``training_profile``).
