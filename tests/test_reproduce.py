@@ -26,3 +26,19 @@ def test_quick_reproduction_shows_the_papers_ordering(task, samples, epochs):
                                    "KNODE-UKF", "KNODE-UKF (full state)", "UKF (true dynamics)"}
     for seed in report["per_seed"]:   # each evaluation run is judged against its KNODE's training envelope
         assert isinstance(seed["envelope"]["outside_training_envelope"], bool)
+
+
+def test_table_ratios_against_the_truth_and_the_prior_by_seed_and_inside_the_envelope():
+    """Known answers on three made-up seeds: ratio of means, per-seed median, and the unflagged seeds alone."""
+    from learnest.service.experiments.table1 import seed_ratios
+
+    def seed(knode, true, flagged):
+        return {"mse": {"KNODE-MHE": knode, "MHE (true dynamics)": true},
+                "envelope": {"outside_training_envelope": flagged}}
+
+    seeds = [seed(2.0, 1.0, False), seed(3.0, 1.0, False), seed(10.0, 2.0, True)]
+    ratios = seed_ratios(seeds, "KNODE-MHE", "MHE (true dynamics)")
+    assert ratios["ratio of means"] == pytest.approx(15.0 / 4.0)
+    assert ratios["per-seed median"] == pytest.approx(3.0)
+    assert ratios["ratio of means over the 2 seeds inside the envelope"] == pytest.approx(2.5)
+    assert list(seed_ratios(seeds[:2], "KNODE-MHE", "MHE (true dynamics)")) == ["ratio of means", "per-seed median"]

@@ -168,4 +168,27 @@ def format_table(report: dict) -> str:
     outside = [f"{s['seed']} ({', '.join(s['envelope']['states_outside'])})" for s in report["per_seed"]
                if (s.get("envelope") or {}).get("outside_training_envelope")]
     lines.append("evaluation runs outside the training envelope: " + (", ".join(outside) or "none"))
+    for label, (numerator, denominator) in RATIOS.items():
+        lines.append(f"{label}: " + "; ".join(f"{name} {value:.2f}" for name, value
+                                               in seed_ratios(report["per_seed"], numerator, denominator).items()))
     return "\n".join(lines)
+
+
+# the closeness to the truth and the gain over the prior, as the estimator-core targets state them
+RATIOS = {"KNODE-MHE / MHE (true dynamics)": ("KNODE-MHE", "MHE (true dynamics)"),
+          "UKF / KNODE-UKF": ("UKF", "KNODE-UKF")}
+
+
+def seed_ratios(per_seed: list[dict], numerator: str, denominator: str) -> dict[str, float]:
+    """Ratio of two rows' MSE over seeds: ``ratio of means`` (μ / μ, what Table I's rows give), ``per-seed
+    median``, and ``ratio of means inside the envelope`` over the seeds whose evaluation run the envelope
+    check does not flag (left out when every seed is flagged or none is)."""
+    def of_means(seeds: list[dict]) -> float:
+        return float(np.mean([s["mse"][numerator] for s in seeds]) / np.mean([s["mse"][denominator] for s in seeds]))
+
+    out = {"ratio of means": of_means(per_seed),
+           "per-seed median": float(np.median([s["mse"][numerator] / s["mse"][denominator] for s in per_seed]))}
+    inside = [s for s in per_seed if not (s.get("envelope") or {}).get("outside_training_envelope")]
+    if 0 < len(inside) < len(per_seed):
+        out[f"ratio of means over the {len(inside)} seeds inside the envelope"] = of_means(inside)
+    return out
