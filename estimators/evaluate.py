@@ -59,11 +59,20 @@ def score(estimates: np.ndarray, reference: np.ndarray, groups: dict[str, slice]
     ``estimates`` and ``reference`` have shape (T, n); the MSE is the mean of the squared error over all
     samples and columns, in the squared units of the states (m², (m/s)², (m/s²)² per group).
     """
+    return _scores(_squared_errors(estimates, reference), groups)
+
+
+def _squared_errors(estimates: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """(estimates − reference)², (T, n), the shapes checked."""
     estimates = check_sequence("estimates", estimates)
-    if groups is None:
-        groups = STATE_GROUPS if estimates.shape[1] == 9 else {}
     reference = check_sequence("reference", reference, rows=len(estimates), cols=estimates.shape[1])
-    err2 = (estimates - reference) ** 2
+    return (estimates - reference) ** 2
+
+
+def _scores(err2: np.ndarray, groups: dict[str, slice] | None) -> dict:
+    """`score`'s dict from the squared errors (T, n)."""
+    if groups is None:
+        groups = STATE_GROUPS if err2.shape[1] == 9 else {}
     return {"mse": float(err2.mean()), "groups": {name: float(err2[:, cols].mean()) for name, cols in groups.items()}}
 
 
@@ -145,13 +154,6 @@ def gain_interval(prior_error: ArrayLike, knode_error: ArrayLike, min_block: int
     return [float(np.percentile(gains, 2.5)), float(np.percentile(gains, 97.5))]
 
 
-def _step_errors(estimates: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """Squared error per step, mean over the states, (T,) (shapes checked as `score` checks them)."""
-    estimates = check_sequence("estimates", estimates)
-    reference = check_sequence("reference", reference, rows=len(estimates), cols=estimates.shape[1])
-    return np.mean((estimates - reference) ** 2, axis=1)
-
-
 def evaluate_sequence(methods: Sequence[str], prior_model: StateSpaceModel, knode_model: StateSpaceModel,
                       y: np.ndarray, u: np.ndarray, dt: float, Q: np.ndarray, R: np.ndarray, x0: np.ndarray,
                       P0: np.ndarray, reference: np.ndarray, horizon: int = MHE_HORIZON,
@@ -186,13 +188,14 @@ def evaluate_sequence(methods: Sequence[str], prior_model: StateSpaceModel, knod
             estimates = filtered.means
         else:
             filtered, estimates = None, mhe.run(y, u, x0)
-        results[method] = {**score(estimates, reference),
-                           "ms_per_step": 1e3 * (time.perf_counter() - started) / len(y)}
+        elapsed = time.perf_counter() - started
+        err2 = _squared_errors(estimates, reference)
+        step_errors[method] = err2.mean(axis=1)          # per step, for the gain's interval below
+        results[method] = {**_scores(err2, None), "ms_per_step": 1e3 * elapsed / len(y)}
         if filtered is not None:
             results[method]["innovation_ms"] = np.mean(filtered.innovations**2, axis=0).tolist()
         if keep_estimates:
             results[method]["estimates"] = estimates
-        step_errors[method] = _step_errors(estimates, reference)
     for method in results:
         base = method.removeprefix("knode-")
         if method != base and base in step_errors:

@@ -136,7 +136,7 @@ class Flight:
     def slice(self, start: int, stop: int) -> Flight:
         """Rows [start, stop) as a new Flight, time restarted at zero; ``meta`` is copied (shallowly), without
         ``motor_power_before``: a history of the samples before the record holds for its own first sample only
-        (`learnest.models.motor_heating.slice_keeping_heat` makes a slice's)."""
+        (`learnest.models.inputs.slice_keeping_heat` makes a slice's)."""
         t = self.t[start:stop]
         meta = {k: v for k, v in self.meta.items() if k != "motor_power_before"}
         return Flight(t - t[0], self.p[start:stop], self.a_meas[start:stop], self.quat[start:stop],

@@ -11,7 +11,7 @@ import numpy as np
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 
-from .motor_heating import HISTORY_KEY, with_motor_heating
+from .motor_heating import HISTORY_KEY, motor_power, with_motor_heating
 from .systems import System
 from .thrust_axis import calibrated_attitude, heading_removed, thrust_axis_offset
 from .thrust_gain import thrust_gain, with_thrust_gain
@@ -144,3 +144,16 @@ def system_inputs(flight: Flight, system: System, thrust_gain: bool = False,
         if thrust_gain:
             u = with_thrust_gain(u, flight_thrust_gain(flight, system, u), system.prior_params["gamma"])
     return u
+
+
+def slice_keeping_heat(flight: Flight, start: int, stop: int) -> Flight:
+    """``flight.slice(start, stop)`` whose meta carries the motor power before ``start``
+    (`models.motor_heating.HISTORY_KEY`, after any history ``flight`` itself carries), so the slice's motors
+    start as warm as the flight's were there.  A flight without motor PWM and battery voltage is sliced plainly."""
+    piece = flight.slice(start, stop)
+    if "motors" not in flight.channels or "vbat" not in flight.channels:
+        return piece
+    logged = np.column_stack([flight.quat[:start], np.asarray(flight.channels["motors"], float)[:start],
+                              np.asarray(flight.channels["vbat"], float).reshape(-1)[:start]])   # INPUT_NAMES order
+    piece.meta[HISTORY_KEY] = list(flight.meta.get(HISTORY_KEY) or []) + motor_power(logged).tolist()
+    return piece

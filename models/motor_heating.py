@@ -13,8 +13,8 @@ h → 1 in a long hover of that vehicle and kappa_th is the fraction of thrust i
 
 Causal and from the inputs alone: h starts cold at the record's first sample and is integrated forward from
 the PWM and voltage (exact discretisation, inputs held over a step).  A record cut from a longer flight
-(`slice_keeping_heat`, the diagnosis's held-out part of one flight) carries the motor power before the cut in
-its meta (`HISTORY_KEY`), and starts as warm as the flight was there.  The parameters are the prior's
+(`models.inputs.slice_keeping_heat`, the diagnosis's held-out part of one flight) carries the motor power
+before the cut in its meta (`HISTORY_KEY`), and starts as warm as the flight was there.  The parameters are the prior's
 (`models.crazyflie`: `kappa_th`, `tau_th_s`; a prior without them has no heating).  Heating is not a function
 of (x, u) at one instant, so it is applied to the inputs: through the battery voltage the prior sees,
 V → V·(1 − kappa_th h)^(1/gamma), which multiplies the prior's thrust by (1 − kappa_th h) exactly and keeps
@@ -88,20 +88,6 @@ def thermal_state(u: np.ndarray, dt: float, tau_th_s: float, power_before=None) 
     power = np.concatenate([before, motor_power(u)])
     h, _ = lfilter([0.0, 1.0 - decay], [1.0, -decay], power, zi=[0.0])   # h[k+1] = decay h[k] + (1-decay) P[k]
     return h[len(before):]
-
-
-def slice_keeping_heat(flight, start: int, stop: int):
-    """``flight.slice(start, stop)`` whose meta carries the motor power before ``start`` (`HISTORY_KEY`, after any
-    history ``flight`` itself carries), so the slice's motors start as warm as the flight's were there.  A flight
-    without motor PWM and battery voltage is sliced plainly."""
-    piece = flight.slice(start, stop)
-    if "motors" not in flight.channels or "vbat" not in flight.channels:
-        return piece
-    u = np.column_stack([flight.quat[:start], np.asarray(flight.channels["motors"], float)[:start],
-                         np.asarray(flight.channels["vbat"], float).reshape(-1)[:start]])
-    earlier = list(flight.meta.get(HISTORY_KEY) or [])
-    piece.meta[HISTORY_KEY] = earlier + motor_power(u).tolist()
-    return piece
 
 
 def with_motor_heating(u: np.ndarray, dt: float, params: dict, power_before=None) -> tuple[np.ndarray, float]:

@@ -13,6 +13,7 @@ from learnest.models.inputs import (
     ATTITUDE_CALIBRATED,
     THRUST_GAIN_CALIBRATED,
     flight_thrust_gain,
+    slice_keeping_heat,
     system_inputs,
     thrust_calibration,
 )
@@ -21,7 +22,6 @@ from learnest.models.identify import flight_arrays, predict_body_force
 from learnest.models.motor_heating import (
     P_REF_V2,
     hover_power,
-    slice_keeping_heat,
     thermal_state,
     with_motor_heating,
 )

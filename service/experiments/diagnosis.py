@@ -38,9 +38,8 @@ from learnest.models.effects import (
     unidentifiable_scales,
 )
 from learnest.models.identify import LOWPASS_HZ, lowpass
-from learnest.models.inputs import system_inputs, training_meta
+from learnest.models.inputs import slice_keeping_heat, system_inputs, training_meta
 from learnest.models.knode import HybridModel
-from learnest.models.motor_heating import slice_keeping_heat
 from learnest.models.presets import CRAZYFLIE_TRAINING, PAPER_TRAINING
 from learnest.models.systems import System, make_system
 from learnest.models.training import train_knode
@@ -270,7 +269,7 @@ def _score_simulated(system, zeta, train, test, methods, config):
 # -- Crazyflie flights -----------------------------------------------------------------------------
 def _split_for_fitting(flights: list[Flight]):
     """Fit on the first flight and score on the others; one flight: fit on its first 60 %, score the rest (its
-    motors as warm as the flight's were there, `models.motor_heating.slice_keeping_heat`)."""
+    motors as warm as the flight's were there, `models.inputs.slice_keeping_heat`)."""
     if len(flights) > 1:
         return flights[:1], flights[1:], "fit on the first flight, scored on the others"
     cut = int(0.6 * len(flights[0].t))
