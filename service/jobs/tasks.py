@@ -76,7 +76,8 @@ def train_task(flight_bytes: bytes, config: dict, progress_target: tuple[str, in
         now = time.monotonic()
         if epoch == 0:
             first_epoch_done[0] = now
-        if now - last[0] >= PROGRESS_EVERY_S or epoch + 1 == epochs:
+        # the second epoch gives the first pace: reported at once, so an ETA shows however short the training
+        if now - last[0] >= PROGRESS_EVERY_S or epoch == 1 or epoch + 1 == epochs:
             last[0] = now
             # the pace of the epochs after the first (which may carry one-time set-up)
             eta = (now - first_epoch_done[0]) / epoch * (epochs - epoch - 1) if epoch else None
