@@ -141,3 +141,21 @@ def test_training_leaves_the_callers_torch_threads_alone():
         assert torch.get_num_threads() == 2
     finally:
         torch.set_num_threads(before)
+
+
+def test_a_trained_robot_residual_does_not_depend_on_where_the_robot_is_or_which_way_it_points():
+    """The robot's Δθ is blind to its invariant states (x, y, ψ): the range-only observer's errors depend on them,
+    the physics does not.  A KNODE trained on a simulated lap gives the same residual anywhere, any heading."""
+    from learnest.estimators.observers import pretraining_observer
+
+    system = make_system("robot")
+    assert set(system.residual_blind) == set(system.invariant_states) == {"x", "y", "psi"}
+    run = system.simulate(3, 500)
+    zeta = pretraining_observer(system, run.y, run.u, system.dt)
+    residual = train_knode(system, zeta, run.u, system.dt, TrainingConfig(hidden=8, epochs=30)).model.residual
+    moved = run.x + np.array([7.0, -3.0, 0.0, 2.0])           # elsewhere, turned by 2 rad, same speed
+    here, there = residual(run.x, run.u), residual(moved, run.u)
+    assert np.abs(here).max() > 1e-3                          # it learned something
+    np.testing.assert_allclose(there, here, rtol=0, atol=1e-12)
+    faster = run.x + np.array([0.0, 0.0, 0.5, 0.0])           # the speed it does see
+    assert np.abs(residual(faster, run.u) - here).max() > 1e-6
