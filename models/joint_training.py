@@ -19,8 +19,8 @@ stop at, whose early stop was the only regulariser).  With λ = `WEIGHT_PRIOR` i
 (benchmarks/README.md, Table I; λ chosen on seeds 15-20, not Table I's).
 
 How: Levenberg–Marquardt.  The normal equations are block-tridiagonal in the states (one n × n block per
-sample; a sample touches only its neighbours) with a dense border for θ, so each step is a banded Cholesky
-solve with the border's columns as extra right-hand sides and a small Schur complement for θ: O(T n³ + T n P²)
+sample; a sample touches only its neighbours) with a dense border for θ, so each step is the MHE's compiled
+block Cholesky with the border's columns as extra right-hand sides and a small Schur complement for θ: O(T n³ + T n P²)
 per iteration, about 0.5 s on a 5000-sample cartpole record, and ~40 iterations to converge.
 """
 from __future__ import annotations
@@ -30,7 +30,6 @@ from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.linalg import cho_solve_banded, cholesky_banded
 
 from learnest.errors import InvalidInput
 
@@ -193,29 +192,32 @@ class _JointProblem:
 def _levenberg_marquardt(problem: _JointProblem, states: np.ndarray, theta: np.ndarray, iterations: int,
                          progress: Callable[[int, float], None] | None) -> tuple[np.ndarray, np.ndarray, list]:
     """Marquardt-scaled damping (λ_LM diag(JᵀJ)), raised ×5 until a step lowers J, lowered ×3 after it."""
+    from learnest.estimators.mhe_gn import BlockTridiagonal
+
     T, n = states.shape
-    w = np.diag(problem.inv_sigma_q)
+    q_inv = np.diag(problem.inv_sigma_q**2)
+    solver = None
     cost, damping, losses = problem.cost(states, theta), 1e-3, []
     for iteration in range(iterations):
         r_m, r_q = problem.residuals(states, theta)
-        h, a, b = problem.jacobians(states, theta)
-        # normal equations JᵀJ δ = -Jᵀr: state blocks D_k, off-diagonal blocks E_k = (k, k+1), border C_k, θθ
-        diagonal = np.einsum("kmi,kmj->kij", h, h)
-        diagonal[:-1] += np.einsum("kmi,kmj->kij", a, a)
-        diagonal[1:] += w @ w
-        upper = -np.einsum("kmi,mj->kij", a, w)
+        h, a, b = problem.jacobians(states, theta)      # whitened: a = W A, b = W B with W = Q^-1/2
+        transition = a / problem.inv_sigma_q[None, :, None]                   # A (T-1, n, n), unwhitened
+        if solver is None:   # the MHE's compiled block Cholesky (estimators/btd.c), sized once
+            solver = BlockTridiagonal(n, h.shape[1] + n, T, q_inv, np.eye(h.shape[1] + n))
+        # JᵀJ's border (states × θ) and corner, and the gradient Jᵀr
+        w = np.diag(problem.inv_sigma_q)
         border = np.zeros((T, n, theta.size))
         border[:-1] += np.einsum("kmi,kmp->kip", a, b)
         border[1:] -= np.einsum("mi,kmp->kip", w, b)
-        theta_block = np.einsum("kmp,kmq->pq", b, b) + problem.weight_prior * np.eye(theta.size)
+        corner = np.einsum("kmp,kmq->pq", b, b) + problem.weight_prior * np.eye(theta.size)
         grad_x = -np.einsum("kmi,km->ki", h, r_m)
         grad_x[:-1] -= np.einsum("kmi,km->ki", a, r_q)
         grad_x[1:] += r_q @ w
         grad_theta = -np.einsum("kmp,km->p", b, r_q) + problem.weight_prior * theta
         accepted = False
         while damping < 1e10:
-            step_x, step_theta = solve_bordered_tridiagonal(diagonal, upper, border, theta_block, -grad_x,
-                                                            -grad_theta, damping)
+            step_x, step_theta = solve_bordered_tridiagonal(solver, transition, h, q_inv, border, corner,
+                                                            -grad_x, -grad_theta, damping)
             trial_states, trial_theta = states + step_x, theta + step_theta
             trial = problem.cost(trial_states, trial_theta)
             if trial < cost:
@@ -233,19 +235,26 @@ def _levenberg_marquardt(problem: _JointProblem, states: np.ndarray, theta: np.n
     return states, theta, losses
 
 
-def solve_bordered_tridiagonal(diagonal: np.ndarray, upper: np.ndarray, border: np.ndarray, corner: np.ndarray,
-                               rhs_x: np.ndarray, rhs_theta: np.ndarray,
+def solve_bordered_tridiagonal(solver, transition: np.ndarray, measurement: np.ndarray, q_inv: np.ndarray,
+                               border: np.ndarray, corner: np.ndarray, rhs_x: np.ndarray, rhs_theta: np.ndarray,
                                damping: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Solve the symmetric system [[M, C], [Cᵀ, S]] [δx; δθ] = [r_x; r_θ], M block-tridiagonal.
+    """Solve [[M, C], [Cᵀ, S]] [δx; δθ] = [r_x; r_θ] for the joint fit's Gauss–Newton matrix.
 
-    With damping λ_LM > 0 the diagonals of M and S are scaled by (1 + λ_LM) (Marquardt).
+    M is the full-record MHE's matrix (no arrival cost): diagonal blocks M_k = H_kᵀH_k + [k < T-1] A_kᵀQ⁻¹A_k
+    + [k > 0] Q⁻¹, off-diagonal blocks M_{k,k+1} = -A_kᵀQ⁻¹.  With damping λ_LM > 0 the diagonals of M and S
+    are scaled by (1 + λ_LM) (Marquardt).  M is factored by the MHE's block Cholesky (`BlockTridiagonal`,
+    compiled C; the damping enters as extra measurement rows), the θ part through the Schur complement.
 
     Parameters
     ----------
-    diagonal : ndarray, shape (T, n, n)
-        M's diagonal blocks (symmetric).
-    upper : ndarray, shape (T-1, n, n)
-        M's blocks (k, k+1); the blocks (k+1, k) are their transposes.
+    solver : estimators.mhe_gn.BlockTridiagonal
+        Built for n states, m + n measurement rows, at least T nodes, Q⁻¹ = ``q_inv``, R⁻¹ = I.
+    transition : ndarray, shape (T-1, n, n)
+        A_k = ∂x_{k+1}/∂x_k of the model's step.
+    measurement : ndarray, shape (T, m, n)
+        H_k, whitened (R = I).
+    q_inv : ndarray, shape (n, n)
+        Q⁻¹ (symmetric).
     border : ndarray, shape (T, n, P)
         C, by state block.
     corner : ndarray, shape (P, P)
@@ -265,34 +274,21 @@ def solve_bordered_tridiagonal(diagonal: np.ndarray, upper: np.ndarray, border: 
     """
     T, n = rhs_x.shape
     P = rhs_theta.size
-    size, bandwidth = T * n, 2 * n - 1
-    index = np.arange(n)
-    diagonal = diagonal.copy()
-    diagonal[:, index, index] *= 1.0 + damping
-    diagonal[:, index, index] += 1e-12          # a state no row reaches stays solvable
-    corner = corner.copy()
-    corner[np.arange(P), np.arange(P)] = corner[np.arange(P), np.arange(P)] * (1.0 + damping) + 1e-12
-    # symmetric Jacobi scaling: the whitened blocks span many decades (1/σ_Q² of a position is 1e10 on the
-    # quadrotor), and the factor's tiny products then fall into subnormal numbers, which cost 100× a normal flop
-    scale_x = 1.0 / np.sqrt(diagonal[:, index, index])                   # (T, n)
-    scale_theta = 1.0 / np.sqrt(np.diag(corner))
-    diagonal = diagonal * scale_x[:, :, None] * scale_x[:, None, :]
-    upper = upper * scale_x[:-1, :, None] * scale_x[1:, None, :]
-    border = border * scale_x[:, :, None] * scale_theta[None, None, :]
-    corner = corner * scale_theta[:, None] * scale_theta[None, :]
-    rhs_x, rhs_theta = rhs_x * scale_x, rhs_theta * scale_theta
-    band = np.zeros((bandwidth + 1, size))      # LAPACK's upper banded form: band[bw + i - j, j] = M[i, j]
-    starts = np.arange(T) * n
-    for i in range(n):
-        for j in range(i, n):
-            band[bandwidth - (j - i), starts + j] = diagonal[:, i, j]
-        for j in range(n):
-            band[bandwidth - (n + j - i), starts[1:] + j] = upper[:, i, j]
-    factor = cholesky_banded(band)
-    flat_border = border.reshape(size, P)
-    solved = cho_solve_banded((factor, False), np.concatenate([flat_border, rhs_x.reshape(size, 1)], axis=1))
+    diagonal = np.einsum("kmi,kmi->ki", measurement, measurement)         # diag(M_k), for Marquardt's scaling
+    diagonal[:-1] += np.einsum("kji,jl,kli->ki", transition, q_inv, transition)
+    diagonal[1:] += np.diag(q_inv)
+    damped = np.zeros((T, n, n))
+    damped[:, np.arange(n), np.arange(n)] = np.sqrt(damping * diagonal + 1e-12)   # + 1e-12: a state no row reaches
+    rows = np.ascontiguousarray(np.concatenate([measurement, damped], axis=1))
+    steps = np.zeros((T, n, n))
+    steps[:-1] = transition
+    factor = solver.factor(T, steps, rows, np.zeros((n, n)))
+    flat_border = border.reshape(T * n, P)
+    solved = np.stack([solver.solve(factor, column.reshape(T, n)).ravel()
+                       for column in np.concatenate([flat_border, rhs_x.reshape(-1, 1)], axis=1).T], axis=1)
     m_inv_c, m_inv_r = solved[:, :P], solved[:, P]
     schur = corner - flat_border.T @ m_inv_c
+    schur[np.arange(P), np.arange(P)] += damping * np.diag(corner) + 1e-12
     step_theta = np.linalg.solve(schur, rhs_theta - flat_border.T @ m_inv_r)
     step_x = m_inv_r - m_inv_c @ step_theta
-    return step_x.reshape(T, n) * scale_x, step_theta * scale_theta
+    return step_x.reshape(T, n), step_theta

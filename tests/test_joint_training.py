@@ -66,28 +66,30 @@ def test_the_joint_fit_refuses_mismatched_or_non_finite_records():
 
 
 def test_the_bordered_block_tridiagonal_solve_equals_a_dense_solve():
-    """The normal equations' solver against numpy's dense solve of the same matrix, with and without damping."""
+    """The normal equations' solver against numpy's dense solve of the same matrix, with and without damping:
+    J's process rows reach x_k, x_{k+1} and θ, its measurement rows one x_k."""
+    from learnest.estimators.mhe_gn import BlockTridiagonal
+
     rng = np.random.default_rng(3)
-    T, n, P = 7, 3, 4
-    rows = []                                   # J as in the joint fit: process rows reach x_k, x_{k+1} and θ,
-    for k in range(T - 1):                      # measurement rows one x_k
-        row = np.zeros((n, T * n + P))
-        row[:, k * n:(k + 2) * n], row[:, T * n:] = rng.normal(size=(n, 2 * n)), rng.normal(size=(n, P))
-        rows.append(row)
+    T, n, m, P = 7, 3, 2, 4
+    transition, measurement = rng.normal(size=(T - 1, n, n)), rng.normal(size=(T, m, n))
+    thetas = rng.normal(size=(T - 1, n, P))
+    q_inv = np.diag(rng.uniform(0.5, 2.0, n))
+    root = np.sqrt(q_inv)
+    jacobian = np.zeros((T * m + (T - 1) * n, T * n + P))
     for k in range(T):
-        row = np.zeros((2, T * n + P))
-        row[:, k * n:(k + 1) * n] = rng.normal(size=(2, n))
-        rows.append(row)
-    jacobian = np.vstack(rows)
-    full = jacobian.T @ jacobian + 0.1 * np.eye(T * n + P)
-    diagonal = np.stack([full[k * n:(k + 1) * n, k * n:(k + 1) * n] for k in range(T)])
-    upper = np.stack([full[k * n:(k + 1) * n, (k + 1) * n:(k + 2) * n] for k in range(T - 1)])
-    border = full[: T * n, T * n:].reshape(T, n, P)
-    corner = full[T * n:, T * n:]
+        jacobian[k * m:(k + 1) * m, k * n:(k + 1) * n] = measurement[k]
+    for k in range(T - 1):
+        rows = slice(T * m + k * n, T * m + (k + 1) * n)
+        jacobian[rows, k * n:(k + 1) * n] = -root @ transition[k]
+        jacobian[rows, (k + 1) * n:(k + 2) * n] = root
+        jacobian[rows, T * n:] = -root @ thetas[k]
+    full = jacobian.T @ jacobian + 0.1 * np.diag(np.r_[np.zeros(T * n), np.ones(P)])   # θ's weight prior
+    border, corner = full[: T * n, T * n:].reshape(T, n, P), full[T * n:, T * n:]
+    solver = BlockTridiagonal(n, m + n, T, q_inv, np.eye(m + n))
     rhs = rng.normal(size=T * n + P)
     for damping in (0.0, 0.7):
-        damped = full + damping * np.diag(np.diag(full))
-        expected = np.linalg.solve(damped, rhs)
-        step_x, step_theta = solve_bordered_tridiagonal(diagonal, upper, border, corner, rhs[: T * n].reshape(T, n),
-                                                        rhs[T * n:], damping)
-        np.testing.assert_allclose(np.concatenate([step_x.ravel(), step_theta]), expected, rtol=1e-8, atol=1e-10)
+        expected = np.linalg.solve(full + damping * np.diag(np.diag(full)), rhs)
+        step_x, step_theta = solve_bordered_tridiagonal(solver, transition, measurement, q_inv, border, corner,
+                                                        rhs[: T * n].reshape(T, n), rhs[T * n:], damping)
+        np.testing.assert_allclose(np.concatenate([step_x.ravel(), step_theta]), expected, rtol=1e-8, atol=1e-9)
