@@ -12,16 +12,18 @@ record,
 with Φ_θ one RK4 step of f_prior + Δθ (eq. 7) and σ_R, σ_Q the square roots of the diagonals of the system's
 R and Q (the estimators' own tuning): the states must explain the measurements and follow the learned model.
 
-Why the weight prior λ‖θ‖²: one record pins the residual down only along the path it took.  Run to
-convergence without it, the fit explains the record to its noise level with a network that is wrong off that
-path (cartpole seed 4: KNODE-MHE 3.2e-3, against 0.69e-3 for the 3000 L-BFGS iterations this module used to
-stop at, whose early stop was the only regulariser).  With λ = `WEIGHT_PRIOR` it gives 0.32e-3
-(benchmarks/README.md, Table I; λ chosen on seeds 15-20, not Table I's).
+Why the weight prior λ‖θ‖²: one record pins the residual down only along the path it took.  Fitted closely
+without it, the network explains the record to its noise level and is wrong off that path (cartpole seed 4,
+40 Levenberg–Marquardt iterations without a prior: KNODE-MHE 3.2e-3, against 0.69e-3 for the 3000 L-BFGS
+iterations this module used to stop at, whose early stop was the only regulariser).  With λ = `WEIGHT_PRIOR`
+and `ITERATIONS` steps it gives 0.32e-3.  The iteration count still regularises: this is not the optimum of J,
+and 120 iterations give 0.44e-3 on seed 4.  λ and the count were chosen on seeds 15-17, not Table I's
+(benchmarks/joint_weight_prior.py, benchmarks/README.md).
 
 How: Levenberg–Marquardt.  The normal equations are block-tridiagonal in the states (one n × n block per
 sample; a sample touches only its neighbours) with a dense border for θ, so each step is the MHE's compiled
-block Cholesky with the border's columns as extra right-hand sides and a small Schur complement for θ: O(T n³ + T n P²)
-per iteration, about 0.5 s on a 5000-sample cartpole record, and ~40 iterations to converge.
+block Cholesky with the border's columns as extra right-hand sides and a small Schur complement for θ:
+O(T n³ + T n P²) per iteration, about 0.5-1 s on a 5000-sample cartpole record.
 """
 from __future__ import annotations
 
@@ -40,7 +42,7 @@ from .presets import TrainingConfig
 from .systems import System
 from .training import TrainingResult, new_residual
 
-ITERATIONS = 40        # Levenberg–Marquardt iterations at most (cartpole: the cost settles within ~30)
+ITERATIONS = 40        # Levenberg–Marquardt iterations at most: part of the regularisation (module docstring)
 WEIGHT_PRIOR = 10.0    # λ of the weight prior λ‖θ‖², in units of the whitened squared residuals
 RELATIVE_TOLERANCE = 1e-9   # stop when an accepted step lowers J by less than this fraction
 

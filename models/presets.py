@@ -93,8 +93,8 @@ PAPER_TRAINING = {  # Sec. V: 2 layers x 8 tanh; 250 epochs (cartpole), 10000 ep
 #   Since stop 17 the cartpole fits the record's states and Δθ jointly from the filter's estimates ("joint",
 #   models.joint_training): on all 15 seeds of Table I it beats the 3 rounds, KNODE-MHE / MHE (true
 #   dynamics) 4.0 -> 2.6 (ratio of means; per-seed median 3.9 -> 2.2), UKF / KNODE-UKF 40.6 -> 72.0.
-#   Since stop 19 that fit is solved to convergence (Levenberg–Marquardt) with a prior on the weights in
-#   place of L-BFGS's early stop (benchmarks/README.md, Table I).
+#   Since stop 19 that fit takes 40 Levenberg–Marquardt steps under a prior on the weights instead of 3000
+#   L-BFGS steps without one (benchmarks/README.md, Table I).
 # - robot: the unscented RTS pass on the precursory UKF (a smoother instead of the filter) helps more than
 #   the iteration (seed 0: 16.5 -> 7.5, 3 rounds 9.9; seed 1: 69 -> 56): kept, to be confirmed on
 #   15 seeds.  The joint fit was not measured on the robot.  What helped the robot most is not the observer:
