@@ -98,8 +98,8 @@ PAPER_TRAINING = {  # Sec. V: 2 layers x 8 tanh; 250 epochs (cartpole), 10000 ep
 # - robot: the unscented RTS pass on the precursory UKF (a smoother instead of the filter) helps more than
 #   the iteration (seed 0: 16.5 -> 7.5, 3 rounds 9.9; seed 1: 69 -> 56): kept, to be confirmed on
 #   15 seeds.  The joint fit was not measured on the robot.  What helped the robot most is not the observer:
-#   since stop 19 its Δθ is blind to x, y, ψ (`GroundRobot.residual_blind`), median KNODE-UKF 1.94e-3 -> see
-#   benchmarks/README.md.
+#   since stop 19 its Δθ is blind to x, y, ψ (`GroundRobot.residual_blind`): median KNODE-UKF over the 15
+#   seeds of Table I 1.94e-3 -> 0.30e-3 (benchmarks/README.md).
 PAPER_OBSERVER = {"cartpole": ("joint", 0), "robot": ("smoother", 0)}
 
 # Sec. V-C: 2 layers x 16 tanh, 150 epochs, KF pre-training observer

@@ -273,7 +273,7 @@ class GroundRobot(System):
     invariant_states: tuple = ("x", "y", "psi")  # a lap turns ψ through 2π: a longer lap is no new physics
     # Δθ does not see them either: the physics does not depend on where the robot is or which way it points,
     # but the range-only observer's errors do, and a residual that reads x, y, ψ learns them (Table I robot:
-    # median KNODE-UKF 1.94e-3 -> see benchmarks/README.md; seeds 1, 3, 8 had learned 7-8e-3 of artefacts)
+    # median KNODE-UKF 1.94e-3 -> 0.30e-3; seeds 1, 3, 8 had learned 7-8e-3 of artefacts)
     residual_blind: tuple = ("x", "y", "psi")
     # throttle = mean + a random weave of two sines (0.07 and 0.19 Hz) of these amplitudes (m/s²): the
     # weave makes the speed vary (0.9-3.4 m/s), which is what tells linear from quadratic drag apart;
