@@ -5,7 +5,7 @@ Usage (from the repository root, with the package installed; ~10 min on one idle
     .venv/bin/python benchmarks/joint_weight_prior.py --seeds 15 16 17 --priors 0 3 10 30
 
 For each seed the Table I protocol runs (train on the simulated run 10000 + s, score on 20000 + s) with the joint
-fit of `models.joint_training` at each λ, and the evaluation run's KNODE-MHE and KNODE-UKF MSE are printed beside
+fit of `estimators.joint_training` at each λ, and the evaluation run's KNODE-MHE and KNODE-UKF MSE are printed beside
 MHE (true dynamics) and UKF (prior).  Writes `results/joint_weight_prior.json` and `.md`.
 """
 from __future__ import annotations
@@ -20,7 +20,7 @@ import numpy as np
 from learnest.estimators.mhe import MHE
 from learnest.estimators.observers import pretraining_observer
 from learnest.estimators.ukf import run_ukf
-from learnest.models.joint_training import train_jointly
+from learnest.estimators.joint_training import train_jointly
 from learnest.models.knode import HybridModel
 from learnest.models.presets import MHE_HORIZON, PAPER_TRAINING, TrainingConfig
 from learnest.models.systems import make_system

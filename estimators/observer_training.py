@@ -11,7 +11,7 @@ benchmarks/results/table1_observer_study.md):
   train on those estimates; stop when the learned model explains the measurements no better than the
   previous round's (mean squared forward innovation, whitened by R: it needs no ground truth);
 * ``observer="joint"``: the filter's estimates only start a joint fit of the record's states and Δθ
-  (`models.joint_training.train_jointly`, the full-record MHE with the network free), so the states the
+  (`estimators.joint_training.train_jointly`, the full-record MHE with the network free), so the states the
   network learns from must also follow the learned model.
 """
 from __future__ import annotations
@@ -76,7 +76,7 @@ def train_with_observer(system: System, y: ArrayLike, u: ArrayLike, dt: float, c
     config : TrainingConfig
         Training settings, the same in every round (each round trains from the config's seed).
     observer : {"filter", "smoother", "joint"}
-        First observer (`first_observation`); "joint" starts `models.joint_training.train_jointly` from the
+        First observer (`first_observation`); "joint" starts `estimators.joint_training.train_jointly` from the
         filter's estimates instead of training on them.
     rounds : int
         Extra observer -> train rounds at most; 0 is Algorithm 1 as printed (ignored with "joint").
@@ -100,7 +100,7 @@ def train_with_observer(system: System, y: ArrayLike, u: ArrayLike, dt: float, c
     y, u = np.asarray(y, dtype=float), np.asarray(u, dtype=float).reshape(len(y), -1)
     zeta = first_observation(system, y, u, dt, observer)
     if observer == "joint":   # the observer's states start the joint fit; no rounds after it
-        from learnest.models.joint_training import train_jointly
+        from learnest.estimators.joint_training import train_jointly
 
         result = train_jointly(system, y, u, dt, zeta, config, progress=progress)
         result.model.meta["observer"] = {"kind": observer, "rounds": rounds, "kept_round": 0, "misfit": []}

@@ -91,7 +91,7 @@ PAPER_TRAINING = {  # Sec. V: 2 layers x 8 tanh; 250 epochs (cartpole), 10000 ep
 #   as the first observer is worse than the paper's model-free KF + RTS (seed 0: 42 vs 11), because the
 #   prior's wrong cart mass biases the rates the network learns from.
 #   Since stop 17 the cartpole fits the record's states and Δθ jointly from the filter's estimates ("joint",
-#   models.joint_training): on all 15 seeds of Table I it beats the 3 rounds, KNODE-MHE / MHE (true
+#   estimators.joint_training): on all 15 seeds of Table I it beats the 3 rounds, KNODE-MHE / MHE (true
 #   dynamics) 4.0 -> 2.6 (ratio of means; per-seed median 3.9 -> 2.2), UKF / KNODE-UKF 40.6 -> 72.0.
 #   Since stop 19 that fit takes 40 Levenberg–Marquardt steps under a prior on the weights instead of 3000
 #   L-BFGS steps without one (benchmarks/README.md, Table I).

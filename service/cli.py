@@ -694,7 +694,7 @@ def build_parser() -> argparse.ArgumentParser:
                           "models/presets.py PAPER_OBSERVER; 0 is the paper's Algorithm 1)")
     rep.add_argument("--observer", choices=("filter", "smoother", "joint"), default=None,
                      help="pre-training observer of the KNODE rows (default: the task's, PAPER_OBSERVER); 'joint' "
-                          "fits the record's states and the residual together (models/joint_training.py)")
+                          "fits the record's states and the residual together (estimators/joint_training.py)")
     rep.set_defaults(func=_reproduce)
 
     ing = sub.add_parser("ingest", help="read flight logs, normalise them and check their quality")

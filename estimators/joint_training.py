@@ -34,13 +34,14 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from learnest.errors import InvalidInput
+from learnest.models.backend import rk4_step
+from learnest.models.envelope import training_envelope
+from learnest.models.knode import HybridModel
+from learnest.models.presets import TrainingConfig
+from learnest.models.systems import System
+from learnest.models.training import TrainingResult, new_residual
 
-from .backend import rk4_step
-from .envelope import training_envelope
-from .knode import HybridModel
-from .presets import TrainingConfig
-from .systems import System
-from .training import TrainingResult, new_residual
+from .mhe_gn import BlockTridiagonal
 
 ITERATIONS = 40        # Levenberg–Marquardt iterations at most: part of the regularisation (module docstring)
 WEIGHT_PRIOR = 10.0    # λ of the weight prior λ‖θ‖², in units of the whitened squared residuals
@@ -73,14 +74,14 @@ def train_jointly(system: System, y: ArrayLike, u: ArrayLike, dt: float, zeta: A
     weight_prior : float
         λ of the penalty λ‖θ‖² on the network's weights (≥ 0; whitened units, as J).
     progress : callable, optional
-        ``progress(iteration, J per sample)`` after every iteration.
+        ``progress(iteration, J / 2 per sample)`` after every step taken.
 
     Returns
     -------
     TrainingResult
-        The KNODE (its meta: ``training`` with ``joint_iterations`` (run) and ``weight_prior``, the final
-        objective, the envelope of the jointly estimated states) and J per sample after each iteration in
-        ``losses``.
+        The KNODE (its meta: ``training`` with ``joint_iterations`` (steps taken) and ``weight_prior``, the final
+        objective, the envelope of the jointly estimated states) and J / 2 per sample after each step taken
+        in ``losses``.
 
     Raises
     ------
@@ -89,7 +90,7 @@ def train_jointly(system: System, y: ArrayLike, u: ArrayLike, dt: float, zeta: A
     """
     import torch
 
-    from .residual_net import TRAINING_THREADS, torch_threads
+    from learnest.models.residual_net import TRAINING_THREADS, torch_threads
 
     y, zeta = np.asarray(y, dtype=float), np.asarray(zeta, dtype=float)
     u = np.asarray(u, dtype=float).reshape(len(zeta), -1)
@@ -106,13 +107,16 @@ def train_jointly(system: System, y: ArrayLike, u: ArrayLike, dt: float, zeta: A
     with torch_threads(TRAINING_THREADS):
         torch.manual_seed(config.seed)
         mlp = new_residual(system, zeta, u, config.hidden)
+        with torch.no_grad():   # weights of inputs Δθ is blind to never act: start them at 0, not in the prior
+            mlp.hidden_layer.weight *= mlp.input_mask
         problem = _JointProblem(system, y, u, dt, mlp, weight_prior)
         states, theta, losses = _levenberg_marquardt(problem, zeta, problem.theta0(), iterations, progress)
+        steps_taken, losses = len(losses), losses or [problem.cost(states, theta)]
         problem.load(theta)
         residual = mlp.export()
     model = HybridModel(system, "knode", residual,
                         meta={"training": {"hidden": config.hidden, "seed": config.seed,
-                                           "joint_iterations": len(losses), "weight_prior": weight_prior},
+                                           "joint_iterations": steps_taken, "weight_prior": weight_prior},
                               "final_loss": losses[-1], "seconds": time.perf_counter() - started,
                               "best_epoch": None, "best_validation_loss": None,
                               "envelope": training_envelope(states, u, [*system.state_names, *system.input_names],
@@ -121,8 +125,9 @@ def train_jointly(system: System, y: ArrayLike, u: ArrayLike, dt: float, zeta: A
 
 
 class _JointProblem:
-    """J's residuals and their Jacobian blocks, whitened: measurement rows r_m (T, m), process rows r_q
-    (T-1, n), and per step ∂r_m/∂x_k = -H_k, ∂r_q/∂x_k = -A_k, ∂r_q/∂x_{k+1} = W, ∂r_q/∂θ = -B_k."""
+    """J's residuals and their Jacobian blocks, whitened (W = diag(1/σ_Q)): measurement rows r_m (T, m), process
+    rows r_q (T-1, n), and per step ∂r_m/∂x_k = -h_k, ∂r_q/∂x_k = -a_k = -W A_k, ∂r_q/∂x_{k+1} = W,
+    ∂r_q/∂θ = -b_k = -W B_k."""
 
     def __init__(self, system: System, y: np.ndarray, u: np.ndarray, dt: float, mlp, weight_prior: float):
         import torch
@@ -182,7 +187,7 @@ class _JointProblem:
         return 0.5 * float((r_m**2).sum() + (r_q**2).sum() + self.weight_prior * theta @ theta) / len(states)
 
     def jacobians(self, states: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Whitened H (T, m, n), A (T-1, n, n), B (T-1, n, P)."""
+        """Whitened h_k (T, m, n), a_k (T-1, n, n), b_k (T-1, n, P)."""
         import torch
 
         x, th = torch.as_tensor(states), torch.as_tensor(theta)
@@ -191,54 +196,72 @@ class _JointProblem:
         return h, a.numpy() * self.inv_sigma_q[None, :, None], b.numpy() * self.inv_sigma_q[None, :, None]
 
 
+def normal_equations(problem: _JointProblem, states: np.ndarray, theta: np.ndarray) -> dict:
+    """The Gauss–Newton system of J at (states, θ): JᵀJ's parts and the gradient Jᵀr.
+
+    Returns
+    -------
+    dict
+        ``transition`` A_k (T-1, n, n) (unwhitened ∂x_{k+1}/∂x_k of the model's step), ``measurement`` the
+        whitened H_k (T, m, n), ``border`` (T, n, P) and ``corner`` (P, P) of JᵀJ (the corner with the weight
+        prior), ``grad_x`` (T, n) and ``grad_theta`` (P,) of Jᵀr.
+    """
+    r_m, r_q = problem.residuals(states, theta)
+    h, a, b = problem.jacobians(states, theta)      # whitened: a = W A, b = W B with W = diag(1/σ_Q)
+    w = np.diag(problem.inv_sigma_q)
+    # process row k: ∂/∂x_k = -a_k, ∂/∂x_{k+1} = W, ∂/∂θ = -b_k; measurement row k: ∂/∂x_k = -h_k
+    border = np.zeros((*states.shape, theta.size))
+    border[:-1] += np.einsum("kmi,kmp->kip", a, b)
+    border[1:] -= np.einsum("mi,kmp->kip", w, b)
+    grad_x = -np.einsum("kmi,km->ki", h, r_m)
+    grad_x[:-1] -= np.einsum("kmi,km->ki", a, r_q)
+    grad_x[1:] += r_q @ w
+    return {"transition": a / problem.inv_sigma_q[None, :, None], "measurement": h, "border": border,
+            "corner": np.einsum("kmp,kmq->pq", b, b) + problem.weight_prior * np.eye(theta.size),
+            "grad_x": grad_x, "grad_theta": -np.einsum("kmp,km->p", b, r_q) + problem.weight_prior * theta}
+
+
 def _levenberg_marquardt(problem: _JointProblem, states: np.ndarray, theta: np.ndarray, iterations: int,
                          progress: Callable[[int, float], None] | None) -> tuple[np.ndarray, np.ndarray, list]:
-    """Marquardt-scaled damping (λ_LM diag(JᵀJ)), raised ×5 until a step lowers J, lowered ×3 after it."""
-    from learnest.estimators.mhe_gn import BlockTridiagonal
+    """Marquardt-scaled damping (λ_LM diag(JᵀJ)), raised ×5 until a step lowers J, lowered ×3 after it.
 
+    Returns the states, θ and J/2 per sample after each step taken (empty when none lowered J)."""
     T, n = states.shape
-    q_inv = np.diag(problem.inv_sigma_q**2)
-    solver = None
+    m = problem.y.shape[1]
+    # the MHE's compiled block Cholesky (estimators/btd.c): R⁻¹ = I (H is whitened), m + n rows for the damping
+    solver = BlockTridiagonal(n, m + n, T, np.diag(problem.inv_sigma_q**2), np.eye(m + n))
     cost, damping, losses = problem.cost(states, theta), 1e-3, []
+    if not np.isfinite(cost):
+        raise InvalidInput("joint training cannot start: the objective is not finite at the observer's states")
     for iteration in range(iterations):
-        r_m, r_q = problem.residuals(states, theta)
-        h, a, b = problem.jacobians(states, theta)      # whitened: a = W A, b = W B with W = Q^-1/2
-        transition = a / problem.inv_sigma_q[None, :, None]                   # A (T-1, n, n), unwhitened
-        if solver is None:   # the MHE's compiled block Cholesky (estimators/btd.c), sized once
-            solver = BlockTridiagonal(n, h.shape[1] + n, T, q_inv, np.eye(h.shape[1] + n))
-        # JᵀJ's border (states × θ) and corner, and the gradient Jᵀr
-        w = np.diag(problem.inv_sigma_q)
-        border = np.zeros((T, n, theta.size))
-        border[:-1] += np.einsum("kmi,kmp->kip", a, b)
-        border[1:] -= np.einsum("mi,kmp->kip", w, b)
-        corner = np.einsum("kmp,kmq->pq", b, b) + problem.weight_prior * np.eye(theta.size)
-        grad_x = -np.einsum("kmi,km->ki", h, r_m)
-        grad_x[:-1] -= np.einsum("kmi,km->ki", a, r_q)
-        grad_x[1:] += r_q @ w
-        grad_theta = -np.einsum("kmp,km->p", b, r_q) + problem.weight_prior * theta
-        accepted = False
+        system = normal_equations(problem, states, theta)
+        taken = False
         while damping < 1e10:
-            step_x, step_theta = solve_bordered_tridiagonal(solver, transition, h, q_inv, border, corner,
-                                                            -grad_x, -grad_theta, damping)
-            trial_states, trial_theta = states + step_x, theta + step_theta
-            trial = problem.cost(trial_states, trial_theta)
+            try:
+                step_x, step_theta = solve_bordered_tridiagonal(solver, system["transition"], system["measurement"],
+                                                                system["border"], system["corner"],
+                                                                -system["grad_x"], -system["grad_theta"], damping)
+                trial = problem.cost(states + step_x, theta + step_theta)
+            except np.linalg.LinAlgError:   # round-off lost positive definiteness: damp harder
+                trial = np.inf
             if trial < cost:
-                accepted, decrease = True, (cost - trial) / cost
-                states, theta, cost, damping = trial_states, trial_theta, trial, max(damping / 3, 1e-12)
+                decrease = (cost - trial) / cost
+                states, theta, cost, taken = states + step_x, theta + step_theta, trial, True
+                damping = max(damping / 3, 1e-9)
                 break
             damping *= 5
+        if not taken:
+            break
         losses.append(cost)
         if progress:
             progress(iteration + 1, cost)
-        if not accepted or decrease < RELATIVE_TOLERANCE:
+        if decrease < RELATIVE_TOLERANCE:
             break
-    if not np.isfinite(cost):
-        raise InvalidInput("joint training diverged (non-finite objective): check Q, R and the record")
     return states, theta, losses
 
 
-def solve_bordered_tridiagonal(solver, transition: np.ndarray, measurement: np.ndarray, q_inv: np.ndarray,
-                               border: np.ndarray, corner: np.ndarray, rhs_x: np.ndarray, rhs_theta: np.ndarray,
+def solve_bordered_tridiagonal(solver, transition: np.ndarray, measurement: np.ndarray, border: np.ndarray,
+                               corner: np.ndarray, rhs_x: np.ndarray, rhs_theta: np.ndarray,
                                damping: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Solve [[M, C], [Cᵀ, S]] [δx; δθ] = [r_x; r_θ] for the joint fit's Gauss–Newton matrix.
 
@@ -250,13 +273,11 @@ def solve_bordered_tridiagonal(solver, transition: np.ndarray, measurement: np.n
     Parameters
     ----------
     solver : estimators.mhe_gn.BlockTridiagonal
-        Built for n states, m + n measurement rows, at least T nodes, Q⁻¹ = ``q_inv``, R⁻¹ = I.
+        Built for n states, m + n measurement rows, at least T nodes, R⁻¹ = I; its Q⁻¹ is the Q⁻¹ of M.
     transition : ndarray, shape (T-1, n, n)
         A_k = ∂x_{k+1}/∂x_k of the model's step.
     measurement : ndarray, shape (T, m, n)
         H_k, whitened (R = I).
-    q_inv : ndarray, shape (n, n)
-        Q⁻¹ (symmetric).
     border : ndarray, shape (T, n, P)
         C, by state block.
     corner : ndarray, shape (P, P)
@@ -271,20 +292,27 @@ def solve_bordered_tridiagonal(solver, transition: np.ndarray, measurement: np.n
 
     Raises
     ------
+    ValueError
+        If the shapes do not fit each other or the solver (its compiled code would read out of bounds).
     numpy.linalg.LinAlgError
         If the matrix is not positive definite.
     """
     T, n = rhs_x.shape
     P = rhs_theta.size
+    m = measurement.shape[1]
+    if (solver.n, solver.m) != (n, m + n) or T > len(getattr(solver, "R", rhs_x)) or transition.shape != (
+            T - 1, n, n) or measurement.shape != (T, m, n) or border.shape != (T, n, P) or corner.shape != (P, P):
+        raise ValueError(f"solve_bordered_tridiagonal: shapes do not fit a solver for n={solver.n}, m+n={solver.m}")
+    q_inv = solver.Qi
     diagonal = np.einsum("kmi,kmi->ki", measurement, measurement)         # diag(M_k), for Marquardt's scaling
     diagonal[:-1] += np.einsum("kji,jl,kli->ki", transition, q_inv, transition)
     diagonal[1:] += np.diag(q_inv)
     damped = np.zeros((T, n, n))
     damped[:, np.arange(n), np.arange(n)] = np.sqrt(damping * diagonal + 1e-12)   # + 1e-12: a state no row reaches
     rows = np.ascontiguousarray(np.concatenate([measurement, damped], axis=1))
-    steps = np.zeros((T, n, n))
-    steps[:-1] = transition
-    factor = solver.factor(T, steps, rows, np.zeros((n, n)))
+    transitions = np.zeros((T, n, n))     # the solver reads one per node; the last node has none
+    transitions[:-1] = transition
+    factor = solver.factor(T, transitions, rows, np.zeros((n, n)))
     flat_border = border.reshape(T * n, P)
     solved = np.stack([solver.solve(factor, column.reshape(T, n)).ravel()
                        for column in np.concatenate([flat_border, rhs_x.reshape(-1, 1)], axis=1).T], axis=1)
