@@ -234,13 +234,13 @@ def _levenberg_marquardt(problem: _JointProblem, states: np.ndarray, theta: np.n
     if not np.isfinite(cost):
         raise InvalidInput("joint training cannot start: the objective is not finite at the observer's states")
     for iteration in range(iterations):
-        system = normal_equations(problem, states, theta)
+        equations = normal_equations(problem, states, theta)
         taken = False
         while damping < 1e10:
             try:
-                step_x, step_theta = solve_bordered_tridiagonal(solver, system["transition"], system["measurement"],
-                                                                system["border"], system["corner"],
-                                                                -system["grad_x"], -system["grad_theta"], damping)
+                step_x, step_theta = solve_bordered_tridiagonal(
+                    solver, equations["transition"], equations["measurement"], equations["border"],
+                    equations["corner"], -equations["grad_x"], -equations["grad_theta"], damping)
                 trial = problem.cost(states + step_x, theta + step_theta)
             except np.linalg.LinAlgError:   # round-off lost positive definiteness: damp harder
                 trial = np.inf
