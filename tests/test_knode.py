@@ -159,3 +159,19 @@ def test_a_trained_robot_residual_does_not_depend_on_where_the_robot_is_or_which
     np.testing.assert_allclose(there, here, rtol=0, atol=1e-12)
     faster = run.x + np.array([0.0, 0.0, 0.5, 0.0])           # the speed it does see
     assert np.abs(residual(faster, run.u) - here).max() > 1e-6
+
+
+def test_a_trained_cartpole_residual_corrects_only_the_accelerations_and_does_not_see_the_cart_position():
+    """The derivatives of p and α are ṗ and α̇ by definition, and a level track is the same everywhere: Δθ's p and α
+    rows are exactly 0, and it gives the same accelerations wherever the cart is."""
+    system = make_system("cartpole")
+    assert system.residual_states == ("p_dot", "alpha_dot") and system.residual_blind == system.invariant_states
+    run = system.simulate(5, 600)
+    residual = train_knode(system, run.x_noisy, run.u, system.dt, TrainingConfig(hidden=8, epochs=40)).model.residual
+    here = residual(run.x, run.u)
+    assert np.abs(here[:, [1, 3]]).max() > 1e-2                # it learned the accelerations' error
+    assert np.all(here[:, [0, 2]] == 0.0)
+    moved = run.x + np.array([0.8, 0.0, 0.0, 0.0])             # the cart elsewhere on the track
+    np.testing.assert_allclose(residual(moved, run.u), here, rtol=0, atol=1e-12)
+    faster = run.x + np.array([0.0, 0.5, 0.0, 0.0])            # the cart's speed it does see
+    assert np.abs(residual(faster, run.u) - here).max() > 1e-6
