@@ -125,3 +125,11 @@ def test_a_model_reference_is_checked_without_the_database_stack():
             "print(','.join(m for m in ('sqlalchemy', 'learnest.service.registry', 'torch') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd="/")
     assert out.stdout.strip() == ""
+
+
+@pytest.mark.parametrize("value, message", [("-1", "must be at least 0, got '-1'"),
+                                            ("x", "must be a whole number, got 'x'")])
+def test_reproduce_refuses_a_bad_first_seed_before_running_anything(capsys, value, message):
+    assert main(["reproduce", "--task", "cartpole", "--first-seed", value]) == 2
+    err = capsys.readouterr().err
+    assert f"argument --first-seed: {message}" in err and "Traceback" not in err and "Table I" not in err

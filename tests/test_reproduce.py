@@ -42,3 +42,28 @@ def test_table_ratios_against_the_truth_and_the_prior_by_seed_and_inside_the_env
     assert ratios["per-seed median"] == pytest.approx(3.0)
     assert ratios["ratio of means over the 2 seeds inside the envelope"] == pytest.approx(2.5)
     assert list(seed_ratios(seeds[:2], "KNODE-MHE", "MHE (true dynamics)")) == ["ratio of means", "per-seed median"]
+
+
+@pytest.mark.slow
+def test_a_fresh_draw_of_seeds_scores_the_runs_of_those_seeds():
+    """``first_seed`` moves the draw: a table starting at seed 7 scores the evaluation run simulated with seed
+    20000 + 7 (its prior UKF row, recomputed here from that simulation, is the same number)."""
+    import numpy as np
+
+    from learnest.errors import InvalidInput
+    from learnest.estimators.ukf import run_ukf
+    from learnest.models.knode import HybridModel
+    from learnest.models.systems import make_system
+    from learnest.service.experiments.table1 import format_table
+
+    settings = ReproduceSettings("cartpole", eval_samples=60, epochs=1, observer_rounds=0, observer="filter")
+    report = reproduce(settings, seeds=1, first_seed=7)
+    assert report["first_seed"] == 7 and [s["seed"] for s in report["per_seed"]] == [7]
+    system = make_system("cartpole")
+    test = system.simulate(20_007, 60)
+    prior_ukf = run_ukf(HybridModel(system, "prior"), test.y, test.u, dt=system.dt, Q=system.Q, R=system.R,
+                        x0=test.x_noisy[0], P0=system.P0).means
+    assert report["per_seed"][0]["mse"]["UKF"] == pytest.approx(np.mean((prior_ukf - test.x) ** 2), rel=1e-12)
+    assert format_table(report).startswith("Table I — cartpole, seed 7 (MSE x 1e-3)")
+    with pytest.raises(InvalidInput, match="first_seed"):
+        reproduce(settings, seeds=1, first_seed=-1)
