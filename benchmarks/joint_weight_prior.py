@@ -65,8 +65,9 @@ def main() -> None:
     parser.add_argument("--priors", type=float, nargs="+", default=[0.0, 1.0, 3.0, 10.0, 30.0])
     parser.add_argument("--workers", type=int, default=1, help="seeds run in this many processes")
     args = parser.parse_args()
-    with ProcessPoolExecutor(args.workers) as pool:
-        rows = [row for rows in pool.map(run_seed, args.seeds, [args.priors] * len(args.seeds)) for row in rows]
+    with ProcessPoolExecutor(max(1, args.workers)) as pool:
+        rows = [row for per_seed in pool.map(run_seed, args.seeds, [args.priors] * len(args.seeds))
+                for row in per_seed]
     lines = ["# Weight prior of the cartpole's joint fit (`benchmarks/joint_weight_prior.py`)", "",
              "MSE × 1e-3 on each seed's evaluation run; seeds outside Table I's 0-14.", "",
              "| seed | λ | KNODE-MHE | MHE (true) | KNODE-MHE / MHE (true) | KNODE-UKF | UKF | UKF / KNODE-UKF "

@@ -17,9 +17,10 @@ it, the network explains the record to its noise level and is wrong off that pat
 every state and correcting every derivative as in the paper, 40 Levenberg–Marquardt iterations without a prior:
 KNODE-MHE 3.2e-3, against 0.69e-3 for the 3000 L-BFGS iterations this module used to stop at, whose early stop was
 the only regulariser; 0.32e-3 with λ = 10). The iteration count still regularises: this is not the optimum of J (120
-iterations gave 0.44e-3 on seed 4). Both were chosen on seeds outside Table I: the count on seeds 15-17, λ =
-`WEIGHT_PRIOR` on seeds 15-19 after the cartpole's Δθ was restricted to its accelerations and blinded to the cart's
-position (`Cartpole`'s masks; benchmarks/joint_weight_prior.py, benchmarks/README.md).
+iterations gave 0.44e-3 on seed 4). Both were chosen on seeds outside Table I: the count on seeds 15-17 with the
+paper's masks (not re-checked since), λ = `WEIGHT_PRIOR` on seeds 15-19 after the cartpole's Δθ was restricted to
+its accelerations and blinded to the cart's position (`Cartpole`'s masks; benchmarks/joint_weight_prior.py,
+benchmarks/README.md).
 
 How: Levenberg–Marquardt.  The normal equations are block-tridiagonal in the states (one n × n block per
 sample; a sample touches only its neighbours) with a dense border for θ, so each step is the MHE's compiled

@@ -96,7 +96,8 @@ PAPER_TRAINING = {  # Sec. V: 2 layers x 8 tanh; 250 epochs (cartpole), 10000 ep
 #   Since stop 19 that fit takes 40 Levenberg–Marquardt steps under a prior on the weights instead of 3000
 #   L-BFGS steps without one (benchmarks/README.md, Table I).  What took the cartpole to its targets at stop
 #   20 is not the observer: its Δθ corrects the accelerations only and is blind to the cart's position
-#   (`Cartpole`'s masks): 2.53 -> 1.88 and 74.6 -> 107.8 over the 15 seeds.
+#   (`Cartpole`'s masks): 2.53 -> 1.88 and 74.6 -> 107.8 over the 15 seeds, the joint fit's weight prior
+#   re-chosen with them (1.93 and 104.0 with the old one).
 # - robot: the unscented RTS pass on the precursory UKF (a smoother instead of the filter) helps more than
 #   the iteration (seed 0: 16.5 -> 7.5, 3 rounds 9.9; seed 1: 69 -> 56): kept, to be confirmed on
 #   15 seeds.  The joint fit was not measured on the robot.  What helped the robot most is not the observer:

@@ -212,9 +212,10 @@ class Cartpole(System):
     invariant_states: tuple = ("p",)
     # Δθ corrects the accelerations only (the derivatives of p and α are ṗ and α̇ by definition) and does not see
     # where the cart is (the track is level and uniform): the rule of `System`'s masks.  On Table I
-    # (benchmarks/README.md) the definition rows had learned 0.006-0.045 m/s, rad/s of artefact on seed 14, and
-    # KNODE-MHE / MHE (true dynamics) went 2.53 -> 1.88 over the 15 seeds.  What these masks cannot learn: a
-    # force that depends on where the cart is (a spring at the end of the track).
+    # (benchmarks/README.md, cartpole_residual_error.py) the definition rows had learned up to 0.04 m/s, rad/s of
+    # artefact, and KNODE-MHE / MHE (true dynamics) went 2.53 -> 1.93 over the 15 seeds (1.88 with the weight
+    # prior re-chosen).  What these masks cannot learn: a force that depends on where the cart is (a spring at the
+    # end of the track).
     residual_states: tuple | None = ("p_dot", "alpha_dot")
     residual_blind: tuple = ("p",)
 

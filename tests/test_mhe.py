@@ -91,7 +91,7 @@ def test_compiled_functions_are_cached_by_content(tmp_path):
 
 
 def _masked_cartpole_knode(seed):
-    """A cartpole KNODE whose residual corrects only the velocities and does not see the cart position
+    """A cartpole KNODE whose residual corrects only the accelerations and does not see the cart position
     (masks folded into the weights as `ResidualNet.export` does), random weights of one architecture."""
     from dataclasses import replace
     system = replace(make_system("cartpole"), residual_states=("p_dot", "alpha_dot"), residual_blind=("p",))
