@@ -78,7 +78,7 @@ PAPER_TRAINING = {  # Sec. V: 2 layers x 8 tanh; 250 epochs (cartpole), 10000 ep
     # 250 full-batch epochs cannot overfit the cartpole record, so it trains on all of it, as the paper;
     # 10000 epochs on the robot fit the range observer's artefacts unless a held-out block stops them.
     # Two held-out blocks beat one tail block on fresh seeds 15-29 (KNODE-UKF median 0.98e-3 vs 1.71e-3; with Δθ
-# blind to x, y, ψ, 0.35e-3 vs 0.73e-3):
+    # blind to x, y, ψ, 0.35e-3 vs 0.73e-3):
     # one block covers one stretch of the lap, whose artefacts the network may share
     "cartpole": TrainingConfig(hidden=8, epochs=250, lr=2e-2, validation_fraction=0.0),
     "robot": TrainingConfig(hidden=8, epochs=10000, lr=5e-3, validation_fraction=0.2, validation_layout="spread"),
