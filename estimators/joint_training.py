@@ -305,8 +305,8 @@ def solve_bordered_tridiagonal(solver, transition: np.ndarray, measurement: np.n
     T, n = rhs_x.shape
     P = rhs_theta.size
     m = measurement.shape[1]
-    if (solver.n, solver.m) != (n, m + n) or T > len(getattr(solver, "R", rhs_x)) or transition.shape != (
-            T - 1, n, n) or measurement.shape != (T, m, n) or border.shape != (T, n, P) or corner.shape != (P, P):
+    if (solver.n, solver.m) != (n, m + n) or T > solver.Lmax or transition.shape != (T - 1, n, n) or \
+            measurement.shape != (T, m, n) or border.shape != (T, n, P) or corner.shape != (P, P):
         raise ValueError(f"solve_bordered_tridiagonal: shapes do not fit a solver for n={solver.n}, m+n={solver.m}")
     q_inv = solver.Qi
     diagonal = np.einsum("kmi,kmi->ki", measurement, measurement)         # diag(M_k), for Marquardt's scaling

@@ -458,7 +458,7 @@ class BlockTridiagonal:
     """
 
     def __init__(self, n, m, Lmax, Qi, Ri, cache_dir=None, compiler="auto"):
-        self.n, self.m = n, m
+        self.n, self.m, self.Lmax = n, m, Lmax
         self.Qi, self.Ri = np.ascontiguousarray(Qi), np.ascontiguousarray(Ri)
         # gn.c (the MHE's window loop) shares this library: it calls btd.c's factor and solve
         source = "\n".join(Path(__file__).with_name(name).read_text() for name in ("lu.c", "btd.c", "gn.c"))

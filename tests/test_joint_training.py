@@ -96,6 +96,9 @@ def test_the_bordered_block_tridiagonal_solve_equals_a_dense_solve():
     with pytest.raises(ValueError, match="shapes"):     # a solver for other sizes would be read out of bounds
         solve_bordered_tridiagonal(BlockTridiagonal(n, m + n + 1, T, q_inv, np.eye(m + n + 1)), transition,
                                    measurement, border, corner, rhs[: T * n].reshape(T, n), rhs[T * n:])
+    with pytest.raises(ValueError, match="shapes"):     # ...and so would one built for fewer nodes
+        solve_bordered_tridiagonal(BlockTridiagonal(n, m + n, T - 1, q_inv, np.eye(m + n)), transition,
+                                   measurement, border, corner, rhs[: T * n].reshape(T, n), rhs[T * n:])
 
 
 def test_the_normal_equations_are_the_autograd_jacobians():
