@@ -6,13 +6,15 @@ FROM python:3.11-slim
 WORKDIR /app
 # CPU build of torch first, from PyTorch's CPU index, so no CUDA packages are pulled in
 RUN pip install --no-cache-dir torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu
-COPY pyproject.toml constraints.txt README.md ./
+COPY pyproject.toml constraints.txt README.md CHANGELOG.md mkdocs.yml ./
 COPY learnest ./learnest
 COPY ingest ./ingest
 COPY models ./models
 COPY estimators ./estimators
 COPY service ./service
-RUN pip install --no-cache-dir -c constraints.txt ".[dask,postgres]"
+COPY docs ./docs
+# docs: MkDocs, which builds the manual that `learnest serve` shows at /manual
+RUN pip install --no-cache-dir -c constraints.txt ".[dask,postgres,docs]"
 
 ENV LEARNEST_HOME=/data
 VOLUME /data

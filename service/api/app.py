@@ -19,7 +19,7 @@ from ..jobs.decoding import DecodePool
 from ..jobs.executors import Executor
 from ..jobs.scheduler import Scheduler
 from ..jobs.services import open_services, sweep_orphan_blobs
-from ..web import pages, registry_pages
+from ..web import manual, pages, registry_pages
 from .docs import install_docs
 from .errors import install_error_handlers
 from .request_guard import RequestGuard
@@ -69,6 +69,7 @@ def create_app(settings: Settings | None = None, *, executor: Executor | None = 
         app.include_router(router)
     app.include_router(pages.router)  # the HTML pages for people (/, /ui/..., report.html): service/web/
     app.include_router(registry_pages.router)  # evaluations list, version pages, compare, delete pages
+    app.include_router(manual.router)  # the user manual (docs/, built with MkDocs) at /manual
     app.mount("/static", StaticFiles(packages=[("learnest.service.web", "static")]), name="static")
     install_docs(app)  # /docs and /redoc with packaged assets (no CDN)
 
