@@ -17,7 +17,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PYPROJECT = ROOT / "pyproject.toml"
-PACKAGE_FOLDERS = ["ingest", "models", "estimators", "service", "learnest"]
+PACKAGE_FOLDERS = ["ingest", "models", "estimators", "service", "learnest", "docs/_hooks"]  # the hook ships too
 
 # ruff violations in files being rewritten (they are checked again once removed from here): none left
 RUFF_NOT_YET_CLEAN: list[str] = []
