@@ -125,7 +125,8 @@ def _render(parser: argparse.ArgumentParser, name: str, summary: str, depth: int
         lines.append(summary[0].upper() + summary[1:] + ("" if summary.endswith(".") else "."))
         lines.append("")
     lines.append("```text")
-    lines.append(parser.format_usage().strip().removeprefix("usage: "))
+    usage = parser.format_usage().strip().splitlines()  # argparse indents wrapped lines under "usage: "
+    lines += [usage[0].removeprefix("usage: "), *(line.removeprefix(" " * len("usage: ")) for line in usage[1:])]
     lines.append("```")
     lines.append("")
     rows = [row for action in parser._actions if (row := _argument_row(action))]
