@@ -113,6 +113,7 @@ def test_serve_builds_the_manual_once_and_serves_it_offline(tmp_path):
     from utils.service import running_app
 
     with running_app(tmp_path) as client:
+        assert "href='/manual/index.html'" in client.get("/").text   # every page's navigation links to it
         first = client.get("/manual", follow_redirects=False)
         assert first.status_code in (302, 307) and first.headers["location"] == "/manual/index.html"
         page = client.get("/manual/index.html")
