@@ -87,11 +87,17 @@ def _blocks(page: Path, language: str) -> str:
     return "\n".join(re.findall(rf"^```{language}\n(.*?)^```", page.read_text(encoding="utf-8"), re.S | re.M))
 
 
-@pytest.mark.parametrize("page", TUTORIALS, ids=[p.stem for p in TUTORIALS])
+# Getting started's shell blocks set up a whole environment (the README's commands, run by CI itself): only its
+# notebook example runs here
+PAGES = [*TUTORIALS, ROOT / "docs" / "getting-started.md"]
+
+
+@pytest.mark.parametrize("page", PAGES, ids=[p.stem for p in PAGES])
 def test_the_tutorial_runs_as_written(page, tmp_path):
     """The page's python blocks in one fresh process, in order (like a notebook), then its bash blocks in
     one shell, from the repository root with a scratch registry: a tutorial cannot drift from the code."""
-    python, shell = _blocks(page, "python"), _blocks(page, "bash")
+    python = _blocks(page, "python")
+    shell = _blocks(page, "bash") if page.parent.name == "tutorials" else ""
     assert python or shell, f"{page.name} has no code to run"
     env = _env(LEARNEST_HOME=str(tmp_path / "home"), MPLBACKEND="Agg")
     if python:
