@@ -181,5 +181,5 @@ def api_reference() -> str:
         lines += [f"## {title}", ""]
         for public in names:
             lines += [f"### `le.{public}`", "", f"::: {_where(public, getattr(learnest, public))}",
-                      "    options:", "      show_root_heading: false", ""]
+                      "    options:", "      show_root_heading: false", "      show_root_toc_entry: false", ""]
     return "\n".join(lines) + "\n"
