@@ -70,7 +70,10 @@ def create_app(settings: Settings | None = None, *, executor: Executor | None = 
     app.include_router(pages.router)  # the HTML pages for people (/, /ui/..., report.html): service/web/
     app.include_router(registry_pages.router)  # evaluations list, version pages, compare, delete pages
     app.include_router(manual.router)  # the user manual (docs/, built with MkDocs) at /manual
-    app.mount("/static", StaticFiles(packages=[("learnest.service.web", "static")]), name="static")
+    # follow_symlink: a strict editable install (the development setup) links these files into its package
+    # folder; a wheel has no links, so this changes nothing there
+    app.mount("/static", StaticFiles(packages=[("learnest.service.web", "static")], follow_symlink=True),
+              name="static")
     install_docs(app)  # /docs and /redoc with packaged assets (no CDN)
 
     # async: answered on the event loop, never queued behind uploads and pages in the worker threads
