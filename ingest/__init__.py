@@ -183,7 +183,7 @@ def read_group(adapter: str, files: list[Path], rate_hz: float = 100.0, *, pose_
         For MCAP recordings and ROS bags: the pose topic ("topic:body" for one body of a TFMessage or
         NamedPoseArray topic) and the acceleration topic, when the automatic choice is not wanted or ambiguous.
     cut : str, optional
-        The stretch to keep: "auto" (default: the flying part, `ingest.align.flying_window`), "none" (the
+        The stretch to keep: "auto" (default: the flying part, `ingest.flight_span.find_flight`), "none" (the
         whole recording) or "START:STOP" in seconds from the recording's start (`ingest.align.parse_cut`).
 
     Returns

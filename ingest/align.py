@@ -29,6 +29,11 @@ GROUND_PERCENTILE = 1.0
 # A vehicle at rest moves only by the mocap's noise (< 1 cm over 0.5 s); one climbing or sinking faster than
 # this over the first HEAD_S is flying.
 RESTING_SPEED_M_S = 0.1
+# A vehicle on the floor holds its position to the mocap's noise (Vicon < 0.5 mm, a 1 mm-rounded pose one
+# step); a hovering one drifts by centimetres.  Smoothed over HEAD_SMOOTHING samples, a first HEAD_S that
+# spans more than HEAD_STILL_M on any axis is not on the floor.
+HEAD_STILL_M = 0.005
+HEAD_SMOOTHING = 5
 
 # Anti-aliasing before a stream sampled faster than the grid is brought to it: a zero-phase Butterworth
 # low-pass (order ANTI_ALIAS_ORDER, run forwards and backwards) with its cut-off at ANTI_ALIAS_CUTOFF of the
@@ -131,7 +136,7 @@ def started_in_air(p: np.ndarray, rate_hz: float) -> tuple[bool, str]:
 
     In the air at the start: the first 0.5 s lie FLYING_HEIGHT_M above the log's lowest height (it comes
     down later), or the vehicle moves sideways faster than a resting one can (mocap noise; a take-off that
-    begins within the first 0.5 s climbs, it does not slide).  ``p`` (T, 3) m, z up.  A log that starts
+    begins within the first 0.5 s climbs, it does not slide), or it is not still (HEAD_STILL_M).  ``p`` (T, 3) m, z up.  A log that starts
     hovering at its lowest height and never moves sideways at first cannot be told from one on a shelf: the
     user's cut (`parse_cut`) decides then.
     """
@@ -146,11 +151,17 @@ def started_in_air(p: np.ndarray, rate_hz: float) -> tuple[bool, str]:
         speed = float(moved) * rate_hz / (head - tenth)
         if speed > RESTING_SPEED_M_S:
             return True, f"moving sideways at {speed:.2f} m/s in the first {HEAD_S:g} s"
+        from scipy.ndimage import uniform_filter1d
+
+        smooth = uniform_filter1d(p[:head], min(HEAD_SMOOTHING, head), axis=0, mode="nearest")
+        span = float(np.max(np.ptp(smooth, axis=0)))
+        if span > HEAD_STILL_M:
+            return True, f"moving by {1000 * span:.0f} mm in the first {HEAD_S:g} s (a vehicle on the floor is still)"
     return False, ""
 
 
 def parse_cut(value: str | bool | tuple | None) -> bool | tuple[float | None, float | None]:
-    """A user's take-off/landing cut: "auto" (default, `flying_window`), "none" (the whole recording) or
+    """A user's take-off/landing cut: "auto" (default, `ingest.flight_span.find_flight`), "none" (the whole recording) or
     "START:STOP" in seconds from the recording's start (either side may be empty: "2.5:" keeps from 2.5 s).
 
     Returns
@@ -198,7 +209,12 @@ def cut_text(cut: bool | tuple) -> str:
 
 def _window(flight: Flight, rate_hz: float, cut: bool | tuple) -> tuple[int, int, str]:
     if cut is True:
-        return flying_window(flight.t, flight.p, rate_hz)
+        from .flight_span import find_flight
+
+        span = find_flight(flight.t, flight.p, rate_hz, flight.channels, flying_height_m=FLYING_HEIGHT_M,
+                           takeoff_settle_s=TAKEOFF_SETTLE_S, landing_settle_s=LANDING_SETTLE_S,
+                           height_rule=flying_window)
+        return span.start, span.stop, span.rule
     if cut is False:
         return 0, len(flight.t), "whole recording kept (no cut asked)"
     start_s, stop_s = cut
@@ -303,7 +319,7 @@ def build_flight(path: str | Path, *, t_mocap: ArrayLike, p: ArrayLike, quat: Ar
         repeats the last pose between frames (uSD fixed-frequency stream) drops the repeats from ``t_mocap``,
         but a repeat of a pose rounded to 1 mm is often a new frame at the same place, not a gap.
     cut : bool or (start_s, stop_s)
-        True: keep only the flying part (`flying_window`); False: the whole recording; (start_s, stop_s):
+        True: keep only the flying part (`ingest.flight_span.find_flight`: motors, accelerometer, height); False: the whole recording; (start_s, stop_s):
         that stretch, s from the start of the grid (None for either end), as `parse_cut` gives.
 
     Returns
