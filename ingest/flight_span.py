@@ -183,8 +183,10 @@ def find_flight(t: ArrayLike, p: ArrayLike, rate_hz: float, channels: dict | Non
             return FlightSpan(0, n, f"whole recording kept: the motors run from its first to its last sample "
                                     f"({', '.join(power_names)})", signals)
         start, stop, rule = height_rule(t, p, rate_hz)
-        return FlightSpan(start, stop, f"{rule} (the motors run from the first to the last sample "
-                                       f"({', '.join(power_names)}): the height decides)", signals + ["height"])
+        if (start, stop) == (0, n):
+            rule = "whole recording kept: the heights show no take-off from a floor and no landing"
+        return FlightSpan(start, stop, f"{rule} (the motors run from the first to the last sample: "
+                                       f"{', '.join(power_names)}, height)", signals + ["height"])
 
     ground = np.zeros(n, dtype=bool)
     if power is not None:
