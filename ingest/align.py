@@ -176,9 +176,9 @@ def started_in_air(p: np.ndarray, rate_hz: float) -> tuple[bool, str]:
 
     In the air at the start: the first 0.5 s lie FLYING_HEIGHT_M above the log's lowest height (it comes
     down later), or the vehicle moves sideways faster than a resting one can (mocap noise; a take-off that
-    begins within the first 0.5 s climbs, it does not slide), or it is not still (HEAD_STILL_M).  ``p`` (T, 3) m, z up.  A log that starts
-    hovering at its lowest height and never moves sideways at first cannot be told from one on a shelf: the
-    user's cut (`parse_cut`) decides then.
+    begins within the first 0.5 s climbs, it does not slide), or it is not still (HEAD_STILL_M).
+    ``p`` (T, 3) m, z up.  A log that starts hovering at its lowest height and holds still at first cannot be
+    told from one on a shelf: the user's cut (`parse_cut`) decides then.
     """
     head = max(2, int(HEAD_S * rate_hz))
     z = p[:, 2]
@@ -201,8 +201,9 @@ def started_in_air(p: np.ndarray, rate_hz: float) -> tuple[bool, str]:
 
 
 def parse_cut(value: str | bool | tuple | None) -> bool | tuple[float | None, float | None]:
-    """A user's take-off/landing cut: "auto" (default, `ingest.flight_span.find_flight`), "none" (the whole recording) or
-    "START:STOP" in seconds from the recording's start (either side may be empty: "2.5:" keeps from 2.5 s).
+    """A user's take-off/landing cut: "auto" (default, `ingest.flight_span.find_flight`), "none" (the
+    whole recording) or "START:STOP" in seconds from the recording's start (either side may be empty: "2.5:"
+    keeps from 2.5 s).
 
     Returns
     -------
@@ -360,7 +361,8 @@ def build_flight(path: str | Path, *, t_mocap: ArrayLike, p: ArrayLike, quat: Ar
         repeats the last pose between frames (uSD fixed-frequency stream) drops the repeats from ``t_mocap``,
         but a repeat of a pose rounded to 1 mm is often a new frame at the same place, not a gap.
     cut : bool or (start_s, stop_s)
-        True: keep only the flying part (`ingest.flight_span.find_flight`: motors, accelerometer, height); False: the whole recording; (start_s, stop_s):
+        True: keep only the flying part (`ingest.flight_span.find_flight`: motors, accelerometer, height);
+        False: the whole recording; (start_s, stop_s):
         that stretch, s from the start of the grid (None for either end), as `parse_cut` gives.
 
     Returns

@@ -212,8 +212,6 @@ def evaluate(paths, model_ref: str, estimator_settings: EstimatorSettings, *, po
     LearnestError
         No file can be read, the reference names nothing usable, or the job failed.
     """
-    from learnest.ingest.batch import read_batch
-
     settings = settings or cli_settings()
     groups, errors = _readable_groups(paths)   # sniffs the formats only: bad files are named before anything is stored
     with local_services(settings, executor=InlineExecutor()) as services:

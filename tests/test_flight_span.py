@@ -11,14 +11,20 @@ import yaml
 from learnest.ingest import read_flights
 from learnest.ingest.batch import read_batch, unique_names
 from learnest.ingest.sim import simulate
-from learnest.ingest.sim.export import (CANONICAL_FORMATS, CFCLIENT_BOOT_S, NANOBENCH_EPOCH_S, VICON_START_S, sim_times,
-                                        write_canonical_flight)
+from learnest.ingest.sim.export import (
+    CANONICAL_FORMATS,
+    CFCLIENT_BOOT_S,
+    NANOBENCH_EPOCH_S,
+    VICON_START_S,
+    sim_times,
+    write_canonical_flight,
+)
 from learnest.ingest.sim.recordings import flight_truth, recording
 from learnest.ingest.sim.trajectories import Circle, Timing
 from learnest.service.cli import main
 
 TOLERANCE_S = 0.1
-SETTLE_S = 1.0     # ingest.align.TAKEOFF_SETTLE_S / LANDING_SETTLE_S: transients trimmed after lift-off, before touchdown
+SETTLE_S = 1.0     # ingest.align.TAKEOFF_SETTLE_S, LANDING_SETTLE_S: the transients trimmed
 
 
 @pytest.fixture(scope="module")
@@ -239,3 +245,34 @@ def test_power_and_rest_signals_from_the_recording(sim, truth):
     assert not still[held].any()                                 # in the hand: not at rest
     zeros = {"motors": np.zeros((len(t), 4))}
     assert powered(zeros, 100.0) == (None, [])                   # a channel logged as zeros says nothing
+
+
+# -- the cut set on a stored flight: the API and the flight page ------------------------------------------------
+def test_a_stored_flight_can_be_cut_again_from_its_raw_files(sim, truth, tmp_path):
+    """The hand pick-up read with motors gives the right cut; a user can still choose another stretch, on the
+    flight page or with POST /flights/{id}/cut, and the raw files are read again (another flight, its name
+    disambiguated by the content hash)."""
+    from utils.service import running_app, upload
+
+    rec = recording(sim, hand_pickup=True)
+    path, = write_canonical_flight(rec, "nanobench", tmp_path, "eckart06")
+    with running_app(tmp_path / "home") as client:
+        stored = upload(client, path)
+        assert stored.status_code == 201, stored.text
+        flight_id = stored.json()["id"]
+        page = client.get(f"/ui/flights/{flight_id}")
+        assert page.status_code == 200 and "id='cut-form'" in page.text and "motor PWM" in page.text
+        chosen = client.post(f"/flights/{flight_id}/cut", data={"cut": "2:9"})
+        assert chosen.status_code == 201, chosen.text
+        body = chosen.json()
+        assert body["duration_s"] == pytest.approx(7.0, abs=0.011)
+        assert body["name"] == f"eckart06-{body['sha256'][:8]}"            # another stretch, another name
+        detail = client.get(f"/flights/{body['id']}").json()
+        assert detail["meta"]["cut_choice"] == "2:9" and detail["meta"]["flying_window"]["start_s"] == 2.0
+        assert client.post(f"/flights/{flight_id}/cut", data={"cut": "2:9"}).status_code == 200   # stored once
+        refused = client.post(f"/flights/{flight_id}/cut", data={"cut": "9:2"})
+        assert refused.status_code == 422 and "START must come before STOP" in refused.text
+        form = client.post(f"/ui/flights/{flight_id}/cut", data={"cut": "none"}, follow_redirects=False)
+        assert form.status_code == 303
+        whole = client.get(form.headers["location"].replace("/ui/flights/", "/flights/")).json()
+        assert whole["duration_s"] == pytest.approx(rec.t[-1], abs=0.011)
