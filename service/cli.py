@@ -189,6 +189,15 @@ def _read_batch(paths, rate_hz, topics: dict | None = None, cut: str | None = No
     return batch
 
 
+def _gap_lines(timing: dict | None, delivered_below: float = 0.95) -> list[str]:
+    """One line for the mocap and the accelerometer each, when it lost more than 5 % of its samples
+    (`learnest.ingest.align.stream_timing`): a stream with gaps, at its own rate."""
+    return [f"  {name}: {t['rate_hz']:.1f} Hz with gaps: {100 * t['delivered']:.0f} % of its samples delivered "
+            f"({t['gaps']} gaps, longest {t['longest_gap_s']:.2f} s)"
+            for name, t in (timing or {}).items()
+            if name in ("mocap", "acc") and t and t["delivered"] < delivered_below]
+
+
 def _batch_status(errors: list) -> int:
     """Exit status of a command that read several files: 1 when any could not be read."""
     if errors:
@@ -223,6 +232,7 @@ def _ingest(args) -> int:
                       f"acceleration from {t['accel']} ({t['accel_type']})")
             for warning in s["warnings"]:
                 print(f"  WARNING: {warning}")
+            print(*_gap_lines(s.get("timing")), sep="\n", end="\n" if _gap_lines(s.get("timing")) else "")
     failed = [f.name for f in flights if not f.quality["ok"]]
     if args.strict and failed:
         print(f"learnest: {len(failed)} of {len(flights)} flight(s) failed the quality checks: {', '.join(failed)}",
