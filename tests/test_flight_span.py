@@ -3,6 +3,7 @@ simulator's truth (ingest.sim.recordings), in every format that carries the sign
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -276,3 +277,23 @@ def test_a_stored_flight_can_be_cut_again_from_its_raw_files(sim, truth, tmp_pat
         assert form.status_code == 303
         whole = client.get(form.headers["location"].replace("/ui/flights/", "/flights/")).json()
         assert whole["duration_s"] == pytest.approx(rec.t[-1], abs=0.011)
+
+
+def test_diagnose_goes_on_past_an_unreadable_file(tmp_path, capsys, monkeypatch):
+    """`learnest diagnose` with a file that has no accelerometer among three good flights: named, the others
+    diagnosed (with the cut asked for), exit status 1, ``errors`` in the JSON."""
+    import pandas as pd
+
+    from learnest.service.cli import main
+
+    monkeypatch.setenv("LEARNEST_HOME", str(tmp_path / "home"))
+    samples = Path(__file__).resolve().parents[1] / "sample_logs"
+    bad = tmp_path / "log20.csv"
+    table = pd.read_csv(samples / "circle_rep2.csv")
+    table.drop(columns=["imu_acc_x", "imu_acc_y", "imu_acc_z"]).to_csv(bad, index=False)
+    good = [str(samples / f"circle_rep{k}.csv") for k in (1, 3, 4)]
+    assert main(["diagnose", str(bad), *good, "--epochs", "2", "--cut", "3:11", "--json"]) == 1
+    captured = capsys.readouterr()
+    result = json.loads(captured.out)
+    assert [e["file"] for e in result["errors"]] == [str(bad)] and "imu_acc_x" in result["errors"][0]["message"]
+    assert f"{bad}: not read:" in captured.err
