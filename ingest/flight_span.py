@@ -12,9 +12,10 @@ signal says what it can:
   vibration (NanoBench: 0.001 g standard deviation over 1 s at rest, >= 0.003 g in a hover).  Held in a hand
   or flying it is not still; a noisy accelerometer is simply never read as resting.
 - **height above the floor**, when a floor is seen: the height of the samples where the vehicle was on the
-  ground (motors off or accelerometer at rest), lowest cluster.  Within the powered stretch the flight is
-  where the vehicle is FLYING_HEIGHT_M above that floor; take-off and touchdown transients are trimmed as
-  the height rule (`ingest.align.flying_window`) always did.
+  ground (motors off and, where the accelerometer can tell, at rest), lowest cluster; take-off is measured
+  from where it sat before the motors started, touchdown from where it sits after they stopped.  Within the
+  powered stretch the flight is where the vehicle is FLYING_HEIGHT_M above that floor; take-off and
+  touchdown transients are trimmed as by the height rule (`ingest.align.flying_window`).
 
 A recording that starts with the motors running above the floor is kept from its first sample; one that
 ends with them running in the air is kept to its last.  A log with neither a power signal nor a resting
@@ -188,45 +189,54 @@ def find_flight(t: ArrayLike, p: ArrayLike, rate_hz: float, channels: dict | Non
         return FlightSpan(start, stop, f"{rule} (the motors run from the first to the last sample: "
                                        f"{', '.join(power_names)}, height)", signals + ["height"])
 
-    ground = np.zeros(n, dtype=bool)
-    if power is not None:
-        ground |= ~power
-    if rest is not None and rest.any():
-        # a resting accelerometer is ground; with motors known, a still vehicle with motors off is the floor
-        # and one held still in a hand is not: the lowest cluster (floor_height) decides
-        ground |= rest & (~power if power is not None else True)
-        signals.append("accelerometer at rest")
-    floor = floor_height(z, ground, rate_hz)
+    # ground: motors off, narrowed to where the accelerometer rests when it can tell (a hand holding the
+    # vehicle with the motors off is not the floor); without a power signal, the resting accelerometer alone
+    ground = ~power if power is not None else np.zeros(n, dtype=bool)
+    floor = None
+    if rest is not None:
+        still = rest & ground if power is not None else rest
+        floor = floor_height(z, still, rate_hz)
+        if floor is not None and floor > np.percentile(z[np.isfinite(z)], 1) + FLOOR_BAND_M:
+            floor = None   # still, but above the lowest the vehicle ever was: a calm hover, not the floor
+        if floor is not None:
+            signals.append("accelerometer at rest")
+            ground = still
+    if floor is None and power is not None:
+        floor = floor_height(z, ground, rate_hz)    # the lowest cluster of the motors-off samples
 
     if floor is None:
         if height_rule is None:
             return FlightSpan(0, n, "whole recording kept: no signal saw the vehicle on the ground", signals)
         start, stop, rule = height_rule(t, p, rate_hz)
-        return FlightSpan(start, stop, f"{rule} (from the height alone: no power signal and no accelerometer "
-                                       f"rest in this log)", ["height"])
+        return FlightSpan(start, stop, f"{rule} (from the height alone: no signal saw the vehicle on the "
+                                       f"ground)", ["height"])
     signals.append("height above the floor")
 
     first, last = 0, n
     if power is not None:
         first, last = _longest_run(power)
-    above = z[first:last] > floor + flying_height_m
-    airborne = np.flatnonzero(above) + first
+    # take-off is measured from where the vehicle sat before, touchdown where it sits after (a pad, another
+    # spot of an uneven floor): the floor of each side when that side has ground samples of its own
+    floor_in = floor_height(z[:first], ground[:first], rate_hz) or floor
+    floor_out = floor_height(z[last:], ground[last:], rate_hz) or floor
+    rising = np.flatnonzero(z[first:last] > floor_in + flying_height_m) + first
+    falling = np.flatnonzero(z[first:last] > floor_out + flying_height_m) + first
     used = ", ".join(signals)
-    if airborne.size == 0:
-        what = "while the motors ran" if power is not None else ""
-        return FlightSpan(first, last, f"never {flying_height_m:g} m above the floor {what}: the "
-                                       f"{'powered stretch' if power is not None else 'whole recording'} kept "
-                                       f"({used})".replace("  ", " "), signals, floor)
+    if rising.size == 0 or falling.size == 0:
+        what = "while the motors ran: the powered stretch" if power is not None else ": the whole recording"
+        return FlightSpan(first, last, f"never {flying_height_m:g} m above the floor {what} kept ({used})",
+                          signals, floor)
+    airborne = np.array([rising[0], falling[-1]])
     settle_in, settle_out = int(round(takeoff_settle_s * rate_hz)), int(round(landing_settle_s * rate_hz))
-    starts_in_air = first == 0 and above[0]
-    ends_in_air = last == n and above[-1]
+    starts_in_air = first == 0 and rising[0] == 0
+    ends_in_air = last == n and falling[-1] == n - 1
     start = 0 if starts_in_air else int(airborne[0]) + settle_in
     stop = n if ends_in_air else int(airborne[-1]) + 1 - settle_out
     if stop <= start:
-        return FlightSpan(int(airborne[0]), int(airborne[-1]) + 1,
+        return FlightSpan(int(airborne[0]), max(int(airborne[-1]), int(airborne[0])) + 1,
                           f"airborne too briefly to trim: airborne part kept ({used})", signals, floor)
     motors = "with the motors running " if power is not None else ""
-    head = ("from the start (the log starts in the air: " + motors + f"{z[0] - floor:.2f} m above the floor)"
+    head = ("from the start (the log starts in the air: " + motors + f"{z[0] - floor_in:.2f} m above the floor)"
             if starts_in_air else
             f"{takeoff_settle_s:g} s after first rising {flying_height_m:g} m above the floor {motors}".rstrip())
     tail = ("to the end (the log ends in the air)" if ends_in_air else
