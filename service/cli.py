@@ -595,7 +595,7 @@ def _demo(args) -> int:
     if args.plot:
         save_figure(paired_mse(report), args.plot, dpi=120)
         print(f"MSE per flight (prior vs KNODE): {args.plot}")
-    return 0
+    return _batch_status(batch.errors)
 
 
 def _diagnose(args) -> int:
