@@ -183,7 +183,7 @@ def read_group(adapter: str, files: list[Path], rate_hz: float = 100.0, *, pose_
         For MCAP recordings and ROS bags: the pose topic ("topic:body" for one body of a TFMessage or
         NamedPoseArray topic) and the acceleration topic, when the automatic choice is not wanted or ambiguous.
     cut : str, optional
-        The stretch to keep: "auto" (default: the flying part, `ingest.align.flying_window`), "none" (the
+        The stretch to keep: "auto" (default: the flying part, `ingest.flight_span.find_flight`), "none" (the
         whole recording) or "START:STOP" in seconds from the recording's start (`ingest.align.parse_cut`).
 
     Returns
@@ -245,7 +245,8 @@ def read_flights(paths: Iterable[str | Path], rate_hz: float = 100.0, *, pose_to
     -------
     list of Flight
         One per flight: single files first, in the order given, then the Vicon/cfclient pairs.  A flight
-        that fails the quality checks is still returned, with ``flight.quality["ok"] == False``.
+        that fails the quality checks is still returned, with ``flight.quality["ok"] == False``.  Names that
+        collide get a suffix (`ingest.batch.unique_names`: the parent folder, else a short sha256).
 
     Raises
     ------
@@ -265,16 +266,21 @@ def read_flights(paths: Iterable[str | Path], rate_hz: float = 100.0, *, pose_to
     for adapter, files in groups:
         check_topic_choice(adapter, files, pose_topic, imu_topic)
     parse_cut(cut)   # a malformed cut fails before any file is read
-    return [read_group(adapter, files, rate_hz, pose_topic=pose_topic, imu_topic=imu_topic, cut=cut)
-            for adapter, files in groups]
+    flights = [read_group(adapter, files, rate_hz, pose_topic=pose_topic, imu_topic=imu_topic, cut=cut)
+               for adapter, files in groups]
+    from .batch import unique_names
+
+    unique_names(flights)   # two eckart06 from two folders: eckart06-runA, eckart06-runB
+    return flights
 
 
 def summary(flight: Flight) -> dict:
     """The per-flight record `learnest ingest --json` prints: sources, adapter, duration (s), rate (Hz),
     samples, clock offset (s), quality, the topics read (recordings with topics, else None), warnings
     (e.g. a pose that is the vehicle's onboard estimate), the stretch kept (``kept``: start_s, stop_s,
-    recording_s on the recording's grid, the rule and the cut asked for) and the vehicle profile
-    (`ingest.profile.flight_profile`: vehicle, sensor rates, attitude source)."""
+    recording_s on the recording's grid, the rule and the cut asked for), the vehicle profile
+    (`ingest.profile.flight_profile`: vehicle, sensor rates, attitude source) and how each stream was
+    delivered (``timing``: `ingest.align.stream_timing`: rate from the time stamps, share delivered, gaps)."""
     from .profile import flight_profile
 
     return {"source": [s["path"] for s in flight.meta.get("sources", [])], "adapter": flight.meta.get("adapter"),
@@ -282,7 +288,7 @@ def summary(flight: Flight) -> dict:
             "samples": len(flight.t), "clock_offset_s": flight.meta.get("clock_offset_s"),
             "quality": flight.quality, "topics": flight.meta.get("topics"),
             "warnings": list(flight.meta.get("warnings", [])), "kept": flight.meta.get("flying_window"),
-            "profile": flight_profile(flight)}
+            "profile": flight_profile(flight), "timing": flight.meta.get("timing")}
 
 
 __all__ = ["Flight", "IngestError", "collect_logs", "detect", "group_files", "read_flights", "read_group", "summary"]

@@ -29,6 +29,11 @@ GROUND_PERCENTILE = 1.0
 # A vehicle at rest moves only by the mocap's noise (< 1 cm over 0.5 s); one climbing or sinking faster than
 # this over the first HEAD_S is flying.
 RESTING_SPEED_M_S = 0.1
+# A vehicle on the floor holds its position to the mocap's noise (Vicon < 0.5 mm, a 1 mm-rounded pose one
+# step); a hovering one drifts by centimetres.  Smoothed over HEAD_SMOOTHING samples, a first HEAD_S that
+# spans more than HEAD_STILL_M on any axis is not on the floor.
+HEAD_STILL_M = 0.005
+HEAD_SMOOTHING = 5
 
 # Anti-aliasing before a stream sampled faster than the grid is brought to it: a zero-phase Butterworth
 # low-pass (order ANTI_ALIAS_ORDER, run forwards and backwards) with its cut-off at ANTI_ALIAS_CUTOFF of the
@@ -54,8 +59,48 @@ def uniform_grid(t_start: float, t_end: float, rate_hz: float) -> np.ndarray:
 
 
 def samples_per_second(t: np.ndarray | Sequence[float]) -> float | None:
-    """Samples per second over a stream's span (None for fewer than 2 samples or no span)."""
-    return float((len(t) - 1) / (t[-1] - t[0])) if len(t) >= 2 and t[-1] > t[0] else None
+    """A stream's sample rate (Hz) measured from its time stamps: one over the mean step between samples,
+    leaving out the gaps (steps longer than GAP_STEPS median steps).
+
+    The rate the logger ran at, not the count over the span: a 100 Hz stream that lost a quarter of its
+    packets over the radio is a 100 Hz stream with gaps (`stream_timing` reports those), and a rate taken
+    from a row count would change with every dropout.  The mean of the ordinary steps (not their median)
+    serves a stream held on a faster clock too: 100 Hz mocap frames seen on a 250 Hz log come 8 and 12 ms
+    apart.  None for fewer than 2 samples or no positive step.
+    """
+    steps = np.diff(np.asarray(t, dtype=float))
+    steps = steps[np.isfinite(steps) & (steps > 0)]
+    if not steps.size:
+        return None
+    ordinary = steps[steps <= GAP_STEPS * np.median(steps)]
+    return float(1.0 / np.mean(ordinary))
+
+
+# A step longer than GAP_STEPS median steps is a gap (a lost packet or more), not the logger's jitter (a
+# stream held on a faster clock alternates steps of 2 and 3 ticks: 1.5 median steps at most).
+GAP_STEPS = 1.6
+
+
+def stream_timing(t: np.ndarray | Sequence[float]) -> dict | None:
+    """How a stream was delivered, from its time stamps.
+
+    Returns
+    -------
+    dict or None
+        ``rate_hz`` (`samples_per_second`), ``samples``, ``span_s`` (s), ``delivered`` (samples over those a
+        gap-free stream at ``rate_hz`` would hold over the span, 0-1), ``gaps`` (steps longer than GAP_STEPS
+        median steps) and ``longest_gap_s`` (s); None for fewer than 2 samples.
+    """
+    t = np.asarray(t, dtype=float)
+    rate = samples_per_second(t)
+    if rate is None:
+        return None
+    steps = np.diff(t)
+    span = float(t[-1] - t[0])
+    expected = span * rate + 1
+    return {"rate_hz": round(rate, 3), "samples": int(len(t)), "span_s": round(span, 3),
+            "delivered": round(min(1.0, len(t) / expected), 4),
+            "gaps": int(np.sum(steps > GAP_STEPS * np.median(steps))), "longest_gap_s": round(float(steps.max()), 4)}
 
 
 def resample(t_src: ArrayLike, values: ArrayLike, t_grid: np.ndarray,
@@ -131,9 +176,9 @@ def started_in_air(p: np.ndarray, rate_hz: float) -> tuple[bool, str]:
 
     In the air at the start: the first 0.5 s lie FLYING_HEIGHT_M above the log's lowest height (it comes
     down later), or the vehicle moves sideways faster than a resting one can (mocap noise; a take-off that
-    begins within the first 0.5 s climbs, it does not slide).  ``p`` (T, 3) m, z up.  A log that starts
-    hovering at its lowest height and never moves sideways at first cannot be told from one on a shelf: the
-    user's cut (`parse_cut`) decides then.
+    begins within the first 0.5 s climbs, it does not slide), or it is not still (HEAD_STILL_M).
+    ``p`` (T, 3) m, z up.  A log that starts hovering at its lowest height and holds still at first cannot be
+    told from one on a shelf: the user's cut (`parse_cut`) decides then.
     """
     head = max(2, int(HEAD_S * rate_hz))
     z = p[:, 2]
@@ -146,12 +191,19 @@ def started_in_air(p: np.ndarray, rate_hz: float) -> tuple[bool, str]:
         speed = float(moved) * rate_hz / (head - tenth)
         if speed > RESTING_SPEED_M_S:
             return True, f"moving sideways at {speed:.2f} m/s in the first {HEAD_S:g} s"
+        from scipy.ndimage import uniform_filter1d
+
+        smooth = uniform_filter1d(p[:head], min(HEAD_SMOOTHING, head), axis=0, mode="nearest")
+        span = float(np.max(np.ptp(smooth, axis=0)))
+        if span > HEAD_STILL_M:
+            return True, f"moving by {1000 * span:.0f} mm in the first {HEAD_S:g} s (a vehicle on the floor is still)"
     return False, ""
 
 
 def parse_cut(value: str | bool | tuple | None) -> bool | tuple[float | None, float | None]:
-    """A user's take-off/landing cut: "auto" (default, `flying_window`), "none" (the whole recording) or
-    "START:STOP" in seconds from the recording's start (either side may be empty: "2.5:" keeps from 2.5 s).
+    """A user's take-off/landing cut: "auto" (default, `ingest.flight_span.find_flight`), "none" (the
+    whole recording) or "START:STOP" in seconds from the recording's start (either side may be empty: "2.5:"
+    keeps from 2.5 s).
 
     Returns
     -------
@@ -198,7 +250,12 @@ def cut_text(cut: bool | tuple) -> str:
 
 def _window(flight: Flight, rate_hz: float, cut: bool | tuple) -> tuple[int, int, str]:
     if cut is True:
-        return flying_window(flight.t, flight.p, rate_hz)
+        from .flight_span import find_flight
+
+        span = find_flight(flight.t, flight.p, rate_hz, flight.channels, flying_height_m=FLYING_HEIGHT_M,
+                           takeoff_settle_s=TAKEOFF_SETTLE_S, landing_settle_s=LANDING_SETTLE_S,
+                           height_rule=flying_window)
+        return span.start, span.stop, span.rule
     if cut is False:
         return 0, len(flight.t), "whole recording kept (no cut asked)"
     start_s, stop_s = cut
@@ -297,13 +354,15 @@ def build_flight(path: str | Path, *, t_mocap: ArrayLike, p: ArrayLike, quat: Ar
         Grid rate, Hz.
     meta : dict, optional
         Metadata to start from (``rate_hz``, ``t0_source_s``, ``flying_window``, ``gaps``,
-        ``mocap_resolution_m`` (`position_resolution`) and ``anti_alias`` are added).
+        ``mocap_resolution_m`` (`position_resolution`), ``timing`` (`stream_timing` of the mocap and the
+        accelerometer, unless the adapter gave it) and ``anti_alias`` are added).
     mocap_alive_t : array_like, optional
         Stamps at which the mocap stream was alive, for telling gaps (default ``t_mocap``): a log that
         repeats the last pose between frames (uSD fixed-frequency stream) drops the repeats from ``t_mocap``,
         but a repeat of a pose rounded to 1 mm is often a new frame at the same place, not a gap.
     cut : bool or (start_s, stop_s)
-        True: keep only the flying part (`flying_window`); False: the whole recording; (start_s, stop_s):
+        True: keep only the flying part (`ingest.flight_span.find_flight`: motors, accelerometer, height);
+        False: the whole recording; (start_s, stop_s):
         that stretch, s from the start of the grid (None for either end), as `parse_cut` gives.
 
     Returns
@@ -347,6 +406,8 @@ def build_flight(path: str | Path, *, t_mocap: ArrayLike, p: ArrayLike, quat: Ar
     meta["rate_hz"] = rate_hz
     meta["t0_source_s"] = float(t0)
     meta["mocap_resolution_m"] = position_resolution(p)
+    meta.setdefault("timing", {"mocap": stream_timing(t_mocap if mocap_alive_t is None else mocap_alive_t),
+                               "acc": stream_timing(t_acc)})
     if low_passed:
         meta["anti_alias"] = {"streams": low_passed, "cutoff_hz": ANTI_ALIAS_CUTOFF * rate_hz,
                               "filter": f"Butterworth order {ANTI_ALIAS_ORDER}, zero phase (forwards-backwards)"}

@@ -13,8 +13,9 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from .flight import Flight
 
-# Rates that differ by more than this fraction are different sensor settings (a 250 Hz uSD log against a
-# 100 Hz radio log), not the jitter of one setting (NanoBench's delivered rates vary by a few %).
+# Rates that differ by more than this fraction are different sensor settings (a 50 Hz radio log against a
+# 100 Hz one), not the jitter of one setting.  Compared as the model sees them (`_seen`): above the grid rate
+# a stream is low-passed onto the grid, so a 250 Hz uSD accelerometer and a 100 Hz one give the same input.
 RATE_TOLERANCE = 0.2
 # Masses that differ by more than this fraction are different vehicles or payloads (a deck is ~3 g of 30 g).
 MASS_TOLERANCE = 0.05
@@ -69,7 +70,8 @@ def profile_mismatches(trained: dict | None, flight: dict) -> list[str]:
         warnings.append(f"another vehicle: flight from {flight['vehicle']}, model trained on {trained['vehicle']}")
     for stream in ("acc", "mocap", "grid"):
         ours, theirs = (trained.get("rates_hz") or {}).get(stream), (flight.get("rates_hz") or {}).get(stream)
-        if ours and theirs and abs(theirs - ours) > RATE_TOLERANCE * ours:
+        if ours and theirs and abs(_seen(theirs, flight, stream) - _seen(ours, trained, stream)) > \
+                RATE_TOLERANCE * _seen(ours, trained, stream):
             warnings.append(f"another {stream} rate: {theirs:g} Hz, model trained at {ours:g} Hz")
     if _attitude_kind(trained) != _attitude_kind(flight):
         warnings.append(f"another attitude source: {flight.get('attitude_source')}, model trained with "
@@ -80,6 +82,15 @@ def profile_mismatches(trained: dict | None, flight: dict) -> list[str]:
     if trained.get("controller") and flight.get("controller") and trained["controller"] != flight["controller"]:
         warnings.append(f"another controller: {flight['controller']}, model trained with {trained['controller']}")
     return warnings
+
+
+def _seen(rate: float, profile: dict, stream: str) -> float:
+    """The rate a model sees of a sensor stream: a stream faster than the flight's grid is low-passed and
+    brought to the grid (`ingest.align.anti_alias`), so a 500 Hz and a 100 Hz accelerometer both reach the
+    model at the 100 Hz grid, band-limited to 40 Hz; only a stream slower than the grid (interpolated between
+    its samples) reaches it at its own rate."""
+    grid = (profile.get("rates_hz") or {}).get("grid")
+    return min(rate, grid) if stream != "grid" and grid else rate
 
 
 def _attitude_kind(profile: dict) -> str:

@@ -1,7 +1,7 @@
 """Is a canonical Flight fit to train or evaluate an estimator?  `assess` answers with reasons.
 
 Every check looks at the canonical arrays only (plus `meta["gaps"]`), so it works for any adapter.  The
-flight is normally already cut to its flying part (ingest.align.flying_window), so take-off and
+flight is normally already cut to its flying part (ingest.flight_span.find_flight), so take-off and
 touchdown transients are not judged here.
 """
 from __future__ import annotations

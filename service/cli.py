@@ -143,18 +143,15 @@ def _reproduce(args) -> int:
 
 
 def _thrust_map(args) -> int:
-    from learnest.ingest import collect_logs
-
     from .experiments.thrust_map import format_thrust_map, thrust_map_report
 
-    sets = {}
+    sets, errors = {}, []
     for role, given in (("fit", args.fit), ("score", args.score)):
-        files, notes = collect_logs(given)
-        for note in notes:
-            print(note, file=sys.stderr)
-        if not files:
-            raise InvalidInput(f"no flight logs in {', '.join(given)} (--{role})")
-        sets[role] = _read(files, args.rate)
+        try:
+            batch = _read_batch(given, args.rate)
+        except InvalidInput as err:
+            raise InvalidInput(f"{err} (--{role})") from None
+        sets[role], errors = batch.flights, errors + batch.errors
     with tqdm(total=1, desc="thrust map", unit="", file=sys.stderr, bar_format=STAGE_BAR) as bar:
         def stage(name: str, done: int, total: int) -> None:
             bar.set_description_str(f"thrust map: {name}")
@@ -162,8 +159,10 @@ def _thrust_map(args) -> int:
             bar.refresh()
 
         report = thrust_map_report(sets["fit"], sets["score"], progress=stage)
+    if args.json:
+        report["errors"] = errors
     print(json.dumps(report, indent=2) if args.json else format_thrust_map(report))
-    return 0
+    return _batch_status(errors)
 
 
 def _read(paths, rate_hz, topics: dict | None = None, cut: str | None = None):
@@ -172,17 +171,50 @@ def _read(paths, rate_hz, topics: dict | None = None, cut: str | None = None):
     return read_flights(paths, rate_hz=rate_hz, **(topics or {}), cut=cut)
 
 
-def _ingest(args) -> int:
-    from learnest.ingest import collect_logs, summary
+def _read_batch(paths, rate_hz, topics: dict | None = None, cut: str | None = None, *, need: int = 1):
+    """Read every flight of ``paths`` past the files that cannot be read (`learnest.ingest.batch.read_batch`):
+    each of those is named on stderr with its reason, and the batch goes on (the command then exits with
+    status 1, `_batch_status`).  InvalidInput (status 2) when fewer than ``need`` flights were read: nothing
+    to go on with."""
+    from learnest.ingest.batch import format_errors, read_batch
 
-    files, notes = collect_logs(args.files)   # a folder stands for its logs; sidecars are read with their logs
-    for note in notes:
+    batch = read_batch(paths, rate_hz=rate_hz, **(topics or {}), cut=cut)
+    for note in batch.notes:
         print(note, file=sys.stderr)
-    if not files:
-        raise InvalidInput(f"no flight logs in {', '.join(args.files)}")
-    flights = _read(files, args.rate, _topics(args), args.cut)
+    for line in format_errors(batch.errors):
+        print(f"learnest: {line}", file=sys.stderr)
+    if len(batch.flights) < need:
+        failed = f" ({len(batch.errors)} file(s) could not be read)" if batch.errors else ""
+        raise InvalidInput(f"no flight logs read from {', '.join(map(str, paths))}{failed}")
+    return batch
+
+
+def _gap_lines(timing: dict | None, delivered_below: float = 0.95) -> list[str]:
+    """One line for the mocap and the accelerometer each, when it lost more than 5 % of its samples
+    (`learnest.ingest.align.stream_timing`): a stream with gaps, at its own rate."""
+    return [f"  {name}: {t['rate_hz']:.1f} Hz with gaps: {100 * t['delivered']:.0f} % of its samples delivered "
+            f"({t['gaps']} gaps, longest {t['longest_gap_s']:.2f} s)"
+            for name, t in (timing or {}).items()
+            if name in ("mocap", "acc") and t and t["delivered"] < delivered_below]
+
+
+def _batch_status(errors: list) -> int:
+    """Exit status of a command that read several files: 1 when any could not be read."""
+    if errors:
+        print(f"learnest: {len(errors)} file(s) could not be read (listed above); the others were used",
+              file=sys.stderr)
+    return 1 if errors else 0
+
+
+def _ingest(args) -> int:
+    from learnest.ingest import summary
+
+    # a folder stands for its logs; sidecars are read with their logs; an unreadable file is named, not fatal
+    batch = _read_batch(args.files, args.rate, _topics(args), args.cut)
+    flights = batch.flights
     if args.json:
-        print(json.dumps({"flights": [summary(f) for f in flights]}, indent=2))
+        print(json.dumps({"flights": [{"name": f.name, **summary(f)} for f in flights], "errors": batch.errors},
+                         indent=2))
     else:
         for f in flights:
             s = summary(f)
@@ -200,12 +232,13 @@ def _ingest(args) -> int:
                       f"acceleration from {t['accel']} ({t['accel_type']})")
             for warning in s["warnings"]:
                 print(f"  WARNING: {warning}")
+            print(*_gap_lines(s.get("timing")), sep="\n", end="\n" if _gap_lines(s.get("timing")) else "")
     failed = [f.name for f in flights if not f.quality["ok"]]
     if args.strict and failed:
         print(f"learnest: {len(failed)} of {len(flights)} flight(s) failed the quality checks: {', '.join(failed)}",
               file=sys.stderr)
         return 1
-    return 0
+    return _batch_status(batch.errors)
 
 
 def _train(args) -> int:
@@ -274,6 +307,8 @@ def _evaluate(args) -> int:
         print(json.dumps(report, indent=2))
     else:
         print(format_report(report))
+        for stored in report.get("stored") or []:
+            print(f"  {stored['file']}: {stored['stored']} flight {stored['flight_id']} ({stored['name']})")
         if "evaluation_id" in report:
             print(f"stored as evaluation {report['evaluation_id']} in {_home()} (web page "
                   f"/evaluations/{report['evaluation_id']}/report.html under `learnest serve`)")
@@ -281,11 +316,13 @@ def _evaluate(args) -> int:
             print(f"estimates written to {args.export}")
     if args.export and not report["flights_scored"]:
         print(f"learnest: no flight was scored: {args.export} not written", file=sys.stderr)
-    return 0
+    return _batch_status(report.get("errors") or [])
 
 
 def _evaluate_stored(args, model, ref: str, methods: list[str]) -> dict:
     """Store the flights and the evaluation in the registry (service.local_registry.evaluate)."""
+    from learnest.ingest.batch import format_errors
+
     from .jobs.result_cache import EstimatorSettings
     from .local_registry import evaluate, export
 
@@ -293,7 +330,9 @@ def _evaluate_stored(args, model, ref: str, methods: list[str]) -> dict:
     with tqdm(total=1.0, desc="evaluating", unit="", file=sys.stderr,
               bar_format=STAGE_BAR) as bar:
         report = evaluate(args.files, ref, settings, progress=lambda f: bar.update(f - bar.n),
-                          on_stage=_show_stage(bar), **_topics(args))
+                          on_stage=_show_stage(bar), **_topics(args), cut=args.cut)
+    for line in format_errors(report.get("errors") or []):
+        print(f"learnest: {line}", file=sys.stderr)
         bar.update(1.0 - bar.n)
     if args.export and report["flights_scored"]:
         export(report["evaluation_id"], args.export, _export_format(args.export))
@@ -306,13 +345,15 @@ def _evaluate_here(args, model, ref: str, methods: list[str]) -> dict:
 
     from .experiments.flights import evaluate_flights
 
-    flights = _read(args.files, args.rate, _topics(args))
+    batch = _read_batch(args.files, args.rate, _topics(args), args.cut)
+    flights = batch.flights
     kept: list = []
     with tqdm(total=len(flights), desc="evaluating", unit="flight", file=sys.stderr) as bar:
         report = evaluate_flights(model, flights, methods, include_bad=args.include_bad, horizon=args.horizon,
                                   sg_window=args.sg_window, progress=lambda _f: bar.update(1),
                                   on_estimates=(lambda _i, e: kept.append(e)) if args.export else None)
     report["model"] = ref
+    report["errors"] = batch.errors
     if args.export and kept:
         write_estimates(kept, args.export, _export_format(args.export))
     return report
@@ -532,7 +573,8 @@ def _demo(args) -> int:
             logs.append(path)
         except IngestError as err:
             print(f"skipped {err}", file=sys.stderr)
-    flights = _read(logs, args.rate)
+    batch = _read_batch(logs, args.rate, need=0)
+    flights = batch.flights
     print(f"ingested {len(flights)} flights from {len(logs)} files in {folder}")
     clean = [f for f in flights if f.quality["ok"]]
     if len(clean) < 2:
@@ -553,7 +595,7 @@ def _demo(args) -> int:
     if args.plot:
         save_figure(paired_mse(report), args.plot, dpi=120)
         print(f"MSE per flight (prior vs KNODE): {args.plot}")
-    return 0
+    return _batch_status(batch.errors)
 
 
 def _diagnose(args) -> int:
@@ -581,7 +623,8 @@ def _diagnose(args) -> int:
             from .references import check_name
             _registry_grid(args.rate)
             check_name(args.register)  # before the work
-        flights = _read(args.files, args.rate, _topics(args))
+        batch = _read_batch(args.files, args.rate, _topics(args), args.cut)
+        flights = batch.flights
         epochs = args.epochs or CRAZYFLIE_TRAINING.epochs
         result, repaired = diagnose_flights(flights, knode=model, methods=methods, epochs=epochs,
                                             return_model=True, system=args.system)
@@ -590,13 +633,14 @@ def _diagnose(args) -> int:
             result["registered"] = register_repaired(args.register, repaired, flights, result,
                                                      epochs=args.epochs or CRAZYFLIE_TRAINING.epochs,
                                                      parent=model.meta.get("ref") if model else None)
+        result["errors"] = batch.errors
     if args.plot:
         save_figure(residual_before_after(result), args.plot, dpi=110)
     print(json.dumps(result, indent=2, default=float) if args.json else format_diagnosis(result))
     if result.get("registered") and not args.json:
         r = result["registered"]
         print(f"registered {r['name']}:{r['version']} (parent {r['parent'] or 'none'})")
-    return 0
+    return _batch_status(result.get("errors") or [])
 
 
 def format_report(report: dict) -> str:
@@ -759,6 +803,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--export", metavar="PATH", type=_export_path,
                     help="also write the state estimates; the format follows the suffix: .csv, .parquet, .mcap")
     _add_topic_arguments(ev)
+    _add_cut_argument(ev)
     ev.set_defaults(func=_evaluate)
 
     exp = sub.add_parser("export", help="write a stored evaluation's state estimates (every method and flight, "
@@ -829,6 +874,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="residual over time and held-out error before/after (linear axes)")
     dia.add_argument("--rate", type=_positive_float, default=100.0)
     _add_topic_arguments(dia)
+    _add_cut_argument(dia)
     dia.set_defaults(func=_diagnose)
 
     thr = sub.add_parser("thrust-map", help="identify the Crazyflie thrust map (body-z specific force from motor PWM, "

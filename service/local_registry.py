@@ -194,31 +194,41 @@ def watching_stages(services: Services, on_stage: Callable[[str, float | None], 
 # -- evaluation ----------------------------------------------------------------------------------------------
 def evaluate(paths, model_ref: str, estimator_settings: EstimatorSettings, *, pose_topic: str | None = None,
              imu_topic: str | None = None, progress: Callable[[float], None] | None = None,
-             settings: Settings | None = None, on_stage: Callable[[str, float | None], None] | None = None) -> dict:
+             settings: Settings | None = None, on_stage: Callable[[str, float | None], None] | None = None,
+             cut: str | None = None) -> dict:
     """Store the flights of ``paths`` (grouped as `learnest.ingest.group_files` does; stored ones are found
-    by content) and evaluate ``model_ref`` on them as an evaluation job run in this process.
+    by content) and evaluate ``model_ref`` on them as an evaluation job run in this process.  A file that
+    cannot be read is listed in ``errors`` and the others are stored and evaluated.
 
     Returns
     -------
     dict
         The stored evaluation's report (``flight_id`` and ``sha256`` per flight, ``units``) plus
-        ``evaluation_id`` and ``job_id``.
+        ``evaluation_id``, ``job_id``, ``stored`` (per flight: ``file``, ``flight_id``, ``name``, ``stored``
+        "new" or "existing") and ``errors`` (``[{"file", "message"}]``: what could not be read).
 
     Raises
     ------
     LearnestError
-        A file cannot be read (IngestError), the reference names nothing usable, or the job failed.
+        No file can be read, the reference names nothing usable, or the job failed.
     """
-    from learnest.ingest import group_files
-
     settings = settings or cli_settings()
-    groups = group_files(paths)  # sniffs the formats only: a bad file is named before anything is stored
+    groups, errors = _readable_groups(paths)   # sniffs the formats only: bad files are named before anything is stored
     with local_services(settings, executor=InlineExecutor()) as services:
-        ids = []
+        ids, stored = [], []
         for k, (_, files) in enumerate(groups, start=1):
             if on_stage:
                 on_stage(f"ingest {k}/{len(groups)}", None)
-            ids.append(add_flight(services, files, pose_topic=pose_topic, imu_topic=imu_topic)[0].id)
+            try:
+                row, created = add_flight(services, files, pose_topic=pose_topic, imu_topic=imu_topic, cut=cut)
+            except InvalidInput as err:
+                errors.append({"file": str(files[0]), "message": str(err)})
+                continue
+            ids.append(row.id)
+            stored.append({"file": str(files[0]), "flight_id": row.id, "name": row.name,
+                           "stored": "new" if created else "existing"})
+        if not ids:
+            raise InvalidInput("no flight could be read: " + "; ".join(f"{e['file']}: {e['message']}" for e in errors))
         done = [0]
 
         def advance() -> None:  # called by the job as each flight is done
@@ -234,7 +244,30 @@ def evaluate(paths, model_ref: str, estimator_settings: EstimatorSettings, *, po
         if job.state != "succeeded":
             raise Conflict(f"evaluation {evaluation_id} {job.state}: {job.error}")
         evaluation, _ = catalog.row_and_job(services.db, Evaluation, evaluation_id, "evaluation")
-    return {**(evaluation.report or {}), "evaluation_id": evaluation_id, "job_id": job_id}
+    return {**(evaluation.report or {}), "evaluation_id": evaluation_id, "job_id": job_id, "stored": stored,
+            "errors": errors}
+
+
+def _readable_groups(paths) -> tuple[list, list[dict]]:
+    """The flights among ``paths`` as `learnest.ingest.group_files` groups them, leaving out (and listing) the
+    files no adapter recognises or that lack their pair: ``(groups, [{"file", "message"}])``."""
+    from learnest.ingest import IngestError, detect, group_files
+
+    errors, readable = [], []
+    for path in map(Path, paths):
+        try:
+            detect(path)
+            readable.append(path)
+        except IngestError as err:
+            errors.append({"file": err.path, "message": err.problem})
+    while readable:
+        try:
+            return group_files(readable), errors
+        except IngestError as err:
+            remaining = [path for path in readable if str(path) != err.path]
+            errors.append({"file": err.path, "message": err.problem})
+            readable = remaining if len(remaining) < len(readable) else []
+    return [], errors
 
 
 def export(evaluation_id: int, path: str | Path, fmt: str, flight_id: int | None = None,

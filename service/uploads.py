@@ -15,6 +15,7 @@ import hashlib
 import logging
 import re
 from collections.abc import Callable, Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO, Protocol
@@ -106,6 +107,37 @@ def add_flight(db: Database, blobs: BlobStore, uploads: Sequence[Upload], vehicl
             return row, False
         flight = (decode or read_uploaded_flight)(staged, **topics, cut=window)
         return store_flight(db, blobs, staged, flight, sha, vehicle, notes)
+
+
+def recut_flight(db: Database, blobs: BlobStore, row: FlightRecord, cut: str | None, *,
+                 decode: Callable[..., CanonicalFlight] | None = None) -> tuple[FlightRecord, bool]:
+    """Another stretch of a stored flight: its raw file(s), read again with ``cut`` and stored as an upload of
+    those files with that cut would be (`add_flight`, with the topics the flight was read with).
+
+    Parameters
+    ----------
+    row
+        The stored flight (its raw files are read from the blob store).
+    cut
+        "auto", "none" or "START:STOP" in seconds from the recording's start (`learnest.ingest.align.parse_cut`).
+
+    Returns
+    -------
+    (row, created)
+        The flight holding that stretch: new, or the one already stored with the same files and cut (``row``
+        itself for the cut it was read with).
+
+    Raises
+    ------
+    InvalidInput
+        A malformed cut, or one that leaves fewer than 2 samples.
+    """
+    choice = (row.meta or {}).get("topic_choice") or {}
+    with ExitStack() as stack:
+        uploads = [LocalFile(f.original_name, stack.enter_context(blobs.path(f.sha256).open("rb")))
+                   for f in sorted(row.files, key=lambda f: f.position)]
+        return add_flight(db, blobs, uploads, row.vehicle, row.notes, pose_topic=choice.get("pose_topic"),
+                          imu_topic=choice.get("imu_topic"), cut=cut, decode=decode)
 
 
 # -- staging uploads ----------------------------------------------------------------------------------

@@ -254,3 +254,33 @@ def test_registry_command_arguments_are_checked_before_any_import(tmp_path):
     assert out.stdout.strip() == "[2, 2, 2, 2, 2]", out.stdout + out.stderr
     assert "must be at least 1" in out.stderr and "model name 'bad name'" in out.stderr
     assert not (tmp_path / "home").exists()
+
+
+def test_evaluate_goes_on_past_an_unreadable_file_and_takes_a_cut(trained, monkeypatch, capsys, tmp_path):
+    """One file without its accelerometer among the flights: named with its reason, the others stored (each
+    said: new or existing, under which id) and scored, exit status 1, ``errors`` in the JSON; --cut reaches
+    the flights read, stored or not."""
+    import pandas as pd
+
+    from learnest.service.cli import main
+
+    use_home(monkeypatch, trained["home"])
+    bad = tmp_path / "log20.csv"
+    pd.read_csv(OTHER).drop(columns=["imu_acc_x", "imu_acc_y", "imu_acc_z"]).to_csv(bad, index=False)
+    for store in ([], ["--no-store"]):
+        capsys.readouterr()
+        argv = ["evaluate", "--model", "circle:1", str(bad), str(TRAIN), str(OTHER), "--methods", "ukf",
+                "--cut", "3:12", "--json", *store]
+        assert main(argv) == 1
+        captured = capsys.readouterr()
+        report = json.loads(captured.out)
+        assert [e["file"] for e in report["errors"]] == [str(bad)] and "imu_acc_x" in report["errors"][0]["message"]
+        assert f"{bad}: not read:" in captured.err
+        assert [f["flight"].split("-")[0] for f in report["flights"]] == ["circle_rep1", "circle_rep2"]
+        if not store:
+            assert [s["file"] for s in report["stored"]] == [str(TRAIN), str(OTHER)]
+            assert all(s["stored"] in ("new", "existing") and s["flight_id"] > 0 for s in report["stored"])
+            with running_app(trained["home"]) as client:
+                flight = client.get(f"/flights/{report['stored'][1]['flight_id']}").json()
+                assert flight["duration_s"] == pytest.approx(9.0, abs=0.011)     # the cut asked for
+                assert flight["meta"]["cut_choice"] == "3:12"

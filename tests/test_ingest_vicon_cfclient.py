@@ -172,7 +172,10 @@ def test_meta_names_both_sources_rates_and_the_vicon_subject(flight, scenario):
     assert meta["sources"] == [{"path": str(scenario.vicon), "sha256": sha256_file(scenario.vicon)},
                                {"path": str(scenario.cfclient), "sha256": sha256_file(scenario.cfclient)}]
     assert meta["original_rates"]["mocap"] == RATE_HZ
-    assert 97 < meta["original_rates"]["acc"] < 100      # 1 % of the packets lost
+    # the rate is the logger's, from the stamps; the 1 % of packets lost are gaps, not a slower rate
+    assert meta["original_rates"]["acc"] == pytest.approx(100.0, abs=0.5)
+    assert meta["timing"]["acc"]["delivered"] == pytest.approx(0.99, abs=0.006)
+    assert meta["timing"]["acc"]["gaps"] > 0
     assert meta["vicon"]["subject"] == "cf1"
     assert meta["vicon"]["units"] == {"position": "mm", "rotation": "rad", "from": "units line"}
     assert flight.name == "flight_vicon"

@@ -50,7 +50,7 @@ from ..jobs.runner import ACTIVE, seconds_left
 from ..jobs.services import Services
 from ..jobs.training import start_training
 from ..storage.tables import Diagnosis, Evaluation, FlightRecord, Job
-from ..uploads import add_flight
+from ..uploads import add_flight, recut_flight
 from . import evaluation_plots, figures, flight_plots, forms, zoomable
 from .report_figures import velocity_figure
 
@@ -157,6 +157,19 @@ def upload_flight_form(request: Request, files: list[UploadFile | str] = File(de
                                pose_topic=pose_topic, imu_topic=imu_topic, cut=cut.strip() or None,
                                decode=services.decoder.decode)
     return forms.redirect(f"/ui/flights/{row.id}", services.settings, api_key)
+
+
+@pages.post("/ui/flights/{flight_id}/cut")
+@html_errors
+def cut_flight_form(request: Request, flight_id: RowId, cut: str = Form(""), api_key: str = Form(""),
+                    services: Services = Depends(get_services)):
+    """Cut form: read the flight's raw file(s) again with the cut asked for (as POST /flights/{id}/cut does),
+    then 303 to the flight holding that stretch."""
+    forms.require_key(request, services.settings, api_key)
+    row = catalog.get_flight(services.db, flight_id)
+    new, _created = recut_flight(services.db, services.blobs, row, cut.strip() or None,
+                                 decode=services.decoder.decode)
+    return forms.redirect(f"/ui/flights/{new.id}", services.settings, api_key)
 
 
 @pages.get("/ui/flights/{flight_id}", response_class=HTMLResponse)

@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 
 from ... import units
-from ...align import FLYING_HEIGHT_M, build_flight
+from ...align import FLYING_HEIGHT_M, build_flight, samples_per_second, stream_timing
 from ...flight import Flight, IngestError, existing_file, json_compatible, sha256_file
 from ...frames import GRAVITY
 from ...limits import MAX_ROOM_M, QUATERNION_NORM_TOLERANCE
@@ -291,6 +291,7 @@ def read(path, rate_hz: float = 100.0, cut: bool | tuple = True) -> Flight:
     _check_units(path, mocap[:, :3], acc)
 
     metadata = _read_metadata(path, warnings)
+    _truncation(path, len(t), metadata, warnings)
     times = {"mocap": t_mocap, "acc": t_acc, **{name: ts for name, (ts, _) in cleaned.items()}}
     meta = {
         "adapter": "nanobench",
@@ -300,6 +301,7 @@ def read(path, rate_hz: float = 100.0, cut: bool | tuple = True) -> Flight:
         "vehicle": _vehicle(metadata, warnings),
         "nanobench": json_compatible(metadata),
         "streams": {name: {**reports[name], **_span(times.get(name), t[0])} for name in reports},
+        "timing": {name: stream_timing(ts) for name, ts in times.items()},
         "warnings": warnings,
     }
     flight = build_flight(path, t_mocap=t_mocap, p=mocap[:, :3], quat=mocap[:, 3:7], t_acc=t_acc,
@@ -335,23 +337,36 @@ MAX_METADATA_ROWS = 1e12   # past any recorder's row count; larger (or a 400-dig
 
 
 def _stream_rate(name: str, t: np.ndarray, metadata: dict | None, warnings: list[str]) -> float | None:
-    """Delivered samples per second: the metadata's row count over the stream's span when known (the
-    CSV itself only holds the 10 ms resampling), else the rows that survived cleaning.  A row count that
-    is not a plausible number is ignored with a warning."""
-    span = float(t[-1] - t[0]) if len(t) > 1 else 0.0
-    if span <= 0:
-        return None
+    """The stream's sample rate (Hz) from the time stamps of its measured rows (`ingest.align.samples_per_second`:
+    one over the median step).  The metadata's row count is not a rate: the radio drops packets (a 100 Hz IMU
+    delivering 77 % of its samples is 100 Hz with gaps), and a file cut short holds fewer rows than it
+    counts.  A row count that is not a plausible number is ignored with a warning."""
+    _row_count(name, metadata, warnings)
+    return samples_per_second(t)
+
+
+def _row_count(name: str, metadata: dict | None, warnings: list[str]) -> int | None:
+    """The metadata's row count of a stream when it is a plain number of a plausible size (YAML also gives
+    bools, 400-digit ints, inf, NaN: ignored with a warning)."""
     counts = (metadata or {}).get("row_counts")
     count = counts.get(METADATA_ROW_COUNT_KEYS.get(name)) if isinstance(counts, dict) else None
-    # a row count is a plain number of a plausible size: YAML also gives bools, 400-digit ints, inf, NaN
     if isinstance(count, (int, float)) and not isinstance(count, bool) and 1 < count < MAX_METADATA_ROWS:
-        return float((count - 1) / span)
+        return int(count)
     if count is not None:
         problem = (f"metadata row_counts.{METADATA_ROW_COUNT_KEYS.get(name)} = {str(count)[:40]!r} is not a "
                    f"row count: ignored")
         if problem not in warnings:
             warnings.append(problem)
-    return float((len(t) - 1) / span)
+    return None
+
+
+def _truncation(path: Path, rows: int, metadata: dict | None, warnings: list[str]) -> None:
+    """The recorder writes one CSV row per Vicon frame, and its metadata counts them: a file with fewer rows
+    than that was cut short (a copy or download that stopped)."""
+    counted = _row_count("mocap", metadata, [])
+    if counted is not None and rows < counted:
+        warnings.append(f"truncated: the file holds {rows} rows, its metadata counts {counted} Vicon frames "
+                        f"({counted - rows} missing at the end)")
 
 
 def _span(ts, t_file_start: float) -> dict:

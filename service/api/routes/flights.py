@@ -27,7 +27,7 @@ from ...jobs.services import Services
 from ...storage.blobs import CHUNK, BlobStore
 from ...storage.database import Database
 from ...storage.tables import FlightRecord
-from ...uploads import add_flight
+from ...uploads import add_flight, recut_flight
 from ..deps import Offset, RowId, get_blobs, get_db, get_services, require_api_key
 from ..schemas import Dependents, FlightDetail, FlightOut, FlightPage
 
@@ -77,6 +77,23 @@ def upload_flight(response: Response,
     response.status_code = 201 if created else 200
     response.headers["Location"] = f"/flights/{row.id}"
     return flight_out(row)
+
+
+@router.post("/{flight_id}/cut", status_code=201, response_model=FlightOut, dependencies=[Depends(require_api_key)],
+             responses={200: {"model": FlightOut, "description": "that stretch of these files is stored already"},
+                        422: {"description": "a malformed cut, or one that leaves no flight"}})
+def cut_flight(flight_id: RowId, response: Response,
+               cut: str = Form(..., max_length=60, description=(
+                   "the stretch to keep: auto (the flying part), none (the whole recording) or START:STOP in "
+                   "seconds from the recording's start, e.g. 2.5:14")),
+               services: Services = Depends(get_services)):
+    """Read a stored flight's raw file(s) again with another cut (service.uploads.recut_flight): 201 and the
+    flight holding that stretch, or 200 when it is stored already."""
+    row = catalog.get_flight(services.db, flight_id)
+    new, created = recut_flight(services.db, services.blobs, row, cut, decode=services.decoder.decode)
+    response.status_code = 201 if created else 200
+    response.headers["Location"] = f"/flights/{new.id}"
+    return flight_out(new)
 
 
 @router.get("", response_model=FlightPage)
