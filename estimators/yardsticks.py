@@ -277,7 +277,7 @@ class MocapGaps:
         {method: RMS of the 3-D position error inside the gaps, m}.
     gain_pct : dict
         {"knode-ukf_vs_ukf": 100 (1 − Σ|e_knode|² / Σ|e_prior|²) over the gap samples, %, ...}: the gain in
-        mean squared gap error (the same quantity as the interval).
+        mean squared gap error (the same quantity as the interval); None where the prior's error is zero.
     gain_interval_pct : dict
         {same keys: [low, high] 95 % paired block-bootstrap interval, %, or None when the flight has too few
         gaps to tell} (`estimators.evaluate.gain_interval` over the gap samples, blocks at least one gap).
@@ -285,17 +285,20 @@ class MocapGaps:
         The plan (`GapPlan`), s.
     gaps : int
         Gaps scored.
+    ms_per_step : dict
+        {method: wall time of the gap-masked run per sample, ms} (the cost of this yardstick).
     skipped : str or None
         Why the flight has no gap score (too short; turned off), else None.
     """
 
-    rmse_m: dict = field(default_factory=dict)
-    gain_pct: dict = field(default_factory=dict)
-    gain_interval_pct: dict = field(default_factory=dict)
+    rmse_m: dict[str, float] = field(default_factory=dict)
+    gain_pct: dict[str, float | None] = field(default_factory=dict)
+    gain_interval_pct: dict[str, list[float] | None] = field(default_factory=dict)
     gap_s: float = GAP_S
     every_s: float = GAP_EVERY_S
     start_s: float = GAP_START_S
     gaps: int = 0
+    ms_per_step: dict[str, float] = field(default_factory=dict)
     skipped: str | None = None
     measures: str = MEASURES["mocap_gaps"]
 
@@ -322,8 +325,8 @@ class FastReference:
         Samples scored (outside the gaps).
     """
 
-    velocity_rmse_m_s: dict = field(default_factory=dict)
-    acceleration_rmse_m_s2: dict = field(default_factory=dict)
+    velocity_rmse_m_s: dict[str, float] = field(default_factory=dict)
+    acceleration_rmse_m_s2: dict[str, float] = field(default_factory=dict)
     window_s: float = FAST_VELOCITY_WINDOW_S
     acceleration_window_s: float = FAST_ACCELERATION_WINDOW_S
     samples: int = 0
@@ -339,7 +342,7 @@ class PaperSG:
     """The paper's score of one flight: ``mse`` {method: MSE over [p, v, a] against the SG references, in
     the states' squared SI units} (the report's per-flight ``mse``), ``window_s`` the SG window, s."""
 
-    mse: dict = field(default_factory=dict)
+    mse: dict[str, float] = field(default_factory=dict)
     window_s: float | None = None
     measures: str = MEASURES["paper_sg"]
 
@@ -363,8 +366,9 @@ class FlightYardsticks:
 
 
 def gap_scores(p_mocap: np.ndarray, gapped: Mapping[str, np.ndarray], windows: Sequence[tuple[int, int]],
-               plan: GapPlan) -> MocapGaps:
-    """`MocapGaps` from the gap-masked runs' estimates {method: (T, n)} and the hidden mocap p (T, 3), m."""
+               plan: GapPlan, ms_per_step: Mapping[str, float] | None = None) -> MocapGaps:
+    """`MocapGaps` from the gap-masked runs' estimates {method: (T, n)} and the hidden mocap p (T, 3), m
+    (``ms_per_step``: the runs' wall time per sample, ms)."""
     inside = gap_mask(len(p_mocap), windows)
     err2 = {m: np.sum((np.asarray(x)[inside][:, POSITION_ROWS] - p_mocap[inside]) ** 2, axis=1)
             for m, x in gapped.items()}
@@ -375,10 +379,11 @@ def gap_scores(p_mocap: np.ndarray, gapped: Mapping[str, np.ndarray], windows: S
         if base in err2 and f"knode-{base}" in err2:
             key = f"knode-{base}_vs_{base}"
             prior, knode = err2[base], err2[f"knode-{base}"]
-            gains[key] = float(100.0 * (1.0 - np.sum(knode) / np.sum(prior))) if np.sum(prior) > 0 else float("nan")
+            gains[key] = float(100.0 * (1.0 - np.sum(knode) / np.sum(prior))) if np.sum(prior) > 0 else None
             # blocks of at least one gap: the gaps are the independent units (re-converged in between)
             intervals[key] = gain_interval(prior, knode, per_gap)
-    return MocapGaps(rmse, gains, intervals, plan.gap_s, plan.every_s, plan.start_s, len(windows))
+    return MocapGaps(rmse, gains, intervals, plan.gap_s, plan.every_s, plan.start_s, len(windows),
+                     dict(ms_per_step or {}))
 
 
 def fast_reference_scores(p_mocap: np.ndarray, dt: float, estimates: Mapping[str, np.ndarray],
@@ -436,9 +441,10 @@ def flight_yardsticks(methods: Sequence[str], prior_model: StateSpaceModel, knod
     inside = gap_mask(len(p_mocap), windows)
     gapped: dict = {}
     if windows and methods:
-        gapped = {m: r["estimates"] for m, r in run_with_gaps(methods, prior_model, knode_model, y, u, dt, Q, R, x0,
-                                                              P0, inside, horizon, mhe_cache, on_stage).items()}
-        gaps = gap_scores(p_mocap, gapped, windows, plan)
+        runs = run_with_gaps(methods, prior_model, knode_model, y, u, dt, Q, R, x0, P0, inside, horizon, mhe_cache,
+                             on_stage)
+        gapped = {m: r["estimates"] for m, r in runs.items()}
+        gaps = gap_scores(p_mocap, gapped, windows, plan, {m: r["ms_per_step"] for m, r in runs.items()})
     else:
         reason = plan.too_short(len(p_mocap), dt) or "no estimator was run"
         gaps = MocapGaps(gap_s=plan.gap_s, every_s=plan.every_s, start_s=plan.start_s, skipped=reason)
@@ -485,13 +491,13 @@ class Headline:
     """
 
     yardstick: str = "mocap_gaps"
-    median_gain_pct: dict = field(default_factory=dict)
-    flights_better: dict = field(default_factory=dict)
-    flights_worse_beyond_interval: dict = field(default_factory=dict)
-    flights_worse_names: dict = field(default_factory=dict)
-    median_rmse_m: dict = field(default_factory=dict)
+    median_gain_pct: dict[str, float | None] = field(default_factory=dict)
+    flights_better: dict[str, int] = field(default_factory=dict)
+    flights_worse_beyond_interval: dict[str, int] = field(default_factory=dict)
+    flights_worse_names: dict[str, list[str]] = field(default_factory=dict)
+    median_rmse_m: dict[str, float] = field(default_factory=dict)
     flights_with_gaps: int = 0
-    flights_without_gaps: list = field(default_factory=list)
+    flights_without_gaps: list[str] = field(default_factory=list)
     gap_s: float | None = None
     every_s: float | None = None
     start_s: float | None = None
@@ -514,8 +520,8 @@ def headline(flight_reports: Sequence[dict]) -> Headline:
     median_gain, better, worse, worse_names = {}, {}, {}, {}
     for key in keys:
         values = [(name, g["gain_pct"][key], (g.get("gain_interval_pct") or {}).get(key)) for name, g in gaps
-                  if key in g["gain_pct"] and np.isfinite(g["gain_pct"][key])]
-        median_gain[key] = float(np.median([v for _, v, _ in values])) if values else float("nan")
+                  if g["gain_pct"].get(key) is not None]
+        median_gain[key] = float(np.median([v for _, v, _ in values])) if values else None
         better[key] = int(sum(bool(v > 0) for _, v, _ in values))
         worse_names[key] = [name for name, _, interval in values if interval is not None and interval[1] < 0]
         worse[key] = len(worse_names[key])

@@ -727,7 +727,9 @@ def _yardstick_lines(report: dict, prior: str) -> list[str]:
                                                   for m in methods))
     for key in keys:
         worse = (head.get("flights_worse_names") or {}).get(key) or []
-        lines.append(f"  {key.replace('_vs_', ' vs ')}: median gain {head['median_gain_pct'][key]:+.1f} % (mean "
+        median = head["median_gain_pct"].get(key)
+        lines.append(f"  {key.replace('_vs_', ' vs ')}: median gain "
+                     f"{'-' if median is None else format(median, '+.1f')} % (mean "
                      f"squared gap error), better on {head['flights_better'][key]} of {head['flights_with_gaps']} "
                      f"flights, worse beyond the 95 % interval on {len(worse)}"
                      + (f": {', '.join(worse)}" if worse else ""))
