@@ -81,6 +81,24 @@ def markdown(results: dict) -> str:
                    + " | ".join(f"{fm[m]:.4f}" if m in fm else "-" for m in methods) + " | "
                    + " | ".join(f"{1e3 * sm[m]:.2f}" for m in est) + " |")
         out.append("")
+        keys = sorted({k for r in rows for k in r["gap_gain_pct"]})
+        if keys:
+            out += ["KNODE gain on each yardstick, % (gaps: mean squared gap error, with its 95 % interval; fast: "
+                    "mean squared velocity error; SG: the paper's MSE):", "",
+                    "| flight | " + " | ".join(f"gaps {k} | fast {k} | SG {k}" for k in keys) + " |",
+                    "|" + "---|" * (1 + 3 * len(keys))]
+            for r in rows:
+                cells = [r["flight"]]
+                for k in keys:
+                    base = k.split("_vs_")[1]
+                    interval = r["gap_gain_interval_pct"].get(k)
+                    cells.append(f"{r['gap_gain_pct'][k]:+.1f}" + (f" [{interval[0]:+.1f}, {interval[1]:+.1f}]"
+                                                                  if interval else " [too few gaps]"))
+                    fast = r["fast_velocity_rmse_m_s"]
+                    cells.append(f"{100 * (1 - (fast['knode-' + base] / fast[base]) ** 2):+.1f}")
+                    cells.append(f"{100 * (1 - r['paper_sg_mse']['knode-' + base] / r['paper_sg_mse'][base]):+.1f}")
+                out.append("| " + " | ".join(cells) + " |")
+            out.append("")
         am = section["median_fast_acceleration_rmse_m_s2"]
         out.append("Median acceleration RMSE on the fast reference (m/s²): "
                    + ", ".join(f"{m} {v:.3f}" for m, v in am.items()) + ".")

@@ -234,3 +234,21 @@ def test_a_gap_plan_that_leaves_no_mocap_between_gaps_is_refused():
         GapPlan(gap_s=-0.5)
     assert GapPlan().windows(551, 0.01) == [(500, 550)]       # the first gap fits exactly
     assert GapPlan().windows(549, 0.01) == []
+
+
+@pytest.mark.data
+def test_a_usd_log_s_onboard_estimate_is_scored_from_its_compressed_state_estimate():
+    """A real uSD-card log (crazyswarm2-tools log182, stateEstimateZ.* in mm/s): ``onboard`` is scored on the
+    fast reference from the flight's v_onboard, which is the logged estimate in m/s."""
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "shared" / "data" / "crazyswarm2-tools" / "log182"
+    flight = read_flights([path])[0]
+    onboard = flight.channels["v_onboard"]
+    speed = np.linalg.norm(fast_derivatives(flight.p, flight.dt)["v"], axis=1)
+    assert 0.3 < np.percentile(np.linalg.norm(onboard, axis=1), 95) / np.percentile(speed, 95) < 3  # m/s, not mm/s
+    report = evaluate_flights(HybridModel(make_system("quadrotor"), "prior"), [flight], ["ukf", "onboard"])
+    fast = report["flights"][0]["yardsticks"]["fast_reference"]
+    inside = gap_mask(len(flight.t), GapPlan().windows(len(flight.t), flight.dt))
+    derivative = fast_derivatives(flight.p, flight.dt)["v"]
+    assert fast["velocity_rmse_m_s"]["onboard"] == pytest.approx(rms_norm((onboard - derivative)[~inside]), rel=1e-9)
