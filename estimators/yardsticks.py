@@ -60,8 +60,8 @@ MEASURES = {
                   "estimator, against the hidden mocap: how well the model carries the estimate through occlusions",
     "fast_reference": "velocity error (m/s, RMS of the 3-D error) outside the gaps against a short-window "
                       "derivative of the raw mocap: how closely the estimate follows the motion",
-    "paper_sg": "MSE over [p, v, a] against a Savitzky-Golay fit of the mocap position (1.5-s window by "
-                "default), which is smoother than the motion itself: the paper's score (its Table I)",
+    "paper_sg": "the MSE over [p, v, a] against a Savitzky-Golay fit of the mocap position (1.5-s window by "
+                "default), which is smoother than the motion itself (the paper's protocol and its Table I)",
 }
 NOTHING_LEARNED = "the residual did not improve held-out prediction; this version equals its prior"
 
@@ -99,7 +99,8 @@ class GapPlan:
         if self.gap_s <= 0:
             return []
         length = max(1, int(round(self.gap_s / dt)))
-        out, start_s = [], self.start_s
+        out: list[tuple[int, int]] = []
+        start_s = self.start_s
         while True:
             first = int(round(start_s / dt))
             if first + length > n_samples:
@@ -201,7 +202,7 @@ def masked_measurements(y: np.ndarray, u: np.ndarray, inside: np.ndarray,
     """(y, u) for `PositionGapModel`: the rows ``rows`` of y set to 0 inside the gaps, u with the mask
     (1 outside, 0 inside) appended; y (T, m), u (T, p), inside (T,) bool -> (T, m), (T, p + 1)."""
     y = np.array(y, dtype=float, copy=True)
-    y[np.ix_(inside, list(rows))] = 0.0
+    y[np.ix_(np.asarray(inside, dtype=bool), np.asarray(rows, dtype=int))] = 0.0
     u = np.asarray(u, dtype=float).reshape(len(y), -1)
     return y, np.column_stack([u, (~inside).astype(float)])
 

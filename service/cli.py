@@ -704,7 +704,7 @@ def _yardstick_lines(report: dict, prior: str) -> list[str]:
     lines.append(f"Mocap gaps (headline), model {report['model']}{prior}: mocap hidden {plan['gap_s']:g} s every "
                  f"{plan['every_s']:g} s after the first {plan['start_s']:g} s; position RMSE in the gaps (m)")
     if definitions.get("mocap_gaps"):
-        lines.append(f"  measures the {definitions['mocap_gaps']}")
+        lines.append(f"  measures {_the(definitions['mocap_gaps'])}")
     methods = sorted({m for f in gapped for m in f["yardsticks"]["mocap_gaps"]["rmse_m"]}, key=_method_order)
     keys = sorted({k for f in gapped for k in f["yardsticks"]["mocap_gaps"]["gain_pct"]})
     if gapped:
@@ -737,7 +737,7 @@ def _yardstick_lines(report: dict, prior: str) -> list[str]:
     lines.append(f"Fast reference: velocity RMSE (m/s) vs a {fast['window_s']:g}-s derivative of the raw mocap, "
                  "outside the gaps")
     if definitions.get("fast_reference"):
-        lines.append(f"  measures the {definitions['fast_reference']}")
+        lines.append(f"  measures {_the(definitions['fast_reference'])}")
     methods = sorted({m for f in scored for m in f["yardsticks"]["fast_reference"]["velocity_rmse_m_s"]},
                      key=_method_order)
     lines.append(f"  {'flight':<26}" + "".join(f"{m:>11}" for m in methods))
@@ -749,8 +749,13 @@ def _yardstick_lines(report: dict, prior: str) -> list[str]:
                                    if m in f["yardsticks"]["fast_reference"]["velocity_rmse_m_s"]])) for m in methods}
     lines.append(f"  {'median':<26}" + "".join(f"{medians[m]:>11.4f}" for m in methods))
     if definitions.get("paper_sg"):
-        lines.append(f"The paper's score measures {definitions['paper_sg']}")
+        lines.append(f"The paper's score measures {_the(definitions['paper_sg'])}")
     return lines
+
+
+def _the(sentence: str) -> str:
+    """A yardstick's definition as the object of "measures": with its article."""
+    return sentence if sentence.startswith("the ") else f"the {sentence}"
 
 
 def _method_order(method: str) -> int:
