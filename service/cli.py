@@ -50,6 +50,14 @@ def _seconds(text: str) -> float:
     return value
 
 
+def _gap_plan(args):
+    """The gaps --gap-s and --gap-every-s ask for, checked before any flight is read (InvalidInput when the
+    gaps would leave no mocap between them)."""
+    from learnest.estimators.yardsticks import GapPlan
+
+    return GapPlan(args.gap_s, args.gap_every_s)
+
+
 def _add_gap_arguments(parser: argparse.ArgumentParser) -> None:
     """--gap-s and --gap-every-s: where the mocap-gap yardstick hides the mocap (estimators.yardsticks)."""
     parser.add_argument("--gap-s", type=_seconds, default=GAP_S, metavar="S",
@@ -283,6 +291,7 @@ def _evaluate(args) -> int:
     if not args.model or not args.files:
         raise InvalidInput("evaluate needs --model REF and FILE..., or --new [--alias ALIAS]")
     methods = parse_methods(args.methods, EVALUATION_METHODS)
+    _gap_plan(args)
     if args.store:
         _registry_grid(args.rate, "pass --no-store to evaluate on another grid without storing")
     model = load_model(args.model)
@@ -384,6 +393,7 @@ def _evaluate_new(args) -> int:
     from .jobs.result_cache import EstimatorSettings
     from .jobs.scheduler import evaluate_new_once
 
+    _gap_plan(args)
     settings = EstimatorSettings(tuple(parse_methods(args.methods, EVALUATION_METHODS)), args.horizon,
                                  args.include_bad, gap_s=args.gap_s, gap_every_s=args.gap_every_s)
     rounds = evaluate_new_once(args.alias, settings)

@@ -252,3 +252,12 @@ def test_a_usd_log_s_onboard_estimate_is_scored_from_its_compressed_state_estima
     inside = gap_mask(len(flight.t), GapPlan().windows(len(flight.t), flight.dt))
     derivative = fast_derivatives(flight.p, flight.dt)["v"]
     assert fast["velocity_rmse_m_s"]["onboard"] == pytest.approx(rms_norm((onboard - derivative)[~inside]), rel=1e-9)
+
+
+def test_the_command_line_refuses_gaps_without_mocap_between_them_before_reading_anything(capsys, tmp_path):
+    from learnest.service.cli import main
+
+    status = main(["evaluate", "--model", "nothing:1", str(tmp_path / "missing.csv"), "--no-store", "--gap-s", "1",
+                   "--gap-every-s", "0.5"])
+    assert status == 2
+    assert "must be longer than the gap" in capsys.readouterr().err
