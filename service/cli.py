@@ -716,7 +716,8 @@ def _yardstick_lines(report: dict, prior: str) -> list[str]:
     if definitions.get("mocap_gaps"):
         lines.append(f"  measures {_the(definitions['mocap_gaps'])}")
     methods = sorted({m for f in gapped for m in f["yardsticks"]["mocap_gaps"]["rmse_m"]}, key=_method_order)
-    keys = sorted({k for f in gapped for k in f["yardsticks"]["mocap_gaps"]["gain_pct"]})
+    keys = sorted({k for f in gapped for k in f["yardsticks"]["mocap_gaps"]["gain_pct"]},
+                  key=lambda k: _method_order(k.split("_vs_")[0]))
     if gapped:
         lines.append(f"  {'flight':<26}" + "".join(f"{m:>11}" for m in methods) + "".join(
             f"  {k.replace('_vs_', ' vs '):>28}" for k in keys))
