@@ -294,7 +294,9 @@ def summarize(flight_reports: list[dict]) -> dict:
         (`recommended_model`: the KNODE's, or its prior's where the check flags the flight), scored as one
         estimator per base method: ``median`` {"ukf": MSE, "mhe": MSE}, ``improvement_pct`` {"ukf": %
         on the prior's median, ...}, ``flights_worse_than_prior`` {"ukf": [names], ...} and ``prior_on``
-        (names of the flights where the prior's estimate is recommended).
+        (names of the flights where the prior's estimate is recommended); ``headline``
+        (`estimators.yardsticks.headline`: the KNODE's gain on the mocap-gap yardstick over the flights) and
+        ``yardstick_definitions`` {yardstick: what it measures, one sentence}.
     """
     scored = [f for f in flight_reports if not f.get("excluded")]
     methods = sorted({m for f in scored for m in f["mse"]})
@@ -308,6 +310,8 @@ def summarize(flight_reports: list[dict]) -> dict:
     clearly_worse = {base: [f["flight"] for f in scored
                             if ((f.get("gain_interval_pct") or {}).get(f"knode-{base}_vs_{base}") or [0, 0])[1] < 0]
                      for base in ("ukf", "mhe") if f"knode-{base}_vs_{base}" in improvement}
+    from .yardsticks import MEASURES, headline  # it runs evaluate_sequence: imported here, not at the top
     return {"median": median, "improvement_pct": improvement, "flights_scored": len(scored),
             "outside_training_envelope": outside, "knode_predicts_worse": worse,
-            "knode_clearly_worse": clearly_worse, "recommended": _recommended_summary(scored, median)}
+            "knode_clearly_worse": clearly_worse, "recommended": _recommended_summary(scored, median),
+            "headline": headline(scored).to_dict(), "yardstick_definitions": dict(MEASURES)}

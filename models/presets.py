@@ -15,10 +15,17 @@ SG_WINDOW = 150                  # Savitzky–Golay reference window, samples (p
 SG_WINDOW_RANGE = (3, 2001)      # windows a user may choose, samples (order 2 needs 3; 2001 = 20 s at 100 Hz)
 METHODS = ("ukf", "mhe", "knode-ukf", "knode-mhe")   # the four estimators of the Crazyflie experiment
 PRODUCTION_ALIAS = "production"  # the alias scheduled evaluations use
+# the vehicle's own estimate, scored beside the estimators where the log carries it (estimators.yardsticks)
+ONBOARD = "onboard"
+EVALUATION_METHODS = (*METHODS, ONBOARD)   # what an evaluation scores by default
+# the mocap-gap yardstick (estimators.yardsticks): the mocap position is hidden for GAP_S s every GAP_EVERY_S s,
+# none before GAP_START_S s of the kept flight (the estimators' start-up)
+GAP_S, GAP_EVERY_S, GAP_START_S = 0.5, 2.5, 5.0
 
 
-def parse_methods(text: str) -> list[str]:
-    """Comma-separated method names (case and spaces ignored) -> list of names from ``METHODS``.
+def parse_methods(text: str, allowed: tuple[str, ...] = METHODS) -> list[str]:
+    """Comma-separated method names (case and spaces ignored) -> list of names from ``allowed`` (the
+    estimators, ``METHODS``; an evaluation also takes ``onboard``: ``EVALUATION_METHODS``).
 
     Raises
     ------
@@ -26,9 +33,9 @@ def parse_methods(text: str) -> list[str]:
         If a name is unknown or none is given.
     """
     methods = [m.strip().lower() for m in text.split(",") if m.strip()]
-    unknown = sorted(set(methods) - set(METHODS))
+    unknown = sorted(set(methods) - set(allowed))
     if unknown or not methods:
-        raise InvalidInput(f"unknown method(s) {unknown or text!r}; choose from {', '.join(METHODS)}")
+        raise InvalidInput(f"unknown method(s) {unknown or text!r}; choose from {', '.join(allowed)}")
     return methods
 
 

@@ -14,7 +14,9 @@ from tqdm import tqdm
 from learnest.errors import InvalidInput, LearnestError
 from learnest.models.presets import (
     CRAZYFLIE_TRAINING,
-    METHODS,
+    EVALUATION_METHODS,
+    GAP_EVERY_S,
+    GAP_S,
     MHE_HORIZON,
     PRODUCTION_ALIAS,
     SG_WINDOW,
@@ -35,6 +37,34 @@ def _positive_float(text: str) -> float:
 
 def _positive_int(text: str) -> int:
     return _whole_number(text, 1)
+
+
+def _seconds(text: str) -> float:
+    """A non-negative number of seconds (a gap length of 0 turns the gap yardstick off)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds, got {text!r}") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"must be a non-negative number of seconds, got {text!r}")
+    return value
+
+
+def _gap_plan(args):
+    """The gaps --gap-s and --gap-every-s ask for, checked before any flight is read (InvalidInput when the
+    gaps would leave no mocap between them)."""
+    from learnest.estimators.yardsticks import GapPlan
+
+    return GapPlan(args.gap_s, args.gap_every_s)
+
+
+def _add_gap_arguments(parser: argparse.ArgumentParser) -> None:
+    """--gap-s and --gap-every-s: where the mocap-gap yardstick hides the mocap (estimators.yardsticks)."""
+    parser.add_argument("--gap-s", type=_seconds, default=GAP_S, metavar="S",
+                        help=f"mocap-gap yardstick: hide the mocap position from the estimators for S s per gap "
+                             f"(default {GAP_S}; 0: no gaps)")
+    parser.add_argument("--gap-every-s", type=_positive_float, default=GAP_EVERY_S, metavar="S",
+                        help=f"one gap every S s after the first 5 s of the kept flight (default {GAP_EVERY_S})")
 
 
 def _whole_number(text: str, least: int = 0) -> int:
@@ -293,7 +323,8 @@ def _evaluate(args) -> int:
         return _evaluate_new(args)
     if not args.model or not args.files:
         raise InvalidInput("evaluate needs --model REF and FILE..., or --new [--alias ALIAS]")
-    methods = parse_methods(args.methods)
+    methods = parse_methods(args.methods, EVALUATION_METHODS)
+    _gap_plan(args)
     if args.store:
         _registry_grid(args.rate, "pass --no-store to evaluate on another grid without storing")
     model = load_model(args.model)
@@ -326,7 +357,8 @@ def _evaluate_stored(args, model, ref: str, methods: list[str]) -> dict:
     from .jobs.result_cache import EstimatorSettings
     from .local_registry import evaluate, export
 
-    settings = EstimatorSettings(tuple(methods), args.horizon, args.include_bad, args.sg_window)
+    settings = EstimatorSettings(tuple(methods), args.horizon, args.include_bad, args.sg_window, args.gap_s,
+                                 args.gap_every_s)
     with tqdm(total=1.0, desc="evaluating", unit="", file=sys.stderr,
               bar_format=STAGE_BAR) as bar:
         report = evaluate(args.files, ref, settings, progress=lambda f: bar.update(f - bar.n),
@@ -351,6 +383,7 @@ def _evaluate_here(args, model, ref: str, methods: list[str]) -> dict:
     with tqdm(total=len(flights), desc="evaluating", unit="flight", file=sys.stderr) as bar:
         report = evaluate_flights(model, flights, methods, include_bad=args.include_bad, horizon=args.horizon,
                                   sg_window=args.sg_window, progress=lambda _f: bar.update(1),
+                                  gap_s=args.gap_s, gap_every_s=args.gap_every_s,
                                   on_estimates=(lambda _i, e: kept.append(e)) if args.export else None)
     report["model"] = ref
     report["errors"] = batch.errors
@@ -401,7 +434,9 @@ def _evaluate_new(args) -> int:
     from .jobs.result_cache import EstimatorSettings
     from .jobs.scheduler import evaluate_new_once
 
-    settings = EstimatorSettings(tuple(parse_methods(args.methods)), args.horizon, args.include_bad)
+    _gap_plan(args)
+    settings = EstimatorSettings(tuple(parse_methods(args.methods, EVALUATION_METHODS)), args.horizon,
+                                 args.include_bad, gap_s=args.gap_s, gap_every_s=args.gap_every_s)
     rounds = evaluate_new_once(args.alias, settings)
     if args.json:
         print(json.dumps({"alias": args.alias, "busy": rounds is None, "evaluations": rounds or []}, indent=2))
@@ -588,7 +623,7 @@ def _demo(args) -> int:
                         on_stage=_show_stage(bar))
     print(f"registered {trained['ref']} in {trained['home']}")
     with tqdm(total=len(flights), desc="evaluating", unit="flight", file=sys.stderr) as bar:
-        report = evaluate_flights(load_model(trained["ref"]), flights, parse_methods(args.methods),
+        report = evaluate_flights(load_model(trained["ref"]), flights, parse_methods(args.methods, EVALUATION_METHODS),
                                   horizon=args.horizon, progress=lambda _f: bar.update(1))
     report["model"] = trained["ref"]
     print(format_report(report))
@@ -652,7 +687,9 @@ def format_report(report: dict) -> str:
     """
     methods = list(report["median"])
     prior = f" ({report['system']} prior)" if report.get("system") else ""
-    lines = [f"model {report['model']}{prior}: MSE over [p, v, a] vs Savitzky-Golay references (x 1e-3)",
+    lines = _yardstick_lines(report, prior)
+    lines += [f"The paper's score (paper_sg), model {report['model']}{prior}: MSE over [p, v, a] vs "
+              "Savitzky-Golay references (x 1e-3)",
              f"{'flight':<28}" + "".join(f"{m:>12}" for m in methods) + "  outside envelope"]
     for f in report["flights"]:
         if f["excluded"]:
@@ -700,6 +737,85 @@ def format_report(report: dict) -> str:
     for f in report["flights"]:   # another vehicle, sensor rate or attitude source than the training flight's
         lines += [f"WARNING {f['flight']}: {warning}" for warning in f.get("warnings") or []]
     return "\n".join(lines)
+
+
+def _yardstick_lines(report: dict, prior: str) -> list[str]:
+    """The report's opening lines: whether the model learned anything, the mocap-gap score (per flight, the
+    median and the KNODE's gain with its interval), then the fast reference with the onboard estimate; each
+    yardstick says what it measures.  Rows are indented so a flight's first line stays its paper_sg row."""
+    import statistics
+
+    lines = []
+    if report.get("learned_note"):
+        lines.append(f"NOTE {report['model']}: {report['learned_note']}")
+    definitions = report.get("yardstick_definitions") or {}
+    scored = [f for f in report["flights"] if not f.get("excluded") and f.get("yardsticks")]
+    if not scored:
+        return lines
+    head = report.get("headline") or {}
+    gapped = [f for f in scored if not f["yardsticks"]["mocap_gaps"].get("skipped")]
+    plan = scored[0]["yardsticks"]["mocap_gaps"]
+    lines.append(f"Mocap gaps (headline), model {report['model']}{prior}: mocap hidden {plan['gap_s']:g} s every "
+                 f"{plan['every_s']:g} s after the first {plan['start_s']:g} s; position RMSE in the gaps (m)")
+    if definitions.get("mocap_gaps"):
+        lines.append(f"  measures {_the(definitions['mocap_gaps'])}")
+    methods = sorted({m for f in gapped for m in f["yardsticks"]["mocap_gaps"]["rmse_m"]}, key=_method_order)
+    keys = sorted({k for f in gapped for k in f["yardsticks"]["mocap_gaps"]["gain_pct"]},
+                  key=lambda k: _method_order(k.split("_vs_")[0]))
+    if gapped:
+        lines.append(f"  {'flight':<26}" + "".join(f"{m:>11}" for m in methods) + "".join(
+            f"  {k.replace('_vs_', ' vs '):>28}" for k in keys))
+    for f in scored:
+        gaps = f["yardsticks"]["mocap_gaps"]
+        if gaps.get("skipped"):
+            lines.append(f"  {f['flight']:<26}  no gap score: {gaps['skipped']}")
+            continue
+        row = "".join(f"{gaps['rmse_m'][m]:>11.4f}" if m in gaps["rmse_m"] else f"{'-':>11}" for m in methods)
+        for key in keys:
+            gain, interval = gaps["gain_pct"].get(key), (gaps.get("gain_interval_pct") or {}).get(key)
+            text = "-" if gain is None else f"{gain:+.1f} %" + (
+                f" [{interval[0]:+.1f}, {interval[1]:+.1f}]" if interval else " [too few gaps]")
+            row += f"  {text:>28}"
+        lines.append(f"  {f['flight']:<26}" + row + f"  ({gaps['gaps']} gaps)")
+    if gapped:
+        lines.append(f"  {'median':<26}" + "".join(f"{head.get('median_rmse_m', {}).get(m, float('nan')):>11.4f}"
+                                                  for m in methods))
+    for key in keys:
+        worse = (head.get("flights_worse_names") or {}).get(key) or []
+        median = head["median_gain_pct"].get(key)
+        lines.append(f"  {key.replace('_vs_', ' vs ')}: median gain "
+                     f"{'-' if median is None else format(median, '+.1f')} % (mean "
+                     f"squared gap error), better on {head['flights_better'][key]} of {head['flights_with_gaps']} "
+                     f"flights, worse beyond the 95 % interval on {len(worse)}"
+                     + (f": {', '.join(worse)}" if worse else ""))
+    fast = scored[0]["yardsticks"]["fast_reference"]
+    lines.append(f"Fast reference: velocity RMSE (m/s) vs a {fast['window_s']:g}-s derivative of the raw mocap, "
+                 "outside the gaps")
+    if definitions.get("fast_reference"):
+        lines.append(f"  measures {_the(definitions['fast_reference'])}")
+    methods = sorted({m for f in scored for m in f["yardsticks"]["fast_reference"]["velocity_rmse_m_s"]},
+                     key=_method_order)
+    lines.append(f"  {'flight':<26}" + "".join(f"{m:>11}" for m in methods))
+    for f in scored:
+        velocity = f["yardsticks"]["fast_reference"]["velocity_rmse_m_s"]
+        lines.append(f"  {f['flight']:<26}" + "".join(f"{velocity[m]:>11.4f}" if m in velocity else f"{'-':>11}"
+                                                      for m in methods))
+    medians = {m: float(statistics.median([f["yardsticks"]["fast_reference"]["velocity_rmse_m_s"][m] for f in scored
+                                   if m in f["yardsticks"]["fast_reference"]["velocity_rmse_m_s"]])) for m in methods}
+    lines.append(f"  {'median':<26}" + "".join(f"{medians[m]:>11.4f}" for m in methods))
+    if definitions.get("paper_sg"):
+        lines.append(f"The paper's score measures {_the(definitions['paper_sg'])}")
+    return lines
+
+
+def _the(sentence: str) -> str:
+    """A yardstick's definition as the object of "measures": with its article."""
+    return sentence if sentence.startswith("the ") else f"the {sentence}"
+
+
+def _method_order(method: str) -> int:
+    """Methods in the order of EVALUATION_METHODS (unknown ones last)."""
+    return EVALUATION_METHODS.index(method) if method in EVALUATION_METHODS else len(EVALUATION_METHODS)
 
 
 def _envelope_text(envelope: dict | None) -> str:
@@ -779,7 +895,9 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--model", metavar="REF", type=_model_ref,
                     help="a registered model: NAME (its latest ready version), NAME:VERSION or NAME@ALIAS "
                          "(required unless --new)")
-    ev.add_argument("--methods", default=",".join(METHODS))
+    ev.add_argument("--methods", default=",".join(EVALUATION_METHODS),
+                    help=f"any of {', '.join(EVALUATION_METHODS)} (default: all; onboard is the vehicle's own "
+                         "estimate, scored where the log carries it)")
     ev.add_argument("--json", action="store_true")
     ev.add_argument("--plot", metavar="PNG", type=_new_file,
                     help="write the per-flight MSE figure (prior vs KNODE, one line per flight; box plots from "
@@ -802,6 +920,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "they are, so the evaluation shows in the web UI and `learnest export` can write it)")
     ev.add_argument("--export", metavar="PATH", type=_export_path,
                     help="also write the state estimates; the format follows the suffix: .csv, .parquet, .mcap")
+    _add_gap_arguments(ev)
     _add_topic_arguments(ev)
     _add_cut_argument(ev)
     ev.set_defaults(func=_evaluate)
@@ -890,7 +1009,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("folder")
     demo.add_argument("--train", help="name of the training flight (default: the first clean one)")
     demo.add_argument("--name", default="demo", help="registered model name (each run adds a version)")
-    demo.add_argument("--methods", default=",".join(METHODS))
+    demo.add_argument("--methods", default=",".join(EVALUATION_METHODS))
     demo.add_argument("--plot", metavar="PNG", type=_new_file, default=None)
     demo.add_argument("--horizon", type=_positive_int, default=MHE_HORIZON)
     demo.add_argument("--rate", type=_positive_float, default=100.0)

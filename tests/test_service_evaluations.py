@@ -454,3 +454,29 @@ def test_a_crazyflie_report_page_shows_the_thrust_calibration_and_the_gain_inter
     assert "id='thrust-gain'" in page and f"{entry['thrust_gain']:.3f}" in page
     low, high = entry["gain_interval_pct"]["knode-ukf_vs_ukf"]
     assert low <= high and f"[{low:+.1f}, {high:+.1f}] %" in page
+
+
+def test_the_report_carries_the_yardsticks_and_the_gap_settings_asked_for(registry_home):
+    """GET /evaluations/{id} through its typed response: per flight the three yardsticks (the gaps as asked),
+    the headline first; the same numbers as evaluate_flights; gaps that leave no mocap between them are a 422."""
+    from learnest.service.experiments.flights import evaluate_flights
+    from learnest.service.registry import load_model_ref
+
+    home, ids = registry_home["home"], registry_home["ids"]
+    with running_app(home) as client:
+        _, report = evaluate(client, "quad:1", ids[1:], gap_s=0.4, gap_every_s=2.0)
+        model = load_model_ref("quad:1", settings_for(home))
+        direct = json.loads(json.dumps(evaluate_flights(model, stored_flights(home, ids[1:]), FAST_METHODS,
+                                                        gap_s=0.4, gap_every_s=2.0)))
+        for got, want in zip(report["flights"], direct["flights"]):
+            gaps = got["yardsticks"]["mocap_gaps"]
+            assert gaps["gap_s"] == 0.4 and gaps["every_s"] == 2.0 and gaps["gaps"] > 0
+            assert gaps["rmse_m"] == pytest.approx(want["yardsticks"]["mocap_gaps"]["rmse_m"], rel=1e-9)
+            assert got["yardsticks"]["paper_sg"]["mse"] == pytest.approx(got["mse"], rel=1e-12)
+        assert report["headline"]["yardstick"] == "mocap_gaps" and report["headline"]["gap_s"] == 0.4
+        assert report["headline"]["median_rmse_m"] == pytest.approx(direct["headline"]["median_rmse_m"], rel=1e-9)
+        refused = client.post("/evaluations", json={"model": "quad:1", "flights": ids[1:], "gap_s": 1.0,
+                                                    "gap_every_s": 0.8})
+        assert refused.status_code == 422 and "gap_every_s" in refused.text
+        schemas = client.get("/openapi.json").json()["components"]["schemas"]
+        assert {"EvaluationReport", "Headline", "MocapGaps", "FastReference", "PaperSG"} <= set(schemas)

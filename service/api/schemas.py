@@ -4,11 +4,14 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from learnest.estimators.yardsticks import FlightYardsticks, Headline
 from learnest.models.presets import (
     CRAZYFLIE_TRAINING,
-    METHODS,
+    EVALUATION_METHODS,
+    GAP_EVERY_S,
+    GAP_S,
     MHE_HORIZON,
     SG_WINDOW,
     SG_WINDOW_RANGE,
@@ -172,24 +175,71 @@ class EvaluationRequest(Strict):
     model: str = Field(description='"name:version" or "name@alias"')
     flights: list[int] | Literal["all-other"] = Field(
         description='flight ids, or "all-other": every stored flight except the model\'s training flight')
-    methods: list[str] = Field(default_factory=lambda: list(METHODS), description=f"any of {', '.join(METHODS)}")
+    methods: list[str] = Field(default_factory=lambda: list(EVALUATION_METHODS),
+                               description=f"any of {', '.join(EVALUATION_METHODS)} (onboard: the vehicle's own "
+                                           "estimate, scored on the fast reference where the log carries it)")
     horizon: int = Field(MHE_HORIZON, ge=1, le=500, description="MHE horizon N")
     include_bad: bool = Field(False, description="also score flights that fail the quality checks")
     sg_window: int = Field(SG_WINDOW, ge=SG_WINDOW_RANGE[0], le=SG_WINDOW_RANGE[1],
                            description="Savitzky-Golay window of the reference states, samples (default: the "
                                        "paper's 150, about 1.5 s at 100 Hz; shorter follows fast manoeuvres, "
                                        "whose velocity peaks a 1.5-s window clips)")
+    gap_s: float = Field(GAP_S, ge=0.0, le=30.0, description="mocap-gap yardstick: how long the mocap position is "
+                                                             "hidden from the estimators in each gap, s (0: no gaps)")
+    gap_every_s: float = Field(GAP_EVERY_S, gt=0.0, le=300.0,
+                               description="mocap-gap yardstick: one gap every this many seconds, after the first "
+                                           "5 s of the kept flight; longer than gap_s")
 
     @field_validator("methods")
     @classmethod
     def known_methods(cls, methods: list[str]) -> list[str]:
-        return parse_methods(",".join(methods))  # ValueError names the unknown ones
+        return parse_methods(",".join(methods), EVALUATION_METHODS)  # ValueError names the unknown ones
+
+    @model_validator(mode="after")
+    def gaps_leave_mocap_between(self) -> EvaluationRequest:
+        if self.gap_s > 0 and not self.gap_every_s > self.gap_s:
+            raise ValueError(f"gap_every_s ({self.gap_every_s}) must be longer than gap_s ({self.gap_s}): the "
+                             "estimators need mocap between gaps")
+        return self
 
 
 class EvaluationAccepted(BaseModel):
     job_id: int
     evaluation_id: int
     state: str
+
+
+class FlightReport(BaseModel):
+    """One flight of an evaluation report (`service.experiments.flights.evaluate_flights`); fields not listed
+    here (envelope, prediction check, thrust calibration, warnings, ...) are passed through as they are."""
+
+    model_config = ConfigDict(extra="allow")
+
+    flight: str = Field(description="the flight's name")
+    excluded: bool = Field(description="not scored (quality, training flight, failed): see reason")
+    reason: str | None = None
+    yardsticks: FlightYardsticks | None = Field(
+        None, description="mocap_gaps first (position RMSE in the gaps, m), fast_reference (velocity RMSE, m/s), "
+                          "paper_sg (the paper's MSE); None for an excluded flight")
+    mse: dict[str, float] = Field(default_factory=dict, description="the paper's SG score per method (as "
+                                                                    "yardsticks.paper_sg.mse)")
+
+
+class EvaluationReport(BaseModel):
+    """An evaluation report: the headline (the mocap-gap yardstick) first, then every flight; fields not listed
+    here (median, improvement_pct, units, recommended, ...) are passed through as they are."""
+
+    model_config = ConfigDict(extra="allow")
+
+    model: str | None = Field(None, description='"name:version" of the model evaluated')
+    headline: Headline | None = Field(None, description="the KNODE's median gain on the mocap-gap yardstick, the "
+                                                        "flights it is better on, and worse beyond their interval")
+    learned: bool | None = Field(None, description="the model's own flag: False when its residual did not improve "
+                                                   "held-out prediction (it equals its prior); None when unknown")
+    learned_note: str | None = None
+    yardstick_definitions: dict[str, str] | None = Field(None, description="what each yardstick measures")
+    flights: list[FlightReport]
+    flights_scored: int
 
 
 class EvaluationPending(BaseModel):

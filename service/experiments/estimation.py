@@ -20,7 +20,7 @@ from learnest.estimators.ukf import run_ukf
 from learnest.ingest.flight import Flight
 from learnest.models.inputs import calibrates_thrust_gain, system_inputs
 from learnest.models.knode import HybridModel
-from learnest.models.presets import METHODS, MHE_HORIZON, parse_methods
+from learnest.models.presets import EVALUATION_METHODS, GAP_EVERY_S, GAP_S, MHE_HORIZON, parse_methods
 
 from .flights import FLIGHT_SYSTEMS, corrected_flight, evaluate_flights, initial_state, model_system
 
@@ -146,10 +146,11 @@ def mhe(model: HybridModel, flight: Flight, horizon: int = MHE_HORIZON) -> MHERe
     return MHEResult(np.asarray(flight.t, dtype=float), means, covariances, failures)
 
 
-def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[str] = METHODS,
+def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[str] = EVALUATION_METHODS,
              horizon: int = MHE_HORIZON, include_bad: bool = False,
              progress: Callable[[dict], None] | None = None,
-             on_estimates: Callable[[int, FlightEstimates], None] | None = None) -> dict:
+             on_estimates: Callable[[int, FlightEstimates], None] | None = None,
+             gap_s: float = GAP_S, gap_every_s: float = GAP_EVERY_S) -> dict:
     """Score the estimators on flights against Savitzky–Golay references of their mocap position.
 
     Parameters
@@ -159,7 +160,8 @@ def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[st
     flights : sequence of Flight
         Flights to score (each gets an entry, excluded ones with the reason).
     methods : sequence of str
-        Any of ``"ukf", "mhe", "knode-ukf", "knode-mhe"``.
+        Any of ``"ukf", "mhe", "knode-ukf", "knode-mhe"``, and ``"onboard"``: the vehicle's own estimate,
+        scored on the fast reference where the log carries it.
     horizon : int
         MHE window N, samples.
     include_bad : bool
@@ -170,6 +172,9 @@ def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[st
         Called as ``on_estimates(index, FlightEstimates)`` with the per-step estimates of every method on
         each scored flight (``index`` into ``flights``); `learnest.estimators.export.write_estimates`
         writes them as CSV, Parquet or MCAP, `FlightEstimates.to_frame` gives the tidy table.
+    gap_s, gap_every_s : float
+        The mocap-gap yardstick: the mocap position is hidden from the estimators for ``gap_s`` s every
+        ``gap_every_s`` s after the first 5 s (`learnest.estimators.yardsticks`); ``gap_s = 0`` turns it off.
 
     Returns
     -------
@@ -177,7 +182,10 @@ def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[st
         ``flights``: per flight ``mse`` {method: MSE over [p, v, a] in SI units²}, ``groups`` (per p, v,
         a), ``ms_per_step``, ``excluded`` and ``reason``; ``median`` {method: MSE}; ``units`` of these;
         ``improvement_pct`` {"knode-ukf_vs_ukf": %, ...}; ``flights_scored``; ``model`` (the model's
-        meta name, None for an unregistered model).
+        meta name, None for an unregistered model).  Per flight ``yardsticks``: ``mocap_gaps`` (``rmse_m``
+        {method: m}, ``gain_pct``, ``gain_interval_pct``, ``gap_s``, ``every_s``, ``gaps``), ``fast_reference``
+        (``velocity_rmse_m_s`` {method: m/s}, ``window_s``) and ``paper_sg`` (``mse``); ``headline``: the
+        KNODE's median gap gain, the flights it is better on and worse beyond their interval on.
 
     Raises
     ------
@@ -193,6 +201,6 @@ def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[st
     >>> report["flights_scored"]      # flights[0] is the training flight: never scored
     1
     """
-    methods = parse_methods(methods if isinstance(methods, str) else ",".join(methods))
+    methods = parse_methods(methods if isinstance(methods, str) else ",".join(methods), EVALUATION_METHODS)
     return evaluate_flights(model, list(flights), methods, include_bad=include_bad, horizon=horizon,
-                            progress=progress, on_estimates=on_estimates)
+                            progress=progress, on_estimates=on_estimates, gap_s=gap_s, gap_every_s=gap_every_s)

@@ -18,7 +18,8 @@ from learnest.estimators.evaluate import (
 )
 from learnest.estimators.mhe import MHE
 from learnest.estimators.observers import pretraining_observer
-from learnest.ingest.baseline import references
+from learnest.estimators.yardsticks import GapPlan, flight_yardsticks, learned_note, onboard_estimate
+from learnest.ingest.baseline import centred_window, references
 from learnest.ingest.flight import Flight
 from learnest.ingest.profile import flight_profile, profile_mismatches
 from learnest.models.effects import correct_acc_body, world_from_body
@@ -34,7 +35,15 @@ from learnest.models.inputs import (
     training_meta,
 )
 from learnest.models.knode import HybridModel
-from learnest.models.presets import CRAZYFLIE_TRAINING, MHE_HORIZON, SG_WINDOW, TrainingConfig
+from learnest.models.presets import (
+    CRAZYFLIE_TRAINING,
+    GAP_EVERY_S,
+    GAP_S,
+    MHE_HORIZON,
+    ONBOARD,
+    SG_WINDOW,
+    TrainingConfig,
+)
 from learnest.models.systems import System, make_system
 from learnest.models.training import TrainingResult, train_knode
 
@@ -104,7 +113,7 @@ def evaluate_flight(knode: HybridModel, flight: Flight, methods: Sequence[str], 
                     sg_window: int = SG_WINDOW, keep_estimates: bool = False,
                     mhe_cache: dict[tuple, MHE] | None = None,
                     on_stage: Callable[[str], object] | None = None, check_prediction: bool = False,
-                    thrust_gain: bool | None = None) -> dict:
+                    thrust_gain: bool | None = None, gaps: GapPlan | None = None) -> dict:
     """Scores of every method on one flight, against SG references of its mocap position.
 
     The prior-only rows use the model's own prior (which a diagnosis may have extended), and a model
@@ -120,7 +129,9 @@ def evaluate_flight(knode: HybridModel, flight: Flight, methods: Sequence[str], 
         ``estimates`` (a `FlightEstimates` of every method) when ``keep_estimates``, else None;
         ``prediction_check`` (`estimators.evaluate.prediction_check` on the mocap position) when
         ``check_prediction`` and the model is a KNODE, else None.  It reuses the UKF rows' innovations and
-        runs the (untimed) UKF of a model whose row was not asked for.
+        runs the (untimed) UKF of a model whose row was not asked for.  ``yardsticks``
+        (`estimators.yardsticks.FlightYardsticks`: mocap gaps, fast reference, the paper's SG score) when
+        ``gaps`` is given, else None; ``onboard`` in ``methods`` scores the log's own estimate there.
     """
     system = model_system(knode, flight)
     knode = HybridModel(replace(knode.system, dt=flight.dt), knode.kind, knode.residual, knode.meta)
@@ -134,9 +145,21 @@ def evaluate_flight(knode: HybridModel, flight: Flight, methods: Sequence[str], 
     u = system_inputs(flight, system, thrust_gain=thrust_gain)
     y, x0 = measured.measurements(), initial_state(measured)
     mhe_cache = {} if mhe_cache is None else mhe_cache
-    results = evaluate_sequence(methods, prior, knode, y, u, flight.dt, system.Q, system.R, x0, system.P0, reference,
-                                horizon=horizon, keep_estimates=keep_estimates, mhe_cache=mhe_cache,
-                                on_stage=on_stage)
+    run = [m for m in methods if m != ONBOARD]   # the onboard estimate is read from the log, not run
+    results = evaluate_sequence(run, prior, knode, y, u, flight.dt, system.Q, system.R, x0, system.P0, reference,
+                                horizon=horizon, keep_estimates=keep_estimates or gaps is not None,
+                                mhe_cache=mhe_cache, on_stage=on_stage)
+    yardsticks = None
+    if gaps is not None:
+        onboard = onboard_estimate(flight.channels) if ONBOARD in methods else None
+        yardsticks, _ = flight_yardsticks(run, prior, knode, y, u, flight.dt, system.Q, system.R, x0, system.P0,
+                                          flight.p, {m: r["estimates"] for m, r in results.items()},
+                                          {m: r["mse"] for m, r in results.items()}, gaps, horizon, onboard=onboard,
+                                          sg_window_s=centred_window(sg_window) * flight.dt, mhe_cache=mhe_cache,
+                                          on_stage=on_stage)
+        if not keep_estimates:
+            for entry in results.values():
+                entry.pop("estimates", None)
     check = None
     if check_prediction and knode.kind == "knode":
         ms = {}
@@ -146,10 +169,12 @@ def evaluate_flight(knode: HybridModel, flight: Flight, methods: Sequence[str], 
         names = list(system.meas_names)
         check = prediction_check(ms["ukf"], ms["knode-ukf"], [names.index(c) for c in PREDICTION_CHANNELS], names)
     if not keep_estimates:
-        return {"results": results, "reference": None, "estimates": None, "prediction_check": check}
+        return {"results": results, "reference": None, "estimates": None, "prediction_check": check,
+                "yardsticks": yardsticks}
     estimates = FlightEstimates(flight.name, flight.t, reference, y, flight.quat,
                                 {m: r["estimates"] for m, r in results.items()}, log_start_ns(flight))
-    return {"results": results, "reference": reference, "estimates": estimates, "prediction_check": check}
+    return {"results": results, "reference": reference, "estimates": estimates, "prediction_check": check,
+            "yardsticks": yardsticks}
 
 
 def log_start_ns(flight: Flight) -> int:
@@ -197,7 +222,8 @@ def _trained_on_other_attitude(knode: HybridModel) -> bool:
 def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequence[str], include_bad: bool = False,
                      horizon: int = MHE_HORIZON, progress: Callable[[dict], None] | None = None,
                      on_estimates: Callable[[int, FlightEstimates], None] | None = None,
-                     on_stage: Callable[[str], object] | None = None, sg_window: int = SG_WINDOW) -> dict:
+                     on_stage: Callable[[str], object] | None = None, sg_window: int = SG_WINDOW,
+                     gap_s: float = GAP_S, gap_every_s: float = GAP_EVERY_S) -> dict:
     """The report of `learnest evaluate --json`: per flight, median, improvement %, ``units`` of the numbers.
 
     Flights that fail the quality checks (unless ``include_bad``) and the model's own training flight are
@@ -222,7 +248,13 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
     ``flights``), when given; ``on_stage`` with each method's name before it runs and "MHE build (...)"
     before an MHE is built (`estimators.evaluate.evaluate_sequence`).  ``sg_window`` is the Savitzky–Golay
     window of the references, samples.
+    Each scored flight's ``yardsticks`` (`estimators.yardsticks`) hold the mocap-gap score (the mocap hidden
+    ``gap_s`` s every ``gap_every_s`` s after the first 5 s; a flight too short for one gap says why), the
+    fast reference (``onboard`` beside the estimators where ``methods`` name it and the log carries it) and
+    the paper's SG score; the report's ``headline`` sums up the gap score over the flights, ``learned`` and
+    ``learned_note`` say whether the model learned anything (its ``learned`` flag; None when it has none).
     """
+    plan = GapPlan(gap_s, gap_every_s)   # checked before any flight runs
     reports: list[dict] = []
     mhe_cache: dict[tuple, MHE] = {}
     for index, flight in enumerate(flights):
@@ -235,7 +267,7 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
         else:
             out = evaluate_flight(knode, flight, methods, horizon, sg_window=sg_window,
                                   keep_estimates=on_estimates is not None, mhe_cache=mhe_cache, on_stage=on_stage,
-                                  check_prediction=True)
+                                  check_prediction=True, gaps=plan)
             results = out["results"]
             if on_estimates is not None:
                 on_estimates(index, out["estimates"])
@@ -246,6 +278,7 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
                                           for m, r in results.items() if "gain_interval_pct" in r}
             entry["envelope"] = flight_envelope(knode, flight)
             entry["prediction_check"] = out["prediction_check"]
+            entry["yardsticks"] = out["yardsticks"].to_dict()
             if knode.system.name in THRUST_THROUGH_ATTITUDE:   # the calibration the prior's attitude input got
                 entry["thrust_axis_offset_deg"] = [round(float(np.degrees(d)), 3) for d in flight_thrust_axis(flight)]
                 # and what its prior's thrust carried: the motors' heating, the flight's thrust gain
@@ -263,4 +296,4 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
         if progress:
             progress(entry)
     return {"model": knode.meta.get("name"), "system": knode.system.name, "flights": reports, **summarize(reports),
-            "units": MSE_UNITS}
+            "units": MSE_UNITS, **learned_note(knode.meta)}

@@ -2,6 +2,7 @@
 result (`result_cache`), then the report (the shape of service.experiments.flights.evaluate_flights)."""
 from __future__ import annotations
 
+import json
 import logging
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -44,7 +45,8 @@ def start_evaluation(services: Services, model_ref: str, flights: Iterable[int] 
         entries = cached_entries(session, version.id, settings.key, shas)
         if len(entries) == len(flight_ids):  # everything cached: no job to run
             evaluation.report = assemble_report(evaluation.model_ref, [entries[sha] for sha in shas], flight_ids,
-                                                shas)
+                                                shas, model_meta=_model_meta(services.blobs.read_bytes(
+                                                    registry.weights_of(version))))
             job.state, job.progress, job.started_at, job.finished_at = "succeeded", 1.0, utcnow(), utcnow()
             job.result = {"evaluation_id": evaluation.id, "flights": len(flight_ids), "computed": 0}
             return job.id, evaluation.id, job.state
@@ -101,7 +103,8 @@ def run_evaluation(services: Services, ctx: JobContext, evaluation_id: int) -> N
                      (time.monotonic() - started) / computed * (len(futures) - computed))
 
     report = assemble_report(model_ref, [entries[sha] if sha else _missing_entry(i)
-                                         for i, sha in zip(flight_ids, order)], flight_ids, order)
+                                         for i, sha in zip(flight_ids, order)], flight_ids, order,
+                             model_meta=_model_meta(model_json))
     with services.db.transaction() as session:
         get_row(session, Evaluation, evaluation_id, "evaluation").report = report
         ctx.complete(session, {"evaluation_id": evaluation_id, "flights": total, "computed": len(todo),
@@ -126,15 +129,25 @@ def _missing_entry(flight_id: int) -> dict:
 
 
 def assemble_report(model_ref: str, entries: list[dict], flight_ids: Sequence[int],
-                    shas: Sequence[str | None]) -> dict:
+                    shas: Sequence[str | None], model_meta: dict | None = None) -> dict:
     """The same shape and numbers as service.experiments.flights.evaluate_flights; each flight's entry also
     names the stored flight (``flight_id``, ``sha256``: its content key), and ``units`` says what the
-    numbers are in."""
+    numbers are in; ``learned`` and ``learned_note`` come from the model's ``model_meta``."""
     from learnest.estimators.evaluate import MSE_UNITS, summarize
+    from learnest.estimators.yardsticks import learned_note
 
     entries = [{**entry, "flight_id": flight_id, "sha256": sha} for entry, flight_id, sha in zip(entries, flight_ids,
                                                                                                 shas)]
-    return {"model": model_ref, "flights": entries, **summarize(entries), "units": MSE_UNITS}
+    return {"model": model_ref, "flights": entries, **summarize(entries), "units": MSE_UNITS,
+            **learned_note(model_meta or {})}
+
+
+def _model_meta(model_json: bytes) -> dict:
+    """The meta of a stored model (`registry.model_to_json`), {} when it has none."""
+    try:
+        return dict(json.loads(model_json).get("meta") or {})
+    except (ValueError, AttributeError):
+        return {}
 
 
 def _flight_ids(session: Session, flights, version: ModelVersion) -> list[int]:

@@ -12,7 +12,7 @@ from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from learnest.models.presets import METHODS, MHE_HORIZON, SG_WINDOW
+from learnest.models.presets import GAP_EVERY_S, GAP_S, METHODS, MHE_HORIZON, SG_WINDOW
 
 from ..storage.database import Database
 from ..storage.tables import FlightRecord, Result, utcnow
@@ -25,8 +25,8 @@ log = logging.getLogger("learnest.jobs")
 # where nothing was checked, and mix inputs with newly computed flights of the same model.  3 (stop 16): a
 # Crazyflie prior scales its thrust by the flight's thrust gain (entries carry `thrust_gain`).  4 (stop 17): and
 # by the motors' heating before it (`heating_thrust_loss_pct`).  5 (stop 18): entries carry the KNODE's
-# `gain_interval_pct`.
-ENTRY_FORMAT = 5
+# `gain_interval_pct`.  6: entries carry the `yardsticks` (mocap gaps, fast reference, the paper's SG score).
+ENTRY_FORMAT = 6
 
 
 @dataclass(frozen=True)
@@ -45,23 +45,28 @@ class EstimatorSettings:
         Savitzky–Golay window of the reference states, samples (an even one is used as the next odd
         length, `ingest.baseline.centred_window`); the paper's 150 (≈ 1.5 s at 100 Hz) by default.  Shorter
         windows follow fast manoeuvres (a 1.5-s window clips the velocity peaks of fast figure-eights).
+    gap_s, gap_every_s : float
+        The mocap-gap yardstick's gaps: length and spacing, s (`estimators.yardsticks.GapPlan`).
     """
 
     methods: tuple[str, ...] = METHODS
     horizon: int = MHE_HORIZON
     include_bad: bool = False
     sg_window: int = SG_WINDOW
+    gap_s: float = GAP_S
+    gap_every_s: float = GAP_EVERY_S
 
     @classmethod
     def from_dict(cls, settings: dict) -> EstimatorSettings:
         """Inverse of `as_dict`; an evaluation stored before the window could be chosen used `SG_WINDOW`."""
         return cls(tuple(settings["methods"]), settings["horizon"], settings["include_bad"],
-                   settings.get("sg_window", SG_WINDOW))
+                   settings.get("sg_window", SG_WINDOW), settings.get("gap_s", GAP_S),
+                   settings.get("gap_every_s", GAP_EVERY_S))
 
     def as_dict(self) -> dict:
         """The fields as JSON-able values."""
         return {"methods": list(self.methods), "horizon": self.horizon, "include_bad": self.include_bad,
-                "sg_window": self.sg_window}
+                "sg_window": self.sg_window, "gap_s": self.gap_s, "gap_every_s": self.gap_every_s}
 
     @property
     def key(self) -> str:
@@ -72,6 +77,8 @@ class EstimatorSettings:
                         "entry_format": ENTRY_FORMAT}
         if self.sg_window != SG_WINDOW:
             fields["sg_window"] = self.sg_window
+        if (self.gap_s, self.gap_every_s) != (GAP_S, GAP_EVERY_S):
+            fields["gaps"] = [float(self.gap_s), float(self.gap_every_s)]
         return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()
 
 

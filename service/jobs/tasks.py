@@ -15,7 +15,7 @@ from sqlalchemy import update
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight, json_compatible
 from learnest.models.knode import HybridModel
-from learnest.models.presets import SG_WINDOW
+from learnest.models.presets import GAP_EVERY_S, GAP_S, SG_WINDOW
 
 from .. import registry
 from ..storage.database import Database, dml_rowcount
@@ -129,6 +129,7 @@ def evaluate_task(model_json: bytes, flight_bytes: bytes, settings: dict,
 
     report = evaluate_flights(model, [flight], list(settings["methods"]), include_bad=settings["include_bad"],
                               horizon=settings["horizon"], sg_window=settings.get("sg_window", SG_WINDOW),
+                              gap_s=settings.get("gap_s", GAP_S), gap_every_s=settings.get("gap_every_s", GAP_EVERY_S),
                               on_estimates=lambda _i, e: kept.append(e.to_bytes()),
                               on_stage=on_stage if progress_target else None)
     return {"entry": report["flights"][0], "estimates": kept[0] if kept else None}

@@ -22,7 +22,14 @@ from ...storage.blobs import BlobStore
 from ...storage.database import Database
 from ...storage.tables import Evaluation
 from ..deps import MAX_ROW_ID, Offset, RowId, get_blobs, get_db, get_services, pending, require_api_key
-from ..schemas import Dependents, EvaluationAccepted, EvaluationPage, EvaluationPending, EvaluationRequest
+from ..schemas import (
+    Dependents,
+    EvaluationAccepted,
+    EvaluationPage,
+    EvaluationPending,
+    EvaluationReport,
+    EvaluationRequest,
+)
 
 router = APIRouter(prefix="/evaluations", tags=["evaluations"])
 
@@ -31,7 +38,8 @@ router = APIRouter(prefix="/evaluations", tags=["evaluations"])
 def create_evaluation(body: EvaluationRequest, response: Response, services: Services = Depends(get_services)):
     """Flights already evaluated with this model version and these settings come from the results cache;
     when all of them do, the job is already "succeeded" in this answer."""
-    settings = EstimatorSettings(tuple(body.methods), body.horizon, body.include_bad, body.sg_window)
+    settings = EstimatorSettings(tuple(body.methods), body.horizon, body.include_bad, body.sg_window, body.gap_s,
+                                 body.gap_every_s)
     job_id, evaluation_id, state = start_evaluation(services, body.model, body.flights, settings)
     response.headers["Location"] = f"/evaluations/{evaluation_id}"
     return {"job_id": job_id, "evaluation_id": evaluation_id, "state": state}
@@ -65,7 +73,8 @@ def delete_evaluation(evaluation_id: RowId, db: Database = Depends(get_db)):
     return Response(status_code=204)
 
 
-@router.get("/{evaluation_id}", responses={200: {"description": "the report (evaluate_flights' JSON)"},
+@router.get("/{evaluation_id}", response_model=EvaluationReport,
+            responses={200: {"description": "the report (evaluate_flights' JSON)"},
                                            202: {"model": EvaluationPending, "description": "not finished yet"},
                                            409: {"description": "the evaluation job failed"}})
 def evaluation_report(evaluation_id: RowId, db: Database = Depends(get_db)):

@@ -1,0 +1,543 @@
+"""Yardsticks that need no smoothed truth: mocap gaps and a fast reference, beside the paper's SG score.
+
+Why three.  The paper scores every estimator by its MSE against a Savitzky–Golay fit of the mocap position
+(window 1.5 s).  That reference is smoother than the motion (on NanoBench its velocity is 0.06-0.23 m/s RMS
+away from a plain derivative of the same mocap, its peaks 12-25 % low), so against it every method, the
+vehicle's own onboard EKF included, scores alike.  Two yardsticks that need no smoothing tell them apart:
+
+- *Mocap gaps* (`MocapGaps`): the mocap position is hidden in windows (default 0.5 s long, one every 2.5 s,
+  after the first 5 s), each estimator runs on with the accelerometer and the inputs, and its position error
+  inside the gaps is scored against the hidden mocap.  This is what a dynamics model is for in practice:
+  carrying the estimate through occlusions.  The reference is the raw mocap, so nothing about it is assumed
+  but its noise (~1 mm, small beside the centimetres an estimate drifts in half a second), and a constant
+  offset of the mocap moves the estimates with it: the score does not change.
+- *Fast reference* (`FastReference`): velocity (and acceleration) RMSE against a short Savitzky–Golay
+  derivative of the raw mocap (0.05 s, 0.15 s), outside the gaps.  The vehicle's onboard estimate, where the
+  log carries it, is scored here as the method ``onboard``.
+- *The paper's SG score* (`PaperSG`): the MSE over [p, v, a] of Sec. VI, kept for Table I and the paper's
+  protocol.
+
+How the gaps are run.  A position measurement inside a gap must carry no information, and the compiled UKF
+and MHE loops (`ukf.c`, `gn.c`) take a full measurement every step.  `PositionGapModel` makes the gap an
+input instead: the model gets one more input, 1 where the mocap is present and 0 inside a gap, and its
+position measurement is h_p(x) · mask.  Inside a gap the position row of h is the constant 0, its Jacobian
+is zero and the measured position is set to 0 too, so the innovation is zero and carries no information:
+the UKF's gain on those rows is exactly zero (their cross covariance vanishes), the MHE's position residual
+and its arrival update are exactly zero.  That is skipping the position update, with the compiled functions
+and the C loops unchanged (one more compilation per model architecture, cached like any other).
+
+Which runs.  The unmasked run (the paper's protocol) gives the SG score and the fast reference; the
+gap-masked run is one more run per method and gives the gap score.  Making the masked run the only run
+would change the paper's score (its reference would be scored on estimates that just coasted through a
+gap, and Table I would no longer be the paper's), and would mix the re-convergence after each gap into the
+fast reference.  The masked runs reuse the batch's compiled functions (``mhe_cache``); on the NanoBench
+flights they add about what the unmasked runs cost (benchmarks/results/yardsticks.md).
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from learnest.errors import InvalidInput
+from learnest.models.presets import GAP_EVERY_S, GAP_S, GAP_START_S, ONBOARD
+
+from .evaluate import evaluate_sequence, gain_interval
+from .protocols import StateSpaceModel
+
+# The fast reference's Savitzky–Golay windows, s: 5 samples at 100 Hz for the velocity (its noise from 1 mm
+# of mocap noise ~0.03 m/s), 15 for the acceleration (a second derivative needs more samples: ~0.15 m/s²).
+FAST_VELOCITY_WINDOW_S = 0.05
+FAST_ACCELERATION_WINDOW_S = 0.15
+FAST_ORDER = 2
+POSITION_ROWS = (0, 1, 2)   # the mocap position in y = [p, a_meas] and in x = [p, v, a]
+VELOCITY_COLS, ACCELERATION_COLS = slice(3, 6), slice(6, 9)
+BASES = ("ukf", "mhe")
+
+MEASURES = {
+    "mocap_gaps": "position error (m, RMS of the 3-D error) inside windows where the mocap was hidden from the "
+                  "estimator, against the hidden mocap: how well the model carries the estimate through occlusions",
+    "fast_reference": "velocity error (m/s, RMS of the 3-D error) outside the gaps against a short-window "
+                      "derivative of the raw mocap: how closely the estimate follows the motion",
+    "paper_sg": "the MSE over [p, v, a] against a Savitzky-Golay fit of the mocap position (1.5-s window by "
+                "default), which is smoother than the motion itself (the paper's protocol and its Table I)",
+}
+NOTHING_LEARNED = "the residual did not improve held-out prediction; this version equals its prior"
+
+
+@dataclass(frozen=True)
+class GapPlan:
+    """Where the mocap is hidden.
+
+    Attributes
+    ----------
+    gap_s : float
+        Length of each gap, s (0 turns the gap yardstick off).
+    every_s : float
+        Time from one gap's start to the next's, s; longer than ``gap_s``, so the estimator sees mocap
+        between gaps.
+    start_s : float
+        No gap starts before this, s from the kept flight's start.
+    """
+
+    gap_s: float = GAP_S
+    every_s: float = GAP_EVERY_S
+    start_s: float = GAP_START_S
+
+    def __post_init__(self) -> None:
+        for name in ("gap_s", "every_s", "start_s"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value >= 0):
+                raise InvalidInput(f"{name} must be a non-negative number of seconds, got {value!r}")
+        if self.gap_s > 0 and not self.every_s > self.gap_s:
+            raise InvalidInput(f"gap every {self.every_s} s must be longer than the gap ({self.gap_s} s): the "
+                               "estimator needs mocap between gaps")
+
+    def windows(self, n_samples: int, dt: float) -> list[tuple[int, int]]:
+        """[(first, stop), ...] sample indices of each gap (stop exclusive) that fits wholly in the record."""
+        if self.gap_s <= 0:
+            return []
+        length = max(1, int(round(self.gap_s / dt)))
+        out: list[tuple[int, int]] = []
+        start_s = self.start_s
+        while True:
+            first = int(round(start_s / dt))
+            if first + length > n_samples:
+                return out
+            out.append((first, first + length))
+            start_s += self.every_s
+
+    def too_short(self, n_samples: int, dt: float) -> str | None:
+        """Why a record of ``n_samples`` gets no gap, or None when at least one fits."""
+        if self.gap_s <= 0:
+            return "the gap yardstick was turned off (gap length 0 s)"
+        if self.windows(n_samples, dt):
+            return None
+        return (f"the kept flight is {n_samples * dt:.1f} s long, too short for one mocap gap (the first "
+                f"{self.gap_s:g}-s gap starts after {self.start_s:g} s)")
+
+
+def gap_mask(n_samples: int, windows: Sequence[tuple[int, int]]) -> np.ndarray:
+    """(T,) bool, True inside a gap."""
+    inside = np.zeros(n_samples, dtype=bool)
+    for first, stop in windows:
+        inside[first:stop] = True
+    return inside
+
+
+class PositionGapModel:
+    """A model whose position measurement can be switched off per step by one extra input (module docstring).
+
+    Inputs are the wrapped model's inputs followed by the mask (1: mocap present, 0: hidden); h's rows
+    ``rows`` are multiplied by the mask, so a hidden step's position residual and its Jacobian are exactly
+    zero when the measurement there is 0 (`masked_measurements`).  Works on numpy (batched sigma points),
+    and on CasADi symbols (`parametric`), so the compiled UKF and MHE take it as any model.
+
+    Parameters
+    ----------
+    model : StateSpaceModel
+        The model (a `HybridModel`); ``kind``, ``system``, ``residual`` and ``meta`` are passed through,
+        ``kind`` suffixed so the batch's caches tell the two apart.
+    rows : sequence of int
+        The measurement rows the mask switches (the mocap position: 0, 1, 2).
+    """
+
+    def __init__(self, model: StateSpaceModel, rows: Sequence[int] = POSITION_ROWS) -> None:
+        self.model, self.rows = model, tuple(int(r) for r in rows)
+        self.kind = f"{getattr(model, 'kind', 'model')}+mocap-gaps"
+        self.system = getattr(model, "system", None)
+        self.residual = getattr(model, "residual", None)
+        self.meta = getattr(model, "meta", {})
+
+    @property
+    def n(self) -> int:
+        """Number of states."""
+        return self.model.n
+
+    @property
+    def n_inputs(self) -> int:
+        """The wrapped model's inputs plus the mask."""
+        return self.model.n_inputs + 1
+
+    @property
+    def n_meas(self) -> int:
+        """Number of measurements (the wrapped model's)."""
+        return self.model.n_meas
+
+    def _split(self, u):
+        p = self.model.n_inputs
+        import casadi as ca
+        if isinstance(u, (ca.SX, ca.MX, ca.DM)):
+            return (u[:p] if p else ca.SX(0, 1)), u[p]
+        u = np.asarray(u, dtype=float)
+        return u[..., :p], u[..., p]
+
+    def step(self, x, u, dt):
+        """The wrapped model's step on its own inputs (the mask does not touch the dynamics)."""
+        return self.model.step(x, self._split(u)[0], dt)
+
+    def h(self, x, u=None):
+        """The wrapped model's measurement with rows ``rows`` multiplied by the mask."""
+        inner, mask = self._split(u)
+        y = self.model.h(x, inner)
+        import casadi as ca
+        if isinstance(y, (ca.SX, ca.MX, ca.DM)):
+            return ca.vertcat(*[y[i] * mask if i in self.rows else y[i] for i in range(y.shape[0])])
+        y = np.array(y, dtype=float, copy=True)
+        y[..., list(self.rows)] *= np.asarray(mask)[..., None]
+        return y
+
+    def parametric(self):
+        """(model, θ, values) as `HybridModel.parametric`, the wrapped model's numbers as symbols."""
+        inner, theta, values = self.model.parametric()
+        return PositionGapModel(inner, self.rows), theta, values
+
+    def __repr__(self) -> str:
+        return f"PositionGapModel({self.model!r})"
+
+
+def masked_measurements(y: np.ndarray, u: np.ndarray, inside: np.ndarray,
+                        rows: Sequence[int] = POSITION_ROWS) -> tuple[np.ndarray, np.ndarray]:
+    """(y, u) for `PositionGapModel`: the rows ``rows`` of y set to 0 inside the gaps, u with the mask
+    (1 outside, 0 inside) appended; y (T, m), u (T, p), inside (T,) bool -> (T, m), (T, p + 1)."""
+    y = np.array(y, dtype=float, copy=True)
+    y[np.ix_(np.asarray(inside, dtype=bool), np.asarray(rows, dtype=int))] = 0.0
+    u = np.asarray(u, dtype=float).reshape(len(y), -1)
+    return y, np.column_stack([u, (~inside).astype(float)])
+
+
+def run_with_gaps(methods: Sequence[str], prior_model: StateSpaceModel, knode_model: StateSpaceModel,
+                  y: np.ndarray, u: np.ndarray, dt: float, Q: np.ndarray, R: np.ndarray, x0: np.ndarray,
+                  P0: np.ndarray, inside: np.ndarray, horizon: int, mhe_cache: dict | None = None,
+                  on_stage: Callable[[str], object] | None = None) -> dict[str, dict]:
+    """Each method run with the position measurements hidden where ``inside`` (T,) is True.
+
+    Same estimators, tuning and caches as `evaluate_sequence` (it runs them), on `PositionGapModel` of each
+    model.  Returns ``{method: {"estimates": (T, n), "ms_per_step": float}}``.
+    """
+    y_gap, u_gap = masked_measurements(y, u, inside)
+    prior_gap, knode_gap = PositionGapModel(prior_model), PositionGapModel(knode_model)
+    stage = None if on_stage is None else (lambda name: on_stage(f"{name} with mocap gaps"))
+    # the reference only feeds evaluate_sequence's SG scores, unused here: the state itself keeps shapes valid
+    results = evaluate_sequence(methods, prior_gap, knode_gap, y_gap, u_gap, dt, Q, R, x0, P0,
+                                np.zeros((len(y), len(x0))), horizon=horizon, keep_estimates=True,
+                                mhe_cache=mhe_cache, on_stage=stage)
+    return {m: {"estimates": r["estimates"], "ms_per_step": r["ms_per_step"]} for m, r in results.items()}
+
+
+# -- scores -----------------------------------------------------------------------------------------------
+def fast_derivatives(p: np.ndarray, dt: float, velocity_window_s: float = FAST_VELOCITY_WINDOW_S,
+                     acceleration_window_s: float = FAST_ACCELERATION_WINDOW_S) -> dict:
+    """Velocity and acceleration of the raw mocap by short, centred Savitzky–Golay derivatives.
+
+    Parameters
+    ----------
+    p : ndarray, shape (T, 3)
+        Mocap position, m.
+    dt : float
+        Sample time, s.
+    velocity_window_s, acceleration_window_s : float
+        Window lengths, s (rounded to an odd number of samples, at least 3 and 5).
+
+    Returns
+    -------
+    dict
+        ``v`` (T, 3) m/s, ``a`` (T, 3) m/s², and the windows used, ``velocity_window_s`` and
+        ``acceleration_window_s`` (s, odd samples × dt).
+    """
+    from scipy.signal import savgol_filter
+
+    p = np.asarray(p, dtype=float)
+
+    def odd(window_s: float, least: int) -> int:
+        samples = max(least, int(round(window_s / dt)))
+        return samples + 1 if samples % 2 == 0 else samples
+
+    wv, wa = odd(velocity_window_s, 3), odd(acceleration_window_s, 5)
+    if len(p) < wa:
+        raise InvalidInput(f"a record of {len(p)} samples is shorter than the fast reference's window ({wa})")
+    v = savgol_filter(p, wv, min(FAST_ORDER, wv - 1), deriv=1, delta=dt, axis=0, mode="interp")
+    a = savgol_filter(p, wa, FAST_ORDER, deriv=2, delta=dt, axis=0, mode="interp")
+    return {"v": v, "a": a, "velocity_window_s": wv * dt, "acceleration_window_s": wa * dt}
+
+
+def rms_norm(error: np.ndarray) -> float:
+    """RMS of the Euclidean norm of the rows of ``error`` (K, 3): sqrt(mean |e|²); nan for no rows."""
+    error = np.asarray(error, dtype=float)
+    return float(np.sqrt(np.mean(np.sum(error**2, axis=1)))) if len(error) else float("nan")
+
+
+@dataclass(frozen=True)
+class MocapGaps:
+    """The mocap-gap yardstick of one flight.
+
+    Attributes
+    ----------
+    rmse_m : dict
+        {method: RMS of the 3-D position error inside the gaps, m}.
+    gain_pct : dict
+        {"knode-ukf_vs_ukf": 100 (1 − Σ|e_knode|² / Σ|e_prior|²) over the gap samples, %, ...}: the gain in
+        mean squared gap error (the same quantity as the interval); None where the prior's error is zero.
+    gain_interval_pct : dict
+        {same keys: [low, high] 95 % paired block-bootstrap interval, %, or None when the flight has too few
+        gaps to tell} (`estimators.evaluate.gain_interval` over the gap samples, blocks at least one gap).
+    gap_s, every_s, start_s : float
+        The plan (`GapPlan`), s.
+    gaps : int
+        Gaps scored.
+    ms_per_step : dict
+        {method: wall time of the gap-masked run per sample, ms} (the cost of this yardstick).
+    skipped : str or None
+        Why the flight has no gap score (too short; turned off), else None.
+    """
+
+    rmse_m: dict[str, float] = field(default_factory=dict)
+    gain_pct: dict[str, float | None] = field(default_factory=dict)
+    gain_interval_pct: dict[str, list[float] | None] = field(default_factory=dict)
+    gap_s: float = GAP_S
+    every_s: float = GAP_EVERY_S
+    start_s: float = GAP_START_S
+    gaps: int = 0
+    ms_per_step: dict[str, float] = field(default_factory=dict)
+    skipped: str | None = None
+    measures: str = MEASURES["mocap_gaps"]
+
+    def to_dict(self) -> dict:
+        """JSON-able dict (the report's ``yardsticks.mocap_gaps``)."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class FastReference:
+    """The fast-reference yardstick of one flight.
+
+    Attributes
+    ----------
+    velocity_rmse_m_s : dict
+        {method: RMS of the 3-D velocity error outside the gaps, m/s}, ``onboard`` included where logged.
+    acceleration_rmse_m_s2 : dict
+        {method: the same for the acceleration, m/s²} (``onboard`` where its acceleration is logged).
+    window_s : float
+        The velocity derivative's window, s.
+    acceleration_window_s : float
+        The acceleration derivative's window, s.
+    samples : int
+        Samples scored (outside the gaps).
+    """
+
+    velocity_rmse_m_s: dict[str, float] = field(default_factory=dict)
+    acceleration_rmse_m_s2: dict[str, float] = field(default_factory=dict)
+    window_s: float = FAST_VELOCITY_WINDOW_S
+    acceleration_window_s: float = FAST_ACCELERATION_WINDOW_S
+    samples: int = 0
+    measures: str = MEASURES["fast_reference"]
+
+    def to_dict(self) -> dict:
+        """JSON-able dict (the report's ``yardsticks.fast_reference``)."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class PaperSG:
+    """The paper's score of one flight: ``mse`` {method: MSE over [p, v, a] against the SG references, in
+    the states' squared SI units} (the report's per-flight ``mse``), ``window_s`` the SG window, s."""
+
+    mse: dict[str, float] = field(default_factory=dict)
+    window_s: float | None = None
+    measures: str = MEASURES["paper_sg"]
+
+    def to_dict(self) -> dict:
+        """JSON-able dict (the report's ``yardsticks.paper_sg``)."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class FlightYardsticks:
+    """The three yardsticks of one flight, the gap score first."""
+
+    mocap_gaps: MocapGaps
+    fast_reference: FastReference
+    paper_sg: PaperSG
+
+    def to_dict(self) -> dict:
+        """``{"mocap_gaps": {...}, "fast_reference": {...}, "paper_sg": {...}}``."""
+        return {"mocap_gaps": self.mocap_gaps.to_dict(), "fast_reference": self.fast_reference.to_dict(),
+                "paper_sg": self.paper_sg.to_dict()}
+
+
+def gap_scores(p_mocap: np.ndarray, gapped: Mapping[str, np.ndarray], windows: Sequence[tuple[int, int]],
+               plan: GapPlan, ms_per_step: Mapping[str, float] | None = None) -> MocapGaps:
+    """`MocapGaps` from the gap-masked runs' estimates {method: (T, n)} and the hidden mocap p (T, 3), m
+    (``ms_per_step``: the runs' wall time per sample, ms)."""
+    inside = gap_mask(len(p_mocap), windows)
+    err2 = {m: np.sum((np.asarray(x)[inside][:, POSITION_ROWS] - p_mocap[inside]) ** 2, axis=1)
+            for m, x in gapped.items()}
+    rmse = {m: float(np.sqrt(np.mean(e))) for m, e in err2.items()}
+    gains, intervals = {}, {}
+    per_gap = windows[0][1] - windows[0][0]
+    for base in BASES:
+        if base in err2 and f"knode-{base}" in err2:
+            key = f"knode-{base}_vs_{base}"
+            prior, knode = err2[base], err2[f"knode-{base}"]
+            gains[key] = float(100.0 * (1.0 - np.sum(knode) / np.sum(prior))) if np.sum(prior) > 0 else None
+            # blocks of at least one gap: the gaps are the independent units (re-converged in between)
+            intervals[key] = gain_interval(prior, knode, per_gap)
+    return MocapGaps(rmse, gains, intervals, plan.gap_s, plan.every_s, plan.start_s, len(windows),
+                     dict(ms_per_step or {}))
+
+
+def fast_reference_scores(p_mocap: np.ndarray, dt: float, estimates: Mapping[str, np.ndarray],
+                          outside: np.ndarray, onboard: Mapping[str, np.ndarray] | None = None) -> FastReference:
+    """`FastReference` of the unmasked runs' estimates {method: (T, 9)} and of the onboard estimate
+    (``onboard`` {"v": (T, 3) m/s[, "a": (T, 3) m/s²]}) on the samples where ``outside`` (T,) is True."""
+    fast = fast_derivatives(p_mocap, dt)
+    velocity = {m: rms_norm(np.asarray(x)[outside, VELOCITY_COLS] - fast["v"][outside]) for m, x in estimates.items()}
+    acceleration = {m: rms_norm(np.asarray(x)[outside, ACCELERATION_COLS] - fast["a"][outside])
+                    for m, x in estimates.items()}
+    if onboard and onboard.get("v") is not None:
+        velocity[ONBOARD] = rms_norm(np.asarray(onboard["v"])[outside] - fast["v"][outside])
+        if onboard.get("a") is not None:
+            acceleration[ONBOARD] = rms_norm(np.asarray(onboard["a"])[outside] - fast["a"][outside])
+    return FastReference(velocity, acceleration, round(fast["velocity_window_s"], 6),
+                         round(fast["acceleration_window_s"], 6), int(np.count_nonzero(outside)))
+
+
+def flight_yardsticks(methods: Sequence[str], prior_model: StateSpaceModel, knode_model: StateSpaceModel,
+                      y: np.ndarray, u: np.ndarray, dt: float, Q: np.ndarray, R: np.ndarray, x0: np.ndarray,
+                      P0: np.ndarray, p_mocap: np.ndarray, estimates: Mapping[str, np.ndarray],
+                      paper_mse: Mapping[str, float], plan: GapPlan, horizon: int,
+                      onboard: Mapping[str, np.ndarray] | None = None, sg_window_s: float | None = None,
+                      mhe_cache: dict | None = None,
+                      on_stage: Callable[[str], object] | None = None) -> tuple[FlightYardsticks, dict]:
+    """The three yardsticks of one flight.
+
+    Parameters
+    ----------
+    methods : sequence of str
+        Estimators to run with gaps (``ukf``, ``mhe``, ``knode-ukf``, ``knode-mhe``).
+    prior_model, knode_model, y, u, dt, Q, R, x0, P0, horizon, mhe_cache, on_stage
+        As `evaluate_sequence` (y (T, m) = [p, a_meas], u (T, p)).
+    p_mocap : ndarray, shape (T, 3)
+        The mocap position, m: hidden inside the gaps, the reference there; its derivatives are the fast
+        reference.
+    estimates : dict
+        {method: (T, 9)} of the unmasked runs (fast reference).
+    paper_mse : dict
+        {method: MSE against the SG references} of the unmasked runs.
+    plan : GapPlan
+        Where the gaps are.
+    onboard : dict, optional
+        The vehicle's own estimate, {"v": (T, 3) m/s, "a": (T, 3) m/s² or None}: scored as ``onboard``.
+    sg_window_s : float, optional
+        The SG references' window, s (stated in ``paper_sg``).
+
+    Returns
+    -------
+    (FlightYardsticks, dict)
+        The yardsticks, and {method: (T, n)} estimates of the gap-masked runs (empty without gaps).
+    """
+    p_mocap = np.asarray(p_mocap, dtype=float)
+    windows = plan.windows(len(p_mocap), dt)
+    inside = gap_mask(len(p_mocap), windows)
+    gapped: dict = {}
+    if windows and methods:
+        runs = run_with_gaps(methods, prior_model, knode_model, y, u, dt, Q, R, x0, P0, inside, horizon, mhe_cache,
+                             on_stage)
+        gapped = {m: r["estimates"] for m, r in runs.items()}
+        gaps = gap_scores(p_mocap, gapped, windows, plan, {m: r["ms_per_step"] for m, r in runs.items()})
+    else:
+        reason = plan.too_short(len(p_mocap), dt) or "no estimator was run"
+        gaps = MocapGaps(gap_s=plan.gap_s, every_s=plan.every_s, start_s=plan.start_s, skipped=reason)
+    fast = fast_reference_scores(p_mocap, dt, estimates, ~inside, onboard)
+    window_s = None if sg_window_s is None else round(float(sg_window_s), 6)
+    return FlightYardsticks(gaps, fast, PaperSG(dict(paper_mse), window_s)), gapped
+
+
+def onboard_estimate(channels: Mapping[str, np.ndarray]) -> dict | None:
+    """The vehicle's own estimate in a Flight's channels (`ingest.flight.OPTIONAL`): {"p", "v", "a"} arrays
+    (T, 3) in m, m/s, m/s² (None where not logged), or None when the log carries no onboard velocity."""
+    if channels.get("v_onboard") is None:
+        return None
+    return {"p": channels.get("p_onboard"), "v": channels["v_onboard"], "a": channels.get("acc_onboard")}
+
+
+# -- over flights -----------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Headline:
+    """What an evaluation says first: the KNODE's gain on the mocap-gap yardstick over the scored flights.
+
+    Attributes
+    ----------
+    yardstick : str
+        "mocap_gaps".
+    median_gain_pct : dict
+        {"knode-ukf_vs_ukf": median over the flights with gaps of the per-flight gap gain, %, ...}.
+    flights_better : dict
+        {same keys: number of flights whose gap gain is above 0}.
+    flights_worse_beyond_interval : dict
+        {same keys: number of flights whose gain's 95 % interval lies wholly below 0}.
+    flights_worse_names : dict
+        {same keys: [names] of those flights}.
+    median_rmse_m : dict
+        {method: median over the flights with gaps of the gap RMSE, m}.
+    flights_with_gaps : int
+        Scored flights that had at least one gap.
+    flights_without_gaps : list of str
+        Scored flights without a gap score ("name: reason").
+    gap_s, every_s, start_s : float or None
+        The gap plan of the flights (`GapPlan`), s; None when no flight was scored.
+    measures : str
+        What the yardstick measures, one sentence.
+    """
+
+    yardstick: str = "mocap_gaps"
+    median_gain_pct: dict[str, float | None] = field(default_factory=dict)
+    flights_better: dict[str, int] = field(default_factory=dict)
+    flights_worse_beyond_interval: dict[str, int] = field(default_factory=dict)
+    flights_worse_names: dict[str, list[str]] = field(default_factory=dict)
+    median_rmse_m: dict[str, float] = field(default_factory=dict)
+    flights_with_gaps: int = 0
+    flights_without_gaps: list[str] = field(default_factory=list)
+    gap_s: float | None = None
+    every_s: float | None = None
+    start_s: float | None = None
+    measures: str = MEASURES["mocap_gaps"]
+
+    def to_dict(self) -> dict:
+        """JSON-able dict (the report's ``headline``)."""
+        return asdict(self)
+
+
+def headline(flight_reports: Sequence[dict]) -> Headline:
+    """The `Headline` of per-flight report entries (their ``yardsticks.mocap_gaps``); excluded flights and
+    entries without yardsticks are left out."""
+    scored = [f for f in flight_reports if not f.get("excluded") and f.get("yardsticks")]
+    with_gaps = [f for f in scored if not f["yardsticks"]["mocap_gaps"].get("skipped")]
+    without = [f"{f['flight']}: {f['yardsticks']['mocap_gaps']['skipped']}" for f in scored if f not in with_gaps]
+    gaps = [(f["flight"], f["yardsticks"]["mocap_gaps"]) for f in with_gaps]
+    keys = sorted({k for _, g in gaps for k in g["gain_pct"]})
+    methods = sorted({m for _, g in gaps for m in g["rmse_m"]})
+    median_gain, better, worse, worse_names = {}, {}, {}, {}
+    for key in keys:
+        values = [(name, g["gain_pct"][key], (g.get("gain_interval_pct") or {}).get(key)) for name, g in gaps
+                  if g["gain_pct"].get(key) is not None]
+        median_gain[key] = float(np.median([v for _, v, _ in values])) if values else None
+        better[key] = int(sum(bool(v > 0) for _, v, _ in values))
+        worse_names[key] = [name for name, _, interval in values if interval is not None and interval[1] < 0]
+        worse[key] = len(worse_names[key])
+    median_rmse = {m: float(np.median([g["rmse_m"][m] for _, g in gaps if m in g["rmse_m"]])) for m in methods}
+    plan = scored[0]["yardsticks"]["mocap_gaps"] if scored else {}
+    return Headline(median_gain_pct=median_gain, flights_better=better, flights_worse_beyond_interval=worse,
+                    flights_worse_names=worse_names, median_rmse_m=median_rmse, flights_with_gaps=len(with_gaps),
+                    flights_without_gaps=without, gap_s=plan.get("gap_s"), every_s=plan.get("every_s"),
+                    start_s=plan.get("start_s"))
+
+
+def learned_note(meta: Mapping) -> dict:
+    """What an evaluation report says about whether the model learned anything: ``learned`` (the model's
+    ``learned`` flag: True, False, or None when the model does not say) and ``learned_note`` (the sentence
+    when it learned nothing, else None)."""
+    learned = meta.get("learned")
+    learned = None if learned is None else bool(learned)
+    return {"learned": learned, "learned_note": NOTHING_LEARNED if learned is False else None}
