@@ -190,3 +190,18 @@ def test_flights_with_different_prior_parameters_are_refused():
     with pytest.raises(InvalidInput, match=r"sim_crazyflie_1 and sim_crazyflie_0 have different prior parameters "
                                            r"\(m_kg\)"):
         check_one_vehicle(flights, systems, [1.0, 1.0])
+
+
+def test_the_notebook_knode_fits_one_flight_or_a_list_of_flights(drag_flights):
+    import learnest as le
+
+    knode = le.KNODE(epochs=3).fit(drag_flights[:3])
+    assert knode.training_flights_ == ["sim_crazyflie_0", "sim_crazyflie_1"]
+    assert knode.validation_flights_ == ["sim_crazyflie_2"] and isinstance(knode.learned_, bool)
+    assert len(knode.validation_losses_) == 3 and knode.model_.kind == "knode"
+    chosen = le.KNODE(epochs=2).fit(drag_flights[:3], validate=["sim_crazyflie_0"])
+    assert chosen.validation_flights_ == ["sim_crazyflie_0"]
+    one = le.KNODE(epochs=2).fit(drag_flights[0])
+    assert one.training_flights_ == ["sim_crazyflie_0"] and one.validation_flights_ == []
+    with pytest.raises(InvalidInput, match="a Flight or a list of Flights.*got str"):
+        le.KNODE(epochs=2).fit([drag_flights[0], "sample_logs/circle_rep1.csv"])

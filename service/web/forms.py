@@ -11,6 +11,7 @@ themselves (GET) need no key, as in the JSON API.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Literal
 
 from fastapi import Request, UploadFile
@@ -103,12 +104,12 @@ def upload_text(vehicle: str, notes: str) -> tuple[str | None, str | None]:
     return optional(vehicle), optional(notes)
 
 
-def train_request(name: str, flight_id: str, epochs: str, include_bad: str | None, flight_ids: list[str] = (),
-                  system: str = "") -> TrainRequest:
+def train_request(name: str, flight_id: str, epochs: str, include_bad: str | None,
+                  flight_ids: Sequence[str] = (), system: str = "") -> TrainRequest:
     """The train form as POST /models' body (ValidationError names the bad field): a flight's page sends its
     ``flight_id``, the flight list the checked ``flight_ids`` (one checked is one flight, several train one
     model on all of them); an empty ``system`` is the default prior."""
-    body = {"name": name.strip(), "epochs": optional(epochs), "include_bad": include_bad is not None}
+    body: dict[str, object] = {"name": name.strip(), "epochs": optional(epochs), "include_bad": include_bad is not None}
     checked = [i for i in flight_ids if i.strip()]
     if len(checked) > 1:
         body["flight_ids"] = checked
