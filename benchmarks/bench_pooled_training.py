@@ -45,6 +45,7 @@ print(json.dumps({"flights": len(flights), "read_s": read - started, "train_s": 
                   "training_flights": [f["name"] for f in meta["training_flights"]],
                   "validation_flights": [f["name"] for f in meta["validation_flights"]],
                   "best_epoch": meta["best_epoch"], "learned": meta["learned"],
+                  "prior_validation_loss": meta["prior_validation_loss"],
                   "best_validation_loss": meta["best_validation_loss"],
                   "first_validation_loss": result.validation_losses[0], "final_loss": result.losses[-1]}))
 """

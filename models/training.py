@@ -42,7 +42,8 @@ class TrainingResult:
     ----------
     model : HybridModel
         The ``"knode"`` model with the kept weights; its meta holds the config, final loss, seconds,
-        best epoch, best validation loss and the training ``envelope`` (`models.envelope`).
+        best epoch, best validation loss, the prior's validation loss (``prior_validation_loss``), ``learned``
+        and the training ``envelope`` (`models.envelope`).
     losses : list of float
         Mean training loss (eq. 8) per epoch.
     seconds : float
@@ -186,6 +187,7 @@ def _train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, confi
         with torch.no_grad():
             best = (one_step_loss(val_data).item(),
                     {k: v.clone() for k, v in mlp.state_dict().items()}, -1)
+    prior_loss = best[0] if n_val else None
     for epoch in range(config.epochs):
         order = fit_rows[torch.randperm(n_fit, generator=generator)] if batch < n_fit else None
         epoch_loss = 0.0
@@ -212,6 +214,7 @@ def _train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, confi
                               # the epoch whose weights are kept: the last one when nothing is held out
                               "best_epoch": best[2] if n_val else config.epochs - 1,
                               "best_validation_loss": best[0] if n_val else None,
+                              "prior_validation_loss": prior_loss,   # the held-out loss of the prior (Δθ ≡ 0)
                               # where the training data lie: evaluations report records outside it
                               "envelope": training_envelope(zeta, u, [*system.state_names, *system.input_names],
                                                             system.invariant_states, residual),
@@ -356,6 +359,7 @@ def _train_knode_pooled(system: System, records: list[TrainingRecord], held_out:
     if val_data is not None:  # epoch -1 is the prior itself: training must beat it on the held-out records
         with torch.no_grad():
             best = (squared_errors(val_data).mean().item(), {k: v.clone() for k, v in mlp.state_dict().items()}, -1)
+    prior_loss = best[0] if val_data is not None else None
     for epoch in range(config.epochs):
         order = torch.randperm(n_fit, generator=generator) if batch < n_fit else None
         epoch_loss = 0.0
@@ -390,6 +394,7 @@ def _train_knode_pooled(system: System, records: list[TrainingRecord], held_out:
                         meta={"training": config.as_dict(), "final_loss": losses[-1], "seconds": seconds,
                               "best_epoch": best_epoch,
                               "best_validation_loss": best[0] if val_data is not None else None,
+                              "prior_validation_loss": prior_loss,
                               "validation": "held-out records" if val_data is not None else "none",
                               "validation_losses_per_record": per_record,
                               "training_records": [r.name for r, held in zip(records, held_out) if not held],

@@ -205,3 +205,13 @@ def test_the_notebook_knode_fits_one_flight_or_a_list_of_flights(drag_flights):
     assert one.training_flights_ == ["sim_crazyflie_0"] and one.validation_flights_ == []
     with pytest.raises(InvalidInput, match="a Flight or a list of Flights.*got str"):
         le.KNODE(epochs=2).fit([drag_flights[0], "sample_logs/circle_rep1.csv"])
+
+
+def test_the_prior_validation_loss_is_the_held_out_loss_before_any_update():
+    system = make_system("quadrotor", dt=0.01)
+    records = _records(3)
+    result = train_knode_pooled(system, records, [False, False, True], replace(CRAZYFLIE_TRAINING, epochs=3))
+    prior = HybridModel(system, "prior")
+    held = records[2]
+    expected = np.mean(np.sum((prior.step(held.zeta[:-1], held.u[:-1], held.dt) - held.zeta[1:]) ** 2, axis=1))
+    assert result.model.meta["prior_validation_loss"] == pytest.approx(expected, rel=1e-9)
