@@ -134,6 +134,25 @@ def test_post_models_with_flight_ids_trains_one_model_and_the_web_form_takes_che
         nothing = client.post("/ui/models", data={"name": "none", "epochs": "2"})
         assert nothing.status_code == 422 and "choose the flight(s) to train on" in nothing.text
 
+        # flights uploaded as two vehicles: refused at once, naming them
+        red = upload(client, flight_csv(data_dir, 3), vehicle="cf_red").json()
+        blue = upload(client, flight_csv(data_dir, 4), vehicle="cf_blue").json()
+        refused = client.post("/models", json={"name": "two", "flight_ids": [red["id"], blue["id"]]})
+        assert refused.status_code == 422
+        assert f"cf_red: {red['name']}; cf_blue: {blue['name']}" in refused.text
+
+
+def test_of_several_files_those_failing_the_quality_checks_are_left_out_and_said(tmp_path, monkeypatch, data_dir):
+    use_home(monkeypatch, tmp_path / "home")
+    short = flight_csv(data_dir, 5, name="short.csv", seconds=6.0)   # too little flying left after the cuts
+    code, out = run("train", str(CIRCLES[0]), str(CIRCLES[1]), str(short), "--name", "some", "--epochs", "2", "--json")
+    assert code == 0
+    trained = json.loads(out)
+    assert trained["training_flights"] == ["circle_rep1"] and trained["validation_flights"] == ["circle_rep2"]
+    assert len(trained["skipped_flights"]) == 1 and trained["skipped_flights"][0].startswith("short (")
+    code, _ = run("train", str(short), "--name", "some", "--epochs", "2")
+    assert code != 0
+
 
 def _not_learned_model():
     """A real KNODE that learned nothing: records that are the kinematic prior's own steps (the prior predicts

@@ -40,9 +40,9 @@ def start_training(services: Services, name: str, flight_id: int | Sequence[int]
     Raises
     ------
     InvalidInput
-        For a bad name, a flight given twice, every flight held out, or a flight that failed the quality
-        checks without ``include_bad``; `quotas.QuotaExceeded` for more epochs, hidden units or work than the
-        settings allow.
+        For a bad name, a flight given twice, every flight held out, flights whose rows declare different
+        vehicles, or a flight that failed the quality checks without ``include_bad``; `quotas.QuotaExceeded`
+        for more epochs, hidden units or work than the settings allow.
     NotFound
         If a flight or the parent does not exist.
     Conflict
@@ -72,6 +72,14 @@ def start_training(services: Services, name: str, flight_id: int | Sequence[int]
                 raise InvalidInput(f"flight {i} ({flight.name}) failed the quality checks "
                                    f"({'; '.join(flight.quality.get('issues', []))}); pass include_bad to train on "
                                    "it anyway")
+        declared: dict[str, list[str]] = {}
+        for flight in rows.values():
+            if flight.vehicle:
+                declared.setdefault(flight.vehicle, []).append(flight.name)
+        if len(declared) > 1:   # what the uploads declared; the job checks the logs and the thrust maps too
+            listed = "; ".join(f"{vehicle}: {', '.join(names)}" for vehicle, names in declared.items())
+            raise InvalidInput(f"the training flights come from different vehicles ({listed}): one model is trained "
+                               "on one vehicle; train a model per vehicle")
         if parent is not None:
             resolved = registry.resolve(session, parent)
             parent = f"{resolved.name}:{resolved.version}"
