@@ -23,9 +23,9 @@ from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyfl
 from learnest.models.systems import make_system
 from learnest.models.training import NOT_LEARNED, TrainingRecord, train_knode, train_knode_pooled
 from learnest.service.experiments.flights import (
-    _flight_record,
     check_one_vehicle,
     default_validation,
+    flight_training_data,
     system_for,
     train_on_flight,
     train_on_flights,
@@ -41,7 +41,7 @@ def _sims(truth, seeds, duration_s=20.0, **settings):
 
 def _one_step_error(model: HybridModel, flight) -> float:
     """Mean squared one-step prediction error (eq. 8) of the model on a flight's observer states."""
-    _, zeta, u, _ = _flight_record(flight, model.system.name)
+    _, zeta, u, _ = flight_training_data(flight, model.system.name)
     model = HybridModel(replace(model.system, dt=flight.dt), model.kind, model.residual)
     prediction = model.step(zeta[:-1], u[:-1], flight.dt)
     return float(np.mean(np.sum((prediction - zeta[1:]) ** 2, axis=1)))
@@ -78,7 +78,7 @@ def test_records_that_follow_the_prior_teach_nothing_and_the_model_says_so():
     records = []
     for seed in range(4):
         flight = simulate_crazyflie(SimulatedFlight(duration_s=12), seed=seed)
-        system, zeta, u, _ = _flight_record(flight, "crazyflie")
+        system, zeta, u, _ = flight_training_data(flight, "crazyflie")
         prior = HybridModel(system, "prior")
         rng = np.random.default_rng(100 + seed)
         noise = np.r_[np.full(3, 1e-5), np.full(3, 1e-3), np.full(3, 3e-2)]

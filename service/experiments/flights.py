@@ -162,9 +162,10 @@ def check_one_vehicle(flights: Sequence[Flight], systems: Sequence[System], gain
                                "motors or payload; train a model per vehicle")
 
 
-def _flight_record(flight: Flight, system: str) -> tuple[System, np.ndarray, np.ndarray, float | None]:
-    """Algorithm 1's data of one flight: (its system, ζ of the pre-training observer, u, thrust gain or None).
-    u is `system_inputs(..., thrust_gain=True)`, the gain split out for `check_one_vehicle`."""
+def flight_training_data(flight: Flight, system: str) -> tuple[System, np.ndarray, np.ndarray, float | None]:
+    """Algorithm 1's data of one flight with the named prior: (its system on the flight's grid, ζ (T, n) of the
+    pre-training observer, u (T, p) = `system_inputs(..., thrust_gain=True)`, the flight's thrust gain for a
+    prior with a thrust map, else None: split out for `check_one_vehicle`)."""
     prior = system_for(flight, system)
     gain = None
     if prior.name in THRUST_THROUGH_ATTITUDE:
@@ -244,7 +245,7 @@ def train_on_flights(flights: Sequence[Flight], config: TrainingConfig = CRAZYFL
         held = [i in chosen for i in range(len(flights))]
     if all(held):
         raise InvalidInput(f"every flight is held out for validation ({', '.join(names)}): keep one to train on")
-    data = [_flight_record(flight, system) for flight in flights]
+    data = [flight_training_data(flight, system) for flight in flights]
     systems = [d[0] for d in data]
     check_one_vehicle(flights, systems, [d[3] for d in data])
     records = [TrainingRecord(f.name, zeta, u, prior.dt) for f, (prior, zeta, u, _) in zip(flights, data)]
