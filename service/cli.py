@@ -230,7 +230,8 @@ def format_trained(out: dict) -> str:
     if len(out["training_flights"]) == 1 and not out["validation_flights"]:
         on = f"trained on {out['training_flight']} (flight {out['flight_id']})"
     else:
-        on = (f"trained on {len(out['training_flights'])} flights ({', '.join(out['training_flights'])}), "
+        count = len(out["training_flights"])
+        on = (f"trained on {count} flight{'s' if count != 1 else ''} ({', '.join(out['training_flights'])}), "
               f"validated on {len(out['validation_flights'])} held-out flight(s) "
               f"({', '.join(out['validation_flights']) or 'none'})")
     lines = [f"registered {out['ref']} ({out['system']} prior): {on}: {out['epochs']} epochs in "
@@ -242,6 +243,9 @@ def format_trained(out: dict) -> str:
                      + "; ".join(out["skipped_flights"]))
     if not out["learned"]:
         lines.append(f"NOT LEARNED: {out.get('learned_note') or NOT_LEARNED}")
+    elif out.get("prior_validation_loss") and out.get("best_validation_loss") is not None:
+        gain = 100 * (1 - out["best_validation_loss"] / out["prior_validation_loss"])
+        lines.append(f"learned: the held-out one-step loss is {gain:.1f} % below the prior's")
     return "\n".join(lines)
 
 
@@ -467,7 +471,7 @@ def format_model(out: dict) -> str:
                                         if isinstance(v, (int, float)) and not isinstance(v, bool)) or "none"),
              f"  training time {out['training_seconds']:.1f} s (the epochs)" if out["training_seconds"] else
              "  training time -",
-             *_trained_on_lines(lineage, flight),
+             *_trained_on_lines(lineage, flight, metrics),
              f"  parent {lineage['parent']['ref'] if lineage['parent'] else 'none'}"
              + ("" if not lineage["parent"] or lineage["parent"]["exists"] else " (deleted)"),
              f"  children {', '.join(c['ref'] for c in lineage['children']) or 'none'}"]
@@ -483,7 +487,7 @@ def format_model(out: dict) -> str:
     return "\n".join(lines)
 
 
-def _trained_on_lines(lineage: dict, flight: dict) -> list[str]:
+def _trained_on_lines(lineage: dict, flight: dict, metrics: dict) -> list[str]:
     """`models show`'s lines on a version's training and validation flights (with their sha256) and on
     whether its residual learned anything held-out data confirm."""
     trained, held = lineage.get("training_flights") or [], lineage.get("validation_flights") or []
@@ -500,6 +504,9 @@ def _trained_on_lines(lineage: dict, flight: dict) -> list[str]:
                  f"  validated on {len(held)} held-out flight(s): {listed(held) or 'none'}"]
     if lineage.get("learned") is False:
         lines.append(f"  NOT LEARNED: {lineage.get('learned_note')}")
+    elif metrics.get("prior_validation_loss") and metrics.get("best_validation_loss") is not None:
+        gain = 100 * (1 - metrics["best_validation_loss"] / metrics["prior_validation_loss"])
+        lines.append(f"  learned: held-out one-step loss {gain:.1f} % below the prior's")
     return lines
 
 

@@ -172,6 +172,8 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
             **({"learned_note": metrics["learned_note"]} if metrics.get("learned_note") else {}),
             "system": version.hyperparameters.get("system", "quadrotor"),
             "epochs": version.hyperparameters["epochs"], "best_epoch": metrics.get("best_epoch"),
+            "prior_validation_loss": metrics.get("prior_validation_loss"),
+            "best_validation_loss": metrics.get("best_validation_loss"),
             "final_loss": version.losses[-1] if version.losses else None, "seconds": version.training_seconds,
             "total_seconds": (job.result or {}).get("total_seconds"), "home": str(settings.home)}
 

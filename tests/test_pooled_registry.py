@@ -211,7 +211,9 @@ def test_a_version_that_learned_nothing_says_so_on_every_surface(tmp_path, monke
            "training_flight": "a", "flight_id": 1, "epochs": 20, "seconds": 1.0, "best_epoch": -1,
            "command_seconds": 2.0, "home": str(home), "learned": False, "learned_note": NOT_LEARNED}
     assert format_trained(out).endswith(f"NOT LEARNED: {NOT_LEARNED}")
-    assert "NOT LEARNED" not in format_trained({**out, "learned": True})
+    learned = format_trained({**out, "learned": True, "prior_validation_loss": 2e-3, "best_validation_loss": 1.5e-3})
+    assert "NOT LEARNED" not in learned and learned.endswith("the held-out one-step loss is 25.0 % below the prior's")
+    assert "trained on 2 flights (a, b), validated on 1 held-out flight(s) (c)" in learned
 
 
 def test_migrating_to_0007_lists_each_versions_one_training_flight(tmp_path):
