@@ -215,3 +215,22 @@ def test_the_prior_validation_loss_is_the_held_out_loss_before_any_update():
     held = records[2]
     expected = np.mean(np.sum((prior.step(held.zeta[:-1], held.u[:-1], held.dt) - held.zeta[1:]) ** 2, axis=1))
     assert result.model.meta["prior_validation_loss"] == pytest.approx(expected, rel=1e-9)
+
+
+def test_each_record_is_stepped_by_its_own_sample_period():
+    """Records of the kinematic prior itself on a 100 Hz, a 250 Hz and a 50 Hz grid: the prior predicts every
+    pair exactly only when each is stepped by its own record's dt (the pooled loss of the prior is then ~0)."""
+    system = make_system("quadrotor", dt=0.01)
+    prior = HybridModel(system, "prior")
+    records = []
+    for i, dt in enumerate((0.01, 0.004, 0.02)):
+        x = np.zeros((200, 9))
+        x[0, 3:] = [0.3, -0.2, 0.1, 1.0, 0.5, -0.4]
+        for k in range(len(x) - 1):
+            x[k + 1] = prior.step(x[k], None, dt)
+        records.append(TrainingRecord(f"r{i}", x, np.zeros((200, 0)), dt))
+    result = train_knode_pooled(system, records, [False, True, True], replace(CRAZYFLIE_TRAINING, epochs=1))
+    assert result.model.meta["prior_validation_loss"] < 1e-20
+    wrong = train_knode_pooled(system, [replace(r, dt=0.01) for r in records], [False, True, True],
+                               replace(CRAZYFLIE_TRAINING, epochs=1))
+    assert wrong.model.meta["prior_validation_loss"] > 1e-6
