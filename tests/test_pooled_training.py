@@ -234,3 +234,25 @@ def test_each_record_is_stepped_by_its_own_sample_period():
     wrong = train_knode_pooled(system, [replace(r, dt=0.01) for r in records], [False, True, True],
                                replace(CRAZYFLIE_TRAINING, epochs=1))
     assert wrong.model.meta["prior_validation_loss"] > 1e-6
+
+
+@pytest.mark.data
+def test_the_shared_nanobench_flights_are_one_vehicle_and_a_changed_thrust_map_is_not():
+    """All 29 NanoBench flights of CF_01 that pass the quality checks (circles, figure-eights, helices, ramps; one
+    flown by another controller) pass the one-vehicle check; the same flights with one flight's motors giving
+    20 % more thrust per PWM (other motors, or another vehicle's log) are refused, naming that flight."""
+    from pathlib import Path
+
+    from learnest.ingest import read_flights
+    from learnest.models.inputs import thrust_calibration
+
+    shared = Path(__file__).resolve().parents[2] / "shared" / "data"
+    flights = [f for f in read_flights(sorted([*shared.glob("nanobench/*.csv"), *shared.glob("nanobench-more/*.csv")]))
+               if f.quality["ok"]]
+    assert len(flights) == 29
+    systems = [system_for(f, "crazyflie") for f in flights]
+    gains = [thrust_calibration(f, s)["thrust_gain"] for f, s in zip(flights, systems)]
+    check_one_vehicle(flights, systems, gains)
+    gains[7] *= 1.2
+    with pytest.raises(InvalidInput, match=f"thrust gain 1\\.1\\d+ on {flights[7].name} against"):
+        check_one_vehicle(flights, systems, gains)

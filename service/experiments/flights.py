@@ -95,7 +95,7 @@ def train_on_flight(flight: Flight, config: TrainingConfig = CRAZYFLIE_TRAINING,
 
 
 # Thrust gains (`models.thrust_gain`, against the prior's map with the battery voltage and the motors' heating
-# already in it) of one vehicle's flights lie within 0.987-1.048 on the 30 shared NanoBench flights of CF_01
+# already in it) of one vehicle's flights lie within 0.987-1.048 on the 29 shared NanoBench flights of CF_01
 # (the high one flown by another controller): the battery and the warm motors are explained by the map.  A
 # training set whose gains spread more than twice that (max/min above 1 + GAIN_SPREAD) is not one thrust map:
 # another vehicle, motors or payload, which one residual cannot learn as one vehicle.
