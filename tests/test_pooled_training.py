@@ -256,3 +256,19 @@ def test_the_shared_nanobench_flights_are_one_vehicle_and_a_changed_thrust_map_i
     gains[7] *= 1.2
     with pytest.raises(InvalidInput, match=f"thrust gain 1\\.1\\d+ on {flights[7].name} against"):
         check_one_vehicle(flights, systems, gains)
+
+
+def test_a_pooled_models_profile_holds_the_rates_its_flights_share_and_none_it_saw_several_of():
+    from learnest.ingest.profile import profile_mismatches
+    from learnest.service.experiments.flights import pooled_profile
+
+    flights = _sims(cf.IDENTIFIED, (0, 1, 2), duration_s=6)
+    for flight, acc in zip(flights, (77.5, 98.2, 100.1)):
+        flight.meta["original_rates"] = {"acc": acc, "mocap": 100.0}
+    profile = pooled_profile(flights)
+    assert profile["rates_hz"]["acc"] is None and profile["rates_hz"]["mocap"] == 100.0
+    assert pooled_profile(flights[1:])["rates_hz"]["acc"] == pytest.approx(99.2)
+    # an evaluation flight at any of the rates trained on is not "another rate"; a 250 Hz log still is
+    assert profile_mismatches(profile, {**profile, "rates_hz": {"acc": 77.5, "mocap": 100.0, "grid": None}}) == []
+    other = profile_mismatches(profile, {**profile, "rates_hz": {"acc": 77.5, "mocap": 250.0, "grid": None}})
+    assert other == ["another mocap rate: 250 Hz, model trained at 100 Hz"]

@@ -20,7 +20,7 @@ from learnest.estimators.mhe import MHE
 from learnest.estimators.observers import pretraining_observer
 from learnest.ingest.baseline import references
 from learnest.ingest.flight import Flight
-from learnest.ingest.profile import MASS_TOLERANCE, flight_profile, profile_mismatches
+from learnest.ingest.profile import MASS_TOLERANCE, RATE_TOLERANCE, flight_profile, profile_mismatches
 from learnest.models.effects import correct_acc_body, world_from_body
 from learnest.models.envelope import envelope_report
 from learnest.models.inputs import (
@@ -177,6 +177,27 @@ def flight_training_data(flight: Flight, system: str) -> tuple[System, np.ndarra
     return prior, pretraining_observer(prior, flight.measurements(), u, prior.dt), u, gain
 
 
+def pooled_profile(flights: Sequence[Flight]) -> dict:
+    """The vehicle and sensor profile (`ingest.profile.flight_profile`) a model trained on ``flights`` records:
+    the first flight's, with each sensor rate the median of the flights' when they all lie within
+    `ingest.profile.RATE_TOLERANCE` of it, else None (the model saw several rates: none is "another" one),
+    and the controller None when the flights name different ones.  An evaluation warns against it as against
+    one flight's profile."""
+    profiles = [flight_profile(f) for f in flights]
+    merged = {**profiles[0], "rates_hz": dict(profiles[0]["rates_hz"])}
+    for stream in merged["rates_hz"]:
+        rates = [p["rates_hz"].get(stream) for p in profiles]
+        if any(r is None for r in rates):
+            merged["rates_hz"][stream] = None
+            continue
+        median = float(np.median(rates))
+        merged["rates_hz"][stream] = round(median, 1) if all(abs(r - median) <= RATE_TOLERANCE * median
+                                                             for r in rates) else None
+    if len({p.get("controller") for p in profiles}) > 1:
+        merged["controller"] = None
+    return merged
+
+
 def _flight_lineage(flight: Flight, gain: float | None) -> dict:
     return {"name": flight.name, "sha256": [s["sha256"] for s in flight.meta.get("sources", [])],
             "samples": len(flight.t), "dt": flight.dt, **({"thrust_gain": round(gain, 5)} if gain else {})}
@@ -212,7 +233,8 @@ def train_on_flights(flights: Sequence[Flight], config: TrainingConfig = CRAZYFL
         source files'), "samples", "dt" (s), "thrust_gain" where the prior has one}), ``learned`` (False when no
         epoch beat the prior on the held-out flights: the model equals its prior), ``training_flight`` and
         ``training_flight_sha256`` (the first training flight's name; every training flight's sha256, so an
-        evaluation excludes all of them), ``system`` and ``training_profile`` (the first flight's).
+        evaluation excludes all of them), ``system`` and ``training_profile`` (`pooled_profile` of the training
+        flights).
 
     Raises
     ------
@@ -257,7 +279,7 @@ def train_on_flights(flights: Sequence[Flight], config: TrainingConfig = CRAZYFL
     result.model.meta.update({
         "system": prior.name, "training_flight": names[trained[0]],
         "training_flight_sha256": [sha for i in trained for sha in lineage[i]["sha256"]],
-        "training_profile": flight_profile(flights[trained[0]]),
+        "training_profile": pooled_profile([flights[i] for i in trained]),
         "training_flights": [lineage[i] for i in trained],
         "validation_flights": [lineage[i] for i, h in enumerate(held) if h],
         "validation": "held-out flights"})
