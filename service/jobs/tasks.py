@@ -155,8 +155,8 @@ def training_metrics(model: HybridModel) -> dict:
     """What the registry keeps of a training run besides its weights and losses."""
     return {**{key: model.meta.get(key) for key in ("final_loss", "best_epoch", "best_validation_loss", "envelope",
                                                     "training_profile")},
-            **{key: model.meta[key] for key in ("prior_validation_loss", "learned", "learned_note", "validation")
-               if key in model.meta}}
+            **{key: model.meta[key] for key in ("prior_validation_loss", "learned", "learned_note", "validation",
+                                                "batch_pairs") if key in model.meta}}
 
 
 def diagnosis_metrics(model: HybridModel, report: dict) -> dict:
