@@ -68,9 +68,16 @@ class TrainingResult:
 NOT_LEARNED = "the residual did not improve held-out prediction; this version equals its prior"
 
 
-def learned_meta(best_epoch: int) -> dict:
+# What a model trained with nothing held out says instead: it kept its last epoch, unchecked.
+NOT_CHECKED = "nothing was held out, so whether the residual improves prediction was not checked"
+
+
+def learned_meta(best_epoch: int, validated: bool = True) -> dict:
     """``learned`` (bool) and, when False, ``learned_note`` (`NOT_LEARNED`) for a model's meta: the kept
-    epoch is -1 exactly when no epoch predicted the held-out data better than the prior (Δθ ≡ 0)."""
+    epoch is -1 exactly when no epoch predicted the held-out data better than the prior (Δθ ≡ 0).  Without
+    held-out data (``validated`` False) ``learned`` is True with the note `NOT_CHECKED`."""
+    if not validated:
+        return {"learned": True, "learned_note": NOT_CHECKED}
     learned = best_epoch != -1
     return {"learned": learned, **({} if learned else {"learned_note": NOT_LEARNED})}
 
@@ -219,7 +226,7 @@ def _train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, confi
                               # where the training data lie: evaluations report records outside it
                               "envelope": training_envelope(zeta, u, [*system.state_names, *system.input_names],
                                                             system.invariant_states, residual),
-                              **learned_meta(best[2] if n_val else config.epochs - 1)})
+                              **learned_meta(best[2] if n_val else config.epochs - 1, validated=bool(n_val))})
     return TrainingResult(model, losses, seconds, val_losses)
 
 
@@ -412,5 +419,5 @@ def _train_knode_pooled(system: System, records: list[TrainingRecord], held_out:
                               "envelope": training_envelope(train_zeta, train_u,
                                                             [*system.state_names, *system.input_names],
                                                             system.invariant_states, residual),
-                              **learned_meta(best_epoch)})
+                              **learned_meta(best_epoch, validated=val_data is not None)})
     return TrainingResult(model, losses, seconds, val_losses)

@@ -246,6 +246,8 @@ def format_trained(out: dict) -> str:
     elif out.get("prior_validation_loss") and out.get("best_validation_loss") is not None:
         gain = 100 * (1 - out["best_validation_loss"] / out["prior_validation_loss"])
         lines.append(f"learned: the held-out one-step loss is {gain:.1f} % below the prior's")
+    elif out.get("learned_note"):
+        lines.append(out["learned_note"])
     return "\n".join(lines)
 
 
@@ -507,6 +509,8 @@ def _trained_on_lines(lineage: dict, flight: dict, metrics: dict) -> list[str]:
     elif metrics.get("prior_validation_loss") and metrics.get("best_validation_loss") is not None:
         gain = 100 * (1 - metrics["best_validation_loss"] / metrics["prior_validation_loss"])
         lines.append(f"  learned: held-out one-step loss {gain:.1f} % below the prior's")
+    elif lineage.get("learned_note"):
+        lines.append(f"  {lineage['learned_note']}")
     return lines
 
 

@@ -272,3 +272,16 @@ def test_a_pooled_models_profile_holds_the_rates_its_flights_share_and_none_it_s
     assert profile_mismatches(profile, {**profile, "rates_hz": {"acc": 77.5, "mocap": 100.0, "grid": None}}) == []
     other = profile_mismatches(profile, {**profile, "rates_hz": {"acc": 77.5, "mocap": 250.0, "grid": None}})
     assert other == ["another mocap rate: 250 Hz, model trained at 100 Hz"]
+
+
+def test_a_model_trained_with_nothing_held_out_says_it_was_not_checked():
+    from learnest.models.training import NOT_CHECKED
+
+    system = make_system("quadrotor", dt=0.01)
+    record = _records(1)[0]
+    alone = train_knode(system, record.zeta, record.u, record.dt, replace(CRAZYFLIE_TRAINING, epochs=2,
+                                                                           validation_fraction=0.0))
+    pooled = train_knode_pooled(system, _records(2), [False, False], replace(CRAZYFLIE_TRAINING, epochs=2))
+    for result in (alone, pooled):
+        assert result.model.meta["learned"] is True and result.model.meta["learned_note"] == NOT_CHECKED
+        assert result.model.meta["best_validation_loss"] is None
