@@ -4,7 +4,7 @@ The notebook API::
 
     import learnest as le
     flights = le.read_flights(paths)                   # Flight objects (Flight.to_dataframe())
-    knode = le.KNODE(epochs=150).fit(flights[0])       # Algorithm 1 on one flight
+    knode = le.KNODE(epochs=150).fit(flights[0])       # Algorithm 1 on one flight (or .fit(flights[:8]): pooled)
     post = le.ukf(knode.model_, flights[1])            # FilterResult(t, means, covariances, innovations)
     report = le.evaluate(knode.model_, flights[1:])    # MSE per method and flight, medians, improvement
     diagnosis = le.diagnose(flights, model=knode.model_)

@@ -278,14 +278,40 @@ def _train(args) -> int:
     _registry_grid(args.rate)
     with tqdm(total=1000, desc=f"training {args.name}", file=sys.stderr, bar_format=STAGE_BAR) as bar:
         out = train(args.files, args.name, epochs=args.epochs, include_bad=args.include_bad, progress=_advance(bar),
-                    system=args.system, on_stage=_show_stage(bar), **_topics(args), cut=args.cut)
+                    system=args.system, on_stage=_show_stage(bar), **_topics(args), cut=args.cut,
+                    validate=args.validate)
     out["command_seconds"] = time.perf_counter() - _command_started[0]
-    print(json.dumps(out, indent=2) if args.json else
-          f"registered {out['ref']} ({out['system']} prior): trained on {out['training_flight']} "
-          f"(flight {out['flight_id']}): {out['epochs']} epochs in {out['seconds']:.1f} s; "
-          f"{out['command_seconds']:.1f} s in all (this command: imports, storing the flight, starting a worker, the "
-          f"pre-training observer, the epochs, storing the model); registry in {out['home']}")
+    print(json.dumps(out, indent=2) if args.json else format_trained(out))
     return 0
+
+
+def format_trained(out: dict) -> str:
+    """`learnest train`'s text: what was registered, on which flights, and whether the residual learned
+    anything that held-out data confirm."""
+    from learnest.models.training import NOT_LEARNED
+
+    if len(out["training_flights"]) == 1 and not out["validation_flights"]:
+        on = f"trained on {out['training_flight']} (flight {out['flight_id']})"
+    else:
+        count = len(out["training_flights"])
+        on = (f"trained on {count} flight{'s' if count != 1 else ''} ({', '.join(out['training_flights'])}), "
+              f"validated on {len(out['validation_flights'])} held-out flight(s) "
+              f"({', '.join(out['validation_flights']) or 'none'})")
+    lines = [f"registered {out['ref']} ({out['system']} prior): {on}: {out['epochs']} epochs in "
+             f"{out['seconds']:.1f} s, kept epoch {out['best_epoch']}; {out['command_seconds']:.1f} s in all (this "
+             "command: imports, storing the flights, starting a worker, the pre-training observer, the epochs, storing "
+             f"the model); registry in {out['home']}"]
+    if out.get("skipped_flights"):
+        lines.append("left out (failed the quality checks; --include-bad keeps them): "
+                     + "; ".join(out["skipped_flights"]))
+    if not out["learned"]:
+        lines.append(f"NOT LEARNED: {out.get('learned_note') or NOT_LEARNED}")
+    elif out.get("prior_validation_loss") and out.get("best_validation_loss") is not None:
+        gain = 100 * (1 - out["best_validation_loss"] / out["prior_validation_loss"])
+        lines.append(f"learned: the held-out one-step loss is {gain:.1f} % below the prior's")
+    elif out.get("learned_note"):
+        lines.append(out["learned_note"])
+    return "\n".join(lines)
 
 
 STAGE_BAR = "{desc}: {percentage:3.0f}%|{bar}| [{elapsed}{postfix}]"   # postfix: ", epoch 12/150, about 20 s left"
@@ -506,7 +532,9 @@ def format_model(out: dict) -> str:
             loss, seconds = (v["metrics"] or {}).get("final_loss"), v["training_seconds"]
             loss_text = "-" if loss is None else f"{loss:.4g}"
             seconds_text = "-" if seconds is None else f"{seconds:.1f}"
-            lines.append(f"{v['version']:>7}  {v['status']:<9}{str(v['training_flight']['name']):<28}"
+            flights = v.get("training_flights") or [v["training_flight"]]
+            trained_on = str(flights[0]["name"]) + (f" +{len(flights) - 1}" if len(flights) > 1 else "")
+            lines.append(f"{v['version']:>7}  {v['status']:<9}{trained_on:<28}"
                          f"{str((v['hyperparameters'] or {}).get('epochs')):>7}{loss_text:>12}{seconds_text:>9}"
                          f"  {v['parent'] or '-'}" + (f"  @{', @'.join(v['aliases'])}" if v["aliases"] else ""))
         return "\n".join(lines)
@@ -517,11 +545,11 @@ def format_model(out: dict) -> str:
              + (f", aliases @{', @'.join(out['aliases'])}" if out["aliases"] else ""),
              f"  prior {hp.get('system', 'quadrotor')}; "
              + ", ".join(f"{k} {v}" for k, v in hp.items() if k != "system"),
-             "  metrics: " + (", ".join(f"{k} {v:.4g}" for k, v in metrics.items() if isinstance(v, (int, float)))
-                              or "none"),
+             "  metrics: " + (", ".join(f"{k} {v:.4g}" for k, v in metrics.items()
+                                        if isinstance(v, (int, float)) and not isinstance(v, bool)) or "none"),
              f"  training time {out['training_seconds']:.1f} s (the epochs)" if out["training_seconds"] else
              "  training time -",
-             f"  trained on flight {flight['id']} ({flight['name']})" + ("" if flight["exists"] else ", deleted since"),
+             *_trained_on_lines(lineage, flight, metrics),
              f"  parent {lineage['parent']['ref'] if lineage['parent'] else 'none'}"
              + ("" if not lineage["parent"] or lineage["parent"]["exists"] else " (deleted)"),
              f"  children {', '.join(c['ref'] for c in lineage['children']) or 'none'}"]
@@ -535,6 +563,31 @@ def format_model(out: dict) -> str:
         lines.append(f"    {e['id']}: {e['state']} on flights {', '.join(map(str, e['flight_ids']))}"
                      + (f"; median MSE x 1e-3: {mse}" if mse else "") + (f"; {better}" if better else ""))
     return "\n".join(lines)
+
+
+def _trained_on_lines(lineage: dict, flight: dict, metrics: dict) -> list[str]:
+    """`models show`'s lines on a version's training and validation flights (with their sha256) and on
+    whether its residual learned anything held-out data confirm."""
+    trained, held = lineage.get("training_flights") or [], lineage.get("validation_flights") or []
+
+    def listed(flights: list[dict]) -> str:
+        return ", ".join(f"{f['id']} ({f['name']}, sha256 {str(f.get('sha256') or '-')[:12]})"
+                         + ("" if f["exists"] else ", deleted since") for f in flights)
+
+    if len(trained) <= 1 and not held:
+        lines = [f"  trained on flight {flight['id']} ({flight['name']})"
+                 + ("" if flight["exists"] else ", deleted since")]
+    else:
+        lines = [f"  trained on {len(trained)} flights: {listed(trained)}",
+                 f"  validated on {len(held)} held-out flight(s): {listed(held) or 'none'}"]
+    if lineage.get("learned") is False:
+        lines.append(f"  NOT LEARNED: {lineage.get('learned_note')}")
+    elif metrics.get("prior_validation_loss") and metrics.get("best_validation_loss") is not None:
+        gain = 100 * (1 - metrics["best_validation_loss"] / metrics["prior_validation_loss"])
+        lines.append(f"  learned: held-out one-step loss {gain:.1f} % below the prior's")
+    elif lineage.get("learned_note"):
+        lines.append(f"  {lineage['learned_note']}")
+    return lines
 
 
 def _alias_set(args) -> int:
@@ -874,15 +927,21 @@ def build_parser() -> argparse.ArgumentParser:
     _add_cut_argument(ing)
     ing.set_defaults(func=_ingest)
 
-    tr = sub.add_parser("train", help="train a KNODE on one flight (Algorithm 1) and register it as the next "
-                                      "version of NAME (the flight is stored too, as by an upload)")
-    tr.add_argument("files", nargs="+", help="the log file(s) of one flight")
+    tr = sub.add_parser("train", help="train a KNODE on one flight (Algorithm 1) or on several flights of one "
+                                      "vehicle (one pooled loss, whole flights held out) and register it as the next "
+                                      "version of NAME (the flights are stored too, as by an upload)")
+    tr.add_argument("files", nargs="+", metavar="FILE|FOLDER",
+                    help="the log file(s) of one flight, or of several flights, or folders of them")
+    tr.add_argument("--validate", nargs="+", metavar="FILE", default=None,
+                    help="log files of flights held out whole to choose the kept epoch (default with several flights: "
+                         "one in five; one flight alone is validated on time blocks of it)")
     tr.add_argument("--name", required=True, help="registered model name")
     tr.add_argument("--epochs", type=_positive_int, default=None,
                     help=f"default {CRAZYFLIE_TRAINING.epochs} (Sec. V-C)")
     tr.add_argument("--json", action="store_true")
     tr.add_argument("--rate", type=_positive_float, default=100.0, help="grid rate in Hz (the registry keeps 100)")
-    tr.add_argument("--include-bad", action="store_true", help="train even if the flight fails quality checks")
+    tr.add_argument("--include-bad", action="store_true",
+                    help="train even on flights that fail the quality checks (of several, they are left out otherwise)")
     tr.add_argument("--system", default="quadrotor", choices=["quadrotor", "crazyflie"],
                     help="the prior: the paper's kinematic chain (default) or the Crazyflie driven by its motors "
                          "and battery (needs motor PWM and battery voltage in the log)")

@@ -3,7 +3,8 @@ side by side.  Data functions shared by the JSON routes, the web pages and the C
 
 - `list_evaluations`: one page of evaluations, newest first, each with its median MSE per method and the
   KNODE improvements (`evaluation_summary`).
-- `version_lineage`: the links of one version: training flight, parent, children, the diagnosis that
+- `version_lineage`: the links of one version: training flight(s) and validation flights, whether the residual
+  learned anything held-out data confirm, parent, children, the diagnosis that
   produced it and the effects it added, its job, evaluations and aliases; a link to a deleted object is
   marked ``exists: False`` (the row keeps the name as lineage text).
 - `compare_versions`: hyperparameters, metrics, loss curves (training and validation) and evaluation
@@ -71,6 +72,9 @@ def version_lineage(db: Database, name: str, version: int) -> dict:
         row = registry.get_version(session, name, version)
         ref = f"{name}:{version}"
         flight = session.get(FlightRecord, row.training_flight_id) if row.training_flight_id else None
+        trained, held = registry.training_flights_of(row), list(row.validation_flights or [])
+        ids = [f["id"] for f in trained + held if f.get("id") is not None]
+        stored = set(session.scalars(select(FlightRecord.id).where(FlightRecord.id.in_(ids)))) if ids else set()
         parent = _parent(session, row.parent)
         children = [f"{c.name}:{c.version}" for c in session.scalars(
             select(ModelVersion).where(ModelVersion.parent == ref).order_by(ModelVersion.name, ModelVersion.version))]
@@ -90,6 +94,11 @@ def version_lineage(db: Database, name: str, version: int) -> dict:
         "training_flight": {"id": row.training_flight_id, "name": row.training_flight_name,
                             "sha256": row.training_flight_sha256, "exists": flight is not None,
                             "href": f"/flights/{row.training_flight_id}" if flight else None},
+        # every flight it was trained on, and those held out whole to choose its epoch (lineage by sha256)
+        "training_flights": [_flight_link(f, stored) for f in trained],
+        "validation_flights": [_flight_link(f, stored) for f in held],
+        "learned": (row.metrics or {}).get("learned"),
+        "learned_note": (row.metrics or {}).get("learned_note"),
         "parent": parent,
         "children": [{"ref": c, "href": "/models/{}/versions/{}".format(*c.split(":"))} for c in children],
         "diagnosis": {"id": produced_by.id if produced_by else None,
@@ -101,6 +110,12 @@ def version_lineage(db: Database, name: str, version: int) -> dict:
         "aliases": aliases,
         "evaluations": [{**evaluation_summary(e, jobs.get(e.job_id))} for e in evaluations],
     }
+
+
+def _flight_link(entry: dict, stored: set) -> dict:
+    exists = entry.get("id") in stored
+    return {"id": entry.get("id"), "name": entry.get("name"), "sha256": entry.get("sha256"), "exists": exists,
+            "href": f"/flights/{entry['id']}" if exists else None}
 
 
 def _parent(session, parent: str | None) -> dict | None:

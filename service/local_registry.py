@@ -6,8 +6,9 @@ replaces the plain file store of the ingest issue (home/models/NAME.json files a
 
 - `add_flight`: store a flight's log file(s) as POST /flights does (service.uploads.add_flight: raw files +
   normalized flight as blobs, one row, deduplicated by sha256).
-- `train`: register the next version of a model trained on that flight, as POST /models does (a training job
-  on a one-process local pool, with the same provenance), and wait for it.  Interrupted (Ctrl-C), the job is
+- `train`: register the next version of a model trained on those flights (one, or several of one vehicle), as
+  POST /models does (a training job on a one-process local pool, with the same provenance), and wait for it.
+  Interrupted (Ctrl-C), the job is
   cancelled, its worker stopped and its reserved version removed: nothing half-registered is left.
 - `register_repaired`: register a diagnosis' repaired model as the next version of a name (its fitting flight
   stored as by an upload), as POST /diagnoses with "register" does.
@@ -103,23 +104,52 @@ def add_flight(services: Services, paths, *, pose_topic: str | None = None,
 def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = False,
           progress: Callable[[float], None] | None = None, settings: Settings | None = None,
           system: str = "quadrotor", pose_topic: str | None = None, imu_topic: str | None = None,
-          cut: str | None = None, on_stage: Callable[[str, float | None], None] | None = None) -> dict:
-    """Store the flight, train the next version of `name` on it and wait; `progress(fraction)` while it trains,
-    `on_stage(stage, seconds_left)` as the job's stage changes ("ingest", "observer ...", "epoch 12/150").
+          cut: str | None = None, on_stage: Callable[[str, float | None], None] | None = None,
+          validate=None) -> dict:
+    """Store the flights, train the next version of `name` on them and wait; `progress(fraction)` while it
+    trains, `on_stage(stage, seconds_left)` as the job's stage changes ("ingest", "observer ...", "epoch 12/150").
+
+    ``paths`` are the log files of one flight or of several, or folders of them (`learnest.ingest.collect_logs`,
+    grouped into flights by `learnest.ingest.group_files`); several flights train one model of one vehicle
+    (`service.jobs.training.start_training`), ``validate`` names log files of flights held out whole (default:
+    one flight in five).  Of several flights, those failing the quality checks are left out and listed
+    (``skipped_flights``) unless ``include_bad``; one such flight alone is refused.
     ``cut``: the stretch of the log to keep (`learnest.ingest.align.parse_cut`).
     Returns what `learnest train --json` prints: ``seconds`` is the epochs' time, ``total_seconds`` the
-    job's (observer, epochs, storing)."""
+    job's (observer, epochs, storing), ``training_flights`` and ``validation_flights`` the names, ``learned``
+    False when no epoch beat the prior on the held-out data (``learned_note`` says so in words)."""
+    from learnest.ingest import collect_logs, group_files
+
     registry.check_name(name)  # before any work
     settings = settings or cli_settings()
     if on_stage:
         on_stage("ingest", None)
+    groups = group_files(collect_logs(paths)[0])
+    held_groups = group_files(collect_logs(validate)[0]) if validate else []
+    if not groups and not held_groups:
+        raise InvalidInput("no flight log among the given files")
     with local_services(settings) as services:
-        row, created = add_flight(services, paths, pose_topic=pose_topic, imu_topic=imu_topic, cut=cut)
-        if not row.quality_ok and not include_bad:  # checked here too, to name the CLI's flag
-            raise InvalidInput(f"{row.name} failed the quality checks ({'; '.join(row.quality.get('issues', []))}); "
-                             "pass --include-bad to train on it anyway")
-        job, version = start_training(services, name, row.id, {"epochs": epochs, "system": system},
-                                      include_bad=include_bad)
+        stored = [add_flight(services, files, pose_topic=pose_topic, imu_topic=imu_topic, cut=cut)
+                  for _, files in groups]
+        held = [add_flight(services, files, pose_topic=pose_topic, imu_topic=imu_topic, cut=cut)[0]
+                for _, files in held_groups]
+        rows = list({row.id: row for row, _ in stored}.values())
+        every = {row.id: row for row in rows + held}
+        bad = [row for row in every.values() if not row.quality_ok]
+        skipped = []
+        if bad and not include_bad:
+            held_ids = {row.id for row in held}
+            if not [row for row in rows if row.quality_ok and row.id not in held_ids]:
+                row = bad[0]   # checked here too, to name the CLI's flag
+                raise InvalidInput(f"{row.name} failed the quality checks ({'; '.join(row.quality.get('issues', []))}"
+                                   "); pass --include-bad to train on it anyway")
+            skipped = [f"{row.name} ({'; '.join(row.quality.get('issues', []))})" for row in bad]
+            rows = [row for row in rows if row.quality_ok]
+            held = [row for row in held if row.quality_ok]
+        ids = [row.id for row in rows]
+        job, version = start_training(services, name, ids[0] if len(ids) == 1 and not held else ids,
+                                      {"epochs": epochs, "system": system}, include_bad=include_bad,
+                                      validation_ids=[row.id for row in held] if held else None)
         try:
             job = wait_for_job(services, job.id, progress, on_stage=on_stage)
         except BaseException:  # Ctrl-C (KeyboardInterrupt) or a failure while waiting
@@ -127,12 +157,23 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
             raise
         with services.db.transaction() as session:
             version = registry.get_version(session, name, version.version)
+    trained = registry.training_flights_of(version)
+    validation = list(version.validation_flights or [])
     if job.state != "succeeded":
-        raise TrainingFailed(f"training {name}:{version.version} on {row.name} failed: {job.error}")
+        raise TrainingFailed(f"training {name}:{version.version} on {', '.join(f['name'] for f in trained)} "
+                             f"failed: {job.error}")
+    metrics = version.metrics or {}
     return {"name": name, "version": version.version, "ref": f"{name}:{version.version}",
-            "training_flight": row.name, "flight_id": row.id, "flight_stored": "new" if created else "existing",
+            "training_flight": trained[0]["name"], "flight_id": trained[0]["id"],
+            "flight_stored": "new" if any(created for _, created in stored) else "existing",
+            "training_flights": [f["name"] for f in trained], "validation_flights": [f["name"] for f in validation],
+            "flight_ids": [f["id"] for f in trained], "validation_flight_ids": [f["id"] for f in validation],
+            "skipped_flights": skipped, "learned": bool(metrics.get("learned", True)),
+            **({"learned_note": metrics["learned_note"]} if metrics.get("learned_note") else {}),
             "system": version.hyperparameters.get("system", "quadrotor"),
-            "epochs": version.hyperparameters["epochs"], "best_epoch": (version.metrics or {}).get("best_epoch"),
+            "epochs": version.hyperparameters["epochs"], "best_epoch": metrics.get("best_epoch"),
+            "prior_validation_loss": metrics.get("prior_validation_loss"),
+            "best_validation_loss": metrics.get("best_validation_loss"),
             "final_loss": version.losses[-1] if version.losses else None, "seconds": version.training_seconds,
             "total_seconds": (job.result or {}).get("total_seconds"), "home": str(settings.home)}
 
@@ -400,6 +441,9 @@ def _version_json(row, aliases: dict[str, int]) -> dict:
     return {"ref": f"{row.name}:{row.version}", "name": row.name, "version": row.version, "status": row.status,
             "error": row.error, "aliases": sorted(a for a, v in aliases.items() if v == row.version),
             "training_flight": {"id": row.training_flight_id, "name": row.training_flight_name},
+            "training_flights": registry.training_flights_of(row),
+            "validation_flights": list(row.validation_flights or []),
+            "learned": (row.metrics or {}).get("learned"), "learned_note": (row.metrics or {}).get("learned_note"),
             "parent": row.parent, "hyperparameters": row.hyperparameters, "metrics": row.metrics,
             "training_seconds": row.training_seconds, "created_at": row.created_at.isoformat()}
 

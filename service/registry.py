@@ -76,10 +76,29 @@ def aliases_of(session: Session, name: str) -> dict[str, int]:
 
 
 # -- writes -------------------------------------------------------------------------------------------
+def flight_entry(flight: FlightRecord) -> dict:
+    """A flight as the lineage records it: {"id", "name", "sha256"} (the sha256 of its raw files)."""
+    return {"id": flight.id, "name": flight.name, "sha256": flight.sha256}
+
+
+def training_flights_of(row: ModelVersion) -> list[dict]:
+    """Every training flight of a version ({"id", "name", "sha256"}), the single ``training_flight_*`` of a
+    row stored without the list."""
+    if row.training_flights:
+        return list(row.training_flights)
+    if row.training_flight_name is None and row.training_flight_id is None:
+        return []
+    return [{"id": row.training_flight_id, "name": row.training_flight_name, "sha256": row.training_flight_sha256}]
+
+
 def reserve_version(session: Session, name: str, *, job_id: int | None, flight: FlightRecord, hyperparameters: dict,
-                    parent: str | None) -> ModelVersion:
+                    parent: str | None, training_flights: Sequence[FlightRecord] = (),
+                    validation_flights: Sequence[FlightRecord] = ()) -> ModelVersion:
     """Take the next version number of `name` (status "training").  Two concurrent requests may pick the
-    same number: the unique (name, version) constraint rejects one, and the caller retries."""
+    same number: the unique (name, version) constraint rejects one, and the caller retries.
+
+    ``flight`` is the (first) training flight; ``training_flights`` every training flight (default:
+    ``flight`` alone) and ``validation_flights`` those held out whole, recorded as lineage."""
     check_name(name)
     model = session.get(RegisteredModel, name)
     if model is None:
@@ -93,7 +112,8 @@ def reserve_version(session: Session, name: str, *, job_id: int | None, flight: 
     row = ModelVersion(name=name, version=latest + 1, status="training", job_id=job_id,
                        training_flight_id=flight.id, training_flight_sha256=flight.sha256,
                        training_flight_name=flight.name, parent=parent, hyperparameters=hyperparameters,
-                       created_at=utcnow())
+                       training_flights=[flight_entry(f) for f in (training_flights or [flight])],
+                       validation_flights=[flight_entry(f) for f in validation_flights], created_at=utcnow())
     session.add(row)
     session.flush()
     return row

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
@@ -72,7 +72,14 @@ class FlightPage(BaseModel):
 # -- models -------------------------------------------------------------------------------------------
 class TrainRequest(Strict):
     name: str = Field(pattern=NAME_REGEX, description="registered model name")
-    flight_id: int = Field(ge=1)
+    flight_id: int | None = Field(None, ge=1, description="one flight (the paper's protocol: time blocks of it "
+                                                          "validate); or give flight_ids")
+    flight_ids: list[Annotated[int, Field(ge=1)]] | None = Field(
+        None, min_length=1, max_length=1000,
+        description="several flights of one vehicle, trained on as one model (one pooled loss)")
+    validation_ids: list[Annotated[int, Field(ge=1)]] | None = Field(
+        None, max_length=1000, description="flights held out whole to choose the kept epoch (default with several "
+                                           "flights: one in five)")
     epochs: int | None = Field(None, ge=1, le=100_000)
     hidden: int | None = Field(None, ge=1, le=4096)
     lr: float | None = Field(None, gt=0, le=1)
@@ -81,6 +88,16 @@ class TrainRequest(Strict):
                                  "and battery (the flight must carry motor PWM and battery voltage)")
     parent: str | None = Field(None, description='"name:version" or "name@alias" this version derives from')
     include_bad: bool = Field(False, description="train even if the flight failed the quality checks")
+
+    @model_validator(mode="after")
+    def one_way_to_name_flights(self) -> TrainRequest:
+        if (self.flight_id is None) == (self.flight_ids is None):
+            raise ValueError("give flight_id (one flight) or flight_ids (several), not both or neither")
+        return self
+
+    def flights(self) -> int | list[int]:
+        """The flight id, or the list of ids, to train on."""
+        return self.flight_id if self.flight_id is not None else list(self.flight_ids or [])
 
 
 class TrainAccepted(BaseModel):
@@ -101,7 +118,16 @@ class VersionSummary(BaseModel):
     version: int
     status: Literal["training", "ready", "failed"]
     job_id: int | None
-    training_flight: TrainingFlight
+    training_flight: TrainingFlight = Field(description="the first training flight (of one, the only one)")
+    training_flights: list[TrainingFlight] = Field(default_factory=list,
+                                                   description="every flight the version was trained on")
+    validation_flights: list[TrainingFlight] = Field(
+        default_factory=list, description="flights held out whole to choose the kept epoch (none for one flight, "
+                                          "whose validation is time blocks of it)")
+    learned: bool | None = Field(None, description="false when no epoch predicted the held-out data better than the "
+                                                   "prior: the version equals its prior (None: not known, e.g. "
+                                                   "still training or stored before it was recorded)")
+    learned_note: str | None = Field(None, description="what `learned: false` means, in words")
     parent: str | None
     hyperparameters: dict[str, Any]
     metrics: dict[str, Any] | None

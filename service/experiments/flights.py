@@ -21,7 +21,7 @@ from learnest.estimators.observers import pretraining_observer
 from learnest.estimators.yardsticks import GapPlan, flight_yardsticks, learned_note, onboard_estimate
 from learnest.ingest.baseline import centred_window, references
 from learnest.ingest.flight import Flight
-from learnest.ingest.profile import flight_profile, profile_mismatches
+from learnest.ingest.profile import MASS_TOLERANCE, RATE_TOLERANCE, flight_profile, profile_mismatches
 from learnest.models.effects import correct_acc_body, world_from_body
 from learnest.models.envelope import envelope_report
 from learnest.models.inputs import (
@@ -30,6 +30,7 @@ from learnest.models.inputs import (
     THRUST_THROUGH_ATTITUDE,
     calibrates_thrust_gain,
     flight_thrust_axis,
+    flight_thrust_gain,
     system_inputs,
     thrust_calibration,
     training_meta,
@@ -45,7 +46,8 @@ from learnest.models.presets import (
     TrainingConfig,
 )
 from learnest.models.systems import System, make_system
-from learnest.models.training import TrainingResult, train_knode
+from learnest.models.thrust_gain import with_thrust_gain
+from learnest.models.training import TrainingRecord, TrainingResult, train_knode, train_knode_pooled
 
 # Systems a model of a real flight may use: the paper's kinematic chain, or the Crazyflie prior driven by
 # the motors and the battery (needs those channels in the flight).
@@ -98,6 +100,198 @@ def train_on_flight(flight: Flight, config: TrainingConfig = CRAZYFLIE_TRAINING,
     result.model.meta.update({"system": prior.name, "training_flight": flight.name,
                               "training_flight_sha256": [s["sha256"] for s in flight.meta.get("sources", [])],
                               "training_profile": flight_profile(flight)})
+    return result
+
+
+# Thrust gains (`models.thrust_gain`, against the prior's map with the battery voltage and the motors' heating
+# already in it) of one vehicle's flights lie within 0.987-1.048 on the 29 shared NanoBench flights of CF_01
+# (the high one flown by another controller): the battery and the warm motors are explained by the map.  A
+# training set whose gains spread more than twice that (max/min above 1 + GAIN_SPREAD) is not one thrust map:
+# another vehicle, motors or payload, which one residual cannot learn as one vehicle.
+GAIN_SPREAD = 0.12
+# By default one flight in VALIDATION_EVERY is held out whole (at least one when there are two or more).
+VALIDATION_EVERY = 5
+
+
+def default_validation(n_flights: int) -> list[int]:
+    """Indices of the flights held out by default: round(n / `VALIDATION_EVERY`) of n (at least one when
+    n >= 2, none for one flight), spread evenly through the given order and ending with the last, so a
+    folder listed family by family has its held-out flights in several families."""
+    if n_flights < 2:
+        return []
+    held = max(1, round(n_flights / VALIDATION_EVERY))
+    return sorted({(k + 1) * n_flights // held - 1 for k in range(held)})
+
+
+def check_one_vehicle(flights: Sequence[Flight], systems: Sequence[System], gains: Sequence[float | None]) -> None:
+    """Refuse a training set whose flights are not one vehicle: different prior parameters, different declared
+    vehicles or masses (`ingest.profile`), or thrust gains that spread more than `GAIN_SPREAD` (a different
+    thrust map).  One residual is one vehicle's; the message names the flights on each side so the user can
+    split the set.
+
+    Raises
+    ------
+    InvalidInput
+        Naming the disagreeing flights and what differs.
+    """
+    first = flights[0]
+    for flight, system in zip(flights[1:], systems[1:]):
+        if system.name != systems[0].name or system.prior_params != systems[0].prior_params:
+            differing = sorted(k for k in {*system.prior_params, *systems[0].prior_params}
+                               if system.prior_params.get(k) != systems[0].prior_params.get(k))
+            raise InvalidInput(f"{flight.name} and {first.name} have different prior parameters "
+                               f"({', '.join(differing) or system.name}): one model is trained on one vehicle; "
+                               "train a model per vehicle")
+
+    def groups(key) -> dict:
+        by: dict = {}
+        for flight in flights:
+            value = key(flight)
+            if value is not None:
+                by.setdefault(value, []).append(flight.name)
+        return by
+
+    vehicles = groups(lambda f: (str(f.meta["vehicle"]) if f.meta.get("vehicle") else None))
+    if len(vehicles) > 1:
+        listed = "; ".join(f"{v}: {', '.join(names)}" for v, names in vehicles.items())
+        raise InvalidInput(f"the training flights come from different vehicles ({listed}): one model is trained on "
+                           "one vehicle; train a model per vehicle")
+    masses = groups(lambda f: f.meta.get("mass_kg"))
+    if masses and max(masses) > (1 + MASS_TOLERANCE) * min(masses):
+        listed = "; ".join(f"{1000 * m:.1f} g: {', '.join(names)}" for m, names in sorted(masses.items()))
+        raise InvalidInput(f"the training flights declare different masses ({listed}): another vehicle or payload; "
+                           "train a model per vehicle")
+    known = [(g, f.name) for g, f in zip(gains, flights) if g is not None]
+    if known:
+        low, high = min(known), max(known)
+        if high[0] > (1 + GAIN_SPREAD) * low[0]:
+            raise InvalidInput(f"the training flights disagree on the thrust map: thrust gain {high[0]:.3f} on "
+                               f"{high[1]} against {low[0]:.3f} on {low[1]} (battery and motor heating accounted "
+                               f"for; one vehicle's flights lie within {100 * GAIN_SPREAD:.0f} %): another vehicle, "
+                               "motors or payload; train a model per vehicle")
+
+
+def flight_training_data(flight: Flight, system: str) -> tuple[System, np.ndarray, np.ndarray, float | None]:
+    """Algorithm 1's data of one flight with the named prior: (its system on the flight's grid, ζ (T, n) of the
+    pre-training observer, u (T, p) = `system_inputs(..., thrust_gain=True)`, the flight's thrust gain for a
+    prior with a thrust map, else None: split out for `check_one_vehicle`)."""
+    prior = system_for(flight, system)
+    gain = None
+    if prior.name in THRUST_THROUGH_ATTITUDE:
+        u = system_inputs(flight, prior)
+        gain = flight_thrust_gain(flight, prior, u)
+        u = with_thrust_gain(u, gain, prior.prior_params["gamma"])
+    else:
+        u = system_inputs(flight, prior, thrust_gain=True)
+    return prior, pretraining_observer(prior, flight.measurements(), u, prior.dt), u, gain
+
+
+def pooled_profile(flights: Sequence[Flight]) -> dict:
+    """The vehicle and sensor profile (`ingest.profile.flight_profile`) a model trained on ``flights`` records:
+    the first flight's, with each sensor rate the median of the flights' when they all lie within
+    `ingest.profile.RATE_TOLERANCE` of it, else None (the model saw several rates: none is "another" one),
+    and the controller None when the flights name different ones.  An evaluation warns against it as against
+    one flight's profile."""
+    profiles = [flight_profile(f) for f in flights]
+    merged = {**profiles[0], "rates_hz": dict(profiles[0]["rates_hz"])}
+    for stream in merged["rates_hz"]:
+        rates = [p["rates_hz"].get(stream) for p in profiles]
+        if any(r is None for r in rates):
+            merged["rates_hz"][stream] = None
+            continue
+        median = float(np.median(rates))
+        merged["rates_hz"][stream] = round(median, 1) if all(abs(r - median) <= RATE_TOLERANCE * median
+                                                             for r in rates) else None
+    if len({p.get("controller") for p in profiles}) > 1:
+        merged["controller"] = None
+    return merged
+
+
+def _flight_lineage(flight: Flight, gain: float | None) -> dict:
+    return {"name": flight.name, "sha256": [s["sha256"] for s in flight.meta.get("sources", [])],
+            "samples": len(flight.t), "dt": flight.dt, **({"thrust_gain": round(gain, 5)} if gain else {})}
+
+
+def train_on_flights(flights: Sequence[Flight], config: TrainingConfig = CRAZYFLIE_TRAINING,
+                     progress: Callable[[int, float], None] | None = None, system: str = "quadrotor",
+                     validate: Sequence[str] | None = None) -> TrainingResult:
+    """Algorithm 1 on several flights of one vehicle, one KNODE: the pre-training observer on each flight's own
+    measurements and inputs (each with its own thrust gain, battery and length), one pooled loss over every
+    training flight (`models.training.train_knode_pooled`), whole flights held out for validation.
+
+    One flight (and no ``validate``) is the paper's protocol exactly (`train_on_flight`: time blocks of the
+    flight held out).
+
+    Parameters
+    ----------
+    flights : sequence of Flight
+        The flights, distinct names.
+    config : TrainingConfig
+        Training settings; with several flights ``validation_fraction``/``validation_layout`` are unused.
+    progress : callable, optional
+        ``progress(epoch, mean_training_loss)`` after every epoch.
+    system : {"quadrotor", "crazyflie"}
+        The prior (`FLIGHT_SYSTEMS`).
+    validate : sequence of str, optional
+        Names of the flights held out; default `default_validation` (one in five, at least one of two or more).
+
+    Returns
+    -------
+    TrainingResult
+        Its model's meta holds ``training_flights`` and ``validation_flights`` (each {"name", "sha256" (the
+        source files'), "samples", "dt" (s), "thrust_gain" where the prior has one}), ``learned`` (False when no
+        epoch beat the prior on the held-out flights: the model equals its prior), ``training_flight`` and
+        ``training_flight_sha256`` (the first training flight's name; every training flight's sha256, so an
+        evaluation excludes all of them), ``system`` and ``training_profile`` (`pooled_profile` of the training
+        flights).
+
+    Raises
+    ------
+    InvalidInput
+        No flight, a name given twice, a ``validate`` name not among the flights, every flight held out, or
+        flights of different vehicles (`check_one_vehicle`); `models.inputs.MissingInputs` when the prior needs
+        inputs a flight lacks.
+    """
+    flights = list(flights)
+    if not flights:
+        raise InvalidInput("training needs at least one flight")
+    names = [f.name for f in flights]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise InvalidInput(f"flight(s) given more than once: {', '.join(twice)}")
+    if len(flights) == 1 and not validate:
+        result = train_on_flight(flights[0], config, progress=progress, system=system)
+        lineage = [_flight_lineage(flights[0], None)]
+        result.model.meta.update({"training_flights": lineage, "validation_flights": [],
+                                  "validation": "held-out time blocks of the flight"})
+        return result
+    if validate:
+        unknown = [n for n in validate if n not in names]
+        if unknown:
+            raise InvalidInput(f"validation flight(s) {', '.join(unknown)} are not among the training set's flights "
+                               f"({', '.join(names)})")
+        held = [n in set(validate) for n in names]
+    else:
+        chosen = set(default_validation(len(flights)))
+        held = [i in chosen for i in range(len(flights))]
+    if all(held):
+        raise InvalidInput(f"every flight is held out for validation ({', '.join(names)}): keep one to train on")
+    data = [flight_training_data(flight, system) for flight in flights]
+    systems = [d[0] for d in data]
+    check_one_vehicle(flights, systems, [d[3] for d in data])
+    records = [TrainingRecord(f.name, zeta, u, prior.dt) for f, (prior, zeta, u, _) in zip(flights, data)]
+    trained = [i for i, h in enumerate(held) if not h]
+    prior = systems[trained[0]]
+    result = train_knode_pooled(prior, records, held, config, progress=progress)
+    lineage = [_flight_lineage(f, d[3]) for f, d in zip(flights, data)]
+    result.model.meta.update(training_meta(prior))
+    result.model.meta.update({
+        "system": prior.name, "training_flight": names[trained[0]],
+        "training_flight_sha256": [sha for i in trained for sha in lineage[i]["sha256"]],
+        "training_profile": pooled_profile([flights[i] for i in trained]),
+        "training_flights": [lineage[i] for i in trained],
+        "validation_flights": [lineage[i] for i, h in enumerate(held) if h],
+        "validation": "held-out flights"})
     return result
 
 
@@ -205,10 +399,12 @@ def flight_envelope(knode: HybridModel, flight: Flight) -> dict | None:
 
 
 def _is_training_flight(knode: HybridModel, flight: Flight) -> bool:
-    """By content (sha256 of the source files) when the model recorded it, else by name."""
+    """By content (sha256 of the source files) when the model recorded it, else by name; a model trained on
+    several flights excludes every one of them."""
     trained_on = set(knode.meta.get("training_flight_sha256") or [])
     sources = {s.get("sha256") for s in flight.meta.get("sources", [])}
-    return bool(trained_on & sources) or flight.name == knode.meta.get("training_flight")
+    names = {knode.meta.get("training_flight")} | {f.get("name") for f in knode.meta.get("training_flights") or []}
+    return bool(trained_on & sources) or flight.name in names
 
 
 def _trained_on_other_attitude(knode: HybridModel) -> bool:

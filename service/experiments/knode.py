@@ -1,22 +1,23 @@
 """`KNODE`: Algorithm 1 as an estimator object a notebook user fits (pysindy/scikit-learn habit).
 
-Hyperparameters go to the constructor, `fit(flight)` runs the pre-training observer and the training and
-returns ``self``; what was learned ends in ``_``.
+Hyperparameters go to the constructor, `fit(flight)` (or `fit(flights)`, several flights of one vehicle) runs
+the pre-training observer and the training and returns ``self``; what was learned ends in ``_``.
 """
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 from learnest.models.presets import CRAZYFLIE_TRAINING
 
-from .flights import FLIGHT_SYSTEMS, train_on_flight
+from .flights import FLIGHT_SYSTEMS, train_on_flights
 
 
 class KNODE:
-    """A knowledge-based neural ODE, f = f_prior + Δθ, trained on one flight (paper Algorithm 1).
+    """A knowledge-based neural ODE, f = f_prior + Δθ, trained on one flight (paper Algorithm 1) or on several
+    flights of one vehicle (one pooled loss, whole flights held out for validation).
 
     Parameters
     ----------
@@ -30,8 +31,8 @@ class KNODE:
     lr : float
         Adam learning rate.
     validation_fraction : float
-        Share of the record held out in time blocks; the weights of the epoch that predicts it best
-        are kept.
+        Of one flight: share of the record held out in time blocks; the weights of the epoch that predicts
+        it best are kept.  Several flights are validated on whole held-out flights instead.
     seed : int
         Seed of the network's initial weights.
 
@@ -45,6 +46,11 @@ class KNODE:
         Held-out loss per epoch (empty when nothing is held out).
     seconds_ : float
         Wall time of the epochs, s.
+    learned_ : bool
+        False when no epoch predicted the held-out data better than the prior: ``model_`` equals its prior
+        (``model_.meta["learned_note"]`` says so in words).
+    training_flights_, validation_flights_ : list of str
+        Names of the flights trained on and of those held out whole (empty for one flight).
 
     Examples
     --------
@@ -61,15 +67,19 @@ class KNODE:
         self.system, self.hidden, self.epochs, self.lr = system, hidden, epochs, lr
         self.validation_fraction, self.seed = validation_fraction, seed
 
-    def fit(self, flight: Flight, progress: Callable[[int, float], None] | None = None) -> KNODE:
-        """Train on one flight.
+    def fit(self, flights: Flight | Sequence[Flight], progress: Callable[[int, float], None] | None = None,
+            validate: Sequence[str] | None = None) -> KNODE:
+        """Train on one flight, or on several flights of one vehicle.
 
         Parameters
         ----------
-        flight : Flight
-            The training flight (its position and world-frame acceleration are the measurements).
+        flights : Flight or sequence of Flight
+            The training flight(s) (position and world-frame acceleration are the measurements).  Several
+            flights train one residual on one pooled loss (`service.experiments.flights.train_on_flights`).
         progress : callable, optional
             Called as ``progress(epoch, mean_training_loss)`` after every epoch.
+        validate : sequence of str, optional
+            Names of the flights held out whole (default with several flights: one in five).
 
         Returns
         -------
@@ -79,19 +89,27 @@ class KNODE:
         Raises
         ------
         InvalidInput
-            If ``system`` cannot be fitted on a flight, or ``flight`` is not a Flight.
+            If ``system`` cannot be fitted on a flight, an item is not a Flight, or the flights are not one
+            vehicle's (the message names them).
         """
         if self.system not in FLIGHT_SYSTEMS:
             raise InvalidInput(f"system {self.system!r} cannot be fitted on a flight; choose one of "
                                f"{', '.join(FLIGHT_SYSTEMS)}")
-        if not isinstance(flight, Flight):
-            raise InvalidInput(f"fit needs a Flight (learnest.read_flights), got {type(flight).__name__}")
+        given = [flights] if isinstance(flights, Flight) else list(flights) \
+            if isinstance(flights, (list, tuple)) else [flights]
+        wrong = [type(f).__name__ for f in given if not isinstance(f, Flight)]
+        if wrong or not given:
+            raise InvalidInput(f"fit needs a Flight or a list of Flights (learnest.read_flights), got "
+                               f"{wrong[0] if wrong else 'an empty list'}")
         config = replace(CRAZYFLIE_TRAINING, hidden=self.hidden, epochs=self.epochs, lr=self.lr,
                          validation_fraction=self.validation_fraction, seed=self.seed)
-        result = train_on_flight(flight, config, progress=progress, system=self.system)
+        result = train_on_flights(given, config, progress=progress, system=self.system, validate=validate)
         self.model_ = result.model
         self.losses_, self.validation_losses_ = result.losses, result.validation_losses
         self.seconds_ = result.seconds
+        self.learned_ = result.learned
+        self.training_flights_ = [f["name"] for f in result.model.meta.get("training_flights", [])]
+        self.validation_flights_ = [f["name"] for f in result.model.meta.get("validation_flights", [])]
         return self
 
     def __repr__(self) -> str:

@@ -50,9 +50,10 @@ def report_progress(target: tuple[str, int] | None, fraction: float | None, stag
         return True
 
 
-def train_task(flight_bytes: bytes, config: dict, progress_target: tuple[str, int] | None = None,
-               meta: dict | None = None) -> dict:
-    """Algorithm 1 on one flight (service.experiments.flights.train_on_flight); the model comes back as JSON.
+def train_task(flight_bytes: bytes | list[bytes], config: dict, progress_target: tuple[str, int] | None = None,
+               meta: dict | None = None, validate: list[str] | None = None) -> dict:
+    """Algorithm 1 on one flight, or on several of one vehicle with the flights ``validate`` names held out
+    whole (service.experiments.flights.train_on_flights); the model comes back as JSON.
 
     ``config`` holds `TrainingConfig`'s fields; ``meta`` is added to the model's meta.  Returns
     ``model_json``, ``losses``, ``validation_losses``, ``seconds`` (the epochs), ``total_seconds`` (the
@@ -63,7 +64,7 @@ def train_task(flight_bytes: bytes, config: dict, progress_target: tuple[str, in
     """
     from learnest.models.training import TrainingConfig
 
-    from ..experiments.flights import train_on_flight
+    from ..experiments.flights import train_on_flights
 
     started = time.perf_counter()
     init_worker()
@@ -87,9 +88,11 @@ def train_task(flight_bytes: bytes, config: dict, progress_target: tuple[str, in
 
     hyper = dict(config)
     system = hyper.pop("system", "quadrotor")
-    flight = flight_from_bytes(flight_bytes)
-    report_progress(progress_target, 0.01, "observer (pre-training state estimates)")
-    result = train_on_flight(flight, TrainingConfig(**hyper), progress=on_epoch, system=system)
+    stored = [flight_bytes] if isinstance(flight_bytes, bytes) else flight_bytes
+    flights = [flight_from_bytes(data) for data in stored]
+    report_progress(progress_target, 0.01, "observer (pre-training state estimates)"
+                    + (f" of {len(flights)} flights" if len(flights) > 1 else ""))
+    result = train_on_flights(flights, TrainingConfig(**hyper), progress=on_epoch, system=system, validate=validate)
     model = result.model
     model.meta.update(meta or {})
     return {"model_json": registry.model_to_json(model), "losses": [float(x) for x in result.losses],
@@ -151,8 +154,10 @@ def diagnose_task(flights_bytes: list[bytes], model_json: bytes | None, methods:
 
 def training_metrics(model: HybridModel) -> dict:
     """What the registry keeps of a training run besides its weights and losses."""
-    return {key: model.meta.get(key) for key in ("final_loss", "best_epoch", "best_validation_loss", "envelope",
-                                                 "training_profile")}
+    return {**{key: model.meta.get(key) for key in ("final_loss", "best_epoch", "best_validation_loss", "envelope",
+                                                    "training_profile")},
+            **{key: model.meta[key] for key in ("prior_validation_loss", "learned", "learned_note", "validation",
+                                                "batch_pairs") if key in model.meta}}
 
 
 def diagnosis_metrics(model: HybridModel, report: dict) -> dict:

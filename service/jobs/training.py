@@ -1,6 +1,8 @@
-"""Training jobs: reserve a model version, train on the executor (Algorithm 1 on one stored flight), store
-the weights and mark the version ready; a failed job fails its version."""
+"""Training jobs: reserve a model version, train on the executor (Algorithm 1 on one stored flight, or on
+several flights of one vehicle), store the weights and mark the version ready; a failed job fails its version."""
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
@@ -25,40 +27,76 @@ def training_config(overrides: dict) -> dict:
             **{k: v for k, v in overrides.items() if v is not None}}
 
 
-def start_training(services: Services, name: str, flight_id: int, overrides: dict, parent: str | None = None,
-                   include_bad: bool = False) -> tuple[Job, ModelVersion]:
+def start_training(services: Services, name: str, flight_id: int | Sequence[int], overrides: dict,
+                   parent: str | None = None, include_bad: bool = False,
+                   validation_ids: Sequence[int] | None = None) -> tuple[Job, ModelVersion]:
     """Reserve name's next version, create the job and launch it.  -> (job, version)
+
+    ``flight_id`` is one stored flight (the paper's protocol: time blocks of it validate) or several, trained
+    on as one vehicle (`service.experiments.flights.train_on_flights`); ``validation_ids`` are held out whole
+    (also when not among ``flight_id``), by default one flight in five of several (`default_validation`).
+    The version's lineage records every training and validation flight.
 
     Raises
     ------
     InvalidInput
-        For a bad name, or a flight that failed the quality checks without ``include_bad``;
-        `quotas.QuotaExceeded` for more epochs, hidden units or work than the settings allow.
+        For a bad name, a flight given twice, every flight held out, flights whose rows declare different
+        vehicles, or a flight that failed the quality checks without ``include_bad``; `quotas.QuotaExceeded`
+        for more epochs, hidden units or work than the settings allow.
     NotFound
-        If the flight or the parent does not exist.
+        If a flight or the parent does not exist.
     Conflict
         If the parent version is not ready.
     """
+    from ..experiments.flights import default_validation
+
     registry.check_name(name)
+    ids = [flight_id] if isinstance(flight_id, int) else [int(i) for i in flight_id]
+    twice = sorted({i for i in ids if ids.count(i) > 1})
+    if not ids or twice:
+        raise InvalidInput(f"flight(s) given more than once: {', '.join(map(str, twice))}" if twice
+                           else "training needs at least one flight")
+    if validation_ids is None:
+        held = [ids[i] for i in default_validation(len(ids))]
+    else:
+        held = list(dict.fromkeys(int(i) for i in validation_ids))
+        ids += [i for i in held if i not in ids]
+    trained = [i for i in ids if i not in held]
+    if not trained:
+        raise InvalidInput(f"every flight is held out for validation ({', '.join(map(str, ids))}): keep one to "
+                           "train on")
     with services.db.transaction() as session:
-        flight = get_row(session, FlightRecord, flight_id, "flight")
-        if not flight.quality_ok and not include_bad:
-            raise InvalidInput(f"flight {flight_id} ({flight.name}) failed the quality checks "
-                          f"({'; '.join(flight.quality.get('issues', []))}); pass include_bad to train on it anyway")
+        rows = {i: get_row(session, FlightRecord, i, "flight") for i in ids}
+        for i, flight in rows.items():
+            if not flight.quality_ok and not include_bad:
+                raise InvalidInput(f"flight {i} ({flight.name}) failed the quality checks "
+                                   f"({'; '.join(flight.quality.get('issues', []))}); pass include_bad to train on "
+                                   "it anyway")
+        declared: dict[str, list[str]] = {}
+        for flight in rows.values():
+            if flight.vehicle:
+                declared.setdefault(flight.vehicle, []).append(flight.name)
+        if len(declared) > 1:   # what the uploads declared; the job checks the logs and the thrust maps too
+            listed = "; ".join(f"{vehicle}: {', '.join(names)}" for vehicle, names in declared.items())
+            raise InvalidInput(f"the training flights come from different vehicles ({listed}): one model is trained "
+                               "on one vehicle; train a model per vehicle")
         if parent is not None:
             resolved = registry.resolve(session, parent)
             parent = f"{resolved.name}:{resolved.version}"
-        samples = flight.samples
+        samples = sum(rows[i].samples for i in trained)
     config = training_config(overrides)
     quotas.check_training(services.settings, epochs=config["epochs"], hidden=config["hidden"], samples=samples)
     for attempt in range(20):  # another request may take the same version number first
         try:
             with services.db.transaction() as session:
-                flight = get_row(session, FlightRecord, flight_id, "flight")
-                job = services.runner.create(session, "training", {"name": name, "flight_id": flight_id,
+                flights = {i: get_row(session, FlightRecord, i, "flight") for i in ids}
+                job = services.runner.create(session, "training", {"name": name, "flight_id": trained[0],
+                                                                   "flight_ids": ids, "validation_ids": held,
                                                                    "config": config, "parent": parent})
-                version = registry.reserve_version(session, name, job_id=job.id, flight=flight,
-                                                   hyperparameters=config, parent=parent)
+                version = registry.reserve_version(session, name, job_id=job.id, flight=flights[trained[0]],
+                                                   hyperparameters=config, parent=parent,
+                                                   training_flights=[flights[i] for i in trained],
+                                                   validation_flights=[flights[i] for i in held])
             break
         except IntegrityError:
             if attempt == 19:
@@ -71,17 +109,25 @@ def start_training(services: Services, name: str, flight_id: int, overrides: dic
 
 def run_training(services: Services, ctx: JobContext, version_id: int) -> None:
     """The training job's work: train on the executor, store the weights, mark the version ready.  The job's
-    result has ``seconds`` (the epochs alone) and ``total_seconds`` (the job from start to stored weights)."""
+    result has ``seconds`` (the epochs alone), ``total_seconds`` (the job from start to stored weights),
+    ``training_flights`` and ``validation_flights`` (names) and ``learned``."""
     started_at = utcnow()
     with services.db.transaction() as session:
         version = get_row(session, ModelVersion, version_id, "model version")
-        flight = session.get(FlightRecord, version.training_flight_id)
-        if flight is None:
-            raise InvalidInput(f"training flight {version.training_flight_id} was deleted")
-        meta = {"name": version.name, "version": version.version, "training_flight_id": flight.id}
-        config, blob = dict(version.hyperparameters), flight.flight_blob
-    out = ctx.wait(services.executor, services.executor.submit(train_task, services.blobs.read_bytes(blob), config,
-                                                               ctx.progress_target, meta))
+        trained, held = registry.training_flights_of(version), list(version.validation_flights or [])
+        rows = []
+        for entry in trained + held:
+            flight = session.get(FlightRecord, entry["id"]) if entry.get("id") is not None else None
+            if flight is None:
+                raise InvalidInput(f"training flight {entry.get('id')} ({entry.get('name')}) was deleted")
+            rows.append(flight)
+        meta = {"name": version.name, "version": version.version, "training_flight_id": rows[0].id}
+        config, blobs = dict(version.hyperparameters), [flight.flight_blob for flight in rows]
+        validate = [flight.name for flight in rows[len(trained):]]
+    flight_bytes = services.blobs.read_bytes(blobs[0]) if len(blobs) == 1 else \
+        [services.blobs.read_bytes(blob) for blob in blobs]
+    out = ctx.wait(services.executor, services.executor.submit(train_task, flight_bytes, config,
+                                                               ctx.progress_target, meta, validate or None))
     ctx.progress(0.995, "storing the weights")
     weights = None
     try:
@@ -98,7 +144,10 @@ def run_training(services: Services, ctx: JobContext, version_id: int) -> None:
                 ctx.complete(session, {"name": version.name, "version": version.version,
                                        "final_loss": out["losses"][-1] if out["losses"] else None,
                                        "seconds": out["seconds"],
-                                       "total_seconds": (utcnow() - started_at).total_seconds()})
+                                       "total_seconds": (utcnow() - started_at).total_seconds(),
+                                       "training_flights": [f["name"] for f in trained],
+                                       "validation_flights": validate,
+                                       "learned": out["metrics"].get("learned", True)})
     except BaseException:  # cancelled at the last moment, or the row failed: no weights without their version
         if weights is not None:
             discard_blobs(services.db, services.blobs, [weights])

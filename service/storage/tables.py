@@ -89,6 +89,10 @@ class ModelVersion(Base):
     training_flight_id: Mapped[int | None] = mapped_column(Integer)
     training_flight_sha256: Mapped[str | None] = mapped_column(String(64))
     training_flight_name: Mapped[str | None] = mapped_column(String(200))
+    # every flight trained on / held out whole for validation: [{"id", "name", "sha256"}] (see 0007); the
+    # training_flight_* columns above are the first training flight's
+    training_flights: Mapped[list | None] = mapped_column(JSON)
+    validation_flights: Mapped[list | None] = mapped_column(JSON)
     parent: Mapped[str | None] = mapped_column(String(120))
     hyperparameters: Mapped[dict] = mapped_column(JSON)
     prior: Mapped[dict | None] = mapped_column(JSON)

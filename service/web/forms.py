@@ -11,6 +11,7 @@ themselves (GET) need no key, as in the JSON API.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Literal
 
 from fastapi import Request, UploadFile
@@ -103,10 +104,22 @@ def upload_text(vehicle: str, notes: str) -> tuple[str | None, str | None]:
     return optional(vehicle), optional(notes)
 
 
-def train_request(name: str, flight_id: str, epochs: str, include_bad: str | None) -> TrainRequest:
-    """The train form as POST /models' body (ValidationError names the bad field)."""
-    return TrainRequest.model_validate({"name": name.strip(), "flight_id": flight_id, "epochs": optional(epochs),
-                                        "include_bad": include_bad is not None})
+def train_request(name: str, flight_id: str, epochs: str, include_bad: str | None,
+                  flight_ids: Sequence[str] = (), system: str = "") -> TrainRequest:
+    """The train form as POST /models' body (ValidationError names the bad field): a flight's page sends its
+    ``flight_id``, the flight list the checked ``flight_ids`` (one checked is one flight, several train one
+    model on all of them); an empty ``system`` is the default prior."""
+    body: dict[str, object] = {"name": name.strip(), "epochs": optional(epochs), "include_bad": include_bad is not None}
+    checked = [i for i in flight_ids if i.strip()]
+    if len(checked) > 1:
+        body["flight_ids"] = checked
+    elif checked or optional(flight_id):
+        body["flight_id"] = checked[0] if checked else flight_id
+    else:
+        raise InvalidInput("choose the flight(s) to train on")
+    if optional(system):
+        body["system"] = system.strip()
+    return TrainRequest.model_validate(body)
 
 
 def alias_version(version: str) -> int:

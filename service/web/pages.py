@@ -199,11 +199,14 @@ def _trajectory(services: Services, row: FlightRecord) -> dict:
 @html_errors
 def train_model_form(request: Request, name: str = Form(""), flight_id: str = Form(""), epochs: str = Form(""),
                      include_bad: str | None = Form(None), api_key: str = Form(""),
+                     flight_ids: list[str] = Form(default=[]), system: str = Form(""),
                      services: Services = Depends(get_services)):
-    """Train form: start a training job (as POST /models does), then 303 to the job's page."""
+    """Train form (a flight's page: that flight; the flight list: the checked flights, several making one
+    model of one vehicle): start a training job (as POST /models does), then 303 to the job's page."""
     forms.require_key(request, services.settings, api_key)
-    body = forms.train_request(name, flight_id, epochs, include_bad)
-    job, _version = start_training(services, body.name, body.flight_id, {"epochs": body.epochs},
+    body = forms.train_request(name, flight_id, epochs, include_bad, flight_ids, system)
+    job, _version = start_training(services, body.name, body.flights(), {"epochs": body.epochs,
+                                                                          "system": body.system},
                                    include_bad=body.include_bad)
     return forms.redirect(f"/ui/jobs/{job.id}", services.settings, api_key)
 
@@ -294,6 +297,8 @@ def job_subject(job: Job) -> str:
     """What a job works on, in a few words ("quad on flight 3", "quad:1 on 4 flight(s)")."""
     payload = job.payload or {}
     if job.kind == "training":
+        if len(payload.get("flight_ids") or []) > 1:
+            return f"{payload.get('name')} on {len(payload['flight_ids'])} flights"
         return f"{payload.get('name')} on flight {payload.get('flight_id')}"
     if job.kind == "diagnosis":
         return f"diagnosis of {payload.get('model') or 'a model trained on the fitting flight'} on " \

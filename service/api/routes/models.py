@@ -23,6 +23,9 @@ def version_out(row: ModelVersion, aliases: dict[str, int], full: bool = True) -
     out = {"name": row.name, "version": row.version, "status": row.status, "job_id": row.job_id,
            "training_flight": {"id": row.training_flight_id, "sha256": row.training_flight_sha256,
                                "name": row.training_flight_name},
+           "training_flights": registry.training_flights_of(row),
+           "validation_flights": list(row.validation_flights or []),
+           "learned": (row.metrics or {}).get("learned"), "learned_note": (row.metrics or {}).get("learned_note"),
            "parent": row.parent, "hyperparameters": row.hyperparameters, "metrics": row.metrics,
            "error": row.error, "aliases": sorted(a for a, v in aliases.items() if v == row.version),
            "created_at": row.created_at, "ready_at": row.ready_at}
@@ -37,11 +40,14 @@ def version_out(row: ModelVersion, aliases: dict[str, int], full: bool = True) -
 @router.post("", status_code=202, response_model=TrainAccepted, dependencies=[Depends(require_api_key)])
 def train_model(body: TrainRequest, response: Response, services: Services = Depends(get_services)):
     """Train a KNODE on one stored flight (Algorithm 1, the Crazyflie settings of Sec. V-C unless
-    overridden) as a job; the next version number of `name` is reserved now and usable once ready."""
-    job, version = start_training(services, body.name, body.flight_id,
+    overridden) or on several flights of one vehicle (`flight_ids`: one pooled loss, whole flights held out
+    for validation, `validation_ids` or one in five) as a job; the next version number of `name` is reserved
+    now and usable once ready.  Flights of different vehicles fail the job with a message naming them."""
+    job, version = start_training(services, body.name, body.flights(),
                                   {"epochs": body.epochs, "hidden": body.hidden, "lr": body.lr,
                                    "system": body.system},
-                                  parent=body.parent, include_bad=body.include_bad)
+                                  parent=body.parent, include_bad=body.include_bad,
+                                  validation_ids=body.validation_ids)
     response.headers["Location"] = f"/jobs/{job.id}"
     return {"job_id": job.id, "name": version.name, "version": version.version, "status": version.status}
 
