@@ -111,7 +111,7 @@ IDENTIFIED = {
 # effect, e.g. a height-dependent thrust error, taking the term's place).  A fit at one of these bounds is
 # not an identified value (`models.diagnosis`).
 BOUNDS = {
-    "m_kg": (0.01, 0.1),
+    "m_kg": (0.005, 0.1),     # an effective mass against a PWM map can be below any real vehicle's
     "gamma": (0.0, 3.0),
     "q_pwm2": (-3.0, 3.0),
     "k_xy": (0.0, 2.0),
@@ -151,7 +151,8 @@ INPUT_NAMES = ("qx", "qy", "qz", "qw", "pwm1", "pwm2", "pwm3", "pwm4", "vbat")
 #               Förster's linear rotor-speed fit, so one thrust map serves both; the battery plays no part
 #               (the measured rotor speed already carries it), and neither does the motor's lag;
 #   "thrust_n"  the controller's collective thrust in N split equally over the four columns (crazyswarm2's
-#               ctrlLee.thrustSI): T_i = column_i, the mass the only scale between thrust and acceleration.
+#               ctrlLee.thrustSI): T_i = column_i·(V / V_ref)^gamma, the mass the only scale between thrust and
+#               acceleration; gamma (0 in the prior) is what the firmware's battery compensation leaves.
 THRUST_SOURCES = ("pwm", "rpm", "thrust_n")
 THRUST_SOURCE_KEY = "thrust_source"
 
@@ -191,7 +192,9 @@ def motor_thrust(pwm, vbat, params):
     prior's `thrust_source_of`) and the battery voltage (V); any array kind."""
     source = thrust_source_of(params)
     if source == "thrust_n":
-        return pwm
+        # gamma here (0 in the prior): how the thrust made departs from the command with the battery, i.e. the
+        # vehicle's exponent less the one the firmware's compensation assumes
+        return pwm * (vbat / params.get("v_ref", V_REF)) ** params["gamma"]
     if source == "rpm":
         pwm = (pwm - FOERSTER_OMEGA_OFFSET) / FOERSTER_OMEGA_SLOPE
     poly = params.get("q_pwm2", 1.0) * FOERSTER_A2 * pwm**2 + FOERSTER_A1 * pwm + FOERSTER_A0

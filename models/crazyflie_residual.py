@@ -118,7 +118,9 @@ def crazyflie_problem(flights: list[Flight], prior: dict | None = None, name: st
     data = [crazyflie_data(f, prior) for f in flights]
     # the battery and the motors' heating act between a PWM and the thrust: a rotor speed or a thrust in N
     # already carries both
-    skip = () if cf.thrust_source_of(prior) == "pwm" else ("battery_thrust", "motor_heating")
+    # (a commanded thrust keeps a battery term: what the firmware's compensation leaves, `models.crazyflie`)
+    skip = {"pwm": (), "thrust_n": ("motor_heating",)}.get(cf.thrust_source_of(prior),
+                                                           ("battery_thrust", "motor_heating"))
     candidates: list[Effect] = [e for e in crazyflie_effects(prior) if e.id not in skip] + \
         effects_for("crazyflie", "measurement")
     dynamic_names = [p.name for e in candidates if e.target == "dynamics" for p in e.params]
