@@ -350,17 +350,27 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
     confounded pairs and the selection trace.
 
     An effect is kept only if it lowers BIC_eff by more than ``DELTA_BIC`` and the blocked cross-validation
-    error by more than the fraction ``min_cv_gain`` (default ``MIN_CV_GAIN``: any gain).
+    error by more than the fraction ``min_cv_gain`` (default ``MIN_CV_GAIN``: any gain), and only if it does
+    not cancel an effect already chosen (`cancelling`: then the pair is reported in ``confounded`` with
+    ``cancelling`` True and the simpler, earlier explanation stays alone).
+
+    A fitted parameter is *identified* (and claimed) only when its 95 % interval excludes the prior's value,
+    it does not sit on a physical bound (`AT_BOUND_FRACTION`), and returning it to the prior's value costs at
+    least `MIN_PARAM_SHARE` of the residual the prior leaves.  A repair uses ``values_identified``: the
+    identified parameters refitted with every other one at the prior's value.
 
     Returns
     -------
     dict
         ``channel``; ``effects`` (per chosen effect: ``id``, ``target``, ``params``, ``held_nominal``,
-        ``nominal``, ``units``, ``ci95``, ``determined``, ``claimed`` (interval excludes the prior's value),
+        ``nominal``, ``units``, ``ci95``, ``determined``, ``identified`` and ``claimed`` (the same: see above),
+        ``at_bound``, ``bounds`` [lower, upper], ``explained_by_param`` (share of the prior's RSS each parameter
+        removes),
         ``explained_fraction`` of the baseline RSS, ``equation``, ``alternatives``: every rival within the
         criterion's threshold (BIC_eff within ``DELTA_BIC``, or removing ≥ ``ALTERNATIVE_FRACTION`` of the
         residual the effect removes) with ``id``, ``params`` it would take in the effect's place, ``units``,
         ``delta_bic``, ``fraction_of_chosen``), sorted by explained fraction; ``confounded``; ``values``;
+        ``values_identified``;
         ``rss_before``; ``rss_after``;
         ``trace``; ``fit`` (the final `Fit`); ``candidates`` (every candidate: ``id``, ``target``, ``chosen``,
         ``params`` fitted on its own, ``nominal``, ``units``, ``delta_bic_alone`` its BIC_eff change alone).

@@ -155,7 +155,11 @@ def test_a_repair_that_does_not_help_held_out_flights_is_not_registered(tmp_path
     for name in ("LEARNEST_DATABASE_URL", "LEARNEST_DASK", "LEARNEST_API_KEY"):
         monkeypatch.delenv(name, raising=False)
     paths = []
-    for i, f in enumerate(_flights(BASE, "pwm", n=2)):       # nothing to repair: the truth is the prior
+    # the fitting flight carries an 8 % payload the held-out one does not: a repair for it hurts held-out data
+    loaded = simulate_crazyflie(SimulatedFlight(truth={**cf.IDENTIFIED, "m_kg": 1.08 * cf.IDENTIFIED["m_kg"]},
+                                                duration_s=20), seed=0)
+    plain = simulate_crazyflie(SimulatedFlight(duration_s=20), seed=1)
+    for i, f in enumerate([loaded, plain]):
         paths.append(str(tmp_path / f"f{i}.csv"))
         nanobench.write(paths[-1], f.t + 1.7e9, f.p, f.quat, f.channels["acc_body"] / cf.GRAVITY,
                         motors=f.channels["motors"], vbat=f.channels["vbat"])
@@ -163,6 +167,9 @@ def test_a_repair_that_does_not_help_held_out_flights_is_not_registered(tmp_path
     assert main([*args, "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert "registered" not in report and "does not improve" in report["not_registered"]
+    gain = next(e for e in report["effects"] if e["id"] == "thrust_gain")
+    assert gain["params"]["gain"] == pytest.approx(1 / 1.08, rel=0.02)        # found on the fitting flight
+    assert gain["identified"] == {"gain": False} and "does not transfer" in gain["held_out"]
     assert main([*args, "--force", "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["registered"]["version"] == 1 and "--force" in report["registered"]["warning"]

@@ -27,7 +27,14 @@ from learnest.ingest.profile import flight_profile
 from learnest.models import crazyflie as cf
 from learnest.models.backend import rk4_step
 from learnest.models.crazyflie_residual import CRAZYFLIE_MIN_CV_GAIN, crazyflie_problem, specific_force_rmse
-from learnest.models.diagnosis import MULTIPLE_SHARE, ResidualProblem, select_effects
+from learnest.models.diagnosis import (
+    AT_BOUND_FRACTION,
+    MULTIPLE_SHARE,
+    ResidualProblem,
+    bootstrap_ci,
+    fit,
+    select_effects,
+)
 from learnest.models.effects import (
     LIBRARY,
     Effect,
@@ -372,6 +379,10 @@ def _diagnose_quadrotor(flights: list[Flight], knode: HybridModel | None, method
     return (report, knode_after) if return_model else report
 
 
+THRUST_SOURCE_TEXT = {"pwm": "motor PWM and battery voltage", "rpm": "rotor speed (rpm deck)",
+                      "thrust_n": "the controller's thrust command in N"}
+
+
 # -- Crazyflie flights, input-driven prior -------------------------------------------------------------
 def _split_crazyflie(flights: list[Flight]):
     """Fit on the first half of the flights (rounded up; blocked CV by flight when that is several), score
@@ -561,7 +572,8 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
     fitting, scoring, split = _split_crazyflie(flights)
     problem = crazyflie_problem(fitting, prior)
     selection = select_effects(problem, min_cv_gain=CRAZYFLIE_MIN_CV_GAIN)
-    values = selection["values_identified"]
+    held_out_problems = [crazyflie_problem([flight], prior) for flight in scoring]
+    values = _transferring(selection, held_out_problems, [f.name for f in scoring])
     chosen = [e for e in problem.candidates if e.id in {c["id"] for c in selection["effects"]}]
     repaired = {**prior, **{p.name: values[p.name] for e in chosen if e.target == "dynamics" for p in e.params
                             if p.name in values}}
@@ -582,8 +594,7 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
     per_flight: list[dict] = []
     mhe_cache: dict = {}
     series: dict = {}
-    for flight in scoring:
-        held_out = crazyflie_problem([flight], prior)
+    for flight, held_out in zip(scoring, held_out_problems):
         # the specific force predicted from the inputs on the first held-out flight, before and after
         series = series or {selection["channel"]: residual_series(held_out, values, flight.name)}
         b = {"specific_force_rmse": specific_force_rmse(held_out)}
@@ -619,7 +630,59 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
                       "specific_force_rmse_fitting_after": specific_force_rmse(problem, values)},
         "channels": {selection["channel"]: _channel(selection)}, "residual_series": series}
     report["repair"] = repair_verdict(report, methods)
+    if source == "pwm":
+        report["thrust_map_fit"] = thrust_map_fit(problem, prior, declared)
     return (report, model_after) if return_model else report
+
+
+def _transferring(selection: dict, held_out: list, names: list[str]) -> dict:
+    """``selection``'s identified values without the effects that make the held-out flights worse.
+
+    Each chosen effect with an identified parameter is scored on every held-out flight: the specific-force
+    RMSE from the inputs with the identified values, against the same without that effect.  An effect that
+    does not lower it on more than half the held-out flights does not transfer: its entries are marked not
+    identified (``held_out`` says why) and the repair leaves it out.  Returns the values a repair uses."""
+    values = dict(selection["values_identified"])
+    for effect in selection["effects"]:
+        names_ = [k for k, ok in effect["identified"].items() if ok and k in values]
+        if not names_ or not held_out:
+            continue
+        without = {k: v for k, v in values.items() if k not in names_}
+        better = [specific_force_rmse(p, values) < specific_force_rmse(p, without) for p in held_out]
+        effect["held_out_better"] = f"{sum(better)}/{len(better)}"
+        if 2 * sum(better) <= len(better):
+            worse = [n for n, b in zip(names, better) if not b]
+            effect["held_out"] = (f"does not transfer: the held-out specific force is not better with it on "
+                                  f"{len(worse)} of {len(better)} flights ({', '.join(worse)}); not claimed, not repaired")
+            for k in names_:
+                effect["identified"][k] = effect["claimed"][k] = False
+            values = without
+    return values
+
+
+def thrust_map_fit(problem, prior: dict, declared: float | None) -> dict:
+    """The thrust gain and battery exponent against the prior's PWM map, fitted together on the fitting
+    flights with 95 % block-bootstrap intervals, whether or not the selection chose them: how far this
+    vehicle's thrust is from the map.  ``gain`` = m_prior / m_fit (dimensionless), or ``m_kg`` scaled onto a
+    declared mass; ``gamma`` the exponent of (V / V_ref); ``at_bound`` for each fitted parameter."""
+    effects = [e for e in problem.candidates if e.id in ("mass", "battery_thrust")]
+    fitted = fit(problem, effects)
+    intervals = bootstrap_ci(problem, fitted)
+    m_prior = float(prior["m_kg"])
+    m_fit, (m_lo, m_hi) = fitted.values["m_kg"], intervals["m_kg"]
+    params = {p.name: p for e in effects for p in e.params}
+    out = {"gain": m_prior / m_fit, "gain_ci95": [m_prior / m_hi, m_prior / m_lo],
+           "gamma": fitted.values["gamma"], "gamma_ci95": intervals["gamma"], "gamma_prior": float(prior["gamma"]),
+           "at_bound": {k: bool(_at_bound_param(params[k], fitted.values[k])) for k in ("m_kg", "gamma")},
+           "gamma_bounds": list(cf.BOUNDS["gamma"])}
+    if declared is not None:
+        out.update(m_kg=declared * m_fit / m_prior, m_kg_ci95=[declared * m_lo / m_prior, declared * m_hi / m_prior])
+    return out
+
+
+def _at_bound_param(param, value) -> bool:
+    margin = AT_BOUND_FRACTION * (param.upper - param.lower)
+    return value <= param.lower + margin or value >= param.upper - margin
 
 
 def repair_interval(before: dict, after: dict, method: str, dt: float) -> list[float] | None:
@@ -638,7 +701,8 @@ def repair_verdict(report: dict, methods: Sequence[str]) -> dict:
     The deciding method is the first KNODE method asked for, else the first.  The repair improves when its
     median held-out MSE is lower, no held-out flight is clearly worse (its gain interval wholly below 0) and
     at least one is clearly better (wholly above 0); without an estimator, when the specific-force RMSE is
-    lower on every held-out flight.  Returns {"improves": bool, "method", "reason"}.
+    lower on every held-out flight.  A flight too short for an interval counts as better or worse by its MSE
+    alone.  Returns {"improves": bool, "method", "reason"}.
     """
     per_flight = report["per_flight"]
     if not report["effects"] or not any(any(e.get("identified", {}).values()) for e in report["effects"]):
@@ -653,6 +717,11 @@ def repair_verdict(report: dict, methods: Sequence[str]) -> dict:
     intervals = [p["repair_gain_interval_pct"].get(method) for p in per_flight]
     worse = [p["flight"] for p, i in zip(per_flight, intervals) if i and i[1] < 0]
     better = [p["flight"] for p, i in zip(per_flight, intervals) if i and i[0] > 0]
+    # a flight too short for an interval (fewer than 3 bootstrap blocks) counts by its MSE alone
+    untold = [p for p, i in zip(per_flight, intervals) if i is None]
+    worse += [p["flight"] for p in untold if p["after"][method] >= p["before"][method]]
+    better += [p["flight"] + " (too short for an interval: by its MSE)" for p in untold
+               if p["after"][method] < p["before"][method]]
     if a >= b:
         reason = f"held-out median {method} MSE does not improve ({b:.4g} → {a:.4g})"
     elif worse:
@@ -719,6 +788,20 @@ def format_diagnosis(result: dict) -> str:
         prior = result["prior"]["params"]
         lines.append("  prior: " + ", ".join(f"{k} = {v:.4g} {cf.UNITS.get(k, '')}".rstrip() for k, v in prior.items()
                                             if k in cf.UNITS))
+    if result.get("thrust_source"):
+        declared = result.get("declared_mass_kg")
+        lines.append(f"  thrust from: {THRUST_SOURCE_TEXT[result['thrust_source']]}"
+                     + (f"; declared mass {declared:g} kg" if declared else "; no declared mass"))
+    if result.get("vehicle_fits_prior"):
+        fits = result["vehicle_fits_prior"]
+        lines.append(f"  {'vehicle fits the prior' if fits['ok'] else 'VEHICLE DOES NOT FIT THE PRIOR'}: {fits['message']}")
+    if result.get("thrust_map_fit"):
+        t = result["thrust_map_fit"]
+        lines.append(f"  thrust against the prior's map, gain and battery exponent fitted together: gain {t['gain']:.4g} "
+                     f"[{t['gain_ci95'][0]:.4g}, {t['gain_ci95'][1]:.4g}], gamma {t['gamma']:.3g} "
+                     f"[{t['gamma_ci95'][0]:.3g}, {t['gamma_ci95'][1]:.3g}] (prior {t['gamma_prior']:.3g})"
+                     + ("; at a bound: " + ", ".join(k for k, b in t["at_bound"].items() if b)
+                        if any(t["at_bound"].values()) else ""))
     if result.get("simulated_truth"):
         lines.append(f"  (simulated; truth hidden from the diagnosis: {result['simulated_truth']})")
     if not result["effects"]:
@@ -735,6 +818,12 @@ def format_diagnosis(result: dict) -> str:
                                                           for k, v in e["nominal"].items()))
         for name, why in e.get("held_nominal", {}).items():
             lines.append(f"    {name}: {why}")
+        at_bound = [k for k, b in e.get("at_bound", {}).items() if b]
+        if at_bound:
+            lines.append(f"    at a physical bound, so not identified: {', '.join(at_bound)}")
+        for key in ("note", "held_out"):
+            if e.get(key):
+                lines.append(f"    {e[key]}")
         shaky = [k for k in shaky if k not in e.get("held_nominal", {})]
         if shaky:
             lines.append(f"    not pinned down by this data: {', '.join(shaky)}")
@@ -747,6 +836,9 @@ def format_diagnosis(result: dict) -> str:
                          f"(ΔBIC_eff {alt['delta_bic']:+g})")
     for c in result["confounded"]:
         lines.append(f"  {confounded_label(c)}: {c['note']}")
+    if result.get("repair"):
+        r = result["repair"]
+        lines.append(f"  repair {'improves' if r['improves'] else 'does not improve'} the held-out flights: {r['reason']}")
     note = unchanged_prior_note(result)
     if note:
         lines.append(f"  {note}")
