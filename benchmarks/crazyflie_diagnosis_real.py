@@ -73,7 +73,8 @@ def main() -> None:
                   "```", format_diagnosis(report), "```", "",
                   f"- thrust source: {report['thrust_source']}; declared mass: {report['declared_mass_kg']}",
                   f"- vehicle fits the prior: {json.dumps(report['vehicle_fits_prior'], ensure_ascii=False)}",
-                  f"- claimed: {check['claimed'] or 'nothing'}; claimed at a bound: {check['claimed_at_bound'] or 'none'};"
+                  f"- claimed: {check['claimed'] or 'nothing'}; "
+                  f"claimed at a bound: {check['claimed_at_bound'] or 'none'};"
                   f" claimed outside the physical range: {check['claimed_outside_bounds'] or 'none'}",
                   f"- held-out flights improved: {check['improved_flights']}; repair verdict: {check['repair']}", ""]
         for e in report["effects"]:

@@ -8,7 +8,8 @@ held-out body-frame specific-force RMSE before and after (fitted on 2 flights, s
 whether anything is claimed at a bound.
 
 Run from the repository root:
-    .venv/bin/python benchmarks/crazyflie_diagnosis_sources.py > benchmarks/results/crazyflie_diagnosis_sources/results.md
+    .venv/bin/python benchmarks/crazyflie_diagnosis_sources.py \
+        > benchmarks/results/crazyflie_diagnosis_sources/results.md
 (also writes results.json beside it)
 """
 from __future__ import annotations

@@ -50,8 +50,8 @@ CRAZYFLIE_MIN_CV_GAIN = 0.005
 # the residual is low-passed at 5 Hz: every 4th sample (25 Hz at a 100 Hz log) carries all it holds, and
 # the fits run 4 times faster
 ROW_STRIDE = 4
-LINEAR = ("m_kg", "k_xy", "k_z")
-MIN_ROWS = 50      # rows (25 Hz): 2 s of flight, the least a fit of a few parameters and its bootstrap need   # parameters the predicted force is linear in (through 1/m_kg for the mass)
+LINEAR = ("m_kg", "k_xy", "k_z")   # parameters the predicted force is linear in (through 1/m_kg for the mass)
+MIN_ROWS = 50      # rows (25 Hz): 2 s of flight, the least a fit of a few parameters and its bootstrap need
 
 
 @dataclass

@@ -331,7 +331,7 @@ def cancelling(problem: ResidualProblem, values: dict, a, b) -> dict | None:
     if na == 0 or nb == 0:
         return None
     cosine = float(ca @ cb / (na * nb))
-    ratio = float(min(na, nb) / max(nab, 1e-300))
+    ratio = float(min(float(na), float(nb)) / max(float(nab), 1e-300))
     return {"cosine": round(cosine, 4), "ratio": round(ratio, 2)} \
         if cosine < CANCEL_COSINE and ratio > CANCEL_RATIO else None
 
@@ -407,8 +407,11 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
             step["stop"] = "no candidate lowers BIC_eff enough"
             trace.append(step)
             break
-        cancels = [(c, cancelling(problem, best.values, c, best.effects[-1])) for c in chosen]
-        cancels = [(c, how) for c, how in cancels if how]
+        cancels: list[tuple[Effect, dict]] = []
+        for c in chosen:
+            how = cancelling(problem, best.values, c, best.effects[-1])
+            if how:
+                cancels.append((c, how))
         if cancels:
             # never both: the simpler explanation (the one already chosen) stays, the pair is reported
             rival = best.effects[-1]

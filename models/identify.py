@@ -68,7 +68,7 @@ def interpolated_rows(values: np.ndarray, tol: float = 1e-9) -> np.ndarray:
 def flight_arrays(flight: Flight, source: str = "pwm") -> FlightArrays:
     """Arrays for identification, the thrust columns from ``source`` (`models.crazyflie.THRUST_SOURCES`);
     raises ValueError naming the missing inputs."""
-    from .inputs import SOURCE_CHANNELS, thrust_columns   # inputs imports this module's neighbours
+    from .inputs import SOURCE_CHANNELS, thrust_columns  # inputs imports this module's neighbours
 
     missing = [name for name in (*SOURCE_CHANNELS[source], "acc_body") if name not in flight.channels]
     if missing:

@@ -34,7 +34,8 @@ from learnest.ingest.frames import GRAVITY, quat_to_matrix
 from . import crazyflie as cf
 from .identify import FlightArrays, first_order_lag, lowpass, rmse_constant
 
-__all__ = ["TERMS", "BenchMap", "ThrustMap", "fit_bench_map", "columns", "design", "fit_thrust_map", "r2", "readings", "rmse_constant", "stacked"]
+__all__ = ["TERMS", "BenchMap", "ThrustMap", "columns", "design", "fit_bench_map", "fit_thrust_map", "r2", "readings",
+           "rmse_constant", "stacked"]
 
 TERMS = ("1", "Σp", "Σp^2", "split", "V", "V·Σp", "V^2", "tilt", "vz+", "vz-")
 # Motor lags a 7-mm brushed motor can have (tens of ms; the physics fit finds 61 ms).  A longer grid lets the
@@ -219,8 +220,7 @@ def fit_bench_map(kind: str, x: np.ndarray, thrust_n: np.ndarray, vbat: np.ndarr
         return (c2 * xs**2 + c1 * xs + c0) * ratio ** gamma - thrust_n
 
     start = np.r_[np.polyfit(x / scale, thrust_n, 2), 1.0 if fit_gamma else 0.0]
-    solution = least_squares(residual, start) if fit_gamma else None
-    theta = solution.x if fit_gamma else start
+    theta = least_squares(residual, start).x if fit_gamma else start
     c2, c1, c0 = theta[0] / scale**2, theta[1] / scale, theta[2]
     pwm = x if kind == "pwm" else (x - cf.FOERSTER_OMEGA_OFFSET) / cf.FOERSTER_OMEGA_SLOPE
     prior = cf.FOERSTER_A2 * pwm**2 + cf.FOERSTER_A1 * pwm + cf.FOERSTER_A0

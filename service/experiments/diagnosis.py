@@ -445,8 +445,11 @@ def crazyflie_prior_for(flights: list[Flight], knode: HybridModel | None = None,
             return cf.prior_for(source, declared), source, declared
     lacking = next(f for f, s in zip(flights, sources) if s is None) if None in sources else flights[0]
     raise MissingInputs(f"{lacking.name}: the 'crazyflie' prior needs the thrust from the log, and the flights "
-                        f"do not share one source ({', '.join(CHANNEL_SOURCES[c] for c in ('motors', 'vbat', 'rotor_speed', 'thrust_si'))}). "
+                        f"do not share one source ({'; '.join(CHANNEL_SOURCES[c] for c in ALL_THRUST_CHANNELS)}). "
                         "The kinematic prior (system 'quadrotor') works without them.")
+
+
+ALL_THRUST_CHANNELS = ("motors", "vbat", "rotor_speed", "thrust_si")
 
 
 def _carries(flight: Flight, source: str) -> bool:
@@ -653,7 +656,8 @@ def _transferring(selection: dict, held_out: list, names: list[str]) -> dict:
         if 2 * sum(better) <= len(better):
             worse = [n for n, b in zip(names, better) if not b]
             effect["held_out"] = (f"does not transfer: the held-out specific force is not better with it on "
-                                  f"{len(worse)} of {len(better)} flights ({', '.join(worse)}); not claimed, not repaired")
+                                  f"{len(worse)} of {len(better)} flights ({', '.join(worse)}); not claimed, "
+                                  "not repaired")
             for k in names_:
                 effect["identified"][k] = effect["claimed"][k] = False
             values = without
@@ -708,15 +712,15 @@ def repair_verdict(report: dict, methods: Sequence[str]) -> dict:
     if not report["effects"] or not any(any(e.get("identified", {}).values()) for e in report["effects"]):
         return {"improves": False, "method": None, "reason": "no identified effect: the repaired prior is the prior"}
     if not methods:
-        better = all(p["after"]["specific_force_rmse"] < p["before"]["specific_force_rmse"] for p in per_flight)
-        return {"improves": better, "method": "specific_force_rmse",
-                "reason": ("the specific force from the inputs is better on every held-out flight" if better else
+        everywhere = all(p["after"]["specific_force_rmse"] < p["before"]["specific_force_rmse"] for p in per_flight)
+        return {"improves": everywhere, "method": "specific_force_rmse",
+                "reason": ("the specific force from the inputs is better on every held-out flight" if everywhere else
                            "the specific force from the inputs is not better on every held-out flight")}
     method = next((m for m in methods if m.startswith("knode")), methods[0])
     b, a = report["before"][method], report["after"][method]
     intervals = [p["repair_gain_interval_pct"].get(method) for p in per_flight]
-    worse = [p["flight"] for p, i in zip(per_flight, intervals) if i and i[1] < 0]
-    better = [p["flight"] for p, i in zip(per_flight, intervals) if i and i[0] > 0]
+    worse: list[str] = [p["flight"] for p, i in zip(per_flight, intervals) if i and i[1] < 0]
+    better: list[str] = [p["flight"] for p, i in zip(per_flight, intervals) if i and i[0] > 0]
     # a flight too short for an interval (fewer than 3 bootstrap blocks) counts by its MSE alone
     untold = [p for p, i in zip(per_flight, intervals) if i is None]
     worse += [p["flight"] for p in untold if p["after"][method] >= p["before"][method]]
@@ -794,10 +798,12 @@ def format_diagnosis(result: dict) -> str:
                      + (f"; declared mass {declared:g} kg" if declared else "; no declared mass"))
     if result.get("vehicle_fits_prior"):
         fits = result["vehicle_fits_prior"]
-        lines.append(f"  {'vehicle fits the prior' if fits['ok'] else 'VEHICLE DOES NOT FIT THE PRIOR'}: {fits['message']}")
+        verdict = "vehicle fits the prior" if fits["ok"] else "VEHICLE DOES NOT FIT THE PRIOR"
+        lines.append(f"  {verdict}: {fits['message']}")
     if result.get("thrust_map_fit"):
         t = result["thrust_map_fit"]
-        lines.append(f"  thrust against the prior's map, gain and battery exponent fitted together: gain {t['gain']:.4g} "
+        lines.append(f"  thrust against the prior's map, gain and battery exponent fitted together: gain "
+                     f"{t['gain']:.4g} "
                      f"[{t['gain_ci95'][0]:.4g}, {t['gain_ci95'][1]:.4g}], gamma {t['gamma']:.3g} "
                      f"[{t['gamma_ci95'][0]:.3g}, {t['gamma_ci95'][1]:.3g}] (prior {t['gamma_prior']:.3g})"
                      + ("; at a bound: " + ", ".join(k for k, b in t["at_bound"].items() if b)
@@ -838,7 +844,8 @@ def format_diagnosis(result: dict) -> str:
         lines.append(f"  {confounded_label(c)}: {c['note']}")
     if result.get("repair"):
         r = result["repair"]
-        lines.append(f"  repair {'improves' if r['improves'] else 'does not improve'} the held-out flights: {r['reason']}")
+        does = "improves" if r["improves"] else "does not improve"
+        lines.append(f"  repair {does} the held-out flights: {r['reason']}")
     note = unchanged_prior_note(result)
     if note:
         lines.append(f"  {note}")

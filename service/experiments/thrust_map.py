@@ -167,7 +167,8 @@ def read_bench_csv(path) -> dict:
     thrust_name = next((n for n in BENCH_COLUMNS["thrust"] if n in header), None)
     x_name = next((n for n in BENCH_COLUMNS["x"] if n in header), None)
     if thrust_name is None or x_name is None:
-        raise InvalidInput(f"{path}: a bench calibration needs a thrust column ({' or '.join(BENCH_COLUMNS['thrust'])}) "
+        raise InvalidInput(f"{path}: a bench calibration needs a thrust column "
+                           f"({' or '.join(BENCH_COLUMNS['thrust'])}) "
                            f"and what drove it ({' or '.join(BENCH_COLUMNS['x'])}); the header has "
                            f"{', '.join(header) or 'nothing'}")
     thrust = column(thrust_name) * (cf.GRAVITY / 1000.0 if thrust_name == "thrust_g" else 1.0)
