@@ -324,7 +324,8 @@ def _diagnose_quadrotor(flights: list[Flight], knode: HybridModel | None, method
     flights = [f for f in flights if f.quality["ok"]] or flights
     fitting, scoring, split = _split_for_fitting(flights)
     accel = select_effects(accelerometer_problem(fitting))
-    fixed_fitting = [corrected_flight(f, accel["values"]) for f in fitting]
+    # only identified parameters repair (models.diagnosis.select_effects: a fit at a bound is no value)
+    fixed_fitting = [corrected_flight(f, accel["values_identified"]) for f in fitting]
     # the fitting data is one flight (or the first 60 % of one): trace the jerk residual on its states
     fitting_flight = fixed_fitting[0]
     system = quadrotor_for(fitting_flight)
@@ -333,7 +334,7 @@ def _diagnose_quadrotor(flights: list[Flight], knode: HybridModel | None, method
     dynamics = select_effects(dynamics_problem(system, zeta, no_input, system.dt, effects_for("quadrotor", "dynamics"),
                                                components=[6, 7, 8], name="translational dynamics"))
     chosen_dyn = [LIBRARY[e["id"]] for e in dynamics["effects"]]
-    new_prior = dynamics_params(system, dynamics["values"], chosen_dyn)
+    new_prior = dynamics_params(system, {**_nominal(chosen_dyn), **dynamics["values_identified"]}, chosen_dyn)
 
     config = replace(CRAZYFLIE_TRAINING, epochs=epochs)
     knode_before = knode or train_on_flight(fitting[0], config).model
@@ -342,8 +343,8 @@ def _diagnose_quadrotor(flights: list[Flight], knode: HybridModel | None, method
     knode_after = train_knode(repaired_system, zeta_after, no_input, system.dt, config).model
     chosen_meas = [LIBRARY[e["id"]] for e in accel["effects"]]
     knode_after.meta.update({
-        "measurement_effects": {p.name: accel["values"][p.name] for e in chosen_meas for p in e.params
-                                if p.name in accel["values"]},
+        "measurement_effects": {p.name: accel["values_identified"][p.name] for e in chosen_meas for p in e.params
+                                if p.name in accel["values_identified"]},
         "effects": [e["id"] for e in accel["effects"] + dynamics["effects"]],
         "training_flight": fitting[0].name,
         "training_flight_sha256": [s["sha256"] for s in fitting[0].meta.get("sources", [])],
@@ -354,10 +355,13 @@ def _diagnose_quadrotor(flights: list[Flight], knode: HybridModel | None, method
     per_flight: list[dict] = []
     mhe_cache: dict = {}  # keyed by model: before and after never share an MHE
     for flight in scoring:
-        b = evaluate_flight(knode_before, flight, methods, mhe_cache=mhe_cache)["results"]
-        a = evaluate_flight(knode_after, flight, methods, mhe_cache=mhe_cache)["results"]
+        scored_b = evaluate_flight(knode_before, flight, methods, mhe_cache=mhe_cache, keep_estimates=True)
+        scored_a = evaluate_flight(knode_after, flight, methods, mhe_cache=mhe_cache, keep_estimates=True)
+        b, a = scored_b["results"], scored_a["results"]
         per_flight.append({"flight": flight.name, "before": {m: b[m]["mse"] for m in methods},
-                           "after": {m: a[m]["mse"] for m in methods}})
+                           "after": {m: a[m]["mse"] for m in methods},
+                           "repair_gain_interval_pct": {m: repair_interval(scored_b, scored_a, m, flight.dt)
+                                                        for m in methods}})
         for m in methods:
             before[m].append(b[m]["mse"])
             after[m].append(a[m]["mse"])
@@ -373,10 +377,14 @@ def _diagnose_quadrotor(flights: list[Flight], knode: HybridModel | None, method
         "residuals": _residual_summary(fitting, fixed_fitting, accel, dynamics, knode_before),
         "channels": {"accelerometer": _channel(accel), "translational dynamics": _channel(dynamics)},
         # the accelerometer residual on the first held-out flight, before and after its effects
-        "residual_series": {"accelerometer": residual_series(accelerometer_problem(scoring[:1]), accel["values"],
-                                                             scoring[0].name)}
+        "residual_series": {"accelerometer": residual_series(accelerometer_problem(scoring[:1]),
+                                                             accel["values_identified"], scoring[0].name)}
         if "acc_body" in scoring[0].channels else {}}
     return (report, knode_after) if return_model else report
+
+
+def _nominal(effects) -> dict:
+    return {k: v for e in effects for k, v in e.nominal().items()}
 
 
 THRUST_SOURCE_TEXT = {"pwm": "motor PWM and battery voltage", "rpm": "rotor speed (rpm deck)",
