@@ -275,8 +275,8 @@ def bootstrap_ci(problem: ResidualProblem, final: Fit, replicates: int = BOOTSTR
     Returns {parameter name: [2.5 %, 97.5 %] percentile} for each fitted parameter of ``final``
     (empty if it has no effects); the block length is 2τ, clipped to [5, n/5] rows.
     """
-    if not final.effects:
-        return {}
+    if not final.effects or len(final.residual) < 2:
+        return {}      # nothing fitted, or no rows to resample (a problem without samples is refused upstream)
     rng = np.random.default_rng(seed)
     r = final.residual
     n = len(r)

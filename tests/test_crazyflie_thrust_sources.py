@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -25,7 +26,9 @@ from learnest.service.experiments.thrust_map import bench_thrust_map_report
 
 M0 = 0.016
 BASE = {**cf.IDENTIFIED, "m_kg": M0, "kappa_th": 0.0}
-LOG182 = "../shared/data/crazyswarm2-tools/log182"
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+LOG182 = str(DATA / "crazyswarm2-tools" / "log182")
+NANOBENCH = DATA / "nanobench"
 
 
 def _flights(truth, source, n=3, controller=BASE, **settings):
@@ -175,6 +178,19 @@ def test_a_repair_that_does_not_help_held_out_flights_is_not_registered(tmp_path
     assert report["registered"]["version"] == 1 and "--force" in report["registered"]["warning"]
     assert main(["models", "show", "cf:1"]) == 0
     assert "prior crazyflie" in capsys.readouterr().out
+
+
+@pytest.mark.data
+def test_nanobench_gives_the_thrust_gain_and_battery_exponent_with_intervals():
+    flights = read_flights(sorted(str(p) for p in NANOBENCH.glob("B2_circle_fast_rep*.csv")))
+    report = diagnose_crazyflie(flights, methods=())
+    _contract(report)
+    fit = report["thrust_map_fit"]
+    # the prior was identified on this vehicle: its map holds to a few %, with an interval around the values
+    assert fit["gain_ci95"][0] <= fit["gain"] <= fit["gain_ci95"][1] and abs(fit["gain"] - 1) < 0.1
+    assert fit["gamma_ci95"][0] <= fit["gamma"] <= fit["gamma_ci95"][1]
+    assert cf.BOUNDS["gamma"][0] < fit["gamma"] < cf.BOUNDS["gamma"][1] and not any(fit["at_bound"].values())
+    assert report["vehicle_fits_prior"]["ok"]
 
 
 @pytest.mark.data
