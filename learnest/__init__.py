@@ -7,7 +7,7 @@ The notebook API::
     knode = le.KNODE(epochs=150).fit(flights[0])       # Algorithm 1 on one flight (or .fit(flights[:8]): pooled)
     post = le.ukf(knode.model_, flights[1])            # FilterResult(t, means, covariances, innovations)
     report = le.evaluate(knode.model_, flights[1:])    # MSE per method and flight, medians, improvement
-    diagnosis = le.diagnose(flights, model=knode.model_)
+    diagnosis = le.diagnose(flights, model=knode.model_)   # or system="crazyflie": thrust from PWM, rpm or N
     thrust = le.thrust_map(flights[:8], flights[8:])   # thrust map fitted on some flights, scored on others
 
 Names are imported on first use, so ``import learnest`` stays fast (torch, CasADi and filterpy load only

@@ -105,14 +105,19 @@ IDENTIFIED = {
 }
 
 # Plausible ranges: fits are constrained to them and the effect library may use them as priors.
+# Physical, not numerical: thrust grows with the battery voltage (gamma ≥ 0), a brushed 7-mm motor's lag is
+# tens of ms (≤ 0.1 s), rotor drag opposes the airspeed (k ≥ 0), and the ground effect's radius is the
+# rotor's within a factor of 2 (Cheeseman–Bennett's r is the rotor radius; a fit far from it is another
+# effect, e.g. a height-dependent thrust error, taking the term's place).  A fit at one of these bounds is
+# not an identified value (`models.diagnosis`).
 BOUNDS = {
-    "m_kg": (0.01, 0.1),
-    "gamma": (-1.0, 3.0),
+    "m_kg": (0.005, 0.1),     # an effective mass against a PWM map can be below any real vehicle's
+    "gamma": (0.0, 3.0),
     "q_pwm2": (-3.0, 3.0),
     "k_xy": (0.0, 2.0),
-    "k_z": (-1.0, 2.0),
-    "r_m": (0.0, 0.1),
-    "tau_s": (0.0, 0.3),
+    "k_z": (0.0, 2.0),
+    "r_m": (0.5 * BITCRAZE_ROTOR_RADIUS_M, 2.0 * BITCRAZE_ROTOR_RADIUS_M),
+    "tau_s": (0.0, 0.1),
     "v_ref": (V_REF, V_REF),
     "kappa_th": (0.0, 0.3),
     "tau_th_s": (5.0, 600.0),
@@ -138,12 +143,76 @@ EFFECTS = {
 # The inputs the prior needs, in order: mocap attitude (scalar last), 4 motor PWM, battery voltage.
 INPUT_NAMES = ("qx", "qy", "qz", "qw", "pwm1", "pwm2", "pwm3", "pwm4", "vbat")
 
+# What the four thrust columns of the inputs carry (the prior's ``thrust_source``, a string: absent means
+# "pwm").  The columns keep their names and places whatever they carry, so every estimator, the KNODE and
+# stored models take the same 9 inputs:
+#   "pwm"       motor PWM 0..65535 and the battery voltage: T_i = map(PWM_i)·(V / V_ref)^gamma;
+#   "rpm"       rotor speed ω_i in rad/s (an rpm deck): T_i = map(p(ω_i)), p(ω) = (ω − ω₀) / slope on
+#               Förster's linear rotor-speed fit, so one thrust map serves both; the battery plays no part
+#               (the measured rotor speed already carries it), and neither does the motor's lag;
+#   "thrust_n"  the controller's collective thrust in N split equally over the four columns (crazyswarm2's
+#               ctrlLee.thrustSI): T_i = column_i·(V / V_ref)^gamma, the mass the only scale between thrust and
+#               acceleration; gamma (0 in the prior) is what the firmware's battery compensation leaves.
+THRUST_SOURCES = ("pwm", "rpm", "thrust_n")
+THRUST_SOURCE_KEY = "thrust_source"
+
+
+def thrust_source_of(params: dict) -> str:
+    """The prior's thrust source (`THRUST_SOURCES`), "pwm" when it names none."""
+    return str(params.get(THRUST_SOURCE_KEY, "pwm"))
+
+
+def prior_for(source: str, mass_kg: float | None = None, base: dict | None = None) -> dict:
+    """The prior's parameters for flights whose thrust comes from ``source``.
+
+    "pwm": ``base`` (default `IDENTIFIED`, whose m_kg is an effective mass against Förster's map) as is.
+    "rpm" and "thrust_n": the thrust is known on an absolute scale, so ``m_kg`` is the vehicle's mass:
+    ``mass_kg`` when declared, else Bitcraze's 27 g; the battery exponent and the motor heating are 0 (the
+    source already carries the battery and the motors' state); the quadratic term is Förster's; the rpm
+    source's motor lag is 0 (a measured rotor speed lags nothing), the commanded thrust keeps ``base``'s.
+    A declared ``mass_kg`` with "pwm" is not put into the map (it would replace the map's effective mass):
+    the diagnosis reports a payload relative to it instead.
+    """
+    if source not in THRUST_SOURCES:
+        raise ValueError(f"thrust source {source!r} is not one of {', '.join(THRUST_SOURCES)}")
+    params = dict(IDENTIFIED if base is None else base)
+    if source == "pwm":
+        params.pop(THRUST_SOURCE_KEY, None)
+        return params
+    params.update({"m_kg": float(mass_kg) if mass_kg else BITCRAZE_MASS_KG, "gamma": 0.0, "q_pwm2": 1.0,
+                   "kappa_th": 0.0, THRUST_SOURCE_KEY: source})
+    if source == "rpm":
+        params["tau_s"] = 0.0
+    return params
+
 
 # -- the model, one definition for numpy / torch / CasADi -------------------------------------------
 def motor_thrust(pwm, vbat, params):
-    """Thrust of one motor (N) from its PWM (0..65535) and the battery voltage (V); any array kind."""
+    """Thrust of one motor (N) from its thrust column (PWM 0..65535, rotor speed rad/s or thrust N, by the
+    prior's `thrust_source_of`) and the battery voltage (V); any array kind."""
+    source = thrust_source_of(params)
+    if source == "thrust_n":
+        # gamma here (0 in the prior): how the thrust made departs from the command with the battery, i.e. the
+        # vehicle's exponent less the one the firmware's compensation assumes
+        return pwm * (vbat / params.get("v_ref", V_REF)) ** params["gamma"]
+    if source == "rpm":
+        pwm = (pwm - FOERSTER_OMEGA_OFFSET) / FOERSTER_OMEGA_SLOPE
     poly = params.get("q_pwm2", 1.0) * FOERSTER_A2 * pwm**2 + FOERSTER_A1 * pwm + FOERSTER_A0
+    if source == "rpm":
+        return poly
     return poly * (vbat / params.get("v_ref", V_REF)) ** params["gamma"]
+
+
+def thrust_columns_for(thrust_n, source: str, params: dict | None = None):
+    """The inverse of `motor_thrust` without the battery: what a thrust column reads when its motor gives
+    ``thrust_n`` (N): PWM on the map (at V_ref), rotor speed (rad/s), or the thrust itself."""
+    thrust_n = np.asarray(thrust_n, dtype=float)
+    if source == "thrust_n":
+        return thrust_n
+    q = 1.0 if params is None else params.get("q_pwm2", 1.0)
+    a2, a1, a0 = q * FOERSTER_A2, FOERSTER_A1, FOERSTER_A0 - thrust_n
+    pwm = -a0 / a1 if abs(a2) < 1e-30 else (-a1 + np.sqrt(np.maximum(a1 * a1 - 4 * a2 * a0, 0.0))) / (2 * a2)
+    return pwm if source == "pwm" else FOERSTER_OMEGA_SLOPE * pwm + FOERSTER_OMEGA_OFFSET
 
 
 def ground_effect(z, r_m):

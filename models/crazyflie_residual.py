@@ -20,6 +20,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 
 from . import crazyflie as cf
@@ -50,6 +51,7 @@ CRAZYFLIE_MIN_CV_GAIN = 0.005
 # the fits run 4 times faster
 ROW_STRIDE = 4
 LINEAR = ("m_kg", "k_xy", "k_z")   # parameters the predicted force is linear in (through 1/m_kg for the mass)
+MIN_ROWS = 50      # rows (25 Hz): 2 s of flight, the least a fit of a few parameters and its bootstrap need
 
 
 @dataclass
@@ -67,7 +69,7 @@ class CrazyflieData:
         return np.flatnonzero(self.arrays.keep)[::ROW_STRIDE]
 
 
-def crazyflie_data(flight: Flight) -> CrazyflieData:
+def crazyflie_data(flight: Flight, prior: dict | None = None) -> CrazyflieData:
     """The residual's arrays for one flight.
 
     The observed specific force is the ``acc_body`` channel, or ``a_meas`` rotated into the body with
@@ -78,12 +80,13 @@ def crazyflie_data(flight: Flight) -> CrazyflieData:
     models.inputs.MissingInputs
         If the flight lacks the motor PWM or battery voltage the prediction needs.
     """
-    system_inputs(flight, Crazyflie())     # the clear message naming what is missing
+    prior = cf.IDENTIFIED if prior is None else prior
+    system_inputs(flight, Crazyflie(prior_params=dict(prior)))     # the clear message naming what is missing
     if "acc_body" not in flight.channels:
         flight = replace(flight, channels={**flight.channels,
                                            "acc_body": specific_force_body(flight.a_meas, flight.quat)})
     dt = flight.dt
-    arrays = flight_arrays(flight)
+    arrays = flight_arrays(flight, cf.thrust_source_of(prior))
     a_world = np.gradient(np.gradient(flight.p, dt, axis=0), dt, axis=0)
     f_mocap = lowpass(lowpass(specific_force_body(a_world, flight.quat), dt), dt, MOCAP_LOWPASS_HZ)
     return CrazyflieData(arrays, flight.t, f_mocap, lowpass(arrays.acc_body, dt, MOCAP_LOWPASS_HZ))
@@ -112,8 +115,14 @@ def crazyflie_problem(flights: list[Flight], prior: dict | None = None, name: st
         than `MIN_GROUND_SAMPLES` samples are below `GROUND_EFFECT_HEIGHT_M`.
     """
     prior = dict(cf.IDENTIFIED if prior is None else prior)
-    data = [crazyflie_data(f) for f in flights]
-    candidates: list[Effect] = crazyflie_effects(prior) + effects_for("crazyflie", "measurement")
+    data = [crazyflie_data(f, prior) for f in flights]
+    # the battery and the motors' heating act between a PWM and the thrust: a rotor speed or a thrust in N
+    # already carries both
+    # (a commanded thrust keeps a battery term: what the firmware's compensation leaves, `models.crazyflie`)
+    skip = {"pwm": (), "thrust_n": ("motor_heating",)}.get(cf.thrust_source_of(prior),
+                                                           ("battery_thrust", "motor_heating"))
+    candidates: list[Effect] = [e for e in crazyflie_effects(prior) if e.id not in skip] + \
+        effects_for("crazyflie", "measurement")
     dynamic_names = [p.name for e in candidates if e.target == "dynamics" for p in e.params]
     # the prediction is linear in 1/m_kg, k_xy and k_z (and the lag and the low-pass are linear filters):
     # two runs of predict_body_force per value of the other parameters give it for every mass and drag
@@ -154,6 +163,10 @@ def crazyflie_problem(flights: list[Flight], prior: dict | None = None, name: st
         return np.concatenate(parts)[rows]
 
     lengths = [len(d.rows) for d in data]
+    if sum(lengths) < MIN_ROWS:
+        raise InvalidInput(f"{', '.join(f.name for f in flights)}: only {sum(lengths)} usable samples for the "
+                           f"specific-force residual (at least {MIN_ROWS} needed): the accelerometer holds too few "
+                           "measured samples away from gaps and the record's ends")
     offsets = np.cumsum([0] + lengths)
     blocks = [np.arange(offsets[i], offsets[i + 1]) for i in range(len(data))] if len(data) > 1 else []
     frozen = unidentifiable_scales(np.concatenate([d.f_mocap[d.arrays.keep] for d in data]))

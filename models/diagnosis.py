@@ -14,7 +14,7 @@ that are not there.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -275,8 +275,8 @@ def bootstrap_ci(problem: ResidualProblem, final: Fit, replicates: int = BOOTSTR
     Returns {parameter name: [2.5 %, 97.5 %] percentile} for each fitted parameter of ``final``
     (empty if it has no effects); the block length is 2τ, clipped to [5, n/5] rows.
     """
-    if not final.effects:
-        return {}
+    if not final.effects or len(final.residual) < 2:
+        return {}      # nothing fitted, or no rows to resample (a problem without samples is refused upstream)
     rng = np.random.default_rng(seed)
     r = final.residual
     n = len(r)
@@ -297,6 +297,45 @@ def _claimed(param, interval) -> bool:
     return bool(interval is not None and not interval[0] <= param.nominal <= interval[1])
 
 
+# a fit this close to a bound (fraction of the physical range) sits on it: the data pushed the parameter as
+# far as physics allows, so the value is the bound's, not the data's
+AT_BOUND_FRACTION = 0.005
+# a parameter whose return to the prior's value costs less than this fraction of the residual (RSS) the
+# prior leaves explains nothing worth claiming, whatever its interval says
+MIN_PARAM_SHARE = 0.002
+# two chosen effects cancel when their contributions to the residual point opposite ways (cosine below
+# this) and each is larger than what they add up to by this factor: the pair fits noise or a third effect
+# with opposite large values (an accelerometer bias against a tilt), and neither value is physical
+CANCEL_COSINE = -0.5
+CANCEL_RATIO = 2.0
+
+
+def _at_bound(param, value) -> bool:
+    """``value`` lies within `AT_BOUND_FRACTION` of the physical range from ``param``'s lower or upper bound."""
+    margin = AT_BOUND_FRACTION * (param.upper - param.lower)
+    return bool(value <= param.lower + margin or value >= param.upper - margin)
+
+
+def _contribution(problem: ResidualProblem, values: dict, effect) -> np.ndarray:
+    """What ``effect`` at ``values`` changes in the residual against it at its nominal values (flattened)."""
+    rows = np.arange(problem.n_rows)
+    allv = _all_values(problem.candidates, values)
+    return (problem.residual({**allv, **effect.nominal()}, rows) - problem.residual(allv, rows)).ravel()
+
+
+def cancelling(problem: ResidualProblem, values: dict, a, b) -> dict | None:
+    """The pair (a, b) of effects at ``values`` cancel each other (see `CANCEL_COSINE`): returns
+    {"cosine", "ratio"} when they do, else None."""
+    ca, cb = _contribution(problem, values, a), _contribution(problem, values, b)
+    na, nb, nab = np.linalg.norm(ca), np.linalg.norm(cb), np.linalg.norm(ca + cb)
+    if na == 0 or nb == 0:
+        return None
+    cosine = float(ca @ cb / (na * nb))
+    ratio = float(min(float(na), float(nb)) / max(float(nab), 1e-300))
+    return {"cosine": round(cosine, 4), "ratio": round(ratio, 2)} \
+        if cosine < CANCEL_COSINE and ratio > CANCEL_RATIO else None
+
+
 def _determined(param, interval) -> bool:
     """The data pin the parameter down: its interval excludes the prior's value or is narrow (< 5 % of
     the physical range).  Otherwise the value is reported but should not be trusted."""
@@ -311,17 +350,27 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
     confounded pairs and the selection trace.
 
     An effect is kept only if it lowers BIC_eff by more than ``DELTA_BIC`` and the blocked cross-validation
-    error by more than the fraction ``min_cv_gain`` (default ``MIN_CV_GAIN``: any gain).
+    error by more than the fraction ``min_cv_gain`` (default ``MIN_CV_GAIN``: any gain), and only if it does
+    not cancel an effect already chosen (`cancelling`: then the pair is reported in ``confounded`` with
+    ``cancelling`` True and the simpler, earlier explanation stays alone).
+
+    A fitted parameter is *identified* (and claimed) only when its 95 % interval excludes the prior's value,
+    it does not sit on a physical bound (`AT_BOUND_FRACTION`), and returning it to the prior's value costs at
+    least `MIN_PARAM_SHARE` of the residual the prior leaves.  A repair uses ``values_identified``: the
+    identified parameters refitted with every other one at the prior's value.
 
     Returns
     -------
     dict
         ``channel``; ``effects`` (per chosen effect: ``id``, ``target``, ``params``, ``held_nominal``,
-        ``nominal``, ``units``, ``ci95``, ``determined``, ``claimed`` (interval excludes the prior's value),
+        ``nominal``, ``units``, ``ci95``, ``determined``, ``identified`` and ``claimed`` (the same: see above),
+        ``at_bound``, ``bounds`` [lower, upper], ``explained_by_param`` (share of the prior's RSS each parameter
+        removes),
         ``explained_fraction`` of the baseline RSS, ``equation``, ``alternatives``: every rival within the
         criterion's threshold (BIC_eff within ``DELTA_BIC``, or removing ≥ ``ALTERNATIVE_FRACTION`` of the
         residual the effect removes) with ``id``, ``params`` it would take in the effect's place, ``units``,
         ``delta_bic``, ``fraction_of_chosen``), sorted by explained fraction; ``confounded``; ``values``;
+        ``values_identified``;
         ``rss_before``; ``rss_after``;
         ``trace``; ``fit`` (the final `Fit`); ``candidates`` (every candidate: ``id``, ``target``, ``chosen``,
         ``params`` fitted on its own, ``nominal``, ``units``, ``delta_bic_alone`` its BIC_eff change alone).
@@ -332,6 +381,8 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
     chosen: list[Effect] = []
     trace: list[dict[str, Any]] = []
     near_ties: list[tuple[Effect, Effect, float, float]] = []
+    cancelled: list[dict[str, Any]] = []
+    all_candidates = list(problem.candidates)
     alternatives: dict[str, list[dict[str, Any]]] = {}    # chosen effect id -> rivals that explain as much
     alone: dict[str, Fit] = {}     # each candidate fitted on its own (the first step)
     alone_delta: dict[str, float] = {}   # and its BIC_eff change against no effect
@@ -356,6 +407,27 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
             step["stop"] = "no candidate lowers BIC_eff enough"
             trace.append(step)
             break
+        cancels: list[tuple[Effect, dict]] = []
+        for c in chosen:
+            how = cancelling(problem, best.values, c, best.effects[-1])
+            if how:
+                cancels.append((c, how))
+        if cancels:
+            # never both: the simpler explanation (the one already chosen) stays, the pair is reported
+            rival = best.effects[-1]
+            for c, how in cancels:
+                cancelled.append({
+                    "effects": [c.id, rival.id], "params": [c.params[0].name, rival.params[0].name],
+                    "cosine": how["cosine"], "delta_bic": round(float(bic[id(best)] - bic[id(current)]), 2),
+                    "fraction_of_chosen": None, "data_prefer": None, "cancelling": True,
+                    "note": (f"{rival.id} and {c.id} fitted together cancel each other (their contributions point "
+                             f"opposite ways, cosine {how['cosine']:.2f}, each {how['ratio']:.1f}× larger than "
+                             f"their sum): their joint values are not physical, so {rival.id} is not added and "
+                             f"{c.id} is kept alone")})
+            step["cancelled"] = [c.id for c, _ in cancels] + [rival.id]
+            problem = replace(problem, candidates=[e for e in problem.candidates if e is not rival])
+            trace.append(step)
+            continue
         cv = cv_error(problem, chosen + [best.effects[-1]])
         step["cv_gain"] = round(1 - cv / current_cv, 4) if current_cv > 0 else 0.0
         if cv > (1 - min_cv_gain) * current_cv:
@@ -377,7 +449,27 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
         step["chosen"] = best.effects[-1].id
         trace.append(step)
 
+    problem = replace(problem, candidates=all_candidates)
     intervals = bootstrap_ci(problem, current)
+    everything = np.arange(problem.n_rows)
+    allv = _all_values(problem.candidates, current.values)
+    at_bound = {p.name: _at_bound(p, current.values[p.name]) for e in chosen for p in e.params
+                if p.name in current.values}
+    share = {}
+    for e in chosen:
+        for p in e.params:
+            if p.name in current.values:
+                r = problem.residual({**allv, p.name: p.nominal}, everything)
+                share[p.name] = float((np.sum(r**2) - current.rss) / baseline_rss) if baseline_rss > 0 else 0.0
+    identified = {name: bool(_claimed(p, intervals.get(name)) and not at_bound[name]
+                             and share.get(name, 0.0) >= MIN_PARAM_SHARE)
+                  for e in chosen for p in e.params for name in [p.name] if name in at_bound}
+    # the values a repair may use: identified parameters refitted with the others at the prior's values
+    values_identified = dict(current.values)
+    if chosen and not all(identified.values()):
+        held = {name: "not identified" for name, ok in identified.items() if not ok}
+        kept = [e for e in chosen if any(identified.get(p.name) for p in e.params)]
+        values_identified = fit(replace(problem, frozen={**problem.frozen, **held}), kept).values if kept else {}
     results: list[dict[str, Any]] = []
     for effect in chosen:
         without_rss = fit(problem, [e for e in chosen if e is not effect]).rss if len(chosen) > 1 else baseline_rss
@@ -390,12 +482,17 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
                         # only fitted parameters have one: held-nominal ones are listed above
                         "ci95": {p.name: intervals[p.name] for p in effect.params if p.name in intervals},
                         "determined": {p.name: _determined(p, intervals.get(p.name)) for p in effect.params},
-                        "claimed": {p.name: _claimed(p, intervals.get(p.name)) for p in effect.params},
+                        "claimed": {p.name: identified.get(p.name, False) for p in effect.params},
+                        "identified": {p.name: identified.get(p.name, False) for p in effect.params},
+                        "at_bound": {p.name: at_bound.get(p.name, False) for p in effect.params},
+                        "explained_by_param": {p.name: round(share[p.name], 5) for p in effect.params
+                                               if p.name in share},
+                        "bounds": {p.name: [p.lower, p.upper] for p in effect.params},
                         "alternatives": alternatives.get(effect.id, []),
                         "explained_fraction": float((without_rss - current.rss) / baseline_rss),
                         "equation": effect.equation({**effect.nominal(), **current.values})})
     results.sort(key=lambda r: -r["explained_fraction"])
-    confounded = confounded_pairs(problem, chosen, current.values, near_ties)
+    confounded = confounded_pairs(problem, chosen, current.values, near_ties) + cancelled
     candidates = [{"id": e.id, "target": e.target, "chosen": e in chosen,
                    "params": {p.name: alone[e.id].values.get(p.name, p.nominal) for p in e.params}
                    if e.id in alone else e.nominal(),
@@ -403,5 +500,6 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
                    "delta_bic_alone": alone_delta.get(e.id)}
                   for e in problem.candidates]
     return {"channel": problem.name, "effects": results, "confounded": confounded, "values": current.values,
+            "values_identified": values_identified,
             "rss_before": baseline_rss, "rss_after": current.rss, "trace": trace, "fit": current,
             "candidates": candidates}

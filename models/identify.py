@@ -65,15 +65,21 @@ def interpolated_rows(values: np.ndarray, tol: float = 1e-9) -> np.ndarray:
     return flags
 
 
-def flight_arrays(flight: Flight) -> FlightArrays:
-    """Arrays for identification; raises ValueError naming the missing inputs."""
-    missing = [name for name in ("motors", "vbat", "acc_body") if name not in flight.channels]
+def flight_arrays(flight: Flight, source: str = "pwm") -> FlightArrays:
+    """Arrays for identification, the thrust columns from ``source`` (`models.crazyflie.THRUST_SOURCES`);
+    raises ValueError naming the missing inputs."""
+    from .inputs import SOURCE_CHANNELS, thrust_columns  # inputs imports this module's neighbours
+
+    missing = [name for name in (*SOURCE_CHANNELS[source], "acc_body") if name not in flight.channels]
     if missing:
         raise ValueError(f"{flight.name}: identification needs channel(s) {', '.join(missing)}")
     dt = flight.dt
     acc = np.asarray(flight.channels["acc_body"], float)
     gaps = interpolated_rows(acc)
-    gaps = np.convolve(gaps.astype(float), np.ones(2 * GAP_DILATION + 1), "same") > 0
+    if gaps.mean() < 0.5:
+        gaps = np.convolve(gaps.astype(float), np.ones(2 * GAP_DILATION + 1), "same") > 0
+    # else the accelerometer was logged slower than the grid (a radio log at 10-50 Hz): most rows are
+    # interpolated, and what is left out is only them, not their neighbours (the measured samples)
     keep = ~gaps
     edge = int(round(EDGE_S / dt))
     keep[:edge] = False
@@ -82,7 +88,7 @@ def flight_arrays(flight: Flight) -> FlightArrays:
     # the mocap attitude as logged, not `models.inputs.system_inputs`' thrust-axis calibration: the body-z
     # specific force fitted here moves by cos(3°) - 1 < 0.2 % with it (only k_xy's v_b would see it), and
     # `models.crazyflie.IDENTIFIED` was fitted this way
-    u = np.column_stack([flight.quat, flight.channels["motors"], np.asarray(flight.channels["vbat"]).reshape(-1, 1)])
+    u = np.column_stack([flight.quat, thrust_columns(flight, source)])
     return FlightArrays(flight.name, dt, lowpass(acc, dt), v, flight.p[:, 2].copy(), u, keep,
                         {HISTORY_KEY: flight.meta[HISTORY_KEY]} if flight.meta.get(HISTORY_KEY) else {})
 

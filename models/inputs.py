@@ -11,6 +11,7 @@ import numpy as np
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 
+from . import crazyflie as cf
 from .motor_heating import HISTORY_KEY, motor_power, with_motor_heating
 from .systems import System
 from .thrust_axis import calibrated_attitude, heading_removed, thrust_axis_offset
@@ -23,8 +24,37 @@ CHANNEL_SOURCES = {
     "vbat": "battery voltage: NanoBench pwr_pm_vbat, uSD/cfclient pm.vbat or pm.vbatMV, "
             "MCAP/ROS 2 LogDataGeneric topics named in a crazyflies.yaml beside the recording",
 }
-# system name -> the Flight channels its inputs come from, in input order after the attitude
+CHANNEL_SOURCES["rotor_speed"] = "rotor speed: uSD/cfclient/MCAP rpm.m1..m4 (rpm deck)"
+CHANNEL_SOURCES["thrust_si"] = "collective thrust in N: uSD/MCAP ctrlLee.thrustSI (crazyswarm2's Lee controller)"
+# system name -> the Flight channels its inputs come from, in input order after the attitude (PWM source)
 NEEDED = {"crazyflie": ("motors", "vbat")}
+# the Crazyflie prior's thrust source (`models.crazyflie.THRUST_SOURCES`) -> the Flight channels it needs,
+# in the order a flight's own source is chosen when it carries several (PWM first: the battery matters)
+SOURCE_CHANNELS = {"pwm": ("motors", "vbat"), "rpm": ("rotor_speed",), "thrust_n": ("thrust_si",)}
+
+
+def flight_thrust_source(flight: Flight) -> str | None:
+    """The thrust source a flight carries: "pwm" (motor PWM and battery voltage), else "rpm" (rotor speed),
+    else "thrust_n" (the controller's thrust in N); None when it carries none."""
+    for source, channels in SOURCE_CHANNELS.items():
+        if all(name in flight.channels for name in channels):
+            return source
+    return None
+
+
+def thrust_columns(flight: Flight, source: str) -> np.ndarray:
+    """(T, 5): the four thrust columns and the battery voltage of the Crazyflie prior's inputs for
+    ``source`` (`models.crazyflie.THRUST_SOURCES`): PWM, rotor speed (rad/s) or the collective thrust (N)
+    over four; the voltage where the flight logs it, else V_ref (only the PWM source uses it)."""
+    n = len(flight.t)
+    vbat = (np.asarray(flight.channels["vbat"], float).reshape(n) if "vbat" in flight.channels
+            else np.full(n, cf.V_REF))
+    if source == "thrust_n":
+        total = np.asarray(flight.channels["thrust_si"], float).reshape(n, -1).sum(axis=1)
+        thrust = np.repeat(total[:, None] / 4.0, 4, axis=1)
+    else:
+        thrust = np.asarray(flight.channels["motors" if source == "pwm" else "rotor_speed"], float).reshape(n, 4)
+    return np.column_stack([thrust, vbat])
 # systems whose prior turns thrust into acceleration through the attitude: their attitude input is the
 # mocap attitude rotated onto the flight's thrust axis, with the heading removed (`models.thrust_axis`)
 THRUST_THROUGH_ATTITUDE = frozenset({"crazyflie"})
@@ -41,9 +71,11 @@ class MissingInputs(InvalidInput):
     """A flight without the channels a system's inputs come from."""
 
 
-def missing_inputs(flight: Flight, system_name: str) -> list[str]:
-    """Names of the Flight channels the named system's inputs need that ``flight`` lacks (empty if none)."""
-    return [name for name in NEEDED.get(system_name, ()) if name not in flight.channels]
+def missing_inputs(flight: Flight, system_name: str, source: str = "pwm") -> list[str]:
+    """Names of the Flight channels the named system's inputs need that ``flight`` lacks (empty if none);
+    for the crazyflie prior, those of its thrust ``source``."""
+    needed = SOURCE_CHANNELS[source] if system_name == "crazyflie" else NEEDED.get(system_name, ())
+    return [name for name in needed if name not in flight.channels]
 
 
 def flight_thrust_axis(flight: Flight) -> np.ndarray:
@@ -119,11 +151,15 @@ def system_inputs(flight: Flight, system: System, thrust_gain: bool = False,
         return np.zeros((len(flight.t), 0))
     if system.name not in NEEDED:
         raise ValueError(f"no rule for the inputs of system {system.name!r} on a Flight")
-    missing = missing_inputs(flight, system.name)
+    source = cf.thrust_source_of(system.prior_params)
+    missing = missing_inputs(flight, system.name, source)
     if missing:
         what = "; ".join(CHANNEL_SOURCES[name] for name in missing)
+        carried = flight_thrust_source(flight)
+        other = (f" This flight carries thrust as {carried!r}: diagnose it with --system crazyflie, which picks "
+                 f"the prior by what the flight carries." if carried and carried != source else "")
         raise MissingInputs(f"{flight.name}: the {system.name!r} prior needs inputs this flight does not carry "
-                            f"({what}). The kinematic prior (system 'quadrotor') works without them.")
+                            f"({what}).{other} The kinematic prior (system 'quadrotor') works without them.")
     quat = flight.quat
     if system.name in THRUST_THROUGH_ATTITUDE:
         offset = flight_thrust_axis(flight)
@@ -132,12 +168,10 @@ def system_inputs(flight: Flight, system: System, thrust_gain: bool = False,
             quat = heading_removed(calibrated_attitude(quat, offset))
         except ValueError as err:
             raise InvalidInput(f"{flight.name}: {err}") from None
-    columns = [quat] + [np.asarray(flight.channels[name], float).reshape(len(flight.t), -1)
-                               for name in NEEDED[system.name]]
-    u = np.column_stack(columns)
+    u = np.column_stack([quat, thrust_columns(flight, source)])
     if u.shape[1] != system.n_inputs:
         raise MissingInputs(f"{flight.name}: expected {system.n_inputs} input columns for {system.name!r}, got "
-                            f"{u.shape[1]} (channels {', '.join(NEEDED[system.name])})")
+                            f"{u.shape[1]} (channels {', '.join(SOURCE_CHANNELS[source])})")
     if system.name in THRUST_THROUGH_ATTITUDE:
         if motor_heating:
             u, _ = with_motor_heating(u, flight.dt, system.prior_params, flight.meta.get(HISTORY_KEY))

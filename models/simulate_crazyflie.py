@@ -23,7 +23,7 @@ from learnest.ingest.flight import Flight
 from learnest.ingest.frames import GRAVITY
 
 from . import crazyflie as cf
-from .effects import world_from_body
+from .effects import predict_acc_body, world_from_body
 from .identify import lowpass
 from .motor_heating import motor_power
 
@@ -61,6 +61,16 @@ class SimulatedFlight:
         Its group delay (~7 ms at 30 Hz) is a real accelerometer delay that a diagnosis reports.
     rate_hz : float
         Log rate, Hz.
+    thrust_source : {"pwm", "rpm", "thrust_n"}
+        What the log carries of the thrust (`models.crazyflie.THRUST_SOURCES`): motor PWM (``motors``), the
+        rotor speed the motors reach (``rotor_speed``, rad/s, after their lag, on Förster's rotor-speed fit),
+        or the controller's collective thrust command in N (``thrust_si``, before the motors' lag); the
+        battery voltage is logged with each.  ``truth`` and ``controller`` are PWM maps here whatever
+        their ``thrust_source`` says: the vehicle is always driven by PWM.
+    accel_bias : tuple of float
+        Accelerometer offset, body frame, m/s² (`models.effects.predict_acc_body`'s ``bias_x..z``).
+    accel_tilt_rad : tuple of float
+        (roll, pitch) of the IMU against the mocap body frame, rad (``roll_rad``, ``pitch_rad``).
     """
 
     truth: dict = field(default_factory=lambda: dict(cf.IDENTIFIED))
@@ -74,6 +84,9 @@ class SimulatedFlight:
     vbat_noise: float = 0.005
     accel_lpf_hz: float | None = None
     rate_hz: float = 100.0
+    thrust_source: str = "pwm"
+    accel_bias: tuple = (0.0, 0.0, 0.0)
+    accel_tilt_rad: tuple = (0.0, 0.0)
 
 
 def reference_path(settings: SimulatedFlight, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
@@ -149,7 +162,11 @@ def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int 
         ``meta["simulated_truth"]`` holds ``settings.truth``.
     """
     rng = np.random.default_rng(seed)
-    truth, ctrl = settings.truth, settings.controller
+    # the vehicle is driven by PWM whatever the log records of it
+    truth = {k: v for k, v in settings.truth.items() if k != cf.THRUST_SOURCE_KEY}
+    ctrl = {k: v for k, v in settings.controller.items() if k != cf.THRUST_SOURCE_KEY}
+    if settings.thrust_source not in cf.THRUST_SOURCES:
+        raise ValueError(f"thrust_source {settings.thrust_source!r} is not one of {', '.join(cf.THRUST_SOURCES)}")
     t, p_ref, v_ref, a_ref, yaw = reference_path(settings, rng)
     n, dt = len(t), 1.0 / settings.rate_hz
     h = dt / SUBSTEPS
@@ -165,11 +182,14 @@ def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int 
     kappa_th = float(truth.get("kappa_th", 0.0))
     heat_decay = np.exp(-dt / truth["tau_th_s"]) if kappa_th else 0.0
 
+    command = {"thrust_n": 0.0}
+
     def step(k: int, trim: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(R, u, commanded body specific force) at sample k: the controller's inputs and their effect."""
         force = a_ref[k] + KP * (p_ref[k] - p) + KD * (v_ref[k] - v) + gravity
         R, quat = _attitude(force, yaw[k])
         per_motor = ctrl["m_kg"] * trim * float(force @ R[:, 2]) / 4.0
+        command["thrust_n"] = 4.0 * per_motor
         u = np.concatenate([quat, _pwm_for(per_motor * (1 + spread[k]), volts[k], ctrl), [volts[k]]])
         f_b, _ = cf.specific_force_body(list(v), p[2], list(u), truth)
         f_b = np.array([float(c) for c in f_b])
@@ -184,9 +204,18 @@ def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int 
         trim *= GRAVITY / step(0, trim)[2][2]
     f = step(0, trim)[2]
     log_p, log_f, log_u = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 9))
+    log_thrust_cmd, log_motor_thrust = np.empty(n), np.empty((n, 4))
+    motor = np.array([float(cf.motor_thrust(x, volts[0], truth)) for x in step(0, trim)[1][4:8]])
+    lagless = truth["tau_s"] <= 1e-6
     for k in range(n):
         R, u, f_cmd = step(k, trim)
+        motor_cmd = np.array([float(cf.motor_thrust(x, volts[k], truth)) for x in u[4:8]])
+        if lagless:   # no lag: the force is the command's from the sample on (not the last sample's)
+            f, motor = f_cmd, motor_cmd
         log_p[k], log_f[k], log_u[k] = p, f, u
+        # the controller's thrust command (N) and each motor's thrust after its lag (what its speed gives)
+        log_thrust_cmd[k], log_motor_thrust[k] = command["thrust_n"], motor
+        motor = motor_cmd + (motor - motor_cmd) * decay[-1]
         # symplectic Euler with the acceleration at the start of each substep: the second difference of
         # the logged positions then is the acceleration at the sample, not a substep later
         for fraction in decay[:-1]:
@@ -197,15 +226,22 @@ def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int 
         if kappa_th:   # exact step of τ h' = P − h with the power of this sample's inputs held
             heat["h"] = heat_decay * heat["h"] + (1.0 - heat_decay) * float(motor_power(u))
 
-    acc = log_f + settings.accel_noise * rng.standard_normal(log_f.shape)
+    sensor = {"roll_rad": settings.accel_tilt_rad[0], "pitch_rad": settings.accel_tilt_rad[1],
+              **{f"bias_{a}": b for a, b in zip("xyz", settings.accel_bias)}}
+    acc = predict_acc_body(log_f, t, sensor) + settings.accel_noise * rng.standard_normal(log_f.shape)
     if settings.accel_lpf_hz:
         from scipy.signal import butter, lfilter  # scipy.signal imports scipy.stats (~1.5 s): loaded on first use
 
         b, a = butter(2, settings.accel_lpf_hz, fs=settings.rate_hz)
         acc = lfilter(b, a, acc - acc[0], axis=0) + acc[0]
     positions = log_p + settings.mocap_noise * rng.standard_normal(log_p.shape)
-    channels = {"acc_body": acc, "motors": log_u[:, 4:8],
-                "vbat": log_u[:, 8] + settings.vbat_noise * rng.standard_normal(n)}
+    channels = {"acc_body": acc, "vbat": log_u[:, 8] + settings.vbat_noise * rng.standard_normal(n)}
+    if settings.thrust_source == "pwm":
+        channels["motors"] = log_u[:, 4:8]
+    elif settings.thrust_source == "rpm":
+        channels["rotor_speed"] = cf.thrust_columns_for(log_motor_thrust, "rpm")
+    else:
+        channels["thrust_si"] = log_thrust_cmd.reshape(n, 1)
     meta = {"name": name or f"sim_crazyflie_{seed}", "adapter": "simulated crazyflie",
             "quality": {"ok": True, "issues": []}, "simulated_truth": dict(truth)}
     return Flight(t, positions, world_from_body(acc, log_u[:, :4]), log_u[:, :4], channels, meta)

@@ -31,9 +31,11 @@ import numpy as np
 
 from learnest.ingest.frames import GRAVITY, quat_to_matrix
 
+from . import crazyflie as cf
 from .identify import FlightArrays, first_order_lag, lowpass, rmse_constant
 
-__all__ = ["TERMS", "ThrustMap", "columns", "design", "fit_thrust_map", "r2", "readings", "rmse_constant", "stacked"]
+__all__ = ["TERMS", "BenchMap", "ThrustMap", "columns", "design", "fit_bench_map", "fit_thrust_map", "r2", "readings",
+           "rmse_constant", "stacked"]
 
 TERMS = ("1", "Σp", "Σp^2", "split", "V", "V·Σp", "V^2", "tilt", "vz+", "vz-")
 # Motor lags a 7-mm brushed motor can have (tens of ms; the physics fit finds 61 ms).  A longer grid lets the
@@ -153,3 +155,76 @@ def r2(thrust_map: ThrustMap, flights: list[FlightArrays]) -> float:
     """Coefficient of determination of the prediction on the kept samples of ``flights`` (pooled)."""
     X, y = stacked(flights, thrust_map.terms, thrust_map.tau_s, thrust_map.vbat_tau_s)
     return float(1.0 - np.sum((X @ thrust_map.coef - y) ** 2) / np.sum((y - y.mean()) ** 2))
+
+
+# -- a bench calibration: thrust measured on a load cell against PWM or rotor speed -------------------------
+@dataclass
+class BenchMap:
+    """One motor's static thrust map from a bench calibration, T = (c2 x² + c1 x + c0)·(V / V_ref)^gamma.
+
+    ``kind`` "pwm" (x = PWM, 0..65535) or "rpm" (x = rotor speed in rad/s); ``coef`` (c2, c1, c0) in N per
+    unit of x², x, 1; ``gamma`` the voltage exponent (None: no voltage column, or too little spread);
+    ``rmse_n`` the fit's RMSE, N; ``gain_vs_prior`` the measured thrust over the prior's map (Förster's) at
+    the measured points, summed; ``n`` the rows used."""
+
+    kind: str
+    coef: tuple
+    gamma: float | None
+    rmse_n: float
+    gain_vs_prior: float
+    n: int
+
+    def thrust(self, x: np.ndarray, vbat: np.ndarray | None = None) -> np.ndarray:
+        """Thrust of one motor, N, at x (PWM or rad/s) and battery voltage (V; None: V_ref)."""
+        c2, c1, c0 = self.coef
+        out = c2 * np.asarray(x, float) ** 2 + c1 * np.asarray(x, float) + c0
+        if self.gamma is not None and vbat is not None:
+            out = out * (np.asarray(vbat, float) / cf.V_REF) ** self.gamma
+        return out
+
+
+# a voltage column with less spread than this cannot tell an exponent from the map's own scale
+MIN_BENCH_VOLTAGE_SPREAD_V = 0.2
+
+
+def fit_bench_map(kind: str, x: np.ndarray, thrust_n: np.ndarray, vbat: np.ndarray | None = None) -> BenchMap:
+    """Least squares of a bench calibration of one motor (see `BenchMap`).
+
+    Parameters
+    ----------
+    kind : {"pwm", "rpm"}
+    x : ndarray, shape (n,)
+        PWM (0..65535) or rotor speed, rad/s.
+    thrust_n : ndarray, shape (n,)
+        Measured thrust of that motor, N.
+    vbat : ndarray, shape (n,), optional
+        Battery voltage, V; an exponent is fitted when it spreads over `MIN_BENCH_VOLTAGE_SPREAD_V`.
+
+    Raises
+    ------
+    ValueError
+        Fewer than 4 rows, or x that does not vary.
+    """
+    from scipy.optimize import least_squares  # scipy.optimize costs ~1 s to import: loaded on first use
+
+    x, thrust_n = np.asarray(x, float), np.asarray(thrust_n, float)
+    if len(x) < 4 or np.ptp(x) <= 0:
+        raise ValueError(f"a bench calibration needs at least 4 rows over several {kind} values, got {len(x)}")
+    fit_gamma = vbat is not None and np.ptp(vbat) >= MIN_BENCH_VOLTAGE_SPREAD_V
+    ratio = np.asarray(vbat, float) / cf.V_REF if fit_gamma else np.ones_like(x)
+    scale = float(np.max(np.abs(x)))
+
+    def residual(theta):
+        c2, c1, c0, gamma = theta
+        xs = x / scale
+        return (c2 * xs**2 + c1 * xs + c0) * ratio ** gamma - thrust_n
+
+    start = np.r_[np.polyfit(x / scale, thrust_n, 2), 1.0 if fit_gamma else 0.0]
+    theta = least_squares(residual, start).x if fit_gamma else start
+    c2, c1, c0 = theta[0] / scale**2, theta[1] / scale, theta[2]
+    pwm = x if kind == "pwm" else (x - cf.FOERSTER_OMEGA_OFFSET) / cf.FOERSTER_OMEGA_SLOPE
+    prior = cf.FOERSTER_A2 * pwm**2 + cf.FOERSTER_A1 * pwm + cf.FOERSTER_A0
+    if fit_gamma:
+        prior = prior * ratio ** cf.PUBLIC["gamma"]
+    return BenchMap(kind, (float(c2), float(c1), float(c0)), float(theta[3]) if fit_gamma else None,
+                    float(np.sqrt(np.mean(residual(theta) ** 2))), float(np.sum(thrust_n) / np.sum(prior)), len(x))

@@ -173,7 +173,16 @@ def _reproduce(args) -> int:
 
 
 def _thrust_map(args) -> int:
-    from .experiments.thrust_map import format_thrust_map, thrust_map_report
+    from .experiments.thrust_map import bench_thrust_map_report, format_bench_map, format_thrust_map, thrust_map_report
+
+    if args.bench:
+        if args.fit or args.score:
+            raise InvalidInput("thrust-map: give --bench CSV, or --fit and --score flights, not both")
+        report = bench_thrust_map_report(args.bench, args.mass_kg)
+        print(json.dumps(report, indent=2) if args.json else format_bench_map(report))
+        return 0
+    if not args.fit or not args.score:
+        raise InvalidInput("thrust-map needs --fit and --score flight logs (or --bench CSV, a bench calibration)")
 
     sets, errors = {}, []
     for role, given in (("fit", args.fit), ("score", args.score)):
@@ -715,20 +724,41 @@ def _diagnose(args) -> int:
         flights = batch.flights
         epochs = args.epochs or CRAZYFLIE_TRAINING.epochs
         result, repaired = diagnose_flights(flights, knode=model, methods=methods, epochs=epochs,
-                                            return_model=True, system=args.system)
+                                            return_model=True, system=args.system, mass_kg=args.mass_kg)
         if args.register:
-            from .local_registry import register_repaired
-            result["registered"] = register_repaired(args.register, repaired, flights, result,
-                                                     epochs=args.epochs or CRAZYFLIE_TRAINING.epochs,
-                                                     parent=model.meta.get("ref") if model else None)
+            _register_diagnosed(args, result, repaired, flights, model)
         result["errors"] = batch.errors
     if args.plot:
         save_figure(residual_before_after(result), args.plot, dpi=110)
     print(json.dumps(result, indent=2, default=float) if args.json else format_diagnosis(result))
     if result.get("registered") and not args.json:
         r = result["registered"]
-        print(f"registered {r['name']}:{r['version']} (parent {r['parent'] or 'none'})")
+        print(f"registered {r['name']}:{r['version']} (parent {r['parent'] or 'none'})"
+              + (f"; warning stored with it: {r['warning']}" if r.get("warning") else ""))
+    elif result.get("not_registered") and not args.json:
+        print(f"nothing registered: {result['not_registered']}", file=sys.stderr)
     return _batch_status(result.get("errors") or [])
+
+
+def _register_diagnosed(args, result: dict, repaired, flights, model) -> None:
+    """Register the repaired model only when the diagnosis says it improves the held-out flights (its
+    ``repair`` verdict, the evaluation's interval rule); ``--force`` registers anyway, with a warning
+    stored in the version.  Sets ``result["registered"]`` or ``result["not_registered"]`` (why)."""
+    from .local_registry import register_repaired
+
+    verdict = result.get("repair") or {"improves": True, "reason": ""}
+    warning = None
+    if not verdict["improves"]:
+        if not args.force:
+            result["not_registered"] = (f"the repair does not improve the held-out flights ({verdict['reason']}); "
+                                        "--force registers it anyway")
+            return
+        warning = f"registered with --force although the repair does not improve held-out flights: {verdict['reason']}"
+    result["registered"] = register_repaired(args.register, repaired, flights, result,
+                                             epochs=args.epochs or CRAZYFLIE_TRAINING.epochs,
+                                             parent=model.meta.get("ref") if model else None, warning=warning)
+    if warning:
+        result["registered"]["warning"] = warning
 
 
 def format_report(report: dict) -> str:
@@ -1036,7 +1066,14 @@ def build_parser() -> argparse.ArgumentParser:
     dia = sub.add_parser("diagnose", help="trace the residual to named physical effects, add them, "
                                           "report the error before and after")
     dia.add_argument("files", nargs="*", help="flight log files (Crazyflie)")
-    dia.add_argument("--system", default="quadrotor", choices=["quadrotor", "crazyflie", "cartpole", "robot"])
+    dia.add_argument("--system", default=None, choices=["quadrotor", "crazyflie", "cartpole", "robot"],
+                     help="the prior diagnosed (default: --model's prior, else quadrotor)")
+    dia.add_argument("--mass-kg", type=_positive_float, default=None,
+                     help="the vehicle's declared mass, kg (crazyflie; default: the log's own, e.g. a crazyswarm2 "
+                          "info*.yaml): a payload is then reported as a mass, not a thrust gain")
+    dia.add_argument("--force", action="store_true",
+                     help="with --register: register even when the repair does not improve held-out flights "
+                          "(a warning is stored in the version)")
     dia.add_argument("--simulate", metavar="NAME=VALUE,...", default=None,
                      help="simulated systems: the true system's parameters/effects (hidden from the diagnosis)")
     dia.add_argument("--seed", type=int, default=0)
@@ -1057,9 +1094,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     thr = sub.add_parser("thrust-map", help="identify the Crazyflie thrust map (body-z specific force from motor PWM, "
                                             "battery and attitude) on some flights and score it on others")
-    thr.add_argument("--fit", nargs="+", required=True, metavar="FILE", help="flight logs (or folders) to fit on")
-    thr.add_argument("--score", nargs="+", required=True, metavar="FILE",
+    thr.add_argument("--fit", nargs="+", metavar="FILE", help="flight logs (or folders) to fit on")
+    thr.add_argument("--score", nargs="+", metavar="FILE",
                      help="flight logs (or folders) to score on, held out whole")
+    thr.add_argument("--bench", metavar="CSV", help="a bench calibration of one motor instead of flights: columns "
+                     "thrust_n (N) or thrust_g, and pwm, rpm or omega_rad_s, optionally vbat (V)")
+    thr.add_argument("--mass-kg", type=_positive_float, default=None,
+                     help="with --bench: the vehicle's mass, kg, for the prior's effective mass")
     thr.add_argument("--json", action="store_true")
     thr.add_argument("--rate", type=_positive_float, default=100.0, help="grid rate in Hz (default 100)")
     thr.set_defaults(func=_thrust_map)

@@ -331,17 +331,22 @@ def export(evaluation_id: int, path: str | Path, fmt: str, flight_id: int | None
 
 # -- diagnosis -----------------------------------------------------------------------------------------------
 def register_repaired(name: str, model: HybridModel, flights, report: dict, *, epochs: int,
-                      parent: str | None = None, settings: Settings | None = None) -> dict:
+                      parent: str | None = None, settings: Settings | None = None, warning: str | None = None) -> dict:
     """Store the fitting flight (the one model.meta["training_flight"] names) and register `model` (from
-    diagnose_flights(..., return_model=True)) as the next version of `name`.  -> {"name", "version", "parent"}"""
+    diagnose_flights(..., return_model=True)) as the next version of `name`, its prior's system in the
+    hyperparameters and ``warning`` (a repair registered against the diagnosis's verdict) in its metrics.
+    -> {"name", "version", "parent"}"""
     registry.check_name(name)
     fitting = next((f for f in flights if f.name == model.meta.get("training_flight")), flights[0])
     with local_services(settings or cli_settings()) as services:
         row, _ = add_flight(services, [source["path"] for source in fitting.meta["sources"]],
                             **fitting.meta.get("topic_choice", {}))
         version = registry.register_model(services.db, services.blobs, name, model, flight=row,
-                                          hyperparameters=training_config({"epochs": epochs}), parent=parent,
-                                          metrics=diagnosis_metrics(model, report))
+                                          hyperparameters=training_config({"epochs": epochs,
+                                                                           "system": model.system.name}),
+                                          parent=parent,
+                                          metrics={**diagnosis_metrics(model, report),
+                                                   **({"warning": warning} if warning else {})})
     return {"name": version.name, "version": version.version, "parent": version.parent}
 
 

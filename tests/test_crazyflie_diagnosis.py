@@ -58,16 +58,37 @@ def test_the_library_holds_the_contracts_crazyflie_effects_with_the_priors_numbe
         {e.id for e in effects_for("crazyflie", "measurement")}
 
 
-def test_a_payload_of_20_percent_is_traced_to_mass():
+def test_a_payload_of_20_percent_is_a_thrust_gain_without_a_declared_mass():
     # a lighter vehicle than NanoBench's (whose hover PWM is already 56000 of 65535 at 3.4 V), so that
     # the loaded one still has the thrust to fly the path
     prior = {**PRIOR, "m_kg": 0.016}
     truth = {**prior, "m_kg": 1.2 * 0.016}
-    found = _first(_diagnose(truth, prior), "mass", truth)
-    assert found["nominal"] == {"m_kg": 0.016}
-    assert found["units"] == {"m_kg": "kg"}
+    report = _diagnose(truth, prior)
+    assert report["effects"][0]["id"] == "thrust_gain"
+    found = report["effects"][0]
+    # thrust over mass is what PWM data measure: 1/1.2 of the map's, dimensionless
+    assert found["params"]["gain"] == pytest.approx(1 / 1.2, rel=0.05)
+    assert found["nominal"] == {"gain": 1.0} and found["units"] == {"gain": ""}
+    assert found["identified"] == {"gain": True} and found["at_bound"] == {"gain": False}
+    lo, hi = found["ci95"]["gain"]
+    assert lo < found["params"]["gain"] < hi < 1.0
+    assert report["thrust_source"] == "pwm"
+    assert report["vehicle_fits_prior"]["ok"] and report["vehicle_fits_prior"]["thrust_gain"] == \
+        pytest.approx(1 / 1.2, rel=0.05)
+    assert report["after"]["specific_force_rmse"] < report["before"]["specific_force_rmse"]
+
+
+def test_a_payload_of_20_percent_is_a_mass_in_kg_when_the_mass_is_declared():
+    prior = {**PRIOR, "m_kg": 0.016}
+    truth = {**prior, "m_kg": 1.2 * 0.016}
+    report = diagnose_crazyflie(_flights(truth, prior), methods=(), prior=prior, mass_kg=0.030)
+    found = report["effects"][0]
+    assert found["id"] == "mass" and found["units"] == {"m_kg": "kg"}
+    # the declared 30 g carries the 20 % payload the data see against the prior's map
+    assert found["params"]["m_kg"] == pytest.approx(1.2 * 0.030, rel=0.05)
+    assert found["nominal"] == {"m_kg": pytest.approx(0.030)}
     lo, hi = found["ci95"]["m_kg"]
-    assert lo < found["params"]["m_kg"] < hi
+    assert 0.030 < lo < found["params"]["m_kg"] < hi
 
 
 def test_a_sagging_battery_with_another_voltage_exponent_is_traced_to_battery_thrust():

@@ -11,6 +11,7 @@ from collections.abc import Callable
 
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
+from learnest.models import crazyflie as cf
 from learnest.models import thrust_map as tm
 from learnest.models.identify import LOWPASS_HZ, FlightArrays, flight_arrays
 from learnest.models.inputs import CHANNEL_SOURCES
@@ -121,4 +122,109 @@ def format_thrust_map(report: dict) -> str:
         lines.append(f"{f['flight']:<28}{f['rmse']:>11.3f}{f['r2']:>8.2f}{f['constant_rmse']:>14.3f}"
                      f"{100 * f['fraction_of_constant']:>9.0f}%")
     lines += [f"excluded ({e['role']}): {e['file']}: {e['reason']}" for e in report["excluded"]]
+    return "\n".join(lines)
+
+
+# -- a bench calibration CSV -----------------------------------------------------------------------------------
+BENCH_COLUMNS = {"thrust": ("thrust_n", "thrust_g"), "x": ("pwm", "rpm", "omega_rad_s"), "vbat": ("vbat", "vbat_v")}
+
+
+def read_bench_csv(path) -> dict:
+    """A bench calibration of one motor: a CSV with a header, one row per steady point.
+
+    Columns: the thrust, ``thrust_n`` (N) or ``thrust_g`` (grams-force); what drove it, ``pwm`` (0..65535),
+    ``rpm`` (rev/min) or ``omega_rad_s`` (rad/s); optionally ``vbat`` (V).  Other columns are ignored.
+
+    Returns
+    -------
+    dict
+        ``kind`` ("pwm" or "rpm"), ``x`` (PWM or rad/s), ``thrust_n`` (N), ``vbat`` (V or None), arrays (n,).
+
+    Raises
+    ------
+    InvalidInput
+        Naming the file: no such file, no thrust or drive column, a value that is not a number.
+    """
+    import csv
+    from pathlib import Path
+
+    import numpy as np
+
+    path = Path(path)
+    try:
+        with path.open(newline="") as handle:
+            rows = list(csv.DictReader(handle))
+    except OSError as err:
+        raise InvalidInput(f"{path}: cannot read the bench calibration ({err.strerror or err})") from None
+    header = {name.strip().lower(): name for name in (rows[0].keys() if rows else [])}
+
+    def column(name):
+        try:
+            return np.array([float(r[header[name]]) for r in rows])
+        except (TypeError, ValueError) as err:
+            raise InvalidInput(f"{path}: column {name!r} holds a value that is not a number ({err})") from None
+
+    thrust_name = next((n for n in BENCH_COLUMNS["thrust"] if n in header), None)
+    x_name = next((n for n in BENCH_COLUMNS["x"] if n in header), None)
+    if thrust_name is None or x_name is None:
+        raise InvalidInput(f"{path}: a bench calibration needs a thrust column "
+                           f"({' or '.join(BENCH_COLUMNS['thrust'])}) "
+                           f"and what drove it ({' or '.join(BENCH_COLUMNS['x'])}); the header has "
+                           f"{', '.join(header) or 'nothing'}")
+    thrust = column(thrust_name) * (cf.GRAVITY / 1000.0 if thrust_name == "thrust_g" else 1.0)
+    x = column(x_name)
+    if x_name == "rpm":
+        x = x * 2.0 * np.pi / 60.0
+    vbat_name = next((n for n in BENCH_COLUMNS["vbat"] if n in header), None)
+    return {"kind": "pwm" if x_name == "pwm" else "rpm", "x": x, "thrust_n": thrust,
+            "vbat": column(vbat_name) if vbat_name else None}
+
+
+def bench_thrust_map_report(path, mass_kg: float | None = None) -> dict:
+    """Fit one motor's thrust map on a bench calibration CSV (`read_bench_csv`, `models.thrust_map.fit_bench_map`).
+
+    Returns
+    -------
+    dict
+        ``file``; ``kind`` ("pwm" or "rpm"); ``map`` {``coef`` [c2, c1, c0] N per unit², unit, 1 of PWM or
+        rad/s, ``gamma`` (None without a voltage spread), ``rmse_n``, ``rows``}; ``gain_vs_prior`` (the
+        measured thrust over the prior's Förster map at the measured points); ``prior_params``: what the
+        Crazyflie prior needs for this vehicle — with ``mass_kg`` (kg) the effective mass m_kg = mass / gain
+        against Förster's map (the prior's thrust map is Förster's scaled by 1/m_kg), and ``gamma`` when fitted.
+
+    Raises
+    ------
+    InvalidInput
+        The file is not a usable calibration (the message names it and why).
+    """
+    data = read_bench_csv(path)
+    try:
+        bench = tm.fit_bench_map(data["kind"], data["x"], data["thrust_n"], data["vbat"])
+    except ValueError as err:
+        raise InvalidInput(f"{path}: {err}") from None
+    prior = {"q_pwm2": 1.0}
+    if mass_kg:
+        prior["m_kg"] = mass_kg / bench.gain_vs_prior
+    if bench.gamma is not None:
+        prior["gamma"] = bench.gamma
+    return {"file": str(path), "kind": bench.kind,
+            "map": {"coef": list(bench.coef), "unit_x": "PWM" if bench.kind == "pwm" else "rad/s",
+                    "gamma": bench.gamma, "rmse_n": bench.rmse_n, "rows": bench.n},
+            "gain_vs_prior": bench.gain_vs_prior, "mass_kg": mass_kg, "prior_params": prior}
+
+
+def format_bench_map(report: dict) -> str:
+    """The bench map's report as text."""
+    m = report["map"]
+    c2, c1, c0 = m["coef"]
+    x = "p" if report["kind"] == "pwm" else "ω"
+    lines = [f"bench thrust map of one motor ({report['file']}, {m['rows']} points): T = {c2:.4g}·{x}² + {c1:.4g}·{x} "
+             f"+ {c0:.4g} N" + (f" × (V / {cf.V_REF} V)^{m['gamma']:.3g}" if m["gamma"] is not None else "")
+             + f", RMSE {m['rmse_n'] * 1e3:.2f} mN",
+             f"  {report['gain_vs_prior']:.3f}× the thrust of the prior's map (Förster's) at the measured points"]
+    if report["mass_kg"]:
+        lines.append(f"  for the prior: m_kg = {report['prior_params']['m_kg']:.4g} kg (the {report['mass_kg']:g}-kg "
+                     "vehicle's effective mass against Förster's map)")
+    else:
+        lines.append("  give --mass-kg to get the prior's effective mass for this vehicle")
     return "\n".join(lines)

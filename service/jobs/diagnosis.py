@@ -77,6 +77,11 @@ def run_diagnosis(services: Services, ctx: JobContext, diagnosis_id: int) -> Non
                                             settings.get("system", "quadrotor")))
     ctx.progress(0.95, "storing the report" + (f" and registering {register}" if register else ""))
     registered = None
+    verdict = out["report"].get("repair") or {"improves": True}
+    if register is not None and not verdict["improves"]:
+        # a repair that does not improve the held-out flights is not registered (models.diagnosis's rule)
+        out["report"]["not_registered"] = f"the repair does not improve the held-out flights ({verdict['reason']})"
+        register = None
     if register is not None:
         if not ctx.runner.is_running(ctx.job_id):  # cancelled while diagnosing: register nothing
             raise JobAborted(ctx.job_id)
@@ -85,7 +90,8 @@ def run_diagnosis(services: Services, ctx: JobContext, diagnosis_id: int) -> Non
         fitting = next((f for f in flights.values() if f.name == out["fitting_flight"]),
                        flights[first_flight_id])
         row = registry.register_model(services.db, services.blobs, register, model, flight=fitting,
-                                      hyperparameters=training_config({"epochs": settings["epochs"]}),
+                                      hyperparameters=training_config({"epochs": settings["epochs"],
+                                                                       "system": model.system.name}),
                                       parent=model_ref, job_id=ctx.job_id,
                                       metrics=diagnosis_metrics(model, out["report"]))
         registered = {"name": row.name, "version": row.version, "parent": row.parent}
