@@ -52,6 +52,7 @@ from ..jobs.training import start_training
 from ..storage.tables import Diagnosis, Evaluation, FlightRecord, Job
 from ..uploads import add_flight
 from . import evaluation_plots, figures, flight_plots, forms, zoomable
+from .headline import diagnosis_headline, diagnosis_split, evaluation_headline
 from .report_figures import velocity_figure
 
 log = logging.getLogger("learnest.web")
@@ -316,12 +317,17 @@ def evaluation_report_page(evaluation_id: RowId,
     scored = [(fid, entry["flight"]) for fid, entry in entries.items() if not entry.get("excluded")]
     chosen = flight if flight in {fid for fid, _ in scored} else (scored[0][0] if scored else None)
     settings = EstimatorSettings.from_dict(evaluation.settings)
-    series = _stored_series(services, evaluation, chosen, group, centred_window(settings.sg_window))
+    series = _stored_series(services, evaluation, chosen, group, centred_window(settings.sg_window),
+                            entries.get(chosen))
+    head = evaluation_headline(report)
+    gain = figures.gain_per_flight(head)
     # evaluated before estimates were stored: the velocity figure computed once by a task (report_figures)
     velocity = _velocity(services, evaluation, chosen) if chosen is not None and "figure" not in series else {}
     waiting = velocity.get("pending") or velocity.get("busy")
     paired = evaluation_plots.paired_figure(report)
     return page("report.html", title, refresh_s=2 if waiting else None, evaluation=evaluation, report=report,
+                head=head, gain_png=figures.png_data_uri(gain, dpi=100) if gain else None,
+                gap_settings=_gap_settings(report),
                 methods=list(report.get("median", {})), settings=evaluation.settings,
                 sg_window=settings.sg_window, sg_window_used=centred_window(settings.sg_window),
                 paired=zoomable.embed(paired) if paired else None,
@@ -333,17 +339,31 @@ def evaluation_report_page(evaluation_id: RowId,
 
 
 def _stored_series(services: Services, evaluation: Evaluation, flight_id: int | None, group: str,
-                   window_used: int) -> dict:
-    """{"figure": spec JSON, "clipping": `reference_clipping`} from the flight's stored estimates, or
-    {"missing": why} (no flight, or evaluated before estimates were stored)."""
+                   window_used: int, entry: dict | None = None) -> dict:
+    """{"figure": spec JSON, "clipping": `reference_clipping`, "difference": KNODE − prior spec JSON or None,
+    "gaps": the mocap gaps shaded} from the flight's stored estimates, or {"missing": why} (no flight, or
+    evaluated before estimates were stored)."""
     if flight_id is None:
         return {"missing": "no scored flight"}
     try:
         [estimates] = evaluation_estimates(services.db, services.blobs, evaluation.id, flight_id)
     except LearnestError as err:
         return {"missing": str(err)}
+    gaps = evaluation_plots.gap_windows(entry, estimates.t)
+    difference = evaluation_plots.difference_figure(estimates, group, gaps)
     return {"figure": zoomable.embed(evaluation_plots.error_figure(estimates, group)),
-            "clipping": evaluation_plots.reference_clipping(estimates, window_used)}
+            "clipping": evaluation_plots.reference_clipping(estimates, window_used),
+            "difference": zoomable.embed(difference) if difference else None, "gaps": gaps}
+
+
+def _gap_settings(report: dict) -> dict | None:
+    """The gap length and spacing of the first flight scored on the mocap-gap yardstick (the report's
+    settings; the same for every flight of an evaluation), or None."""
+    for f in report.get("flights", []):
+        gaps = (f.get("yardsticks") or {}).get("mocap_gaps") or {}
+        if gaps.get("gap_s") is not None and gaps.get("every_s") is not None:
+            return {"gap_s": gaps["gap_s"], "every_s": gaps["every_s"]}
+    return None
 
 
 def _velocity(services: Services, evaluation: Evaluation, flight_id: int) -> dict:
