@@ -126,9 +126,13 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
             abandon_training(services, job.id)
             raise
         with services.db.transaction() as session:
-            version = registry.get_version(session, name, version.version)
+            if job.state != "succeeded":   # no half-made model: the reserved version (and a name left empty) goes
+                registry.drop_unfinished_versions(session, job.id)
+            else:
+                version = registry.get_version(session, name, version.version)
     if job.state != "succeeded":
-        raise TrainingFailed(f"training {name}:{version.version} on {row.name} failed: {job.error}")
+        raise TrainingFailed(f"training {name}:{version.version} on {row.name} failed: {job.error}; nothing was "
+                             "registered")
     return {"name": name, "version": version.version, "ref": f"{name}:{version.version}",
             "training_flight": row.name, "flight_id": row.id, "flight_stored": "new" if created else "existing",
             "system": version.hyperparameters.get("system", "quadrotor"),
@@ -164,21 +168,27 @@ def wait_for_job(services: Services, job_id: int, progress: Callable[[float], No
 
 @contextmanager
 def watching_stages(services: Services, on_stage: Callable[[str, float | None], None] | None,
-                    poll_s: float = 0.25) -> Iterator[None]:
+                    poll_s: float = 0.25, progress: Callable[[float], None] | None = None) -> Iterator[None]:
     """While the block runs, call ``on_stage(stage, seconds_left)`` whenever the stage of this process's
-    running job changes (a job run here and now, whose worker writes its stage to the database)."""
-    if on_stage is None:
+    running job changes (a job run here and now, whose worker writes its stage to the database), and
+    ``progress(fraction)`` whenever its progress does."""
+    if on_stage is None and progress is None:
         yield
         return
     stop = threading.Event()
 
     def watch() -> None:
-        seen = None
+        seen, fraction = None, None
         while not stop.wait(poll_s):
             with services.db.transaction() as session:
                 job = session.scalar(select(Job).where(Job.owner == services.runner.owner, Job.state == "running")
                                      .order_by(Job.id.desc()).limit(1))
-            if job is not None and job.stage and (job.stage, job.eta_s) != seen:
+            if job is None:
+                continue
+            if progress is not None and job.progress != fraction:
+                fraction = job.progress
+                progress(job.progress)
+            if on_stage is not None and job.stage and (job.stage, job.eta_s) != seen:
                 seen = (job.stage, job.eta_s)
                 on_stage(job.stage, seconds_left(job))
 
@@ -219,17 +229,11 @@ def evaluate(paths, model_ref: str, estimator_settings: EstimatorSettings, *, po
             if on_stage:
                 on_stage(f"ingest {k}/{len(groups)}", None)
             ids.append(add_flight(services, files, pose_topic=pose_topic, imu_topic=imu_topic)[0].id)
-        done = [0]
-
-        def advance() -> None:  # called by the job as each flight is done
-            done[0] += 1
-            if progress:
-                progress(done[0] / len(ids))
-
-        # interrupted (Ctrl-C), the job is failed by the runner's shutdown when the services close
-        with watching_stages(services, on_stage):
-            job_id, evaluation_id, _ = start_evaluation(services, model_ref, ids, estimator_settings, wait=True,
-                                                        on_progress=advance)
+        # interrupted (Ctrl-C), the job is failed by the runner's shutdown when the services close; the
+        # progress shown is the job row's own (flights done of all, cached ones included), never a count
+        # of progress calls
+        with watching_stages(services, on_stage, progress=progress):
+            job_id, evaluation_id, _ = start_evaluation(services, model_ref, ids, estimator_settings, wait=True)
         job = catalog.get_job(services.db, job_id)
         if job.state != "succeeded":
             raise Conflict(f"evaluation {evaluation_id} {job.state}: {job.error}")

@@ -12,7 +12,8 @@ Pages   /                       flights (newest first; search: ?q=) and the uplo
         /diagnoses/{id}/report.html
                                 effects with units, intervals and alternatives, residual over time before/after,
                                 held-out error before/after per flight (linear axes)
-Forms   POST /ui/flights, /ui/models, /ui/evaluations, /ui/models/{name}/aliases, /ui/jobs/{id}/cancel take the
+Forms   POST /ui/flights, /ui/models, /ui/evaluations, /ui/diagnoses, /ui/models/{name}/aliases,
+        /ui/jobs/{id}/cancel take the
         same request models as the JSON routes (service.web.forms), call the same service functions (service.uploads,
         service.jobs, service.catalog) and answer 303 to the page of what they made, or an HTML error page
         with the API's status code and message.
@@ -39,11 +40,19 @@ from learnest.errors import LearnestError
 from learnest.ingest.baseline import centred_window
 from learnest.ingest.flight import Flight as CanonicalFlight
 from learnest.models.crazyflie import UNITS as CRAZYFLIE_UNITS
-from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON, SG_WINDOW, SG_WINDOW_RANGE
+from learnest.models.presets import (
+    CRAZYFLIE_TRAINING,
+    DIAGNOSIS_SPLIT_RULE,
+    METHODS,
+    MHE_HORIZON,
+    SG_WINDOW,
+    SG_WINDOW_RANGE,
+)
 
 from .. import catalog, references
 from ..api.deps import MAX_ROW_ID, Offset, RowId, get_services
 from ..exports import evaluation_estimates
+from ..jobs.diagnosis import start_diagnosis
 from ..jobs.evaluation import start_evaluation
 from ..jobs.result_cache import EstimatorSettings
 from ..jobs.runner import ACTIVE, seconds_left
@@ -53,6 +62,7 @@ from ..storage.tables import Diagnosis, Evaluation, FlightRecord, Job
 from ..uploads import add_flight
 from . import evaluation_plots, figures, flight_plots, forms, zoomable
 from .headline import diagnosis_headline, diagnosis_split, evaluation_headline
+from .registry_figures import loss_curves_of
 from .report_figures import velocity_figure
 
 log = logging.getLogger("learnest.web")
@@ -88,6 +98,7 @@ TEMPLATES.globals.update(NAME_PATTERN=references.NAME, METHODS=METHODS, MHE_HORI
                          MAX_NOTES=forms.MAX_NOTES, PAGE_SIZE=PAGE_SIZE,
                          DEFAULT_EPOCHS=CRAZYFLIE_TRAINING.epochs, SG_WINDOW=SG_WINDOW,
                          SG_WINDOW_RANGE=SG_WINDOW_RANGE, PLOTLY_JS_ROUTE=zoomable.PLOTLY_JS_ROUTE,
+                         DIAGNOSIS_SPLIT_RULE=DIAGNOSIS_SPLIT_RULE,
                          MIN_GAP_S=flight_plots.MIN_GAP_S,
                          VELOCITY_SG_S=flight_plots.VELOCITY_SG_S)
 
@@ -213,8 +224,24 @@ def model_page(request: Request, name: str, services: Services = Depends(get_ser
     _total, flights = catalog.list_flights(services.db, limit=PAGE_SIZE, newest_first=True)
     return page("model.html", f"Model {name}", name=name, model=model, ready=ready, flights=flights,
                 evaluations=catalog.evaluations_of(services.db, model.versions, EVALUATIONS_SHOWN),
-                losses=figures.png_data_uri(figures.training_losses(ready)) if ready else None,
+                losses=loss_curves_of([{"ref": f"{name}:{v.version}", "losses": v.losses,
+                                        "validation_losses": v.validation_losses} for v in ready]),
+                no_losses=[v.version for v in ready if not v.losses],
+                still_falling=[v.version for v in ready if still_falling(v.losses)],
                 key=forms.key_state(request, services.settings))
+
+
+STILL_FALLING_SHARE = 0.02   # the last tenth of the epochs lowered the loss by more than this share
+
+
+def still_falling(losses: list | None) -> bool:
+    """Whether a training loss was still falling at its last epoch: the best of its last tenth of epochs
+    is more than `STILL_FALLING_SHARE` below the best before it (more epochs would likely lower it)."""
+    values = [x for x in (losses or []) if x is not None]
+    if len(values) < 10:
+        return False
+    tail = max(1, len(values) // 10)
+    return min(values[-tail:]) < (1.0 - STILL_FALLING_SHARE) * min(values[:-tail])
 
 
 @pages.post("/ui/models/{name}/aliases")
@@ -238,6 +265,21 @@ def evaluate_form_post(request: Request, model: str = Form(""), flights: list[st
     body = forms.evaluation_request(model, flights, methods, horizon, include_bad, sg_window)
     settings = EstimatorSettings(tuple(body.methods), body.horizon, body.include_bad, body.sg_window)
     job_id, _evaluation_id, _state = start_evaluation(services, body.model, body.flights, settings)
+    return forms.redirect(f"/ui/jobs/{job_id}", services.settings, api_key)
+
+
+@pages.post("/ui/diagnoses")
+@html_errors
+def diagnose_form_post(request: Request, flights: list[str] = Form(default=[]), model: str = Form(""),
+                       system: str = Form("quadrotor"), methods: list[str] = Form(default=[]), epochs: str = Form(""),
+                       register_checked: str | None = Form(None, alias="register"), register_as: str = Form(""),
+                       api_key: str = Form(""),
+                       services: Services = Depends(get_services)):
+    """Diagnose form: start a diagnosis job (as POST /diagnoses does), then 303 to the job's page."""
+    forms.require_key(request, services.settings, api_key)
+    body = forms.diagnosis_request(flights, model, system, methods, epochs, register_checked, register_as)
+    job_id, _diagnosis_id = start_diagnosis(services, body.flights, body.model, body.register_as, body.methods,
+                                            body.epochs, body.system)
     return forms.redirect(f"/ui/jobs/{job_id}", services.settings, api_key)
 
 
@@ -400,8 +442,10 @@ def diagnosis_report_page(diagnosis_id: RowId, services: Services = Depends(get_
     report = diagnosis.report or {}
     series = report.get("residual_series") or {}
     prior = (report.get("prior") or {}).get("params", {})
+    flights = catalog.flight_names(services.db, diagnosis.flight_ids)
     return page("diagnosis.html", f"Diagnosis {diagnosis.id}: {report.get('system')}", diagnosis=diagnosis,
-                report=report, flights=catalog.flight_names(services.db, diagnosis.flight_ids),
+                report=report, flights=flights, headline=diagnosis_headline(report),
+                split=diagnosis_split(report, [name for _fid, name in flights]),
                 prior=[(k, v, CRAZYFLIE_UNITS[k]) for k, v in prior.items() if k in CRAZYFLIE_UNITS],
                 summary=figures.png_data_uri(figures.diagnosis_summary(report), dpi=110),
                 series=figures.png_data_uri(figures.residual_series(series), dpi=110) if series else None,
