@@ -567,7 +567,8 @@ def _demo(args) -> int:
     if not chosen:
         raise InvalidInput(f"no clean flight named {args.train!r} in {folder}"
                            + (" with motor PWM and battery voltage" if system == "crazyflie" else ""))
-    left_out = [f.name for f in flights if f not in pool]
+    kept = {id(f) for f in pool}   # by identity: a Flight's == compares arrays
+    left_out = [f.name for f in flights if id(f) not in kept]
     print(f"prior: {system}" + (" (the flights carry motor PWM and battery voltage)" if system == "crazyflie" else "")
           + (f"; scored on the {len(pool) - 1} other flight(s) with the same inputs, left out: "
              f"{', '.join(left_out)}" if left_out else ""))

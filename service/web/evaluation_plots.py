@@ -220,8 +220,8 @@ def difference_figure(estimates: FlightEstimates, group: str, gaps: list[tuple[f
     dt = float(np.median(np.diff(estimates.t))) if len(estimates.t) > 1 else 1.0
     half = max(1, int(round(RMS_WINDOW_S / dt / 2)))
     layout = zoomable.stacked_layout([f"|error| KNODE − prior ({unit})"], row_height=260,
-                                     title=f"{name} of {estimates.flight}: KNODE − prior error "
-                                           f"(below 0: the KNODE is closer; shaded: mocap hidden)")
+                                     title=f"{name} of {estimates.flight}: KNODE − prior error (below 0: the KNODE "
+                                           f"is closer{'; shaded: mocap hidden' if gaps else ''})")
     for k, (start, stop) in enumerate(gaps):
         zoomable.shade(layout, start, stop, "#888888", "gap" if k == 0 else None)
     traces = []
