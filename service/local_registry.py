@@ -118,6 +118,7 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
         if not row.quality_ok and not include_bad:  # checked here too, to name the CLI's flag
             raise InvalidInput(f"{row.name} failed the quality checks ({'; '.join(row.quality.get('issues', []))}); "
                              "pass --include-bad to train on it anyway")
+        _check_inputs(services, row, system)   # before a worker starts: a missing channel is said at once
         job, version = start_training(services, name, row.id, {"epochs": epochs, "system": system},
                                       include_bad=include_bad)
         try:
@@ -139,6 +140,19 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
             "epochs": version.hyperparameters["epochs"], "best_epoch": (version.metrics or {}).get("best_epoch"),
             "final_loss": version.losses[-1] if version.losses else None, "seconds": version.training_seconds,
             "total_seconds": (job.result or {}).get("total_seconds"), "home": str(settings.home)}
+
+
+def _check_inputs(services: Services, row, system: str) -> None:
+    """MissingInputs (naming the flight and the channels) when the stored flight lacks the prior's inputs."""
+    from learnest.ingest.flight import Flight
+    from learnest.models.inputs import MissingInputs, missing_inputs
+
+    if system == "quadrotor":
+        return
+    lacking = missing_inputs(Flight.from_bytes(services.blobs.read_bytes(row.flight_blob)), system)
+    if lacking:
+        raise MissingInputs(f"{row.name}: the {system!r} prior needs {', '.join(lacking)}, which this flight does "
+                            "not carry; the kinematic prior (--system quadrotor) works without them")
 
 
 def abandon_training(services: Services, job_id: int) -> None:

@@ -46,3 +46,15 @@ def test_a_missing_file_is_refused_before_any_work(tmp_path, capsys, monkeypatch
         assert "no such file or folder" in err and "nope.csv" in err or "no-folder" in err
         assert "%" not in err and "\r" not in err     # no progress bar started
     assert not (tmp_path / "home").exists()            # nothing stored
+
+
+def test_a_prior_whose_inputs_the_flight_lacks_is_refused_and_nothing_is_registered(tmp_path, capsys, monkeypatch):
+    from pathlib import Path
+
+    monkeypatch.setenv("LEARNEST_HOME", str(tmp_path / "home"))
+    log = Path(__file__).resolve().parents[1] / "sample_logs" / "circle_rep1.csv"   # no motors, no battery
+    assert main(["train", "--name", "cf", "--system", "crazyflie", "--epochs", "2", str(log)]) == 2
+    err = capsys.readouterr().err
+    assert "circle_rep1: the 'crazyflie' prior needs motors, vbat" in err and "Traceback" not in err
+    assert main(["models", "list", "--json"]) == 0
+    assert '"total": 0' in capsys.readouterr().out      # no half-made model, no failed version
