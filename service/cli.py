@@ -262,7 +262,7 @@ def _evaluate(args) -> int:
     from learnest.models.presets import parse_methods
 
     from .local_registry import load_model
-    from .web.figures import paired_mse, save_figure
+    from .web.figures import evaluation_summary, save_figure
 
     if args.new:
         return _evaluate_new(args)
@@ -277,7 +277,7 @@ def _evaluate(args) -> int:
     ref = model.meta.get("ref", args.model)  # name:version, whatever form was asked for
     report = (_evaluate_stored if args.store else _evaluate_here)(args, model, ref, methods)
     if args.plot:
-        save_figure(paired_mse(report), args.plot, dpi=120)
+        save_figure(evaluation_summary(report), args.plot, dpi=120)
     if args.json:
         print(json.dumps(report, indent=2))
     else:
@@ -534,7 +534,7 @@ def _demo(args) -> int:
     from .experiments.flights import evaluate_flights
     from .local_registry import load_model, train
     from .progress import StageProgress
-    from .web.figures import paired_mse, save_figure
+    from .web.figures import evaluation_summary, save_figure
 
     _registry_grid(args.rate)
     folder = Path(args.folder)
@@ -588,8 +588,8 @@ def _demo(args) -> int:
     report["model"] = trained["ref"]
     print(format_report(report))
     if args.plot:
-        save_figure(paired_mse(report), args.plot, dpi=120)
-        print(f"MSE per flight (prior vs KNODE): {args.plot}")
+        save_figure(evaluation_summary(report), args.plot, dpi=120)
+        print(f"gain per flight and MSE per flight (prior vs KNODE): {args.plot}")
     print(f"\nnext: `learnest serve`, then open http://127.0.0.1:8000/ui/models/{args.name} to see the model, "
           f"evaluate it on other flights and diagnose it from the browser")
     return 0

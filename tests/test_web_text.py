@@ -10,7 +10,7 @@ import pytest
 
 from learnest.service.cli import format_report
 from learnest.service.web import evaluation_plots
-from learnest.service.web.headline import diagnosis_headline, diagnosis_split, evaluation_headline
+from learnest.service.web.headline import diagnosis_headline, diagnosis_split, evaluation_headline, gap_methods
 from learnest.service.web.pages import page
 
 BLOCKS = {"p", "div", "tr", "li", "ul", "table", "h1", "h2", "section", "details", "summary", "br", "td", "th",
@@ -101,7 +101,7 @@ def test_the_cli_text_starts_with_the_same_sentence_as_the_page():
 def render_report(report: dict) -> str:
     head = evaluation_headline(report)
     return page("report.html", "Evaluation 1: model cf:2", evaluation=SimpleNamespace(id=1, job_id=2),
-                report=report, head=head, gain_png=None, gap_settings={"gap_s": 0.5, "every_s": 2.5},
+                report=report, head=head, gain_png=None, gap_methods=gap_methods(report), gap_settings={"gap_s": 0.5, "every_s": 2.5},
                 methods=list(report["median"]), settings={"methods": ["ukf", "knode-ukf"], "horizon": 20,
                                                           "include_bad": False},
                 sg_window=150, sg_window_used=151, paired=None, paired_png=None,
@@ -120,7 +120,8 @@ def test_report_page_reads_answer_first_with_spaces_between_values_units_and_lab
     # the per-flight interval paragraph (under Details): flight, colon, method, interval, all spaced
     assert "B2_circle_medium_rep1: KNODE-UKF [+1.1, +12.0] %; B3_figure8_fast_rep2: KNODE-UKF" in text
     assert "+12.0 [+5.0, +19.0]" in text and "-8.0 [-14.0, -2.0]" in text      # the table's gain cells
-    for glued in (r"rep\dKNODE", r"\]%", r"%[A-Za-z]", r"m/s²[A-Za-z]", r"\d[A-Za-z]{3,}"):
+    assert "Gaps of 0.5 s every 2.5 s." in text and "0.0400" in text     # gap settings, a gap RMSE in m
+    for glued in (r"rep\dKNODE", r"\]%", r"%[A-Za-z]", r"m/s²[A-Za-z]", r"\d[A-Za-z]{3,}", r"[a-z]\.[A-Z]"):
         assert not re.search(glued, text), (glued, re.search(glued, text))
 
 
@@ -153,3 +154,18 @@ def test_diagnosis_page_states_its_split_and_spaces_units():
     assert lines[2].startswith("Split: fitted on a1, a2; scored on b1, b2 (fit on the first 2 flight(s)")
     assert "bias_z = -0.0004362 m/s² explains 100 % as much" in text
     assert "gamma\n0.42\n[0.4, 0.44]\n" in text and "0.42 1" not in text
+
+
+def test_the_diagnose_form_checks_its_fields_as_the_api_does(tmp_path):
+    from utils.service import running_app
+
+    with running_app(tmp_path / "home") as client:
+        none = client.post("/ui/diagnoses", data={"methods": ["ukf"]})
+        assert none.status_code == 422 and "choose the flight(s) to diagnose" in none.text
+        nameless = client.post("/ui/diagnoses", data={"flights": ["1"], "methods": ["ukf"], "register": "on"})
+        assert nameless.status_code == 422 and "give the model name" in nameless.text
+        missing = client.post("/ui/diagnoses", data={"flights": ["7"], "methods": ["ukf"]})
+        assert missing.status_code == 404 and "flight(s) not found: 7" in missing.text
+        bad_name = client.post("/ui/diagnoses", data={"flights": ["7"], "methods": ["ukf"], "register": "on",
+                                                      "register_as": "no spaces allowed"})
+        assert bad_name.status_code == 422 and "register" in bad_name.text

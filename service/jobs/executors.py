@@ -28,7 +28,7 @@ from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
 PARENT_CHECK_S = 0.5  # how often a pool worker checks that the server that started it is alive
-EXIT_GRACE_S = 3.0    # at shutdown, how long idle pool workers get to exit by themselves before being killed
+EXIT_GRACE_S = 5.0    # at shutdown, how long idle pool workers get to exit by themselves before being killed
 
 
 def init_worker(parent_pid: int | None = None) -> None:

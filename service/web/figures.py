@@ -144,12 +144,17 @@ def paired_mse(report: dict, title: str | None = None) -> Figure:
     medians as bars in the method's colour, in MSE × 1e-3 (the
     units of the report's table) on a linear axis from zero; box plots behind the dots from
     `BOX_MIN_FLIGHTS` flights on.  Methods run without their pair are drawn alone."""
+    fig = _figure(figsize=(6.5, 4), layout="constrained")
+    _draw_paired(fig.subplots(), report, title)
+    return fig
+
+
+def _draw_paired(ax, report: dict, title: str | None = None) -> None:
+    """`paired_mse` on the axes ``ax``."""
     scored = [f for f in report["flights"] if not f.get("excluded") and f.get("mse")]
     ran = [m for m in BOX_ORDER if any(m in f["mse"] for f in scored)]
     columns: list[tuple[str, ...]] = [p for p in PAIRS if p[0] in ran and p[1] in ran]
     columns += [(m,) for m in ran if not any(m in p for p in columns)]
-    fig = _figure(figsize=(6.5, 4), layout="constrained")
-    ax = fig.subplots()
     ticks, labels, x = [], [], 0
     for column in columns:
         positions = list(range(x, x + len(column)))
@@ -177,7 +182,6 @@ def paired_mse(report: dict, title: str | None = None) -> Figure:
     ax.set_ylabel("overall MSE over [p, v, a]  (× 1e-3)")
     ax.set_title(title or f"model {report.get('model')}: {len(scored)} flights, one line per flight")
     ax.grid(axis="y", alpha=0.3)
-    return fig
 
 
 SPECIFIC_FORCE = "specific_force_rmse"   # a diagnosis' before/after key that is an RMSE in m/s², not an MSE
@@ -297,7 +301,14 @@ def gain_per_flight(headline: dict, title: str | None = None) -> Figure | None:
         return None
     names = list(dict.fromkeys(r["flight"] for p in pairs for r in p["rows"]))
     fig = _figure(figsize=(7.5, 1.2 + 0.32 * len(names) * max(1, len(pairs)) ** 0.5), layout="constrained")
-    ax = fig.subplots()
+    draw_gain(fig.subplots(), headline, title)
+    return fig
+
+
+def draw_gain(ax, headline: dict, title: str | None = None) -> None:
+    """`gain_per_flight` on the axes ``ax`` (``headline`` has at least one pair)."""
+    pairs = headline["pairs"]
+    names = list(dict.fromkeys(r["flight"] for p in pairs for r in p["rows"]))
     step = 0.8 / len(pairs)
     for k, pair in enumerate(pairs):
         offset = (k - (len(pairs) - 1) / 2) * step
@@ -326,6 +337,22 @@ def gain_per_flight(headline: dict, title: str | None = None) -> Figure | None:
     ax.legend(fontsize="small", loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=1, frameon=False)
     if title:
         ax.set_title(title, fontsize="medium")
+
+
+def evaluation_summary(report: dict) -> Figure:
+    """The figure of `learnest evaluate --plot` and the demo's: the answer on top (each KNODE's gain over
+    its prior per flight, labelled by flight, with 95 % intervals: `gain_per_flight`), the paired MSE dots
+    (`paired_mse`) below.  Without a prior/KNODE pair, the paired dots alone."""
+    from learnest.service.web.headline import evaluation_headline
+
+    head = evaluation_headline(report)
+    if not head["pairs"]:
+        return paired_mse(report)
+    flights = len({r["flight"] for p in head["pairs"] for r in p["rows"]})
+    fig = _figure(figsize=(8, 5.5 + 0.32 * flights), layout="constrained")
+    top, bottom = cast("np.ndarray", fig.subfigures(2, 1, height_ratios=[1.2 + 0.32 * flights, 4.3]))
+    draw_gain(top.subplots(), head, title=head["sentence"] if len(head["sentence"]) < 110 else None)
+    _draw_paired(bottom.subplots(), report)
     return fig
 
 

@@ -115,6 +115,14 @@ def evaluation_headline(report: dict) -> dict:
     return {"yardstick": yardstick, "measures": YARDSTICK_TEXT[yardstick], "sentence": sentence, "pairs": pairs}
 
 
+def gap_methods(report: dict) -> list[str]:
+    """The methods scored on the mocap-gap yardstick in any flight of ``report`` (priors next to their KNODE)."""
+    found = {m for f in _scored(report)
+             for m in (((f.get("yardsticks") or {}).get("mocap_gaps") or {}).get("rmse_m") or {})}
+    order = ["ukf", "knode-ukf", "mhe", "knode-mhe"]
+    return [m for m in order if m in found] + sorted(found - set(order))
+
+
 def _interval_text(rows: list[dict]) -> str:
     """The spread of the flights' gains: "flights from -3 % to +25 %" (a single flight: its interval)."""
     if len(rows) == 1:

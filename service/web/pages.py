@@ -61,7 +61,7 @@ from ..jobs.training import start_training
 from ..storage.tables import Diagnosis, Evaluation, FlightRecord, Job
 from ..uploads import add_flight
 from . import evaluation_plots, figures, flight_plots, forms, zoomable
-from .headline import diagnosis_headline, diagnosis_split, evaluation_headline
+from .headline import diagnosis_headline, diagnosis_split, evaluation_headline, gap_methods
 from .registry_figures import loss_curves_of
 from .report_figures import velocity_figure
 
@@ -369,6 +369,7 @@ def evaluation_report_page(evaluation_id: RowId,
     paired = evaluation_plots.paired_figure(report)
     return page("report.html", title, refresh_s=2 if waiting else None, evaluation=evaluation, report=report,
                 head=head, gain_png=figures.png_data_uri(gain, dpi=100) if gain else None,
+                gap_methods=gap_methods(report),
                 gap_settings=_gap_settings(report),
                 methods=list(report.get("median", {})), settings=evaluation.settings,
                 sg_window=settings.sg_window, sg_window_used=centred_window(settings.sg_window),
