@@ -12,6 +12,7 @@ from typing import NoReturn
 from learnest.errors import InvalidInput, LearnestError
 from learnest.models.presets import (
     CRAZYFLIE_TRAINING,
+    DIAGNOSIS_SPLIT_RULE,
     METHODS,
     MHE_HORIZON,
     PRODUCTION_ALIAS,
@@ -893,7 +894,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     dia = sub.add_parser("diagnose", help="trace the residual to named physical effects, add them, "
                                           "report the error before and after")
-    dia.add_argument("files", nargs="*", help="flight log files (Crazyflie)")
+    dia.add_argument("files", nargs="*", help="flight log files (Crazyflie), in order: " + DIAGNOSIS_SPLIT_RULE.replace("%", "%%"))
     dia.add_argument("--system", default="quadrotor", choices=["quadrotor", "crazyflie", "cartpole", "robot"])
     dia.add_argument("--simulate", metavar="NAME=VALUE,...", default=None,
                      help="simulated systems: the true system's parameters/effects (hidden from the diagnosis)")

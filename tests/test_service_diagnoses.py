@@ -156,6 +156,14 @@ def test_cli_diagnose_registers_a_child_version(tmp_path, biased_logs, monkeypat
     report = run("diagnose", *files, "--model", "cf:1", "--register", "cf", "--epochs", str(EPOCHS))
     assert_bias_found(report)
     assert report["registered"] == {"name": "cf", "version": 2, "parent": "cf:1"}
+    # the kinematic prior's split: the first flight fits, the others are scored; the CLI's text says so second
+    from learnest.service.cli import diagnosis_lead
+    assert len(report["fitting_flights"]) == 1
+    assert report["scored_flights"] == [p["flight"] for p in report["per_flight"]] and report["scored_flights"]
+    lead = diagnosis_lead(report)
+    assert lead[0].startswith("Found accel_bias")
+    assert lead[1] == (f"split: fitted on {report['fitting_flights'][0]}; scored on "
+                       f"{', '.join(report['scored_flights'])} ({report['split']})")
     model = load_model_ref("cf:2")
     assert "accel_bias" in model.meta["effects"] and model.meta["measurement_effects"]
     with running_app(tmp_path / "home") as client:
