@@ -319,7 +319,8 @@ def test_evaluate_diagnose_and_register_through_the_forms_reading_each_answer(se
     wait_for_url(browser, r"/evaluations/\d+/report\.html")
     sentence = by_css(browser, "#headline-sentence").text
     assert re.match(r"KNODE-UKF scored \d+\.\d % (better|worse) than its prior UKF on the paper's Savitzky-Golay "
-                    r"MSE \(median of 2 flights; flights from [-+]\d+\.\d % to [-+]\d+\.\d %\): better on \d of 2; "
+                    r"MSE \(median of 2 flights; (flights from [-+]\d+\.\d % to [-+]\d+\.\d %|[-+]\d+\.\d % on every "
+                    r"flight)\): better on \d of 2; "
                     r"worse beyond its 95 % interval on (none|\d)\.$", sentence), sentence
     assert image_loaded(browser, "#gain-figure")
     # the answer comes first: above the per-flight table, which is above the folded details
@@ -348,8 +349,9 @@ def test_evaluate_diagnose_and_register_through_the_forms_reading_each_answer(se
     assert image_loaded(browser, "#diagnosis-summary")
     screenshot(browser, "diagnosis")
 
-    # the registered version is on the model page beside the trained one
+    # the registered version is on the model page beside the trained one, under the newest evaluation's answer
     browser.get(server + "/ui/models/forms")
+    assert by_css(browser, "#headline-sentence").text == sentence
     versions = by_css(browser, "#versions").text
     assert "ready" in versions and versions.count("ready") == 2
     screenshot(browser, "model")

@@ -129,7 +129,8 @@ def _interval_text(rows: list[dict]) -> str:
         ci = rows[0]["interval_pct"]
         return f"95 % interval [{ci[0]:+.1f}, {ci[1]:+.1f}] %" if ci else "one flight, no interval"
     gains = [r["gain_pct"] for r in rows]
-    return f"flights from {min(gains):+.1f} % to {max(gains):+.1f} %"
+    low, high = f"{min(gains):+.1f}", f"{max(gains):+.1f}"
+    return f"{low} % on every flight" if low == high else f"flights from {low} % to {high} %"
 
 
 def _sentence(pair: dict, gaps: bool) -> str:

@@ -222,8 +222,12 @@ def model_page(request: Request, name: str, services: Services = Depends(get_ser
     model = catalog.get_model(services.db, name)
     ready = [v for v in model.versions if v.status == "ready"]
     _total, flights = catalog.list_flights(services.db, limit=PAGE_SIZE, newest_first=True)
+    evaluations = catalog.evaluations_of(services.db, model.versions, EVALUATIONS_SHOWN)
+    # the answer of the newest finished evaluation leads the page (what the model does where it was scored)
+    latest = next(((ev, evaluation_headline(ev.report)) for ev, job in evaluations
+                   if job is not None and job.state == "succeeded" and ev.report), None)
     return page("model.html", f"Model {name}", name=name, model=model, ready=ready, flights=flights,
-                evaluations=catalog.evaluations_of(services.db, model.versions, EVALUATIONS_SHOWN),
+                latest=latest, evaluations=evaluations,
                 losses=loss_curves_of([{"ref": f"{name}:{v.version}", "losses": v.losses,
                                         "validation_losses": v.validation_losses} for v in ready]),
                 no_losses=[v.version for v in ready if not v.losses],
