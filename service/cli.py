@@ -218,7 +218,6 @@ def _ingest(args) -> int:
 def _train(args) -> int:
     """Store the flight and register the next version of NAME in the registry (service.local_registry)."""
     from .local_registry import train
-
     from .progress import StageProgress
 
     _registry_grid(args.rate)
@@ -313,7 +312,6 @@ def _evaluate_here(args, model, ref: str, methods: list[str]) -> dict:
     from learnest.estimators.export import write_estimates
 
     from .experiments.flights import evaluate_flights
-
     from .progress import StageProgress
 
     flights = _read(args.files, args.rate, _topics(args))
@@ -653,7 +651,8 @@ def diagnosis_lead(result: dict) -> list[str]:
     split = diagnosis_split(result)
     lines = [diagnosis_headline(result)]
     if split["fitting"] or split["scored"]:
-        lines.append(f"split: fitted on {', '.join(split['fitting']) or '-'}; scored on {', '.join(split['scored']) or '-'}"
+        lines.append(f"split: fitted on {', '.join(split['fitting']) or '-'}; "
+                     f"scored on {', '.join(split['scored']) or '-'}"
                      + (f" ({split['text']})" if split["text"] else ""))
     elif split["text"]:
         lines.append(f"split: {split['text']}")
@@ -894,7 +893,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     dia = sub.add_parser("diagnose", help="trace the residual to named physical effects, add them, "
                                           "report the error before and after")
-    dia.add_argument("files", nargs="*", help="flight log files (Crazyflie), in order: " + DIAGNOSIS_SPLIT_RULE.replace("%", "%%"))
+    dia.add_argument("files", nargs="*",
+                     help="flight log files (Crazyflie), in order: " + DIAGNOSIS_SPLIT_RULE.replace("%", "%%"))
     dia.add_argument("--system", default="quadrotor", choices=["quadrotor", "crazyflie", "cartpole", "robot"])
     dia.add_argument("--simulate", metavar="NAME=VALUE,...", default=None,
                      help="simulated systems: the true system's parameters/effects (hidden from the diagnosis)")
@@ -958,7 +958,8 @@ HELP = {
     ("diagnose", "--system"): "the prior diagnosed: quadrotor (kinematic, default), crazyflie (motors and battery: "
                               "the log needs motor PWM and battery voltage), or the simulated cartpole / robot",
     ("diagnose", "--seed"): "random seed of a simulated diagnosis (--simulate)",
-    ("diagnose", "--epochs"): f"KNODE training epochs before and after the effects (default {CRAZYFLIE_TRAINING.epochs})",
+    ("diagnose", "--epochs"): "KNODE training epochs before and after the effects "
+                              f"(default {CRAZYFLIE_TRAINING.epochs})",
     ("diagnose", "--rate"): "grid rate in Hz (default 100; --register needs 100)",
     ("demo", "folder"): "a folder of flight logs (e.g. sample_logs)",
     ("demo", "--methods"): f"comma-separated estimators to run (default {','.join(METHODS)})",

@@ -83,7 +83,8 @@ def assert_diagnosis_page(client, diagnosis_id: int, job_id: int, report: dict) 
     fitting = re.search(r"<span id='fitting-flights'>(.*?)</span>", page).group(1)
     scored = re.search(r"<span id='scored-flights'>(.*?)</span>", page).group(1)
     assert re.findall(r">([^<]+)</a>", fitting) == report["fitting_flights"]
-    assert re.findall(r">([^<]+)</a>", scored) == report["scored_flights"] == [p["flight"] for p in report["per_flight"]]
+    assert re.findall(r">([^<]+)</a>", scored) == report["scored_flights"]
+    assert report["scored_flights"] == [p["flight"] for p in report["per_flight"]]
     assert "<a href='/ui/models/cf'>cf:1</a>" in page
     job_page = client.get(f"/ui/jobs/{job_id}").text
     assert f"href='/diagnoses/{diagnosis_id}/report.html'" in job_page

@@ -101,7 +101,8 @@ def test_the_cli_text_starts_with_the_same_sentence_as_the_page():
 def render_report(report: dict) -> str:
     head = evaluation_headline(report)
     return page("report.html", "Evaluation 1: model cf:2", evaluation=SimpleNamespace(id=1, job_id=2),
-                report=report, head=head, gain_png=None, gap_methods=gap_methods(report), gap_settings={"gap_s": 0.5, "every_s": 2.5},
+                report=report, head=head, gain_png=None, gap_methods=gap_methods(report),
+                gap_settings={"gap_s": 0.5, "every_s": 2.5},
                 methods=list(report["median"]), settings={"methods": ["ukf", "knode-ukf"], "horizon": 20,
                                                           "include_bad": False},
                 sg_window=150, sg_window_used=151, paired=None, paired_png=None,
@@ -145,7 +146,8 @@ def test_diagnosis_page_states_its_split_and_spaces_units():
     html = page("diagnosis.html", "Diagnosis 1: crazyflie", diagnosis=SimpleNamespace(
         id=1, job_id=2, model_ref=None, settings={"methods": [], "epochs": 3}), report=report, flights=flights,
         headline=diagnosis_headline(report), split=diagnosis_split(report, [n for _, n in flights]), prior=[],
-        summary="data:,", series=None, note=None, registered=None, how_much=lambda f: f"explains {100 * f:.0f} % as much",
+        summary="data:,", series=None, note=None, registered=None,
+        how_much=lambda f: f"explains {100 * f:.0f} % as much",
         confounded_label=str, model_name=None).body.decode()
     text = visible_text(html)
     lines = text[text.index("Diagnosis 1: crazyflie", text.index("learnest")):].splitlines()

@@ -202,8 +202,8 @@ class EvaluationPending(BaseModel):
 
 # -- diagnoses ----------------------------------------------------------------------------------------
 class DiagnosisRequest(Strict):
-    flights: list[int] = Field(min_length=1, description="flight ids, in order: " + DIAGNOSIS_SPLIT_RULE + " (the report "
-                               "names them in `fitting_flights` and `scored_flights`)")
+    flights: list[int] = Field(min_length=1, description="flight ids, in order: " + DIAGNOSIS_SPLIT_RULE
+                               + " (the report names them in `fitting_flights` and `scored_flights`)")
     model: str | None = Field(None, description='the KNODE analysed, "name:version" or "name@alias" (default: '
                               "one trained on the fitting flight)")
     register_as: str | None = Field(None, alias="register", pattern=NAME_REGEX,

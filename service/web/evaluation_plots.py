@@ -127,7 +127,8 @@ def paired_figure(report: dict) -> dict | None:
                 better = after < before
                 traces.append({"type": "scatter", "mode": "lines+markers", "x": [2 * i, 2 * i + 1],
                                "y": [before * SCALE, after * SCALE], "xaxis": xaxis, "yaxis": yaxis,
-                               "name": flight, "line": {"color": "#888", "width": 1, "dash": "solid" if better else "dash"},
+                               "name": flight,
+                               "line": {"color": "#888", "width": 1, "dash": "solid" if better else "dash"},
                                "marker": {"color": [zoomable.METHOD_COLOURS.get(prior, "#777"),
                                                     zoomable.METHOD_COLOURS.get(knode, "#777")], "size": 7},
                                "text": [flight, flight],
