@@ -315,9 +315,11 @@ def test_evaluate_diagnose_and_register_through_the_forms_reading_each_answer(se
     submit(form)
     wait_for_url(browser, r"/ui/jobs/\d+$")
     assert wait_for_job_page(browser) == "succeeded"
+    on_job_page = by_css(browser, "#headline-sentence").text
     by_css(browser, "#report-link").click()
     wait_for_url(browser, r"/evaluations/\d+/report\.html")
     sentence = by_css(browser, "#headline-sentence").text
+    assert sentence == on_job_page
     assert re.match(r"KNODE-UKF scored \d+\.\d % (better|worse) than its prior UKF on the paper's Savitzky-Golay "
                     r"MSE \(median of 2 flights; (flights from [-+]\d+\.\d % to [-+]\d+\.\d %|[-+]\d+\.\d % on every "
                     r"flight)\): better on \d of 2; "
@@ -330,6 +332,9 @@ def test_evaluate_diagnose_and_register_through_the_forms_reading_each_answer(se
     WebDriverWait(browser, 30).until(lambda d: d.execute_script(
         "return document.querySelectorAll('#difference-plot svg.main-svg').length") > 0)
     screenshot(browser, "report")
+    # the export form downloads one flight's estimates through the API's own route
+    export = by_css(browser, "#export-form")
+    assert export.get_attribute("action").endswith("/estimates") and "circle_rep2" in export.text
 
     # diagnose from the model page: two flights in order (the first fits, the second is scored), register
     browser.get(server + "/ui/models/forms")
@@ -342,9 +347,11 @@ def test_evaluate_diagnose_and_register_through_the_forms_reading_each_answer(se
     wait_for_url(browser, r"/ui/jobs/\d+$")
     assert wait_for_job_page(browser, timeout=300) == "succeeded"
     assert "forms:2" in by_css(browser, "#registered-link").text
+    on_job_page = by_css(browser, "#headline-sentence").text
     by_css(browser, "#diagnosis-link").click()
     wait_for_url(browser, r"/diagnoses/\d+/report\.html")
     assert by_css(browser, "#headline-sentence").text.startswith("Found ")
+    assert by_css(browser, "#headline-sentence").text == on_job_page
     assert by_css(browser, "#diagnosis-split").text.startswith("Split: fitted on circle_rep1; scored on circle_rep2 (")
     assert image_loaded(browser, "#diagnosis-summary")
     screenshot(browser, "diagnosis")

@@ -307,7 +307,12 @@ def job_page(request: Request, job_id: RowId, services: Services = Depends(get_s
     diagnosis = catalog.diagnosis_of_job(services.db, job_id) if job.kind == "diagnosis" else None
     active, key = job.state in ACTIVE, forms.key_state(request, services.settings)
     # no reload while the cancel form asks for the key: a reload every second would wipe it mid-typing
-    return page("job.html", f"Job {job.id}", refresh_s=1 if active and key != "ask" else None, job=job,
+    answer = None   # a finished evaluation's or diagnosis' answer, as its report page says it first
+    if job.state == "succeeded" and evaluation is not None and evaluation.report:
+        answer = evaluation_headline(evaluation.report)["sentence"]
+    elif job.state == "succeeded" and diagnosis is not None and diagnosis.report:
+        answer = diagnosis_headline(diagnosis.report)
+    return page("job.html", f"Job {job.id}", refresh_s=1 if active and key != "ask" else None, job=job, answer=answer,
                 eta_s=seconds_left(job),
                 active=active, subject=job_subject(job), evaluation=evaluation, key=key, diagnosis=diagnosis,
                 model_name=evaluation.model_ref.split(":", 1)[0] if evaluation else None,
