@@ -171,3 +171,22 @@ def test_the_diagnose_form_checks_its_fields_as_the_api_does(tmp_path):
         bad_name = client.post("/ui/diagnoses", data={"flights": ["7"], "methods": ["ukf"], "register": "on",
                                                       "register_as": "no spaces allowed"})
         assert bad_name.status_code == 422 and "register" in bad_name.text
+
+
+def test_the_gain_figure_labels_each_flight_and_uses_the_method_colour():
+    from matplotlib.colors import to_hex
+
+    from learnest.service.web.figures import evaluation_summary, gain_per_flight
+    from learnest.service.web.palette import METHOD_COLOURS
+
+    head = evaluation_headline(GAP_REPORT)
+    [ax] = gain_per_flight(head).axes
+    assert [t.get_text() for t in ax.get_yticklabels()] == ["B2_circle_medium_rep1", "B3_figure8_fast_rep2", "ramp_low"]
+    [legend] = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert legend.startswith("KNODE-UKF vs UKF") and "median +12.0 %" in legend
+    dots = [line for line in ax.get_lines() if line.get_marker() == "o" and len(line.get_xdata()) == 1]
+    assert sorted(float(d.get_xdata()[0]) for d in dots) == [-8.0, 12.0, 20.0]
+    assert {to_hex(d.get_color()) for d in dots} == {METHOD_COLOURS["knode-ukf"]}
+    # the CLI's --plot: the same gain panel above the paired MSE dots
+    figure = evaluation_summary(GAP_REPORT)
+    assert len(figure.subfigs) == 2 and len(figure.subfigs[0].axes) == 1 and len(figure.subfigs[1].axes) == 1
