@@ -202,6 +202,7 @@ def watching_stages(services: Services, on_stage: Callable[[str, float | None], 
             if progress is not None and job.progress != fraction:
                 fraction = job.progress
                 progress(job.progress)
+                seen = None   # the stage is said again with the new fraction: both from this one read
             if on_stage is not None and job.stage and (job.stage, job.eta_s) != seen:
                 seen = (job.stage, job.eta_s)
                 on_stage(job.stage, seconds_left(job))

@@ -69,10 +69,11 @@ class StageProgress:
             print(f"learnest: {self.label}: {stage} ({100 * self.fraction:.0f} %{left})", file=self.stream,
                   flush=True)
 
-    # the callbacks the service functions take
+    # the callbacks the service functions take (service.local_registry calls both from one poll of the
+    # job row: the fraction is kept and drawn with the stage that comes with it, never alone)
     def progress(self, fraction: float) -> None:
-        """``progress(fraction)`` callback."""
-        self.update(fraction)
+        """``progress(fraction)`` callback: kept, shown by the next ``on_stage`` (or `close`)."""
+        self.fraction = max(self.fraction, min(1.0, max(0.0, float(fraction))))
 
     def on_stage(self, stage: str, seconds_left: float | None = None) -> None:
         """``on_stage(stage, seconds_left)`` callback."""

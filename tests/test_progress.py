@@ -23,6 +23,17 @@ def test_a_bar_never_exceeds_100_percent_nor_goes_back():
     assert percentages and max(percentages) == 100 and percentages == sorted(percentages)
 
 
+def test_a_fraction_alone_waits_for_its_stage():
+    out = io.StringIO()
+    with StageProgress("training demo", stream=out, bar=True) as bar:
+        bar.on_stage("epoch 1/150")
+        before = out.getvalue()
+        bar.progress(0.5)                  # drawn only with the stage read from the same job row
+        assert out.getvalue() == before
+        bar.on_stage("epoch 75/150")
+        assert re.search(r"50%\|.*epoch 75/150", out.getvalue().split("\r")[-1])
+
+
 def test_the_label_and_the_bar_come_from_the_same_report():
     out = io.StringIO()
     with StageProgress("training demo", stream=out, bar=True) as bar:
