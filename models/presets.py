@@ -116,3 +116,10 @@ PAPER_OBSERVER = {"cartpole": ("joint", 0), "robot": ("smoother", 0)}
 # Sec. V-C: 2 layers x 16 tanh, 150 epochs, KF pre-training observer
 CRAZYFLIE_TRAINING = TrainingConfig(hidden=16, epochs=150, lr=1e-3, validation_fraction=0.2,
                                     validation_layout="spread")
+
+# How a diagnosis splits its flights into fitting and scored ones (service.experiments.diagnosis), in the
+# words every surface uses: the API schema, `learnest diagnose --help`, the report page.
+DIAGNOSIS_SPLIT_RULE = ("the kinematic prior (quadrotor) fits its effects on the first flight and scores them on the "
+                        "others; the Crazyflie prior fits on the first half of the flights (rounded up) and scores "
+                        "on the rest; a single flight is fitted on its first 60 % and scored on the last 40 %; "
+                        "flights failing the quality checks are left out first")

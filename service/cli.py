@@ -9,14 +9,14 @@ import time
 from pathlib import Path
 from typing import NoReturn
 
-from tqdm import tqdm
-
 from learnest.errors import InvalidInput, LearnestError
 from learnest.models.presets import (
     CRAZYFLIE_TRAINING,
+    DIAGNOSIS_SPLIT_RULE,
     EVALUATION_METHODS,
     GAP_EVERY_S,
     GAP_S,
+    METHODS,
     MHE_HORIZON,
     PRODUCTION_ALIAS,
     SG_WINDOW,
@@ -162,8 +162,16 @@ def _reproduce(args) -> int:
 
     settings = ReproduceSettings(task=args.task, eval_samples=args.samples, epochs=args.epochs, horizon=args.horizon,
                                  observer_rounds=args.observer_rounds, observer=args.observer)
-    with tqdm(total=args.seeds, desc=f"Table I {args.task}", unit="seed", file=sys.stderr) as bar:
-        report = reproduce(settings, args.seeds, workers=args.workers, progress=lambda _r: bar.update(1),
+    from .progress import StageProgress
+
+    with StageProgress(f"Table I {args.task}") as bar:
+        done = [0]
+
+        def seed_done(_result) -> None:
+            done[0] += 1
+            bar.update(done[0] / args.seeds, f"{done[0]}/{args.seeds} seeds done")
+
+        report = reproduce(settings, args.seeds, workers=args.workers, progress=seed_done,
                            first_seed=args.first_seed)
     print(format_table(report))
     print(f"wall time {report['wall_time_s']:.0f} s")
@@ -191,11 +199,11 @@ def _thrust_map(args) -> int:
         except InvalidInput as err:
             raise InvalidInput(f"{err} (--{role})") from None
         sets[role], errors = batch.flights, errors + batch.errors
-    with tqdm(total=1, desc="thrust map", unit="", file=sys.stderr, bar_format=STAGE_BAR) as bar:
+    from .progress import StageProgress
+
+    with StageProgress("thrust map") as bar:
         def stage(name: str, done: int, total: int) -> None:
-            bar.set_description_str(f"thrust map: {name}")
-            bar.total, bar.n = total, done
-            bar.refresh()
+            bar.update(done / total if total else None, name)
 
         report = thrust_map_report(sets["fit"], sets["score"], progress=stage)
     if args.json:
@@ -283,11 +291,12 @@ def _ingest(args) -> int:
 def _train(args) -> int:
     """Store the flight and register the next version of NAME in the registry (service.local_registry)."""
     from .local_registry import train
+    from .progress import StageProgress
 
     _registry_grid(args.rate)
-    with tqdm(total=1000, desc=f"training {args.name}", file=sys.stderr, bar_format=STAGE_BAR) as bar:
-        out = train(args.files, args.name, epochs=args.epochs, include_bad=args.include_bad, progress=_advance(bar),
-                    system=args.system, on_stage=_show_stage(bar), **_topics(args), cut=args.cut,
+    with StageProgress(f"training {args.name}") as bar:
+        out = train(args.files, args.name, epochs=args.epochs, include_bad=args.include_bad, progress=bar.progress,
+                    system=args.system, on_stage=bar.on_stage, **_topics(args), cut=args.cut,
                     validate=args.validate)
     out["command_seconds"] = time.perf_counter() - _command_started[0]
     print(json.dumps(out, indent=2) if args.json else format_trained(out))
@@ -323,21 +332,7 @@ def format_trained(out: dict) -> str:
     return "\n".join(lines)
 
 
-STAGE_BAR = "{desc}: {percentage:3.0f}%|{bar}| [{elapsed}{postfix}]"   # postfix: ", epoch 12/150, about 20 s left"
 _command_started = [time.perf_counter()]   # reset by main(): the command's whole time, imports included
-
-
-def _show_stage(bar):
-    """A job's stage and seconds left -> the bar's postfix ("epoch 12/150, about 20 s left")."""
-    def show(stage: str, seconds_left: float | None) -> None:
-        left = f", about {seconds_left:.0f} s left" if seconds_left is not None else ""
-        bar.set_postfix_str(f"{stage}{left}", refresh=True)
-    return show
-
-
-def _advance(bar):
-    """A job's progress (0..1) -> a tqdm bar of ``bar.total`` steps."""
-    return lambda fraction: bar.update(max(0, round(fraction * bar.total) - bar.n))
 
 
 def _registry_grid(rate: float, hint: str = "") -> None:
@@ -352,7 +347,7 @@ def _evaluate(args) -> int:
     from learnest.models.presets import parse_methods
 
     from .local_registry import load_model
-    from .web.figures import paired_mse, save_figure
+    from .web.figures import evaluation_summary, save_figure
 
     if args.new:
         return _evaluate_new(args)
@@ -368,7 +363,7 @@ def _evaluate(args) -> int:
     ref = model.meta.get("ref", args.model)  # name:version, whatever form was asked for
     report = (_evaluate_stored if args.store else _evaluate_here)(args, model, ref, methods)
     if args.plot:
-        save_figure(paired_mse(report), args.plot, dpi=120)
+        save_figure(evaluation_summary(report), args.plot, dpi=120)
     if args.json:
         print(json.dumps(report, indent=2))
     else:
@@ -394,13 +389,13 @@ def _evaluate_stored(args, model, ref: str, methods: list[str]) -> dict:
 
     settings = EstimatorSettings(tuple(methods), args.horizon, args.include_bad, args.sg_window, args.gap_s,
                                  args.gap_every_s)
-    with tqdm(total=1.0, desc="evaluating", unit="", file=sys.stderr,
-              bar_format=STAGE_BAR) as bar:
-        report = evaluate(args.files, ref, settings, progress=lambda f: bar.update(f - bar.n),
-                          on_stage=_show_stage(bar), **_topics(args), cut=args.cut)
+    from .progress import StageProgress
+
+    with StageProgress("evaluating") as bar:
+        report = evaluate(args.files, ref, settings, progress=bar.progress, on_stage=bar.on_stage, **_topics(args),
+                          cut=args.cut)
     for line in format_errors(report.get("errors") or []):
         print(f"learnest: {line}", file=sys.stderr)
-        bar.update(1.0 - bar.n)
     if args.export and report["flights_scored"]:
         export(report["evaluation_id"], args.export, _export_format(args.export))
     return report
@@ -411,13 +406,20 @@ def _evaluate_here(args, model, ref: str, methods: list[str]) -> dict:
     from learnest.estimators.export import write_estimates
 
     from .experiments.flights import evaluate_flights
+    from .progress import StageProgress
 
     batch = _read_batch(args.files, args.rate, _topics(args), args.cut)
     flights = batch.flights
     kept: list = []
-    with tqdm(total=len(flights), desc="evaluating", unit="flight", file=sys.stderr) as bar:
+    with StageProgress("evaluating") as bar:
+        done = [0]
+
+        def flight_done(_flight) -> None:
+            done[0] += 1
+            bar.update(done[0] / len(flights), f"{done[0]}/{len(flights)} flight(s) done")
+
         report = evaluate_flights(model, flights, methods, include_bad=args.include_bad, horizon=args.horizon,
-                                  sg_window=args.sg_window, progress=lambda _f: bar.update(1),
+                                  sg_window=args.sg_window, progress=flight_done,
                                   gap_s=args.gap_s, gap_every_s=args.gap_every_s,
                                   on_estimates=(lambda _i, e: kept.append(e)) if args.export else None)
     report["model"] = ref
@@ -656,7 +658,8 @@ def _demo(args) -> int:
 
     from .experiments.flights import evaluate_flights
     from .local_registry import load_model, train
-    from .web.figures import paired_mse, save_figure
+    from .progress import StageProgress
+    from .web.figures import evaluation_summary, save_figure
 
     _registry_grid(args.rate)
     folder = Path(args.folder)
@@ -676,22 +679,45 @@ def _demo(args) -> int:
     clean = [f for f in flights if f.quality["ok"]]
     if len(clean) < 2:
         raise InvalidInput(f"{folder}: need at least two flights that pass the quality checks, found {len(clean)}")
-    chosen = [f for f in clean if f.name == args.train] if args.train else clean[:1]
+    from learnest.models.inputs import missing_inputs
+
+    # the Crazyflie prior (motors and battery) where the flights carry its inputs: it knows the vehicle's
+    # thrust, which the kinematic prior leaves to the network
+    driven = [f for f in clean if not missing_inputs(f, "crazyflie")]
+    pool = driven if args.system == "crazyflie" or (args.system is None and len(driven) >= 2) else clean
+    system = "crazyflie" if pool is driven else "quadrotor"
+    if len(pool) < 2:
+        raise InvalidInput(f"{folder}: the {system} prior needs at least two clean flights with motor PWM and "
+                           f"battery voltage, found {len(pool)}")
+    chosen = [f for f in pool if f.name == args.train] if args.train else pool[:1]
     if not chosen:
-        raise InvalidInput(f"no clean flight named {args.train!r} in {folder}")
-    with tqdm(total=CRAZYFLIE_TRAINING.epochs, desc=f"training on {chosen[0].name}", unit="epoch",
-              file=sys.stderr) as bar:
-        trained = train([source["path"] for source in chosen[0].meta["sources"]], args.name, progress=_advance(bar),
-                        on_stage=_show_stage(bar))
+        raise InvalidInput(f"no clean flight named {args.train!r} in {folder}"
+                           + (" with motor PWM and battery voltage" if system == "crazyflie" else ""))
+    kept = {id(f) for f in pool}   # by identity: a Flight's == compares arrays
+    left_out = [f.name for f in flights if id(f) not in kept]
+    print(f"prior: {system}" + (" (the flights carry motor PWM and battery voltage)" if system == "crazyflie" else "")
+          + (f"; scored on the {len(pool) - 1} other flight(s) with the same inputs, left out: "
+             f"{', '.join(left_out)}" if left_out else ""))
+    with StageProgress(f"training on {chosen[0].name}") as bar:
+        trained = train([source["path"] for source in chosen[0].meta["sources"]], args.name, progress=bar.progress,
+                        on_stage=bar.on_stage, system=system)
     print(f"registered {trained['ref']} in {trained['home']}")
-    with tqdm(total=len(flights), desc="evaluating", unit="flight", file=sys.stderr) as bar:
-        report = evaluate_flights(load_model(trained["ref"]), flights, parse_methods(args.methods, EVALUATION_METHODS),
-                                  horizon=args.horizon, progress=lambda _f: bar.update(1))
+    with StageProgress("evaluating") as bar:
+        done = [0]
+
+        def flight_done(_flight) -> None:
+            done[0] += 1
+            bar.update(done[0] / len(pool), f"{done[0]}/{len(pool)} flight(s) done")
+
+        report = evaluate_flights(load_model(trained["ref"]), pool, parse_methods(args.methods, EVALUATION_METHODS),
+                                  horizon=args.horizon, progress=flight_done)
     report["model"] = trained["ref"]
     print(format_report(report))
     if args.plot:
-        save_figure(paired_mse(report), args.plot, dpi=120)
-        print(f"MSE per flight (prior vs KNODE): {args.plot}")
+        save_figure(evaluation_summary(report), args.plot, dpi=120)
+        print(f"gain per flight and MSE per flight (prior vs KNODE): {args.plot}")
+    print(f"\nnext: `learnest serve`, then open http://127.0.0.1:8000/ui/models/{args.name} to see the model, "
+          f"evaluate it on other flights and diagnose it from the browser")
     return _batch_status(batch.errors)
 
 
@@ -720,17 +746,24 @@ def _diagnose(args) -> int:
             from .references import check_name
             _registry_grid(args.rate)
             check_name(args.register)  # before the work
-        batch = _read_batch(args.files, args.rate, _topics(args), args.cut)
-        flights = batch.flights
-        epochs = args.epochs or CRAZYFLIE_TRAINING.epochs
-        result, repaired = diagnose_flights(flights, knode=model, methods=methods, epochs=epochs,
-                                            return_model=True, system=args.system, mass_kg=args.mass_kg)
+        from .progress import StageProgress
+
+        with StageProgress("diagnosing") as bar:
+            bar.update(0.0, f"reading {len(args.files)} file(s)")
+            batch = _read_batch(args.files, args.rate, _topics(args), args.cut)
+            flights = batch.flights
+            epochs = args.epochs or CRAZYFLIE_TRAINING.epochs
+            bar.update(0.05, f"fitting effects and training the KNODEs ({epochs} epochs each), then scoring "
+                             f"before and after on {max(1, len(flights) - 1)} flight(s)")
+            result, repaired = diagnose_flights(flights, knode=model, methods=methods, epochs=epochs,
+                                                return_model=True, system=args.system, mass_kg=args.mass_kg)
         if args.register:
             _register_diagnosed(args, result, repaired, flights, model)
         result["errors"] = batch.errors
     if args.plot:
         save_figure(residual_before_after(result), args.plot, dpi=110)
-    print(json.dumps(result, indent=2, default=float) if args.json else format_diagnosis(result))
+    print(json.dumps(result, indent=2, default=float) if args.json else
+          "\n".join(diagnosis_lead(result)) + format_diagnosis(result))
     if result.get("registered") and not args.json:
         r = result["registered"]
         print(f"registered {r['name']}:{r['version']} (parent {r['parent'] or 'none'})"
@@ -761,6 +794,21 @@ def _register_diagnosed(args, result: dict, repaired, flights, model) -> None:
         result["registered"]["warning"] = warning
 
 
+def diagnosis_lead(result: dict) -> list[str]:
+    """The diagnosis' answer and split first, as its page says them (service.web.headline)."""
+    from .web.headline import diagnosis_headline, diagnosis_split
+
+    split = diagnosis_split(result)
+    lines = [diagnosis_headline(result)]
+    if split["fitting"] or split["scored"]:
+        lines.append(f"split: fitted on {', '.join(split['fitting']) or '-'}; "
+                     f"scored on {', '.join(split['scored']) or '-'}"
+                     + (f" ({split['text']})" if split["text"] else ""))
+    elif split["text"]:
+        lines.append(f"split: {split['text']}")
+    return lines + [""]
+
+
 def format_report(report: dict) -> str:
     """An evaluation report (evaluate_flights' JSON) as a text table: per-flight and median MSE (x 1e-3) per method
     and the share of the flight outside the model's training envelope, then the improvements in %, the prediction
@@ -770,7 +818,7 @@ def format_report(report: dict) -> str:
     """
     methods = list(report["median"])
     prior = f" ({report['system']} prior)" if report.get("system") else ""
-    lines = _yardstick_lines(report, prior)
+    lines = headline_lines(report) + _yardstick_lines(report, prior)
     lines += [f"The paper's score (paper_sg), model {report['model']}{prior}: MSE over [p, v, a] vs "
               "Savitzky-Golay references (x 1e-3)",
              f"{'flight':<28}" + "".join(f"{m:>12}" for m in methods) + "  outside envelope"]
@@ -899,6 +947,26 @@ def _the(sentence: str) -> str:
 def _method_order(method: str) -> int:
     """Methods in the order of EVALUATION_METHODS (unknown ones last)."""
     return EVALUATION_METHODS.index(method) if method in EVALUATION_METHODS else len(EVALUATION_METHODS)
+
+
+def headline_lines(report: dict) -> list[str]:
+    """The answer first (service.web.headline, as the report page says it): the sentence of each KNODE
+    against its prior, what the yardstick measures, and per flight the gain with its 95 % interval; then a
+    blank line before the tables and the details."""
+    from .web.headline import evaluation_headline
+
+    head = evaluation_headline(report)
+    lines = [pair["sentence"] for pair in head["pairs"]] or [head["sentence"]]
+    lines.append(f"  (yardstick: {head['measures']})")
+    for pair in head["pairs"]:
+        label = f"{pair['knode'].upper()} gain over {pair['prior'].upper()} (%)"
+        lines.append(f"{'flight':<28}{label:>30}  95 % interval")
+        for r in pair["rows"]:
+            ci = r["interval_pct"]
+            beyond = "  WORSE beyond its interval" if ci and ci[1] < 0 else ""
+            lines.append(f"{r['flight']:<28}{r['gain_pct']:>+30.1f}  "
+                         + (f"[{ci[0]:+.1f}, {ci[1]:+.1f}]" if ci else "-") + beyond)
+    return lines + [""]
 
 
 def _envelope_text(envelope: dict | None) -> str:
@@ -1065,7 +1133,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     dia = sub.add_parser("diagnose", help="trace the residual to named physical effects, add them, "
                                           "report the error before and after")
-    dia.add_argument("files", nargs="*", help="flight log files (Crazyflie)")
+    dia.add_argument("files", nargs="*",
+                     help="flight log files (Crazyflie), in order: " + DIAGNOSIS_SPLIT_RULE.replace("%", "%%"))
     dia.add_argument("--system", default=None, choices=["quadrotor", "crazyflie", "cartpole", "robot"],
                      help="the prior diagnosed (default: --model's prior, else quadrotor)")
     dia.add_argument("--mass-kg", type=_positive_float, default=None,
@@ -1113,12 +1182,76 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--plot", metavar="PNG", type=_new_file, default=None)
     demo.add_argument("--horizon", type=_positive_int, default=MHE_HORIZON)
     demo.add_argument("--rate", type=_positive_float, default=100.0)
+    demo.add_argument("--system", default=None, choices=["quadrotor", "crazyflie"],
+                      help="the prior to train (default: crazyflie when at least two clean flights carry motor PWM "
+                           "and battery voltage, else the kinematic quadrotor)")
     demo.set_defaults(func=_demo)
+    _fill_help(parser)
     return parser
+
+
+# Help of the arguments defined above without one (kept here, in one block, so the definitions stay short);
+# tests/test_cli_help.py walks the parser and fails on any argument still without help.
+JSON_HELP = "print the result as JSON instead of text"
+HELP = {
+    ("reproduce", "--task"): "the simulated system of Table I: cartpole or robot",
+    ("reproduce", "--seeds"): "how many seeds (random systems and noise) to average over (default 15, the paper's)",
+    ("evaluate", "files"): "flight log files or folders to score the model on (not with --new)",
+    ("evaluate", "--methods"): f"comma-separated estimators to run (default {','.join(METHODS)})",
+    ("evaluate", "--rate"): "grid rate in Hz (default 100; the registry keeps 100, other rates need --no-store)",
+    ("export", "evaluation_id"): "the stored evaluation (its id, as `learnest evaluate` prints it)",
+    ("export", "--output"): "the file to write; its suffix picks the format unless --format is given",
+    ("models show", "ref"): "NAME, NAME:VERSION or NAME@ALIAS",
+    ("alias set", "name"): "the registered model",
+    ("alias set", "version"): "the version the alias points to (must be ready)",
+    ("alias set", "alias"): "the alias to create or move, e.g. production",
+    ("serve", "--host"): "address to listen on (default 127.0.0.1: this machine only)",
+    ("serve", "--port"): "TCP port (default 8000)",
+    ("diagnose", "--system"): "the prior diagnosed: quadrotor (kinematic, default), crazyflie (motors and battery: "
+                              "the log needs motor PWM and battery voltage), or the simulated cartpole / robot",
+    ("diagnose", "--seed"): "random seed of a simulated diagnosis (--simulate)",
+    ("diagnose", "--epochs"): "KNODE training epochs before and after the effects "
+                              f"(default {CRAZYFLIE_TRAINING.epochs})",
+    ("diagnose", "--rate"): "grid rate in Hz (default 100; --register needs 100)",
+    ("demo", "folder"): "a folder of flight logs (e.g. sample_logs)",
+    ("demo", "--methods"): f"comma-separated estimators to run (default {','.join(METHODS)})",
+    ("demo", "--plot"): "also write the per-flight MSE figure (prior vs KNODE) to this PNG",
+    ("demo", "--horizon"): f"MHE horizon N (default {MHE_HORIZON})",
+    ("demo", "--rate"): "grid rate in Hz (the registry keeps 100)",
+}
+
+
+def subcommands(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()):
+    """(path, parser) of ``parser`` and of every subcommand under it, depth first ("models show")."""
+    yield path, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, child in action.choices.items():
+                yield from subcommands(child, (*path, name))
+
+
+def _fill_help(parser: argparse.ArgumentParser) -> None:
+    """Give the arguments defined without help their text from `HELP` (a --json flag: `JSON_HELP`)."""
+    for path, sub in subcommands(parser):
+        for action in sub._actions:
+            if action.help:
+                continue
+            name = action.option_strings[-1] if action.option_strings else action.dest
+            if name == "--json" and action.nargs == 0:
+                action.help = JSON_HELP
+            else:
+                action.help = HELP.get((" ".join(path), name), action.help)
 
 
 # commands that only read or move registry rows: no torch, no worker set-up
 REGISTRY_COMMANDS = (_flights_list, _models_list, _models_show, _alias_set)
+
+
+def _given_paths(args) -> list[str]:
+    """The input files and folders a command was given (FILE..., --fit, --score, demo's FOLDER)."""
+    paths = [*(getattr(args, "files", None) or []), *(getattr(args, "fit", None) or []),
+             *(getattr(args, "score", None) or [])]
+    return paths + ([args.folder] if getattr(args, "folder", None) else [])
 
 
 def main(argv=None) -> int:
@@ -1140,6 +1273,10 @@ def main(argv=None) -> int:
         except InvalidInput as err:
             print(f"learnest export: error: {err} (or give --format)", file=sys.stderr)
             return 2
+    missing = [p for p in _given_paths(args) if not Path(p).expanduser().exists()]
+    if missing:  # before any import, progress bar or stored row: a typo costs nothing
+        print(f"learnest {args.command}: error: no such file or folder: {', '.join(missing)}", file=sys.stderr)
+        return 2
     if args.func not in (_ingest, _serve, _export) + REGISTRY_COMMANDS:  # the rest run the networks here
         from .jobs.executors import init_worker
 

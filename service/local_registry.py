@@ -147,6 +147,8 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
             rows = [row for row in rows if row.quality_ok]
             held = [row for row in held if row.quality_ok]
         ids = [row.id for row in rows]
+        for row in rows + held:   # before a worker starts: a missing channel is said at once
+            _check_inputs(services, row, system)
         job, version = start_training(services, name, ids[0] if len(ids) == 1 and not held else ids,
                                       {"epochs": epochs, "system": system}, include_bad=include_bad,
                                       validation_ids=[row.id for row in held] if held else None)
@@ -156,12 +158,16 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
             abandon_training(services, job.id)
             raise
         with services.db.transaction() as session:
-            version = registry.get_version(session, name, version.version)
+            if job.state != "succeeded":   # no half-made model: the reserved version (and a name left empty) goes
+                registry.drop_unfinished_versions(session, job.id)
+            else:
+                version = registry.get_version(session, name, version.version)
+    if job.state != "succeeded":
+        names = ", ".join(row.name for row in rows)
+        raise TrainingFailed(f"training {name}:{version.version} on {names} failed: {job.error}; nothing was "
+                             "registered")
     trained = registry.training_flights_of(version)
     validation = list(version.validation_flights or [])
-    if job.state != "succeeded":
-        raise TrainingFailed(f"training {name}:{version.version} on {', '.join(f['name'] for f in trained)} "
-                             f"failed: {job.error}")
     metrics = version.metrics or {}
     return {"name": name, "version": version.version, "ref": f"{name}:{version.version}",
             "training_flight": trained[0]["name"], "flight_id": trained[0]["id"],
@@ -176,6 +182,19 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
             "best_validation_loss": metrics.get("best_validation_loss"),
             "final_loss": version.losses[-1] if version.losses else None, "seconds": version.training_seconds,
             "total_seconds": (job.result or {}).get("total_seconds"), "home": str(settings.home)}
+
+
+def _check_inputs(services: Services, row, system: str) -> None:
+    """MissingInputs (naming the flight and the channels) when the stored flight lacks the prior's inputs."""
+    from learnest.ingest.flight import Flight
+    from learnest.models.inputs import MissingInputs, missing_inputs
+
+    if system == "quadrotor":
+        return
+    lacking = missing_inputs(Flight.from_bytes(services.blobs.read_bytes(row.flight_blob)), system)
+    if lacking:
+        raise MissingInputs(f"{row.name}: the {system!r} prior needs {', '.join(lacking)}, which this flight does "
+                            "not carry; the kinematic prior (--system quadrotor) works without them")
 
 
 def abandon_training(services: Services, job_id: int) -> None:
@@ -205,21 +224,28 @@ def wait_for_job(services: Services, job_id: int, progress: Callable[[float], No
 
 @contextmanager
 def watching_stages(services: Services, on_stage: Callable[[str, float | None], None] | None,
-                    poll_s: float = 0.25) -> Iterator[None]:
+                    poll_s: float = 0.25, progress: Callable[[float], None] | None = None) -> Iterator[None]:
     """While the block runs, call ``on_stage(stage, seconds_left)`` whenever the stage of this process's
-    running job changes (a job run here and now, whose worker writes its stage to the database)."""
-    if on_stage is None:
+    running job changes (a job run here and now, whose worker writes its stage to the database), and
+    ``progress(fraction)`` whenever its progress does."""
+    if on_stage is None and progress is None:
         yield
         return
     stop = threading.Event()
 
     def watch() -> None:
-        seen = None
+        seen, fraction = None, None
         while not stop.wait(poll_s):
             with services.db.transaction() as session:
                 job = session.scalar(select(Job).where(Job.owner == services.runner.owner, Job.state == "running")
                                      .order_by(Job.id.desc()).limit(1))
-            if job is not None and job.stage and (job.stage, job.eta_s) != seen:
+            if job is None:
+                continue
+            if progress is not None and job.progress != fraction:
+                fraction = job.progress
+                progress(job.progress)
+                seen = None   # the stage is said again with the new fraction: both from this one read
+            if on_stage is not None and job.stage and (job.stage, job.eta_s) != seen:
                 seen = (job.stage, job.eta_s)
                 on_stage(job.stage, seconds_left(job))
 
@@ -270,17 +296,11 @@ def evaluate(paths, model_ref: str, estimator_settings: EstimatorSettings, *, po
                            "stored": "new" if created else "existing"})
         if not ids:
             raise InvalidInput("no flight could be read: " + "; ".join(f"{e['file']}: {e['message']}" for e in errors))
-        done = [0]
-
-        def advance() -> None:  # called by the job as each flight is done
-            done[0] += 1
-            if progress:
-                progress(done[0] / len(ids))
-
-        # interrupted (Ctrl-C), the job is failed by the runner's shutdown when the services close
-        with watching_stages(services, on_stage):
-            job_id, evaluation_id, _ = start_evaluation(services, model_ref, ids, estimator_settings, wait=True,
-                                                        on_progress=advance)
+        # interrupted (Ctrl-C), the job is failed by the runner's shutdown when the services close; the
+        # progress shown is the job row's own (flights done of all, cached ones included), never a count
+        # of progress calls
+        with watching_stages(services, on_stage, progress=progress):
+            job_id, evaluation_id, _ = start_evaluation(services, model_ref, ids, estimator_settings, wait=True)
         job = catalog.get_job(services.db, job_id)
         if job.state != "succeeded":
             raise Conflict(f"evaluation {evaluation_id} {job.state}: {job.error}")

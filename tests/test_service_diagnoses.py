@@ -78,7 +78,13 @@ def assert_diagnosis_page(client, diagnosis_id: int, job_id: int, report: dict) 
     assert re.search(r"<img id='diagnosis-summary' alt='[^']*' src='data:image/png;base64,", page)
     for method in FAST_METHODS:
         assert f"<b>{report['after'][method]:.4g}</b>" in page
-    assert "<b>cf" not in page and ">b_cf_0</a> (fitting), <a href='/ui/flights/2'>b_cf_1</a>" in page
+    assert "<b>cf" not in page
+    # the split the code made, as the report names it: the page says the same
+    fitting = re.search(r"<span id='fitting-flights'>(.*?)</span>", page).group(1)
+    scored = re.search(r"<span id='scored-flights'>(.*?)</span>", page).group(1)
+    assert re.findall(r">([^<]+)</a>", fitting) == report["fitting_flights"]
+    assert re.findall(r">([^<]+)</a>", scored) == report["scored_flights"]
+    assert report["scored_flights"] == [p["flight"] for p in report["per_flight"]]
     assert "<a href='/ui/models/cf'>cf:1</a>" in page
     job_page = client.get(f"/ui/jobs/{job_id}").text
     assert f"href='/diagnoses/{diagnosis_id}/report.html'" in job_page
@@ -151,6 +157,14 @@ def test_cli_diagnose_registers_a_child_version(tmp_path, biased_logs, monkeypat
     report = run("diagnose", *files, "--model", "cf:1", "--register", "cf", "--epochs", str(EPOCHS))
     assert_bias_found(report)
     assert report["registered"] == {"name": "cf", "version": 2, "parent": "cf:1"}
+    # the kinematic prior's split: the first flight fits, the others are scored; the CLI's text says so second
+    from learnest.service.cli import diagnosis_lead
+    assert len(report["fitting_flights"]) == 1
+    assert report["scored_flights"] == [p["flight"] for p in report["per_flight"]] and report["scored_flights"]
+    lead = diagnosis_lead(report)
+    assert lead[0].startswith("Found accel_bias")
+    assert lead[1] == (f"split: fitted on {report['fitting_flights'][0]}; scored on "
+                       f"{', '.join(report['scored_flights'])} ({report['split']})")
     model = load_model_ref("cf:2")
     assert "accel_bias" in model.meta["effects"] and model.meta["measurement_effects"]
     with running_app(tmp_path / "home") as client:

@@ -4,7 +4,10 @@ The browser test starts `learnest serve` (python -m service.cli serve) on a free
 LEARNEST_HOME and an API key, and drives Debian's headless Chromium through chromedriver with selenium:
 upload two sample logs with the upload form, train a model from the flight page (3 epochs), wait for the
 job page, evaluate from the model page, wait, and read the report (per-flight paired dots and error-over-time
-plots drawn by plotly.js, per-flight table).  It is skipped, with the reason, when selenium, /usr/bin/chromium or /usr/bin/chromedriver is
+plots drawn by plotly.js, per-flight table).  A second one evaluates, diagnoses and registers through the
+forms only and reads each report's answer off its first line (LEARNEST_SCREENSHOTS=FOLDER saves the flight,
+report, diagnosis and model pages as PNGs).  The train step uses the flight page's one-flight train form.
+Both are skipped, with the reason, when selenium, /usr/bin/chromium or /usr/bin/chromedriver is
 missing (CI installs them: see .ci/run).  Selenium is given the driver's path and Selenium Manager is
 disabled, so nothing is ever downloaded.
 """
@@ -75,6 +78,8 @@ def server(tmp_path):
         except subprocess.TimeoutExpired:
             process.kill()
             process.wait()
+    # a clean stop says nothing more: the pool's workers end by themselves, their semaphores with them
+    assert "leaked semaphore" not in log.read_text(), log.read_text()[-2000:]
 
 
 # -- a headless browser ---------------------------------------------------------------------------------
@@ -262,3 +267,98 @@ def test_missing_things_and_bad_forms_are_html_error_pages(tmp_path):
         assert nothing.status_code == 422 and "choose the log file" in nothing.text
         unknown = client.post("/ui/evaluations", data={"model": "nobody", "methods": ["ukf"]})
         assert unknown.status_code == 404 and "nobody" in unknown.text
+
+
+SCREENS = Path(os.environ.get("LEARNEST_SCREENSHOTS", "")) if os.environ.get("LEARNEST_SCREENSHOTS") else None
+
+
+def screenshot(driver, name: str) -> None:
+    """With LEARNEST_SCREENSHOTS=FOLDER, save the whole page as FOLDER/NAME.png (for people to look at)."""
+    if SCREENS is None:
+        return
+    SCREENS.mkdir(parents=True, exist_ok=True)
+    height = driver.execute_script("return document.documentElement.scrollHeight")
+    driver.set_window_size(1280, min(max(1000, height), 6000))
+    driver.save_screenshot(str(SCREENS / f"{name}.png"))
+    driver.set_window_size(1280, 1000)
+
+
+def submit(form) -> None:
+    keys = form.find_elements("name", "api_key")
+    if keys:
+        keys[0].send_keys(API_KEY)
+    form.find_element("css selector", "button[type=submit]").click()
+
+
+def test_evaluate_diagnose_and_register_through_the_forms_reading_each_answer(server, browser):
+    """Everything through the forms: upload, train (the flight page's train form), evaluate and diagnose
+    (registering the repaired model) from the model page; each report's first line is its answer."""
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    for name in ("circle_rep1.csv", "circle_rep2.csv", "circle_rep3.csv"):
+        upload_in_browser(browser, server, SAMPLES / name)
+    flight_page = browser.current_url.rsplit("/", 1)[0] + "/1"
+    browser.get(flight_page)
+    screenshot(browser, "flight")
+    form = by_css(browser, "#train-form")
+    form.find_element("name", "name").send_keys("forms")
+    form.find_element("name", "epochs").send_keys("3")
+    submit(form)
+    wait_for_url(browser, r"/ui/jobs/\d+$")
+    assert wait_for_job_page(browser) == "succeeded"
+
+    # evaluate from the model page (UKFs only: quick), then read the report's answer
+    browser.get(server + "/ui/models/forms")
+    form = by_css(browser, "#evaluate-form")
+    for method in ("mhe", "knode-mhe"):
+        form.find_element("css selector", f"input[name=methods][value={method}]").click()
+    submit(form)
+    wait_for_url(browser, r"/ui/jobs/\d+$")
+    assert wait_for_job_page(browser) == "succeeded"
+    on_job_page = by_css(browser, "#headline-sentence").text
+    by_css(browser, "#report-link").click()
+    wait_for_url(browser, r"/evaluations/\d+/report\.html")
+    sentence = by_css(browser, "#headline-sentence").text
+    assert sentence == on_job_page
+    assert re.match(r"KNODE-UKF scored \d+\.\d % (better|worse) than its prior UKF on the paper's Savitzky-Golay "
+                    r"MSE \(median of 2 flights; (flights from [-+]\d+\.\d % to [-+]\d+\.\d %|[-+]\d+\.\d % on every "
+                    r"flight)\): better on \d of 2; "
+                    r"worse beyond its 95 % interval on (none|\d)\.$", sentence), sentence
+    assert image_loaded(browser, "#gain-figure")
+    # the answer comes first: above the per-flight table, which is above the folded details
+    top = {k: browser.execute_script(f"return document.querySelector('{k}').getBoundingClientRect().top")
+           for k in ("#headline-sentence", "#mse", "#details-settings")}
+    assert top["#headline-sentence"] < top["#mse"] < top["#details-settings"]
+    WebDriverWait(browser, 30).until(lambda d: d.execute_script(
+        "return document.querySelectorAll('#difference-plot svg.main-svg').length") > 0)
+    screenshot(browser, "report")
+    # the export form downloads one flight's estimates through the API's own route
+    export = by_css(browser, "#export-form")
+    assert export.get_attribute("action").endswith("/estimates") and "circle_rep2" in export.text
+
+    # diagnose from the model page: two flights in order (the first fits, the second is scored), register
+    browser.get(server + "/ui/models/forms")
+    form = by_css(browser, "#diagnose-form")
+    for flight_id in ("1", "2"):
+        form.find_element("css selector", f"input[name=flights][value='{flight_id}']").click()
+    form.find_element("name", "epochs").send_keys("3")
+    form.find_element("name", "register").click()
+    submit(form)
+    wait_for_url(browser, r"/ui/jobs/\d+$")
+    assert wait_for_job_page(browser, timeout=300) == "succeeded"
+    assert "forms:2" in by_css(browser, "#registered-link").text
+    on_job_page = by_css(browser, "#headline-sentence").text
+    by_css(browser, "#diagnosis-link").click()
+    wait_for_url(browser, r"/diagnoses/\d+/report\.html")
+    assert by_css(browser, "#headline-sentence").text.startswith("Found ")
+    assert by_css(browser, "#headline-sentence").text == on_job_page
+    assert by_css(browser, "#diagnosis-split").text.startswith("Split: fitted on circle_rep1; scored on circle_rep2 (")
+    assert image_loaded(browser, "#diagnosis-summary")
+    screenshot(browser, "diagnosis")
+
+    # the registered version is on the model page beside the trained one, under the newest evaluation's answer
+    browser.get(server + "/ui/models/forms")
+    assert by_css(browser, "#headline-sentence").text == sentence
+    versions = by_css(browser, "#versions").text
+    assert "ready" in versions and versions.count("ready") == 2
+    screenshot(browser, "model")

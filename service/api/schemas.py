@@ -9,6 +9,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from learnest.estimators.yardsticks import FlightYardsticks, Headline
 from learnest.models.presets import (
     CRAZYFLIE_TRAINING,
+    DIAGNOSIS_SPLIT_RULE,
     EVALUATION_METHODS,
     GAP_EVERY_S,
     GAP_S,
@@ -277,8 +278,8 @@ class EvaluationPending(BaseModel):
 
 # -- diagnoses ----------------------------------------------------------------------------------------
 class DiagnosisRequest(Strict):
-    flights: list[int] = Field(min_length=1, description="flight ids; the first is the fitting flight, the "
-                               "others are scored (one flight: fit on its first 60 %, score the rest)")
+    flights: list[int] = Field(min_length=1, description="flight ids, in order: " + DIAGNOSIS_SPLIT_RULE
+                               + " (the report names them in `fitting_flights` and `scored_flights`)")
     model: str | None = Field(None, description='the KNODE analysed, "name:version" or "name@alias" (default: '
                               "one trained on the fitting flight)")
     register_as: str | None = Field(None, alias="register", pattern=NAME_REGEX,

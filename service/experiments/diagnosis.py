@@ -282,6 +282,12 @@ def _score_simulated(system, zeta, train, test, methods, config):
 
 
 # -- Crazyflie flights -----------------------------------------------------------------------------
+# How the flights of a diagnosis are split (`_split_for_fitting`, `_split_crazyflie`), in the words every
+# surface uses (the API schema, `learnest diagnose --help`); each report says its own split in ``split``,
+# ``fitting_flights`` and ``scored_flights``.  Flights failing the quality checks are left out first.
+# (models.presets.DIAGNOSIS_SPLIT_RULE: kept where the API schema can import it without numpy.)
+
+
 def _split_for_fitting(flights: list[Flight]):
     """Fit on the first flight and score on the others; one flight: fit on its first 60 %, score the rest (its
     motors as warm as the flight's were there, `models.inputs.slice_keeping_heat`)."""
@@ -308,14 +314,28 @@ def diagnose_flights(flights: list[Flight], knode: HybridModel | None = None,
     if system is None:
         system = knode.system.name if knode is not None else "quadrotor"
     if system == "crazyflie":
-        return diagnose_crazyflie(flights, knode=knode, methods=methods, epochs=epochs, return_model=return_model,
-                                  prior=prior, mass_kg=mass_kg)
-    if system != "quadrotor":
+        out = diagnose_crazyflie(flights, knode=knode, methods=methods, epochs=epochs, return_model=return_model,
+                                 prior=prior, mass_kg=mass_kg)
+    elif system != "quadrotor":
         raise InvalidInput(f"diagnosing flights needs system 'quadrotor' or 'crazyflie', not {system!r}")
-    if knode is not None and knode.system.name != "quadrotor":
+    elif knode is not None and knode.system.name != "quadrotor":
         raise InvalidInput(f"model {knode.meta.get('name') or ''} has the {knode.system.name!r} prior: diagnose it "
                            f"with system {knode.system.name!r} (the default for a model is its own prior)")
-    return _diagnose_quadrotor(flights, knode, methods, epochs, return_model)
+    else:
+        out = _diagnose_quadrotor(flights, knode, methods, epochs, return_model)
+    report = out[0] if return_model else out
+    report.update(split_names(flights, system))
+    return out
+
+
+def split_names(flights: list[Flight], system: str) -> dict:
+    """``fitting_flights`` and ``scored_flights`` (names) as the diagnosis splits ``flights`` (`SPLIT_RULE`;
+    one flight is in both: its first 60 % fitted, the rest scored)."""
+    kept = [f for f in flights if f.quality["ok"]] or flights
+    if len(kept) == 1:
+        return {"fitting_flights": [kept[0].name], "scored_flights": [kept[0].name]}
+    cut = (len(kept) + 1) // 2 if system == "crazyflie" else 1
+    return {"fitting_flights": [f.name for f in kept[:cut]], "scored_flights": [f.name for f in kept[cut:]]}
 
 
 def _diagnose_quadrotor(flights: list[Flight], knode: HybridModel | None, methods: Sequence[str], epochs: int,

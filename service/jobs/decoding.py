@@ -22,6 +22,7 @@ import multiprocessing
 import os
 import queue
 import threading
+import time
 from collections.abc import Callable
 from concurrent.futures.process import BrokenProcessPool
 
@@ -29,7 +30,7 @@ from learnest.errors import InvalidInput, LearnestError
 from learnest.ingest.flight import Flight as CanonicalFlight
 
 from ..reading import StagedFile, read_uploaded_flight
-from .executors import watch_parent
+from .executors import EXIT_GRACE_S, watch_parent
 
 
 def init_decoder(parent_pid: int, warm: bool = True) -> None:
@@ -149,18 +150,23 @@ class DecodePool:
             self._all.add(pool)
         return pool
 
-    def _kill(self, pool: concurrent.futures.ProcessPoolExecutor) -> None:
+    def _kill(self, pool: concurrent.futures.ProcessPoolExecutor, grace_s: float = 0.0) -> None:
         with self._lock:
             self._all.discard(pool)
         self._started.pop(pool, None)
         processes = list((getattr(pool, "_processes", None) or {}).values())
-        pool.shutdown(wait=False, cancel_futures=True)
+        pool.shutdown(wait=False, cancel_futures=True)   # an idle worker gets its "exit" message
+        deadline = time.monotonic() + grace_s
         for process in processes:
-            process.kill()
+            process.join(max(0.0, deadline - time.monotonic()))
+            if process.is_alive():
+                process.kill()
 
     def shutdown(self) -> None:
-        """Kill every worker process (a decode in progress is abandoned: its request gets an error)."""
+        """Let idle worker processes exit by themselves (`EXIT_GRACE_S`: a killed one leaves its semaphores to
+        the resource tracker, which warns at the server's exit), kill the rest (a decode in progress is
+        abandoned: its request gets an error)."""
         with self._lock:
             pools = list(self._all)
         for pool in pools:
-            self._kill(pool)
+            self._kill(pool, grace_s=EXIT_GRACE_S)

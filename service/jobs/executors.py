@@ -28,6 +28,7 @@ from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
 PARENT_CHECK_S = 0.5  # how often a pool worker checks that the server that started it is alive
+EXIT_GRACE_S = 5.0    # at shutdown, how long idle pool workers get to exit by themselves before being killed
 
 
 def init_worker(parent_pid: int | None = None) -> None:
@@ -171,9 +172,11 @@ class LocalPoolExecutor(Executor):
         return concurrent.futures.as_completed(list(futures))
 
     def shutdown(self) -> None:
-        """Cancel pending tasks and terminate the worker processes without waiting for them."""
-        # the jobs still running are already marked failed: stop their processes instead of waiting for them
-        self._terminate(self._pool)
+        """Cancel pending tasks, let idle workers exit by themselves (`EXIT_GRACE_S`), terminate the rest."""
+        # the jobs still running are already marked failed: their processes are not waited for; an idle
+        # worker that exits by itself releases its semaphores (a terminated one leaves them to the resource
+        # tracker, which warns about "leaked semaphore objects" at the server's exit)
+        self._terminate(self._pool, grace_s=EXIT_GRACE_S)
 
     def stop(self, futures: Iterable, grace_s: float) -> None:
         """Cancel the pending futures; if one still runs after ``grace_s`` s, kill the pool's workers and
@@ -188,11 +191,14 @@ class LocalPoolExecutor(Executor):
             self._terminate(old)
 
     @staticmethod
-    def _terminate(pool) -> None:
+    def _terminate(pool, grace_s: float = 0.0) -> None:
         processes = list((getattr(pool, "_processes", None) or {}).values())
-        pool.shutdown(wait=False, cancel_futures=True)
+        pool.shutdown(wait=False, cancel_futures=True)   # idle workers get their "exit" message
+        deadline = time.monotonic() + grace_s
         for process in processes:
-            process.terminate()
+            process.join(max(0.0, deadline - time.monotonic()))
+            if process.is_alive():
+                process.terminate()
 
     def describe(self) -> dict:
         """``name`` and ``workers``."""

@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING
 from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
-from learnest.errors import Conflict, NotFound
+from learnest.errors import Conflict, LearnestError, NotFound
 
 from ..storage.database import Database, dml_rowcount
 from ..storage.leases import acquire_lease, release_lease
@@ -219,7 +219,10 @@ class JobRunner:
             log.info("job %s was stopped while running; its result is dropped", job_id)
         except Exception as err:  # recorded on the job: no traceback reaches a user, the log keeps it
             if self.is_running(job_id):
-                log.exception("job %s failed", job_id)
+                if isinstance(err, LearnestError):   # bad input, said in the job's error: no traceback needed
+                    log.info("job %s failed: %s", job_id, err)
+                else:
+                    log.exception("job %s failed", job_id)
                 self.mark_failed(job_id, error_message(err), on_failure)
             else:  # a cancelled task's own exception (tasks.TaskCancelled, a killed worker): expected
                 log.info("job %s was stopped while running (%s)", job_id, type(err).__name__)

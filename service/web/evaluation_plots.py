@@ -4,8 +4,10 @@ kept per flight result): nothing is run again to draw them.
 - `error_figure`: for one state group (p, v or a) of one flight, the running RMS of each method's error,
   estimate − reference per axis, and estimate vs reference per axis: where along the flight a method is
   better or worse.
-- `paired_figure`: per flight, prior vs KNODE (UKF → KNODE-UKF, MHE → KNODE-MHE) as two dots joined by a
-  line, overall and per group, in the table's units (MSE × 1e-3).
+- `paired_figure`: per flight, prior vs KNODE (UKF → KNODE-UKF, MHE → KNODE-MHE) as two dots in the
+  methods' colours joined by a grey line (solid: the KNODE's error is lower, dashed: higher), overall and
+  per group, in the table's units (MSE × 1e-3).
+- `difference_figure`: KNODE − prior |error| over time, with the mocap gaps shaded when the report has them.
 - `reference_clipping`: how much the Savitzky–Golay reference flattens the flight's speed peaks.
 """
 from __future__ import annotations
@@ -125,7 +127,8 @@ def paired_figure(report: dict) -> dict | None:
                 better = after < before
                 traces.append({"type": "scatter", "mode": "lines+markers", "x": [2 * i, 2 * i + 1],
                                "y": [before * SCALE, after * SCALE], "xaxis": xaxis, "yaxis": yaxis,
-                               "name": flight, "line": {"color": "#2a7" if better else "#c44", "width": 1},
+                               "name": flight,
+                               "line": {"color": "#888", "width": 1, "dash": "solid" if better else "dash"},
                                "marker": {"color": [zoomable.METHOD_COLOURS.get(prior, "#777"),
                                                     zoomable.METHOD_COLOURS.get(knode, "#777")], "size": 7},
                                "text": [flight, flight],
@@ -184,3 +187,54 @@ def reference_clipping(estimates: FlightEstimates, window_used: int) -> dict | N
         return None
     return {"window_s": window_used * dt, "short_s": short * dt, "axis": "xyz"[k],
             "peak_reference": float(smooth[k]), "peak_short": float(fast[k]), "clipped_pct": 100.0 * clipped[k]}
+
+
+GAP_START_S = 5.0   # the first mocap gap starts this long after the kept flight's start, unless the report says
+
+
+def gap_windows(entry: dict | None, t: np.ndarray) -> list[tuple[float, float]]:
+    """The mocap gaps of one flight's report entry, [(start, stop)] in s on ``t``'s axis: its
+    ``yardsticks.mocap_gaps.windows_s`` when given, else ``gaps`` windows of ``gap_s`` every ``every_s``
+    from ``start_s`` (default `GAP_START_S`) after the first sample.  [] without gap information."""
+    gaps = ((entry or {}).get("yardsticks") or {}).get("mocap_gaps") or {}
+    if gaps.get("windows_s"):
+        return [(float(a), float(b)) for a, b in gaps["windows_s"]]
+    try:
+        length, every, count = float(gaps["gap_s"]), float(gaps["every_s"]), int(gaps["gaps"])
+    except (KeyError, TypeError, ValueError):
+        return []
+    if not len(t) or length <= 0 or every <= 0:
+        return []
+    first = float(t[0]) + float(gaps.get("start_s", GAP_START_S))
+    return [(first + k * every, first + k * every + length) for k in range(count)]
+
+
+def difference_figure(estimates: FlightEstimates, group: str, gaps: list[tuple[float, float]]) -> dict | None:
+    """Where along the flight the KNODE helps: per (prior, KNODE) pair that ran, the KNODE's |error| minus
+    its prior's (norm over the group's three axes, in the group's unit; below 0 the KNODE is closer), its
+    running mean over `RMS_WINDOW_S`, with the mocap gaps shaded.  None when no pair ran."""
+    columns, unit, name = GROUPS[group]
+    pairs = [(p, k) for p, k in PAIRS if p in estimates.methods and k in estimates.methods]
+    if not pairs:
+        return None
+    reference = np.asarray(estimates.reference)[:, columns]
+    dt = float(np.median(np.diff(estimates.t))) if len(estimates.t) > 1 else 1.0
+    half = max(1, int(round(RMS_WINDOW_S / dt / 2)))
+    layout = zoomable.stacked_layout([f"|error| KNODE − prior ({unit})"], row_height=260,
+                                     title=f"{name} of {estimates.flight}: KNODE − prior error (below 0: the KNODE "
+                                           f"is closer{'; shaded: mocap hidden' if gaps else ''})")
+    for k, (start, stop) in enumerate(gaps):
+        zoomable.shade(layout, start, stop, "#888888", "gap" if k == 0 else None)
+    traces = []
+    for prior, knode in pairs:
+        error = {m: np.linalg.norm(np.asarray(estimates.estimates[m])[:, columns] - reference, axis=1)
+                 for m in (prior, knode)}
+        difference = error[knode] - error[prior]
+        kernel = np.ones(2 * half + 1) / (2 * half + 1)
+        smooth = np.convolve(difference, kernel, mode="same")
+        label = f"{knode.upper()} − {prior.upper()}"
+        traces.append(zoomable.line(difference, label, zoomable.METHOD_COLOURS.get(knode, "#777"), width=0.6,
+                                    group=knode))
+        traces.append(zoomable.line(smooth, f"{label}, {RMS_WINDOW_S:g}-s mean", zoomable.METHOD_COLOURS.get(
+            knode, "#777"), width=2.2, group=knode))
+    return zoomable.figure(estimates.t, traces, layout)

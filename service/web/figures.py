@@ -20,6 +20,7 @@ if TYPE_CHECKING:
 from learnest.ingest.flight import Flight as CanonicalFlight
 
 from ..storage.tables import ModelVersion
+from .palette import AFTER_COLOUR, BEFORE_COLOUR, GAP_SHADE, REFERENCE_COLOUR, colour
 
 BOX_ORDER = ("mhe", "knode-mhe", "ukf", "knode-ukf")   # the order of the paper's Fig. 3
 VELOCITY_METHODS = ("ukf", "knode-ukf")                # the velocity plot's estimators: quick to run on a request
@@ -88,9 +89,9 @@ def velocity(t: np.ndarray, reference: np.ndarray, estimates: dict[str, np.ndarr
     fig = _figure(figsize=(10, 7), layout="constrained")
     axes = fig.subplots(3, 1, sharex=True)
     for k, (ax, label) in enumerate(zip(axes, ("vx", "vy", "vz"), strict=True)):
-        ax.plot(t, reference[:, 3 + k], color="black", lw=1.5, label="SG reference")
+        ax.plot(t, reference[:, 3 + k], color=REFERENCE_COLOUR, lw=1.5, label="SG reference")
         for method, values in estimates.items():
-            ax.plot(t, values[:, 3 + k], lw=1, label=method.upper())
+            ax.plot(t, values[:, 3 + k], lw=1, label=method.upper(), color=colour(method))
         ax.set_ylabel(f"{label} (m/s)")
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize="small", ncol=len(estimates) + 1)
@@ -139,15 +140,21 @@ PAIRS = (("ukf", "knode-ukf"), ("mhe", "knode-mhe"))   # (prior-only, KNODE): th
 
 def paired_mse(report: dict, title: str | None = None) -> Figure:
     """Per scored flight, each prior-only method and its KNODE variant (UKF → KNODE-UKF, MHE → KNODE-MHE)
-    as two dots joined by a line (green: KNODE lower, red: higher), the medians as bars, in MSE × 1e-3 (the
+    as two dots in the methods' colours joined by a grey line (solid: KNODE lower, dashed: higher), the
+    medians as bars in the method's colour, in MSE × 1e-3 (the
     units of the report's table) on a linear axis from zero; box plots behind the dots from
     `BOX_MIN_FLIGHTS` flights on.  Methods run without their pair are drawn alone."""
+    fig = _figure(figsize=(6.5, 4), layout="constrained")
+    _draw_paired(fig.subplots(), report, title)
+    return fig
+
+
+def _draw_paired(ax, report: dict, title: str | None = None) -> None:
+    """`paired_mse` on the axes ``ax``."""
     scored = [f for f in report["flights"] if not f.get("excluded") and f.get("mse")]
     ran = [m for m in BOX_ORDER if any(m in f["mse"] for f in scored)]
     columns: list[tuple[str, ...]] = [p for p in PAIRS if p[0] in ran and p[1] in ran]
     columns += [(m,) for m in ran if not any(m in p for p in columns)]
-    fig = _figure(figsize=(6.5, 4), layout="constrained")
-    ax = fig.subplots()
     ticks, labels, x = [], [], 0
     for column in columns:
         positions = list(range(x, x + len(column)))
@@ -156,19 +163,25 @@ def paired_mse(report: dict, title: str | None = None) -> Figure:
             ax.boxplot(values, positions=positions, widths=0.5, showfliers=False,
                        medianprops={"color": "tab:orange", "linewidth": 2})
         for row in zip(*values, strict=True):
-            colour = "grey" if len(row) == 1 else ("tab:green" if row[1] < row[0] else "tab:red")
-            ax.plot(positions, row, color=colour, lw=0.9, marker="o", ms=4, alpha=0.8)
-        for position, v in zip(positions, values, strict=True):
-            ax.hlines(np.median(v), position - 0.25, position + 0.25, color="black", lw=2.5)
+            worse = len(row) == 2 and row[1] >= row[0]
+            ax.plot(positions, row, color="grey", lw=0.9, ls="--" if worse else "-", alpha=0.8)
+            for position, value, method in zip(positions, row, column, strict=True):
+                ax.plot([position], [value], "o", ms=4, color=colour(method), alpha=0.9)
+        for position, v, method in zip(positions, values, column, strict=True):
+            ax.hlines(np.median(v), position - 0.25, position + 0.25, color=colour(method), lw=2.5)
         ticks += positions
         labels += [m.upper() for m in column]
         x += len(column) + 1
     ax.set_xticks(ticks, labels)
     ax.set_ylim(bottom=0)
+    from matplotlib.lines import Line2D
+    ax.legend(handles=[Line2D([], [], color="grey", lw=0.9, label="a flight: KNODE lower"),
+                       Line2D([], [], color="grey", lw=0.9, ls="--", label="a flight: KNODE higher"),
+                       Line2D([], [], color="black", lw=2.5, label="median (method's colour)")],
+              fontsize="small", loc="upper right")
     ax.set_ylabel("overall MSE over [p, v, a]  (× 1e-3)")
     ax.set_title(title or f"model {report.get('model')}: {len(scored)} flights, one line per flight")
     ax.grid(axis="y", alpha=0.3)
-    return fig
 
 
 SPECIFIC_FORCE = "specific_force_rmse"   # a diagnosis' before/after key that is an RMSE in m/s², not an MSE
@@ -219,12 +232,16 @@ def draw_summary(fig, diagnosis: dict) -> None:
     axes = fig.subplots(1, panels, width_ratios=[1, 1.6, 0.7][:panels])
     names = list(channels)
     x = np.arange(len(names))
-    axes[0].bar(x - 0.2, [np.sqrt(channels[c]["rss_before"]) for c in names], 0.4, label="before")
-    axes[0].bar(x + 0.2, [np.sqrt(channels[c]["rss_after"]) for c in names], 0.4, label="after")
+    axes[0].bar(x - 0.2, [np.sqrt(channels[c]["rss_before"]) for c in names], 0.4, label="before", color=BEFORE_COLOUR)
+    axes[0].bar(x + 0.2, [np.sqrt(channels[c]["rss_after"]) for c in names], 0.4, label="after", color=AFTER_COLOUR)
     axes[0].set_xticks(x, names, fontsize="small")
     axes[0].set(ylabel="√RSS, whitened residual", title="residual on the fitting data")
     axes[0].legend(fontsize="small")
     _paired(axes[1], flights, methods, "MSE on held-out data")
+    from matplotlib.patches import Patch
+    axes[1].legend(handles=[Patch(color=BEFORE_COLOUR, alpha=0.35, label="median before (prior)"),
+                            Patch(color=AFTER_COLOUR, alpha=0.35, label="median after (with the effects)")],
+                   fontsize="small", loc="lower right")
     axes[1].set_title(", ".join(e["id"] for e in diagnosis["effects"]) or "no effect found")
     if panels == 3:
         _paired(axes[2], flights, [SPECIFIC_FORCE], "specific force RMSE (m/s²)")
@@ -241,7 +258,7 @@ def _paired(ax, flights: list[dict], keys: list[str], ylabel: str) -> None:
         after = [f["after"][key] for f in flights if key in f["before"] and key in f["after"]]
         if not before:
             continue
-        ax.bar([i - 0.15, i + 0.15], [np.median(before), np.median(after)], 0.3, color=["tab:blue", "tab:orange"],
+        ax.bar([i - 0.15, i + 0.15], [np.median(before), np.median(after)], 0.3, color=[BEFORE_COLOUR, AFTER_COLOUR],
                alpha=0.35)
         for b, a in zip(before, after, strict=True):
             ax.plot([i - 0.15, i + 0.15], [b, a], color="grey", lw=0.8, marker="o", ms=3)
@@ -260,8 +277,8 @@ def draw_residual_series(fig, series: dict) -> None:
         t, before, after = np.asarray(s["t"]), np.asarray(s["before"]), np.asarray(s["after"])
         for k, name in enumerate(s["axes"]):
             ax = axes[3 * c + k]
-            ax.plot(t, before[:, k], color="tab:blue", lw=0.8, label="before (prior)")
-            ax.plot(t, after[:, k], color="tab:orange", lw=0.8, label="after (with the effects)")
+            ax.plot(t, before[:, k], color=BEFORE_COLOUR, lw=0.8, label="before (prior)")
+            ax.plot(t, after[:, k], color=AFTER_COLOUR, lw=0.8, label="after (with the effects)")
             ax.axhline(0, color="black", lw=0.5)
             ax.set_ylabel(f"{name} ({s['units']})")
             ax.grid(alpha=0.3)
@@ -271,3 +288,87 @@ def draw_residual_series(fig, series: dict) -> None:
                               f"{rms[1]:.3g} after ({s['units']})", fontsize="medium")
         axes[3 * c].legend(fontsize="small", ncol=2, loc="upper right")
     axes[-1].set_xlabel("t (s) since the first sample shown")
+
+
+# -- where the model helps ----------------------------------------------------------------------------------
+def gain_per_flight(headline: dict, title: str | None = None) -> Figure | None:
+    """Each KNODE's gain over its prior per flight, with the flight's 95 % interval, one row per flight
+    labelled by its name (`service.web.headline.evaluation_headline`'s ``pairs``); a vertical line at 0
+    (right of it: the KNODE's error is lower) and each comparison's median dashed.  Marks in the KNODE's
+    colour (service.web.palette), a legend on the figure.  None when there is no comparison."""
+    pairs = headline.get("pairs") or []
+    if not pairs:
+        return None
+    names = list(dict.fromkeys(r["flight"] for p in pairs for r in p["rows"]))
+    fig = _figure(figsize=(7.5, 1.2 + 0.32 * len(names) * max(1, len(pairs)) ** 0.5), layout="constrained")
+    draw_gain(fig.subplots(), headline, title)
+    return fig
+
+
+def draw_gain(ax, headline: dict, title: str | None = None) -> None:
+    """`gain_per_flight` on the axes ``ax`` (``headline`` has at least one pair)."""
+    pairs = headline["pairs"]
+    names = list(dict.fromkeys(r["flight"] for p in pairs for r in p["rows"]))
+    step = 0.8 / len(pairs)
+    for k, pair in enumerate(pairs):
+        offset = (k - (len(pairs) - 1) / 2) * step
+        c = colour(pair["knode"])
+        rows = {r["flight"]: r for r in pair["rows"]}
+        for i, name in enumerate(names):
+            r = rows.get(name)
+            if r is None:
+                continue
+            y = i + offset
+            if r["interval_pct"]:
+                lo, hi = r["interval_pct"]
+                ax.hlines(y, lo, hi, color=c, lw=1.6, alpha=0.8)
+            ax.plot([r["gain_pct"]], [y], "o", color=c, ms=5)
+        ax.axvline(pair["median_gain_pct"], color=c, lw=1, ls="--")
+        ax.plot([], [], "o-", color=c, ms=5,
+                label=f"{pair['knode'].upper()} vs {pair['prior'].upper()}: gain, 95 % interval; "
+                      f"dashed: median {pair['median_gain_pct']:+.1f} %")
+    ax.axvline(0, color="black", lw=0.8)
+    ax.set_yticks(range(len(names)), [n.replace("$", r"\$") for n in names], fontsize="small")
+    ax.set_ylim(len(names) - 0.5, -0.5)
+    yardstick = "error in the mocap gaps" if headline.get("yardstick") == "mocap_gaps" else \
+        "MSE vs the Savitzky-Golay reference"
+    ax.set_xlabel(f"gain over the prior (%), {yardstick}: right of 0, the KNODE is better")
+    ax.grid(axis="x", alpha=0.3)
+    ax.legend(fontsize="small", loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=1, frameon=False)
+    if title:
+        ax.set_title(title, fontsize="medium")
+
+
+def evaluation_summary(report: dict) -> Figure:
+    """The figure of `learnest evaluate --plot` and the demo's: the answer on top (each KNODE's gain over
+    its prior per flight, labelled by flight, with 95 % intervals: `gain_per_flight`), the paired MSE dots
+    (`paired_mse`) below.  Without a prior/KNODE pair, the paired dots alone."""
+    from learnest.service.web.headline import evaluation_headline
+
+    head = evaluation_headline(report)
+    if not head["pairs"]:
+        return paired_mse(report)
+    flights = len({r["flight"] for p in head["pairs"] for r in p["rows"]})
+    fig = _figure(figsize=(8, 5.5 + 0.32 * flights), layout="constrained")
+    top, bottom = cast("np.ndarray", fig.subfigures(2, 1, height_ratios=[1.2 + 0.32 * flights, 4.3]))
+    draw_gain(top.subplots(), head, title=head["sentence"] if len(head["sentence"]) < 110 else None)
+    _draw_paired(bottom.subplots(), report)
+    return fig
+
+
+def error_difference(t: np.ndarray, differences: dict[str, np.ndarray], gaps: list[tuple[float, float]],
+                     unit: str, title: str) -> Figure:
+    """KNODE − prior error over time, one line per comparison (``differences``: "KNODE-UKF − UKF" ->
+    (T,) array of |error| differences in ``unit``), the mocap gaps shaded (``gaps``: [(start, stop)] in s on
+    ``t``'s axis).  Below zero the KNODE's error is smaller."""
+    fig = _figure(figsize=(10, 3.2), layout="constrained")
+    ax = fig.subplots()
+    for k, (start, stop) in enumerate(gaps):
+        ax.axvspan(start, stop, color=GAP_SHADE, alpha=0.5, lw=0, label="mocap hidden (gap)" if k == 0 else None)
+    for label, values in differences.items():
+        ax.plot(t, values, lw=0.9, color=colour(label.split(" ")[0]), label=label)
+    ax.axhline(0, color="black", lw=0.6)
+    ax.set(xlabel="t (s)", ylabel=f"|error| difference ({unit})", title=title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize="small", loc="upper right", ncol=3)
+    return fig

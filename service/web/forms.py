@@ -21,7 +21,7 @@ from pydantic import ValidationError
 from learnest.errors import InvalidInput, LearnestError
 
 from ..api.deps import key_matches
-from ..api.schemas import AliasIn, EvaluationRequest, TrainRequest
+from ..api.schemas import AliasIn, DiagnosisRequest, EvaluationRequest, TrainRequest
 from ..api.throttle import KeyThrottle, client_address
 from ..config import Settings
 
@@ -138,6 +138,25 @@ def evaluation_request(model: str, flights: list[str], methods: list[str], horiz
     if sg_window.strip():
         body["sg_window"] = sg_window.strip()
     return EvaluationRequest.model_validate(body)
+
+
+def diagnosis_request(flights: list[str], model: str, system: str, methods: list[str], epochs: str,
+                      register: str | None, register_as: str) -> DiagnosisRequest:
+    """The diagnose form as POST /diagnoses' body: the checked flights in the order listed (the split
+    depends on it), an empty model "train one on the fitting flight", ``register`` checked: the repaired
+    model becomes the next version of ``register_as``."""
+    if not flights:
+        raise InvalidInput("choose the flight(s) to diagnose")
+    if not methods:
+        raise InvalidInput("choose at least one estimator")
+    body = {"flights": flights, "model": optional(model), "system": system or "quadrotor", "methods": methods}
+    if optional(epochs):
+        body["epochs"] = epochs.strip()
+    if register is not None:
+        if not optional(register_as):
+            raise InvalidInput("register: give the model name the repaired model is registered under")
+        body["register"] = register_as.strip()
+    return DiagnosisRequest.model_validate(body)
 
 
 def validation_message(err: ValidationError) -> str:

@@ -12,7 +12,8 @@ Pages   /                       flights (newest first; search: ?q=) and the uplo
         /diagnoses/{id}/report.html
                                 effects with units, intervals and alternatives, residual over time before/after,
                                 held-out error before/after per flight (linear axes)
-Forms   POST /ui/flights, /ui/models, /ui/evaluations, /ui/models/{name}/aliases, /ui/jobs/{id}/cancel take the
+Forms   POST /ui/flights, /ui/models, /ui/evaluations, /ui/diagnoses, /ui/models/{name}/aliases,
+        /ui/jobs/{id}/cancel take the
         same request models as the JSON routes (service.web.forms), call the same service functions (service.uploads,
         service.jobs, service.catalog) and answer 303 to the page of what they made, or an HTML error page
         with the API's status code and message.
@@ -39,11 +40,19 @@ from learnest.errors import LearnestError
 from learnest.ingest.baseline import centred_window
 from learnest.ingest.flight import Flight as CanonicalFlight
 from learnest.models.crazyflie import UNITS as CRAZYFLIE_UNITS
-from learnest.models.presets import CRAZYFLIE_TRAINING, METHODS, MHE_HORIZON, SG_WINDOW, SG_WINDOW_RANGE
+from learnest.models.presets import (
+    CRAZYFLIE_TRAINING,
+    DIAGNOSIS_SPLIT_RULE,
+    METHODS,
+    MHE_HORIZON,
+    SG_WINDOW,
+    SG_WINDOW_RANGE,
+)
 
 from .. import catalog, references
 from ..api.deps import MAX_ROW_ID, Offset, RowId, get_services
 from ..exports import evaluation_estimates
+from ..jobs.diagnosis import start_diagnosis
 from ..jobs.evaluation import start_evaluation
 from ..jobs.result_cache import EstimatorSettings
 from ..jobs.runner import ACTIVE, seconds_left
@@ -52,6 +61,8 @@ from ..jobs.training import start_training
 from ..storage.tables import Diagnosis, Evaluation, FlightRecord, Job
 from ..uploads import add_flight, recut_flight
 from . import evaluation_plots, figures, flight_plots, forms, zoomable
+from .headline import diagnosis_headline, diagnosis_split, evaluation_headline, gap_methods
+from .registry_figures import loss_curves_of
 from .report_figures import velocity_figure
 
 log = logging.getLogger("learnest.web")
@@ -87,6 +98,7 @@ TEMPLATES.globals.update(NAME_PATTERN=references.NAME, METHODS=METHODS, MHE_HORI
                          MAX_NOTES=forms.MAX_NOTES, PAGE_SIZE=PAGE_SIZE,
                          DEFAULT_EPOCHS=CRAZYFLIE_TRAINING.epochs, SG_WINDOW=SG_WINDOW,
                          SG_WINDOW_RANGE=SG_WINDOW_RANGE, PLOTLY_JS_ROUTE=zoomable.PLOTLY_JS_ROUTE,
+                         DIAGNOSIS_SPLIT_RULE=DIAGNOSIS_SPLIT_RULE,
                          MIN_GAP_S=flight_plots.MIN_GAP_S,
                          VELOCITY_SG_S=flight_plots.VELOCITY_SG_S)
 
@@ -226,10 +238,30 @@ def model_page(request: Request, name: str, services: Services = Depends(get_ser
     model = catalog.get_model(services.db, name)
     ready = [v for v in model.versions if v.status == "ready"]
     _total, flights = catalog.list_flights(services.db, limit=PAGE_SIZE, newest_first=True)
+    evaluations = catalog.evaluations_of(services.db, model.versions, EVALUATIONS_SHOWN)
+    # the answer of the newest finished evaluation leads the page (what the model does where it was scored)
+    latest = next(((ev, evaluation_headline(ev.report)) for ev, job in evaluations
+                   if job is not None and job.state == "succeeded" and ev.report), None)
     return page("model.html", f"Model {name}", name=name, model=model, ready=ready, flights=flights,
-                evaluations=catalog.evaluations_of(services.db, model.versions, EVALUATIONS_SHOWN),
-                losses=figures.png_data_uri(figures.training_losses(ready)) if ready else None,
+                latest=latest, evaluations=evaluations,
+                losses=loss_curves_of([{"ref": f"{name}:{v.version}", "losses": v.losses,
+                                        "validation_losses": v.validation_losses} for v in ready]),
+                no_losses=[v.version for v in ready if not v.losses],
+                still_falling=[v.version for v in ready if still_falling(v.losses)],
                 key=forms.key_state(request, services.settings))
+
+
+STILL_FALLING_SHARE = 0.02   # the last tenth of the epochs lowered the loss by more than this share
+
+
+def still_falling(losses: list | None) -> bool:
+    """Whether a training loss was still falling at its last epoch: the best of its last tenth of epochs
+    is more than `STILL_FALLING_SHARE` below the best before it (more epochs would likely lower it)."""
+    values = [x for x in (losses or []) if x is not None]
+    if len(values) < 10:
+        return False
+    tail = max(1, len(values) // 10)
+    return min(values[-tail:]) < (1.0 - STILL_FALLING_SHARE) * min(values[:-tail])
 
 
 @pages.post("/ui/models/{name}/aliases")
@@ -256,6 +288,21 @@ def evaluate_form_post(request: Request, model: str = Form(""), flights: list[st
     return forms.redirect(f"/ui/jobs/{job_id}", services.settings, api_key)
 
 
+@pages.post("/ui/diagnoses")
+@html_errors
+def diagnose_form_post(request: Request, flights: list[str] = Form(default=[]), model: str = Form(""),
+                       system: str = Form("quadrotor"), methods: list[str] = Form(default=[]), epochs: str = Form(""),
+                       register_checked: str | None = Form(None, alias="register"), register_as: str = Form(""),
+                       api_key: str = Form(""),
+                       services: Services = Depends(get_services)):
+    """Diagnose form: start a diagnosis job (as POST /diagnoses does), then 303 to the job's page."""
+    forms.require_key(request, services.settings, api_key)
+    body = forms.diagnosis_request(flights, model, system, methods, epochs, register_checked, register_as)
+    job_id, _diagnosis_id = start_diagnosis(services, body.flights, body.model, body.register_as, body.methods,
+                                            body.epochs, body.system)
+    return forms.redirect(f"/ui/jobs/{job_id}", services.settings, api_key)
+
+
 # -- jobs ------------------------------------------------------------------------------------------------
 @pages.get("/ui/jobs", response_class=HTMLResponse)
 def jobs_page(services: Services = Depends(get_services)):
@@ -276,7 +323,12 @@ def job_page(request: Request, job_id: RowId, services: Services = Depends(get_s
     diagnosis = catalog.diagnosis_of_job(services.db, job_id) if job.kind == "diagnosis" else None
     active, key = job.state in ACTIVE, forms.key_state(request, services.settings)
     # no reload while the cancel form asks for the key: a reload every second would wipe it mid-typing
-    return page("job.html", f"Job {job.id}", refresh_s=1 if active and key != "ask" else None, job=job,
+    answer = None   # a finished evaluation's or diagnosis' answer, as its report page says it first
+    if job.state == "succeeded" and evaluation is not None and evaluation.report:
+        answer = evaluation_headline(evaluation.report)["sentence"]
+    elif job.state == "succeeded" and diagnosis is not None and diagnosis.report:
+        answer = diagnosis_headline(diagnosis.report)
+    return page("job.html", f"Job {job.id}", refresh_s=1 if active and key != "ask" else None, job=job, answer=answer,
                 eta_s=seconds_left(job),
                 active=active, subject=job_subject(job), evaluation=evaluation, key=key, diagnosis=diagnosis,
                 model_name=evaluation.model_ref.split(":", 1)[0] if evaluation else None,
@@ -334,12 +386,18 @@ def evaluation_report_page(evaluation_id: RowId,
     scored = [(fid, entry["flight"]) for fid, entry in entries.items() if not entry.get("excluded")]
     chosen = flight if flight in {fid for fid, _ in scored} else (scored[0][0] if scored else None)
     settings = EstimatorSettings.from_dict(evaluation.settings)
-    series = _stored_series(services, evaluation, chosen, group, centred_window(settings.sg_window))
+    series = _stored_series(services, evaluation, chosen, group, centred_window(settings.sg_window),
+                            entries.get(chosen))
+    head = evaluation_headline(report)
+    gain = figures.gain_per_flight(head)
     # evaluated before estimates were stored: the velocity figure computed once by a task (report_figures)
     velocity = _velocity(services, evaluation, chosen) if chosen is not None and "figure" not in series else {}
     waiting = velocity.get("pending") or velocity.get("busy")
     paired = evaluation_plots.paired_figure(report)
     return page("report.html", title, refresh_s=2 if waiting else None, evaluation=evaluation, report=report,
+                head=head, gain_png=figures.png_data_uri(gain, dpi=100) if gain else None,
+                gap_methods=gap_methods(report),
+                gap_settings=_gap_settings(report),
                 methods=list(report.get("median", {})), settings=evaluation.settings,
                 sg_window=settings.sg_window, sg_window_used=centred_window(settings.sg_window),
                 paired=zoomable.embed(paired) if paired else None,
@@ -351,17 +409,31 @@ def evaluation_report_page(evaluation_id: RowId,
 
 
 def _stored_series(services: Services, evaluation: Evaluation, flight_id: int | None, group: str,
-                   window_used: int) -> dict:
-    """{"figure": spec JSON, "clipping": `reference_clipping`} from the flight's stored estimates, or
-    {"missing": why} (no flight, or evaluated before estimates were stored)."""
+                   window_used: int, entry: dict | None = None) -> dict:
+    """{"figure": spec JSON, "clipping": `reference_clipping`, "difference": KNODE − prior spec JSON or None,
+    "gaps": the mocap gaps shaded} from the flight's stored estimates, or {"missing": why} (no flight, or
+    evaluated before estimates were stored)."""
     if flight_id is None:
         return {"missing": "no scored flight"}
     try:
         [estimates] = evaluation_estimates(services.db, services.blobs, evaluation.id, flight_id)
     except LearnestError as err:
         return {"missing": str(err)}
+    gaps = evaluation_plots.gap_windows(entry, estimates.t)
+    difference = evaluation_plots.difference_figure(estimates, group, gaps)
     return {"figure": zoomable.embed(evaluation_plots.error_figure(estimates, group)),
-            "clipping": evaluation_plots.reference_clipping(estimates, window_used)}
+            "clipping": evaluation_plots.reference_clipping(estimates, window_used),
+            "difference": zoomable.embed(difference) if difference else None, "gaps": gaps}
+
+
+def _gap_settings(report: dict) -> dict | None:
+    """The gap length and spacing of the first flight scored on the mocap-gap yardstick (the report's
+    settings; the same for every flight of an evaluation), or None."""
+    for f in report.get("flights", []):
+        gaps = (f.get("yardsticks") or {}).get("mocap_gaps") or {}
+        if gaps.get("gap_s") is not None and gaps.get("every_s") is not None:
+            return {"gap_s": gaps["gap_s"], "every_s": gaps["every_s"]}
+    return None
 
 
 def _velocity(services: Services, evaluation: Evaluation, flight_id: int) -> dict:
@@ -398,8 +470,10 @@ def diagnosis_report_page(diagnosis_id: RowId, services: Services = Depends(get_
     report = diagnosis.report or {}
     series = report.get("residual_series") or {}
     prior = (report.get("prior") or {}).get("params", {})
+    flights = catalog.flight_names(services.db, diagnosis.flight_ids)
     return page("diagnosis.html", f"Diagnosis {diagnosis.id}: {report.get('system')}", diagnosis=diagnosis,
-                report=report, flights=catalog.flight_names(services.db, diagnosis.flight_ids),
+                report=report, flights=flights, headline=diagnosis_headline(report),
+                split=diagnosis_split(report, [name for _fid, name in flights]),
                 prior=[(k, v, CRAZYFLIE_UNITS[k]) for k, v in prior.items() if k in CRAZYFLIE_UNITS],
                 summary=figures.png_data_uri(figures.diagnosis_summary(report), dpi=110),
                 series=figures.png_data_uri(figures.residual_series(series), dpi=110) if series else None,

@@ -16,13 +16,13 @@ from pathlib import Path
 import numpy as np
 from markupsafe import Markup
 
+# one colour per method throughout the pages and the CLI's PNGs; the priors are drawn wider and first, so the
+# KNODE line on top never hides them
+from .palette import METHOD_COLOURS, REFERENCE_COLOUR  # noqa: F401  (re-exported)
+
 PLOTLY_JS_ROUTE = "/vendor/plotly.min.js"
 SIGNIFICANT_DIGITS = 5          # of every number sent: far below what a screen shows, a third of the bytes
 
-# one colour per method throughout the pages; the priors are drawn wider and first, so the KNODE line on top
-# never hides them
-METHOD_COLOURS = {"ukf": "#1f77b4", "knode-ukf": "#ff7f0e", "mhe": "#2ca02c", "knode-mhe": "#d62728"}
-REFERENCE_COLOUR = "#000000"
 
 
 def plotly_js_path() -> Path:
