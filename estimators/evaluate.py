@@ -108,7 +108,7 @@ def gain_interval(prior_error: ArrayLike, knode_error: ArrayLike, min_block: int
     moving blocks under-draw the first and last steps, which hold the filters' start-up error, and shift the
     interval off the gain.  Each resample is T steps long, its last block cut short.
     Why not ``scipy.stats.bootstrap``: it resamples single observations, which for autocorrelated estimation
-    errors gives intervals several times too narrow (`tests/test_gain_interval.py`).
+    errors gives intervals several times too narrow (`tests/estimators/test_gain_interval.py`).
 
     Parameters
     ----------

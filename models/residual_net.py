@@ -32,7 +32,7 @@ def torch_threads(count: int) -> Iterator[None]:
 
 class Adam:
     """``torch.optim.Adam``'s default CPU update (single-tensor path, no weight decay, no amsgrad), the
-    same operations in the same order, so the weights are bit-identical (tests/test_knode.py checks it).
+    same operations in the same order, so the weights are bit-identical (tests/models/test_knode.py checks it).
 
     Why not torch.optim: its first ``step()`` imports ``torch._dynamo`` (3-4 s on these machines), longer
     than a whole 150-epoch training run; the update itself is five tensor operations.

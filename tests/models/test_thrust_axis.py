@@ -14,7 +14,7 @@ from learnest.models.inputs import ATTITUDE_CALIBRATED, flight_thrust_axis, syst
 from learnest.models.systems import make_system
 from learnest.models.thrust_axis import calibrated_attitude, heading_removed, thrust_axis_offset
 
-NANOBENCH = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "nanobench"
+NANOBENCH = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "nanobench"
 needs_data = pytest.mark.skipif(not NANOBENCH.is_dir(), reason="../shared/data/nanobench not present")
 
 

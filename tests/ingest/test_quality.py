@@ -11,7 +11,7 @@ from learnest.ingest.formats.nanobench import reader as nanobench_reader
 from learnest.ingest.frames import GRAVITY
 from learnest.ingest.sim import Circle, SensorModel, Timing, simulate
 
-NANOBENCH = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "nanobench"
+NANOBENCH = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "nanobench"
 # Found by inspecting all 17 flights (see ingest/formats/nanobench/reader.py and the report): the onboard link of this
 # one died at 31.3 s while the vehicle flew on until 38.2 s, so 6.9 s of flight have no accelerometer.
 BAD_NANOBENCH_FLIGHTS = {"B2_circle_medium_rep3"}

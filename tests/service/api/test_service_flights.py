@@ -267,7 +267,7 @@ def test_openapi_docs_are_served(tmp_path):
                 "/models/{name}/aliases/{alias}"} <= set(paths)
 
 
-SAMPLE_LOGS = Path(__file__).resolve().parents[1] / "sample_logs"
+SAMPLE_LOGS = Path(__file__).resolve().parents[3] / "sample_logs"
 
 
 @pytest.mark.skipif(not (SAMPLE_LOGS / "pair_circle_vicon.csv").is_file(), reason="sample_logs/ not present")

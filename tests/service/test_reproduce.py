@@ -10,7 +10,7 @@ def test_quick_reproduction_shows_the_papers_ordering(task, samples, epochs):
     # robot: 500 epochs (not the paper's 10000) keep KNODE-MHE/UKF 16x/19x better than MHE/UKF on these two
     # seeds, far past the 2x asserted, in half the time of 1000.
     # the cartpole with the paper's Algorithm 1 (filter, no rounds): its default joint fit would add ~1 min here
-    # (tests/test_joint_training.py tests it, benchmarks/results/table1_cartpole.txt measures it)
+    # (tests/estimators/test_joint_training.py tests it, benchmarks/results/table1_cartpole.txt measures it)
     observer = "filter" if task == "cartpole" else None
     report = reproduce(ReproduceSettings(task, eval_samples=samples, epochs=epochs, observer_rounds=0,
                                          observer=observer), seeds=2, workers=2)

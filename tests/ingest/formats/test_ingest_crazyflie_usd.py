@@ -17,7 +17,7 @@ from learnest.ingest.formats.crazyflie_usd import writer as usd_writer
 from learnest.ingest.formats.crazyflie_variables import ACC
 from learnest.ingest.frames import GRAVITY, quat_to_matrix
 
-USD_DATA = Path(__file__).parents[1].parent / "shared" / "data" / "crazyswarm2-tools"
+USD_DATA = Path(__file__).parents[3].parent / "shared" / "data" / "crazyswarm2-tools"
 REAL_LOGS = ["log182", "log183", "log184"]
 INTEGER_TYPES = {"B": np.uint8, "b": np.int8, "H": np.uint16, "h": np.int16, "I": np.uint32, "i": np.int32}
 

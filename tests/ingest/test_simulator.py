@@ -24,7 +24,7 @@ from learnest.ingest.align import anti_alias
 from learnest.ingest.sim.export import CFCLIENT_CLOCK_OFFSET_S
 from learnest.ingest.sim.samples import REAL_FLIGHTS, REAL_FLIGHTS_README, SAMPLE_FLIGHTS, sample_flight
 
-SAMPLE_LOGS = Path(__file__).resolve().parents[1] / "sample_logs"
+SAMPLE_LOGS = Path(__file__).resolve().parents[2] / "sample_logs"
 MOCAP_RATE_HZ = 100.0
 CIRCLE = dict(radius=0.5, speed=0.6, altitude=1.0, duration_s=6.0)
 

@@ -13,7 +13,7 @@ from learnest.models.identify import (FULL, VARIANTS, FlightArrays, Variant, fir
                                       interpolated_rows, lowpass, rmse_constant, rmse_z)
 from learnest.models.systems import make_system
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 NANOBENCH = DATA / "nanobench"
 needs_data = pytest.mark.skipif(not NANOBENCH.is_dir(), reason="../shared/data/nanobench not present")
 

@@ -1,6 +1,6 @@
 """The pages' figures (issue 12, section 3): running RMS, the SG reference's clipping against the analytic
 Savitzky-Golay gain, the flight page's shading of cut parts, stopped streams and gaps, the per-flight MSE
-figure.  The pages themselves: tests/test_service_evaluations.py."""
+figure.  The pages themselves: tests/service/api/test_service_evaluations.py."""
 from pathlib import Path
 
 import numpy as np
@@ -9,7 +9,7 @@ import pytest
 from learnest.estimators.estimates import FlightEstimates
 from learnest.ingest.flight import Flight
 
-NANOBENCH = Path(__file__).resolve().parents[2] / "shared" / "data" / "nanobench"
+NANOBENCH = Path(__file__).resolve().parents[4] / "shared" / "data" / "nanobench"
 
 
 def test_running_rms_of_a_constant_and_of_a_sine():

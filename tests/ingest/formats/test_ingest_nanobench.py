@@ -15,7 +15,7 @@ from learnest.ingest.flight import Flight, IngestError, sha256_file
 from learnest.ingest.formats.nanobench import reader as nanobench_reader
 from learnest.ingest.sidecar import read_sidecar
 
-NANOBENCH = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "nanobench"
+NANOBENCH = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "nanobench"
 needs_data = pytest.mark.data  # skipped by conftest.py when ../shared/data is absent
 T0_UNIX = 1772421798.750959635
 
