@@ -246,7 +246,7 @@ def test_the_shared_nanobench_flights_are_one_vehicle_and_a_changed_thrust_map_i
     from learnest.ingest import read_flights
     from learnest.models.inputs import thrust_calibration
 
-    shared = Path(__file__).resolve().parents[2] / "shared" / "data"
+    shared = Path(__file__).resolve().parents[3] / "shared" / "data"
     flights = [f for f in read_flights(sorted([*shared.glob("nanobench/*.csv"), *shared.glob("nanobench-more/*.csv")]))
                if f.quality["ok"]]
     assert len(flights) == 29

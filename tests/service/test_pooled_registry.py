@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from utils.service import flight_csv, running_app, upload, wait_for_job
 
-SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
+SAMPLES = Path(__file__).resolve().parents[2] / "sample_logs"
 CIRCLES = [SAMPLES / f"circle_rep{i}.csv" for i in (1, 2, 3)]
 
 

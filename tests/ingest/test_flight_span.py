@@ -287,7 +287,7 @@ def test_diagnose_goes_on_past_an_unreadable_file(tmp_path, capsys, monkeypatch)
     from learnest.service.cli import main
 
     monkeypatch.setenv("LEARNEST_HOME", str(tmp_path / "home"))
-    samples = Path(__file__).resolve().parents[1] / "sample_logs"
+    samples = Path(__file__).resolve().parents[2] / "sample_logs"
     bad = tmp_path / "log20.csv"
     table = pd.read_csv(samples / "circle_rep2.csv")
     table.drop(columns=["imu_acc_x", "imu_acc_y", "imu_acc_z"]).to_csv(bad, index=False)

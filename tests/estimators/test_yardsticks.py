@@ -242,7 +242,7 @@ def test_a_usd_log_s_onboard_estimate_is_scored_from_its_compressed_state_estima
     fast reference from the flight's v_onboard, which is the logged estimate in m/s."""
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[2] / "shared" / "data" / "crazyswarm2-tools" / "log182"
+    path = Path(__file__).resolve().parents[3] / "shared" / "data" / "crazyswarm2-tools" / "log182"
     flight = read_flights([path])[0]
     onboard = flight.channels["v_onboard"]
     speed = np.linalg.norm(fast_derivatives(flight.p, flight.dt)["v"], axis=1)
