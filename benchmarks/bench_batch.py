@@ -1,4 +1,4 @@
-"""Batch evaluation of the shared NanoBench flights, four methods, on one and two workers and on Dask (issue 11).
+"""Batch evaluation of the shared NanoBench flights, four methods, on one and two workers and on Dask.
 
 One model (`bench:1`, the Crazyflie preset's 150 epochs on TRAINING_FLIGHT) is evaluated with UKF, KNODE-UKF,
 MHE and KNODE-MHE on every other shared NanoBench flight through the service's job code
@@ -99,7 +99,7 @@ def main(argv=None) -> int:
 def markdown(result: dict) -> str:
     m, runs = result["machine"], result["runs"]
     single = runs["local pool, 1 worker"]["best_s"]
-    lines = ["# Batch evaluation of the shared NanoBench flights (issue 11)", "",
+    lines = ["# Batch evaluation of the shared NanoBench flights", "",
              f"Command: `{result['command']}` ({result['wall_s']:.0f} s wall, {result['date']}). Machine: {m['cpu']}, "
              f"{m['cpus']} CPUs; load average {m['load_average_at_start']} at the start, "
              f"{result['load_average_at_end']} at the end.", "",

@@ -157,7 +157,7 @@ def main():
         "", f"Same answers: UKF max |diff| {ukf_max_diff:.2e}; MHE max |diff| "
         f"{report['mhe']['max_abs_difference']:.2e} (both arrival costs from the previous solution, fixed P0).",
         "", "Batching saves at most 2n+1 model calls per step, each about as dear as the 2n+1-row call: the",
-        "cartpole's 9 sigma points cap its UKF ratio near 9x, the quadrotor's 19 do not (benchmarks/README.md).",
+        "cartpole's 9 sigma points cap its UKF ratio near 9x, the quadrotor's 19 do not (docs/results/speed.md).",
     ]
     (OUT / "core_speed.md").write_text("\n".join(md) + "\n")
     print("\n".join(md))

@@ -1,4 +1,4 @@
-"""Training speed (issue 11): the pre-training observer plus 150 epochs on one real 33-s flight, each run
+"""Training speed: the pre-training observer plus 150 epochs on one real 33-s flight, each run
 in a fresh process (so one-time imports count, as they do for a job), side by side:
 
   baseline   torch.optim.Adam and torch's default intra-op threads (the training loop before this change)

@@ -1,4 +1,4 @@
-"""What the Crazyflie KNODE's residual may read (issue 14, transfer): Δθ with and without the acceleration
+"""What the Crazyflie KNODE's residual may read across trajectory families: Δθ with and without the acceleration
 state among its inputs, trained on one circle (or one figure-eight) of the real NanoBench flights with seeds
 0-4, scored with UKF / KNODE-UKF on every flight of the other family; and the five seeds' networks averaged
 into one (a wider network whose output is their mean), to tell a seed's luck from what the inputs allow; then,
@@ -30,14 +30,14 @@ from learnest.service.experiments.flights import evaluate_flights, train_on_flig
 DATA = Path("../shared/data/nanobench")
 TRAIN = {"circle": "B2_circle_medium_rep2", "figure8": "B3_figure8_medium_rep2"}
 OTHER = {"circle": "figure8", "figure8": "circle"}
-STOP17 = ("px", "py")
+BLIND_TO_XY = ("px", "py")
 BLIND_TO_A = ("px", "py", "ax", "ay", "az")
 # (label, blind inputs, seeds, epochs): the two residuals compared over seeds, then the screen that located
-# the cause on seed 0 (longer training of the stop-17 residual; blind to other inputs instead of a)
-RUNS = [("sees a (stop 17)", STOP17, None, None),
+# the cause on seed 0 (longer training of the residual that reads a; blind to other inputs instead of a)
+RUNS = [("sees a (blind to x, y)", BLIND_TO_XY, None, None),
         ("blind to a (package default)", BLIND_TO_A, None, None),
-        ("sees a, 500 epochs", STOP17, 1, 500),
-        ("sees a, 1500 epochs", STOP17, 1, 1500),
+        ("sees a, 500 epochs", BLIND_TO_XY, 1, 500),
+        ("sees a, 1500 epochs", BLIND_TO_XY, 1, 1500),
         ("blind to v instead", ("px", "py", "vx", "vy", "vz"), 1, None),
         ("blind to the attitude instead", ("px", "py", "qx", "qy", "qz", "qw"), 1, None),
         ("blind to the height instead", ("px", "py", "pz"), 1, None),

@@ -1,5 +1,5 @@
-"""The thrust axis against the mocap body frame on the real NanoBench flights (issue 14: the Crazyflie prior
-vs the kinematic one).
+"""The thrust axis against the mocap body frame on the real NanoBench flights (the Crazyflie
+prior vs the kinematic one).
 
 Per flight: the calibrated offset (`models.thrust_axis`, from mocap position and attitude only), and the
 prior-only UKF and MHE scored against the Savitzky–Golay references (as `learnest evaluate` scores them)

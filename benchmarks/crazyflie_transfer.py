@@ -1,4 +1,4 @@
-"""Transfer across trajectory families on the real NanoBench flights (issue 14, step 4): a KNODE trained on
+"""Transfer across trajectory families on the real NanoBench flights: a KNODE trained on
 one circle (or one figure-eight) with the paper's kinematic prior and with the Crazyflie prior (motors +
 battery), each scored with UKF / MHE / KNODE-UKF / KNODE-MHE on every flight of the *other* family.
 

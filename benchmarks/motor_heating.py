@@ -1,4 +1,4 @@
-"""A motor-temperature proxy for the NanoBench flights, from the inputs only (issue 14, the thrust drift).
+"""A motor-temperature proxy for the NanoBench flights, from the inputs only (the thrust drift).
 
 Brushed motors lose thrust per (duty, volt) as they warm: the copper's resistance rises (+0.39 %/K) and the
 magnets weaken.  The logs carry no temperature, so this builds a first-order thermal state driven by the
@@ -22,7 +22,7 @@ the flying window the benchmarks score.  Two initial states:
   voltage), which a logger on the vehicle would have; never an accelerometer or a mocap force.
 
 The motor and battery columns are cleaned with the NanoBench reader's own rule (`clean_stream`): the
-recorder extrapolated streams that stopped early (B2_circle_medium_rep3's motors end at 31.3 s and run
+recorder extrapolated streams which ended early (B2_circle_medium_rep3's motors end at 31.3 s and run
 linearly to 1.9 million PWM by 42 s), and such rows are not measurements.  Where a log has no motor sample
 (that one tail) the motors are taken at the log's mean airborne duty while the mocap says it still flies
 (6.9 s) and at 0 after.

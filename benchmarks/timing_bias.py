@@ -1,4 +1,4 @@
-"""Timing-bias study (issue 13 item 3, issue 12 clock alignment): known accelerometer delays and clock
+"""Timing-bias study (the accelerometer's delay and the clocks' alignment): known accelerometer delays and clock
 offsets, recovered stage by stage, to find where a time shift enters.
 
 For each injected delay the simulator (rotor drag on, the accelerometer's 30 Hz first-order low-pass on)

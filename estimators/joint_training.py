@@ -2,7 +2,7 @@
 
 Algorithm 1 first estimates the unmeasured states with an observer and then fits Δθ to them.  Whatever the
 observer gets wrong (a model-free KF lags the velocities it infers) becomes data the network learns, and a fit
-run to convergence learns it exactly (issue 11: on cartpole seed 0, L-BFGS run to convergence on the KF
+run to convergence learns it exactly (on cartpole seed 0, L-BFGS run to convergence on the KF
 observer's states gives KNODE-MHE 5.8e-3, against 0.34e-3 when fitted on the true states).  Here the states
 are not fixed: they and the network's weights θ minimise one weighted least-squares objective over the whole
 record,
@@ -15,12 +15,12 @@ R and Q (the estimators' own tuning): the states must explain the measurements a
 Why the weight prior λ‖θ‖²: one record pins the residual down only along the path it took. Fitted closely without
 it, the network explains the record to its noise level and is wrong off that path (cartpole seed 4, with Δθ seeing
 every state and correcting every derivative as in the paper, 40 Levenberg–Marquardt iterations without a prior:
-KNODE-MHE 3.2e-3, against 0.69e-3 for the 3000 L-BFGS iterations this module used to stop at, whose early stop was
-the only regulariser; 0.32e-3 with λ = 10). The iteration count still regularises: this is not the optimum of J (120
-iterations gave 0.44e-3 on seed 4). Both were chosen on seeds outside Table I: the count on seeds 15-17 with the
-paper's masks (not re-checked since), λ = `WEIGHT_PRIOR` on seeds 15-19 after the cartpole's Δθ was restricted to
+KNODE-MHE 3.2e-3, against 0.69e-3 for 3000 L-BFGS iterations, whose early stop was their only regulariser;
+0.32e-3 with λ = 10). The iteration count still regularises: this is not the optimum of J (120 iterations gave
+0.44e-3 on seed 4). Both were chosen on seeds outside Table I: the count on seeds 15-17 with the paper's masks
+(not re-checked with `Cartpole`'s), λ = `WEIGHT_PRIOR` on seeds 15-19 after the cartpole's Δθ was restricted to
 its accelerations and blinded to the cart's position (`Cartpole`'s masks; benchmarks/joint_weight_prior.py,
-benchmarks/README.md).
+docs/results/table1.md).
 
 How: Levenberg–Marquardt.  The normal equations are block-tridiagonal in the states (one n × n block per
 sample; a sample touches only its neighbours) with a dense border for θ, so each step is the MHE's compiled

@@ -1,7 +1,7 @@
 """Algorithm 1 with a choice of pre-training observer, and the observer -> train -> observer iteration.
 
 The network learns whatever the observer's estimates of the unmeasured states contain, artefacts
-included.  Two ways to make those estimates better (issue 11, measured in
+included.  Two ways to make those estimates better (measured in
 benchmarks/results/table1_observer_study.md):
 
 * ``observer="smoother"``: a fixed-interval smoother instead of a filter where the paper's observer is a

@@ -193,7 +193,7 @@ def _check_gaps(flight) -> list[str]:
     issues = []
     resolution = mocap_resolution(flight)
     for stream, values, step in (("mocap", flight.p, resolution), ("acc", _acc_body(flight), 0.0)):
-        # The adapter may know of gaps the grid cannot show (a stream that stopped in mid-air ends the grid).
+        # The adapter may know of gaps the grid cannot show (a stream which ends in mid-air ends the grid).
         reported = gaps.get(f"{stream}_longest_gap_airborne_s") or 0.0
         longest = max(interpolated_stretch_s(values, flight.dt, step), reported)
         if longest > MAX_GAP_S:

@@ -115,7 +115,7 @@ _START_AT_PUBLIC = ("r_m", "tau_s")
 
 
 def crazyflie_effects(prior: dict | None = None) -> list[Effect]:
-    """The Crazyflie prior's physical effects (issue 14's contract), nominal at ``prior``'s values.
+    """The Crazyflie prior's physical effects (`models.crazyflie.EFFECTS`), nominal at ``prior``'s values.
 
     Ids, parameters and one-line equations come from `models.crazyflie.EFFECTS`, units from ``UNITS``,
     bounds from ``BOUNDS``; the nominal value of each parameter is the prior's (default
@@ -170,7 +170,7 @@ LIBRARY = {e.id: e for e in [
           Param("delay_s", "s", 0.0, -0.2, 0.2, scan_step=0.005)),
     _meas("accel_misalignment", "IMU frame tilted against the mocap body frame",
           Param("roll_rad", "rad", 0.0, -0.3, 0.3), Param("pitch_rad", "rad", 0.0, -0.3, 0.3)),
-    # -- Crazyflie prior driven by motors and battery (issue 14): mass, battery_thrust, rotor_drag, ...
+    # -- Crazyflie prior driven by motors and battery: mass, battery_thrust, rotor_drag, ...
     *crazyflie_effects(),
 ]}
 

@@ -25,7 +25,7 @@ Identified on the 16 NanoBench flights (`benchmarks/crazyflie_heating_prior.py`:
 force against the prior's, a free gain per flight, cold start at the flying window's start): tau_th_s = 75 s,
 kappa_th = 0.055 pooled.  The two trade off (for flights of 20-40 s only their ratio, the drift rate
 ~4.4 % of thrust per minute of hover from cold, is well determined); held out by family both directions
-improve (benchmarks/README.md).  Earlier, with the whole recordings in flying order
+improve (docs/results/transfer.md, "Motor heating in the prior").  With the whole recordings in flying order
 (`benchmarks/motor_heating.py`), a state carried over between flights gave 4.6 % per unit h at 45 s.
 """
 from __future__ import annotations

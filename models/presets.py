@@ -73,7 +73,7 @@ class TrainingConfig:
     validation_fraction: float = 0.2
     # where the held-out time lies: "spread" (two blocks, at 30-40 % and 80-90 % of the record) or "tail"
     # (the last part). Spread is the default: one block covers one stretch of the motion (a flight's final
-    # hover, one part of a lap), and artefacts learned there pass its test (benchmarks/README.md, robot)
+    # hover, one part of a lap), and artefacts learned there pass its test (docs/results/table1.md, robot)
     validation_layout: str = "spread"
 
     def as_dict(self) -> dict:
@@ -98,19 +98,19 @@ PAPER_TRAINING = {  # Sec. V: 2 layers x 8 tanh; 250 epochs (cartpole), 10000 ep
 #   (median of seeds 0-3: 10.4 -> 4.8; UKF / KNODE-UKF 19.9 -> 45.4); a model-based smoother with the prior
 #   as the first observer is worse than the paper's model-free KF + RTS (seed 0: 42 vs 11), because the
 #   prior's wrong cart mass biases the rates the network learns from.
-#   Since stop 17 the cartpole fits the record's states and Δθ jointly from the filter's estimates ("joint",
-#   estimators.joint_training): on all 15 seeds of Table I it beats the 3 rounds, KNODE-MHE / MHE (true
+#   Fitting the record's states and Δθ jointly from the filter's estimates ("joint",
+#   estimators.joint_training) beats the 3 rounds on all 15 seeds of Table I: KNODE-MHE / MHE (true
 #   dynamics) 4.0 -> 2.6 (ratio of means; per-seed median 3.9 -> 2.2), UKF / KNODE-UKF 40.6 -> 72.0.
-#   Since stop 19 that fit takes 40 Levenberg–Marquardt steps under a prior on the weights instead of 3000
-#   L-BFGS steps without one (benchmarks/README.md, Table I).  What took the cartpole to its targets at stop
-#   20 is not the observer: its Δθ corrects the accelerations only and is blind to the cart's position
-#   (`Cartpole`'s masks): 2.53 -> 1.88 and 74.6 -> 107.8 over the 15 seeds, the joint fit's weight prior
-#   re-chosen with them (1.93 and 104.0 with the old one).
+#   That fit takes 40 Levenberg–Marquardt steps under a prior on the weights rather than 3000 L-BFGS steps
+#   without one (docs/results/table1.md).  What takes the cartpole to its targets is not the observer: its
+#   Δθ corrects the accelerations only and is blind to the cart's position (`Cartpole`'s masks):
+#   2.53 -> 1.88 and 74.6 -> 107.8 over the 15 seeds, the joint fit's weight prior re-chosen with them
+#   (1.93 and 104.0 with the weight prior chosen for the paper's masks).
 # - robot: the unscented RTS pass on the precursory UKF (a smoother instead of the filter) helps more than
 #   the iteration (seed 0: 16.5 -> 7.5, 3 rounds 9.9; seed 1: 69 -> 56): kept, to be confirmed on
 #   15 seeds.  The joint fit was not measured on the robot.  What helped the robot most is not the observer:
-#   since stop 19 its Δθ is blind to x, y, ψ (`GroundRobot.residual_blind`): median KNODE-UKF over the 15
-#   seeds of Table I 1.94e-3 -> 0.30e-3 (benchmarks/README.md).
+#   its Δθ is blind to x, y, ψ (`GroundRobot.residual_blind`): median KNODE-UKF over the 15 seeds of
+#   Table I 1.94e-3 with Δθ reading every state -> 0.30e-3 (docs/results/table1.md).
 PAPER_OBSERVER = {"cartpole": ("joint", 0), "robot": ("smoother", 0)}
 
 # Sec. V-C: 2 layers x 16 tanh, 150 epochs, KF pre-training observer

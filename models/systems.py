@@ -212,7 +212,7 @@ class Cartpole(System):
     invariant_states: tuple = ("p",)
     # Δθ corrects the accelerations only (the derivatives of p and α are ṗ and α̇ by definition) and does not see
     # where the cart is (the track is level and uniform): the rule of `System`'s masks.  On Table I
-    # (benchmarks/README.md, cartpole_residual_error.py) the definition rows had learned up to 0.04 m/s, rad/s of
+    # (docs/results/table1.md, cartpole_residual_error.py) the definition rows had learned up to 0.04 m/s, rad/s of
     # artefact, and KNODE-MHE / MHE (true dynamics) went 2.53 -> 1.93 over the 15 seeds (1.88 with the weight
     # prior re-chosen).  What these masks cannot learn: a force that depends on where the cart is (a spring at the
     # end of the track).
@@ -285,7 +285,7 @@ class GroundRobot(System):
     residual_blind: tuple = ("x", "y", "psi")
     # throttle = mean + a random weave of two sines (0.07 and 0.19 Hz) of these amplitudes (m/s²): the
     # weave makes the speed vary (0.9-3.4 m/s), which is what tells linear from quadratic drag apart;
-    # no weave and a mean that balances the drag at 2 m/s flies at constant speed (issue 13's hard case)
+    # no weave and a mean that balances the drag at 2 m/s flies at constant speed (the hard case)
     throttle_mean: float = 0.4
     throttle_weave: tuple = (0.5, 0.3)
 
@@ -371,7 +371,7 @@ class Quadrotor(System):
 
 @dataclass(frozen=True)
 class Crazyflie(System):
-    """Translational rigid-body dynamics driven by the motors and the battery (issue 14), x = [p, v, a].
+    """Translational rigid-body dynamics driven by the motors and the battery, x = [p, v, a].
 
     m v̇ = R(q)·[0, 0, T]ᵀ − m g e₃ + F_drag: the attitude q (mocap), the 4 motor PWM and the battery
     voltage are inputs (`models.crazyflie.INPUT_NAMES`), T = Σ T_i(PWM_i, vbat) through the thrust map.

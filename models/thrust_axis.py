@@ -110,7 +110,7 @@ def heading_removed(quat: np.ndarray) -> np.ndarray:
     depends on R e₃ alone), so the heading is no physics to it, as the position is none.  A KNODE residual
     that reads the heading learns the training flight's: on the real flights, a figure-eight flown at another
     heading than the training circle (all of its samples outside the training box in qw) lost 8.9 % with
-    KNODE-UKF, and gains 1.7 % on the heading-free input (`benchmarks/README.md`, "Transfer across families").
+    KNODE-UKF, and gains 1.7 % on the heading-free input (`docs/results/transfer.md`, "The heading").
 
     Parameters
     ----------

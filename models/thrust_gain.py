@@ -6,8 +6,8 @@ flight), a battery sags differently, a payload changes what the thrust must carr
 the mean body-z specific force the mocap sees is 0.98-1.01 of what the identified map predicts (0.99-1.02
 once the motors' heating is applied, `models.motor_heating`), and a 1 %
 error is 0.1 m/s² of vertical acceleration all flight long.  The KNODE residual learned its training flight's
-offset and carried it to the others, where it fits or not by chance (`benchmarks/README.md`, "Per-flight
-thrust gain").  Calibrated per flight, the prior-only UKF's median MSE falls by 1 % on the figure-eights and
+offset and carried it to the others, where it fits or not by chance (`docs/results/transfer.md`,
+"Per-flight thrust gain").  Calibrated per flight, the prior-only UKF's median MSE falls by 1 % on the figure-eights and
 11 % on the circles, and every estimator's median falls in both transfer directions.
 
 The gain c is the ratio of the mocap's to the prior's body-z specific force, summed over the airborne samples:

@@ -9,7 +9,7 @@ column then goes through the motor lag (first order, ``tau_s``) and the protocol
 (`models.identify`), as the physics prior's prediction does.  Both time constants are picked from grids on
 the training flights only.
 
-Why these terms (held-out evidence in `benchmarks/README.md`, "Per-motor thrust maps"): the summed duty's
+Why these terms (held-out evidence in `docs/results/thrust-maps.md`): the summed duty's
 quadratic map and the battery polynomial are the physics prior's thrust map made linear; the CW/CCW split
 carries thrust the collective does not (most likely the transients of the yaw loop); tilt and climb/descent
 are the airframe's inflow.  Why the battery filter: the logged voltage carries 0.01-0.03 V of fast

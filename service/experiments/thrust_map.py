@@ -2,7 +2,7 @@
 
 The question a user asks of their logs: how well do the inputs alone (motor PWM, battery voltage, mocap
 attitude and velocity; no accelerometer) predict the body-frame z specific force the accelerometer reads?
-The protocol is issue 14's (`models.identify`: both sides low-passed at 5 Hz, samples the recorder
+The protocol is `models.identify`'s (both sides low-passed at 5 Hz, samples the recorder
 interpolated across gaps and the filter edges left out); the model is `models.thrust_map`.
 """
 from __future__ import annotations

@@ -2,8 +2,8 @@
 (those the flight carries), on the log's own time axis, with what the normalized flight left out shaded:
 
 - the take-off and landing the flying-window cut removed (``meta["flying_window"]``);
-- a stream that stopped before the recording ended (``meta["streams"]``: where each stream's measured rows
-  end; a NanoBench accelerometer that stops in mid-air ends the grid, so its gap lies after the data);
+- a stream which ended before the recording did (``meta["streams"]``: where each stream's measured rows
+  end; a NanoBench accelerometer cut off in mid-air ends the grid, so its gap lies after the data);
 - stretches inside the kept flight where a stream was interpolated across missing samples (`MIN_GAP_S` or
   longer), found as the quality checks find them (collinear resampled values).
 """
@@ -115,7 +115,7 @@ def flight_figure(flight: Flight) -> dict:
 
 
 def _shade_what_is_missing(layout: dict, flight: Flight, t: np.ndarray, offset: float, window: dict) -> list[str]:
-    """Shade the cut take-off and landing, streams that stopped early and gaps inside the flight; returns
+    """Shade the cut take-off and landing, streams which ended early and gaps inside the flight; returns
     the notes for gaps longer than the quality checks allow."""
     ends = stream_ends(flight)
     end = max([*ends.values(), float(t[-1])]) if ends else float(t[-1]) + (LANDING_SETTLE_S if window else 0.0)

@@ -1,4 +1,4 @@
-"""Web pages of the registry across rows (issue 12, section 4): the evaluations list, a version's page with
+"""Web pages of the registry across rows: the evaluations list, a version's page with
 its lineage, versions side by side, and the delete confirmations.
 
 Pages   /ui/evaluations                     evaluations, newest first: MSE per method, KNODE improvement (%),

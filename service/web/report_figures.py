@@ -1,6 +1,6 @@
-"""The velocity figure of an evaluation report, computed once per (evaluation, flight) and kept (issue 10,
-item 7).  It runs the UKF and KNODE-UKF on the flight (seconds), and the report page is an unauthenticated
-GET: computed in the request, with an lru_cache of 32, cycling through evaluation ids kept the server busy.
+"""The velocity figure of an evaluation report, computed once per (evaluation, flight) and kept.  It runs
+the UKF and KNODE-UKF on the flight (seconds), and the report page is an unauthenticated GET: computed in
+the request, with an lru_cache of 32, cycling through evaluation ids kept the server busy.
 
 Now a page view reads the stored figure (table ``report_figures``); when there is none it starts one
 executor task for it - at most `MAX_RUNNING` at a time in this server, never two for the same figure - and

@@ -117,7 +117,7 @@ def test_a_hand_pick_up_with_the_motors_off_is_cut(sim, truth, tmp_path, fmt):
 
 # -- a truncated CSV -------------------------------------------------------------------------------------------
 def _truncate(path, at_fraction: float) -> None:
-    """Cut a CSV in the middle of a line (a copy that stopped)."""
+    """Cut a CSV in the middle of a line (an interrupted copy)."""
     data = path.read_bytes()
     cut = int(len(data) * at_fraction)
     path.write_bytes(data[:cut] if data[cut - 1:cut] != b"\n" else data[:cut + 3])

@@ -1,4 +1,4 @@
-"""Logs as labs really have them (issue 12, section 1): a cfclient log with the received pose, sidecars and
+"""Logs as labs really have them: a cfclient log with the received pose, sidecars and
 folders, logs that start in the air, poses rounded to 1 mm, fast accelerometers, the vehicle profile a model
 records, and every channel a format carries.  Every log is written here, with known truth."""
 import io

@@ -1,4 +1,4 @@
-"""Issue 10, item 13: error messages say what is wrong, in a bounded form."""
+"""Error messages say what is wrong, in a bounded form."""
 from __future__ import annotations
 
 import re

@@ -20,8 +20,8 @@ from learnest.service.experiments.diagnosis import accelerometer_problem
 
 DELAYS_S = (0.02, 0.04, 0.06)
 LOWPASS_HZ = 30.0
-TOLERANCE_S = 0.005          # issue 13: within 5 ms
-MOCAP_SAMPLE_S = 0.01        # issue 12: the clock offset within one mocap sample
+TOLERANCE_S = 0.005          # the delay recovered within 5 ms
+MOCAP_SAMPLE_S = 0.01        # the clock offset recovered within one mocap sample
 FORMATS = ("nanobench", "usd-v1", "usd", "vicon+cfclient")
 
 

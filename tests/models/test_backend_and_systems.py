@@ -24,7 +24,7 @@ def test_rk4_matches_matrix_exponential_with_fourth_order_convergence():
 
 @pytest.mark.parametrize("name", ["cartpole", "robot", "quadrotor"])
 def test_prior_true_and_h_agree_in_numpy_torch_and_casadi(name):
-    import torch  # here, not at module level: collection must not import torch (issue 9)
+    import torch  # here, not at module level: collection must not import torch (it is slow)
 
     system = make_system(name)
     rng = np.random.default_rng(0)

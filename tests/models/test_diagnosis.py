@@ -94,7 +94,7 @@ def test_bias_and_misalignment_at_constant_thrust_are_reported_as_confounded(tmp
     assert {"accel_bias", "accel_misalignment"} in pairs
 
 
-# issue 13: an IMU pitched 2.5° against the mocap body reads like an x bias of −g·sin(2.5°) = −0.428 m/s²;
+# an IMU pitched 2.5° against the mocap body reads like an x bias of −g·sin(2.5°) = −0.428 m/s²;
 # the sensor's 30 Hz low-pass and the vehicle's rotor drag are on, so the model is not the ideal one
 TILTED_IMU = SensorModel(misalignment=(0.0, np.radians(2.5)), lowpass_hz=30.0)
 TILT_AS_BIAS = -GRAVITY * np.sin(np.radians(2.5))
@@ -134,7 +134,7 @@ def test_a_tilt_at_constant_thrust_is_reported_with_bias_as_confounded(tmp_path,
 
 
 def test_a_z_scale_on_fast_vertical_motion_is_not_inflated_by_the_reference_smoothing(tmp_path):
-    """Issue 13: the mocap reference is smoothed; the accelerometer must be compared after the same filter, or
+    """The mocap reference is smoothed; the accelerometer must be compared after the same filter, or
     fast motion is attenuated on one side only and every gain comes back too large (1.08 read as 1.131)."""
     sensors = SensorModel(scale=(1.0, 1.0, 1.08), lowpass_hz=30.0)
     fast_climbs = RandomWaypoints(count=10, speed=2.0, box=((-0.5, 0.5), (-0.5, 0.5), (0.3, 1.8)), seed=0)
@@ -192,7 +192,7 @@ def _robot_drag_selection(truth: str, throttle_mean: float, throttle_weave: tupl
 
 
 def test_robot_rolling_resistance_at_varied_speed_is_linear_drag_not_quadratic():
-    """Issue 13: k = 0.15 1/s of rolling resistance was reported as quadratic drag c = 0.169.  With the speed
+    """k = 0.15 1/s of rolling resistance must not be reported as quadratic drag (c = 0.169).  With the speed
     varied (1-4 m/s) the two differ, and the linear one is found with its value."""
     selection = _robot_drag_selection("linear_drag=0.15,c=0", throttle_mean=0.7, throttle_weave=(0.8, 0.48))
     found = _first(selection, "linear_drag")
@@ -231,7 +231,7 @@ def test_bad_simulate_spec_is_a_clear_error(capsys):
 @pytest.mark.parametrize("angle_deg, alike", [(2.0, True), (89.0, False)])
 def test_a_near_tie_says_whether_the_two_effects_act_alike(angle_deg, alike):
     """Two one-parameter effects whose residual sensitivities make a known angle: parallel ones are "alike",
-    orthogonal ones are a tie the data cannot break, and the note must not call them alike (issue 13)."""
+    orthogonal ones are a tie the data cannot break, and the note must not call them alike."""
     from learnest.models.diagnosis import ResidualProblem, confounded_pairs
     from learnest.models.effects import Effect, Param
 

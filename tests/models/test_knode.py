@@ -26,7 +26,7 @@ def _random_mlp(n_in, n_out, hidden, seed=0):
 
 @pytest.mark.parametrize("name,hidden", [("cartpole", 8), ("robot", 8), ("quadrotor", 16)])
 def test_torch_numpy_and_casadi_evaluations_agree_to_1e9(name, hidden):
-    import torch  # torch is imported by the tests that use it, never at collection (issue 9)
+    import torch  # torch is imported by the tests that use it, never at collection (it is slow)
 
     system = make_system(name)
     mlp = _random_mlp(system.n + system.n_inputs, system.n, hidden)

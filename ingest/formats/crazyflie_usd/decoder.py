@@ -129,7 +129,7 @@ def _parse_event_type(reader: _HeaderReader) -> EventType:
 def _frame_records(data: bytes, start: int, end: int, sizes: dict[int, int]):
     """Walk the record boundaries (records of different events interleave, so each id tells the next size).
 
-    Returns (start offsets per event id, offset where framing stopped, the unknown id that stopped it or None).
+    Returns (start offsets per event id, offset where framing stopped, the unknown id which ended it or None).
     """
     offsets: dict[int, list[int]] = {event_id: [] for event_id in sizes}
     pos = start

@@ -362,7 +362,7 @@ def _row_count(name: str, metadata: dict | None, warnings: list[str]) -> int | N
 
 def _truncation(path: Path, rows: int, metadata: dict | None, warnings: list[str]) -> None:
     """The recorder writes one CSV row per Vicon frame, and its metadata counts them: a file with fewer rows
-    than that was cut short (a copy or download that stopped)."""
+    than that was cut short (an interrupted copy or download)."""
     counted = _row_count("mocap", metadata, [])
     if counted is not None and rows < counted:
         warnings.append(f"truncated: the file holds {rows} rows, its metadata counts {counted} Vicon frames "
@@ -379,7 +379,7 @@ def _span(ts, t_file_start: float) -> dict:
 
 def _airborne_gaps(t_mocap, z, times: dict) -> dict:
     """Longest time without a measured sample while the vehicle is airborne (mocap z above its resting
-    height, as in ingest.align), per stream.  A stream that stops while the vehicle still flies counts
+    height, as in ingest.align), per stream.  A stream which ends while the vehicle still flies counts
     its whole missing tail as one gap; build_flight cannot see that, it simply ends the grid."""
     rest = np.median(z[t_mocap <= t_mocap[0] + 0.5])
     airborne = np.flatnonzero(z > rest + FLYING_HEIGHT_M)

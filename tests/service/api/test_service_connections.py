@@ -1,4 +1,4 @@
-"""Issue 10, item 7: slow and idle clients are cut off, the concurrency limit holds, failed keys are
+"""Slow and idle clients are cut off, the concurrency limit holds, failed keys are
 throttled.  Real sockets against a real uvicorn server on an ephemeral loopback port, with 1-s timeouts."""
 from __future__ import annotations
 
@@ -187,7 +187,7 @@ def test_an_address_that_fails_the_key_too_often_gets_429_with_retry_after(tmp_p
 
 
 def test_a_500_says_connection_close(tmp_path):
-    """After a 500 the server drops the connection: the answer says so (issue 10, item 10)."""
+    """After a 500 the server drops the connection: the answer says so."""
     with running_app(tmp_path) as client:
         def broken():
             raise RuntimeError("boom")

@@ -1,7 +1,7 @@
-"""Service hardening (issue 10).  Item 5: with no API key (the default), a page on another site must not be
+"""Service hardening.  With no API key (the default), a page on another site must not be
 able to start jobs through the user's browser (CSRF), and a server on localhost must not answer requests for
 other host names (DNS rebinding).  The real app, the real forms; the attack is what a browser would send.
-Item 10: numbers and dates out of range are a 422, not a 500."""
+Numbers and dates out of range are a 422, not a 500."""
 import pytest
 from utils.service import flight_csv, running_app, settings_for, upload
 
@@ -73,7 +73,7 @@ def test_host_name_strips_the_port(header, name):
     assert host_name(header) == name
 
 
-# -- issue 10, item 10: out-of-range ids and dates are a 422 that says so, never a 500 -------------------
+# -- out-of-range ids and dates are a 422 that says so, never a 500 -------------------
 @pytest.mark.parametrize("path", ["/flights/9223372036854775808", "/jobs/99999999999999999999",
                                   "/flights?offset=9223372036854775808", "/jobs?offset=18446744073709551616",
                                   "/models/quad/versions/9223372036854775808", "/evaluations/9223372036854775808",
@@ -88,7 +88,7 @@ def test_out_of_range_numbers_are_a_422_not_a_500(app_with_a_flight, path):
     assert client.get("/flights/9223372036854775807").status_code == 404
 
 
-# -- issue 10, item 8: the API key is checked before an upload's body is read ------------------------------
+# -- the API key is checked before an upload's body is read ------------------------------
 def _multipart(boundary: bytes, size: int, chunk: int = 1 << 16) -> list[bytes]:
     head = (b"--" + boundary + b'\r\nContent-Disposition: form-data; name="files"; filename="big.csv"\r\n'
             b"Content-Type: text/csv\r\n\r\n")
@@ -135,7 +135,7 @@ def test_an_upload_without_the_key_is_refused_before_its_body_is_read(tmp_path):
         assert status == 422 and pulled == len(chunks)
 
 
-# -- issue 10, item 9: no orphan blob on a name collision; a crashed upload's temp folder goes ---------------
+# -- no orphan blob on a name collision; a crashed upload's temp folder goes ---------------
 def _blob_state(home):
     from utils.service import blob_files
 
@@ -189,7 +189,7 @@ def test_a_crashed_uploads_temp_folder_is_removed_when_the_store_opens(tmp_path)
         assert not (root / ".tmp" / name).exists()
 
 
-# -- issue 10, item 12: a blob folder that cannot be written; DELETE; server paths in job errors ------------
+# -- a blob folder that cannot be written; DELETE; server paths in job errors ------------
 def test_an_upload_to_a_blob_folder_that_cannot_be_written_is_a_507_storing_nothing(tmp_path):
     from learnest.ingest.flight import sha256_file
 

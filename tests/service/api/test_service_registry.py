@@ -1,4 +1,4 @@
-"""The registry at MLflow's level (issue 12, section 4): the evaluations list with MSE and improvement
+"""The registry at MLflow's level: the evaluations list with MSE and improvement
 columns, versions compared side by side, lineage as links, search by name, deletes that list their
 dependents first, and the pages that show all of it.  Also /docs and /redoc without a CDN."""
 import re

@@ -1,4 +1,4 @@
-"""Issue 10, item 6: quotas on the work a request may ask for, and cancelling a job.
+"""Quotas on the work a request may ask for, and cancelling a job.
 
 A real training job on the real worker pool is cancelled mid-run: it ends "cancelled", its reserved version
 is failed without weights, the worker stops by itself (same process, free for the next job at once), and an

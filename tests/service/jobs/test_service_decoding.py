@@ -1,4 +1,4 @@
-"""Issue 10, item 7: uploads are decoded in worker processes, bounded in number, waiting room and time."""
+"""Uploads are decoded in worker processes, bounded in number, waiting room and time."""
 from __future__ import annotations
 
 import threading

@@ -1,4 +1,4 @@
-"""The pages' figures (issue 12, section 3): running RMS, the SG reference's clipping against the analytic
+"""The pages' figures: running RMS, the SG reference's clipping against the analytic
 Savitzky-Golay gain, the flight page's shading of cut parts, stopped streams and gaps, the per-flight MSE
 figure.  The pages themselves: tests/service/api/test_service_evaluations.py."""
 from pathlib import Path
@@ -95,7 +95,7 @@ def test_flight_figure_shades_the_cut_the_stopped_streams_and_the_gaps():
 
 @pytest.mark.skipif(not NANOBENCH.is_dir(), reason="../shared/data/nanobench not present (a fresh clone)")
 def test_the_real_accelerometer_gap_of_circle_medium_rep3_is_drawn():
-    """Issue 12: the 6.9-s accelerometer gap that fails NanoBench B2_circle_medium_rep3 was not drawn."""
+    """The 6.9-s accelerometer gap that fails NanoBench B2_circle_medium_rep3 is drawn and named in the title."""
     import learnest as le
     from learnest.service.web.flight_plots import MISSING_COLOUR, flight_figure
 
