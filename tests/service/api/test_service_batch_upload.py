@@ -181,3 +181,22 @@ def test_the_batch_key_is_checked_before_its_body_is_read(tmp_path):
         assert post([(b"x-api-key", b"wrong")]) == (401, 0)
         status, pulled = post([(b"x-api-key", b"sesame")])     # with the key the body is read (and is no flight)
         assert status == 422 and pulled == len(chunks)
+
+
+def test_two_same_named_files_of_two_flights_in_one_batch_are_two_flights(sim, tmp_path):
+    """A folder's worth posted with its sub-folders in the names (runA/eckart06.csv, runB/eckart06.csv): two
+    flights, the second named with its content hash, each cut as the simulator says."""
+    truth = flight_truth(sim)
+    paths = [write_canonical_flight(recording(sim, seed=k), "nanobench", tmp_path / run, "eckart06")[0]
+             for k, run in enumerate(("runA", "runB"))]
+    with running_app(tmp_path / "home") as client:
+        answer = client.post("/flights/batch", files=[("files", (f"{p.parent.name}/{p.name}", p.read_bytes()))
+                                                      for p in paths])
+        assert answer.status_code == 201, answer.text
+        body = answer.json()
+        assert [f["status"] for f in body["files"]] == ["stored", "stored"]
+        first, second = body["flights"]
+        assert first["name"] == "eckart06" and second["name"] == f"eckart06-{second['sha256'][:8]}"
+        for flight in (first, second):
+            assert flight["duration_s"] == pytest.approx(truth.touch_down_s - truth.lift_off_s - 2 * SETTLE_S,
+                                                         abs=TOLERANCE_S)
