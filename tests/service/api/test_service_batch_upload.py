@@ -72,7 +72,8 @@ def test_a_batch_with_bad_files_stores_the_others_and_names_each_bad_one(batch, 
         assert [f["file"] for f in body["files"]] == [p.name for p in files]     # one answer per file, in order
         refused = {name for name, f in by_file.items() if f["status"] == "refused"}
         assert refused == {"log20.csv", "notes.bin"}
-        assert "imu_acc_x" in by_file["log20.csv"]["message"] and by_file["log20.csv"]["message"].startswith("log20.csv")
+        bad = by_file["log20.csv"]["message"]
+        assert bad.startswith("log20.csv: ") and "imu_acc_x" in bad
         assert by_file["notes.bin"]["message"].startswith("notes.bin: unrecognised format")
         assert {e["file"] for e in body["errors"]} == refused
         # the others stored, grouped into flights as `learnest ingest` groups them
