@@ -6,6 +6,9 @@ CLI's `learnest train FILE...` all call `add_flight`.  One upload is one flight:
 must make exactly one flight, otherwise InvalidInput (422) - several flights are several uploads, so each gets
 its own id, dedupe key and error.  A recording with several vehicles is one upload per vehicle, each naming
 its pose (and IMU) topic: the chosen topics are part of the dedupe key.
+Several flights at once (POST /flights/batch, the upload form): `add_flights` groups the files into flights
+(`group_uploads`, the rule of `learnest.ingest.group_files`) and stores each with `add_flight`, answering per
+file what was stored, found stored already or refused and why; one bad file does not stop the others.
 Client file names are metadata only: files are staged under names of ours, and messages
 name the client's file, never our temp paths.
 """
@@ -284,3 +287,162 @@ def find_by_sha(db: Database, sha: str) -> FlightRecord | None:
     """The flight stored under this content sha256 (see `content_sha256`), or None."""
     with db.transaction() as session:
         return session.scalar(select(FlightRecord).where(FlightRecord.sha256 == sha))
+
+
+# -- several flights in one upload ----------------------------------------------------------------------
+MAX_BATCH_FILES = 200   # files in one batch upload: a folder's worth of flights with their sidecars
+
+
+@dataclass
+class FileOutcome:
+    """What became of one file of a batch upload.
+
+    Attributes
+    ----------
+    file : str
+        The client's file name.
+    status : str
+        "stored" (a new flight), "existing" (identical content was stored before: that flight) or "refused".
+    flight : FlightRecord or None
+        The flight the file is part of (stored or existing).
+    message : str or None
+        Why it was refused, naming the file.
+    http_status : int or None
+        The status the refusal would have had as an upload of its own (422 unreadable, 503 busy, ...).
+    """
+    file: str
+    status: str
+    flight: FlightRecord | None = None
+    message: str | None = None
+    http_status: int | None = None
+
+
+def _is_sidecar(name: str) -> bool:
+    return (name.endswith(SIDECAR_SUFFIXES) or INFO_SIDECAR.fullmatch(name) is not None
+            or CRAZYSWARM_CONFIG.fullmatch(name) is not None)
+
+
+def group_uploads(uploads: Sequence[Upload], directory: Path) -> tuple[list[list[int]], dict[int, str]]:
+    """The flights among uploaded files, grouped as `learnest.ingest.group_files` groups files on disk.
+
+    Vicon exports and cfclient logs are paired in the order of their client names; a cfclient log carrying the
+    received pose is a flight of its own when the Vicon exports are paired without it; every other log is a
+    flight of its own; a metadata sidecar goes with its log.  What cannot be placed is refused, not the batch.
+
+    Parameters
+    ----------
+    uploads
+        The files, in the order posted.
+    directory
+        A scratch folder: the logs are copied there (under names of ours) to tell their formats from their content.
+
+    Returns
+    -------
+    (groups, refused)
+        groups: per flight, the indices of its files in `uploads` (the log(s) first, then its sidecars);
+        refused: {index: why}, the reason naming the client's file.
+    """
+    from learnest.ingest import detect, group_files
+    from learnest.ingest.flight import IngestError
+
+    names = [original_basename(upload.filename, i) for i, upload in enumerate(uploads)]
+    logs = [i for i, name in enumerate(names) if not _is_sidecar(name)]
+    log_stems = {Path(names[i]).stem: i for i in logs}
+    refused: dict[int, str] = {}
+    owner_of: dict[int, int] = {}
+    for i, name in enumerate(names):
+        if i in logs:
+            continue
+        owner = _sidecar_owner(name, log_stems)
+        if owner is None:
+            refused[i] = f"{name}: a metadata sidecar without its flight log in this upload (give the log with it)"
+        else:
+            owner_of[i] = owner[0]
+    # copies named by rank in client-name order: group_files pairs Vicon exports and cfclient logs in path order
+    paths: dict[int, Path] = {}
+    for rank, i in enumerate(sorted(logs, key=lambda i: (names[i], i))):
+        paths[i] = directory / f"{rank:06d}{_safe_suffix(names[i])}"
+        with storage_errors("accept uploads"):
+            _copy_and_hash(uploads[i].file, paths[i])
+    index_of = {str(path): i for i, path in paths.items()}
+
+    def reason(err: IngestError) -> str:
+        i = index_of.get(str(err.path))
+        problem = err.problem
+        for path, j in index_of.items():
+            problem = problem.replace(path, names[j])
+        return f"{names[i] if i is not None else Path(str(err.path)).name}: {problem}"
+
+    remaining = []
+    for i in sorted(paths, key=lambda i: str(paths[i])):
+        try:
+            detect(paths[i])
+            remaining.append(i)
+        except IngestError as err:
+            refused[i] = reason(err)
+    groups: list[tuple[str, list[Path]]] = []
+    while remaining:
+        try:
+            groups = group_files([paths[i] for i in remaining])
+            break
+        except IngestError as err:   # a Vicon export or cfclient log without its other half: that file only
+            i = index_of.get(str(err.path), remaining[-1])
+            refused[i] = reason(err)
+            remaining.remove(i)
+    flights = []
+    for _adapter, files in groups:
+        members = [index_of[str(path)] for path in files]
+        flights.append(members + sorted(s for s, owner in owner_of.items() if owner in members))
+    return flights, refused
+
+
+def add_flights(db: Database, blobs: BlobStore, uploads: Sequence[Upload], vehicle: str | None = None,
+                notes: str | None = None, *, pose_topic: str | None = None, imu_topic: str | None = None,
+                cut: str | None = None, decode: Callable[..., CanonicalFlight] | None = None) -> list[FileOutcome]:
+    """Store the flights among several files (several flights, or a folder's worth): each flight as `add_flight`
+    stores one, each file answered on its own; one bad file or flight does not stop the others.
+
+    Parameters
+    ----------
+    uploads
+        Log files of any number of flights, with their sidecars (grouped by `group_uploads`), at most
+        MAX_BATCH_FILES.
+    vehicle, notes, pose_topic, imu_topic, cut
+        As for `add_flight`, for every flight of the batch (a topic chosen for a log without topics refuses that
+        flight).
+
+    Returns
+    -------
+    list of FileOutcome
+        One per upload, in the order posted.
+
+    Raises
+    ------
+    InvalidInput
+        No file, more than MAX_BATCH_FILES, a malformed cut or topic (the request's own mistakes, before any file
+        is read).
+    """
+    from learnest.errors import InvalidInput, LearnestError
+
+    if not uploads:
+        raise InvalidInput("no file: give the log file(s) of one or more flights")
+    if len(uploads) > MAX_BATCH_FILES:
+        raise InvalidInput(f"{len(uploads)} files in one upload: at most {MAX_BATCH_FILES}; upload them in parts")
+    _topic_or_none(pose_topic, "pose_topic"), _topic_or_none(imu_topic, "imu_topic")
+    parse_cut(cut)
+    names = [original_basename(upload.filename, i) for i, upload in enumerate(uploads)]
+    with blobs.temp_dir() as directory:
+        groups, refused = group_uploads(uploads, directory)
+    outcomes = {i: FileOutcome(names[i], "refused", message=why, http_status=422) for i, why in refused.items()}
+    for members in groups:
+        try:
+            row, created = add_flight(db, blobs, [uploads[i] for i in members], vehicle, notes, pose_topic=pose_topic,
+                                      imu_topic=imu_topic, cut=cut, decode=decode)
+        except LearnestError as err:
+            log.info("batch upload: %s refused: %s", ", ".join(names[i] for i in members), err)
+            for i in members:
+                outcomes[i] = FileOutcome(names[i], "refused", message=str(err), http_status=err.status)
+            continue
+        for i in members:
+            outcomes[i] = FileOutcome(names[i], "stored" if created else "existing", flight=row)
+    return [outcomes[i] for i in range(len(uploads))]

@@ -31,7 +31,9 @@ Sensors (SensorModel, all parameters known):
 `write_flight` writes a SimulatedFlight as nanobench, usd, usd-v1, vicon+cfclient, mcap-ros2 or mcap-json;
 `write_canonical_flight` writes any Flight (e.g. one flown by `models.simulate_crazyflie`) with the inputs it
 carries (motor PWM, battery voltage, gyro, setpoint) as nanobench, usd, usd-v1, vicon+cfclient or mcap-ros2
-(crazyswarm2 LogDataGeneric topics /cf1/<channel> and the <stem>_crazyflies.yaml that names their values);
+(crazyswarm2 LogDataGeneric topics /cf1/<channel> and the <stem>_crazyflies.yaml that names their values),
+and as cfclient (the CSV carrying the pose), mcap-json, rosbag-db3, rosbag-mcap or rosbag-ros1
+(ALL_CANONICAL_FORMATS; MOTOR_FORMATS carry the motor PWM);
 `sim_times` maps a Flight read back from those files onto simulation time; `make_sample_logs` writes the
 bundled sample_logs/ (python -m learnest.ingest.sim.samples [DIR]).
 
@@ -40,11 +42,20 @@ its closed loop and the true states), `sensors` (the sensor model and the sample
 `simulation` (`simulate`: one SimulatedFlight), `export` (`write_flight`, `sim_times`), `samples` (the
 bundled sample logs: `sample_flight`, `make_sample_logs`).  The names below are the simulator's public surface.
 """
-from .export import CANONICAL_FORMATS, FORMATS, sim_times, write_canonical_flight, write_flight
+from .export import (
+    ALL_CANONICAL_FORMATS,
+    CANONICAL_FORMATS,
+    FORMATS,
+    MOTOR_FORMATS,
+    sim_times,
+    write_canonical_flight,
+    write_flight,
+)
 from .sensors import SensorModel
 from .simulation import SimulatedFlight, simulate
 from .trajectories import Circle, Figure8, RandomWaypoints, Timing, Trajectory
 from .vehicle import Vehicle
 
-__all__ = ["CANONICAL_FORMATS", "FORMATS", "Circle", "Figure8", "RandomWaypoints", "SensorModel", "SimulatedFlight",
+__all__ = ["ALL_CANONICAL_FORMATS", "MOTOR_FORMATS",
+           "CANONICAL_FORMATS", "FORMATS", "Circle", "Figure8", "RandomWaypoints", "SensorModel", "SimulatedFlight",
            "Timing", "Trajectory", "Vehicle", "sim_times", "simulate", "write_canonical_flight", "write_flight"]

@@ -207,13 +207,18 @@ def write_canonical_flight(flight: Flight, fmt: str, directory, stem: str) -> li
         firmware variables, time since boot), "vicon+cfclient" (a Vicon export at the Flight's rate and a
         cfclient log of the onboard variables, on the two clocks `write_flight` uses), "mcap-ros2" (a ROS 2
         MCAP bag as crazyswarm2 records it: pose, sensor_msgs/Imu, one LogDataGeneric topic per input, and the
-        ``<stem>_crazyflies.yaml`` that names their variables, which the reader finds beside it).
+        ``<stem>_crazyflies.yaml`` that names their variables, which the reader finds beside it); or one of
+        MORE_CANONICAL_FORMATS: "cfclient" (a cfclient CSV carrying the received pose, locSrv.*), "mcap-json"
+        (pose and accelerometer only), "rosbag-db3" / "rosbag-mcap" (a ROS 2 bag folder with sqlite3 or MCAP
+        storage, topics as "mcap-ros2"), "rosbag-ros1" (a ROS 1 .bag: pose and IMU only).  MOTOR_FORMATS carry
+        the motor PWM.
     directory, stem : where to write; file names as in `write_flight`.
 
     Returns
     -------
     list of Path
-        The files to give to ``ingest.read_flights`` (the Vicon export first for "vicon+cfclient"); simulation
+        The files to give to ``ingest.read_flights`` (the Vicon export first for "vicon+cfclient"; a ROS 2 bag's
+        storage file); simulation
         time 0 (the Flight's t = 0) lies at SOURCE_TIME_AT_SIM_ZERO[fmt] on the file's clock.
     """
     directory = Path(directory)
@@ -243,4 +248,72 @@ def write_canonical_flight(flight: Flight, fmt: str, directory, stem: str) -> li
         return [vicon_path, cfclient_path]
     if fmt == "mcap-ros2":
         return _write_canonical_ros2(flight, directory / f"{stem}.mcap", acc_g)
-    raise ValueError(f"unknown format {fmt!r} for a Flight (one of {', '.join(CANONICAL_FORMATS)})")
+    return _write_more_canonical(flight, fmt, directory, stem, acc_g)
+
+
+# -- the other formats a canonical Flight can be written in ------------------------------------------------
+# Written by `write_canonical_flight` beside CANONICAL_FORMATS: a cfclient CSV that carries the pose itself, a
+# JSON-encoded MCAP, and ROS bags written with rosbags (ROS 2 with sqlite3 or MCAP storage, ROS 1).
+MORE_CANONICAL_FORMATS = ("cfclient", "mcap-json", "rosbag-db3", "rosbag-mcap", "rosbag-ros1")
+ALL_CANONICAL_FORMATS = CANONICAL_FORMATS + MORE_CANONICAL_FORMATS
+# Those whose files carry the Flight's motor PWM (and its other inputs); the rest carry the pose and the
+# accelerometer only: a JSON MCAP has no input channels (the reader takes inputs from LogDataGeneric topics
+# only) and a ROS 1 bag cannot hold LogDataGeneric, a ROS 2 type.
+MOTOR_FORMATS = ("nanobench", "usd", "usd-v1", "vicon+cfclient", "cfclient", "mcap-ros2", "rosbag-db3",
+                 "rosbag-mcap")
+SOURCE_TIME_AT_SIM_ZERO.update({"rosbag-db3": 0.0, "rosbag-mcap": 0.0, "rosbag-ros1": 0.0})
+ROSBAG_STORAGE = {"rosbag-db3": "sqlite3", "rosbag-mcap": "mcap", "rosbag-ros1": "ros1"}
+
+
+def _write_canonical_cfclient(flight: Flight, path: Path, acc_g: np.ndarray) -> list[Path]:
+    """A cfclient "Log to file" CSV with the pose the vehicle received (locSrv.*) beside acc.* and the inputs
+    the Flight carries (firmware units), stamped in ms since boot (CFCLIENT_BOOT_S at the Flight's t = 0)."""
+    pose = np.column_stack([flight.p, flight.quat])
+    extra = {name: pose[:, j] for j, name in enumerate(LOCSRV_POSE)}
+    extra.update({name: values for name, (_, values) in _firmware_columns(flight).items()})
+    write_cfclient_csv(path, CFCLIENT_BOOT_S + np.asarray(flight.t, float), acc_g, extra)
+    return [path]
+
+
+def _write_canonical_rosbag(flight: Flight, directory: Path, stem: str, storage: str,
+                            acc_g: np.ndarray) -> list[Path]:
+    """A ROS bag as crazyswarm2 records one (formats.rosbag.writer): the mocap pose (PoseStamped), the IMU
+    (sensor_msgs/Imu) and, in a ROS 2 bag, one LogDataGeneric topic /cf1/<channel> per input the Flight carries
+    with the ``<storage file stem>_crazyflies.yaml`` that names their values beside the storage file.  A ROS 2
+    bag is the folder ``directory/stem`` (metadata.yaml and the .db3 or .mcap); a ROS 1 bag is ``stem.bag``."""
+    import yaml
+
+    from ..formats.rosbag.writer import BagWriter
+
+    t = np.asarray(flight.t, float)
+    ros1 = storage == "ros1"
+    bag = BagWriter(directory / (f"{stem}.bag" if ros1 else stem), storage)
+    bag.add_pose(f"/mocap/{ROBOT}/pose", t, flight.p, flight.quat)
+    bag.add_imu(f"/{ROBOT}/imu", t, acc_g)
+    custom_topics = {}
+    if not ros1:     # LogDataGeneric is a ROS 2 type: a ROS 1 bag carries no inputs
+        for channel, (names, _, to_firmware) in FIRMWARE_VARIABLES.items():
+            if channel in flight.channels:
+                values = np.asarray(to_firmware(np.asarray(flight.channels[channel], dtype=float)), dtype=float)
+                bag.add_log_data(f"/{ROBOT}/{channel}", t, values.reshape(len(t), -1))
+                custom_topics[channel] = {"frequency": int(round(flight.rate_hz)), "vars": list(names)}
+    storage_file = bag.close()
+    if custom_topics:
+        config = {"robots": {ROBOT: {"enabled": True, "type": "cf21"}},
+                  "all": {"firmware_logging": {"enabled": True, "custom_topics": custom_topics}}}
+        storage_file.with_name(f"{storage_file.stem}_crazyflies.yaml").write_text(yaml.safe_dump(config,
+                                                                                                sort_keys=False))
+    return [storage_file]
+
+
+def _write_more_canonical(flight: Flight, fmt: str, directory: Path, stem: str, acc_g: np.ndarray) -> list[Path]:
+    """`write_canonical_flight` for MORE_CANONICAL_FORMATS."""
+    if fmt == "cfclient":
+        return _write_canonical_cfclient(flight, directory / f"{stem}_cfclient.csv", acc_g)
+    if fmt == "mcap-json":
+        path = directory / f"{stem}.mcap"
+        mcap_writer.write_json(path, np.asarray(flight.t, float), flight.p, flight.quat, acc_g)
+        return [path]
+    if fmt in ROSBAG_STORAGE:
+        return _write_canonical_rosbag(flight, directory, stem, ROSBAG_STORAGE[fmt], acc_g)
+    raise ValueError(f"unknown format {fmt!r} for a Flight (one of {', '.join(ALL_CANONICAL_FORMATS)})")

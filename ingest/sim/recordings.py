@@ -5,7 +5,8 @@ logs beside the pose and the accelerometer: the motor PWM (0 while the motors ar
 to touchdown) and an accelerometer that is still at rest (0.001 g of noise on the floor, as NanoBench's
 onboard-filtered IMU) and vibrates while the motors run.  It can start late (logging began in the air),
 stop early (the vehicle still flying), and add a hand pick-up after landing (the vehicle lifted with the
-motors off).  Write it in any format with `ingest.sim.export.write_canonical_flight`; its
+motors off).  Write it in any format with `ingest.sim.export.write_canonical_flight` (ALL_CANONICAL_FORMATS;
+the motor PWM only in MOTOR_FORMATS); its
 ``meta["sim_start_s"]`` puts it on simulation time, where `flight_truth` says when the vehicle really was
 airborne.
 """

@@ -59,7 +59,7 @@ from ..jobs.runner import ACTIVE, seconds_left
 from ..jobs.services import Services
 from ..jobs.training import start_training
 from ..storage.tables import Diagnosis, Evaluation, FlightRecord, Job
-from ..uploads import add_flight, recut_flight
+from ..uploads import add_flights, recut_flight
 from . import evaluation_plots, figures, flight_plots, forms, zoomable
 from .headline import diagnosis_headline, diagnosis_split, evaluation_headline, gap_methods
 from .registry_figures import loss_curves_of
@@ -162,13 +162,24 @@ def upload_flight_form(request: Request, files: list[UploadFile | str] = File(de
                        vehicle: str = Form(""), notes: str = Form(""), pose_topic: str = Form(""),
                        imu_topic: str = Form(""), cut: str = Form(""), api_key: str = Form(""),
                        services: Services = Depends(get_services)):
-    """Upload form: store the chosen file(s) as one flight (as POST /flights does), then 303 to its page."""
+    """Upload form: store the flights among the chosen files (as POST /flights/batch does).  One flight read:
+    303 to its page; one flight refused: the error page; otherwise a page that says per file what was stored,
+    found stored already or refused and why."""
     forms.require_key(request, services.settings, api_key)
     chosen = forms.chosen_files(files)
-    row, _created = add_flight(services.db, services.blobs, chosen, *forms.upload_text(vehicle, notes),
-                               pose_topic=pose_topic, imu_topic=imu_topic, cut=cut.strip() or None,
-                               decode=services.decoder.decode)
-    return forms.redirect(f"/ui/flights/{row.id}", services.settings, api_key)
+    outcomes = add_flights(services.db, services.blobs, chosen, *forms.upload_text(vehicle, notes),
+                           pose_topic=pose_topic, imu_topic=imu_topic, cut=cut.strip() or None,
+                           decode=services.decoder.decode)
+    rows = {o.flight.id: o.flight for o in outcomes if o.flight is not None}
+    refused = [o for o in outcomes if o.status == "refused"]
+    if len(rows) == 1 and not refused:
+        return forms.redirect(f"/ui/flights/{next(iter(rows))}", services.settings, api_key)
+    if not rows and len({o.message for o in refused}) == 1:   # one flight (its file(s)), refused
+        return error_page(refused[0].http_status or 422, refused[0].message or "refused")
+    statuses = [o.status for o in outcomes]
+    return page("upload_results.html", "Upload", 201 if "stored" in statuses else 200 if rows else 422,
+                outcomes=outcomes, stored=len({o.flight.id for o in outcomes if o.status == "stored"}),
+                existing=len({o.flight.id for o in outcomes if o.status == "existing"}), refused=len(refused))
 
 
 @pages.post("/ui/flights/{flight_id}/cut")

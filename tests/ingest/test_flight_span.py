@@ -13,8 +13,9 @@ from learnest.ingest import read_flights
 from learnest.ingest.batch import read_batch, unique_names
 from learnest.ingest.sim import simulate
 from learnest.ingest.sim.export import (
-    CANONICAL_FORMATS,
+    ALL_CANONICAL_FORMATS,
     CFCLIENT_BOOT_S,
+    MOTOR_FORMATS,
     NANOBENCH_EPOCH_S,
     VICON_START_S,
     sim_times,
@@ -26,6 +27,15 @@ from learnest.service.cli import main
 
 TOLERANCE_S = 0.1
 SETTLE_S = 1.0     # ingest.align.TAKEOFF_SETTLE_S, LANDING_SETTLE_S: the transients trimmed
+
+# Every format learnest reads, written by write_canonical_flight.  With and without the motor PWM where the
+# format carries motor channels; "mcap-json" (no input channels in a JSON MCAP) and "rosbag-ros1" (LogDataGeneric
+# is a ROS 2 type) cannot carry motors, so their with-motors cases, and the hand pick-up that only the motors
+# tell apart (N/A there), are not generated.
+WITH_AND_WITHOUT_MOTORS = [pytest.param(fmt, motors, id=f"{fmt}-{'motors' if motors else 'no-motors'}")
+                           for fmt in ALL_CANONICAL_FORMATS for motors in (True, False)
+                           if fmt in MOTOR_FORMATS or not motors]
+CSV_FORMATS = ("nanobench", "vicon+cfclient", "cfclient")   # the ones a copy can cut mid-line
 
 
 @pytest.fixture(scope="module")
@@ -57,8 +67,7 @@ def read_back(rec, fmt, directory, stem="log"):
 
 
 # -- a whole recording: sit, fly, land, sit --------------------------------------------------------------------
-@pytest.mark.parametrize("fmt", CANONICAL_FORMATS)
-@pytest.mark.parametrize("motors", [True, False], ids=["motors", "no-motors"])
+@pytest.mark.parametrize(("fmt", "motors"), WITH_AND_WITHOUT_MOTORS)
 def test_a_whole_recording_keeps_lift_off_to_touchdown(sim, truth, tmp_path, fmt, motors):
     rec = recording(sim, motors=motors)
     flight = read_back(rec, fmt, tmp_path)
@@ -70,8 +79,7 @@ def test_a_whole_recording_keeps_lift_off_to_touchdown(sim, truth, tmp_path, fmt
 
 
 # -- starts in the air -----------------------------------------------------------------------------------------
-@pytest.mark.parametrize("fmt", CANONICAL_FORMATS)
-@pytest.mark.parametrize("motors", [True, False], ids=["motors", "no-motors"])
+@pytest.mark.parametrize(("fmt", "motors"), WITH_AND_WITHOUT_MOTORS)
 def test_a_recording_that_starts_in_the_air_is_kept_from_its_start(sim, truth, tmp_path, fmt, motors):
     """Logging began 2 s after lift-off (the vehicle hovering at 1 m): nothing is cut at the start."""
     rec = recording(sim, start_s=truth.lift_off_s + 2.0, motors=motors)
@@ -86,8 +94,7 @@ def test_a_recording_that_starts_in_the_air_is_kept_from_its_start(sim, truth, t
 
 
 # -- stays in the air ------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("fmt", CANONICAL_FORMATS)
-@pytest.mark.parametrize("motors", [True, False], ids=["motors", "no-motors"])
+@pytest.mark.parametrize(("fmt", "motors"), WITH_AND_WITHOUT_MOTORS)
 def test_a_recording_that_stays_in_the_air_is_kept_whole(sim, truth, tmp_path, fmt, motors):
     """Logging from 2 s after lift-off to 2 s before touchdown: airborne throughout, all of it kept."""
     begin, end = truth.lift_off_s + 2.0, truth.touch_down_s - 2.0
@@ -101,7 +108,7 @@ def test_a_recording_that_stays_in_the_air_is_kept_whole(sim, truth, tmp_path, f
 
 
 # -- picked up by hand after landing, motors off ---------------------------------------------------------------
-@pytest.mark.parametrize("fmt", CANONICAL_FORMATS)
+@pytest.mark.parametrize("fmt", MOTOR_FORMATS)   # only the motors tell a hand from a flight: N/A without
 def test_a_hand_pick_up_with_the_motors_off_is_cut(sim, truth, tmp_path, fmt):
     """1 s after touchdown the vehicle is lifted 0.6 m by hand (motors off): height alone took that as
     flying; the motors say it is not."""
@@ -123,13 +130,13 @@ def _truncate(path, at_fraction: float) -> None:
     path.write_bytes(data[:cut] if data[cut - 1:cut] != b"\n" else data[:cut + 3])
 
 
-@pytest.mark.parametrize("fmt", ["nanobench", "vicon+cfclient"])
+@pytest.mark.parametrize("fmt", CSV_FORMATS)
 def test_a_truncated_csv_keeps_what_it_holds_and_says_so(sim, truth, tmp_path, fmt):
     """Cut while the vehicle flies: kept to its last complete row (the log ends in the air), rates 100 Hz
     from the time stamps (a row count over the shortened span said 147 Hz), the truncation reported."""
     rec = recording(sim)
     files = write_canonical_flight(rec, fmt, tmp_path, "cut")
-    csv = files[0] if fmt == "nanobench" else files[1]      # the pair: the cfclient log is cut
+    csv = files[1] if fmt == "vicon+cfclient" else files[0]      # the pair: the cfclient log is cut
     rows = csv.read_text().count("\n") - 1
     if fmt == "nanobench":   # the recorder's metadata counts the Vicon frames it wrote
         csv.with_name("cut_metadata.yaml").write_text(yaml.safe_dump({"row_counts": {"vicon": rows, "imu": rows}}))
@@ -140,7 +147,7 @@ def test_a_truncated_csv_keeps_what_it_holds_and_says_so(sim, truth, tmp_path, f
 
     table = pd.read_csv(csv)     # its last row is the one cut short: the reader drops it
     last_row = (table["t"].iloc[-2] - NANOBENCH_EPOCH_S if fmt == "nanobench"
-                else table["Timestamp"].iloc[-2] / 1000.0 - CFCLIENT_BOOT_S)   # simulation time
+                else table["Timestamp"].iloc[-2] / 1000.0 - CFCLIENT_BOOT_S)   # simulation time (both cfclient)
     assert truth.lift_off_s + SETTLE_S < last_row < truth.touch_down_s - SETTLE_S   # cut in flight
     assert start == pytest.approx(truth.lift_off_s + SETTLE_S, abs=TOLERANCE_S)
     assert stop == pytest.approx(last_row, abs=TOLERANCE_S)
@@ -155,7 +162,7 @@ def test_a_truncated_csv_keeps_what_it_holds_and_says_so(sim, truth, tmp_path, f
 
 
 # -- two files with the same name ------------------------------------------------------------------------------
-@pytest.mark.parametrize("fmt", ["nanobench", "usd", "mcap-ros2"])
+@pytest.mark.parametrize("fmt", ALL_CANONICAL_FORMATS)
 def test_two_same_named_files_get_their_folders_as_suffix(sim, truth, tmp_path, fmt, capsys):
     other = simulate(Circle(radius=0.4, speed=0.6, duration_s=8.0), timing=Timing(sit_after_s=4.0), seed=4)
     other_truth = flight_truth(other)
@@ -163,7 +170,16 @@ def test_two_same_named_files_get_their_folders_as_suffix(sim, truth, tmp_path, 
     files = {run: write_canonical_flight(rec, fmt, tmp_path / run, "eckart06") for run, rec in recs.items()}
     batch = read_batch([*files["runA"], *files["runB"]])
     assert not batch.errors
-    assert [f.name for f in batch.flights] == ["eckart06-runA", "eckart06-runB"]
+    if files["runA"][0].parent.name == files["runB"][0].parent.name:
+        # a ROS 2 bag is a folder named as its storage file (runA/eckart06/eckart06.db3): same folder names,
+        # so the content hash tells them apart
+        suffixes = [f.meta["sources"][0]["sha256"][:8] for f in batch.flights]
+        assert suffixes[0] != suffixes[1]
+    else:
+        suffixes = ["runA", "runB"]
+    stem = files["runA"][0].stem       # the flight's name: its (first) file's stem, e.g. eckart06_vicon
+    expected = [f"{stem}-{suffix}" for suffix in suffixes]
+    assert [f.name for f in batch.flights] == expected
     for flight, rec, real in zip(batch.flights, recs.values(), (truth, other_truth)):
         start, stop = kept(flight, fmt, rec)
         assert start == pytest.approx(real.lift_off_s + SETTLE_S, abs=TOLERANCE_S)
@@ -171,10 +187,10 @@ def test_two_same_named_files_get_their_folders_as_suffix(sim, truth, tmp_path, 
     # the CLI prints and writes the same names
     assert main(["ingest", "--json", *map(str, files["runA"] + files["runB"])]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert [f["name"] for f in out["flights"]] == ["eckart06-runA", "eckart06-runB"] and out["errors"] == []
+    assert [f["name"] for f in out["flights"]] == expected and out["errors"] == []
     assert main(["ingest", *map(str, files["runA"] + files["runB"])]) == 0
     text = capsys.readouterr().out
-    assert "eckart06-runA:" in text and "eckart06-runB:" in text
+    assert f"{expected[0]}:" in text and f"{expected[1]}:" in text
 
 
 def test_same_named_files_in_same_named_folders_get_their_sha256(sim, tmp_path):
@@ -191,7 +207,7 @@ def test_same_named_files_in_same_named_folders_get_their_sha256(sim, tmp_path):
 
 
 # -- one bad file in a batch -----------------------------------------------------------------------------------
-@pytest.mark.parametrize("fmt", ["nanobench", "usd", "mcap-ros2"])
+@pytest.mark.parametrize("fmt", ALL_CANONICAL_FORMATS)
 def test_a_batch_with_one_bad_file_reads_the_rest_and_names_it(sim, truth, tmp_path, fmt, capsys):
     """A NanoBench CSV without its accelerometer among good logs: named with its reason, the rest read and
     cut right, exit status 1, errors in the JSON; --strict as before."""

@@ -1,4 +1,5 @@
-"""/flights: upload (ingest + dedupe), list, detail, normalized data as CSV, raw files, delete.
+"""/flights: upload (ingest + dedupe; several flights at once: /flights/batch), list, detail, normalized data
+as CSV, raw files, delete.
 
 The routes shape answers; what an upload is and how it is stored is service.uploads (the upload form and the
 CLI use it too), and reading rows is service.catalog.
@@ -15,9 +16,12 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from fastapi import APIRouter, Depends, File, Form, Query, Response, UploadFile
-from fastapi.responses import FileResponse
+from fastapi import APIRouter, Depends, File, Form, Query, Request, Response, UploadFile
+from fastapi.encoders import jsonable_encoder
+from fastapi.responses import FileResponse, JSONResponse
 from starlette.background import BackgroundTask
+from starlette.concurrency import run_in_threadpool
+from starlette.datastructures import UploadFile as StarletteUpload
 
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight as CanonicalFlight
@@ -27,7 +31,7 @@ from ...jobs.services import Services
 from ...storage.blobs import CHUNK, BlobStore
 from ...storage.database import Database
 from ...storage.tables import FlightRecord
-from ...uploads import add_flight, recut_flight
+from ...uploads import MAX_BATCH_FILES, FileOutcome, add_flight, add_flights, recut_flight
 from ..deps import Offset, RowId, get_blobs, get_db, get_services, require_api_key
 from ..schemas import Dependents, FlightDetail, FlightOut, FlightPage
 
@@ -77,6 +81,74 @@ def upload_flight(response: Response,
     response.status_code = 201 if created else 200
     response.headers["Location"] = f"/flights/{row.id}"
     return flight_out(row)
+
+
+BATCH_FIELDS = {"vehicle": 200, "notes": 10_000, "pose_topic": 300, "imu_topic": 300, "cut": 60}  # max lengths
+BATCH_BODY = {"content": {"multipart/form-data": {"schema": {
+    "type": "object", "required": ["files"],
+    "properties": {"files": {"type": "array", "items": {"type": "string", "format": "binary"},
+                             "description": f"the log files of one or more flights, with their sidecars "
+                                            f"(at most {MAX_BATCH_FILES})"},
+                   **{name: {"type": "string", "maxLength": limit} for name, limit in BATCH_FIELDS.items()}}}}}}
+
+
+def file_outcome(outcome: FileOutcome) -> dict:
+    """One file of a batch upload as the API's JSON."""
+    row = outcome.flight
+    return {"file": outcome.file, "status": outcome.status, "flight_id": row.id if row else None,
+            "flight_name": row.name if row else None, "message": outcome.message,
+            "http_status": outcome.http_status}
+
+
+@router.post("/batch", status_code=201, dependencies=[Depends(require_api_key)],
+             openapi_extra={"requestBody": BATCH_BODY},
+             responses={200: {"description": "every flight read was stored already"},
+                        201: {"description": "at least one new flight stored; `files` says per file what was stored"},
+                        400: {"description": f"more than {MAX_BATCH_FILES} files, or a malformed body"},
+                        413: {"description": "upload larger than LEARNEST_MAX_UPLOAD_MB"},
+                        422: {"description": "no file could be stored (each named in `files` and `errors`), or a "
+                                             "malformed cut, topic or field"}})
+async def upload_flights(request: Request):
+    """Several flights at once (several files, or a folder's worth): grouped into flights as `learnest ingest`
+    groups them (a Vicon export with its cfclient log, a CSV with its *_metadata.yaml, ...), each stored as
+    POST /flights stores one (service.uploads.add_flights).  The answer says per file ``status`` "stored"
+    (a new flight), "existing" (identical content stored before) or "refused" with its ``message``; one bad
+    file does not stop the others.  The API key is checked before the body is read (api.request_guard), the
+    body's size and time are limited as every upload's, and the multipart parser stops past MAX_BATCH_FILES
+    files."""
+    services: Services = request.app.state.services
+    async with request.form(max_files=MAX_BATCH_FILES, max_fields=len(BATCH_FIELDS) + 10) as form:
+        files = [f for f in form.getlist("files") if isinstance(f, StarletteUpload) and f.filename]
+        fields = {}
+        for name, limit in BATCH_FIELDS.items():
+            value = form.get(name)
+            text = value.strip() if isinstance(value, str) else ""
+            if len(text) > limit:
+                raise InvalidInput(f"{name}: at most {limit} characters")
+            fields[name] = text or None
+        outcomes = await run_in_threadpool(add_flights, services.db, services.blobs, files, fields["vehicle"],
+                                           fields["notes"], pose_topic=fields["pose_topic"],
+                                           imu_topic=fields["imu_topic"], cut=fields["cut"],
+                                           decode=services.decoder.decode)
+    return JSONResponse(jsonable_encoder(batch_answer(outcomes)), status_code=batch_status(outcomes))
+
+
+def batch_answer(outcomes: list[FileOutcome]) -> dict:
+    """The batch upload's JSON: ``files`` (one per file, in the order posted), ``flights`` (each flight stored
+    or found once) and ``errors`` ([{file, message}] of the refused files, as `learnest ingest --json`)."""
+    flights, seen = [], set()
+    for outcome in outcomes:
+        if outcome.flight is not None and outcome.flight.id not in seen:
+            seen.add(outcome.flight.id)
+            flights.append({**flight_out(outcome.flight), "status": outcome.status})
+    return {"files": [file_outcome(o) for o in outcomes], "flights": flights,
+            "errors": [{"file": o.file, "message": o.message} for o in outcomes if o.status == "refused"]}
+
+
+def batch_status(outcomes: list[FileOutcome]) -> int:
+    """201 when a new flight was stored, 200 when every flight read was stored already, 422 when none was read."""
+    statuses = {o.status for o in outcomes}
+    return 201 if "stored" in statuses else 200 if "existing" in statuses else 422
 
 
 @router.post("/{flight_id}/cut", status_code=201, response_model=FlightOut, dependencies=[Depends(require_api_key)],
