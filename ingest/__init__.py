@@ -246,7 +246,7 @@ def read_flights(paths: Iterable[str | Path], rate_hz: float = 100.0, *, pose_to
     list of Flight
         One per flight: single files first, in the order given, then the Vicon/cfclient pairs.  A flight
         that fails the quality checks is still returned, with ``flight.quality["ok"] == False``.  Names that
-        collide get a suffix (`ingest.batch.unique_names`: the parent folder, else a short sha256).
+        collide get a suffix (`ingest.names.unique_names`: the parent folder, else a short sha256).
 
     Raises
     ------
@@ -268,7 +268,7 @@ def read_flights(paths: Iterable[str | Path], rate_hz: float = 100.0, *, pose_to
     parse_cut(cut)   # a malformed cut fails before any file is read
     flights = [read_group(adapter, files, rate_hz, pose_topic=pose_topic, imu_topic=imu_topic, cut=cut)
                for adapter, files in groups]
-    from .batch import unique_names
+    from .names import unique_names
 
     unique_names(flights)   # two eckart06 from two folders: eckart06-runA, eckart06-runB
     return flights

@@ -27,8 +27,9 @@ Both signals pass through the same zero-phase low-pass, so any filter phase is c
 bias the offset; the band keeps the manoeuvre and drops double-differentiated mocap noise (it grows with
 frequency squared) and propeller vibration.
 
-Accuracy (simulated 8 s figure-eight with take-off and landing, tests/ingest/formats/test_ingest_vicon_cfclient.py): ~1-3 ms
-with 0.01 g accelerometer and 0.1 mm mocap noise (score 0.99); ~10-15 ms at 0.05 g / 0.5 mm (score 0.9);
+Accuracy (simulated 8 s figure-eight with take-off and landing,
+tests/ingest/formats/test_ingest_vicon_cfclient.py): ~1-3 ms with 0.01 g accelerometer and 0.1 mm mocap noise
+(score 0.99); ~10-15 ms at 0.05 g / 0.5 mm (score 0.9);
 ~20-35 ms at 0.1 g / 1 mm (score 0.75).  It is limited by how fast |specific force| changes: brisk
 manoeuvres and take-offs give sharper correlation peaks than slow, level motion.
 """

@@ -12,7 +12,6 @@ a first-order filter with time constant `tau_s`.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import lru_cache
 
 import numpy as np
 
@@ -20,9 +19,9 @@ from learnest.ingest.flight import Flight
 from learnest.ingest.frames import quat_to_matrix
 
 from .crazyflie import BOUNDS, GRAVITY, PUBLIC, specific_force_body, thrust_acceleration
+from .filters import lowpass
 from .motor_heating import HISTORY_KEY, thermal_state
 
-LOWPASS_HZ = 5.0
 EDGE_S = 0.5
 GAP_DILATION = 5          # samples either side of an interpolated row that are also left out
 
@@ -39,21 +38,6 @@ class FlightArrays:
     u: np.ndarray          # (T, 9) quaternion, 4 PWM, vbat
     keep: np.ndarray       # (T,) bool: samples that are measurements and away from the filter edges
     extra: dict = field(default_factory=dict)
-
-
-def lowpass(x: np.ndarray, dt: float, cutoff_hz: float = LOWPASS_HZ) -> np.ndarray:
-    """Zero-phase 2nd-order Butterworth low-pass along axis 0."""
-    from scipy.signal import sosfiltfilt  # scipy.signal imports scipy.stats (~1.5 s): loaded on first use
-
-    return sosfiltfilt(_butter_sos(cutoff_hz, 1.0 / dt), x, axis=0)
-
-
-@lru_cache(maxsize=16)
-def _butter_sos(cutoff_hz: float, rate_hz: float) -> np.ndarray:
-    from scipy.signal import butter  # scipy.signal imports scipy.stats (~1.5 s): loaded on first use
-
-    # designed once per rate: effect selection low-passes thousands of predictions
-    return butter(2, cutoff_hz, fs=rate_hz, output="sos")
 
 
 def interpolated_rows(values: np.ndarray, tol: float = 1e-9) -> np.ndarray:

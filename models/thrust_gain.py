@@ -65,7 +65,7 @@ def thrust_gain(p: np.ndarray, u: np.ndarray, dt: float, params: dict) -> float:
     ValueError
         If c lies outside `GAIN_BOUNDS` (the thrust map, the PWM or the voltage are not this vehicle's).
     """
-    from learnest.models.identify import lowpass
+    from learnest.models.filters import lowpass
 
     p, u = np.asarray(p, dtype=float), np.asarray(u, dtype=float)
     edge = int(round(EDGE_S / dt))
