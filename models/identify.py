@@ -19,7 +19,7 @@ from learnest.ingest.flight import Flight
 from learnest.ingest.frames import quat_to_matrix
 
 from .crazyflie import BOUNDS, GRAVITY, PUBLIC, specific_force_body, thrust_acceleration
-from .filters import lowpass
+from .filters import LOWPASS_HZ, lowpass  # noqa: F401  (LOWPASS_HZ: the identification's, re-exported)
 from .motor_heating import HISTORY_KEY, thermal_state
 
 EDGE_S = 0.5

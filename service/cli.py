@@ -1273,8 +1273,11 @@ def main(argv=None) -> int:
         except InvalidInput as err:
             print(f"learnest export: error: {err} (or give --format)", file=sys.stderr)
             return 2
-    missing = [p for p in _given_paths(args) if not Path(p).expanduser().exists()]
-    if missing:  # before any import, progress bar or stored row: a typo costs nothing
+    given = _given_paths(args)
+    missing = [p for p in given if not Path(p).expanduser().exists()]
+    # nothing there at all: said before any import, progress bar or stored row (a typo costs nothing); some
+    # there: the batch reads them and names each missing one with the other unreadable files
+    if missing and (len(missing) == len(given) or getattr(args, "strict", False)):
         print(f"learnest {args.command}: error: no such file or folder: {', '.join(missing)}", file=sys.stderr)
         return 2
     if args.func not in (_ingest, _serve, _export) + REGISTRY_COMMANDS:  # the rest run the networks here
