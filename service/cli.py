@@ -290,17 +290,25 @@ def _ingest(args) -> int:
 
 def _train(args) -> int:
     """Store the flight and register the next version of NAME in the registry (service.local_registry)."""
-    from .local_registry import train
+    from learnest.ingest.batch import format_errors
+
+    from .local_registry import UnreadableFile, train
     from .progress import StageProgress
 
     _registry_grid(args.rate)
-    with StageProgress(f"training {args.name}") as bar:
-        out = train(args.files, args.name, epochs=args.epochs, include_bad=args.include_bad, progress=bar.progress,
-                    system=args.system, on_stage=bar.on_stage, **_topics(args), cut=args.cut,
-                    validate=args.validate)
+    try:
+        with StageProgress(f"training {args.name}") as bar:
+            out = train(args.files, args.name, epochs=args.epochs, include_bad=args.include_bad,
+                        progress=bar.progress, system=args.system, on_stage=bar.on_stage, **_topics(args),
+                        cut=args.cut, validate=args.validate, strict=args.strict)
+    except UnreadableFile as err:   # --strict: the first unreadable file stops the command, nothing trained
+        print(f"learnest: {err}; nothing was trained (--strict)", file=sys.stderr)
+        return 1
     out["command_seconds"] = time.perf_counter() - _command_started[0]
+    for line in format_errors(out["errors"]):
+        print(f"learnest: {line}", file=sys.stderr)
     print(json.dumps(out, indent=2) if args.json else format_trained(out))
-    return 0
+    return _batch_status(out["errors"])
 
 
 def format_trained(out: dict) -> str:
@@ -1040,6 +1048,9 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--rate", type=_positive_float, default=100.0, help="grid rate in Hz (the registry keeps 100)")
     tr.add_argument("--include-bad", action="store_true",
                     help="train even on flights that fail the quality checks (of several, they are left out otherwise)")
+    tr.add_argument("--strict", action="store_true",
+                    help="stop with status 1 at the first file that cannot be read, training nothing (without it, such "
+                         "files are named and the model is trained on the others)")
     tr.add_argument("--system", default="quadrotor", choices=["quadrotor", "crazyflie"],
                     help="the prior: the paper's kinematic chain (default) or the Crazyflie driven by its motors "
                          "and battery (needs motor PWM and battery voltage in the log)")

@@ -45,7 +45,7 @@ from .jobs.tasks import diagnosis_metrics
 from .jobs.training import start_training, training_config
 from .storage.blobs import BlobStore
 from .storage.database import Database
-from .storage.tables import Evaluation, FlightRecord, Job, RegisteredModel
+from .storage.tables import Evaluation, FlightRecord, Job, ModelVersion, RegisteredModel
 from .uploads import LocalFile
 from .uploads import add_flight as add_uploaded_flight
 
@@ -101,80 +101,143 @@ def add_flight(services: Services, paths, *, pose_topic: str | None = None,
 
 
 # -- training ----------------------------------------------------------------------------------------------
+class UnreadableFile(InvalidInput):
+    """``train(..., strict=True)``: a given file could not be read, so nothing was trained (the message names
+    the file and why; `learnest train --strict` exits with status 1 on it)."""
+
+
 def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = False,
           progress: Callable[[float], None] | None = None, settings: Settings | None = None,
           system: str = "quadrotor", pose_topic: str | None = None, imu_topic: str | None = None,
           cut: str | None = None, on_stage: Callable[[str, float | None], None] | None = None,
-          validate=None) -> dict:
+          validate=None, strict: bool = False) -> dict:
     """Store the flights, train the next version of `name` on them and wait; `progress(fraction)` while it
     trains, `on_stage(stage, seconds_left)` as the job's stage changes ("ingest", "observer ...", "epoch 12/150").
 
     ``paths`` are the log files of one flight or of several, or folders of them (`learnest.ingest.collect_logs`,
     grouped into flights by `learnest.ingest.group_files`); several flights train one model of one vehicle
     (`service.jobs.training.start_training`), ``validate`` names log files of flights held out whole (default:
-    one flight in five).  Of several flights, those failing the quality checks are left out and listed
+    one flight in five).  A file that cannot be read (unknown format, a missing channel, cut short) is listed
+    in ``errors`` and the model is trained on the others; with ``strict`` it is an `UnreadableFile` instead,
+    raised before any training.  Of several flights, those failing the quality checks are left out and listed
     (``skipped_flights``) unless ``include_bad``; one such flight alone is refused.
     ``cut``: the stretch of the log to keep (`learnest.ingest.align.parse_cut`).
     Returns what `learnest train --json` prints: ``seconds`` is the epochs' time, ``total_seconds`` the
     job's (observer, epochs, storing), ``training_flights`` and ``validation_flights`` the names, ``learned``
-    False when no epoch beat the prior on the held-out data (``learned_note`` says so in words)."""
-    from learnest.ingest import collect_logs, group_files
-
+    False when no epoch beat the prior on the held-out data (``learned_note`` says so in words), ``errors``
+    ``[{"file", "message"}]`` the files left out because they could not be read."""
     registry.check_name(name)  # before any work
     settings = settings or cli_settings()
     if on_stage:
         on_stage("ingest", None)
-    groups = group_files(collect_logs(paths)[0])
-    held_groups = group_files(collect_logs(validate)[0]) if validate else []
+    groups, errors = _log_groups(paths, strict)
+    held_groups, held_errors = _log_groups(validate, strict) if validate else ([], [])
+    errors += held_errors
     if not groups and not held_groups:
-        raise InvalidInput("no flight log among the given files")
+        raise InvalidInput(_nothing_read("no flight log among the given files", errors))
+    read = {"pose_topic": pose_topic, "imu_topic": imu_topic, "cut": cut}
     with local_services(settings) as services:
-        stored = [add_flight(services, files, pose_topic=pose_topic, imu_topic=imu_topic, cut=cut)
-                  for _, files in groups]
-        held = [add_flight(services, files, pose_topic=pose_topic, imu_topic=imu_topic, cut=cut)[0]
-                for _, files in held_groups]
-        rows = list({row.id: row for row, _ in stored}.values())
-        every = {row.id: row for row in rows + held}
-        bad = [row for row in every.values() if not row.quality_ok]
-        skipped = []
-        if bad and not include_bad:
-            held_ids = {row.id for row in held}
-            if not [row for row in rows if row.quality_ok and row.id not in held_ids]:
-                row = bad[0]   # checked here too, to name the CLI's flag
-                raise InvalidInput(f"{row.name} failed the quality checks ({'; '.join(row.quality.get('issues', []))}"
-                                   "); pass --include-bad to train on it anyway")
-            skipped = [f"{row.name} ({'; '.join(row.quality.get('issues', []))})" for row in bad]
-            rows = [row for row in rows if row.quality_ok]
-            held = [row for row in held if row.quality_ok]
-        ids = [row.id for row in rows]
+        stored = _store_groups(services, groups, errors, strict, read)
+        held = [row for row, _ in _store_groups(services, held_groups, errors, strict, read)]
+        if not stored and not held:
+            raise InvalidInput(_nothing_read("no flight could be read", errors))
+        rows, held, skipped = _quality_filter(list({row.id: row for row, _ in stored}.values()), held, include_bad)
         for row in rows + held:   # before a worker starts: a missing channel is said at once
             _check_inputs(services, row, system)
-        job, version = start_training(services, name, ids[0] if len(ids) == 1 and not held else ids,
-                                      {"epochs": epochs, "system": system}, include_bad=include_bad,
-                                      validation_ids=[row.id for row in held] if held else None)
+        job, version = _run_training(services, name, rows, held, {"epochs": epochs, "system": system},
+                                     include_bad, progress, on_stage)
+    return {**_trained_json(version, job, settings), "skipped_flights": skipped, "errors": errors,
+            "flight_stored": "new" if any(created for _, created in stored) else "existing"}
+
+
+def _log_groups(paths, strict: bool) -> tuple[list, list[dict]]:
+    """The flights among ``paths`` (files or folders) as `learnest.ingest.group_files` groups them, and the
+    files that cannot be one (``[{"file", "message"}]``); with ``strict`` the first of those is raised."""
+    from learnest.ingest import IngestError, collect_logs
+
+    logs, errors = [], []
+    for path in paths:
         try:
-            job = wait_for_job(services, job.id, progress, on_stage=on_stage)
-        except BaseException:  # Ctrl-C (KeyboardInterrupt) or a failure while waiting
-            abandon_training(services, job.id)
-            raise
-        with services.db.transaction() as session:
-            if job.state != "succeeded":   # no half-made model: the reserved version (and a name left empty) goes
-                registry.drop_unfinished_versions(session, job.id)
-            else:
-                version = registry.get_version(session, name, version.version)
+            logs += collect_logs([path])[0]
+        except IngestError as err:
+            errors.append({"file": err.path, "message": err.problem})
+    groups, unreadable = _readable_groups(logs)
+    errors += unreadable
+    if strict and errors:
+        raise UnreadableFile(f"{errors[0]['file']}: not read: {errors[0]['message']}")
+    return groups, errors
+
+
+def _store_groups(services: Services, groups: list, errors: list[dict], strict: bool,
+                  read: dict) -> list[tuple[FlightRecord, bool]]:
+    """Store each group as `add_flight` does -> [(row, created)]; a group that cannot be read is appended to
+    ``errors`` (raised as `UnreadableFile` with ``strict``) and the others are stored."""
+    stored = []
+    for _, files in groups:
+        try:
+            stored.append(add_flight(services, files, **read))
+        except InvalidInput as err:
+            message = str(err).removeprefix(f"{Path(files[0]).name}: ")   # the upload's message names the file
+            if strict:
+                raise UnreadableFile(f"{files[0]}: not read: {message}") from None
+            errors.append({"file": str(files[0]), "message": message})
+    return stored
+
+
+def _nothing_read(what: str, errors: list[dict]) -> str:
+    return what + "".join(f"; {e['file']}: {e['message']}" for e in errors)
+
+
+def _quality_filter(rows: list, held: list, include_bad: bool) -> tuple[list, list, list[str]]:
+    """(training rows, held-out rows, skipped): the flights failing the quality checks left out and listed,
+    unless ``include_bad``; InvalidInput when no good training flight would remain."""
+    bad = [row for row in {row.id: row for row in rows + held}.values() if not row.quality_ok]
+    if not bad or include_bad:
+        return rows, held, []
+    held_ids = {row.id for row in held}
+    if not [row for row in rows if row.quality_ok and row.id not in held_ids]:
+        row = bad[0]   # checked here too, to name the CLI's flag
+        raise InvalidInput(f"{row.name} failed the quality checks ({'; '.join(row.quality.get('issues', []))}"
+                           "); pass --include-bad to train on it anyway")
+    skipped = [f"{row.name} ({'; '.join(row.quality.get('issues', []))})" for row in bad]
+    return [row for row in rows if row.quality_ok], [row for row in held if row.quality_ok], skipped
+
+
+def _run_training(services: Services, name: str, rows: list, held: list, config: dict, include_bad: bool,
+                  progress: Callable[[float], None] | None,
+                  on_stage: Callable[[str, float | None], None] | None) -> tuple[Job, ModelVersion]:
+    """Start the training job on ``rows`` (validated on ``held``), wait for it -> (job, registered version);
+    TrainingFailed, with nothing registered, when the job did not succeed or was interrupted."""
+    ids = [row.id for row in rows]
+    job, version = start_training(services, name, ids[0] if len(ids) == 1 and not held else ids, config,
+                                  include_bad=include_bad, validation_ids=[row.id for row in held] if held else None)
+    try:
+        job = wait_for_job(services, job.id, progress, on_stage=on_stage)
+    except BaseException:  # Ctrl-C (KeyboardInterrupt) or a failure while waiting
+        abandon_training(services, job.id)
+        raise
+    with services.db.transaction() as session:
+        if job.state != "succeeded":   # no half-made model: the reserved version (and a name left empty) goes
+            registry.drop_unfinished_versions(session, job.id)
+        else:
+            version = registry.get_version(session, name, version.version)
     if job.state != "succeeded":
         names = ", ".join(row.name for row in rows)
         raise TrainingFailed(f"training {name}:{version.version} on {names} failed: {job.error}; nothing was "
                              "registered")
+    return job, version
+
+
+def _trained_json(version: ModelVersion, job: Job, settings: Settings) -> dict:
+    """What `learnest train --json` says of a registered version (its flights, whether it learned, timing)."""
     trained = registry.training_flights_of(version)
     validation = list(version.validation_flights or [])
     metrics = version.metrics or {}
-    return {"name": name, "version": version.version, "ref": f"{name}:{version.version}",
+    return {"name": version.name, "version": version.version, "ref": f"{version.name}:{version.version}",
             "training_flight": trained[0]["name"], "flight_id": trained[0]["id"],
-            "flight_stored": "new" if any(created for _, created in stored) else "existing",
             "training_flights": [f["name"] for f in trained], "validation_flights": [f["name"] for f in validation],
             "flight_ids": [f["id"] for f in trained], "validation_flight_ids": [f["id"] for f in validation],
-            "skipped_flights": skipped, "learned": bool(metrics.get("learned", True)),
+            "learned": bool(metrics.get("learned", True)),
             **({"learned_note": metrics["learned_note"]} if metrics.get("learned_note") else {}),
             "system": version.hyperparameters.get("system", "quadrotor"),
             "epochs": version.hyperparameters["epochs"], "best_epoch": metrics.get("best_epoch"),
