@@ -9,7 +9,8 @@ liked, each holding a socket and, once its headers were in, a worker thread.
   response.
 - Body: `BodyDeadline` (ASGI middleware) gives a body ``LEARNEST_BODY_TIMEOUT_S`` plus one second per
   ``LEARNEST_BODY_MIN_RATE`` bytes received (the rule of Apache's mod_reqtimeout: a slow but steady upload
-  finishes, a trickle does not); past it the request gets a 408 and its connection is closed.
+  finishes, a trickle does not); past it the request gets a 408 and its connection is closed.  It applies
+  to receiving a request's body only, never to sending a response: a slow download runs to its end.
 - Concurrency: uvicorn's ``limit_concurrency`` answers 503 beyond that many connections and tasks;
   ``h11_max_incomplete_event_size`` caps the bytes of a request line plus headers.
 """
@@ -91,6 +92,11 @@ class BodyDeadline:
     """ASGI middleware: a request body must arrive within ``timeout_s`` plus one second per ``min_rate``
     bytes received, else 408 (with ``Connection: close``: the rest of the body is not waited for).
 
+    The deadline covers receiving the request's body only.  Once its last part is in (or the response has
+    begun), ``receive()`` is the server's own again: a response streams for as long as it takes (a large
+    download at a slow client's pace), and a route that listens for the client going away while it streams
+    (Starlette's `FileResponse`, `StreamingResponse`) is never cut off by the body's clock.
+
     Parameters
     ----------
     app : ASGI app
@@ -108,9 +114,12 @@ class BodyDeadline:
             await self.app(scope, receive, send)
             return
         start, received = time.monotonic(), 0
+        body_done = False   # the last part of the body arrived, or the response began: no deadline left
 
         async def timed_receive() -> Message:
-            nonlocal received
+            nonlocal received, body_done
+            if body_done:
+                return await receive()
             remaining = start + self.timeout_s + received / self.min_rate - time.monotonic()
             try:
                 message = await asyncio.wait_for(receive(), timeout=max(remaining, 0.0))
@@ -121,9 +130,19 @@ class BodyDeadline:
                                          "LEARNEST_BODY_MIN_RATE)", headers={"Connection": "close"}) from None
             if message["type"] == "http.request":
                 received += len(message.get("body", b""))
+                if not message.get("more_body", False):
+                    body_done = True
+            else:   # http.disconnect: nothing more will arrive
+                body_done = True
             return message
 
-        await self.app(scope, timed_receive, send)
+        async def watched_send(message: Message) -> None:
+            nonlocal body_done
+            if message["type"] == "http.response.start":
+                body_done = True   # whatever of the body the app did not read, it no longer waits for
+            await send(message)
+
+        await self.app(scope, timed_receive, watched_send)
 
 
 def uvicorn_options(settings: Settings) -> dict[str, Any]:
