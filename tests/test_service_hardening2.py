@@ -89,3 +89,85 @@ def test_a_body_that_never_ends_still_gets_its_408(tmp_path):
     with pytest.raises(HTTPException) as err:
         asyncio.run(BodyDeadline(app, timeout_s=0.3, min_rate=1e6)({"type": "http"}, receive, send))
     assert err.value.status_code == 408
+
+
+# -- a .db3 is bounded by the bytes SQLite yields, whatever it computes ---------------------------------------
+def _small_bag(tmp_path):
+    from test_ingest_mcap import accelerometer_g, imu_times, mocap_times, true_position, true_quaternion
+
+    from learnest.ingest.formats.rosbag.writer import BagWriter
+
+    t, t_acc = mocap_times(), imu_times()
+    with BagWriter(tmp_path / "bag", "sqlite3") as bag:
+        bag.add_pose("/cf1/pose", t, true_position(t), true_quaternion(t))
+        bag.add_imu("/cf1/imu", t_acc, accelerometer_g(t_acc))
+    return bag.storage_file
+
+
+def _rebuild_messages(path, data_sql: str, rows: int | None = None) -> None:
+    """Replace the bag's messages by ``rows`` of them (all if None) whose data column is ``data_sql``, a
+    virtual generated column: the file stays small, what SQLite yields does not."""
+    import sqlite3
+
+    with sqlite3.connect(path) as db:
+        db.executescript(f"""
+            ALTER TABLE messages RENAME TO old_messages;
+            CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL, timestamp INTEGER NOT NULL,
+                                  size INTEGER, data BLOB GENERATED ALWAYS AS ({data_sql}) VIRTUAL);
+            INSERT INTO messages(id, topic_id, timestamp, size)
+                SELECT id, topic_id, timestamp, length(data) FROM old_messages {f'LIMIT {rows}' if rows else ''};
+            DROP TABLE old_messages;""")
+    with sqlite3.connect(path) as db:
+        db.execute("VACUUM")
+
+
+@pytest.mark.parametrize("data_sql, rows", [("zeroblob(1000000)", 60),      # 60 MB from a few kB
+                                            ("zeroblob(200000000)", 1)])      # one value past the value cap
+def test_a_db3_whose_rows_sqlite_computes_is_refused_by_what_it_yields(tmp_path, data_sql, rows):
+    from learnest.ingest import read_flights
+    from learnest.ingest.flight import IngestError
+
+    path = _small_bag(tmp_path)
+    _rebuild_messages(path, data_sql, rows)
+    assert path.stat().st_size < 200_000
+    with pytest.raises(IngestError) as err:
+        read_flights([path])
+    assert "yields more than" in str(err.value) or "larger than" in str(err.value), str(err.value)
+    assert path.name in str(err.value)
+
+
+def test_a_db3_whose_messages_are_a_view_is_refused(tmp_path):
+    import sqlite3
+
+    from learnest.ingest import read_flights
+    from learnest.ingest.flight import IngestError
+
+    path = _small_bag(tmp_path)
+    with sqlite3.connect(path) as db:   # an endless view: rows x size unbounded from a small file
+        db.executescript("""
+            ALTER TABLE messages RENAME TO old_messages;
+            CREATE VIEW messages AS WITH RECURSIVE n(i) AS (SELECT 1 UNION ALL SELECT i + 1 FROM n)
+                SELECT i AS id, 1 AS topic_id, i AS timestamp, zeroblob(1000) AS data FROM n;""")
+    with pytest.raises(IngestError) as err:
+        read_flights([path])
+    assert "view" in str(err.value)
+
+
+def test_a_db3_with_its_data_stored_or_computed_within_the_budget_still_reads(tmp_path):
+    """The data column computed as itself (a generated copy of stored bytes): within budget, it reads."""
+    from learnest.ingest import read_flights
+
+    path = _small_bag(tmp_path)
+    plain = read_flights([path])[0]
+    import sqlite3
+
+    with sqlite3.connect(path) as db:
+        db.executescript("""
+            ALTER TABLE messages RENAME TO old_messages;
+            CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL, timestamp INTEGER NOT NULL,
+                                  stored BLOB, data BLOB GENERATED ALWAYS AS (stored) VIRTUAL);
+            INSERT INTO messages(id, topic_id, timestamp, stored) SELECT id, topic_id, timestamp, data
+                FROM old_messages;
+            DROP TABLE old_messages;""")
+    again = read_flights([path])[0]
+    assert again.p.shape == plain.p.shape and abs(again.p - plain.p).max() == 0.0
