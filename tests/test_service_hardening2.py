@@ -171,3 +171,37 @@ def test_a_db3_with_its_data_stored_or_computed_within_the_budget_still_reads(tm
             DROP TABLE old_messages;""")
     again = read_flights([path])[0]
     assert again.p.shape == plain.p.shape and abs(again.p - plain.p).max() == 0.0
+
+
+# -- nesting limits on every YAML shape ------------------------------------------------------------------------
+DEEP_BLOCK_SEQUENCE = "- " * 260 + "x\n"
+DEEP_BLOCK_MAPPING = "".join(" " * k + f"k{k}:\n" for k in range(200)) + " " * 200 + "1\n"
+
+
+@pytest.mark.parametrize("text", [DEEP_BLOCK_SEQUENCE, DEEP_BLOCK_MAPPING, "a: " + "[" * 50 + "]" * 50 + "\n"])
+def test_deep_yaml_of_every_shape_is_refused(tmp_path, text):
+    from learnest.ingest.flight import IngestError
+    from learnest.ingest.sidecar import read_sidecar
+
+    path = tmp_path / "f_metadata.yaml"
+    path.write_text(text)
+    with pytest.raises(IngestError, match="nested more than 32 deep"):
+        read_sidecar(path)
+    path.write_text("a:\n  b:\n    - [1, {c: 2}]\n")   # a record's usual nesting reads
+    assert read_sidecar(path) == {"a": {"b": [[1, {"c": 2}]]}}
+
+
+def test_a_flight_with_a_deep_block_yaml_sidecar_is_stored_and_answers(tmp_path):
+    from utils.service import flight_csv, running_app, upload
+
+    csv = flight_csv(tmp_path / "logs", seed=2)
+    sidecar = csv.with_name(f"{csv.stem}_metadata.yaml")
+    sidecar.write_text(DEEP_BLOCK_SEQUENCE)
+    with running_app(tmp_path / "home") as client:
+        response = upload(client, csv, sidecar)
+        assert response.status_code == 201, response.text
+        flight_id = response.json()["id"]
+        detail = client.get(f"/flights/{flight_id}")
+        assert detail.status_code == 200, detail.text[:300]
+        assert any("unreadable YAML" in w for w in detail.json()["meta"]["warnings"])
+        assert client.get(f"/ui/flights/{flight_id}").status_code == 200
