@@ -205,3 +205,50 @@ def test_a_flight_with_a_deep_block_yaml_sidecar_is_stored_and_answers(tmp_path)
         assert detail.status_code == 200, detail.text[:300]
         assert any("unreadable YAML" in w for w in detail.json()["meta"]["warnings"])
         assert client.get(f"/ui/flights/{flight_id}").status_code == 200
+
+
+# -- one integer-range rule for path, query, JSON and form values --------------------------------------------
+HUGE = 99999999999999999999
+
+
+@pytest.fixture(scope="module")
+def app_with_a_model(tmp_path_factory):
+    from utils.service import flight_csv, running_app, train, upload
+
+    home = tmp_path_factory.mktemp("ints")
+    with running_app(home) as client:
+        flight_id = upload(client, flight_csv(home / "logs", seed=3)).json()["id"]
+        train(client, "quad", flight_id)
+        yield client, flight_id
+
+
+@pytest.mark.parametrize("method, path, body", [
+    ("post", "/evaluations", {"model": "quad:1", "flights": [HUGE]}),
+    ("post", "/evaluations", {"model": "quad:1", "flights": [2**63]}),
+    ("post", "/models", {"name": "quad", "flight_id": HUGE}),
+    ("post", "/diagnoses", {"flights": [HUGE]}),
+    ("put", "/models/quad/aliases/production", {"version": HUGE}),
+])
+def test_huge_integers_in_json_bodies_are_a_422(app_with_a_model, method, path, body):
+    client, _ = app_with_a_model
+    response = getattr(client, method)(path, json=body)
+    assert response.status_code == 422, (path, response.status_code, response.text[:300])
+    assert "9223372036854775807" in response.text
+
+
+@pytest.mark.parametrize("path, form", [
+    ("/ui/models", {"name": "quad", "flight_id": str(HUGE), "epochs": "1"}),
+    ("/ui/evaluations", {"model": "quad:1", "flights": [str(HUGE)], "methods": ["ukf"]}),
+    ("/ui/models/quad/aliases", {"alias": "production", "version": str(HUGE)}),
+])
+def test_huge_integers_in_forms_are_a_422_page(app_with_a_model, path, form):
+    client, _ = app_with_a_model
+    response = client.post(path, data=form, follow_redirects=False)
+    assert response.status_code == 422, (path, response.status_code, response.text[:300])
+    assert "9223372036854775807" in response.text
+
+
+def test_the_largest_id_is_a_plain_404(app_with_a_model):
+    client, _ = app_with_a_model
+    response = client.post("/evaluations", json={"model": "quad:1", "flights": [2**63 - 1], "methods": ["ukf"]})
+    assert response.status_code == 404, response.text

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
@@ -18,6 +18,12 @@ from learnest.models.presets import (
 from ..references import NAME
 
 NAME_REGEX = rf"^{NAME}$"  # references.NAME: one definition of a valid name
+
+# The one integer-range rule of every id and version number a request names, in a path, a query, a JSON body
+# or a form: ids are SQL BIGINTs, so a larger number names nothing, and the database driver cannot even bind it
+# (SQLite: OverflowError, a 500).  Checked at the boundary, it is a 422 that says the range.
+MAX_ROW_ID = 2**63 - 1
+RowIdValue = Annotated[int, Field(ge=1, le=MAX_ROW_ID)]
 
 
 class Strict(BaseModel):
@@ -69,7 +75,7 @@ class FlightPage(BaseModel):
 # -- models -------------------------------------------------------------------------------------------
 class TrainRequest(Strict):
     name: str = Field(pattern=NAME_REGEX, description="registered model name")
-    flight_id: int = Field(ge=1)
+    flight_id: RowIdValue
     epochs: int | None = Field(None, ge=1, le=100_000)
     hidden: int | None = Field(None, ge=1, le=4096)
     lr: float | None = Field(None, gt=0, le=1)
@@ -142,7 +148,7 @@ class ModelPage(BaseModel):
 
 
 class AliasIn(Strict):
-    version: int = Field(ge=1)
+    version: RowIdValue
 
 
 class AliasOut(BaseModel):
@@ -170,7 +176,7 @@ class JobOut(BaseModel):
 
 class EvaluationRequest(Strict):
     model: str = Field(description='"name:version" or "name@alias"')
-    flights: list[int] | Literal["all-other"] = Field(
+    flights: list[RowIdValue] | Literal["all-other"] = Field(
         description='flight ids, or "all-other": every stored flight except the model\'s training flight')
     methods: list[str] = Field(default_factory=lambda: list(METHODS), description=f"any of {', '.join(METHODS)}")
     horizon: int = Field(MHE_HORIZON, ge=1, le=500, description="MHE horizon N")
@@ -201,7 +207,7 @@ class EvaluationPending(BaseModel):
 
 # -- diagnoses ----------------------------------------------------------------------------------------
 class DiagnosisRequest(Strict):
-    flights: list[int] = Field(min_length=1, description="flight ids; the first is the fitting flight, the "
+    flights: list[RowIdValue] = Field(min_length=1, description="flight ids; the first is the fitting flight, the "
                                "others are scored (one flight: fit on its first 60 %, score the rest)")
     model: str | None = Field(None, description='the KNODE analysed, "name:version" or "name@alias" (default: '
                               "one trained on the fitting flight)")
