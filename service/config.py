@@ -34,6 +34,9 @@
     LEARNEST_GRACEFUL_SHUTDOWN_S  requests in progress get this long to finish on SIGTERM (default 10)
     LEARNEST_KEY_FAILURES       failed API-key attempts from one address within ...
     LEARNEST_KEY_FAILURE_WINDOW_S  ... this many seconds after which it gets 429 (defaults 10, 60; 0 = off)
+    LEARNEST_TRUSTED_PROXIES    addresses of reverse proxies whose X-Forwarded-For / X-Forwarded-Proto name
+                                the client, comma-separated (default none: the headers are ignored and the
+                                client is the connection's peer, as the key throttle counts it)
 """
 from __future__ import annotations
 
@@ -84,6 +87,12 @@ class Settings(BaseSettings):
     graceful_shutdown_s: float = Field(10.0, ge=0)
     key_failures: int = Field(10, ge=0)             # 0: no throttling
     key_failure_window_s: float = Field(60.0, gt=0)
+    trusted_proxies: str = ""                       # "": no proxy headers are believed
+
+    @property
+    def trusted_proxy_addresses(self) -> tuple[str, ...]:
+        """`trusted_proxies` as a tuple of addresses (empty: proxy headers off)."""
+        return tuple(a.strip() for a in self.trusted_proxies.split(",") if a.strip())
 
     @field_validator("database_url", "api_key", "dask_address", "git_commit", mode="before")
     @classmethod

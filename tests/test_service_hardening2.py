@@ -252,3 +252,114 @@ def test_the_largest_id_is_a_plain_404(app_with_a_model):
     client, _ = app_with_a_model
     response = client.post("/evaluations", json={"model": "quad:1", "flights": [2**63 - 1], "methods": ["ukf"]})
     assert response.status_code == 404, response.text
+
+
+# -- the API key of a form upload is checked before its body is read -----------------------------------------
+def _raw_post(app, path: str, chunks: list[bytes], headers: list) -> tuple[int, int, bytes]:
+    """POST ``chunks`` to the app over raw ASGI; -> (status, chunks the app pulled, answer body)."""
+    pulled, sent = [0], []
+
+    async def receive():
+        if pulled[0] < len(chunks):
+            pulled[0] += 1
+            return {"type": "http.request", "body": chunks[pulled[0] - 1], "more_body": pulled[0] < len(chunks)}
+        return {"type": "http.disconnect"}
+
+    async def send(message):
+        sent.append(message)
+
+    scope = {"type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1", "method": "POST", "scheme": "http",
+             "path": path, "raw_path": path.encode(), "query_string": b"", "root_path": "",
+             "server": ("testserver", 80), "client": ("127.0.0.1", 5000),
+             "headers": [(b"host", b"testserver"), (b"content-length", str(sum(map(len, chunks))).encode()),
+                         *headers]}
+    asyncio.run(app(scope, receive, send))
+    return sent[0]["status"], pulled[0], b"".join(m.get("body", b"") for m in sent[1:])
+
+
+def _upload_form(key: str | None, key_first: bool = True, size: int = 8 << 20) -> list[bytes]:
+    """A multipart upload of one ``size``-byte file in 64-kB chunks, the api_key field before or after it."""
+    field = (b'--xyz\r\nContent-Disposition: form-data; name="api_key"\r\n\r\n' + key.encode() + b"\r\n") if key else b""
+    head = b'--xyz\r\nContent-Disposition: form-data; name="files"; filename="big.csv"\r\nContent-Type: text/csv\r\n\r\n'
+    chunks = [head] + [b"1" * (1 << 16)] * (size >> 16) + [b"\r\n"]
+    if field:
+        chunks = ([field] + chunks) if key_first else (chunks + [field])
+    return chunks + [b"--xyz--\r\n"]
+
+
+MULTIPART = (b"content-type", b"multipart/form-data; boundary=xyz")
+
+
+def test_a_form_upload_without_the_key_is_refused_before_its_body_is_read(tmp_path):
+    from fastapi.testclient import TestClient
+    from utils.service import settings_for, shared_decoder, shared_pool
+
+    from learnest.service.api.app import create_app
+
+    app = create_app(settings_for(tmp_path, api_key="sesame", key_failures=0), executor=shared_pool(),
+                     decoder=shared_decoder(), scheduler=False)
+    chunks = _upload_form(None)
+    with TestClient(app):
+        status, pulled, answer = _raw_post(app, "/ui/flights", chunks, [MULTIPART])
+        assert (status, pulled) == (401, 1) and b"API key" in answer          # the file's head only
+        status, pulled, _ = _raw_post(app, "/ui/flights", _upload_form("wrong"), [MULTIPART])
+        assert (status, pulled) == (401, 2)                   # the key field and the head of the file part
+        status, pulled, _ = _raw_post(app, "/ui/flights", _upload_form("sesame", key_first=False), [MULTIPART])
+        assert (status, pulled) == (401, 1)        # a key after the files is not waited for
+        # the right key (field first, as the upload form sends it; or the cookie): the body is read
+        for chunks, extra in ((_upload_form("sesame"), []), (_upload_form(None), [(b"cookie", b"learnest_api_key=sesame")])):
+            status, pulled, answer = _raw_post(app, "/ui/flights", chunks, [MULTIPART, *extra])
+            assert status == 422 and pulled == len(chunks), (status, answer[:200])   # read, and no flight
+
+
+def test_a_throttled_address_gets_429_before_its_form_body_is_read(tmp_path):
+    from fastapi.testclient import TestClient
+    from utils.service import settings_for, shared_decoder, shared_pool
+
+    from learnest.service.api.app import create_app
+
+    app = create_app(settings_for(tmp_path, api_key="sesame", key_failures=2), executor=shared_pool(),
+                     decoder=shared_decoder(), scheduler=False)
+    with TestClient(app):
+        for _ in range(2):
+            assert _raw_post(app, "/ui/flights", _upload_form("guess"), [MULTIPART])[0] == 401
+        status, pulled, _ = _raw_post(app, "/ui/flights", _upload_form("sesame"), [MULTIPART])
+        assert (status, pulled) == (429, 0)
+
+
+def test_the_upload_page_asks_for_the_key_before_the_files(tmp_path):
+    from utils.service import running_app
+
+    with running_app(tmp_path, api_key="sesame") as client:
+        page = client.get("/").text
+        assert page.index("name='api_key'") < page.index("type='file'")
+
+
+# -- proxy headers are believed only from configured proxies ---------------------------------------------------
+def _post_with_forwarded(port: int, key: str, forwarded: str) -> int:
+    import http.client
+
+    connection = http.client.HTTPConnection("127.0.0.1", port, timeout=10)
+    connection.request("POST", "/models", body=b"{}", headers={"Host": "localhost", "X-API-Key": key,
+                                                               "X-Forwarded-For": forwarded,
+                                                               "Content-Type": "application/json"})
+    status = connection.getresponse().status
+    connection.close()
+    return status
+
+
+def test_a_rotating_x_forwarded_for_does_not_escape_the_key_throttle(tmp_path):
+    from test_service_connections import live_server
+
+    with live_server(tmp_path, api_key="s3cret", key_failures=3) as port:
+        answers = [_post_with_forwarded(port, "guess", f"10.0.0.{k}") for k in range(6)]
+        assert answers == [401, 401, 401, 429, 429, 429]
+        # nor can a chosen header lock out another address: the throttle counts the peer (here: loopback)
+
+
+def test_a_configured_proxy_names_the_client(tmp_path):
+    from test_service_connections import live_server
+
+    with live_server(tmp_path, api_key="s3cret", key_failures=2, trusted_proxies="127.0.0.1") as port:
+        assert [_post_with_forwarded(port, "guess", "10.0.0.1") for _ in range(3)] == [401, 401, 429]
+        assert _post_with_forwarded(port, "guess", "10.0.0.2") == 401   # another client behind the proxy

@@ -11,6 +11,9 @@ liked, each holding a socket and, once its headers were in, a worker thread.
   ``LEARNEST_BODY_MIN_RATE`` bytes received (the rule of Apache's mod_reqtimeout: a slow but steady upload
   finishes, a trickle does not); past it the request gets a 408 and its connection is closed.  It applies
   to receiving a request's body only, never to sending a response: a slow download runs to its end.
+- Proxies: X-Forwarded-For is believed only from ``LEARNEST_TRUSTED_PROXIES`` (none by default), so the
+  client address - what the failed-key throttle counts - is the connection's peer unless a configured proxy
+  names it (uvicorn alone believes the header from 127.0.0.1).
 - Concurrency: uvicorn's ``limit_concurrency`` answers 503 beyond that many connections and tasks;
   ``h11_max_incomplete_event_size`` caps the bytes of a request line plus headers.
 """
@@ -147,7 +150,11 @@ class BodyDeadline:
 
 def uvicorn_options(settings: Settings) -> dict[str, Any]:
     """The keyword arguments of `uvicorn.run` / `uvicorn.Config` that the settings decide."""
-    return {"http": "learnest.service.api.server:DeadlineH11Protocol",
+    proxies = settings.trusted_proxy_addresses
+    # uvicorn believes X-Forwarded-For from 127.0.0.1 unless told otherwise: on loopback anyone could then
+    # choose the address the key throttle counts.  Believed only from the configured proxies.
+    return {"proxy_headers": bool(proxies), "forwarded_allow_ips": ",".join(proxies) if proxies else "",
+            "http": "learnest.service.api.server:DeadlineH11Protocol",
             "timeout_keep_alive": settings.keep_alive_s,
             "limit_concurrency": settings.limit_concurrency or None,
             "h11_max_incomplete_event_size": settings.max_header_bytes,
