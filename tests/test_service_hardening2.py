@@ -363,3 +363,121 @@ def test_a_configured_proxy_names_the_client(tmp_path):
     with live_server(tmp_path, api_key="s3cret", key_failures=2, trusted_proxies="127.0.0.1") as port:
         assert [_post_with_forwarded(port, "guess", "10.0.0.1") for _ in range(3)] == [401, 401, 429]
         assert _post_with_forwarded(port, "guess", "10.0.0.2") == 401   # another client behind the proxy
+
+
+# -- a job reaches "failed" even when recording its failure fails --------------------------------------------
+def _arm_refusal(db, armed: bool) -> None:
+    """A real SQLite trigger that refuses to record a job's failure while armed, as a full disk refuses
+    every write (the database itself says no; nothing in Python is replaced)."""
+    from sqlalchemy import text
+
+    with db.engine.begin() as connection:
+        connection.execute(text("CREATE TABLE IF NOT EXISTS refusal (armed INTEGER NOT NULL)"))
+        connection.execute(text("DELETE FROM refusal"))
+        connection.execute(text("INSERT INTO refusal VALUES (:armed)"), {"armed": int(armed)})
+        connection.execute(text(
+            "CREATE TRIGGER IF NOT EXISTS refuse_failed BEFORE UPDATE OF state ON jobs "
+            "WHEN NEW.state = 'failed' AND (SELECT armed FROM refusal) "
+            "BEGIN SELECT RAISE(ABORT, 'database or disk is full'); END"))
+
+
+def test_a_job_whose_failure_cannot_be_recorded_fails_once_the_database_takes_it(tmp_path, monkeypatch):
+    from learnest.service.jobs import runner as runner_module
+    from learnest.service.jobs.runner import JobRunner
+    from learnest.service.storage.database import Database
+    from learnest.service.storage.tables import Job
+
+    monkeypatch.setattr(runner_module, "RECORD_RETRIES_S", (0.05,))   # fewer waits before the heartbeat's turn
+    db = Database(f"sqlite:///{tmp_path / 'learnest.db'}")
+    db.migrate()
+    runner = JobRunner(db)
+    runner.start()
+    try:
+        with db.transaction() as session:
+            job_id = runner.create(session, "training").id
+        _arm_refusal(db, True)
+
+        def work(_ctx):
+            raise RuntimeError("training diverged")
+
+        runner.run(job_id, work)   # the failure cannot be recorded: the job row still says running
+        with db.transaction() as session:
+            assert session.get(Job, job_id).state == "running"
+        runner.beat()              # still refused: kept, and the sweep does not fail it as an orphan
+        with db.transaction() as session:
+            assert session.get(Job, job_id).state == "running"
+        _arm_refusal(db, False)    # space again
+        runner.beat()
+        with db.transaction() as session:
+            job = session.get(Job, job_id)
+            assert job.state == "failed" and job.error == "RuntimeError: training diverged"
+    finally:
+        runner.shutdown()
+
+
+def test_the_sweep_fails_a_running_job_that_no_thread_runs(tmp_path):
+    """A job of this server left "running" with no thread on it (its worker stopped without a word): the lease
+    is alive, yet the heartbeat's sweep fails it."""
+    from sqlalchemy import update
+
+    from learnest.service.jobs.runner import ORPHAN_REASON, JobRunner
+    from learnest.service.storage.database import Database
+    from learnest.service.storage.tables import Job
+
+    db = Database(f"sqlite:///{tmp_path / 'learnest.db'}")
+    db.migrate()
+    runner = JobRunner(db)
+    runner.start()
+    try:
+        with db.transaction() as session:
+            orphan = runner.create(session, "training").id
+            queued = runner.create(session, "training").id
+        with db.transaction() as session:
+            session.execute(update(Job).where(Job.id == orphan).values(state="running"))
+        assert runner.sweep() == [orphan]
+        with db.transaction() as session:
+            assert session.get(Job, orphan).state == "failed" and session.get(Job, orphan).error == ORPHAN_REASON
+            assert session.get(Job, queued).state == "queued"
+    finally:
+        runner.shutdown()
+
+
+# -- a full database: 507, and no SQL in a job's error ---------------------------------------------------------
+def test_an_upload_to_a_full_database_is_a_507_and_stores_nothing(tmp_path):
+    """The database on a 1-MB tmpfs (its own mount namespace: `unshare`), the blobs beside the test: a file
+    fills the tmpfs, an upload gets 507 naming the full database (no SQL); the file removed, it stores."""
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    if shutil.which("unshare") is None or subprocess.run(["unshare", "-rm", "true"], capture_output=True).returncode:
+        pytest.skip("needs `unshare -rm` (user and mount namespaces) to mount a small tmpfs")
+    from utils.service import flight_csv
+
+    csv = flight_csv(tmp_path / "logs", seed=4)
+    script = Path(__file__).parent / "utils" / "full_database.py"
+    mount = tmp_path / "small"
+    mount.mkdir()
+    done = subprocess.run(["unshare", "-rm", sys.executable, str(script), str(mount), str(tmp_path / "home"),
+                           str(csv)], capture_output=True, text=True, timeout=240)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-3000:]
+    answers = dict(line.split(" ", 1) for line in done.stdout.splitlines() if line[:1].isupper())
+    status, detail = answers["FULL"].split(" ", 1)
+    assert status == "507" and "database is full" in detail and "SQL" not in detail, answers["FULL"]
+    assert answers["LISTED"] == "0" and answers["FREED"].split()[0] == "201"
+
+
+def test_a_job_error_from_the_database_shows_no_sql():
+    import sqlite3
+
+    from sqlalchemy.exc import OperationalError
+
+    from learnest.service.jobs.runner import error_message
+
+    full = OperationalError("BEGIN IMMEDIATE", {}, sqlite3.OperationalError("database or disk is full"))
+    assert "[SQL: BEGIN IMMEDIATE]" in str(full)
+    message = error_message(full)
+    assert "database is full" in message and "SQL" not in message and "BEGIN" not in message
+    other = OperationalError("UPDATE jobs SET state=?", ["failed"], sqlite3.OperationalError("disk I/O error"))
+    assert error_message(other) == "database error: disk I/O error"
