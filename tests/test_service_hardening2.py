@@ -481,3 +481,31 @@ def test_a_job_error_from_the_database_shows_no_sql():
     assert "database is full" in message and "SQL" not in message and "BEGIN" not in message
     other = OperationalError("UPDATE jobs SET state=?", ["failed"], sqlite3.OperationalError("disk I/O error"))
     assert error_message(other) == "database error: disk I/O error"
+
+
+# -- quotas on the flights a job actually uses ------------------------------------------------------------------
+def test_the_diagnosis_quota_is_charged_on_the_flights_it_fits(tmp_path):
+    """A short flight that fails the quality checks named first is dropped by the diagnosis, which then fits
+    the big one: the quota must see the big one ([bad, big] refused exactly as [big] is)."""
+    import math
+
+    from utils.service import flight_csv, running_app, upload
+
+    from learnest.service.jobs.training import training_config
+
+    budget = 2e7
+    with running_app(tmp_path / "home", max_training_work=budget) as client:
+        bad = upload(client, flight_csv(tmp_path / "logs", seed=5, seconds=7.0)).json()
+        big = upload(client, flight_csv(tmp_path / "logs", seed=6, seconds=40.0)).json()
+        assert not bad["quality"]["ok"] and big["quality"]["ok"], (bad["quality"], big["quality"])
+        hidden = training_config({})["hidden"]
+        epochs = math.floor(budget / (big["samples"] * hidden)) + 1       # just past the budget on the big one
+        assert epochs * bad["samples"] * hidden <= budget                   # ... well within it on the bad one
+        for flights in ([big["id"]], [bad["id"], big["id"]]):
+            refused = client.post("/diagnoses", json={"flights": flights, "epochs": epochs})
+            assert refused.status_code == 422, (flights, refused.status_code, refused.text[:300])
+            assert "LEARNEST_MAX_TRAINING_WORK" in refused.json()["detail"]
+            assert f"x {big['samples']} x" in refused.json()["detail"]
+        accepted = client.post("/diagnoses", json={"flights": [bad["id"], big["id"]], "epochs": epochs - 1})
+        assert accepted.status_code == 202, accepted.text
+        client.post(f"/jobs/{accepted.json()['job_id']}/cancel")
