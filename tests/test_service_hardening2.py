@@ -509,3 +509,60 @@ def test_the_diagnosis_quota_is_charged_on_the_flights_it_fits(tmp_path):
         accepted = client.post("/diagnoses", json={"flights": [bad["id"], big["id"]], "epochs": epochs - 1})
         assert accepted.status_code == 202, accepted.text
         client.post(f"/jobs/{accepted.json()['job_id']}/cancel")
+
+
+# -- a flight deleted during its evaluation takes its cached results with it ------------------------------------
+def _results_of(db, sha: str) -> list:
+    from sqlalchemy import select
+
+    from learnest.service.storage.tables import Result
+
+    with db.transaction() as session:
+        return list(session.scalars(select(Result.id).where(Result.flight_sha256 == sha)))
+
+
+def test_a_result_stored_after_its_flight_was_deleted_is_not_cached(app_with_a_model):
+    """The moment an evaluation finishes a flight that was deleted meanwhile: nothing is cached, and the
+    estimates blob is handed back to be collected."""
+    from utils.service import flight_csv, upload
+
+    from learnest.service.deletion import delete_flight
+    from learnest.service.jobs.result_cache import store_result
+    from learnest.service.storage.database import discard_blobs
+
+    client, _ = app_with_a_model
+    services = client.app.state.services
+    flight = upload(client, flight_csv(services.settings.home / "logs", seed=7)).json()
+    from learnest.service.registry import get_version
+
+    with services.db.transaction() as session:
+        version_id = get_version(session, "quad", 1).id
+    blob = services.blobs.put_bytes(b"estimates of a flight that is gone")
+    delete_flight(services.db, services.blobs, flight["id"])
+    returned = store_result(services.db, flight["sha256"], version_id, "key", flight["id"], {"flight": "x"}, None,
+                            blob)
+    assert returned == blob and _results_of(services.db, flight["sha256"]) == []
+    discard_blobs(services.db, services.blobs, [returned])
+    assert not services.blobs.path(blob).exists()
+
+
+def test_deleting_a_flight_while_its_evaluation_runs_leaves_no_cached_result(app_with_a_model):
+    from utils.service import blob_files, flight_csv, upload, wait_for_job
+
+    client, _ = app_with_a_model
+    services = client.app.state.services
+    flight = upload(client, flight_csv(services.settings.home / "logs", seed=8, seconds=30.0)).json()
+    before = blob_files(services.settings.home)
+    accepted = client.post("/evaluations", json={"model": "quad:1", "flights": [flight["id"]],
+                                                 "methods": ["ukf", "knode-ukf", "mhe"]}).json()
+    deadline = time.monotonic() + 60
+    while client.get(f"/jobs/{accepted['job_id']}").json()["state"] == "queued" and time.monotonic() < deadline:
+        time.sleep(0.02)
+    time.sleep(0.3)   # the flight's task is under way (the MHE takes seconds on a 30-s flight)
+    assert client.delete(f"/flights/{flight['id']}").status_code == 204
+    job = wait_for_job(client, accepted["job_id"])
+    assert job["state"] == "succeeded", job
+    assert _results_of(services.db, flight["sha256"]) == []
+    # the flight's own blobs went with it, and no estimates blob stayed behind
+    flight_blobs = before - blob_files(services.settings.home)
+    assert flight_blobs and blob_files(services.settings.home) == before - flight_blobs
