@@ -566,3 +566,47 @@ def test_deleting_a_flight_while_its_evaluation_runs_leaves_no_cached_result(app
     # the flight's own blobs went with it, and no estimates blob stayed behind
     flight_blobs = before - blob_files(services.settings.home)
     assert flight_blobs and blob_files(services.settings.home) == before - flight_blobs
+
+
+# -- page figures decimated to what a screen shows, and cached ------------------------------------------------
+def test_decimation_keeps_every_peak_in_bounded_points():
+    import numpy as np
+
+    from learnest.service.web.zoomable import MAX_POINTS, decimation
+
+    rng = np.random.default_rng(0)
+    y = rng.normal(size=226_000)
+    y[123_457], y[200_001] = 50.0, -40.0          # single-sample spikes
+    y[50_000:50_010] = np.nan                       # a gap
+    index = decimation(y)
+    assert index is not None and len(index) <= MAX_POINTS + MAX_POINTS // 2 + 2
+    assert 123_457 in index and 200_001 in index and index[0] == 0 and index[-1] == len(y) - 1
+    assert np.isnan(y[index]).any()                 # the gap stays a gap
+    assert np.all(np.diff(index) > 0)
+    assert decimation(np.arange(MAX_POINTS)) is None
+
+
+def test_a_long_flights_page_is_bounded_and_served_from_the_cache(tmp_path):
+    import json
+    import re
+
+    from utils.service import flight_csv, running_app, upload
+
+    from learnest.service.web.page_cache import pages
+    from learnest.service.web.zoomable import MAX_POINTS
+
+    pages.clear()
+    with running_app(tmp_path / "home") as client:
+        flight = upload(client, flight_csv(tmp_path / "logs", seed=9, seconds=300.0), cut="none").json()
+        assert flight["samples"] > 25_000
+        first = client.get(f"/ui/flights/{flight['id']}")
+        assert first.status_code == 200
+        started = time.monotonic()
+        again = client.get(f"/ui/flights/{flight['id']}")
+        seconds = time.monotonic() - started
+    assert again.text == first.text and seconds < 1.0, seconds
+    assert len(first.content) < 2_000_000, len(first.content)
+    block = re.search(r"<script type='application/json'[^>]*>(.*?)</script>", first.text, re.DOTALL)
+    spec = json.loads(block[1])
+    assert spec["data"] and all(len(trace["y"]) <= MAX_POINTS + MAX_POINTS // 2 + 2 for trace in spec["data"])
+    assert all(len(trace["x"]) == len(trace["y"]) for trace in spec["data"])
