@@ -206,7 +206,9 @@ def _check_sqlite_sizes(path: Path, what: str, budget: int) -> None:
             if kinds[table] != "table":
                 raise IngestError(path, f"not a {what}: its {table!r} is an SQLite {kinds[table]}, not a table")
             columns = [row[1] for row in connection.execute(f'PRAGMA table_xinfo("{table}")')]
-            sizes = " + ".join(f'coalesce(length(CAST("{c}" AS BLOB)), 0)' for c in columns) or "0"
+            # a blob's length is read from its header (a zeroblob is never built); text counts in bytes
+            sizes = " + ".join(f"""(CASE typeof("{c}") WHEN 'blob' THEN length("{c}") WHEN 'null' THEN 0 """
+                               f"""ELSE length(CAST("{c}" AS BLOB)) END)""" for c in columns) or "0"
             for (size,) in connection.execute(f'SELECT {sizes} FROM "{table}"'):
                 total += size
                 if total > budget:
