@@ -87,7 +87,8 @@ def test_a_body_that_never_ends_still_gets_its_408(tmp_path):
         pass
 
     with pytest.raises(HTTPException) as err:
-        asyncio.run(BodyDeadline(app, timeout_s=0.3, min_rate=1e6)({"type": "http"}, receive, send))
+        asyncio.run(BodyDeadline(app, timeout_s=0.3, min_rate=1e6)(
+            {"type": "http", "headers": [(b"content-length", b"100000")]}, receive, send))
     assert err.value.status_code == 408
 
 
@@ -610,3 +611,43 @@ def test_a_long_flights_page_is_bounded_and_served_from_the_cache(tmp_path):
     spec = json.loads(block[1])
     assert spec["data"] and all(len(trace["y"]) <= MAX_POINTS + MAX_POINTS // 2 + 2 for trace in spec["data"])
     assert all(len(trace["x"]) == len(trace["y"]) for trace in spec["data"])
+
+
+def test_a_download_that_starts_after_the_body_deadline_is_complete(tmp_path):
+    """A GET whose answer takes longer than the body deadline to prepare (a large export is written first):
+    its file still arrives whole (the first body part, asked for late, is no client's delay)."""
+    from starlette.applications import Starlette
+    from starlette.responses import FileResponse
+    from starlette.routing import Route
+
+    from learnest.service.api.server import BodyDeadline
+
+    path = tmp_path / "export.csv"
+    data = b"x,y\n" * 300_000
+    path.write_bytes(data)
+
+    async def export(request):
+        await asyncio.sleep(0.5)     # writing the export
+        return FileResponse(path)
+
+    app = BodyDeadline(Starlette(routes=[Route("/e", export)]), timeout_s=0.2, min_rate=1e6)
+    for headers in ([], [(b"content-length", b"0")]):
+        asked, received, ended = [0], bytearray(), [False]
+
+        async def receive():
+            asked[0] += 1
+            if asked[0] == 1:
+                return {"type": "http.request", "body": b"", "more_body": False}
+            await asyncio.sleep(3600)
+
+        async def send(message):
+            if message["type"] == "http.response.body":
+                received.extend(message.get("body", b""))
+                ended[0] = not message.get("more_body", False)
+
+        scope = {"type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1", "method": "GET",
+                 "scheme": "http", "path": "/e", "raw_path": b"/e", "query_string": b"", "root_path": "",
+                 "server": ("testserver", 80), "client": ("127.0.0.1", 5000),
+                 "headers": [(b"host", b"testserver"), *headers]}
+        asyncio.run(asyncio.wait_for(app(scope, receive, send), 30))
+        assert ended[0] and bytes(received) == data

@@ -91,6 +91,9 @@ class DeadlineH11Protocol(H11Protocol):
             self.transport.close()
 
 
+MIN_WAIT_S = 0.05   # BodyDeadline: the shortest wait for a part of the body, s
+
+
 class BodyDeadline:
     """ASGI middleware: a request body must arrive within ``timeout_s`` plus one second per ``min_rate``
     bytes received, else 408 (with ``Connection: close``: the rest of the body is not waited for).
@@ -117,7 +120,10 @@ class BodyDeadline:
             await self.app(scope, receive, send)
             return
         start, received = time.monotonic(), 0
-        body_done = False   # the last part of the body arrived, or the response began: no deadline left
+        # no deadline left once the last part of the body arrived or the response began, nor for a request
+        # that declares no body (a GET: the server hands the app one empty part, however late it asks)
+        headers = dict(scope.get("headers") or [])
+        body_done = headers.get(b"content-length", b"0") in (b"", b"0") and b"transfer-encoding" not in headers
 
         async def timed_receive() -> Message:
             nonlocal received, body_done
@@ -125,7 +131,9 @@ class BodyDeadline:
                 return await receive()
             remaining = start + self.timeout_s + received / self.min_rate - time.monotonic()
             try:
-                message = await asyncio.wait_for(receive(), timeout=max(remaining, 0.0))
+                # past the deadline a part the server already holds is still taken (a route that reads late
+                # is not the client's delay): the wait is never shorter than MIN_WAIT_S
+                message = await asyncio.wait_for(receive(), timeout=max(remaining, MIN_WAIT_S))
             except TimeoutError:
                 # an HTTPException passes FastAPI's handlers as this status (as the upload size limit's 413)
                 raise HTTPException(408, f"request body too slow: it must arrive within {self.timeout_s:g} s plus "
