@@ -280,8 +280,10 @@ def _raw_post(app, path: str, chunks: list[bytes], headers: list) -> tuple[int, 
 
 def _upload_form(key: str | None, key_first: bool = True, size: int = 8 << 20) -> list[bytes]:
     """A multipart upload of one ``size``-byte file in 64-kB chunks, the api_key field before or after it."""
-    field = (b'--xyz\r\nContent-Disposition: form-data; name="api_key"\r\n\r\n' + key.encode() + b"\r\n") if key else b""
-    head = b'--xyz\r\nContent-Disposition: form-data; name="files"; filename="big.csv"\r\nContent-Type: text/csv\r\n\r\n'
+    field = (b'--xyz\r\nContent-Disposition: form-data; name="api_key"\r\n\r\n' + key.encode() + b"\r\n"
+             if key else b"")
+    head = (b'--xyz\r\nContent-Disposition: form-data; name="files"; filename="big.csv"\r\n'
+            b"Content-Type: text/csv\r\n\r\n")
     chunks = [head] + [b"1" * (1 << 16)] * (size >> 16) + [b"\r\n"]
     if field:
         chunks = ([field] + chunks) if key_first else (chunks + [field])
@@ -308,7 +310,8 @@ def test_a_form_upload_without_the_key_is_refused_before_its_body_is_read(tmp_pa
         status, pulled, _ = _raw_post(app, "/ui/flights", _upload_form("sesame", key_first=False), [MULTIPART])
         assert (status, pulled) == (401, 1)        # a key after the files is not waited for
         # the right key (field first, as the upload form sends it; or the cookie): the body is read
-        for chunks, extra in ((_upload_form("sesame"), []), (_upload_form(None), [(b"cookie", b"learnest_api_key=sesame")])):
+        cookie = [(b"cookie", b"learnest_api_key=sesame")]
+        for chunks, extra in ((_upload_form("sesame"), []), (_upload_form(None), cookie)):
             status, pulled, answer = _raw_post(app, "/ui/flights", chunks, [MULTIPART, *extra])
             assert status == 422 and pulled == len(chunks), (status, answer[:200])   # read, and no flight
 
@@ -632,22 +635,28 @@ def test_a_download_that_starts_after_the_body_deadline_is_complete(tmp_path):
 
     app = BodyDeadline(Starlette(routes=[Route("/e", export)]), timeout_s=0.2, min_rate=1e6)
     for headers in ([], [(b"content-length", b"0")]):
-        asked, received, ended = [0], bytearray(), [False]
+        assert _get_late(app, headers) == (True, data)
 
-        async def receive():
-            asked[0] += 1
-            if asked[0] == 1:
-                return {"type": "http.request", "body": b"", "more_body": False}
-            await asyncio.sleep(3600)
 
-        async def send(message):
-            if message["type"] == "http.response.body":
-                received.extend(message.get("body", b""))
-                ended[0] = not message.get("more_body", False)
+def _get_late(app, headers: list) -> tuple[bool, bytes]:
+    """GET /e from ``app`` with a client that sends its (empty) body at once and then stays connected;
+    -> (whether the response ended normally, its body)."""
+    asked, received, ended = [0], bytearray(), [False]
 
-        scope = {"type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1", "method": "GET",
-                 "scheme": "http", "path": "/e", "raw_path": b"/e", "query_string": b"", "root_path": "",
-                 "server": ("testserver", 80), "client": ("127.0.0.1", 5000),
-                 "headers": [(b"host", b"testserver"), *headers]}
-        asyncio.run(asyncio.wait_for(app(scope, receive, send), 30))
-        assert ended[0] and bytes(received) == data
+    async def receive():
+        asked[0] += 1
+        if asked[0] == 1:
+            return {"type": "http.request", "body": b"", "more_body": False}
+        await asyncio.sleep(3600)
+
+    async def send(message):
+        if message["type"] == "http.response.body":
+            received.extend(message.get("body", b""))
+            ended[0] = not message.get("more_body", False)
+
+    scope = {"type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1", "method": "GET",
+             "scheme": "http", "path": "/e", "raw_path": b"/e", "query_string": b"", "root_path": "",
+             "server": ("testserver", 80), "client": ("127.0.0.1", 5000),
+             "headers": [(b"host", b"testserver"), *headers]}
+    asyncio.run(asyncio.wait_for(app(scope, receive, send), 30))
+    return ended[0], bytes(received)

@@ -320,8 +320,8 @@ def evaluation_report_page(evaluation_id: RowId,
     # a finished evaluation's report is written once and its ids are never reused: the page changes only with
     # its flights' stored estimates (a flight deleted since) and figures, so it is drawn once per those, flight
     # and state group, then served from the page cache
-    body = page_cache.pages.get(("evaluation-report", evaluation.id, flight, group, _report_inputs(services, evaluation)),
-                                lambda: _report_page(services, evaluation, flight, group),
+    key = ("evaluation-report", evaluation.id, flight, group, _report_inputs(services, evaluation))
+    body = page_cache.pages.get(key, lambda: _report_page(services, evaluation, flight, group),
                                 keep=lambda drawn: drawn[1])
     return HTMLResponse(body[0])
 
