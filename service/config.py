@@ -19,6 +19,8 @@
                                 not calibrated to a wall time); 0 = no limit
     LEARNEST_CANCEL_GRACE_S     seconds a cancelled job's running task gets to stop itself before its
                                 worker is killed (default 10)
+    LEARNEST_JOB_STALL_S        a running job that wrote no progress for this long is failed and its worker
+                                killed (default 21600, 6 h; 0 = never)
   uploads are decoded in their own worker processes (service.jobs.decoding):
     LEARNEST_DECODE_WORKERS     uploads decoded at once (default 2)
     LEARNEST_DECODE_QUEUE       uploads that may wait for a decode worker; more get 503 (default 16)
@@ -73,6 +75,7 @@ class Settings(BaseSettings):
     max_hidden: int = Field(256, ge=1)
     max_training_work: float = Field(2e9, ge=0)   # epochs x samples x hidden; 0: no limit
     cancel_grace_s: float = Field(10.0, ge=0)
+    job_stall_s: float = Field(6 * 3600.0, ge=0)   # 0: never fail a job for making no progress
     # uploads: decoded in worker processes, bounded in number, waiting room and time (service.jobs.decoding)
     decode_workers: int = Field(2, ge=1)
     decode_queue: int = Field(16, ge=0)

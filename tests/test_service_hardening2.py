@@ -660,3 +660,36 @@ def _get_late(app, headers: list) -> tuple[bool, bytes]:
              "headers": [(b"host", b"testserver"), *headers]}
     asyncio.run(asyncio.wait_for(app(scope, receive, send), 30))
     return ended[0], bytes(received)
+
+
+def test_the_sweep_fails_a_job_whose_worker_is_wedged_and_stops_it(tmp_path):
+    """A job whose executor task never returns and writes no progress (a wedged worker): after ``stall_s`` the
+    sweep fails it, and its thread stops the task (the worker process is killed)."""
+    from learnest.service.jobs.executors import LocalPoolExecutor
+    from learnest.service.jobs.runner import JobRunner
+    from learnest.service.storage.database import Database
+    from learnest.service.storage.tables import Job
+
+    db = Database(f"sqlite:///{tmp_path / 'learnest.db'}")
+    db.migrate()
+    runner = JobRunner(db, cancel_grace_s=0.5, stall_s=1.0)
+    runner.start()
+    executor = LocalPoolExecutor(max_workers=1)
+    try:
+        with db.transaction() as session:
+            job_id = runner.create(session, "evaluation").id
+        thread = runner.launch(job_id, lambda ctx: ctx.wait(executor, executor.submit(time.sleep, 3600)))
+        deadline = time.monotonic() + 60
+        while not runner.is_running(job_id) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)
+        assert runner.sweep() == []               # within stall_s: a slow job is left alone
+        time.sleep(1.2)
+        assert runner.sweep() == [job_id]
+        with db.transaction() as session:
+            job = session.get(Job, job_id)
+            assert job.state == "failed" and "no progress for 1 s" in job.error
+        thread.result(timeout=30)                 # the thread stopped the task and returned
+    finally:
+        executor.shutdown()
+        runner.shutdown()

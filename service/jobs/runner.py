@@ -15,7 +15,9 @@ and on every heartbeat, so several uvicorn workers never fail each other's live 
 A job always reaches a final state.  When recording its failure itself fails (a full database), the runner
 retries a few times, then keeps the failure in memory and records it on every heartbeat until the database
 takes it.  And the heartbeat's sweep fails this process's own running jobs that no thread runs any more (its
-worker stopped without recording a result): the lease alone no longer keeps such a job "running".
+worker stopped without recording a result), and those that wrote no progress for ``stall_s`` (its worker is
+wedged; LEARNEST_JOB_STALL_S, hours by default): the lease alone no longer keeps such a job "running".  A
+stalled job's thread is told to stop, which kills its executor tasks.
 
 Cancelling (`JobRunner.cancel`, any server process): the row becomes "cancelled" at once, in one transaction
 with the `on_stale` hooks (a reserved model version is failed), so nothing the job computes afterwards can be
@@ -62,6 +64,7 @@ WAIT_POLL_S = 0.05       # how often it looks at its executor tasks
 CANCEL_GRACE_S = 10.0    # a cancelled task's time to stop itself before it is killed
 RECORD_RETRIES_S = (0.5, 1.0, 2.0)   # waits between attempts to record a failure before the heartbeat takes over
 ORPHAN_REASON = "the job's worker stopped without recording a result"
+STALL_S = 6 * 3600.0     # a running job with no progress for this long is failed (its worker is wedged)
 
 
 class JobAborted(RuntimeError):
@@ -139,6 +142,8 @@ class JobRunner:
         Jobs orchestrated at once; the heavy parts go to the Executor.
     cancel_grace_s : float
         Seconds a cancelled executor task gets to stop itself before it is killed.
+    stall_s : float
+        Seconds without progress after which a running job of this process is failed (0: never).
 
     Attributes
     ----------
@@ -148,9 +153,11 @@ class JobRunner:
         Hooks ``hook(session, job_ids, reason)`` called in the transaction that fails jobs (sweep, shutdown).
     """
 
-    def __init__(self, db: Database, threads: int = 4, cancel_grace_s: float = CANCEL_GRACE_S) -> None:
+    def __init__(self, db: Database, threads: int = 4, cancel_grace_s: float = CANCEL_GRACE_S,
+                 stall_s: float = STALL_S) -> None:
         self.db = db
         self.cancel_grace_s = cancel_grace_s
+        self.stall_s = stall_s   # 0: never fail a job for making no progress
         self._stop_events: dict[int, threading.Event] = {}  # jobs this process runs, set when they must stop
         self._events_lock = threading.Lock()
         self.owner = make_owner_id()
@@ -375,19 +382,32 @@ class JobRunner:
             # this process's own: running, yet no thread here runs it (nor holds a failure to record for it)
             orphans = [job for job in jobs if job.owner == self.owner and job.state == "running"
                        and job.id not in running_here and job.id not in unrecorded]
+            # this process's own, run by a thread here, with no progress for stall_s: its worker is wedged
+            stalled = [job for job in jobs if self.stall_s and job.owner == self.owner and job.state == "running"
+                       and job.id in running_here and _seconds_since(job.progress_at or job.started_at) > self.stall_s]
+            stall_reason = (f"no progress for {self.stall_s:g} s: its worker is stuck (LEARNEST_JOB_STALL_S); "
+                            "the job was stopped")
             for job in stale:
                 job.state, job.error, job.finished_at = "failed", reason, utcnow()
             for job in orphans:
                 job.state, job.error, job.finished_at = "failed", ORPHAN_REASON, utcnow()
+            for job in stalled:
+                job.state, job.error, job.finished_at = "failed", stall_reason, utcnow()
             ids = [job.id for job in stale]
             for hook in self.on_stale:
                 hook(session, ids, reason)
                 if orphans:
                     hook(session, [job.id for job in orphans], ORPHAN_REASON)
+                if stalled:
+                    hook(session, [job.id for job in stalled], stall_reason)
+        for job in stalled:   # its thread stops its executor tasks (a wedged worker is killed)
+            self.stop_event(job.id).set()
+        orphans = orphans + stalled
         if ids:
             log.warning("marked %d job(s) left by a stopped server as failed: %s", len(ids), ids)
         if orphans:
-            log.warning("marked %d job(s) whose worker stopped as failed: %s", len(orphans), [j.id for j in orphans])
+            log.warning("marked %d job(s) whose worker stopped or stalled as failed: %s", len(orphans),
+                        [j.id for j in orphans])
         return ids + [job.id for job in orphans]
 
     @staticmethod
@@ -418,6 +438,16 @@ def seconds_left(job: Job, now=None) -> float | None:
         return None
     elapsed = ((now or utcnow()) - job.progress_at).total_seconds()
     return max(0.0, job.eta_s - elapsed)
+
+
+def _seconds_since(moment) -> float:
+    """Seconds from ``moment`` (a stored time, naive UTC or aware; None: no time) to now."""
+    if moment is None:
+        return 0.0
+    now = utcnow()
+    if (moment.tzinfo is None) != (now.tzinfo is None):
+        moment = moment.replace(tzinfo=now.tzinfo)
+    return (now - moment).total_seconds()
 
 
 def _dead_here(owner: str | None) -> bool:
