@@ -447,10 +447,12 @@ def _worker(connection, directory: str, warm_up) -> None:
         read = [p for p in paths if not p.name.endswith("_metadata.yaml")]
         start = time.perf_counter()
         try:
+            warned = []
             for flight in read_flights(read):    # an accepted input must give a Flight the service can store
                 flight.to_bytes()
                 json.dumps(summary(flight), allow_nan=False)
-            outcome, kind, message = "ok", "", ""
+                warned += [str(w) for w in flight.meta.get("warnings") or []]
+            outcome, kind, message = "ok", "", "; ".join(warned)[:300]
         except IngestError as err:
             outcome, kind, message = "rejected", type(err).__name__, str(err)[:300]
         except BaseException as err:  # noqa: BLE001 - the point is to catch everything else

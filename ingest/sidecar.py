@@ -82,7 +82,7 @@ def read_sidecar(path) -> object:
                 if nodes > MAX_SIDECAR_NODES:
                     raise SidecarTooLarge(path, f"metadata sidecar with more than {MAX_SIDECAR_NODES} YAML nodes")
         return yaml.safe_load(text)
-    except SidecarTooLarge:
+    except IngestError:   # SidecarTooLarge, or a nesting limit: already says what (an IngestError is a ValueError)
         raise
     # ValueError: an integer of more than 4300 digits (Python's int-from-text cap); RecursionError: a
     # document nested thousands of levels deep (PyYAML builds it recursively)
