@@ -39,6 +39,7 @@ import multiprocessing as mp
 import os
 import platform
 import resource
+import shlex
 import shutil
 import sys
 import tempfile
@@ -639,7 +640,7 @@ def main(argv=None) -> None:
     parser.add_argument("--no-hostile", action="store_true", help="skip the hostile cases")
     args = parser.parse_args(argv)
     started = time.perf_counter()
-    report = {"command": "python benchmarks/fuzz_decoders.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+    report = {"command": "python benchmarks/fuzz_decoders.py " + shlex.join(argv if argv is not None else sys.argv[1:]),
               "machine": {"platform": platform.platform(), "cpus": os.cpu_count()}, "rng_seed": args.seed,
               "time_limit_s": TIME_LIMIT_S, "decoders": {}}
     if not args.no_report:
