@@ -542,9 +542,13 @@ def full_database(root: Path, flights: list[Path]) -> dict:
 
 # -- report ---------------------------------------------------------------------------------------------------
 def markdown(results: dict) -> str:
-    lines = [f"# Service load and fault benchmark\n\n`{results['command']}` on {results['machine']}; "
-             f"{results['seconds']:.0f} s in all.  Loopback only, defaults of `learnest serve` "
-             f"(LEARNEST_POOL_WORKERS=1).\n", "## 1. 40 concurrent bomb-ish uploads vs GET /health\n",
+    commands = results.get("phase_commands") or {}
+    made = "; ".join(f"phase {phase}: `{command}`" for phase, command in sorted(commands.items())) or \
+        f"`{results['command']}`"
+    lines = [f"# Service load and fault benchmark\n\nOn {results['machine']}; made by {made} (the last run: "
+             f"{results['seconds']:.0f} s).  Loopback only, defaults of `learnest serve` "
+             f"(LEARNEST_POOL_WORKERS=1) unless a phase says otherwise.\n",
+             "## 1. 40 concurrent bomb-ish uploads vs GET /health\n",
              "| code | uploads: status counts | upload p50 / max (ms) | /health idle p50 | /health during p50 / p99 "
              "/ max (ms) | /health errors |", "|---|---|---|---|---|---|"]
     for phase in results["uploads_vs_health"]:
@@ -638,6 +642,7 @@ def main() -> int:
             results["full_database"] = full_database(root, flights)
     results["command"] = COMMAND + (f" --compare {args.compare}" if args.compare else "") + \
         (f" --phases {args.phases}" if args.phases != "1,2,3,4,5,6" else "")
+    results.setdefault("phase_commands", {}).update({str(phase): results["command"] for phase in phases})
     results["machine"] = f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
     results["seconds"] = round(time.perf_counter() - started, 1)
     OUT.mkdir(parents=True, exist_ok=True)
