@@ -22,7 +22,13 @@ allocation shows as MemoryError); a worker that does not answer within TIME_LIMI
 input counts as a hang; a worker that dies (segfault) counts as a crash.  Crashing inputs up to 64 kB are
 saved under results/fuzz_crashes/<decoder>/ (first few per exception type).
 
-Run:  .venv/bin/python benchmarks/fuzz_decoders.py [--inputs 10000] [--decoders nanobench,usd,...]
+Hostile cases (after the decoders; each in a fresh worker, so its peak RSS is its own): hand-made inputs
+that a mutation would not find - a ROS 2 .db3 whose ``messages.data`` is a virtual generated column
+``zeroblob(N)`` (80 rows x 25 MB from a 24-kB file), one such value of 1 GB, an endless recursive view as
+``messages``; a NanoBench sidecar nested 260 deep as block sequences (``- - - ...``), 200 deep as block
+mappings, and 3000 deep in flow brackets.  Each must be refused (or read) with peak RSS under HOSTILE_RSS_MB.
+
+Run:  .venv/bin/python benchmarks/fuzz_decoders.py [--inputs 10000] [--decoders nanobench,usd,...] [--no-hostile]
       (writes benchmarks/results/fuzz_decoders.{json,md})
 """
 from __future__ import annotations
@@ -33,6 +39,7 @@ import multiprocessing as mp
 import os
 import platform
 import resource
+import shlex
 import shutil
 import sys
 import tempfile
@@ -50,6 +57,7 @@ WORKERS = 2
 SAVE_PER_TYPE = 3
 SAVE_MAX_BYTES = 64 << 10
 DECODERS = ("nanobench", "metadata_yaml", "usd", "vicon_cfclient", "mcap", "rosbag")
+HOSTILE_RSS_MB = 500
 INTERESTING = (0, 1, 2, 0x7F, 0x80, 0xFF, 0x7FFF, 0x8000, 0xFFFF, 0x7FFFFFFF, 0x80000000, 0xFFFFFFFF,
                2**63 - 1, 2**64 - 1, 2**31, 4096, 65536)
 BAD_NUMBERS = (b"", b"nan", b"NaN", b"inf", b"-inf", b"1e308", b"-1e308", b"1e999", b"-0", b"0", b"-1",
@@ -349,6 +357,69 @@ def generate(decoder: str, seeds: list[list[tuple[str, bytes]]], rng) -> tuple[l
     return files, "+".join(names)
 
 
+# -- hostile cases -----------------------------------------------------------------------------------------
+def _db3(seed: bytes, script: str) -> bytes:
+    """The seed .db3 with ``script`` (SQL) applied, as bytes."""
+    import sqlite3
+
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "bag.db3"
+        path.write_bytes(seed)
+        with sqlite3.connect(path) as db:
+            db.executescript(script)
+        with sqlite3.connect(path) as db:
+            db.execute("VACUUM")
+        return path.read_bytes()
+
+
+def _generated(data_sql: str, rows: int) -> str:
+    return f"""ALTER TABLE messages RENAME TO old_messages;
+        CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL, timestamp INTEGER NOT NULL,
+                              data BLOB GENERATED ALWAYS AS ({data_sql}) VIRTUAL);
+        INSERT INTO messages(id, topic_id, timestamp) SELECT id, topic_id, timestamp FROM old_messages LIMIT {rows};
+        DROP TABLE old_messages;"""
+
+
+ENDLESS_VIEW = """ALTER TABLE messages RENAME TO old_messages;
+    CREATE VIEW messages AS WITH RECURSIVE n(i) AS (SELECT 1 UNION ALL SELECT i + 1 FROM n)
+        SELECT i AS id, 1 AS topic_id, i AS timestamp, zeroblob(100000) AS data FROM n;"""
+
+
+def hostile_cases(seeds) -> dict[str, list[tuple[str, bytes]]]:
+    """{case: the files given to read_flights together} (module docstring)."""
+    [(bag_name, bag)] = next(s for s in seeds["rosbag"] if s[0][0].endswith(".db3"))
+    csv, sidecar = seeds["metadata_yaml"][0]
+    deep_mapping = "".join(" " * k + f"k{k}:\n" for k in range(200)) + " " * 200 + "1\n"
+    return {
+        "db3_generated_zeroblob_80x25MB": [(bag_name, _db3(bag, _generated("zeroblob(25000000)", 80)))],
+        "db3_generated_zeroblob_1GB": [(bag_name, _db3(bag, _generated("zeroblob(1000000000)", 1)))],
+        "db3_endless_view": [(bag_name, _db3(bag, ENDLESS_VIEW))],
+        "yaml_block_sequence_260_deep": [csv, (sidecar[0], ("- " * 260 + "x\n").encode())],
+        "yaml_block_mapping_200_deep": [csv, (sidecar[0], deep_mapping.encode())],
+        "yaml_flow_3000_deep": [csv, (sidecar[0], ("a: " + "[" * 3000 + "\n").encode())],
+    }
+
+
+def hostile(seeds, root: Path) -> dict:
+    """Each hostile case in a fresh worker: outcome, exception type, message, seconds, peak RSS (MB)."""
+    context = mp.get_context("fork")
+    results = {}
+    for k, (case, files) in enumerate(hostile_cases(seeds).items()):
+        worker = Worker(context, root / "hostile", k, seeds["nanobench"][0])
+        worker.submit(files)
+        answer = None
+        while answer is None:
+            time.sleep(0.01)
+            answer = worker.poll()
+        worker.stop()
+        outcome, kind, message, seconds, rss_kb = answer
+        results[case] = {"outcome": outcome, "type": kind, "message": message[:200], "seconds": round(seconds, 3),
+                         "peak_rss_mb": round(rss_kb / 1024, 1), "input_bytes": sum(len(d) for _, d in files)}
+        print(f"hostile {case}: {outcome} ({kind}) in {seconds:.2f} s, peak RSS {rss_kb / 1024:.0f} MB, "
+              f"{results[case]['input_bytes']} bytes: {message[:120]}", flush=True)
+    return results
+
+
 # -- workers -----------------------------------------------------------------------------------------------
 def _worker(connection, directory: str, warm_up) -> None:
     """Read each input given with read_flights; answer (outcome, exception type, message, seconds, maxrss kB).
@@ -377,10 +448,12 @@ def _worker(connection, directory: str, warm_up) -> None:
         read = [p for p in paths if not p.name.endswith("_metadata.yaml")]
         start = time.perf_counter()
         try:
+            warned = []
             for flight in read_flights(read):    # an accepted input must give a Flight the service can store
                 flight.to_bytes()
                 json.dumps(summary(flight), allow_nan=False)
-            outcome, kind, message = "ok", "", ""
+                warned += [str(w) for w in flight.meta.get("warnings") or []]
+            outcome, kind, message = "ok", "", "; ".join(warned)[:300]
         except IngestError as err:
             outcome, kind, message = "rejected", type(err).__name__, str(err)[:300]
         except BaseException as err:  # noqa: BLE001 - the point is to catch everything else
@@ -531,6 +604,14 @@ def write_report(report: dict) -> None:
             md.append(f"| {name} | {key} | {c['count']} | {example} | {', '.join(c['reproducers'][:1])} |")
     else:
         md += ["No crashes and no hangs."]
+    if report.get("hostile"):
+        md += ["", f"## Hostile cases (each in a fresh worker; peak RSS must stay under {HOSTILE_RSS_MB} MB)", "",
+               f"Command: `{report.get('hostile_command', report['command'])}`", "",
+               "| case | input bytes | outcome | seconds | peak RSS | message |", "|---|---|---|---|---|---|"]
+        for case, r in report["hostile"].items():
+            message = r["message"].replace("|", "\\|").replace("\n", " ")[:140]
+            md.append(f"| {case} | {r['input_bytes']} | {r['outcome']} ({r['type']}) | {r['seconds']:.2f} | "
+                      f"{r['peak_rss_mb']:.0f} MB | {message} |")
     md += ["", "Seeds (a simulated 4.4-s flight: a 2-s circle with short take-off/landing, mocap 50 Hz, IMU "
            "100 Hz, written by the project's writers):", ""]
     md += [f"- {name}: {', '.join(r['seed_files'])} ({', '.join(map(str, r['seed_bytes']))} bytes)"
@@ -543,9 +624,11 @@ def merged(report: dict) -> dict:
     path = OUT / "fuzz_decoders.json"
     if not path.exists():
         return report
-    earlier = json.loads(path.read_text()).get("decoders", {})
-    return {**report, "decoders": {**{k: v for k, v in earlier.items() if k not in report["decoders"]},
-                                   **report["decoders"]}}
+    committed = json.loads(path.read_text())
+    earlier = committed.get("decoders", {})
+    kept = {k: committed[k] for k in ("hostile", "hostile_command") if k in committed and k not in report}
+    return {**kept, **report, "decoders": {**{k: v for k, v in earlier.items() if k not in report["decoders"]},
+                                           **report["decoders"]}}
 
 
 def main(argv=None) -> None:
@@ -554,18 +637,19 @@ def main(argv=None) -> None:
     parser.add_argument("--decoders", default=",".join(DECODERS))
     parser.add_argument("--seed", type=int, default=20261122)
     parser.add_argument("--no-report", action="store_true", help="print only (do not overwrite the results)")
+    parser.add_argument("--no-hostile", action="store_true", help="skip the hostile cases")
     args = parser.parse_args(argv)
     started = time.perf_counter()
-    report = {"command": "python benchmarks/fuzz_decoders.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+    report = {"command": "python benchmarks/fuzz_decoders.py " + shlex.join(argv if argv is not None else sys.argv[1:]),
               "machine": {"platform": platform.platform(), "cpus": os.cpu_count()}, "rng_seed": args.seed,
               "time_limit_s": TIME_LIMIT_S, "decoders": {}}
     if not args.no_report:
-        for decoder in args.decoders.split(","):
+        for decoder in [d for d in args.decoders.split(",") if d]:
             shutil.rmtree(CRASH_DIR / decoder, ignore_errors=True)
     with tempfile.TemporaryDirectory(dir="/dev/shm" if os.path.isdir("/dev/shm") else None) as tmp:
         root = Path(tmp)
         seeds = make_seeds(root / "seeds")
-        for k, decoder in enumerate(args.decoders.split(",")):
+        for k, decoder in enumerate([d for d in args.decoders.split(",") if d]):
             result = fuzz(decoder, seeds[decoder], args.inputs, args.seed + k, root / "work")
             result["command"] = report["command"]
             report["decoders"][decoder] = result
@@ -579,6 +663,11 @@ def main(argv=None) -> None:
                   f"{result['wall_s']:.0f} s", flush=True)
             for key, c in result["crash_classes"].items():
                 print(f"    {c['count']:5d}  {key}  | {c['example'][:200]}", flush=True)
+        if not args.no_hostile:
+            report["hostile"] = hostile(seeds, root / "work")
+            report["hostile_command"] = report["command"]
+            if not args.no_report:
+                write_report(merged(report))
 
 
 if __name__ == "__main__":

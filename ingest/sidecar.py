@@ -3,6 +3,10 @@
 ``yaml.safe_load`` builds no objects but still expands aliases, so 352 bytes of nested ``&a [*b, *b, ...]``
 become a structure of millions of nodes (the "billion laughs").  A sidecar is a flat record of a flight;
 it never needs an alias or megabytes, so both are refused before anything is built.
+
+Nesting is limited for every YAML shape: flow (``[[[...``, counted on the text before PyYAML scans it, as its
+scanner is quadratic in that depth) and block (``- - - ...``, counted on the parse events, as is flow).  A
+document nested deeper than a record ever is would be stored and then fail every answer that serializes it.
 """
 from __future__ import annotations
 
@@ -16,6 +20,7 @@ from .flight import IngestError, json_compatible
 MAX_SIDECAR_BYTES = 1 << 20   # a metadata sidecar is a few kB; anything past 1 MiB is not one
 MAX_SIDECAR_NODES = 100_000   # scalars + collections, counted on the parse events
 MAX_FLOW_DEPTH = 64           # [ and { nesting: PyYAML's scanner is quadratic in it (2000 levels take ~20 s)
+MAX_DEPTH = 32                # nesting of sequences and mappings, block or flow (a sidecar record: 2-3)
 
 
 class SidecarTooLarge(IngestError):
@@ -60,8 +65,15 @@ def read_sidecar(path) -> object:
         depth = _flow_depth(text)
         if depth > MAX_FLOW_DEPTH:
             raise IngestError(path, f"unreadable YAML (brackets nested {depth} deep, more than {MAX_FLOW_DEPTH})")
-        nodes = 0
+        nodes = depth = 0
         for event in yaml.parse(text, Loader=yaml.SafeLoader):
+            if isinstance(event, (yaml.MappingStartEvent, yaml.SequenceStartEvent)):
+                depth += 1
+                if depth > MAX_DEPTH:
+                    raise IngestError(path, f"unreadable YAML (sequences and mappings nested more than {MAX_DEPTH} "
+                                            "deep)")
+            elif isinstance(event, (yaml.MappingEndEvent, yaml.SequenceEndEvent)):
+                depth -= 1
             if isinstance(event, yaml.AliasEvent):
                 raise SidecarTooLarge(path, "YAML aliases are not accepted in metadata (an alias can expand a few "
                                         "bytes into gigabytes)")
@@ -70,7 +82,7 @@ def read_sidecar(path) -> object:
                 if nodes > MAX_SIDECAR_NODES:
                     raise SidecarTooLarge(path, f"metadata sidecar with more than {MAX_SIDECAR_NODES} YAML nodes")
         return yaml.safe_load(text)
-    except SidecarTooLarge:
+    except IngestError:   # SidecarTooLarge, or a nesting limit: already says what (an IngestError is a ValueError)
         raise
     # ValueError: an integer of more than 4300 digits (Python's int-from-text cap); RecursionError: a
     # document nested thousands of levels deep (PyYAML builds it recursively)

@@ -19,6 +19,8 @@
                                 not calibrated to a wall time); 0 = no limit
     LEARNEST_CANCEL_GRACE_S     seconds a cancelled job's running task gets to stop itself before its
                                 worker is killed (default 10)
+    LEARNEST_JOB_STALL_S        a running job that wrote no progress for this long is failed and its worker
+                                killed (default 21600, 6 h; 0 = never)
   uploads are decoded in their own worker processes (service.jobs.decoding):
     LEARNEST_DECODE_WORKERS     uploads decoded at once (default 2)
     LEARNEST_DECODE_QUEUE       uploads that may wait for a decode worker; more get 503 (default 16)
@@ -34,6 +36,9 @@
     LEARNEST_GRACEFUL_SHUTDOWN_S  requests in progress get this long to finish on SIGTERM (default 10)
     LEARNEST_KEY_FAILURES       failed API-key attempts from one address within ...
     LEARNEST_KEY_FAILURE_WINDOW_S  ... this many seconds after which it gets 429 (defaults 10, 60; 0 = off)
+    LEARNEST_TRUSTED_PROXIES    addresses of reverse proxies whose X-Forwarded-For / X-Forwarded-Proto name
+                                the client, comma-separated (default none: the headers are ignored and the
+                                client is the connection's peer, as the key throttle counts it)
 """
 from __future__ import annotations
 
@@ -70,6 +75,7 @@ class Settings(BaseSettings):
     max_hidden: int = Field(256, ge=1)
     max_training_work: float = Field(2e9, ge=0)   # epochs x samples x hidden; 0: no limit
     cancel_grace_s: float = Field(10.0, ge=0)
+    job_stall_s: float = Field(6 * 3600.0, ge=0)   # 0: never fail a job for making no progress
     # uploads: decoded in worker processes, bounded in number, waiting room and time (service.jobs.decoding)
     decode_workers: int = Field(2, ge=1)
     decode_queue: int = Field(16, ge=0)
@@ -84,6 +90,12 @@ class Settings(BaseSettings):
     graceful_shutdown_s: float = Field(10.0, ge=0)
     key_failures: int = Field(10, ge=0)             # 0: no throttling
     key_failure_window_s: float = Field(60.0, gt=0)
+    trusted_proxies: str = ""                       # "": no proxy headers are believed
+
+    @property
+    def trusted_proxy_addresses(self) -> tuple[str, ...]:
+        """`trusted_proxies` as a tuple of addresses (empty: proxy headers off)."""
+        return tuple(a.strip() for a in self.trusted_proxies.split(",") if a.strip())
 
     @field_validator("database_url", "api_key", "dask_address", "git_commit", mode="before")
     @classmethod

@@ -97,8 +97,8 @@ def flight_dependents(db: Database, flight_id: int) -> dict:
         return _flight_dependents(session, _flight(session, flight_id))
 
 
-def _flight(session: Session, flight_id: int) -> FlightRecord:
-    row = session.get(FlightRecord, flight_id)
+def _flight(session: Session, flight_id: int, for_update: bool = False) -> FlightRecord:
+    row = session.get(FlightRecord, flight_id, with_for_update=for_update)
     if row is None:
         raise NotFound(f"flight {flight_id} not found")
     return row
@@ -108,7 +108,8 @@ def delete_flight(db: Database, blobs: BlobStore, flight_id: int) -> dict:
     """Delete the flight and its cached results; versions, evaluations and diagnoses keep its id and name.
     Returns what was listed as its dependents.  NotFound when there is none."""
     with db.transaction() as session:
-        row = _flight(session, flight_id)
+        # locked first: an evaluation storing this flight's result waits, or has stored it (deleted below)
+        row = _flight(session, flight_id, for_update=True)
         dependents = _flight_dependents(session, row)
         candidates = [row.flight_blob] + [f.sha256 for f in row.files]
         candidates += [sha for sha in session.scalars(select(Result.estimates_blob)

@@ -62,7 +62,7 @@ def create_app(settings: Settings | None = None, *, executor: Executor | None = 
     app.state.key_throttle = KeyThrottle(settings.key_failures, settings.key_failure_window_s)
     # outermost: runs first (host, cross-site and API key checks before any body is read)
     app.add_middleware(RequestGuard, allowed_hosts=settings.allowed_host_names, api_key=settings.api_key,
-                       throttle=app.state.key_throttle)
+                       throttle=app.state.key_throttle, peek_timeout_s=settings.body_timeout_s)
     install_error_handlers(app)
     for router in (flights.router, models.router, models.compare_router, jobs.router, evaluations.router,
                    diagnoses.router):

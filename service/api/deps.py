@@ -13,10 +13,10 @@ from ..jobs.services import Services
 from ..storage.blobs import BlobStore
 from ..storage.database import Database
 from ..storage.tables import Job
+from .schemas import MAX_ROW_ID
 
 # Ids and offsets are SQL BIGINTs: a larger number names nothing, and SQLite raises OverflowError on it (a
-# 500).  Declared once here, they are checked at the boundary and answered with a 422 that says the range.
-MAX_ROW_ID = 2**63 - 1
+# 500).  The rule is the request bodies' (schemas.MAX_ROW_ID): checked at the boundary, a 422 that says the range.
 RowId = Annotated[int, Path(ge=1, le=MAX_ROW_ID)]
 Offset = Annotated[int, Query(ge=0, le=MAX_ROW_ID)]
 

@@ -14,6 +14,8 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from learnest.errors import LearnestError
 
+from ..storage.database import database_full, storage_is_full
+
 log = logging.getLogger("learnest.app")
 
 
@@ -42,6 +44,9 @@ def install_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(Exception)
     async def unexpected(request: Request, err: Exception):
+        if storage_is_full(err):   # a full database met outside Database.transaction: 507 all the same
+            full = database_full(err)
+            return JSONResponse({"detail": str(full)}, status_code=full.status)
         incident = uuid.uuid4().hex[:12]
         log.error("incident %s on %s %s", incident, request.method, request.url.path, exc_info=err)
         # Connection: close - the server drops the connection after a 500; said, the client opens a new one

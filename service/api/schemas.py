@@ -23,6 +23,12 @@ from ..references import NAME
 
 NAME_REGEX = rf"^{NAME}$"  # references.NAME: one definition of a valid name
 
+# The one integer-range rule of every id and version number a request names, in a path, a query, a JSON body
+# or a form: ids are SQL BIGINTs, so a larger number names nothing, and the database driver cannot even bind it
+# (SQLite: OverflowError, a 500).  Checked at the boundary, it is a 422 that says the range.
+MAX_ROW_ID = 2**63 - 1
+RowIdValue = Annotated[int, Field(ge=1, le=MAX_ROW_ID)]
+
 
 class Strict(BaseModel):
     """Unknown fields are an error (a misspelt "epoch" must not silently train 150 epochs)."""
@@ -73,12 +79,12 @@ class FlightPage(BaseModel):
 # -- models -------------------------------------------------------------------------------------------
 class TrainRequest(Strict):
     name: str = Field(pattern=NAME_REGEX, description="registered model name")
-    flight_id: int | None = Field(None, ge=1, description="one flight (the paper's protocol: time blocks of it "
+    flight_id: RowIdValue | None = Field(None, description="one flight (the paper's protocol: time blocks of it "
                                                           "validate); or give flight_ids")
-    flight_ids: list[Annotated[int, Field(ge=1)]] | None = Field(
+    flight_ids: list[RowIdValue] | None = Field(
         None, min_length=1, max_length=1000,
         description="several flights of one vehicle, trained on as one model (one pooled loss)")
-    validation_ids: list[Annotated[int, Field(ge=1)]] | None = Field(
+    validation_ids: list[RowIdValue] | None = Field(
         None, max_length=1000, description="flights held out whole to choose the kept epoch (default with several "
                                            "flights: one in five)")
     epochs: int | None = Field(None, ge=1, le=100_000)
@@ -172,7 +178,7 @@ class ModelPage(BaseModel):
 
 
 class AliasIn(Strict):
-    version: int = Field(ge=1)
+    version: RowIdValue
 
 
 class AliasOut(BaseModel):
@@ -200,7 +206,7 @@ class JobOut(BaseModel):
 
 class EvaluationRequest(Strict):
     model: str = Field(description='"name:version" or "name@alias"')
-    flights: list[int] | Literal["all-other"] = Field(
+    flights: list[RowIdValue] | Literal["all-other"] = Field(
         description='flight ids, or "all-other": every stored flight except the model\'s training flight')
     methods: list[str] = Field(default_factory=lambda: list(EVALUATION_METHODS),
                                description=f"any of {', '.join(EVALUATION_METHODS)} (onboard: the vehicle's own "
@@ -278,7 +284,7 @@ class EvaluationPending(BaseModel):
 
 # -- diagnoses ----------------------------------------------------------------------------------------
 class DiagnosisRequest(Strict):
-    flights: list[int] = Field(min_length=1, description="flight ids, in order: " + DIAGNOSIS_SPLIT_RULE
+    flights: list[RowIdValue] = Field(min_length=1, description="flight ids, in order: " + DIAGNOSIS_SPLIT_RULE
                                + " (the report names them in `fitting_flights` and `scored_flights`)")
     model: str | None = Field(None, description='the KNODE analysed, "name:version" or "name@alias" (default: '
                               "one trained on the fitting flight)")

@@ -9,7 +9,11 @@ liked, each holding a socket and, once its headers were in, a worker thread.
   response.
 - Body: `BodyDeadline` (ASGI middleware) gives a body ``LEARNEST_BODY_TIMEOUT_S`` plus one second per
   ``LEARNEST_BODY_MIN_RATE`` bytes received (the rule of Apache's mod_reqtimeout: a slow but steady upload
-  finishes, a trickle does not); past it the request gets a 408 and its connection is closed.
+  finishes, a trickle does not); past it the request gets a 408 and its connection is closed.  It applies
+  to receiving a request's body only, never to sending a response: a slow download runs to its end.
+- Proxies: X-Forwarded-For is believed only from ``LEARNEST_TRUSTED_PROXIES`` (none by default), so the
+  client address - what the failed-key throttle counts - is the connection's peer unless a configured proxy
+  names it (uvicorn alone believes the header from 127.0.0.1).
 - Concurrency: uvicorn's ``limit_concurrency`` answers 503 beyond that many connections and tasks;
   ``h11_max_incomplete_event_size`` caps the bytes of a request line plus headers.
 """
@@ -87,9 +91,17 @@ class DeadlineH11Protocol(H11Protocol):
             self.transport.close()
 
 
+MIN_WAIT_S = 0.05   # BodyDeadline: the shortest wait for a part of the body, s
+
+
 class BodyDeadline:
     """ASGI middleware: a request body must arrive within ``timeout_s`` plus one second per ``min_rate``
     bytes received, else 408 (with ``Connection: close``: the rest of the body is not waited for).
+
+    The deadline covers receiving the request's body only.  Once its last part is in (or the response has
+    begun), ``receive()`` is the server's own again: a response streams for as long as it takes (a large
+    download at a slow client's pace), and a route that listens for the client going away while it streams
+    (Starlette's `FileResponse`, `StreamingResponse`) is never cut off by the body's clock.
 
     Parameters
     ----------
@@ -108,12 +120,20 @@ class BodyDeadline:
             await self.app(scope, receive, send)
             return
         start, received = time.monotonic(), 0
+        # no deadline left once the last part of the body arrived or the response began, nor for a request
+        # that declares no body (a GET: the server hands the app one empty part, however late it asks)
+        headers = dict(scope.get("headers") or [])
+        body_done = headers.get(b"content-length", b"0") in (b"", b"0") and b"transfer-encoding" not in headers
 
         async def timed_receive() -> Message:
-            nonlocal received
+            nonlocal received, body_done
+            if body_done:
+                return await receive()
             remaining = start + self.timeout_s + received / self.min_rate - time.monotonic()
             try:
-                message = await asyncio.wait_for(receive(), timeout=max(remaining, 0.0))
+                # past the deadline a part the server already holds is still taken (a route that reads late
+                # is not the client's delay): the wait is never shorter than MIN_WAIT_S
+                message = await asyncio.wait_for(receive(), timeout=max(remaining, MIN_WAIT_S))
             except TimeoutError:
                 # an HTTPException passes FastAPI's handlers as this status (as the upload size limit's 413)
                 raise HTTPException(408, f"request body too slow: it must arrive within {self.timeout_s:g} s plus "
@@ -121,14 +141,28 @@ class BodyDeadline:
                                          "LEARNEST_BODY_MIN_RATE)", headers={"Connection": "close"}) from None
             if message["type"] == "http.request":
                 received += len(message.get("body", b""))
+                if not message.get("more_body", False):
+                    body_done = True
+            else:   # http.disconnect: nothing more will arrive
+                body_done = True
             return message
 
-        await self.app(scope, timed_receive, send)
+        async def watched_send(message: Message) -> None:
+            nonlocal body_done
+            if message["type"] == "http.response.start":
+                body_done = True   # whatever of the body the app did not read, it no longer waits for
+            await send(message)
+
+        await self.app(scope, timed_receive, watched_send)
 
 
 def uvicorn_options(settings: Settings) -> dict[str, Any]:
     """The keyword arguments of `uvicorn.run` / `uvicorn.Config` that the settings decide."""
-    return {"http": "learnest.service.api.server:DeadlineH11Protocol",
+    proxies = settings.trusted_proxy_addresses
+    # uvicorn believes X-Forwarded-For from 127.0.0.1 unless told otherwise: on loopback anyone could then
+    # choose the address the key throttle counts.  Believed only from the configured proxies.
+    return {"proxy_headers": bool(proxies), "forwarded_allow_ips": ",".join(proxies) if proxies else "",
+            "http": "learnest.service.api.server:DeadlineH11Protocol",
             "timeout_keep_alive": settings.keep_alive_s,
             "limit_concurrency": settings.limit_concurrency or None,
             "h11_max_incomplete_event_size": settings.max_header_bytes,

@@ -22,7 +22,7 @@ def start_diagnosis(services: Services, flight_ids: list[int], model_ref: str | 
     ------
     InvalidInput
         For a bad ``register`` name or no flights; `quotas.QuotaExceeded` for more epochs or work than the
-        settings allow (the fitting flight is the first).
+        settings allow (on the flights the diagnosis fits: `fitting_samples`).
     NotFound
         If a flight or the model does not exist.
     Conflict
@@ -39,7 +39,7 @@ def start_diagnosis(services: Services, flight_ids: list[int], model_ref: str | 
         if missing:
             raise NotFound(f"flight(s) not found: {', '.join(map(str, missing))}")
         quotas.check_training(services.settings, epochs=epochs, hidden=training_config({})["hidden"],
-                              samples=found[ids[0]].samples, what="diagnosis")
+                              samples=fitting_samples([found[i] for i in ids], system), what="diagnosis")
         if model_ref is not None:
             version = registry.resolve(session, model_ref)
             model_ref = f"{version.name}:{version.version}"
@@ -53,6 +53,16 @@ def start_diagnosis(services: Services, flight_ids: list[int], model_ref: str | 
         job_id, diagnosis_id = job.id, diagnosis.id
     services.runner.launch(job_id, lambda ctx: run_diagnosis(services, ctx, diagnosis_id))
     return job_id, diagnosis_id
+
+
+def fitting_samples(rows, system: str) -> int:
+    """Samples of the flights a diagnosis fits its KNODE on, chosen as `experiments.diagnosis` chooses them:
+    the flights that pass the quality checks (all, if none does), then the first of them (kinematic prior) or
+    the first half, rounded up (input-driven Crazyflie prior).  The quota is charged on these, not on the
+    first flight named: a short bad flight named first is dropped, and the big one after it is fitted."""
+    used = [row for row in rows if row.quality_ok] or list(rows)
+    fitting = used[:(len(used) + 1) // 2] if system == "crazyflie" else used[:1]
+    return sum(int(row.samples) for row in fitting)
 
 
 def run_diagnosis(services: Services, ctx: JobContext, diagnosis_id: int) -> None:

@@ -100,13 +100,19 @@ def store_result(db: Database, sha: str, version_id: int, key: str, flight_id: i
     """Insert or update the result of one flight (failed when ``error`` is given), with the blob of its
     per-step estimates (`FlightEstimates.to_bytes`, written before this call); retried on a concurrent
     insert; after three conflicts the result is not cached (logged: the evaluation's report still has it).
-    A failure never replaces a stored success of the same flight, model version and settings.
+    A failure never replaces a stored success of the same flight, model version and settings.  A flight
+    deleted while it was being evaluated is not cached (its results went with it): the flight row is locked
+    first, so a concurrent delete either sees this result or this sees the flight gone.
 
-    Returns the estimates blob the update replaced (for the caller to collect), else None."""
+    Returns the estimates blob the update replaced, or ``estimates_blob`` when nothing names it (for the
+    caller to collect), else None."""
     state = "failed" if error else "succeeded"
     for _ in range(3):  # two evaluations may store the same flight at once: the second updates
         try:
             with db.transaction() as session:
+                if session.scalar(select(FlightRecord.id).where(FlightRecord.sha256 == sha).with_for_update()) is None:
+                    log.info("flight %s was deleted while it was evaluated: its result is not cached", flight_id)
+                    return estimates_blob
                 row = session.scalar(select(Result).where(Result.flight_sha256 == sha, Result.settings_key == key,
                                                           Result.model_version_id == version_id))
                 if row is None:

@@ -12,6 +12,13 @@ Ownership: every job row names the server process that runs it, and each process
 pid) was left behind by a crashed server: `sweep` marks it failed with "server restarted" (at start-up
 and on every heartbeat, so several uvicorn workers never fail each other's live jobs).
 
+A job always reaches a final state.  When recording its failure itself fails (a full database), the runner
+retries a few times, then keeps the failure in memory and records it on every heartbeat until the database
+takes it.  And the heartbeat's sweep fails this process's own running jobs that no thread runs any more (its
+worker stopped without recording a result), and those that wrote no progress for ``stall_s`` (its worker is
+wedged; LEARNEST_JOB_STALL_S, hours by default): the lease alone no longer keeps such a job "running".  A
+stalled job's thread is told to stop, which kills its executor tasks.
+
 Cancelling (`JobRunner.cancel`, any server process): the row becomes "cancelled" at once, in one transaction
 with the `on_stale` hooks (a reserved model version is failed), so nothing the job computes afterwards can be
 stored: `mark_succeeded` only completes a running job.  The orchestrating thread notices within
@@ -55,6 +62,9 @@ ERROR_CHARS = 1000
 CANCEL_CHECK_S = 1.0     # how often a waiting job reads its state (a cancel by another server process)
 WAIT_POLL_S = 0.05       # how often it looks at its executor tasks
 CANCEL_GRACE_S = 10.0    # a cancelled task's time to stop itself before it is killed
+RECORD_RETRIES_S = (0.5, 1.0, 2.0)   # waits between attempts to record a failure before the heartbeat takes over
+ORPHAN_REASON = "the job's worker stopped without recording a result"
+STALL_S = 6 * 3600.0     # a running job with no progress for this long is failed (its worker is wedged)
 
 
 class JobAborted(RuntimeError):
@@ -132,6 +142,8 @@ class JobRunner:
         Jobs orchestrated at once; the heavy parts go to the Executor.
     cancel_grace_s : float
         Seconds a cancelled executor task gets to stop itself before it is killed.
+    stall_s : float
+        Seconds without progress after which a running job of this process is failed (0: never).
 
     Attributes
     ----------
@@ -141,9 +153,11 @@ class JobRunner:
         Hooks ``hook(session, job_ids, reason)`` called in the transaction that fails jobs (sweep, shutdown).
     """
 
-    def __init__(self, db: Database, threads: int = 4, cancel_grace_s: float = CANCEL_GRACE_S) -> None:
+    def __init__(self, db: Database, threads: int = 4, cancel_grace_s: float = CANCEL_GRACE_S,
+                 stall_s: float = STALL_S) -> None:
         self.db = db
         self.cancel_grace_s = cancel_grace_s
+        self.stall_s = stall_s   # 0: never fail a job for making no progress
         self._stop_events: dict[int, threading.Event] = {}  # jobs this process runs, set when they must stop
         self._events_lock = threading.Lock()
         self.owner = make_owner_id()
@@ -152,6 +166,9 @@ class JobRunner:
         self._heartbeat: threading.Thread | None = None
         # called in the sweep's transaction with the ids of the jobs it failed and the reason
         self.on_stale: list[Callable[[Session, list[int], str], None]] = []
+        self._running: set[int] = set()   # jobs a thread of this process is running (in `run`)
+        # failures not yet recorded (the database refused the write): job id -> (message, on_failure)
+        self._unrecorded: dict[int, tuple[str, Callable[[Session, str], None] | None]] = {}
 
     @property
     def lease_name(self) -> str:
@@ -169,11 +186,17 @@ class JobRunner:
 
     def _beat(self) -> None:
         while not self._stop.wait(HEARTBEAT_S):
+            self.beat()
+
+    def beat(self) -> None:
+        """One heartbeat: record the failures the database refused before, renew the lease, sweep.  Each step
+        on its own: a database hiccup in one must not skip the others, nor kill the heartbeat."""
+        for step in (self.record_unrecorded, lambda: acquire_lease(self.db, self.lease_name, self.owner, LEASE_S),
+                     self.sweep):
             try:
-                acquire_lease(self.db, self.lease_name, self.owner, LEASE_S)
-                self.sweep()
-            except Exception:  # a database hiccup must not kill the heartbeat
-                log.exception("job heartbeat failed")
+                step()
+            except Exception:
+                log.exception("job heartbeat step failed")
 
     def shutdown(self) -> None:
         """Stop the heartbeat, cancel queued threads, fail this owner's active jobs and release the lease."""
@@ -207,28 +230,77 @@ class JobRunner:
         Does nothing unless the job is still queued.  ``work``'s result completes the job unless it did so
         itself (`JobContext.complete`); an exception fails it with its message and calls ``on_failure``.
         """
-        if not self._mark_running(job_id):
-            return
-        context = JobContext(job_id, self, on_progress)
+        with self._events_lock:
+            self._running.add(job_id)   # before the row says running: the sweep never sees it unowned
         try:
-            result = work(context)
-            if not context.completed:
-                with self.db.transaction() as session:
-                    context.complete(session, result or {})
-        except JobAborted:
-            log.info("job %s was stopped while running; its result is dropped", job_id)
-        except Exception as err:  # recorded on the job: no traceback reaches a user, the log keeps it
-            if self.is_running(job_id):
-                if isinstance(err, LearnestError):   # bad input, said in the job's error: no traceback needed
-                    log.info("job %s failed: %s", job_id, err)
-                else:
-                    log.exception("job %s failed", job_id)
-                self.mark_failed(job_id, error_message(err), on_failure)
-            else:  # a cancelled task's own exception (tasks.TaskCancelled, a killed worker): expected
-                log.info("job %s was stopped while running (%s)", job_id, type(err).__name__)
+            if not self._mark_running(job_id):
+                return
+            context = JobContext(job_id, self, on_progress)
+            try:
+                result = work(context)
+                if not context.completed:
+                    with self.db.transaction() as session:
+                        context.complete(session, result or {})
+            except JobAborted:
+                log.info("job %s was stopped while running; its result is dropped", job_id)
+            except Exception as err:  # recorded on the job: no traceback reaches a user, the log keeps it
+                if self._still_running(job_id):
+                    if isinstance(err, LearnestError):   # bad input, said in the job's error: no traceback needed
+                        log.info("job %s failed: %s", job_id, err)
+                    else:
+                        log.exception("job %s failed", job_id)
+                    self.record_failure(job_id, error_message(err), on_failure)
+                else:  # a cancelled task's own exception (tasks.TaskCancelled, a killed worker): expected
+                    log.info("job %s was stopped while running (%s)", job_id, type(err).__name__)
         finally:
             with self._events_lock:
                 self._stop_events.pop(job_id, None)
+                self._running.discard(job_id)
+
+    def _still_running(self, job_id: int) -> bool:
+        try:
+            return self.is_running(job_id)
+        except Exception:   # the database cannot even be read: record the failure (a no-op if it ended)
+            log.exception("job %s: its state could not be read", job_id)
+            return True
+
+    def record_failure(self, job_id: int, message: str,
+                       on_failure: Callable[[Session, str], None] | None = None) -> bool:
+        """`mark_failed`, retried (RECORD_RETRIES_S); when the database still refuses, the failure is kept and
+        recorded by the heartbeat (`record_unrecorded`).  Returns whether it is recorded."""
+        for wait in (*RECORD_RETRIES_S, None):
+            try:
+                self.mark_failed(job_id, message, on_failure)
+                return True
+            except Exception:
+                log.exception("job %s: recording its failure failed%s", job_id,
+                              "; retrying" if wait is not None else "; the heartbeat retries")
+            if wait is None or self._stop.wait(wait):
+                break
+        with self._events_lock:
+            self._unrecorded[job_id] = (message, on_failure)
+        return False
+
+    def record_unrecorded(self) -> list[int]:
+        """Record the failures the database refused before (each in its own transaction); -> the job ids
+        recorded now.  Raises the first error after trying them all."""
+        with self._events_lock:
+            pending = dict(self._unrecorded)
+        done, problem = [], None
+        for job_id, (message, on_failure) in pending.items():
+            try:
+                self.mark_failed(job_id, message, on_failure)
+            except Exception as err:
+                problem = problem or err
+                continue
+            done.append(job_id)
+            with self._events_lock:
+                self._unrecorded.pop(job_id, None)
+        if done:
+            log.warning("recorded the failure of job(s) %s that the database had refused", done)
+        if problem is not None:
+            raise problem
+        return done
 
     def _mark_running(self, job_id: int) -> bool:
         with self.db.transaction() as session:
@@ -308,14 +380,38 @@ class JobRunner:
             jobs = session.scalars(select(Job).where(Job.state.in_(ACTIVE))).all()
             stale = [job for job in jobs if job.owner != self.owner
                      and (job.owner not in live or _dead_here(job.owner))]
+            with self._events_lock:
+                running_here, unrecorded = set(self._running), dict(self._unrecorded)
+            # this process's own: running, yet no thread here runs it (nor holds a failure to record for it)
+            orphans = [job for job in jobs if job.owner == self.owner and job.state == "running"
+                       and job.id not in running_here and job.id not in unrecorded]
+            # this process's own, run by a thread here, with no progress for stall_s: its worker is wedged
+            stalled = [job for job in jobs if self.stall_s and job.owner == self.owner and job.state == "running"
+                       and job.id in running_here and _seconds_since(job.progress_at or job.started_at) > self.stall_s]
+            stall_reason = (f"no progress for {self.stall_s:g} s: its worker is stuck (LEARNEST_JOB_STALL_S); "
+                            "the job was stopped")
             for job in stale:
                 job.state, job.error, job.finished_at = "failed", reason, utcnow()
+            for job in orphans:
+                job.state, job.error, job.finished_at = "failed", ORPHAN_REASON, utcnow()
+            for job in stalled:
+                job.state, job.error, job.finished_at = "failed", stall_reason, utcnow()
             ids = [job.id for job in stale]
             for hook in self.on_stale:
                 hook(session, ids, reason)
+                if orphans:
+                    hook(session, [job.id for job in orphans], ORPHAN_REASON)
+                if stalled:
+                    hook(session, [job.id for job in stalled], stall_reason)
+        for job in stalled:   # its thread stops its executor tasks (a wedged worker is killed)
+            self.stop_event(job.id).set()
+        orphans = orphans + stalled
         if ids:
             log.warning("marked %d job(s) left by a stopped server as failed: %s", len(ids), ids)
-        return ids
+        if orphans:
+            log.warning("marked %d job(s) whose worker stopped or stalled as failed: %s", len(orphans),
+                        [j.id for j in orphans])
+        return ids + [job.id for job in orphans]
 
     @staticmethod
     def _fail(session: Session, query, reason: str) -> list[int]:
@@ -347,6 +443,16 @@ def seconds_left(job: Job, now=None) -> float | None:
     return max(0.0, job.eta_s - elapsed)
 
 
+def _seconds_since(moment) -> float:
+    """Seconds from ``moment`` (a stored time, naive UTC or aware; None: no time) to now."""
+    if moment is None:
+        return 0.0
+    now = utcnow()
+    if (moment.tzinfo is None) != (now.tzinfo is None):
+        moment = moment.replace(tzinfo=now.tzinfo)
+    return (now - moment).total_seconds()
+
+
 def _dead_here(owner: str | None) -> bool:
     """An owner on this host whose process no longer exists (a restart within the lease time)."""
     try:
@@ -365,11 +471,26 @@ def _dead_here(owner: str | None) -> bool:
 ABSOLUTE_PATH = re.compile(r"(?<![\w.~])/(?:[^\s'\"/:,;()]+/)+(?=[^\s'\"/:,;()]*)")
 
 
+# what SQLAlchemy appends to a driver's message: the statement and its parameters, and a link
+SQL_DETAIL = re.compile(r"\s*(\[SQL: .*|\[parameters: .*|\(Background on this error at: .*)", re.DOTALL)
+
+
 def error_message(err: BaseException) -> str:
     """What a failed job records of ``err``: its message (prefixed by its kind when unexpected), at most
-    ERROR_CHARS characters; never a traceback, and no server folder (GET /jobs/{id} needs no key): an
-    absolute path keeps only its file name ("/srv/learnest/blobs/ab/cd" -> ".../cd")."""
-    text = str(err) or type(err).__name__
-    if not isinstance(err, (ValueError, LookupError)):  # unexpected: name the kind of failure
-        text = f"{type(err).__name__}: {text}"
+    ERROR_CHARS characters; never a traceback, no SQL, and no server folder (GET /jobs/{id} needs no key):
+    an absolute path keeps only its file name ("/srv/learnest/blobs/ab/cd" -> ".../cd"); a full database is
+    said as such (`storage.database.DatabaseFull`)."""
+    from sqlalchemy.exc import SQLAlchemyError
+
+    from ..storage.database import database_full, storage_is_full
+
+    if isinstance(err, SQLAlchemyError) and storage_is_full(err):
+        err = database_full(err)
+    if isinstance(err, SQLAlchemyError):
+        orig = getattr(err, "orig", None)
+        text = f"database error: {SQL_DETAIL.sub('', str(orig if orig is not None else err)).strip()}"
+    else:
+        text = SQL_DETAIL.sub("", str(err)).strip() or type(err).__name__
+        if not isinstance(err, (ValueError, LookupError)):  # unexpected: name the kind of failure
+            text = f"{type(err).__name__}: {text}"
     return ABSOLUTE_PATH.sub(".../", text)[:ERROR_CHARS]

@@ -17,17 +17,40 @@ from alembic.config import Config
 from sqlalchemy import CursorResult, create_engine, event, exists, or_, select, text
 from sqlalchemy.engine import Connection
 from sqlalchemy.engine import Result as QueryResult
+from sqlalchemy.exc import OperationalError
 from sqlalchemy.orm import Session, sessionmaker
 
 from learnest.errors import Conflict, NotFound
 from learnest.ingest.flight import json_compatible
 
+from .blobs import StorageUnavailable
 from .tables import Base, FlightFile, FlightRecord, ModelVersion, Result
 
 if TYPE_CHECKING:
     from .blobs import BlobStore
 
 MIGRATIONS = Path(__file__).resolve().parent / "migrations"
+SQLITE_FULL = 13            # sqlite3's result code "database or disk is full"
+POSTGRES_DISK_FULL = "53100"
+
+
+class DatabaseFull(StorageUnavailable):
+    """The database cannot take a write: its disk (or its size limit) is full.  HTTP 507, as a full blob folder;
+    the message says so without the SQL."""
+
+
+def storage_is_full(err: BaseException) -> bool:
+    """Whether a database error means "no space": SQLite's SQLITE_FULL, PostgreSQL's disk_full (53100)."""
+    orig = getattr(err, "orig", err)
+    if getattr(orig, "sqlite_errorcode", None) == SQLITE_FULL or "database or disk is full" in str(orig):
+        return True
+    return POSTGRES_DISK_FULL in (getattr(orig, "sqlstate", None), getattr(orig, "pgcode", None))
+
+
+def database_full(err: BaseException) -> DatabaseFull:
+    """The `DatabaseFull` to raise for ``err`` (see `storage_is_full`)."""
+    return DatabaseFull("the server's database is full (no space left for it): nothing was stored; try again "
+                        "once its operator has freed space")
 
 
 def _json_dumps(value) -> str:
@@ -94,9 +117,15 @@ class Database:
 
     @contextmanager
     def transaction(self) -> Iterator[Session]:
-        """A session in a transaction: committed on exit, rolled back on an exception."""
-        with self._sessions.begin() as session:
-            yield session
+        """A session in a transaction: committed on exit, rolled back on an exception.  A database with no
+        space left raises `DatabaseFull` (HTTP 507) instead of the driver's error."""
+        try:
+            with self._sessions.begin() as session:
+                yield session
+        except OperationalError as err:
+            if storage_is_full(err):
+                raise database_full(err) from err
+            raise
 
     def migrate(self) -> None:
         """Alembic `upgrade head`, serialized across processes (several uvicorn workers start at once)."""

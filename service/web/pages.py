@@ -35,6 +35,7 @@ from fastapi import APIRouter, Depends, File, Form, Query, Request, UploadFile
 from fastapi.responses import FileResponse, HTMLResponse
 from jinja2 import Environment, PackageLoader, StrictUndefined, select_autoescape
 from pydantic import ValidationError
+from sqlalchemy import func, select
 
 from learnest.errors import LearnestError
 from learnest.ingest.baseline import centred_window
@@ -58,9 +59,9 @@ from ..jobs.result_cache import EstimatorSettings
 from ..jobs.runner import ACTIVE, seconds_left
 from ..jobs.services import Services
 from ..jobs.training import start_training
-from ..storage.tables import Diagnosis, Evaluation, FlightRecord, Job
+from ..storage.tables import Diagnosis, Evaluation, FlightRecord, Job, ReportFigure, Result
 from ..uploads import add_flights, recut_flight
-from . import evaluation_plots, figures, flight_plots, forms, zoomable
+from . import evaluation_plots, figures, flight_plots, forms, page_cache, zoomable
 from .headline import diagnosis_headline, diagnosis_split, evaluation_headline, gap_methods
 from .registry_figures import loss_curves_of
 from .report_figures import velocity_figure
@@ -208,7 +209,13 @@ def flight_page(request: Request, flight_id: RowId, services: Services = Depends
 
 def _trajectory(services: Services, row: FlightRecord) -> dict:
     """{"png": data URI of the top view, "channels": zoomable spec of every channel} or {"error": why}: a
-    missing or damaged blob is said, the rest of the page shown."""
+    missing or damaged blob is said, the rest of the page shown.  Drawn once per flight content (the blob's
+    sha names it), then served from the page cache."""
+    return page_cache.pages.get(("flight-figures", row.flight_blob, row.name), lambda: _draw_trajectory(services, row),
+                                keep=lambda drawn: "error" not in drawn)
+
+
+def _draw_trajectory(services: Services, row: FlightRecord) -> dict:
     try:
         flight = CanonicalFlight.from_bytes(services.blobs.read_bytes(row.flight_blob))
     except (OSError, ValueError, KeyError) as err:
@@ -391,6 +398,32 @@ def evaluation_report_page(evaluation_id: RowId,
     evaluation, job = catalog.row_and_job(services.db, Evaluation, evaluation_id, "evaluation")
     if job.state != "succeeded":
         return page("report_pending.html", f"Evaluation {evaluation.id}", status=202, refresh_s=2, job=job)
+    # a finished evaluation's report is written once and its ids are never reused: the page changes only with
+    # its flights' stored estimates (a flight deleted since) and figures, so it is drawn once per those, flight
+    # and state group, then served from the page cache
+    key = ("evaluation-report", evaluation.id, flight, group, _report_inputs(services, evaluation))
+    body = page_cache.pages.get(key, lambda: _report_page(services, evaluation, flight, group),
+                                keep=lambda drawn: drawn[1])
+    return HTMLResponse(body[0])
+
+
+def _report_inputs(services: Services, evaluation: Evaluation) -> tuple:
+    """What a finished evaluation's page is drawn from besides its report: the estimates blob of each of its
+    flights (a deleted flight has none) and the stored report figures."""
+    key = EstimatorSettings.from_dict(evaluation.settings).key
+    with services.db.transaction() as session:
+        shas = {row.id: row.sha256 for row in session.scalars(
+            select(FlightRecord).where(FlightRecord.id.in_(list(evaluation.flight_ids))))}
+        blobs = dict(session.execute(select(Result.flight_sha256, Result.estimates_blob).where(
+            Result.model_version_id == evaluation.model_version_id, Result.settings_key == key,
+            Result.flight_sha256.in_(list(shas.values())))).all())
+        figures_stored = session.scalar(select(func.count(ReportFigure.id))
+                                        .where(ReportFigure.evaluation_id == evaluation.id))
+    return tuple(sorted((i, blobs.get(sha)) for i, sha in shas.items())), figures_stored
+
+
+def _report_page(services: Services, evaluation: Evaluation, flight: int | None, group: str) -> tuple[bytes, bool]:
+    """(the report page's HTML, whether it is final: False while its velocity figure is still computed)."""
     report = evaluation.report
     title = f"Evaluation {evaluation.id}: model {report.get('model')}"
     entries = dict(zip(evaluation.flight_ids, report["flights"], strict=True))
@@ -405,7 +438,7 @@ def evaluation_report_page(evaluation_id: RowId,
     velocity = _velocity(services, evaluation, chosen) if chosen is not None and "figure" not in series else {}
     waiting = velocity.get("pending") or velocity.get("busy")
     paired = evaluation_plots.paired_figure(report)
-    return page("report.html", title, refresh_s=2 if waiting else None, evaluation=evaluation, report=report,
+    response = page("report.html", title, refresh_s=2 if waiting else None, evaluation=evaluation, report=report,
                 head=head, gain_png=figures.png_data_uri(gain, dpi=100) if gain else None,
                 gap_methods=gap_methods(report),
                 gap_settings=_gap_settings(report),
@@ -417,6 +450,7 @@ def evaluation_report_page(evaluation_id: RowId,
                 scored=scored, chosen=chosen, chosen_entry=entries.get(chosen), group=group,
                 GROUPS=evaluation_plots.GROUPS, MSE_UNITS=evaluation_plots.MSE_UNITS, series=series,
                 velocity=velocity, model_name=evaluation.model_ref.split(":", 1)[0])
+    return bytes(response.body), not waiting
 
 
 def _stored_series(services: Services, evaluation: Evaluation, flight_id: int | None, group: str,

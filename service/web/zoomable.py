@@ -5,6 +5,11 @@ A page embeds a spec with `embed` (a ``<script type='application/json'>`` block,
 ``<div>``; static/plots.js draws every such block.  Traces that carry no ``x`` take the spec's shared ``t``,
 so a time axis is sent once per figure, not once per trace.  Rows of a figure share one x axis: zooming one
 zooms all.
+
+A screen shows at most a few thousand points across: a trace longer than MAX_POINTS is decimated to the
+smallest and largest value of each of MAX_POINTS / 2 equal stretches (and the first value of any gap), so
+its outline - peaks and spikes included - is what the full trace would draw, in bounded bytes; such a trace
+carries its own ``x``.  A 226k-sample flight's page is then a few hundred kB, not 45 MB.
 """
 from __future__ import annotations
 
@@ -22,6 +27,7 @@ from .palette import METHOD_COLOURS, REFERENCE_COLOUR  # noqa: F401  (re-exporte
 
 PLOTLY_JS_ROUTE = "/vendor/plotly.min.js"
 SIGNIFICANT_DIGITS = 5          # of every number sent: far below what a screen shows, a third of the bytes
+MAX_POINTS = 4000               # per trace: about two per pixel of a wide screen (min and max of each stretch)
 
 
 
@@ -48,16 +54,60 @@ def series(values) -> list:
     return [float(v) if np.isfinite(a) else None for v, a in zip(text, array, strict=True)]
 
 
+def decimation(values, max_points: int = MAX_POINTS) -> np.ndarray | None:
+    """Sorted indices of ``values`` that keep, of each of ``max_points // 2`` equal stretches, the smallest and
+    largest value and the first NaN (a gap stays a gap), plus the first and last sample; None when the series
+    has at most ``max_points`` values (nothing to drop)."""
+    array = np.asarray(values, dtype=float).ravel()
+    n = len(array)
+    if n <= max_points:
+        return None
+    size = -(-n // (max_points // 2))
+    rows = -(-n // size)
+    padded = np.full(rows * size, np.nan)
+    padded[:n] = array
+    block = padded.reshape(rows, size)
+    missing = np.isnan(block)
+    starts = np.arange(rows) * size
+    low = np.where(missing, np.inf, block).argmin(axis=1)
+    high = np.where(missing, -np.inf, block).argmax(axis=1)
+    picked = [starts + low, starts + high, [0, n - 1]]
+    gaps = missing.copy()
+    gaps[-1, n - starts[-1]:] = False          # the padding is no gap
+    has_gap = gaps.any(axis=1)
+    picked.append((starts + gaps.argmax(axis=1))[has_gap])
+    index = np.unique(np.concatenate(picked))
+    return index[index < n]
+
+
 def line(y, name: str, colour: str, *, row: int = 1, width: float = 1.2, dash: str = "solid",
          group: str | None = None, legend: bool = True, x=None) -> dict:
-    """A line trace on ``row`` (1 = top) of a stacked figure; without ``x`` it takes the figure's ``t``."""
-    trace = {"type": "scattergl" if len(y) > 20000 else "scatter", "mode": "lines", "name": name,
-             "y": series(y), "line": {"color": colour, "width": width, "dash": dash},
+    """A line trace on ``row`` (1 = top) of a stacked figure; without ``x`` it takes the figure's ``t``.  A
+    trace longer than MAX_POINTS is decimated (`decimation`) when the figure is made (`figure`)."""
+    values = np.asarray(y, dtype=float).ravel()
+    trace = {"type": "scatter", "mode": "lines", "name": name, "y": values,
+             "line": {"color": colour, "width": width, "dash": dash},
              "xaxis": "x", "yaxis": "y" if row == 1 else f"y{row}", "legendgroup": group or name,
              "showlegend": legend, "hovertemplate": "%{y:.4g}"}
     if x is not None:
-        trace["x"] = series(x)
+        trace["x"] = np.asarray(x, dtype=float).ravel()
     return trace
+
+
+def _finished(trace: dict, t: np.ndarray) -> dict:
+    """A trace of `line` with its numbers as JSON lists, decimated when long (then with its own x)."""
+    if not isinstance(trace.get("y"), np.ndarray):
+        return trace
+    y = trace["y"]
+    x = trace.get("x", t)
+    x = np.asarray(x, dtype=float) if not isinstance(x, np.ndarray) else x
+    index = decimation(y)
+    if index is not None:
+        return {**trace, "x": series(x[index]), "y": series(y[index])}
+    finished = {**trace, "y": series(y)}
+    if "x" in trace:
+        finished["x"] = series(x)
+    return finished
 
 
 def stacked_layout(ylabels: Sequence[str], xlabel: str = "t (s)", title: str | None = None,
@@ -92,8 +142,12 @@ def shade(layout: dict, start: float, stop: float, colour: str, label: str | Non
 
 
 def figure(t, traces: list[dict], layout: dict) -> dict:
-    """A figure spec: the shared time axis ``t`` (s), the traces and the layout."""
-    return {"t": series(t), "data": traces, "layout": layout}
+    """A figure spec: the shared time axis ``t`` (s), the traces (long ones decimated, `decimation`) and the
+    layout.  ``t`` is sent only when a trace uses it."""
+    t = np.asarray(t, dtype=float).ravel()
+    data = [_finished(trace, t) for trace in traces]
+    shared = any("x" not in trace for trace in data)
+    return {"t": series(t) if shared else [], "data": data, "layout": layout}
 
 
 def embed(spec: dict) -> Markup:

@@ -3,7 +3,15 @@ messages of the pose/acceleration candidates kept, and a decoder per channel.
 
 ROS 1 bags compress chunks (bz2, lz4).  Like the MCAP container, a chunk may expand to its declared size
 only, and all chunks together to at most MAX_EXPANSION x the file's size, so that a decompression bomb is
-refused before it expands."""
+refused before it expands.
+
+A ROS 2 .db3 is an SQLite file, and SQLite computes what it yields: a ``messages.data`` that is a virtual
+generated column ``zeroblob(N)``, or a view, makes a 24-kB file yield gigabytes.  So before rosbags reads
+it, every table rosbags reads must be a table (no view) and the bytes its values yield - as SQLite computes
+them, counted with ``length()`` (which measures a zeroblob without building it) row by row - must stay
+within the same budget as a ROS 1 bag's chunks; one value may not exceed MAX_VALUE_BYTES (SQLite's own
+length limit refuses it before it is built), and the check's SQL has a bounded number of steps.  The
+messages rosbags then yields are counted again as they arrive."""
 from __future__ import annotations
 
 import bz2
@@ -21,6 +29,10 @@ from ..mcap.container import MAX_DECOMPRESSED_BYTES, MAX_EXPANSION
 from ..mcap.schemas import EXTRA_TYPES, MSG_TEXT, is_candidate_schema
 
 SQLITE_MAGIC = b"SQLite format 3\x00"
+# the tables of a rosbag2 .db3 that rosbags reads (the others are never queried)
+ROS2_TABLES = ("messages", "topics", "schema", "metadata", "message_definitions")
+MAX_VALUE_BYTES = 64 << 20        # one message (or any value of those tables): a camera frame is ~6 MB
+MAX_SQL_STEPS = 2_000_000_000     # SQLite virtual-machine steps of the size check (~ a minute of CPU at most)
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 # what rosbags needs in a file's name to pick its reader
 SUFFIX = {"ros1": ".bag", "ros2": ".db3"}
@@ -108,8 +120,7 @@ def _cap_ros1_chunks(path: Path, reader) -> None:
     """Replace every compressed chunk's decompressor of a rosbags ROS 1 reader by a capped one."""
     from rosbags.rosbag1.reader import Chunk, Header, RecordType
 
-    size = path.stat().st_size
-    budget = [min(MAX_DECOMPRESSED_BYTES, MAX_EXPANSION * size)]
+    budget = [_budget(path)]
     for bag in reader.readers:
         for position, chunk in list(getattr(bag, "chunks", {}).items()):
             bag.bio.seek(position)
@@ -139,14 +150,19 @@ def open_bag(path: Path) -> Iterator[tuple[list[BagChannel], Callable[[Path, Bag
     what = "ROS 1 bag" if bag_kind == "ros1" else "ROS 2 sqlite3 bag (.db3)"
     with _readable_name(path, bag_kind) as readable:
         try:
+            budget = _budget(path)
+            if bag_kind == "ros2":
+                _check_sqlite_sizes(path, what, budget)
             reader = AnyReader([readable], default_typestore=default_typestore())
             reader.open()
+        except IngestError:
+            raise
         except Exception as err:   # rosbags on bytes from the file: any error means "cannot be opened"
             raise IngestError(path, f"cannot open the {what}: {_reason(err)}") from None
         try:
             if bag_kind == "ros1":
                 _cap_ros1_chunks(path, reader)
-            channels = _channels(path, reader, bag_kind, what)
+            channels = _channels(path, reader, bag_kind, what, budget)
             decoders = {id(c): partial(_deserialize, reader, c.schema_name) for c in channels}
             yield channels, lambda _path, channel: decoders[id(channel)]
         finally:
@@ -154,7 +170,61 @@ def open_bag(path: Path) -> Iterator[tuple[list[BagChannel], Callable[[Path, Bag
                 reader.close()
 
 
-def _channels(path: Path, reader, bag_kind: str, what: str) -> list[BagChannel]:
+def _budget(path: Path) -> int:
+    """Bytes a bag of this file's size may yield: MAX_EXPANSION x its size, at most MAX_DECOMPRESSED_BYTES."""
+    return min(MAX_DECOMPRESSED_BYTES, MAX_EXPANSION * path.stat().st_size)
+
+
+def _too_much(what: str, budget: int) -> str:
+    return (f"the {what} yields more than {budget} bytes ({MAX_EXPANSION}x the file's size): a decompression "
+            "bomb or not a flight recording")
+
+
+def _check_sqlite_sizes(path: Path, what: str, budget: int) -> None:
+    """Refuse (IngestError) a .db3 whose tables rosbags reads are views, or whose values yield more than
+    ``budget`` bytes in all or more than MAX_VALUE_BYTES in one, as SQLite computes them (module docstring)."""
+    import sqlite3
+
+    try:
+        connection = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+    except sqlite3.Error as err:
+        raise IngestError(path, f"cannot open the {what}: {_reason(err)}") from None
+    steps = [0]
+
+    def count_steps() -> int:
+        steps[0] += 100_000
+        return int(steps[0] > MAX_SQL_STEPS)   # non-zero interrupts the statement
+
+    try:
+        connection.setlimit(sqlite3.SQLITE_LIMIT_LENGTH, MAX_VALUE_BYTES)
+        connection.set_progress_handler(count_steps, 100_000)
+        kinds = dict(connection.execute("SELECT name, type FROM sqlite_master WHERE type IN ('table', 'view')"))
+        total = 0
+        for table in ROS2_TABLES:
+            if table not in kinds:
+                continue
+            if kinds[table] != "table":
+                raise IngestError(path, f"not a {what}: its {table!r} is an SQLite {kinds[table]}, not a table")
+            columns = [row[1] for row in connection.execute(f'PRAGMA table_xinfo("{table}")')]
+            # a blob's length is read from its header (a zeroblob is never built); text counts in bytes
+            sizes = " + ".join(f"""(CASE typeof("{c}") WHEN 'blob' THEN length("{c}") WHEN 'null' THEN 0 """
+                               f"""ELSE length(CAST("{c}" AS BLOB)) END)""" for c in columns) or "0"
+            for (size,) in connection.execute(f'SELECT {sizes} FROM "{table}"'):
+                total += size
+                if total > budget:
+                    raise IngestError(path, _too_much(what, budget))
+    except sqlite3.Error as err:
+        text = str(err)
+        if "too big" in text:
+            text = f"a value larger than {MAX_VALUE_BYTES} bytes"
+        elif "interrupted" in text:
+            text = f"sizing its tables took more than {MAX_SQL_STEPS} SQLite steps"
+        raise IngestError(path, f"cannot read the {what}: {text[:300]}") from None
+    finally:
+        connection.close()
+
+
+def _channels(path: Path, reader, bag_kind: str, what: str, budget: int) -> list[BagChannel]:
     encoding = "ros1" if bag_kind == "ros1" else "cdr"
     channels = [BagChannel(i, c.topic, encoding, c.msgtype, c.msgcount, connection=c)
                 for i, c in enumerate(reader.connections)]
@@ -162,9 +232,15 @@ def _channels(path: Path, reader, bag_kind: str, what: str) -> list[BagChannel]:
     wanted = [c.connection for c in channels if is_candidate_schema(encoding, c.schema_name)]
     if not wanted:
         return sorted(channels, key=lambda c: (c.topic, c.id))
+    kept = 0   # bytes of the messages kept: bounded whatever the container claimed before
     try:
         for connection, timestamp, raw in reader.messages(connections=wanted):
+            kept += len(raw)
+            if kept > budget:
+                raise IngestError(path, _too_much(what, budget))
             by_connection[connection.id].messages.append((timestamp, bytes(raw)))
+    except IngestError:
+        raise
     except Exception as err:   # a damaged file met while reading: nothing half-read is trusted
         raise IngestError(path, f"the {what} is damaged: {_reason(err)}") from None
     return sorted(channels, key=lambda c: (c.topic, c.id))

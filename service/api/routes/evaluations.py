@@ -18,7 +18,7 @@ from ...exports import export_evaluation, export_filename
 from ...jobs.evaluation import start_evaluation
 from ...jobs.result_cache import EstimatorSettings
 from ...jobs.services import Services
-from ...storage.blobs import BlobStore
+from ...storage.blobs import BlobStore, storage_errors, temp_prefix
 from ...storage.database import Database
 from ...storage.tables import Evaluation
 from ..deps import MAX_ROW_ID, Offset, RowId, get_blobs, get_db, get_services, pending, require_api_key
@@ -107,9 +107,11 @@ def evaluation_estimates_file(evaluation_id: RowId,
     evaluation, job = row_and_job(db, Evaluation, evaluation_id, "evaluation")
     if job.state != "succeeded":
         return pending("evaluation", evaluation, job)
-    handle = tempfile.NamedTemporaryFile(suffix=FORMATS[format], delete=False)
+    # in the blob folder's temp area, named after this process: a server killed while it writes or sends the
+    # file leaves an entry its next start removes (the system temp folder would keep it)
+    handle = tempfile.NamedTemporaryFile(dir=blobs.tmp, prefix=temp_prefix(), suffix=FORMATS[format], delete=False)
     try:
-        with handle:
+        with handle, storage_errors("write the export"):
             export_evaluation(db, blobs, evaluation_id, handle, format, flight)
     except BaseException:
         Path(handle.name).unlink(missing_ok=True)

@@ -28,7 +28,7 @@ from learnest.ingest.flight import Flight as CanonicalFlight
 
 from ... import catalog, deletion
 from ...jobs.services import Services
-from ...storage.blobs import CHUNK, BlobStore
+from ...storage.blobs import CHUNK, BlobStore, temp_prefix
 from ...storage.database import Database
 from ...storage.tables import FlightRecord
 from ...uploads import MAX_BATCH_FILES, FileOutcome, add_flight, add_flights, recut_flight
@@ -228,7 +228,8 @@ def flight_raw(flight_id: RowId, db: Database = Depends(get_db), blobs: BlobStor
         only = row.files[0]
         return FileResponse(blobs.path(only.sha256), media_type="application/octet-stream",
                             filename=_download_name(only.original_name))
-    archive = tempfile.NamedTemporaryFile(suffix=".zip", delete=False)
+    # in the blob folder's temp area, named after this process (see the evaluation export)
+    archive = tempfile.NamedTemporaryFile(dir=blobs.tmp, prefix=temp_prefix(), suffix=".zip", delete=False)
     with archive, zipfile.ZipFile(archive, "w", zipfile.ZIP_DEFLATED) as bundle:
         used: set[str] = set()
         for f in row.files:
