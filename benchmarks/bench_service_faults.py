@@ -1,4 +1,4 @@
-"""Load and fault benchmark of `learnest serve` (issue 10): loopback only, bounded in count and time (~3 min).
+"""Load and fault benchmark of `learnest serve`: loopback only, bounded in count and time (~3 min).
 
 1. Uploads vs /health.  40 concurrent "bomb-ish" uploads (20 MCAP files whose zstd chunks claim 16 MiB of
    zeros each - 64 MiB in a few kB, refused by the expansion cap - and 20 distinct simulated NanoBench flights)

@@ -1,4 +1,4 @@
-"""Fuzz benchmark of the ingest decoders (issue 10): every generated or mutated input must either read or
+"""Fuzz benchmark of the ingest decoders: every generated or mutated input must either read or
 be refused with `IngestError`; anything else is a crash, an input past the per-file time limit a hang.
 
 Decoders, each fed through ``learnest.ingest.read_flights`` (content sniffing included):

@@ -50,7 +50,7 @@ def install_error_handlers(app: FastAPI) -> None:
         incident = uuid.uuid4().hex[:12]
         log.error("incident %s on %s %s", incident, request.method, request.url.path, exc_info=err)
         # Connection: close - the server drops the connection after a 500; said, the client opens a new one
-        # instead of sending its next request into a reset (issue 10, item 10)
+        # instead of sending its next request into a reset
         return JSONResponse({"detail": f"internal error (incident {incident}; the server log has the details)"},
                             status_code=500, headers={"Connection": "close"})
 

@@ -1,5 +1,5 @@
 """Requests for other host names, and writes a browser sends from another site, are refused before any
-route runs (issue 10).
+route runs.
 
 DNS rebinding: a page on evil.example whose name re-resolves to 127.0.0.1 reaches a server on localhost
 with ``Host: evil.example``.  Only the names in ``LEARNEST_ALLOWED_HOSTS`` are served (default: the

@@ -1,6 +1,6 @@
-"""How `learnest serve` runs uvicorn: timeouts for slow or idle clients and a concurrency limit (issue 10,
-item 7).  Idle, partial-header and 1-byte-per-5-s connections used to stay open for as long as the client
-liked, each holding a socket and, once its headers were in, a worker thread.
+"""How `learnest serve` runs uvicorn: timeouts for slow or idle clients and a concurrency limit.  Without them,
+idle, partial-header and 1-byte-per-5-s connections stay open for as long as the client likes, each holding a
+socket and, once its headers are in, a worker thread.
 
 - Headers: uvicorn closes an idle keep-alive connection (``timeout_keep_alive``) but has no limit on how
   long a request's headers may take to arrive, nor on a new connection that never sends anything.

@@ -1,4 +1,4 @@
-"""Failed API-key attempts are throttled per client address (issue 10, item 7): after
+"""Failed API-key attempts are throttled per client address: after
 ``LEARNEST_KEY_FAILURES`` wrong or missing keys within ``LEARNEST_KEY_FAILURE_WINDOW_S`` seconds, that
 address's writes get 429 with Retry-After until the oldest of those failures leaves the window, so a key
 cannot be guessed at the speed the server answers.  The count lives in memory (per server process): a

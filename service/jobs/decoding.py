@@ -1,5 +1,5 @@
-"""Uploads are decoded in worker processes of their own, bounded in number, waiting room and time (issue 10,
-item 7).
+"""Uploads are decoded in worker processes of their own, bounded in number, waiting room and
+time.
 
 Decoding a log is CPU work in pure Python and NumPy; in the request threads, 40 concurrent uploads of
 small decompression bombs held the GIL so long that ``/health`` took 3 s (median) to 8 s.  Here:

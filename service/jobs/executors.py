@@ -50,7 +50,7 @@ def init_worker(parent_pid: int | None = None) -> None:
 def watch_parent(parent_pid: int) -> None:
     """In a worker process: ignore Ctrl-C, and end as soon as process ``parent_pid`` is gone (see
     `init_worker`).  The upload decoders' initializer (they need no torch)."""
-    # Ctrl-C reaches the whole process group: the server (or CLI) decides what stops, and stops its
+    # Ctrl-C reaches the whole process group: the server (or CLI) decides which work ends, and stops its
     # workers itself; a worker interrupted mid-task would only hand its job a KeyboardInterrupt
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     threading.Thread(target=_exit_with_parent, args=(parent_pid,), name="parent-watch", daemon=True).start()

@@ -1,4 +1,4 @@
-"""Quotas: how much work one request may ask for (issue 10, item 6).  Without them ``{"epochs": 100000,
+"""Quotas: how much work one request may ask for.  Without them ``{"epochs": 100000,
 "hidden": 4096}`` was accepted and would occupy a worker for days.  Checked where jobs are created
 (`training.start_training`, `diagnosis.start_diagnosis`), so the API, the web forms and the CLI share them;
 each limit is a setting, and the message names the setting that raises it."""

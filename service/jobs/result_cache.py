@@ -20,11 +20,11 @@ from ..storage.tables import FlightRecord, Result, utcnow
 log = logging.getLogger("learnest.jobs")
 
 
-# What a cached flight entry holds and how it was computed.  2 (stop 15): each entry has a `prediction_check`,
+# What a cached flight entry holds and how it was computed.  2: each entry has a `prediction_check`,
 # and a Crazyflie model's attitude input has no heading; an entry of format 1 would show "nothing flagged"
-# where nothing was checked, and mix inputs with newly computed flights of the same model.  3 (stop 16): a
-# Crazyflie prior scales its thrust by the flight's thrust gain (entries carry `thrust_gain`).  4 (stop 17): and
-# by the motors' heating before it (`heating_thrust_loss_pct`).  5 (stop 18): entries carry the KNODE's
+# where nothing was checked, and mix inputs with newly computed flights of the same model.  3: a
+# Crazyflie prior scales its thrust by the flight's thrust gain (entries carry `thrust_gain`).  4: and
+# by the motors' heating before it (`heating_thrust_loss_pct`).  5: entries carry the KNODE's
 # `gain_interval_pct`.  6: entries carry the `yardsticks` (mocap gaps, fast reference, the paper's SG score).
 ENTRY_FORMAT = 6
 

@@ -1,4 +1,4 @@
-"""report_figures: the velocity figure of an evaluation report, computed once and kept (issue 10, item 7).
+"""report_figures: the velocity figure of an evaluation report, computed once and kept.
 
 Revision ID: 0004
 Revises: 0003

@@ -1,4 +1,4 @@
-"""Registry and progress (issue 12, sections 4-5): named job stages with an ETA, validation losses per
+"""Registry and progress: named job stages with an ETA, validation losses per
 version, and a model's highest version number ever handed out.
 
 - jobs.stage ("observer", "epoch 12/150", "knode-mhe on flight3 (2/4)"), jobs.eta_s (seconds left as
