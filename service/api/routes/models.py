@@ -11,6 +11,7 @@ from ...storage.blobs import BlobStore
 from ...storage.database import Database
 from ...storage.tables import ModelVersion
 from ..deps import RowId, get_blobs, get_db, get_services, require_api_key
+from ..report_models import VersionLineage
 from ..schemas import AliasIn, AliasOut, Dependents, ModelOut, ModelPage, TrainAccepted, TrainRequest, VersionOut
 
 router = APIRouter(prefix="/models", tags=["models"])
@@ -81,7 +82,7 @@ def version_detail(name: str, version: RowId, db: Database = Depends(get_db)):
         return version_out(row, registry.aliases_of(session, name))
 
 
-@router.get("/{name}/versions/{version}/lineage",
+@router.get("/{name}/versions/{version}/lineage", response_model=VersionLineage,
             responses={200: {"description": "links to the training flight, parent, children, the diagnosis that "
                                             "produced it (and the effects it added), its job, evaluations, "
                                             "aliases; `exists: false` for a deleted one"}})

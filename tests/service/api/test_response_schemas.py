@@ -1,0 +1,55 @@
+"""/openapi.json documents the reports every GET serves: the 200 response of the evaluation, diagnosis and
+model routes has a schema naming the fields users read, resolved through its $refs."""
+from utils.service import running_app
+
+ROUTES = {
+    "/evaluations/{evaluation_id}": {"headline", "flights", "learned", "flights_scored"},
+    "/diagnoses/{diagnosis_id}": {"effects", "thrust_source", "vehicle_fits_prior", "repair", "fitting_flights",
+                                  "scored_flights", "before", "after", "registered"},
+    "/models": {"items", "total"},
+    "/models/{name}": {"versions", "aliases", "latest_version"},
+    "/models/{name}/versions/{version}": {"training_flights", "validation_flights", "learned", "learned_note",
+                                          "prior"},
+    "/models/{name}/versions/{version}/lineage": {"training_flights", "learned", "parent", "children",
+                                                  "diagnosis"},
+}
+# fields of nested schemas: (route, path of properties to follow, fields expected there)
+NESTED = [
+    ("/evaluations/{evaluation_id}", ("flights",), {"yardsticks", "flight", "excluded"}),
+    ("/diagnoses/{diagnosis_id}", ("effects",), {"params", "units", "ci95", "identified", "at_bound"}),
+    ("/diagnoses/{diagnosis_id}", ("repair",), {"improves", "reason"}),
+]
+
+
+def resolve(spec: dict, schema: dict) -> dict:
+    """Follow $ref, arrays, and `anyOf` with null down to an object schema."""
+    while True:
+        if "$ref" in schema:
+            schema = spec["components"]["schemas"][schema["$ref"].rsplit("/", 1)[1]]
+        elif schema.get("type") == "array":
+            schema = schema["items"]
+        elif "anyOf" in schema:
+            schema = next(s for s in schema["anyOf"] if s.get("type") != "null")
+        else:
+            return schema
+
+
+def ok_schema(spec: dict, route: str) -> dict:
+    content = spec["paths"][route]["get"]["responses"]["200"]["content"]["application/json"]
+    return resolve(spec, content["schema"])
+
+
+def test_report_routes_document_their_200_schema(tmp_path):
+    with running_app(tmp_path / "home") as client:
+        spec = client.get("/openapi.json").json()
+    for route, keys in ROUTES.items():
+        properties = ok_schema(spec, route).get("properties", {})
+        assert keys <= set(properties), (route, keys - set(properties))
+    for route, path, keys in NESTED:
+        schema = ok_schema(spec, route)
+        for name in path:
+            schema = resolve(spec, schema["properties"][name])
+        assert keys <= set(schema["properties"]), (route, path, keys - set(schema["properties"]))
+    # the typed fields carry their units and meaning into /docs
+    effect = resolve(spec, ok_schema(spec, "/diagnoses/{diagnosis_id}")["properties"]["effects"])
+    assert "interval" in effect["properties"]["ci95"]["description"]
