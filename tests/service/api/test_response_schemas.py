@@ -53,3 +53,15 @@ def test_report_routes_document_their_200_schema(tmp_path):
     # the typed fields carry their units and meaning into /docs
     effect = resolve(spec, ok_schema(spec, "/diagnoses/{diagnosis_id}")["properties"]["effects"])
     assert "interval" in effect["properties"]["ci95"]["description"]
+
+
+def test_a_bad_horizon_is_a_422_naming_the_valid_range(tmp_path):
+    with running_app(tmp_path / "home") as client:
+        for horizon in (0, 501, "twenty"):
+            answer = client.post("/evaluations", json={"model": "m:1", "flights": [1], "horizon": horizon})
+            assert answer.status_code == 422, answer.text
+            assert "horizon" in answer.json()["detail"]
+        assert "greater than or equal to 1" in client.post("/evaluations", json={
+            "model": "m:1", "flights": [1], "horizon": 0}).json()["detail"]
+        assert "less than or equal to 500" in client.post("/evaluations", json={
+            "model": "m:1", "flights": [1], "horizon": 501}).json()["detail"]
