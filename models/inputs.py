@@ -164,7 +164,7 @@ def system_inputs(flight: Flight, system: System, thrust_gain: bool = False,
     if system.n_inputs == 0:
         return np.zeros((len(flight.t), 0))
     if system.name not in NEEDED:
-        raise ValueError(f"no rule for the inputs of system {system.name!r} on a Flight")
+        raise InvalidInput(f"no rule for the inputs of system {system.name!r} on a Flight")
     source = cf.thrust_source_of(system.prior_params)
     missing = missing_inputs(flight, system.name, source)
     if missing:
