@@ -7,7 +7,7 @@ does not type are kept in ``extra``, and the typed keys the JSON carried in ``pr
 ``Record.from_dict(d).to_dict() == d`` for every report, old or new.
 
 Nested records are declared in the class's ``NESTED`` {field: (shape, Record class)}, shape one of "one",
-"list" or "dict" (a dict of records keyed by name).
+"list" or "dict" (a dict of records keyed by name); ``SCHEMA`` names the type a plain-JSON field documents.
 """
 from __future__ import annotations
 
@@ -40,6 +40,9 @@ class Record:
     code: every typed field)."""
 
     NESTED: ClassVar[dict[str, tuple[str, type[Record]]]] = {}
+    # {field: the type its schema documents} where the field holds the JSON of a type defined elsewhere
+    # (a dict whose shape a dataclass describes, e.g. `estimators.yardsticks.FlightYardsticks`)
+    SCHEMA: ClassVar[dict[str, Any]] = {}
 
     extra: dict[str, Any] = field(default_factory=dict, kw_only=True, metadata=doc("keys not typed, as stored"))
     present: frozenset[str] | None = field(default=None, kw_only=True, repr=False, compare=False,

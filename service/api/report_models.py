@@ -17,7 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, create_model
 from learnest.models.metadata import ModelMetadata
 from learnest.records import BOOKKEEPING, Record
 
-from ..experiments.reports import DiagnosisReport
+from ..experiments.reports import DiagnosisReport, EvaluationReport
 
 _BUILT: dict[type, type[BaseModel]] = {}
 
@@ -51,7 +51,7 @@ def schema_of(record: type[Record]) -> type[BaseModel]:
             spec = Field(default_factory=f.default_factory, description=description)
         else:
             spec = Field(description=description)
-        definitions[f.name] = (_translate(hints[f.name]), spec)
+        definitions[f.name] = (_translate(record.SCHEMA.get(f.name, hints[f.name])), spec)
     model = create_model(record.__name__ + "Out", __config__=ConfigDict(extra="allow"),
                          __doc__=record.__doc__, **definitions)
     _BUILT[record] = model
@@ -60,6 +60,7 @@ def schema_of(record: type[Record]) -> type[BaseModel]:
 
 DiagnosisReportOut = schema_of(DiagnosisReport)
 ModelMetadataOut = schema_of(ModelMetadata)
+EvaluationReportOut = schema_of(EvaluationReport)
 
 
 class FlightLink(BaseModel):
