@@ -41,7 +41,7 @@ def input_format(meta: Mapping | None) -> int:
     version = meta.get("format_version")
     if isinstance(version, int) and not isinstance(version, bool):
         return version
-    return FORMAT_SENTENCES.get(meta.get("attitude_input"), RAW_ATTITUDE)
+    return FORMAT_SENTENCES.get(str(meta.get("attitude_input")), RAW_ATTITUDE)
 
 
 def format_meta(version: int) -> dict:

@@ -29,6 +29,12 @@ MHE_ARRIVALS = ("ekf", "fixed")
 MHE_HESSIANS = ("cost", "exact")
 
 
+def _whole(value) -> bool:
+    """An integer (numpy's too) or a float with no fractional part; not a bool."""
+    return not isinstance(value, bool) and (isinstance(value, numbers.Integral)
+                                            or (isinstance(value, float) and value.is_integer()))
+
+
 def _choice(name: str, value, choices: tuple[str, ...]) -> None:
     if value not in choices:
         raise InvalidInput(f"{name} must be one of {', '.join(choices)}, got {value!r}")
@@ -44,15 +50,13 @@ def check_mhe_options(horizon, solver: str = "gauss-newton", arrival: str = "ekf
         Naming the option, the valid choices (`MHE_SOLVERS`, `MHE_ARRIVALS`, `MHE_HESSIANS`) or range
         (a horizon N >= 1 samples; the API allows up to ``MHE_HORIZON_RANGE[1]``), and the value given.
     """
-    if isinstance(horizon, bool) or not isinstance(horizon, numbers.Real) or int(horizon) != horizon \
-            or horizon < MHE_HORIZON_RANGE[0]:
+    if not _whole(horizon) or horizon < MHE_HORIZON_RANGE[0]:
         raise InvalidInput(f"horizon must be an integer of at least {MHE_HORIZON_RANGE[0]} samples (the service "
                            f"allows {MHE_HORIZON_RANGE[0]}-{MHE_HORIZON_RANGE[1]}), got {horizon!r}")
     _choice("solver", solver, MHE_SOLVERS)
     _choice("arrival", arrival, MHE_ARRIVALS)
     _choice("hessian", hessian, MHE_HESSIANS)
-    if max_iter is not None and (isinstance(max_iter, bool) or not isinstance(max_iter, numbers.Real)
-                                 or int(max_iter) != max_iter or max_iter < 1):
+    if max_iter is not None and (not _whole(max_iter) or max_iter < 1):
         raise InvalidInput(f"max_iter must be a positive integer or None, got {max_iter!r}")
 
 
