@@ -173,6 +173,12 @@ def run_ukf(model: StateSpaceModel, y: ArrayLike, u: ArrayLike | None = None, *,
     InvalidInput
         On wrong shapes, non-finite values, a bad ``dt``, or a covariance that is not symmetric positive
         definite (Q may be semi-definite).
+
+    Warns
+    -----
+    NumericalWarning
+        Once per run, with the number of steps, when the filter's covariance lost positive definiteness and
+        was repaired (`estimators.covariance_factor.spd_factor`).
     """
     dt, n = check_dt(dt), model.n
     y = check_sequence("y", y, cols=model.n_meas)
