@@ -1,6 +1,6 @@
 """/openapi.json documents the reports every GET serves: the 200 response of the evaluation, diagnosis and
 model routes has a schema naming the fields users read, resolved through its $refs."""
-from utils.service import running_app
+from utils.service import flight_csv, running_app, train, upload
 
 ROUTES = {
     "/evaluations/{evaluation_id}": {"headline", "flights", "learned", "flights_scored"},
@@ -12,6 +12,8 @@ ROUTES = {
                                           "prior"},
     "/models/{name}/versions/{version}/lineage": {"training_flights", "learned", "parent", "children",
                                                   "diagnosis"},
+    "/models/{name}/versions/{version}/metadata": {"system", "training_flights", "validation_flights", "learned",
+                                                   "envelope", "format_version", "prior_params"},
 }
 # fields of nested schemas: (route, path of properties to follow, fields expected there)
 NESTED = [
@@ -65,3 +67,18 @@ def test_a_bad_horizon_is_a_422_naming_the_valid_range(tmp_path):
             "model": "m:1", "flights": [1], "horizon": 0}).json()["detail"]
         assert "less than or equal to 500" in client.post("/evaluations", json={
             "model": "m:1", "flights": [1], "horizon": 501}).json()["detail"]
+
+
+def test_a_versions_metadata_is_its_model_files_meta_and_prior(tmp_path):
+    with running_app(tmp_path / "home") as client:
+        flight_id = upload(client, flight_csv(tmp_path, 0)).json()["id"]
+        train(client, "quad", flight_id)
+        version = client.get("/models/quad/versions/1").json()
+        meta = client.get("/models/quad/versions/1/metadata")
+        assert meta.status_code == 200, meta.text
+        body = meta.json()
+        assert body["prior_params"] == version["prior"]["prior_params"]
+        assert [f["name"] for f in body["training_flights"]] == [version["training_flight"]["name"]]
+        assert body["training_flights"][0]["sha256"] and body["validation_flights"] == []
+        assert body["learned"] == version["learned"] and set(body["envelope"])
+        assert client.get("/models/quad/versions/9/metadata").status_code == 404
