@@ -72,3 +72,13 @@ def test_model_metadata_reads_a_meta_and_its_prior():
     assert typed.training_flights[0].dt == 0.01 and typed.learned is True
     full = ModelMetadata.of_model(meta, system.prior_params)
     assert full.prior_params == system.prior_params and full.to_dict() == {**meta, "prior_params": system.prior_params}
+
+
+def test_the_evaluation_schema_names_only_fields_the_typed_report_has():
+    """The API's evaluation schema (service.api.schemas) and the typed report cannot drift apart."""
+    from learnest.service.api.schemas import EvaluationReport as EvaluationSchema
+    from learnest.service.api.schemas import FlightReport as FlightSchema
+    from learnest.service.experiments.reports import FlightScore
+
+    assert set(EvaluationSchema.model_fields) <= set(EvaluationReport.typed_fields())
+    assert set(FlightSchema.model_fields) <= set(FlightScore.typed_fields())
