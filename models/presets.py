@@ -51,7 +51,7 @@ def check_mhe_options(horizon, solver: str = "gauss-newton", arrival: str = "ekf
         (a horizon N >= 1 samples; the API allows up to ``MHE_HORIZON_RANGE[1]``), and the value given.
     """
     if not _whole(horizon) or horizon < MHE_HORIZON_RANGE[0]:
-        raise InvalidInput(f"horizon must be an integer of at least {MHE_HORIZON_RANGE[0]} samples (the service "
+        raise InvalidInput(f"horizon must be a whole number of samples, at least {MHE_HORIZON_RANGE[0]} (the service "
                            f"allows {MHE_HORIZON_RANGE[0]}-{MHE_HORIZON_RANGE[1]}), got {horizon!r}")
     _choice("solver", solver, MHE_SOLVERS)
     _choice("arrival", arrival, MHE_ARRIVALS)
