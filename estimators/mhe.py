@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from learnest.models.checks import check_covariance, check_dt, check_sequence, check_vector
+from learnest.models.presets import MHE_SOLVERS, check_mhe_options
 
 from .mhe_gn import GaussNewtonWindowSolver
 from .protocols import StateSpaceModel
@@ -41,7 +42,7 @@ IPOPT_OPTIONS: dict[str, SolverOption] = {
 }
 
 
-SOLVERS = ("gauss-newton", "ipopt")
+SOLVERS = MHE_SOLVERS
 
 
 @dataclass
@@ -82,16 +83,7 @@ class MHE:
                  ipopt_options: dict[str, SolverOption] | None = None, solver: str = "gauss-newton", tol: float = 1e-9,
                  max_iter: int | None = None, codegen_dir: str | Path | None = None,
                  compiler: str | None = "auto") -> None:
-        if int(horizon) != horizon or horizon < 1:
-            raise ValueError(f"horizon must be a positive integer, got {horizon}")
-        if arrival not in ("fixed", "ekf"):
-            raise ValueError(f"arrival must be 'fixed' or 'ekf', got {arrival!r}")
-        if hessian not in ("cost", "exact"):
-            raise ValueError(f"hessian must be 'cost' or 'exact', got {hessian!r}")
-        if solver not in SOLVERS:
-            raise ValueError(f"solver must be one of {', '.join(SOLVERS)}, got {solver!r}")
-        if max_iter is not None and (int(max_iter) != max_iter or max_iter < 1):
-            raise ValueError(f"max_iter must be a positive integer or None, got {max_iter}")
+        check_mhe_options(horizon, solver, arrival, hessian, max_iter)   # InvalidInput naming the choices
         self.hessian, self.solver = hessian, solver
         self.model, self.dt, self.horizon = model, check_dt(dt), int(horizon)
         self.n, self.p, self.m = model.n, model.n_inputs, model.n_meas

@@ -13,7 +13,7 @@ from numpy.typing import ArrayLike
 
 from learnest.models.checks import check_covariance, check_dt, check_inputs, check_sequence, check_vector
 
-from .covariance_factor import spd_factor
+from .covariance_factor import repairs_warned, spd_factor
 from .protocols import StateSpaceModel
 from .results import FilterResult
 from .ukf import run_ukf
@@ -63,17 +63,18 @@ def urts_backward(model: StateSpaceModel, filtered: FilterResult, u: ArrayLike |
     Q = check_covariance("Q", Q, n, allow_singular=True)
     wm, wc, scale = _merwe_weights(n, alpha)
     out_m, out_P = means.copy(), covs.copy()
-    for k in range(T - 2, -1, -1):
-        spread = scale * spd_factor(covs[k])[1].T                     # rows: scaled square-root columns
-        sigmas = np.concatenate([means[k][None], means[k] + spread, means[k] - spread])
-        ahead = np.asarray(model.step(sigmas, np.broadcast_to(u[k], (len(sigmas), u.shape[1])).copy(), dt))
-        m_pred = wm @ ahead
-        d_ahead, d_now = ahead - m_pred, sigmas - means[k]
-        P_pred = (d_ahead.T * wc) @ d_ahead + Q
-        cross = (d_now.T * wc) @ d_ahead                               # C_{k,k+1}
-        gain = np.linalg.solve(P_pred.T, cross.T).T                    # G = C P_pred⁻¹ (P_pred symmetric)
-        out_m[k] = means[k] + gain @ (out_m[k + 1] - m_pred)
-        out_P[k] = spd_factor(covs[k] + gain @ (out_P[k + 1] - P_pred) @ gain.T)[0]
+    with repairs_warned("URTS smoother"):   # a repaired covariance warns once per pass
+        for k in range(T - 2, -1, -1):
+            spread = scale * spd_factor(covs[k])[1].T                     # rows: scaled square-root columns
+            sigmas = np.concatenate([means[k][None], means[k] + spread, means[k] - spread])
+            ahead = np.asarray(model.step(sigmas, np.broadcast_to(u[k], (len(sigmas), u.shape[1])).copy(), dt))
+            m_pred = wm @ ahead
+            d_ahead, d_now = ahead - m_pred, sigmas - means[k]
+            P_pred = (d_ahead.T * wc) @ d_ahead + Q
+            cross = (d_now.T * wc) @ d_ahead                               # C_{k,k+1}
+            gain = np.linalg.solve(P_pred.T, cross.T).T                    # G = C P_pred⁻¹ (P_pred symmetric)
+            out_m[k] = means[k] + gain @ (out_m[k + 1] - m_pred)
+            out_P[k] = spd_factor(covs[k] + gain @ (out_P[k + 1] - P_pred) @ gain.T)[0]
     return FilterResult(filtered.t, out_m, out_P, filtered.innovations)
 
 

@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike
 
 from learnest.models.checks import check_covariance, check_dt, check_inputs, check_sequence, check_vector
 
-from .covariance_factor import spd_factor
+from .covariance_factor import repairs_warned, spd_factor
 from .protocols import StateSpaceModel
 from .results import FilterResult
 
@@ -173,6 +173,12 @@ def run_ukf(model: StateSpaceModel, y: ArrayLike, u: ArrayLike | None = None, *,
     InvalidInput
         On wrong shapes, non-finite values, a bad ``dt``, or a covariance that is not symmetric positive
         definite (Q may be semi-definite).
+
+    Warns
+    -----
+    NumericalWarning
+        Once per run, with the number of steps, when the filter's covariance lost positive definiteness and
+        was repaired (`estimators.covariance_factor.spd_factor`).
     """
     dt, n = check_dt(dt), model.n
     y = check_sequence("y", y, cols=model.n_meas)
@@ -181,6 +187,13 @@ def run_ukf(model: StateSpaceModel, y: ArrayLike, u: ArrayLike | None = None, *,
     x0, P0 = check_vector("x0", x0, n), check_covariance("P0", P0, n)
     if sigma_functions is None and compiled:
         sigma_functions = compiled_sigma_functions(model, dt, codegen_dir)
+    with repairs_warned("UKF"):   # a repaired covariance warns once per run
+        return _filter(model, sigma_functions, y, u, dt, Q, R, x0, P0, alpha)
+
+
+def _filter(model, sigma_functions, y, u, dt, Q, R, x0, P0, alpha) -> FilterResult:
+    """`run_ukf` on checked arguments: in C when the sigma functions carry the loop, else in Python."""
+    n = model.n
     native = getattr(sigma_functions, "native", None)
     if native is not None:   # the same loop in C (module docstring)
         return native.run(y, u, dt, Q, R, x0, P0, alpha)

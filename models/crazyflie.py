@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from learnest.errors import InvalidInput
 from learnest.ingest.frames import GRAVITY
 
 from .backend import ops_for
@@ -174,7 +175,7 @@ def prior_for(source: str, mass_kg: float | None = None, base: dict | None = Non
     the diagnosis reports a payload relative to it instead.
     """
     if source not in THRUST_SOURCES:
-        raise ValueError(f"thrust source {source!r} is not one of {', '.join(THRUST_SOURCES)}")
+        raise InvalidInput(f"thrust source {source!r} is not one of {', '.join(THRUST_SOURCES)}")
     params = dict(IDENTIFIED if base is None else base)
     if source == "pwm":
         params.pop(THRUST_SOURCE_KEY, None)
@@ -284,6 +285,6 @@ def hover_pwm(params, vbat: float | None = None) -> float:
         return float(-a0 / a1)
     disc = a1 * a1 - 4.0 * a2 * a0
     if disc < 0:
-        raise ValueError(f"the thrust map {params} cannot hold {params['m_kg']} kg at {vbat} V")
+        raise InvalidInput(f"the thrust map {params} cannot hold {params['m_kg']} kg at {vbat} V")
     # the root on the rising branch of the map, for either sign of the quadratic term
     return float((-a1 + np.sqrt(disc)) / (2.0 * a2))

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 from learnest.ingest.frames import quat_to_matrix
 
@@ -56,7 +57,7 @@ def flight_arrays(flight: Flight, source: str = "pwm") -> FlightArrays:
 
     missing = [name for name in (*SOURCE_CHANNELS[source], "acc_body") if name not in flight.channels]
     if missing:
-        raise ValueError(f"{flight.name}: identification needs channel(s) {', '.join(missing)}")
+        raise InvalidInput(f"{flight.name}: identification needs channel(s) {', '.join(missing)}")
     dt = flight.dt
     acc = np.asarray(flight.channels["acc_body"], float)
     gaps = interpolated_rows(acc)

@@ -12,6 +12,14 @@ from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 
 from . import crazyflie as cf
+from .metadata import (
+    ATTITUDE_CALIBRATED,
+    ATTITUDE_CALIBRATED_FORMAT,
+    THRUST_GAIN_CALIBRATED,
+    THRUST_GAIN_FORMAT,
+    format_meta,
+    input_format,
+)
 from .motor_heating import HISTORY_KEY, motor_power, with_motor_heating
 from .systems import System
 from .thrust_axis import calibrated_attitude, heading_removed, thrust_axis_offset
@@ -58,13 +66,12 @@ def thrust_columns(flight: Flight, source: str) -> np.ndarray:
 # systems whose prior turns thrust into acceleration through the attitude: their attitude input is the
 # mocap attitude rotated onto the flight's thrust axis, with the heading removed (`models.thrust_axis`)
 THRUST_THROUGH_ATTITUDE = frozenset({"crazyflie"})
-# what a model trained on such inputs records in meta["attitude_input"]; in the second the battery voltage
-# also carries the flight's thrust gain (`models.thrust_gain`).  A model keeps being fed the inputs it was
-# trained on: one of these two, else it is scored with a warning to retrain.  (The motors' heating is no
-# input calibration but a parameter of the prior, `kappa_th`: a stored prior without it was trained without it.)
-ATTITUDE_CALIBRATED = "mocap attitude calibrated onto the thrust axis, heading removed"
-THRUST_GAIN_CALIBRATED = ATTITUDE_CALIBRATED + "; thrust gain calibrated per flight"
-INPUT_CALIBRATIONS = (ATTITUDE_CALIBRATED, THRUST_GAIN_CALIBRATED)
+# A model trained on such inputs records which in its meta (`models.metadata`): the integer
+# ``format_version`` and the sentence ``attitude_input``.  The battery voltage may also carry the flight's
+# thrust gain (`models.thrust_gain`).  A model keeps being fed the inputs it was trained on: one of the
+# calibrated formats, else it is scored with a warning to retrain.  (The motors' heating is a parameter of
+# the prior, `kappa_th`: a model whose stored prior has none is fed no heating.)
+INPUT_CALIBRATIONS = (ATTITUDE_CALIBRATED, THRUST_GAIN_CALIBRATED)   # the sentences of calibrated formats
 
 
 class MissingInputs(InvalidInput):
@@ -114,13 +121,20 @@ def training_meta(system: System, thrust_gain: bool = True) -> dict:
     warning).  ``thrust_gain``: trained with the per-flight thrust gain."""
     if system.name not in THRUST_THROUGH_ATTITUDE:
         return {}
-    return {"attitude_input": THRUST_GAIN_CALIBRATED if thrust_gain else ATTITUDE_CALIBRATED}
+    return format_meta(THRUST_GAIN_FORMAT if thrust_gain else ATTITUDE_CALIBRATED_FORMAT)
 
 
 def calibrates_thrust_gain(meta: dict | None, kind: str) -> bool:
     """Whether a model's inputs carry the per-flight thrust gain: prior-only models and models whose meta
     says they were trained on it; a KNODE trained before it (or by the diagnosis) keeps its own inputs."""
-    return kind == "prior" or (meta or {}).get("attitude_input") == THRUST_GAIN_CALIBRATED
+    return kind == "prior" or input_format(meta) >= THRUST_GAIN_FORMAT
+
+
+def calibrates_attitude(meta: dict | None) -> bool:
+    """Whether a model of a thrust-through-attitude prior was trained on the attitude evaluations make (onto the
+    flight's thrust axis, heading removed): its input format (`models.metadata.input_format`) is at least
+    `ATTITUDE_CALIBRATED_FORMAT`."""
+    return input_format(meta) >= ATTITUDE_CALIBRATED_FORMAT
 
 
 def thrust_calibration(flight: Flight, system: System, thrust_gain: bool = True) -> dict:
@@ -150,7 +164,7 @@ def system_inputs(flight: Flight, system: System, thrust_gain: bool = False,
     if system.n_inputs == 0:
         return np.zeros((len(flight.t), 0))
     if system.name not in NEEDED:
-        raise ValueError(f"no rule for the inputs of system {system.name!r} on a Flight")
+        raise InvalidInput(f"no rule for the inputs of system {system.name!r} on a Flight")
     source = cf.thrust_source_of(system.prior_params)
     missing = missing_inputs(flight, system.name, source)
     if missing:

@@ -17,6 +17,7 @@ import numpy as np
 from learnest.errors import InvalidInput
 
 from .backend import Array, CasadiOps, ops_for, rk4_step
+from .metadata import with_input_format
 from .systems import System, make_system
 
 
@@ -193,4 +194,5 @@ class HybridModel:
         system = make_system(data["system"], prior_params=data["prior_params"],
                              true_params=data["true_params"])
         residual = Residual.from_dict(data["residual"]) if data["residual"] else None
-        return cls(system, data["kind"], residual, data.get("meta"))
+        # a model stored before the integer input format gets it from its sentence: fed as it was trained
+        return cls(system, data["kind"], residual, with_input_format(data.get("meta")))

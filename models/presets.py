@@ -6,6 +6,7 @@ Everything else imports them from here; nothing imports torch here, so reading a
 """
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 
 from learnest.errors import InvalidInput
@@ -21,6 +22,42 @@ EVALUATION_METHODS = (*METHODS, ONBOARD)   # what an evaluation scores by defaul
 # the mocap-gap yardstick (estimators.yardsticks): the mocap position is hidden for GAP_S s every GAP_EVERY_S s,
 # none before GAP_START_S s of the kept flight (the estimators' start-up)
 GAP_S, GAP_EVERY_S, GAP_START_S = 0.5, 2.5, 5.0
+# the MHE's options (estimators.mhe.MHE): the valid choices, named in every error about them
+MHE_HORIZON_RANGE = (1, 500)     # horizons a user may choose, samples (the API's bounds; the library needs >= 1)
+MHE_SOLVERS = ("gauss-newton", "ipopt")
+MHE_ARRIVALS = ("ekf", "fixed")
+MHE_HESSIANS = ("cost", "exact")
+
+
+def _whole(value) -> bool:
+    """An integer (numpy's too) or a float with no fractional part; not a bool."""
+    return not isinstance(value, bool) and (isinstance(value, numbers.Integral)
+                                            or (isinstance(value, float) and value.is_integer()))
+
+
+def _choice(name: str, value, choices: tuple[str, ...]) -> None:
+    if value not in choices:
+        raise InvalidInput(f"{name} must be one of {', '.join(choices)}, got {value!r}")
+
+
+def check_mhe_options(horizon, solver: str = "gauss-newton", arrival: str = "ekf", hessian: str = "cost",
+                      max_iter=None) -> None:
+    """The MHE's options, checked once where they enter (`estimators.mhe.MHE`, the API's request models).
+
+    Raises
+    ------
+    InvalidInput
+        Naming the option, the valid choices (`MHE_SOLVERS`, `MHE_ARRIVALS`, `MHE_HESSIANS`) or range
+        (a horizon N >= 1 samples; the API allows up to ``MHE_HORIZON_RANGE[1]``), and the value given.
+    """
+    if not _whole(horizon) or horizon < MHE_HORIZON_RANGE[0]:
+        raise InvalidInput(f"horizon must be a whole number of samples, at least {MHE_HORIZON_RANGE[0]} (the service "
+                           f"allows {MHE_HORIZON_RANGE[0]}-{MHE_HORIZON_RANGE[1]}), got {horizon!r}")
+    _choice("solver", solver, MHE_SOLVERS)
+    _choice("arrival", arrival, MHE_ARRIVALS)
+    _choice("hessian", hessian, MHE_HESSIANS)
+    if max_iter is not None and (not _whole(max_iter) or max_iter < 1):
+        raise InvalidInput(f"max_iter must be a positive integer or None, got {max_iter!r}")
 
 
 def parse_methods(text: str, allowed: tuple[str, ...] = METHODS) -> list[str]:

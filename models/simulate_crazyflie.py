@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 from learnest.ingest.frames import GRAVITY
 
@@ -166,7 +167,7 @@ def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int 
     truth = {k: v for k, v in settings.truth.items() if k != cf.THRUST_SOURCE_KEY}
     ctrl = {k: v for k, v in settings.controller.items() if k != cf.THRUST_SOURCE_KEY}
     if settings.thrust_source not in cf.THRUST_SOURCES:
-        raise ValueError(f"thrust_source {settings.thrust_source!r} is not one of {', '.join(cf.THRUST_SOURCES)}")
+        raise InvalidInput(f"thrust_source {settings.thrust_source!r} is not one of {', '.join(cf.THRUST_SOURCES)}")
     t, p_ref, v_ref, a_ref, yaw = reference_path(settings, rng)
     n, dt = len(t), 1.0 / settings.rate_hz
     h = dt / SUBSTEPS

@@ -76,7 +76,7 @@ class System:
         names = [*self.state_names, *self.input_names]
         unknown = [k for k in (*self.residual_blind, *(self.residual_states or ())) if k not in names]
         if unknown:
-            raise ValueError(f"{self.name}: residual masks name unknown states/inputs {unknown}")
+            raise InvalidInput(f"{self.name}: residual masks name unknown states/inputs {unknown}")
         inputs = np.array([0.0 if k in self.residual_blind else 1.0 for k in names])
         outputs = np.array([1.0 if self.residual_states is None or k in self.residual_states else 0.0
                             for k in self.state_names])

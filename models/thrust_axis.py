@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from learnest.errors import InvalidInput
 from learnest.ingest.frames import GRAVITY, quat_to_matrix
 
 # p̈ from twice-differentiated mocap position is noise above a few Hz; the mean direction needs the slow part
@@ -60,7 +61,7 @@ def thrust_axis_offset(p: np.ndarray, quat: np.ndarray, dt: float) -> np.ndarray
     if len(p) * dt < MIN_SECONDS or 1.0 / dt < MIN_RATE_HZ:
         return np.zeros(2)
     if not np.isfinite(p).all():
-        raise ValueError("the mocap position holds non-finite values")
+        raise InvalidInput("the mocap position holds non-finite values")
     _check_attitude(quat)
     acc = lowpass(np.gradient(np.gradient(p, dt, axis=0), dt, axis=0), dt, LOWPASS_HZ)
     force_world = acc + np.array([0.0, 0.0, GRAVITY])
@@ -68,7 +69,7 @@ def thrust_axis_offset(p: np.ndarray, quat: np.ndarray, dt: float) -> np.ndarray
     direction = (force_body / np.linalg.norm(force_body, axis=1, keepdims=True)).mean(axis=0)
     direction /= np.linalg.norm(direction)
     if np.hypot(direction[0], direction[1]) > np.sin(MAX_OFFSET_RAD):
-        raise ValueError(f"the specific force leans {np.degrees(np.arcsin(np.hypot(*direction[:2]))):.1f}° off the "
+        raise InvalidInput(f"the specific force leans {np.degrees(np.arcsin(np.hypot(*direction[:2]))):.1f}° off the "
                          f"mocap body z axis on average (at most {np.degrees(MAX_OFFSET_RAD):.0f}° expected): "
                          "is the mocap attitude the vehicle's?")
     return direction[:2].copy()
@@ -138,4 +139,5 @@ def _check_attitude(quat: np.ndarray) -> None:
     norms = np.linalg.norm(quat, axis=-1)
     if not (np.isfinite(norms).all() and (norms > 0).all()):
         bad = np.flatnonzero(~(np.isfinite(norms) & (norms > 0)))
-        raise ValueError(f"the attitude holds non-finite or zero quaternions ({len(bad)} rows, first at row {bad[0]})")
+        raise InvalidInput(f"the attitude holds non-finite or zero quaternions ({len(bad)} rows, first at row "
+                           f"{bad[0]})")

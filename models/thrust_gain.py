@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from learnest.errors import InvalidInput
 from learnest.ingest.align import FLYING_HEIGHT_M
 from learnest.ingest.frames import GRAVITY
 
@@ -84,7 +85,7 @@ def thrust_gain(p: np.ndarray, u: np.ndarray, dt: float, params: dict) -> float:
         return 1.0
     gain = float(np.sum(measured[airborne]) / np.sum(predicted[airborne]))
     if not GAIN_BOUNDS[0] <= gain <= GAIN_BOUNDS[1]:
-        raise ValueError(f"the mocap sees {gain:.2f} times the thrust the prior's map predicts from the motors and "
+        raise InvalidInput(f"the mocap sees {gain:.2f} times the thrust the prior's map predicts from the motors and "
                          f"the battery (expected within {GAIN_BOUNDS[0]:.2f}-{GAIN_BOUNDS[1]:.0f}): are the PWM and "
                          "voltage channels this vehicle's, in their units?")
     return gain

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from learnest.errors import InvalidInput
 from learnest.ingest.frames import GRAVITY, quat_to_matrix
 
 from . import crazyflie as cf
@@ -118,7 +119,7 @@ def fit_thrust_map(flights: list[FlightArrays], terms: tuple = TERMS, motor_taus
         If no flight has a kept sample.
     """
     if not sum(int(a.keep.sum()) for a in flights):
-        raise ValueError("thrust map: the flights have no usable samples")
+        raise InvalidInput("thrust map: the flights have no usable samples")
     best = None
     grid = [(vbat_tau, tau) for vbat_tau in vbat_taus_s for tau in motor_taus_s]
     for done, (vbat_tau, tau) in enumerate(grid, start=1):
@@ -209,7 +210,7 @@ def fit_bench_map(kind: str, x: np.ndarray, thrust_n: np.ndarray, vbat: np.ndarr
 
     x, thrust_n = np.asarray(x, float), np.asarray(thrust_n, float)
     if len(x) < 4 or np.ptp(x) <= 0:
-        raise ValueError(f"a bench calibration needs at least 4 rows over several {kind} values, got {len(x)}")
+        raise InvalidInput(f"a bench calibration needs at least 4 rows over several {kind} values, got {len(x)}")
     fit_gamma = vbat is not None and np.ptp(vbat) >= MIN_BENCH_VOLTAGE_SPREAD_V
     ratio = np.asarray(vbat, float) / cf.V_REF if fit_gamma else np.ones_like(x)
     scale = float(np.max(np.abs(x)))

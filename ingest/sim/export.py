@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from learnest.errors import InvalidInput
+
 from ..flight import Flight
 from ..formats.crazyflie_usd import writer as usd_writer
 from ..formats.mcap import writer as mcap_writer
@@ -74,7 +76,7 @@ def _write_usd(sim: SimulatedFlight, path: Path, version: int, pose_stream: str)
         pose_vars = {name: ("f", pose[:, j]) for j, name in enumerate(names)}
         events["locSrvPose"] = {"t": USD_BOOT_S + mocap.t, "vars": pose_vars}
     else:
-        raise ValueError(f"usd pose_stream must be 'fixed' or 'event', not {pose_stream!r}")
+        raise InvalidInput(f"usd pose_stream must be 'fixed' or 'event', not {pose_stream!r}")
     usd_writer.write(path, events, version=version)
     return [path]
 
@@ -125,7 +127,7 @@ def write_flight(sim: SimulatedFlight, fmt: str, directory, stem: str, *, usd_po
         writer = mcap_writer.write_ros2 if fmt == "mcap-ros2" else mcap_writer.write_json
         writer(path, sim.mocap.t, sim.mocap.p, sim.mocap.quat, sim.imu.acc_g, t_acc=sim.imu.t)
         return [path]
-    raise ValueError(f"unknown format {fmt!r} (one of {', '.join(FORMATS)})")
+    raise InvalidInput(f"unknown format {fmt!r} (one of {', '.join(FORMATS)})")
 
 
 def sim_times(flight: Flight, fmt: str) -> np.ndarray:
@@ -316,4 +318,4 @@ def _write_more_canonical(flight: Flight, fmt: str, directory: Path, stem: str, 
         return [path]
     if fmt in ROSBAG_STORAGE:
         return _write_canonical_rosbag(flight, directory, stem, ROSBAG_STORAGE[fmt], acc_g)
-    raise ValueError(f"unknown format {fmt!r} for a Flight (one of {', '.join(ALL_CANONICAL_FORMATS)})")
+    raise InvalidInput(f"unknown format {fmt!r} for a Flight (one of {', '.join(ALL_CANONICAL_FORMATS)})")

@@ -6,6 +6,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from learnest.errors import InvalidInput
+
 SIM_RATE_HZ = 1000.0    # the simulation runs on this grid: the reference, the closed loop, the IMU filter
 
 
@@ -49,7 +51,7 @@ class Trajectory:
     def flown(self, tau):
         """(p, v, a, s) at times tau from the start of the flying part (held outside it)."""
         if self.duration_s < 2 * self.ramp_s:
-            raise ValueError("duration_s must be at least twice ramp_s")
+            raise InvalidInput("duration_s must be at least twice ramp_s")
         tau = np.clip(np.asarray(tau, float), 0.0, self.duration_s)
         r = self.ramp_s
         s, s_dot, s_ddot = tau - r / 2, np.ones_like(tau), np.zeros_like(tau)

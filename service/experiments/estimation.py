@@ -119,7 +119,8 @@ def mhe(model: HybridModel, flight: Flight, horizon: int = MHE_HORIZON) -> MHERe
     Raises
     ------
     InvalidInput
-        If ``flight`` is not a Flight or ``model`` is not a quadrotor model.
+        If ``flight`` is not a Flight, ``model`` is not a quadrotor model, or ``horizon`` is not a whole
+        number of at least 1 (`models.presets.check_mhe_options`).
 
     Warns
     -----

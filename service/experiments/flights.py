@@ -25,9 +25,9 @@ from learnest.ingest.profile import MASS_TOLERANCE, RATE_TOLERANCE, flight_profi
 from learnest.models.effects import correct_acc_body, world_from_body
 from learnest.models.envelope import envelope_report
 from learnest.models.inputs import (
-    INPUT_CALIBRATIONS,
     THRUST_GAIN_CALIBRATED,
     THRUST_THROUGH_ATTITUDE,
+    calibrates_attitude,
     calibrates_thrust_gain,
     flight_thrust_axis,
     flight_thrust_gain,
@@ -412,7 +412,7 @@ def _trained_on_other_attitude(knode: HybridModel) -> bool:
     before the thrust-axis calibration (the raw mocap attitude) or before the heading was removed.  One
     trained before the per-flight thrust gain is fed its own inputs (`calibrates_thrust_gain`)."""
     return (knode.kind == "knode" and knode.system.name in THRUST_THROUGH_ATTITUDE
-            and knode.meta.get("attitude_input") not in INPUT_CALIBRATIONS)
+            and not calibrates_attitude(knode.meta))
 
 
 def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequence[str], include_bad: bool = False,

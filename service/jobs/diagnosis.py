@@ -5,6 +5,7 @@ from __future__ import annotations
 from learnest.errors import InvalidInput, NotFound
 
 from .. import registry
+from ..experiments.reports import DiagnosisReport
 from ..storage.database import flights_by_id, get_row
 from ..storage.tables import Diagnosis, utcnow
 from . import quotas
@@ -107,6 +108,7 @@ def run_diagnosis(services: Services, ctx: JobContext, diagnosis_id: int) -> Non
         registered = {"name": row.name, "version": row.version, "parent": row.parent}
     with services.db.transaction() as session:
         diagnosis = get_row(session, Diagnosis, diagnosis_id, "diagnosis")
-        diagnosis.report, diagnosis.registered = out["report"], registered
+        # read into its type where it is stored: the JSON kept is `to_dict`, the same keys as the diagnosis gave
+        diagnosis.report, diagnosis.registered = DiagnosisReport.from_dict(out["report"]).to_dict(), registered
         ctx.complete(session, {"diagnosis_id": diagnosis_id, "effects": [e["id"] for e in out["report"]["effects"]],
                                "registered": registered})

@@ -13,6 +13,7 @@ from sqlalchemy.orm import Session
 from learnest.errors import InvalidInput, NotFound
 
 from .. import registry
+from ..experiments.reports import EvaluationReport
 from ..storage.database import discard_blobs, flights_by_id, get_row
 from ..storage.tables import Evaluation, FlightRecord, ModelVersion, utcnow
 from .result_cache import EstimatorSettings, cached_entries, store_result
@@ -138,8 +139,9 @@ def assemble_report(model_ref: str, entries: list[dict], flight_ids: Sequence[in
 
     entries = [{**entry, "flight_id": flight_id, "sha256": sha} for entry, flight_id, sha in zip(entries, flight_ids,
                                                                                                 shas)]
-    return {"model": model_ref, "flights": entries, **summarize(entries), "units": MSE_UNITS,
-            **learned_note(model_meta or {})}
+    report = {"model": model_ref, "flights": entries, **summarize(entries), "units": MSE_UNITS,
+              **learned_note(model_meta or {})}
+    return EvaluationReport.from_dict(report).to_dict()   # the typed report; its JSON is the dict, key for key
 
 
 def _model_meta(model_json: bytes) -> dict:

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from learnest.errors import InvalidInput
+
 from .layout import FIXED_FREQUENCY, FIXED_FREQUENCY_ID, MAGIC, TIMESTAMP_FORMATS, VALUE_TYPES, EventType
 
 
@@ -18,7 +20,7 @@ def encode(events: dict, version: int = 2) -> bytes:
     records of all events are merged by time (ties keep the order of `events`).
     """
     if version not in TIMESTAMP_FORMATS:
-        raise ValueError(f"uSD log version must be 1 or 2, not {version}")
+        raise InvalidInput(f"uSD log version must be 1 or 2, not {version}")
     event_types, tables = [], []
     for position, (name, spec) in enumerate(events.items()):
         variables = spec.get("vars", {})
@@ -27,7 +29,7 @@ def encode(events: dict, version: int = 2) -> bytes:
         event_types.append(event_type)
         tables.append(_record_table(event_type, spec["t"], [values for _, values in variables.values()], version))
     if len({event_type.id for event_type in event_types}) != len(event_types):
-        raise ValueError("two events share an id")
+        raise InvalidInput("two events share an id")
     content = _encode_header(event_types, version) + _merge_by_time(tables)
     return content + zlib.crc32(content).to_bytes(4, "little")
 
@@ -47,7 +49,7 @@ def _encode_header(event_types: list[EventType], version: int) -> bytes:
                   len(event_type.var_names).to_bytes(2, "little")]
         for name, code in zip(event_type.var_names, event_type.var_types):
             if code not in VALUE_TYPES:
-                raise ValueError(f"variable {name!r}: type {code!r} is not one of {''.join(VALUE_TYPES)}")
+                raise InvalidInput(f"variable {name!r}: type {code!r} is not one of {''.join(VALUE_TYPES)}")
             parts.append(_c_string(f"{name}({code})"))
     return b"".join(parts)
 
@@ -55,7 +57,7 @@ def _encode_header(event_types: list[EventType], version: int) -> bytes:
 def _c_string(text: str) -> bytes:
     raw = text.encode("ascii")
     if b"\0" in raw or not raw:
-        raise ValueError(f"name {text!r} must be non-empty ASCII without NUL")
+        raise InvalidInput(f"name {text!r} must be non-empty ASCII without NUL")
     return raw + b"\0"
 
 
@@ -68,7 +70,7 @@ def _record_table(event_type: EventType, t, columns, version: int) -> np.ndarray
     for i, (name, values) in enumerate(zip(event_type.var_names, columns)):
         values = np.asarray(values)
         if values.shape != t.shape:
-            raise ValueError(f"{event_type.name}/{name}: {values.shape} values for {t.shape} timestamps")
+            raise InvalidInput(f"{event_type.name}/{name}: {values.shape} values for {t.shape} timestamps")
         table[f"v{i}"] = _fitted(values, dtype[f"v{i}"], f"{event_type.name}/{name}")
     return table
 
@@ -80,7 +82,7 @@ def _fitted(values: np.ndarray, dtype: np.dtype, what: str) -> np.ndarray:
     rounded = np.rint(np.asarray(values, dtype=float))
     limits = np.iinfo(dtype)
     if rounded.size and (not np.all(np.isfinite(rounded)) or rounded.min() < limits.min or rounded.max() > limits.max):
-        raise ValueError(f"{what}: values do not fit {dtype} [{limits.min}, {limits.max}]")
+        raise InvalidInput(f"{what}: values do not fit {dtype} [{limits.min}, {limits.max}]")
     return rounded.astype(dtype)
 
 

@@ -12,6 +12,8 @@ from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 from mcap_ros2.writer import Writer as Ros2McapWriter
 
+from learnest.errors import InvalidInput
+
 from ...frames import GRAVITY
 from .schemas import (
     ACCELERATION,
@@ -131,7 +133,7 @@ class Ros2BagWriter(_BufferedRecording):
                         "transform": {"translation": _xyz_dict(p[i]), "rotation": _xyzw_dict(quat[i])}}
             type_name = TRANSFORM_STAMPED
         else:
-            raise ValueError(f"pose message_type must be PoseStamped or TransformStamped, not {message_type!r}")
+            raise InvalidInput(f"pose message_type must be PoseStamped or TransformStamped, not {message_type!r}")
         self._add(topic, (type_name, ros2msg_definition(type_name)), t, log_t, message)
 
     def add_imu(self, topic: str, t, acc_body_g, *, gyro_rad_s=None, frame_id: str = "cf1",
@@ -200,7 +202,7 @@ class JsonMcapWriter(_BufferedRecording):
                         "rotation": _xyzw_dict(quat[i])}
             schema = (FRAME_TRANSFORM, FRAME_TRANSFORM_JSON_SCHEMA)
         else:
-            raise ValueError(f"pose message_type must be PoseInFrame or FrameTransform, not {message_type!r}")
+            raise InvalidInput(f"pose message_type must be PoseInFrame or FrameTransform, not {message_type!r}")
         self._add(topic, schema, t, log_t, message)
 
     def add_acceleration(self, topic: str, t, acc_body_g, *, unit: str | None = "g", schema_name: str = ACCELERATION,
@@ -261,7 +263,7 @@ def write_ros2(path, t, p, quat_xyzw, acc_body_g, *, t_acc=None, gyro_rad_s=None
         elif accel_type == "LogDataGeneric":
             bag.add_log_data(accel_topic or "/cf1/acc", t_acc, acc_body_g, stamp_headers=stamp_headers)
         else:
-            raise ValueError(f"accel_type must be Imu or LogDataGeneric, not {accel_type!r}")
+            raise InvalidInput(f"accel_type must be Imu or LogDataGeneric, not {accel_type!r}")
 
 
 def write_json(path, t, p, quat_xyzw, acc_body_g, *, t_acc=None, pose_topic: str = "/cf1/mocap_pose",

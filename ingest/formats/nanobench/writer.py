@@ -7,6 +7,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from learnest.errors import InvalidInput
+
 from ...flight import json_compatible
 from .reader import ACC_COLUMNS, MOCAP_COLUMNS, OPTIONAL_STREAMS, metadata_path
 
@@ -22,7 +24,7 @@ def write(path, t, p, quat_xyzw, acc_body_g, *, gyro=None, motors=None, p_onboar
     `decimals` decimals like the recorder.  `metadata` is written beside it as <stem>_metadata.yaml."""
     t = np.asarray(t, dtype=float).reshape(-1)
     if len(t) < 2 or not np.all(np.diff(t) > 0):
-        raise ValueError("t must hold at least 2 strictly increasing time stamps")
+        raise InvalidInput("t must hold at least 2 strictly increasing time stamps")
     streams = {"mocap": (MOCAP_COLUMNS, np.column_stack([p, quat_xyzw])), "acc": (ACC_COLUMNS, acc_body_g)}
     given = {"gyro": gyro, "motors": motors, "p_onboard": p_onboard, "v_onboard": v_onboard,
              "setpoint": setpoint, "vbat": vbat}
@@ -32,7 +34,7 @@ def write(path, t, p, quat_xyzw, acc_body_g, *, gyro=None, motors=None, p_onboar
         values = np.asarray(values, dtype=float)
         values = values[:, None] if values.ndim == 1 else values     # a single column (vbat) may be 1-D
         if values.shape != (len(t), len(columns)):
-            raise ValueError(f"{name}: expected {len(t)} rows of {len(columns)} values, got shape {values.shape}")
+            raise InvalidInput(f"{name}: expected {len(t)} rows of {len(columns)} values, got shape {values.shape}")
         header += list(columns)
         blocks.append(values)
     path = Path(path)

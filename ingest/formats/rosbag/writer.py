@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from learnest.errors import InvalidInput
+
 from ...frames import GRAVITY
 from ..mcap.schemas import EXTRA_TYPES, MSG_TEXT
 
@@ -45,7 +47,7 @@ class BagWriter:
 
     def __init__(self, path, storage: str = "sqlite3", *, start_ns: int = DEFAULT_START_NS):
         if storage not in STORAGES:
-            raise ValueError(f"storage must be one of {STORAGES}, not {storage!r}")
+            raise InvalidInput(f"storage must be one of {STORAGES}, not {storage!r}")
         self.path, self.storage, self.start_ns = Path(path), storage, start_ns
         self.store = _typestore(storage == "ros1")
         self.pending: list[tuple[int, int, str, str, object]] = []   # (receive ns, order, topic, type, message)
@@ -130,7 +132,7 @@ class BagWriter:
                 return self._type(type_name)(transforms=[self._transform(stamp_ns, frame_id, name, p[i], q[i])
                                                          for name, (p, q) in arrays.items()])
         else:
-            raise ValueError(f"message_type must be NamedPoseArray or TFMessage, not {message_type!r}")
+            raise InvalidInput(f"message_type must be NamedPoseArray or TFMessage, not {message_type!r}")
         self._add(topic, type_name, t, log_t, make)
 
     def add_imu(self, topic: str, t, acc_body_g, *, gyro_rad_s=None, frame_id: str = "cf1", log_t=None) -> None:
@@ -157,7 +159,7 @@ class BagWriter:
         """crazyflie_interfaces/LogDataGeneric rows, values (N, k) in log-block order (crazyswarm2's custom
         topics; ROS 2 only); `timestamp` is ms since the Crazyflie booted, boot_offset_s before t = 0."""
         if self.storage == "ros1":
-            raise ValueError("LogDataGeneric is a ROS 2 type (crazyswarm2); a ROS 1 bag cannot carry it")
+            raise InvalidInput("LogDataGeneric is a ROS 2 type (crazyswarm2); a ROS 1 bag cannot carry it")
         values = np.asarray(values, float).reshape(len(t), -1)
         type_name = "crazyflie_interfaces/msg/LogDataGeneric"
 

@@ -5,6 +5,8 @@ from pathlib import Path
 
 import numpy as np
 
+from learnest.errors import InvalidInput
+
 from ..crazyflie_variables import ACC
 from .vicon import EXPECTED_HEADER
 
@@ -25,10 +27,10 @@ def write_vicon_csv(path, t, p_m, quat_xyzw, rate_hz, occluded_mask=None, subjec
     steps = (t - t[0]) * rate_hz
     frames = first_frame + np.round(steps).astype(np.int64)
     if np.any(np.abs(steps - np.round(steps)) > 1e-3) or np.any(np.diff(frames) <= 0):
-        raise ValueError("t must be increasing times on the capture grid t[0] + k / rate_hz")
+        raise InvalidInput("t must be increasing times on the capture grid t[0] + k / rate_hz")
     occluded = np.zeros(len(t), bool) if occluded_mask is None else np.asarray(occluded_mask, bool)
     if units not in ("mm", "m"):
-        raise ValueError(f"units must be 'mm' or 'm', not {units!r}")
+        raise InvalidInput(f"units must be 'mm' or 'm', not {units!r}")
     scale, digits = (1000.0, 6) if units == "mm" else (1.0, 9)   # both: 1 nm resolution
     rotvec = Rotation.from_quat(quat).as_rotvec()
     name = f"{subject}:{subject}"
@@ -54,13 +56,13 @@ def write_cfclient_csv(path, t_boot_s, acc_body_g, extra=None) -> None:
     then the `extra` variables {"group.name": (N,) values} in their firmware units."""
     t_ms = np.round(np.asarray(t_boot_s, dtype=float) * 1000.0).astype(np.int64)
     if np.any(np.diff(t_ms) <= 0):
-        raise ValueError("time stamps must increase by at least 1 ms")
+        raise InvalidInput("time stamps must increase by at least 1 ms")
     acc = np.asarray(acc_body_g, dtype=float)
     columns = {name: acc[:, j] for j, name in enumerate(ACC)}
     columns.update({name: np.asarray(values, dtype=float).reshape(-1) for name, values in (extra or {}).items()})
     for name, values in columns.items():
         if len(values) != len(t_ms):
-            raise ValueError(f"{name}: {len(values)} values for {len(t_ms)} time stamps")
+            raise InvalidInput(f"{name}: {len(values)} values for {len(t_ms)} time stamps")
     rows = ["Timestamp," + ",".join(columns)]
     rows += [f"{stamp}," + ",".join(repr(float(values[k])) for values in columns.values())
              for k, stamp in enumerate(t_ms)]

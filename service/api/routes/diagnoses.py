@@ -3,13 +3,16 @@ JSON, plus "registered" when the repaired model was registered as a new version.
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Response
+from fastapi.responses import JSONResponse
 
 from ...catalog import row_and_job
+from ...experiments.reports import DiagnosisReport
 from ...jobs.diagnosis import start_diagnosis
 from ...jobs.services import Services
 from ...storage.database import Database
 from ...storage.tables import Diagnosis
 from ..deps import RowId, get_db, get_services, pending, require_api_key
+from ..report_models import DiagnosisReportOut
 from ..schemas import DiagnosisAccepted, DiagnosisPending, DiagnosisRequest
 
 router = APIRouter(prefix="/diagnoses", tags=["diagnoses"])
@@ -25,7 +28,8 @@ def create_diagnosis(body: DiagnosisRequest, response: Response, services: Servi
     return {"job_id": job_id, "diagnosis_id": diagnosis_id}
 
 
-@router.get("/{diagnosis_id}", responses={200: {"description": "the report (diagnose_flights' JSON)"},
+@router.get("/{diagnosis_id}", response_model=DiagnosisReportOut,
+            responses={200: {"description": "the report (diagnose_flights' JSON)"},
                                           202: {"model": DiagnosisPending, "description": "not finished yet"},
                                           409: {"description": "the diagnosis job failed"}})
 def diagnosis_report(diagnosis_id: RowId, db: Database = Depends(get_db)):
@@ -33,4 +37,5 @@ def diagnosis_report(diagnosis_id: RowId, db: Database = Depends(get_db)):
     diagnosis, job = row_and_job(db, Diagnosis, diagnosis_id, "diagnosis")
     if job.state != "succeeded":
         return pending("diagnosis", diagnosis, job)
-    return {**diagnosis.report, "registered": diagnosis.registered}
+    # the stored JSON as it is (its schema, DiagnosisReportOut, documents it; old reports keep their keys)
+    return JSONResponse(DiagnosisReport.from_dict({**diagnosis.report, "registered": diagnosis.registered}).to_dict())

@@ -2,7 +2,12 @@
 weights.  MLflow's concepts: registered model -> immutable integer versions -> movable aliases."""
 from __future__ import annotations
 
+import json
+
 from fastapi import APIRouter, Depends, Query, Response
+from fastapi.responses import JSONResponse
+
+from learnest.models.metadata import ModelMetadata
 
 from ... import catalog, comparison, deletion, registry
 from ...jobs.services import Services
@@ -11,6 +16,7 @@ from ...storage.blobs import BlobStore
 from ...storage.database import Database
 from ...storage.tables import ModelVersion
 from ..deps import RowId, get_blobs, get_db, get_services, require_api_key
+from ..report_models import ModelMetadataOut, VersionLineage
 from ..schemas import AliasIn, AliasOut, Dependents, ModelOut, ModelPage, TrainAccepted, TrainRequest, VersionOut
 
 router = APIRouter(prefix="/models", tags=["models"])
@@ -81,13 +87,26 @@ def version_detail(name: str, version: RowId, db: Database = Depends(get_db)):
         return version_out(row, registry.aliases_of(session, name))
 
 
-@router.get("/{name}/versions/{version}/lineage",
+@router.get("/{name}/versions/{version}/lineage", response_model=VersionLineage,
             responses={200: {"description": "links to the training flight, parent, children, the diagnosis that "
                                             "produced it (and the effects it added), its job, evaluations, "
                                             "aliases; `exists: false` for a deleted one"}})
 def version_lineage(name: str, version: RowId, db: Database = Depends(get_db)) -> dict:
     """Where a version comes from and what was made from it; 404 when there is no such version."""
     return comparison.version_lineage(db, name, version)
+
+
+@router.get("/{name}/versions/{version}/metadata", response_model=ModelMetadataOut,
+            responses={409: {"description": "the version is not ready (no weights yet)"}})
+def version_metadata(name: str, version: RowId, db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
+    """What the model file says about itself: its meta (training and validation flights with their sha256,
+    ``learned``, the training envelope, the integer input ``format_version``, ...) and its prior's parameters;
+    404 when there is no such version, 409 when it is not ready."""
+    with db.transaction() as session:
+        row = registry.resolve(session, registry.ModelRef(name, version))
+    data = json.loads(blobs.read_bytes(registry.weights_of(row)))
+    # the model file's meta as it is (ModelMetadataOut documents it), read as `HybridModel.load` reads it
+    return JSONResponse(ModelMetadata.of_model(data.get("meta"), data.get("prior_params") or {}).to_dict())
 
 
 @router.get("/{name}/versions/{version}/dependents", response_model=Dependents)
