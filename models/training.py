@@ -230,6 +230,30 @@ def _train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, confi
     return TrainingResult(model, losses, seconds, val_losses)
 
 
+# The residual inputs a pooled model is blind to besides the system's own (`System.residual_blind`): the attitude.
+# Why: the mocap tilt of a quadrotor is its horizontal acceleration (tilt ≈ a_h / g), so a residual reading the
+# attitude reads the acceleration state the Crazyflie prior already hides from it, and learns how that state evolves
+# along the training trajectories rather than the vehicle.  On the shared NanoBench flights every circle and helix
+# turns counter-clockwise; a residual trained on them (figure-eights held out) turned the acceleration it settles on
+# (tau_s Δθ) 0.02-0.3 m/s² away from the prior's, mostly inwards-outwards along the tilt, and on the figure-eights,
+# whose tilt spreads wider (roll quaternion std 0.045 against 0.031, 10 % of samples outside the training
+# envelope) and whose turns alternate, the open-loop 0.5-s position prediction got worse on 8 of 8 flights (median
+# MSE −139 %); blind to the attitude, better on 7 of 8 (+6.8 %), at 29 % instead of 38 % on the training families'
+# held-out flights (benchmarks/gap_diagnosis.py, benchmarks/results/family_holdout_attitude_blind).  The prior
+# keeps the attitude's physics: it turns the thrust by R(q).
+ATTITUDE_INPUTS = ("qx", "qy", "qz", "qw")
+
+
+def attitude_blind(system: System) -> System:
+    """``system`` with its residual also blind to the attitude inputs (`ATTITUDE_INPUTS`) it has; unchanged when it
+    has none (the kinematic quadrotor).  Only the masks change: the prior, its parameters and the state are the same,
+    and the trained residual's first layer carries exact zeros on those inputs."""
+    from dataclasses import replace
+
+    extra = tuple(k for k in ATTITUDE_INPUTS if k in system.input_names and k not in system.residual_blind)
+    return replace(system, residual_blind=(*system.residual_blind, *extra)) if extra else system
+
+
 @dataclass
 class TrainingRecord:
     """One record's Algorithm-1 data for `train_knode_pooled`.
