@@ -214,7 +214,8 @@ def _flight_lineage(flight: Flight, gain: float | None) -> dict:
 
 def train_on_flights(flights: Sequence[Flight], config: TrainingConfig = CRAZYFLIE_TRAINING,
                      progress: Callable[[int, float], None] | None = None, system: str = "quadrotor",
-                     validate: Sequence[str] | None = None, blind_attitude: bool = True) -> TrainingResult:
+                     validate: Sequence[str] | None = None, blind_attitude: bool = True,
+                     blind_battery: bool = True) -> TrainingResult:
     """Algorithm 1 on several flights of one vehicle, one KNODE: the pre-training observer on each flight's own
     measurements and inputs (each with its own thrust gain, battery and length), one pooled loss over every
     training flight (`models.training.train_knode_pooled`), whole flights held out for validation.
@@ -237,6 +238,9 @@ def train_on_flights(flights: Sequence[Flight], config: TrainingConfig = CRAZYFL
     blind_attitude : bool
         Several flights: the residual is also blind to the attitude inputs (`models.training.attitude_blind`; the
         default, why there).  Ignored for one flight, which keeps the paper's protocol and the system's masks.
+    blind_battery : bool
+        Several flights, with ``blind_attitude``: blind to the battery voltage too (`models.training.BATTERY_INPUTS`;
+        the default).
 
     Returns
     -------
@@ -284,7 +288,7 @@ def train_on_flights(flights: Sequence[Flight], config: TrainingConfig = CRAZYFL
     check_one_vehicle(flights, systems, [d[3] for d in data])
     records = [TrainingRecord(f.name, zeta, u, prior.dt) for f, (prior, zeta, u, _) in zip(flights, data)]
     trained = [i for i, h in enumerate(held) if not h]
-    prior = attitude_blind(systems[trained[0]]) if blind_attitude else systems[trained[0]]
+    prior = attitude_blind(systems[trained[0]], blind_battery) if blind_attitude else systems[trained[0]]
     result = train_knode_pooled(prior, records, held, config, progress=progress)
     result.model.meta["residual_blind"] = list(prior.residual_blind)
     lineage = [_flight_lineage(f, d[3]) for f, d in zip(flights, data)]

@@ -23,6 +23,7 @@ from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyfl
 from learnest.models.systems import make_system
 from learnest.models.training import (
     ATTITUDE_INPUTS,
+    BATTERY_INPUTS,
     NOT_LEARNED,
     TrainingRecord,
     attitude_blind,
@@ -303,8 +304,10 @@ def test_a_pooled_residual_is_blind_to_the_attitude_and_still_learns_the_drag(dr
     blind = train_on_flights(drag_flights[:5], CRAZYFLIE_TRAINING, system="crazyflie")
     seen = train_on_flights(drag_flights[:5], CRAZYFLIE_TRAINING, system="crazyflie", blind_attitude=False)
     system = system_for(test, "crazyflie")
-    columns = [[*system.state_names, *system.input_names].index(k) for k in ATTITUDE_INPUTS]
+    names = [*system.state_names, *system.input_names]
+    columns = [names.index(k) for k in ATTITUDE_INPUTS]
     assert np.all(blind.model.residual.layers[0][0][:, columns] == 0.0)
+    assert np.all(blind.model.residual.layers[0][0][:, [names.index(k) for k in BATTERY_INPUTS]] == 0.0)
     assert np.any(seen.model.residual.layers[0][0][:, columns] != 0.0)
     assert set(ATTITUDE_INPUTS) <= set(blind.model.meta["residual_blind"])
     _, zeta, u, _ = flight_training_data(test, "crazyflie")
@@ -324,3 +327,6 @@ def test_attitude_blind_leaves_a_system_without_attitude_inputs_alone():
     names = [*crazyflie.state_names, *crazyflie.input_names]
     assert [k for k, m in zip(names, inputs) if m == 0.0] == [*crazyflie.residual_blind, *ATTITUDE_INPUTS]
     np.testing.assert_array_equal(outputs, crazyflie.residual_masks()[1])
+    inputs, _ = attitude_blind(crazyflie, battery=True).residual_masks()
+    assert [k for k, m in zip(names, inputs) if m == 0.0] == [*crazyflie.residual_blind, *ATTITUDE_INPUTS,
+                                                              *BATTERY_INPUTS]
