@@ -106,11 +106,12 @@ def main(argv=None) -> int:
                    "flights": len(v)} for g, v in groups.items()}
     print(summary)
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / f"gap_diagnosis_{args.family}_attitude_{args.attitude}"
-                                    + (f"_battery_{args.battery}" if args.attitude == "blind" else "") + ".json").write_text(json.dumps(
-        {"command": "python benchmarks/gap_diagnosis.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-         "family": args.family, "attitude": args.attitude, "battery": args.battery, "best_epoch": knode.meta["best_epoch"], "tau_s": tau,
-         "summary": summary, "flights": rows}, indent=1))
+    name = f"gap_diagnosis_{args.family}_attitude_{args.attitude}"
+    name += f"_battery_{args.battery}" if args.attitude == "blind" else ""
+    result = {"command": "python benchmarks/gap_diagnosis.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+              "family": args.family, "attitude": args.attitude, "battery": args.battery,
+              "best_epoch": knode.meta["best_epoch"], "tau_s": tau, "summary": summary, "flights": rows}
+    (args.out / f"{name}.json").write_text(json.dumps(result, indent=1))
     return 0
 
 
