@@ -250,7 +250,7 @@ def train_on_flights(flights: Sequence[Flight], config: TrainingConfig = CRAZYFL
         epoch beat the prior on the held-out flights: the model equals its prior), ``training_flight`` and
         ``training_flight_sha256`` (the first training flight's name; every training flight's sha256, so an
         evaluation excludes all of them), ``system`` and ``training_profile`` (`pooled_profile` of the training
-        flights).
+        flights); ``residual_blind`` (with several flights: every state and input the residual does not read).
 
     Raises
     ------
