@@ -18,7 +18,8 @@ gaps).
 
 Run from the repository root (needs ../shared/data; ~30 min on 2 cores):
     .venv/bin/python benchmarks/family_holdout.py [--families circle,figure8,helix,ramp]
-        [--trainings pooled,one] [--systems crazyflie,quadrotor] [--out benchmarks/results/family_holdout]
+        [--trainings pooled,one] [--systems crazyflie,quadrotor] [--attitude blind|seen] [--battery blind|seen]
+        [--out benchmarks/results/family_holdout]
 """
 from __future__ import annotations
 
@@ -154,6 +155,10 @@ def main(argv=None) -> int:
     parser.add_argument("--trainings", default="pooled,one")
     parser.add_argument("--systems", default="crazyflie,quadrotor")
     parser.add_argument("--methods", default=",".join(METHODS))
+    parser.add_argument("--attitude", choices=("blind", "seen"), default="blind",
+                        help="pooled residual blind to the attitude (the default of train_on_flights) or seeing it")
+    parser.add_argument("--battery", choices=("blind", "seen"), default="blind",
+                        help="with --attitude blind: the pooled residual blind to the battery voltage too")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/family_holdout"))
     args = parser.parse_args(argv)
     started = time.perf_counter()
@@ -174,7 +179,8 @@ def main(argv=None) -> int:
                 train = ([f for f in usable if family_of(f.name) != family] if training == "pooled"
                          else [by_name[ONE_FLIGHT[family]]])
                 t0 = time.perf_counter()
-                trained = train_on_flights(train, system=system)
+                trained = train_on_flights(train, system=system, blind_attitude=args.attitude == "blind",
+                                           blind_battery=args.battery == "blind")
                 meta = trained.model.meta
                 report = evaluate_flights(trained.model, test, methods)
                 rows = per_flight(report)

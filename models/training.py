@@ -230,6 +230,38 @@ def _train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, confi
     return TrainingResult(model, losses, seconds, val_losses)
 
 
+# The residual inputs a pooled model is blind to besides the system's own (`System.residual_blind`): the attitude.
+# Why: the mocap tilt of a quadrotor is its horizontal acceleration (tilt ≈ a_h / g), so a residual reading the
+# attitude reads the acceleration state the Crazyflie prior already hides from it, and learns how that state evolves
+# along the training trajectories rather than the vehicle.  Trained on the shared NanoBench circles, helices and ramps
+# (every circle and helix turns counter-clockwise), such a residual moved the acceleration it settles on (tau_s Δθ)
+# 0.01-0.18 m/s² inwards along the tilt there, and 0.20-0.30 m/s² on the figure-eights, whose tilt spreads wider
+# (10 % of their roll samples outside the training envelope): their open-loop 0.5-s position prediction got worse on
+# 8 of 8 flights (median MSE -139 %), and better on 7 of 8 (+6.8 %) blind to the attitude, though the training
+# families' own other flights preferred seeing it (+38 % against +32 %): flights of the trained families cannot show
+# this (benchmarks/gap_diagnosis.py; the gap yardstick per held-out family: benchmarks/results/family_holdout_*).
+# The prior keeps the attitude's physics: it turns the thrust by R(q).
+ATTITUDE_INPUTS = ("qx", "qy", "qz", "qw")
+
+
+# The battery voltage is a flight's condition, not the vehicle's: its range in a training set is whichever batteries
+# were flown, each flight sweeps its own stretch of it as it drains (a residual reading it can tell flights and times
+# apart), and the prior already carries its physics (the thrust map's battery term and each flight's thrust gain).
+BATTERY_INPUTS = ("vbat",)
+
+
+def attitude_blind(system: System, battery: bool = False) -> System:
+    """``system`` with its residual also blind to the attitude inputs (`ATTITUDE_INPUTS`) it has, and with
+    ``battery`` to the battery voltage (`BATTERY_INPUTS`); unchanged when it has none (the kinematic quadrotor).
+    Only the masks change: the prior, its parameters and the state are the same, and the trained residual's first
+    layer carries exact zeros on those inputs."""
+    from dataclasses import replace
+
+    names = (*ATTITUDE_INPUTS, *(BATTERY_INPUTS if battery else ()))
+    extra = tuple(k for k in names if k in system.input_names and k not in system.residual_blind)
+    return replace(system, residual_blind=(*system.residual_blind, *extra)) if extra else system
+
+
 @dataclass
 class TrainingRecord:
     """One record's Algorithm-1 data for `train_knode_pooled`.

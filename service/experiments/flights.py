@@ -47,7 +47,7 @@ from learnest.models.presets import (
 )
 from learnest.models.systems import System, make_system
 from learnest.models.thrust_gain import with_thrust_gain
-from learnest.models.training import TrainingRecord, TrainingResult, train_knode, train_knode_pooled
+from learnest.models.training import TrainingRecord, TrainingResult, attitude_blind, train_knode, train_knode_pooled
 
 # Systems a model of a real flight may use: the paper's kinematic chain, or the Crazyflie prior driven by
 # the motors and the battery (needs those channels in the flight).
@@ -214,7 +214,8 @@ def _flight_lineage(flight: Flight, gain: float | None) -> dict:
 
 def train_on_flights(flights: Sequence[Flight], config: TrainingConfig = CRAZYFLIE_TRAINING,
                      progress: Callable[[int, float], None] | None = None, system: str = "quadrotor",
-                     validate: Sequence[str] | None = None) -> TrainingResult:
+                     validate: Sequence[str] | None = None, blind_attitude: bool = True,
+                     blind_battery: bool = True) -> TrainingResult:
     """Algorithm 1 on several flights of one vehicle, one KNODE: the pre-training observer on each flight's own
     measurements and inputs (each with its own thrust gain, battery and length), one pooled loss over every
     training flight (`models.training.train_knode_pooled`), whole flights held out for validation.
@@ -234,6 +235,12 @@ def train_on_flights(flights: Sequence[Flight], config: TrainingConfig = CRAZYFL
         The prior (`FLIGHT_SYSTEMS`).
     validate : sequence of str, optional
         Names of the flights held out; default `default_validation` (one in five, at least one of two or more).
+    blind_attitude : bool
+        Several flights: the residual is also blind to the attitude inputs (`models.training.attitude_blind`; the
+        default, why there).  Ignored for one flight, which keeps the paper's protocol and the system's masks.
+    blind_battery : bool
+        Several flights, with ``blind_attitude``: blind to the battery voltage too (`models.training.BATTERY_INPUTS`;
+        the default).
 
     Returns
     -------
@@ -243,7 +250,7 @@ def train_on_flights(flights: Sequence[Flight], config: TrainingConfig = CRAZYFL
         epoch beat the prior on the held-out flights: the model equals its prior), ``training_flight`` and
         ``training_flight_sha256`` (the first training flight's name; every training flight's sha256, so an
         evaluation excludes all of them), ``system`` and ``training_profile`` (`pooled_profile` of the training
-        flights).
+        flights); ``residual_blind`` (with several flights: every state and input the residual does not read).
 
     Raises
     ------
@@ -281,8 +288,9 @@ def train_on_flights(flights: Sequence[Flight], config: TrainingConfig = CRAZYFL
     check_one_vehicle(flights, systems, [d[3] for d in data])
     records = [TrainingRecord(f.name, zeta, u, prior.dt) for f, (prior, zeta, u, _) in zip(flights, data)]
     trained = [i for i, h in enumerate(held) if not h]
-    prior = systems[trained[0]]
+    prior = attitude_blind(systems[trained[0]], blind_battery) if blind_attitude else systems[trained[0]]
     result = train_knode_pooled(prior, records, held, config, progress=progress)
+    result.model.meta["residual_blind"] = list(prior.residual_blind)
     lineage = [_flight_lineage(f, d[3]) for f, d in zip(flights, data)]
     result.model.meta.update(training_meta(prior))
     result.model.meta.update({

@@ -21,7 +21,15 @@ from learnest.models.knode import HybridModel
 from learnest.models.presets import CRAZYFLIE_TRAINING
 from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.models.systems import make_system
-from learnest.models.training import NOT_LEARNED, TrainingRecord, train_knode, train_knode_pooled
+from learnest.models.training import (
+    ATTITUDE_INPUTS,
+    BATTERY_INPUTS,
+    NOT_LEARNED,
+    TrainingRecord,
+    attitude_blind,
+    train_knode,
+    train_knode_pooled,
+)
 from learnest.service.experiments.flights import (
     check_one_vehicle,
     default_validation,
@@ -285,3 +293,40 @@ def test_a_model_trained_with_nothing_held_out_says_it_was_not_checked():
     for result in (alone, pooled):
         assert result.model.meta["learned"] is True and result.model.meta["learned_note"] == NOT_CHECKED
         assert result.model.meta["best_validation_loss"] is None
+
+
+def test_a_pooled_residual_is_blind_to_the_attitude_and_still_learns_the_drag(drag_flights):
+    """The pooled default (`models.training.attitude_blind`): the attitude columns of the residual's first layer are
+    exact zeros, so turning the attitude changes nothing it adds, and the 3-fold rotor drag (a function of the
+    velocity) is still learned: the unseen flight is predicted better than by the prior.  Seeing the attitude
+    (``blind_attitude=False``) the same training reads it."""
+    test = drag_flights[5]
+    blind = train_on_flights(drag_flights[:5], CRAZYFLIE_TRAINING, system="crazyflie")
+    seen = train_on_flights(drag_flights[:5], CRAZYFLIE_TRAINING, system="crazyflie", blind_attitude=False)
+    system = system_for(test, "crazyflie")
+    names = [*system.state_names, *system.input_names]
+    columns = [names.index(k) for k in ATTITUDE_INPUTS]
+    assert np.all(blind.model.residual.layers[0][0][:, columns] == 0.0)
+    assert np.all(blind.model.residual.layers[0][0][:, [names.index(k) for k in BATTERY_INPUTS]] == 0.0)
+    assert np.any(seen.model.residual.layers[0][0][:, columns] != 0.0)
+    assert set(ATTITUDE_INPUTS) <= set(blind.model.meta["residual_blind"])
+    _, zeta, u, _ = flight_training_data(test, "crazyflie")
+    turned = u.copy()
+    turned[:, [system.input_names.index(k) for k in ATTITUDE_INPUTS]] = [0.0, np.sin(0.2), 0.0, np.cos(0.2)]
+    np.testing.assert_array_equal(blind.model.residual(zeta, u), blind.model.residual(zeta, turned))
+    assert np.abs(seen.model.residual(zeta, u) - seen.model.residual(zeta, turned)).max() > 0
+    prior = HybridModel(system, "prior")
+    assert _one_step_error(blind.model, test) < _one_step_error(prior, test)
+
+
+def test_attitude_blind_leaves_a_system_without_attitude_inputs_alone():
+    quadrotor = make_system("quadrotor")
+    assert attitude_blind(quadrotor) is quadrotor
+    crazyflie = make_system("crazyflie")
+    inputs, outputs = attitude_blind(crazyflie).residual_masks()
+    names = [*crazyflie.state_names, *crazyflie.input_names]
+    assert [k for k, m in zip(names, inputs) if m == 0.0] == [*crazyflie.residual_blind, *ATTITUDE_INPUTS]
+    np.testing.assert_array_equal(outputs, crazyflie.residual_masks()[1])
+    inputs, _ = attitude_blind(crazyflie, battery=True).residual_masks()
+    assert [k for k, m in zip(names, inputs) if m == 0.0] == [*crazyflie.residual_blind, *ATTITUDE_INPUTS,
+                                                              *BATTERY_INPUTS]
