@@ -254,10 +254,17 @@ def test_a_usd_log_s_onboard_estimate_is_scored_from_its_compressed_state_estima
     assert fast["velocity_rmse_m_s"]["onboard"] == pytest.approx(rms_norm((onboard - derivative)[~inside]), rel=1e-9)
 
 
+def _junk(folder):
+    """A file that is no flight log: reading it would fail with another message than the gap plan's."""
+    path = folder / "junk.csv"
+    path.write_text("not,a,flight\n")
+    return path
+
+
 def test_the_command_line_refuses_gaps_without_mocap_between_them_before_reading_anything(capsys, tmp_path):
     from learnest.service.cli import main
 
-    status = main(["evaluate", "--model", "nothing:1", str(tmp_path / "missing.csv"), "--no-store", "--gap-s", "1",
+    status = main(["evaluate", "--model", "nothing:1", str(_junk(tmp_path)), "--no-store", "--gap-s", "1",
                    "--gap-every-s", "0.5"])
     assert status == 2
     assert "must be longer than the gap" in capsys.readouterr().err
