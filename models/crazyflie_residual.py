@@ -24,7 +24,6 @@ from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 
 from . import crazyflie as cf
-from .diagnosis import ResidualProblem
 from .effects import (
     Effect,
     crazyflie_effects,
@@ -35,6 +34,7 @@ from .effects import (
 )
 from .identify import FlightArrays, flight_arrays, lowpass, predict_body_force
 from .inputs import system_inputs
+from .residual_problem import ResidualProblem
 from .systems import Crazyflie
 
 # ground effect is below 0.1 % of thrust above ~10 rotor radii: without samples that low r_m is not fitted

@@ -14,7 +14,6 @@ from learnest.estimators.ukf import run_ukf
 from learnest.ingest.baseline import sg_references
 from learnest.ingest.flight import Flight
 from learnest.models.backend import rk4_step
-from learnest.models.diagnosis import ResidualProblem
 from learnest.models.effects import (
     Effect,
     dynamics_params,
@@ -26,6 +25,7 @@ from learnest.models.effects import (
 from learnest.models.identify import lowpass
 from learnest.models.inputs import slice_keeping_heat
 from learnest.models.knode import HybridModel
+from learnest.models.residual_problem import ResidualProblem
 from learnest.models.systems import System
 
 from .flights import initial_state
