@@ -169,13 +169,21 @@ def crazyflie_problem(flights: list[Flight], prior: dict | None = None, name: st
                            "measured samples away from gaps and the record's ends")
     offsets = np.cumsum([0] + lengths)
     blocks = [np.arange(offsets[i], offsets[i + 1]) for i in range(len(data))] if len(data) > 1 else []
+    frozen = _frozen_params(data)
+    times = np.concatenate([d.t[d.rows] for d in data])
+    return ResidualProblem(name, candidates, residual, int(offsets[-1]), blocks, frozen, times)
+
+
+def _frozen_params(data: list) -> dict:
+    """{param: why} for the parameters these flights cannot identify: the scales the mocap's specific force
+    cannot tell apart (`effects.unidentifiable_scales`), and the ground effect's r_m without enough samples
+    near the floor."""
     frozen = unidentifiable_scales(np.concatenate([d.f_mocap[d.arrays.keep] for d in data]))
     low = sum(int(np.sum(d.arrays.z[d.arrays.keep] < GROUND_EFFECT_HEIGHT_M)) for d in data)
     if low < MIN_GROUND_SAMPLES:
         frozen["r_m"] = (f"only {low} samples below {GROUND_EFFECT_HEIGHT_M:.2f} m: ground effect is not "
                          f"identifiable on these flights and r_m is held at the prior's value")
-    times = np.concatenate([d.t[d.rows] for d in data])
-    return ResidualProblem(name, candidates, residual, int(offsets[-1]), blocks, frozen, times)
+    return frozen
 
 
 def specific_force_rmse(problem: ResidualProblem, values: dict | None = None) -> float:

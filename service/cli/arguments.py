@@ -7,11 +7,7 @@ import math
 from pathlib import Path
 
 from learnest.errors import InvalidInput
-from learnest.models.presets import (
-    GAP_EVERY_S,
-    GAP_S,
-    SG_WINDOW_RANGE,
-)
+from learnest.models.presets import GAP_EVERY_S, GAP_S, SG_WINDOW_RANGE
 
 
 # -- argument types: refuse bad values before any import or ingest (one-line error, exit 2) -----------

@@ -1,9 +1,7 @@
 """The text the `learnest` subcommands print: reports, trained and registered models, diagnoses."""
 from __future__ import annotations
 
-from learnest.models.presets import (
-    EVALUATION_METHODS,
-)
+from learnest.models.presets import EVALUATION_METHODS
 
 
 def format_report(report: dict) -> str:

@@ -260,11 +260,7 @@ def train_on_flights(flights: Sequence[Flight], config: TrainingConfig = CRAZYFL
     if twice:
         raise InvalidInput(f"flight(s) given more than once: {', '.join(twice)}")
     if len(flights) == 1 and not validate:
-        result = train_on_flight(flights[0], config, progress=progress, system=system)
-        lineage = [_flight_lineage(flights[0], None)]
-        result.model.meta.update({"training_flights": lineage, "validation_flights": [],
-                                  "validation": "held-out time blocks of the flight"})
-        return result
+        return _train_on_one(flights[0], config, progress, system)
     if validate:
         unknown = [n for n in validate if n not in names]
         if unknown:
@@ -292,6 +288,15 @@ def train_on_flights(flights: Sequence[Flight], config: TrainingConfig = CRAZYFL
         "training_flights": [lineage[i] for i in trained],
         "validation_flights": [lineage[i] for i, h in enumerate(held) if h],
         "validation": "held-out flights"})
+    return result
+
+
+def _train_on_one(flight: Flight, config, progress, system) -> TrainingResult:
+    """`train_on_flights` with one flight and no validation flights: validated on held-out time blocks of it."""
+    result = train_on_flight(flight, config, progress=progress, system=system)
+    lineage = [_flight_lineage(flight, None)]
+    result.model.meta.update({"training_flights": lineage, "validation_flights": [],
+                              "validation": "held-out time blocks of the flight"})
     return result
 
 

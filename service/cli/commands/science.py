@@ -8,10 +8,7 @@ import time
 from pathlib import Path
 
 from learnest.errors import InvalidInput
-from learnest.models.presets import (
-    CRAZYFLIE_TRAINING,
-    EVALUATION_METHODS,
-)
+from learnest.models.presets import CRAZYFLIE_TRAINING, EVALUATION_METHODS
 
 from ..arguments import _export_format, _gap_plan, _topics
 from ..formatting import _gap_lines, diagnosis_lead, format_report, format_trained
