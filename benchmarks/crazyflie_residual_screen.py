@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from learnest.ingest.frames import GRAVITY, quat_to_matrix
-from learnest.models.identify import first_order_lag, flight_arrays, lowpass
+from learnest.models.crazyflie.identify import first_order_lag, flight_arrays, lowpass
 
 sys.path.insert(0, str(Path(__file__).parent))
 import crazyflie_thrust_map as thrust_map  # noqa: E402

@@ -48,16 +48,16 @@ def format_report(report: dict) -> str:
         lines.append(f"recommended estimate (the KNODE's; the prior's where the check flags the flight): median "
                      f"{scores}; prior's used on: {prior_on}")
     axes = {f["flight"]: f["thrust_axis_offset_deg"] for f in report["flights"] if f.get("thrust_axis_offset_deg")}
-    if axes:   # the calibration the prior's attitude input got (models.thrust_axis)
+    if axes:   # the calibration the prior's attitude input got (models.crazyflie.thrust_axis)
         lines.append("thrust axis vs mocap frame (deg, x/y): "
                      + ", ".join(f"{name} {x:+.1f}/{y:+.1f}" for name, (x, y) in axes.items()))
     gains = {f["flight"]: f["thrust_gain"] for f in report["flights"] if f.get("thrust_gain")}
-    if gains:   # the thrust gain the prior got per flight (models.thrust_gain)
+    if gains:   # the thrust gain the prior got per flight (models.crazyflie.thrust_gain)
         lines.append("thrust gain vs the prior's thrust map (mocap / map): "
                      + ", ".join(f"{name} {gain:.3f}" for name, gain in gains.items()))
     heating = {f["flight"]: f["heating_thrust_loss_pct"] for f in report["flights"]
                if f.get("heating_thrust_loss_pct") is not None}
-    if heating:   # the motors' heating the prior's thrust carried (models.motor_heating)
+    if heating:   # the motors' heating the prior's thrust carried (models.crazyflie.motor_heating)
         lines.append("largest thrust loss to motor heating over the flight (%): "
                      + ", ".join(f"{name} {loss:.1f}" for name, loss in heating.items()))
     for f in report["flights"]:   # another vehicle, sensor rate or attitude source than the training flight's

@@ -6,7 +6,7 @@ Crazyflie flights, kinematic prior (system "quadrotor"): the accelerometer chann
 against Savitzky–Golay references) and the translational dynamics (dynamics effects, on the KF observer's
 states) are traced separately.  Crazyflie flights, input-driven prior (system "crazyflie"): one channel,
 the body-frame specific force the accelerometer reads against what motors, battery and mocap predict
-(`models.crazyflie_residual`), traces the physical effects (mass, battery_thrust, rotor_drag,
+(`models.crazyflie.crazyflie_residual`), traces the physical effects (mass, battery_thrust, rotor_drag,
 ground_effect, motor_lag) and the accelerometer's together.
 Everything is fitted on some data and scored on other data (flights or trajectories not used to fit).
 """

@@ -1,6 +1,6 @@
 """The diagnosis of Crazyflie flights with the input-driven prior: one channel, the body-frame specific
 force the accelerometer reads against what motors (or rotor speed, or the thrust command), battery and
-mocap predict (`models.crazyflie_residual`), traces the physical effects and the accelerometer's together."""
+mocap predict (`models.crazyflie.crazyflie_residual`), traces the physical effects and the accelerometer's together."""
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -13,9 +13,9 @@ from learnest.estimators.observers import pretraining_observer
 from learnest.ingest.flight import Flight
 from learnest.ingest.profile import flight_profile
 from learnest.models import crazyflie as cf
-from learnest.models.crazyflie_residual import CRAZYFLIE_MIN_CV_GAIN, crazyflie_problem, specific_force_rmse
+from learnest.models.crazyflie.crazyflie_residual import CRAZYFLIE_MIN_CV_GAIN, crazyflie_problem, specific_force_rmse
+from learnest.models.crazyflie.identify import LOWPASS_HZ
 from learnest.models.diagnosis import AT_BOUND_FRACTION, bootstrap_ci, fit, select_effects
-from learnest.models.identify import LOWPASS_HZ
 from learnest.models.inputs import (
     CHANNEL_SOURCES,
     SOURCE_CHANNELS,
@@ -190,7 +190,7 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
 
     The thrust comes from what the flights carry (`crazyflie_prior_for`): motor PWM and battery voltage,
     rotor speed, or the controller's thrust in N.  The residual is the body-frame specific force
-    (`models.crazyflie_residual.crazyflie_problem`, both sides low-passed at 5 Hz); effects are selected on
+    (`models.crazyflie.crazyflie_residual.crazyflie_problem`, both sides low-passed at 5 Hz); effects are selected on
     the fitting flights (`_split_crazyflie`) and scored on the others: the RMSE of the specific force
     predicted from the inputs alone (``specific_force_rmse``, m/s²) and, for each of ``methods``, the
     estimator's MSE with the prior before and after (KNODE methods train a KNODE on the first fitting

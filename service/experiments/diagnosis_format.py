@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 
 from learnest.models import crazyflie as cf
+from learnest.models.crazyflie.identify import LOWPASS_HZ
 from learnest.models.diagnosis import MULTIPLE_SHARE
-from learnest.models.identify import LOWPASS_HZ
 
 
 def unchanged_prior_note(result: dict) -> str | None:

@@ -14,6 +14,7 @@ from learnest.estimators.ukf import run_ukf
 from learnest.ingest.baseline import sg_references
 from learnest.ingest.flight import Flight
 from learnest.models.backend import rk4_step
+from learnest.models.crazyflie.identify import lowpass
 from learnest.models.effects import (
     Effect,
     dynamics_params,
@@ -22,7 +23,6 @@ from learnest.models.effects import (
     specific_force_body,
     unidentifiable_scales,
 )
-from learnest.models.identify import lowpass
 from learnest.models.inputs import slice_keeping_heat
 from learnest.models.knode import HybridModel
 from learnest.models.residual_problem import ResidualProblem

@@ -7,7 +7,7 @@ import pytest
 
 from learnest.ingest.formats.nanobench import writer as nanobench
 from learnest.models import crazyflie as cf
-from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
+from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.service.cli import main
 
 

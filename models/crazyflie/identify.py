@@ -19,8 +19,8 @@ import numpy as np
 from learnest.ingest.flight import Flight
 from learnest.ingest.frames import quat_to_matrix
 
-from .crazyflie import BOUNDS, GRAVITY, PUBLIC, specific_force_body, thrust_acceleration
 from .motor_heating import HISTORY_KEY, thermal_state
+from .prior import BOUNDS, GRAVITY, PUBLIC, specific_force_body, thrust_acceleration
 
 LOWPASS_HZ = 5.0
 EDGE_S = 0.5
@@ -68,7 +68,7 @@ def interpolated_rows(values: np.ndarray, tol: float = 1e-9) -> np.ndarray:
 def flight_arrays(flight: Flight, source: str = "pwm") -> FlightArrays:
     """Arrays for identification, the thrust columns from ``source`` (`models.crazyflie.THRUST_SOURCES`);
     raises ValueError naming the missing inputs."""
-    from .inputs import SOURCE_CHANNELS, thrust_columns  # inputs imports this module's neighbours
+    from ..inputs import SOURCE_CHANNELS, thrust_columns  # inputs imports this module's neighbours
 
     missing = [name for name in (*SOURCE_CHANNELS[source], "acc_body") if name not in flight.channels]
     if missing:
@@ -106,7 +106,7 @@ def first_order_lag(x: np.ndarray, tau: float, dt: float) -> np.ndarray:
 
 def predict_body_force(arrays: FlightArrays, params: dict) -> np.ndarray:
     """(T, 3) body-frame specific force predicted from the inputs (the motors' heating applied when ``params``
-    has ``kappa_th``, `models.motor_heating`), lagged by tau_s, low-passed."""
+    has ``kappa_th``, `models.crazyflie.motor_heating`), lagged by tau_s, low-passed."""
     f_b, _ = specific_force_body(list(arrays.v_world.T), arrays.z, list(arrays.u.T), params)
     f_b = np.column_stack([np.broadcast_to(c, arrays.z.shape) for c in f_b])
     if params.get("kappa_th"):

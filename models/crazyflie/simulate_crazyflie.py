@@ -4,13 +4,13 @@ A position controller flies the input-driven model closed-loop along a varied pa
 cm above the floor (ground effect), a climb, circles at several speeds with climbs and descents (thrust
 and airspeed vary), a descent and a landing hover.  The battery sags linearly over the flight.  What the
 truth differs in from the prior (payload mass, voltage exponent, rotor drag, motor lag, ground effect) is
-set by ``truth`` (its ``kappa_th``, ``tau_th_s``: motors that lose thrust as they warm, `models.motor_heating`,
+set by ``truth`` (its ``kappa_th``, ``tau_th_s``: motors that lose thrust as they warm, `motor_heating`,
 from cold at the start); the controller flies with the prior's thrust map and an integrator, as the firmware does.
 
 The Flight carries what a NanoBench log carries: mocap position and attitude, the accelerometer's
 body-frame specific force (``acc_body``, white noise, optionally the sensor's low-pass), the four motor PWM
 (``motors``) and the battery voltage (``vbat``).  The motor lag acts on the body-frame specific force as a
-first-order filter, the form `models.identify` predicts.  Writing these inputs into the log formats of
+first-order filter, the form `models.crazyflie.identify` predicts.  Writing these inputs into the log formats of
 `ingest` is not done here (ingest must not import models).
 """
 from __future__ import annotations
@@ -22,8 +22,8 @@ import numpy as np
 from learnest.ingest.flight import Flight
 from learnest.ingest.frames import GRAVITY
 
-from . import crazyflie as cf
-from .effects import predict_acc_body, world_from_body
+from ..effects import predict_acc_body, world_from_body
+from . import prior as cf
 from .identify import lowpass
 from .motor_heating import motor_power
 
@@ -143,7 +143,7 @@ def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int 
     """Fly ``settings.truth`` closed-loop along a varied path and log it as a Flight.
 
     The inputs are held over each sample, and so is the specific force they command (the motor lag
-    filters it exactly, as `models.identify.first_order_lag` assumes); position and velocity are
+    filters it exactly, as `models.crazyflie.identify.first_order_lag` assumes); position and velocity are
     integrated in `SUBSTEPS` steps per sample.
 
     Parameters
@@ -174,7 +174,7 @@ def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int 
     decay = _lag_decay(h, truth["tau_s"])
     gravity = np.array([0.0, 0.0, GRAVITY])
     p, v = p_ref[0].copy(), np.zeros(3)
-    heat = {"h": 0.0}      # the motors' thermal state (models.motor_heating), cold at the start
+    heat = {"h": 0.0}      # the motors' thermal state (models.crazyflie.motor_heating), cold at the start
     kappa_th = float(truth.get("kappa_th", 0.0))
     heat_decay = np.exp(-dt / truth["tau_th_s"]) if kappa_th else 0.0
 

@@ -53,7 +53,7 @@ def thrust_axis_offset(p: np.ndarray, quat: np.ndarray, dt: float) -> np.ndarray
         If the offset exceeds `MAX_OFFSET_RAD` (the attitude is not the vehicle's, or the record is not
         a flight), or position or attitude hold non-finite values.
     """
-    from learnest.models.identify import lowpass
+    from learnest.models.crazyflie.identify import lowpass
 
     p, quat = np.asarray(p, dtype=float), np.asarray(quat, dtype=float)
     edge = int(round(EDGE_S / dt))
