@@ -233,7 +233,7 @@ def _levenberg_marquardt(problem: _JointProblem, states: np.ndarray, theta: np.n
     Returns the states, θ and J/2 per sample after each step taken (empty when none lowered J)."""
     T, n = states.shape
     m = problem.y.shape[1]
-    # the MHE's compiled block Cholesky (estimators/btd.c): R⁻¹ = I (H is whitened), m + n rows for the damping
+    # the MHE's compiled block Cholesky (estimators/native/btd.c): R⁻¹ = I (H is whitened), m + n rows for the damping
     solver = BlockTridiagonal(n, m + n, T, np.diag(problem.inv_sigma_q**2), np.eye(m + n))
     cost, damping, losses = problem.cost(states, theta), 1e-3, []
     if not np.isfinite(cost):

@@ -14,7 +14,7 @@ Where the time goes, and why this design (measured on the 9-state, 16-unit quadr
 2-core machine at load ~3; benchmarks/results/mhe_speed.md):
 - Calling a CasADi `Function` from Python costs 30-80 µs of conversions (numpy -> DM -> numpy), so the
   model's arithmetic is CasADi-generated C, compiled once and called through ctypes
-  (`estimators.codegen`, cached by content hash; CasADi's interpreter when there is no compiler).  The
+  (`estimators.native.codegen`, cached by content hash; CasADi's interpreter when there is no compiler).  The
   model's numbers (weights, physical parameters, dt) and Q⁻¹, R⁻¹ are inputs of that code, not constants
   in it, so it is compiled once per architecture, not once per trained model (`estimators.parametric`).
   One window of IPOPT, warm-started, is 1.5 ms (prior) to 11 ms (KNODE).  CasADi's structure-
@@ -63,8 +63,8 @@ import numpy as np
 
 from learnest.errors import NumericalWarning
 
-from .block_tridiagonal import BlockTridiagonal, _address
-from .codegen import compiled, mapped, model_key
+from .native.block_tridiagonal import BlockTridiagonal, _address
+from .native.codegen import compiled, mapped, model_key
 from .parametric import symbolic_model
 
 # The contraction estimate ρ = s_k/s_{k-1} predicts the remaining error only once both steps are small
@@ -85,7 +85,7 @@ class GaussNewtonWindowSolver:
         Iterations per window; None runs to convergence (at most 30 Gauss–Newton iterations, then IPOPT
         solves that window), 1 is a real-time iteration.
     cache_dir, compiler
-        Passed to `estimators.codegen.compiled`.
+        Passed to `estimators.native.codegen.compiled`.
     """
 
     def __init__(self, mhe, tol: float = 1e-9, max_iter: int | None = None, cache_dir=None, compiler="auto"):

@@ -94,7 +94,7 @@ class CompiledFunction(_Buffers):
 
     def pointers(self) -> tuple:
         """(function, arg, res, iw, w, mem) as integers: what C code needs to call this function itself
-        (`estimators/gn.c`), valid as long as this object lives."""
+        (`estimators/native/gn.c`), valid as long as this object lives."""
         return (ctypes.cast(self._fn, ctypes.c_void_p).value, *self._call_args)
 
     def __call__(self):
