@@ -1,4 +1,4 @@
-"""Motor heating in the Crazyflie prior, identified and scored on the real NanoBench flights (issue 14).
+"""Motor heating in the Crazyflie prior, identified and scored on the real NanoBench flights.
 
 `models/crazyflie/motor_heating.py` scales the prior's thrust by (1 − κ h), h a cold-start thermal state from the motor
 PWM and battery voltage (τ_th h' = P − h).  This script

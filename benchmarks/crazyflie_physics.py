@@ -1,4 +1,4 @@
-"""Identify the Crazyflie's input-driven physics on the real NanoBench flights (issue 14, step 1).
+"""Identify the Crazyflie's input-driven physics on the real NanoBench flights.
 
 Target: body-frame z specific force (the accelerometer) predicted from the inputs alone (motor PWM,
 battery voltage, mocap attitude and velocity), both sides low-passed at 5 Hz (`models.crazyflie.identify`).

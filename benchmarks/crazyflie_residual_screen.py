@@ -1,5 +1,5 @@
 """What is left of the body-z specific force after the best thrust map, and what does not explain it
-(issue 14, the held-out target on real NanoBench flights).
+(the held-out specific-force target on real NanoBench flights).
 
 `crazyflie_thrust_map.py` ends at 0.128 m/s² held out (60-61 % of the constant 1 g, target ≤ 60 %) in
 the in-flight window.  This benchmark asks three questions about the rest:

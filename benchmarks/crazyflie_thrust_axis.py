@@ -1,4 +1,4 @@
-"""The thrust axis against the mocap body frame on the real NanoBench flights (issue 14: the Crazyflie prior
+"""The thrust axis against the mocap body frame on the real NanoBench flights (the Crazyflie prior
 vs the kinematic one).
 
 Per flight: the calibrated offset (`models.crazyflie.thrust_axis`, from mocap position and attitude only), and the

@@ -1,4 +1,4 @@
-"""Per-motor thrust maps on the real NanoBench flights (issue 14, the held-out specific-force target).
+"""Per-motor thrust maps on the real NanoBench flights (the held-out specific-force target).
 
 `crazyflie_physics.py` fits the physics prior's form: one thrust map shared by the four motors (Förster's
 quadratic in PWM, a voltage power law, an effective mass, a motor lag, rotor drag).  Its held-out error
@@ -94,7 +94,7 @@ HEATING = (
      BEST[1] + (heat(init="fast"), heat(init="slow"))),
 )
 # not heating: a drift in time that knows nothing of power or of the pauses between flights
-# the battery voltage through models.crazyflie.thrust_map's ~1-s causal filter (stop 15), alone and with the heating
+# the battery voltage through models.crazyflie.thrust_map's ~1-s causal filter, alone and with the heating
 FILTERED = (("battery voltage filtered (models.crazyflie.thrust_map)", BEST[1]),
             ("+ motor heating (carried over), filtered voltage", BEST[1] + (heat(init="carried"),)))
 COMPARISON = (("+ time since the motors started (comparison)", BEST[1] + ("time",)),)

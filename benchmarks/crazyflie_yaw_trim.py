@@ -1,4 +1,4 @@
-"""Does the yaw trim explain the per-flight thrust offset on the real NanoBench flights? (issue 14)
+"""Does the yaw trim explain the per-flight thrust offset on the real NanoBench flights?
 
 `benchmarks/crazyflie_physics.py` leaves a per-flight mean offset in the body-z specific force that no
 input-driven effect explained (−0.15 … +0.15 m/s²; knowing it would bring the residual from 0.16 to

@@ -2,7 +2,7 @@
 
 Algorithm 1 first estimates the unmeasured states with an observer and then fits Δθ to them.  Whatever the
 observer gets wrong (a model-free KF lags the velocities it infers) becomes data the network learns, and a fit
-run to convergence learns it exactly (issue 11: on cartpole seed 0, L-BFGS run to convergence on the KF
+run to convergence learns it exactly (measured on cartpole seed 0: L-BFGS run to convergence on the KF
 observer's states gives KNODE-MHE 5.8e-3, against 0.34e-3 when fitted on the true states).  Here the states
 are not fixed: they and the network's weights θ minimise one weighted least-squares objective over the whole
 record,

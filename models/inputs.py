@@ -58,10 +58,10 @@ def thrust_columns(flight: Flight, source: str) -> np.ndarray:
 # systems whose prior turns thrust into acceleration through the attitude: their attitude input is the
 # mocap attitude rotated onto the flight's thrust axis, with the heading removed (`models.crazyflie.thrust_axis`)
 THRUST_THROUGH_ATTITUDE = frozenset({"crazyflie"})
-# what a model trained on such inputs records in meta["attitude_input"]; since stop 16 the battery voltage
-# also carries the flight's thrust gain (`models.crazyflie.thrust_gain`).  A model keeps being fed the inputs it was
-# trained on: one of these two, else it is scored with a warning to retrain.  (The motors' heating, since stop
-# 17, is a parameter of the prior, `kappa_th`: a model trained before it has none in its stored prior.)
+# what a model trained on such inputs records in meta["attitude_input"]; with the calibrated attitude the battery
+# voltage also carries the flight's thrust gain (`models.crazyflie.thrust_gain`).  A model keeps being fed the
+# inputs it was trained on: one of these two, else it is scored with a warning to retrain.  (The motors' heating is a
+# parameter of the prior, `kappa_th`: a model stored without it has none in its stored prior.)
 ATTITUDE_CALIBRATED = "mocap attitude calibrated onto the thrust axis, heading removed"
 THRUST_GAIN_CALIBRATED = ATTITUDE_CALIBRATED + "; thrust gain calibrated per flight"
 INPUT_CALIBRATIONS = (ATTITUDE_CALIBRATED, THRUST_GAIN_CALIBRATED)

@@ -1,7 +1,7 @@
 """Identify the Crazyflie's input-driven physics from real flights: body-frame specific force predicted
 from motor PWM, battery voltage, mocap attitude and velocity, scored against the accelerometer.
 
-Protocol (the one issue 14 states): the accelerometer's body-frame z specific force and the model's
+Protocol (the held-out specific-force target's): the accelerometer's body-frame z specific force and the model's
 prediction are both low-passed at 5 Hz (2nd-order Butterworth, zero phase) and compared by RMSE (m/s²).
 Samples the recorder interpolated across radio gaps are not measurements and are left out of every fit
 and score, as are the first and last 0.5 s of each flight (the zero-phase filter's edges).  Fitting is

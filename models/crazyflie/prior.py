@@ -4,7 +4,7 @@ ground effect, motor lag.  Written once against the numpy/torch/CasADi namespace
 Every number has one home here: `PUBLIC` holds published values with their source, `IDENTIFIED` the
 values fitted on the real NanoBench flights by `benchmarks/crazyflie_physics.py` (committed results in
 `benchmarks/results/crazyflie_physics/`), `BOUNDS` the physically plausible range of each parameter.
-Parameter names follow issue 14's effect contract: `m_kg`, `gamma`, `k_xy`, `k_z`, `r_m`, `tau_s`.
+Parameter names follow the effect contract (`EFFECTS` below): `m_kg`, `gamma`, `k_xy`, `k_z`, `r_m`, `tau_s`.
 
 Thrust of one motor (N), PWM p in 0..65535, battery voltage V (V):
 
@@ -76,7 +76,7 @@ PUBLIC = {
     "k_z": _rotor_drag_per_second(FOERSTER_K_DRAG_Z, BITCRAZE_MASS_KG),     # ≈ 0.28 1/s
     "r_m": BITCRAZE_ROTOR_RADIUS_M,
     # No published Crazyflie 2.x motor time constant was found in the sources above; 30 ms is the order
-    # of magnitude of small brushed motors and the value issue 14's simulated tests use.
+    # of magnitude of small brushed motors and the value the simulated tests use.
     "tau_s": 0.03,
     "v_ref": V_REF,
     # No published thermal model of the Crazyflie's motors was found: no heating, and the identified time
@@ -126,7 +126,7 @@ BOUNDS = {
 UNITS = {"m_kg": "kg", "gamma": "1", "q_pwm2": "1", "k_xy": "1/s", "k_z": "1/s", "r_m": "m", "tau_s": "s",
          "v_ref": "V", "kappa_th": "1", "tau_th_s": "s"}
 
-# Issue 14's effect contract: effect id -> its parameters and the one-line equation it adds to the prior.
+# The effect contract: effect id -> its parameters and the one-line equation it adds to the prior.
 # Nominal values: PUBLIC (published) and IDENTIFIED (NanoBench); ranges: BOUNDS; units: UNITS.
 EFFECTS = {
     "mass": {"params": ("m_kg",), "equation": "v̇ = R(q)·[0, 0, Σ T_i]ᵀ / m_kg − g e₃  (a payload raises m_kg)"},

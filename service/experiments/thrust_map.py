@@ -2,8 +2,9 @@
 
 The question a user asks of their logs: how well do the inputs alone (motor PWM, battery voltage, mocap
 attitude and velocity; no accelerometer) predict the body-frame z specific force the accelerometer reads?
-The protocol is issue 14's (`models.crazyflie.identify`: both sides low-passed at 5 Hz, samples the recorder
-interpolated across gaps and the filter edges left out); the model is `models.crazyflie.thrust_map`.
+The protocol is the held-out specific-force target's (`models.crazyflie.identify`: both sides low-passed
+at 5 Hz, samples the recorder interpolated across gaps and the filter edges left out); the model is
+`models.crazyflie.thrust_map`.
 """
 from __future__ import annotations
 

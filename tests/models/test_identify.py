@@ -1,5 +1,5 @@
 """Identification of the input-driven physics: parameters recovered from a simulated flight whose truth is
-known, and on the real NanoBench flights the held-out body-z specific-force prediction of issue 14."""
+known, and on the real NanoBench flights the held-out body-z specific-force prediction the prior must reach."""
 from pathlib import Path
 
 import numpy as np
@@ -133,8 +133,8 @@ def test_thrust_map_recovers_its_coefficients_and_both_time_constants():
 
 @needs_data
 @pytest.mark.slow
-def test_real_flights_meet_issue_14_target():
-    """Issue 14's target on the real flights: body-z specific force from the inputs alone, both sides low-passed
+def test_real_flights_meet_the_held_out_target():
+    """The held-out target on the real flights: body-z specific force from the inputs alone, both sides low-passed
     at 5 Hz, fit on one family and scored on the other: RMSE <= 0.15 m/s² and <= 60 % of the constant 1 g.
     The physics prior alone (above) reaches 73 / 88 %; the identified thrust map (`models.crazyflie.thrust_map`) 54.6 /
     53.7 % (0.117 / 0.113 m/s², benchmarks/results/crazyflie_thrust_map)."""

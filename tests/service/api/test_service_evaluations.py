@@ -229,7 +229,7 @@ def test_cli_evaluate_new_output(registry_home, monkeypatch, capsys):
 
 
 def test_the_report_page_computes_its_velocity_figure_once_and_keeps_it(registry_home):
-    """Issue 10, item 7, for an evaluation whose estimates were not stored (made before they were kept): a
+    """For an evaluation whose estimates were not stored (made before they were kept): a
     report view starts one executor task for the figure (never a second one while it runs, however many
     views), the page reloads until it is stored, and later views read the stored one."""
     from sqlalchemy import func, select, update
@@ -274,7 +274,7 @@ def embedded_figure(html: str, plot_id: str) -> dict:
 
 
 def test_report_plots_come_from_the_stored_estimates_with_the_chosen_sg_window(registry_home):
-    """Issue 12, section 3: the report's time series are the stored estimates minus the reference (per group),
+    """The report's time series are the stored estimates minus the reference (per group),
     the paired dots are the table's MSE x 1e3, the SG window is a setting (its own cache key) shown on the
     page, plotly.js is served by the server itself; the flight page embeds its channels the same way."""
     import io
