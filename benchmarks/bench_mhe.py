@@ -37,7 +37,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from bench_core import timed_side_by_side  # noqa: E402  (the script folder is on sys.path)
 
-import learnest.estimators.codegen as codegen  # noqa: E402
+import learnest.estimators.native.codegen as codegen  # noqa: E402
 from learnest.estimators.mhe import MHE  # noqa: E402
 from learnest.estimators.ukf import run_ukf  # noqa: E402
 from learnest.ingest import read_flights  # noqa: E402

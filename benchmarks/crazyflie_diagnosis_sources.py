@@ -26,7 +26,7 @@ from learnest.ingest import read_flights
 from learnest.ingest.sim import write_canonical_flight
 from learnest.ingest.sim.export import CFCLIENT_CLOCK_OFFSET_S
 from learnest.models import crazyflie as cf
-from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
+from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.service.experiments.diagnosis import diagnose_crazyflie
 
 OUT = Path(__file__).parent / "results" / "crazyflie_diagnosis_sources"
@@ -175,7 +175,7 @@ def _markdown(matrix, special) -> str:
     lines = ["# Crazyflie diagnosis by thrust source, simulated flights",
              "", "Command: `.venv/bin/python benchmarks/crazyflie_diagnosis_sources.py > "
              "benchmarks/results/crazyflie_diagnosis_sources/results.md` (results.json beside it).",
-             f"Three {DURATION_S:g}-s closed-loop flights per case (`models.simulate_crazyflie`, seeds 0-2), fitted on "
+             f"Three {DURATION_S:g}-s closed-loop flights per case (`models.crazyflie.simulate_crazyflie`, seeds 0-2), fitted on "
              "the first two, scored on the third (body-frame specific force from the inputs, RMSE m/s², 5 Hz).",
              "Target: the right effect first, within 20 %, after < before, nothing claimed at a bound; where the "
              "source already carries the effect (battery or lag behind a measured rotor speed, battery behind a "

@@ -1,10 +1,10 @@
 """Motor heating in the Crazyflie prior, identified and scored on the real NanoBench flights.
 
-`models/motor_heating.py` scales the prior's thrust by (1 − κ h), h a cold-start thermal state from the motor
+`models/crazyflie/motor_heating.py` scales the prior's thrust by (1 − κ h), h a cold-start thermal state from the motor
 PWM and battery voltage (τ_th h' = P − h).  This script
 
 1. identifies (τ_th, κ) from the mocap's body-z specific force against the prior's (`models.crazyflie`, the
-   identified map, the flight's thrust axis), with a free thrust gain per flight (what `models.thrust_gain`
+   identified map, the flight's thrust axis), with a free thrust gain per flight (what `models.crazyflie.thrust_gain`
    calibrates), on a grid; pooled, per family, and held out by family (fit on the circles, score on the
    figure-eights, and the reverse); a bootstrap over flights gives intervals of κ/τ_th (the drift rate);
 2. scores the prior-only UKF and MHE (the service's evaluation: thrust axis, thrust gain, SG references) on
@@ -12,7 +12,7 @@ PWM and battery voltage (τ_th h' = P − h).  This script
 
 Same flights as the other Crazyflie benchmarks (B2_circle_medium_rep3 left out: its accelerometer stops
 for 6.9 s).  The specific force compares airborne samples 1 s from the window's ends, both sides low-passed
-at 2 Hz (`models.thrust_gain`'s rule).
+at 2 Hz (`models.crazyflie.thrust_gain`'s rule).
 
 Run from the repository root (needs ../shared/data):
     .venv/bin/python benchmarks/crazyflie_heating_prior.py [--bootstrap 200] \
@@ -33,11 +33,11 @@ from learnest.ingest import read_flights
 from learnest.ingest.align import FLYING_HEIGHT_M
 from learnest.ingest.frames import GRAVITY
 from learnest.models import crazyflie as cf
-from learnest.models.identify import lowpass
+from learnest.models.crazyflie.identify import lowpass
+from learnest.models.crazyflie.motor_heating import thermal_state
+from learnest.models.crazyflie.thrust_axis import EDGE_S, LOWPASS_HZ
 from learnest.models.inputs import system_inputs
 from learnest.models.knode import HybridModel
-from learnest.models.motor_heating import thermal_state
-from learnest.models.thrust_axis import EDGE_S, LOWPASS_HZ
 from learnest.service.experiments.flights import evaluate_flight, system_for
 
 DATA = Path("../shared/data/nanobench")

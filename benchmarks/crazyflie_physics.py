@@ -1,7 +1,7 @@
 """Identify the Crazyflie's input-driven physics on the real NanoBench flights.
 
 Target: body-frame z specific force (the accelerometer) predicted from the inputs alone (motor PWM,
-battery voltage, mocap attitude and velocity), both sides low-passed at 5 Hz (`models.identify`).
+battery voltage, mocap attitude and velocity), both sides low-passed at 5 Hz (`models.crazyflie.identify`).
 Splits: fit on the circles, score on the figure-eights, and the reverse (whole flights, never samples).
 Intervals: bootstrap over flights (resample the training flights with replacement, refit).
 
@@ -22,8 +22,18 @@ import numpy as np
 
 from learnest.ingest import read_flights
 from learnest.models.crazyflie import BOUNDS, IDENTIFIED, PUBLIC, UNITS, V_REF
-from learnest.models.identify import (FULL, LOWPASS_HZ, VARIANTS, fit_k_xy, fit_z, flight_arrays, predict_body_force,
-                             r2_z, rmse_constant, rmse_z)
+from learnest.models.crazyflie.identify import (
+    FULL,
+    LOWPASS_HZ,
+    VARIANTS,
+    fit_k_xy,
+    fit_z,
+    flight_arrays,
+    predict_body_force,
+    r2_z,
+    rmse_constant,
+    rmse_z,
+)
 
 DATA = Path("../shared/data")
 TARGET_RMSE = 0.15

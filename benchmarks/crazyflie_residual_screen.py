@@ -1,5 +1,5 @@
 """What is left of the body-z specific force after the best thrust map, and what does not explain it
-(the held-out target on real NanoBench flights).
+(the held-out specific-force target on real NanoBench flights).
 
 `crazyflie_thrust_map.py` ends at 0.128 m/s² held out (60-61 % of the constant 1 g, target ≤ 60 %) in
 the in-flight window.  This benchmark asks three questions about the rest:
@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from learnest.ingest.frames import GRAVITY, quat_to_matrix
-from learnest.models.identify import first_order_lag, flight_arrays, lowpass
+from learnest.models.crazyflie.identify import first_order_lag, flight_arrays, lowpass
 
 sys.path.insert(0, str(Path(__file__).parent))
 import crazyflie_thrust_map as thrust_map  # noqa: E402

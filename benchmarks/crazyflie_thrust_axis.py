@@ -1,7 +1,7 @@
-"""The thrust axis against the mocap body frame on the real NanoBench flights (the Crazyflie
-prior vs the kinematic one).
+"""The thrust axis against the mocap body frame on the real NanoBench flights (the Crazyflie prior
+vs the kinematic one).
 
-Per flight: the calibrated offset (`models.thrust_axis`, from mocap position and attitude only), and the
+Per flight: the calibrated offset (`models.crazyflie.thrust_axis`, from mocap position and attitude only), and the
 prior-only UKF and MHE scored against the Savitzky–Golay references (as `learnest evaluate` scores them)
 with three priors: the paper's kinematic chain, the Crazyflie prior fed the mocap attitude as logged, and
 the Crazyflie prior fed the attitude calibrated onto the thrust axis (what `models.inputs.system_inputs`

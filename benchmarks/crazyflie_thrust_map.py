@@ -10,7 +10,7 @@ fitted by least squares, no local minima, and every rung of the ladder is exactl
 
 with p_i = PWM_i / 65535, V the battery voltage (V); every column goes through the motor lag (first
 order, τ picked on the training flights only, from a grid) and the 5 Hz low-pass of the protocol
-(`models.identify`), so the model is the same filter chain as the prior's.  Airframe terms: 1 − R₃₃
+(`models.crazyflie.identify`), so the model is the same filter chain as the prior's.  Airframe terms: 1 − R₃₃
 (tilt), max(v_z, 0) and min(v_z, 0) (climb/descent inflow).
 
 Scored in two windows, because the issue's scale ("the constant scores ≈ 0.28 m/s²") was measured in the
@@ -45,8 +45,8 @@ import numpy as np
 
 import learnest.ingest.align as align
 from learnest.ingest.frames import GRAVITY
-from learnest.models import thrust_map
-from learnest.models.identify import first_order_lag, flight_arrays, lowpass
+from learnest.models.crazyflie import thrust_map
+from learnest.models.crazyflie.identify import first_order_lag, flight_arrays, lowpass
 
 sys.path.insert(0, str(Path(__file__).parent))
 from crazyflie_physics import DATA, TARGET_FRACTION_OF_CONSTANT, TARGET_RMSE, family, load  # noqa: E402
@@ -94,8 +94,8 @@ HEATING = (
      BEST[1] + (heat(init="fast"), heat(init="slow"))),
 )
 # not heating: a drift in time that knows nothing of power or of the pauses between flights
-# the battery voltage through models.thrust_map's ~1-s causal filter, alone and with the heating
-FILTERED = (("battery voltage filtered (models.thrust_map)", BEST[1]),
+# the battery voltage through models.crazyflie.thrust_map's ~1-s causal filter, alone and with the heating
+FILTERED = (("battery voltage filtered (models.crazyflie.thrust_map)", BEST[1]),
             ("+ motor heating (carried over), filtered voltage", BEST[1] + (heat(init="carried"),)))
 COMPARISON = (("+ time since the motors started (comparison)", BEST[1] + ("time",)),)
 ROWS = LADDER + HEATING + COMPARISON
@@ -204,12 +204,12 @@ def constant(flights) -> float:
 
 
 def readings(flights, coef, names) -> dict[str, float]:
-    """The physical reading of a fit of `BEST` at the flights' mean PWM and voltage (`models.thrust_map.readings`)."""
+    """The physical reading of a fit of `BEST` at the flights' mean PWM and voltage (`models.crazyflie.thrust_map.readings`)."""
     return thrust_map.readings(thrust_map.ThrustMap(tuple(names), np.asarray(coef), 0.0, 0.0, 0.0), flights)
 
 
 def with_filtered_voltage(arrays, vbat_tau_s: float):
-    """The flight's arrays with the battery voltage through `models.thrust_map`'s causal filter (own cache)."""
+    """The flight's arrays with the battery voltage through `models.crazyflie.thrust_map`'s causal filter (own cache)."""
     u = arrays.u.copy()
     u[:, 8] = first_order_lag(u[:, 8], vbat_tau_s, arrays.dt)
     return replace(arrays, u=u, extra={k: v for k, v in arrays.extra.items() if k != "filtered"})
@@ -256,7 +256,7 @@ def window(flights_by_window: dict, name: str, n_boot: int) -> dict:
     for train, test in (("circle", "figure8"), ("figure8", "circle")):
         c0 = constant(fams[test])
         rows = [held_out_row(label, names, fams[train], fams[test], c0) for label, names in ROWS]
-        # the package's map (`models.thrust_map`): the voltage filter's τ picked on the training family first
+        # the package's map (`models.crazyflie.thrust_map`): the voltage filter's τ picked on the training family first
         vbat_tau = thrust_map.fit_thrust_map(fams[train]).vbat_tau_s
         filtered = {k: [with_filtered_voltage(a, vbat_tau) for a in fams[k]] for k in (train, test)}
         rows += [{**held_out_row(label, names, filtered[train], filtered[test], c0), "vbat_tau_s": vbat_tau}

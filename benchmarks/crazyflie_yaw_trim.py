@@ -29,7 +29,7 @@ from crazyflie_physics import DATA, TARGET_FRACTION_OF_CONSTANT, TARGET_RMSE, fa
 
 from learnest.ingest.frames import quat_to_matrix
 from learnest.models import crazyflie as cf
-from learnest.models.identify import first_order_lag, flight_arrays, lowpass
+from learnest.models.crazyflie.identify import first_order_lag, flight_arrays, lowpass
 
 YAW_PAIRS = np.array([1.0, -1.0, 1.0, -1.0])      # m1, m3 turn one way, m2, m4 the other
 GRID = {"q_pwm2": (-0.3, -0.15, 0.0, 0.5, 1.0), "gamma": (0.25, 0.5, 0.75, 1.0), "tau_s": (0.04, 0.06, 0.08)}

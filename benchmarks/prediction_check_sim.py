@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 from learnest.models import crazyflie as cf
-from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
+from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.service.experiments.flights import evaluate_flights, train_on_flight
 
 NOMINAL = cf.IDENTIFIED

@@ -1,4 +1,4 @@
-"""The per-flight thrust gain of the Crazyflie prior (`models.thrust_gain`) on the NanoBench flights, in flying
+"""The per-flight thrust gain of the Crazyflie prior (`models.crazyflie.thrust_gain`) on the NanoBench flights, in flying
 order: does it behave like motor heating (falling over flights flown back to back, recovering after a break)?
 
 Run from the repository root (needs ../shared/data):
@@ -38,7 +38,7 @@ def main(argv=None) -> int:
     rows.sort(key=lambda r: r["start_s"])
     lines = ["# Thrust gain per flight, in flying order (NanoBench, CF_01)", "",
              "Command: `python benchmarks/thrust_gain_order.py`. Gain: the mocap's body-z specific force over the "
-             "identified thrust map's (`models/thrust_gain.py`).", "",
+             "identified thrust map's (`models/crazyflie/thrust_gain.py`).", "",
              "| flight | start (min) | gap since previous log (min) | gain | change vs previous | mean vbat (V) | note |",
              "|---|---|---|---|---|---|---|"]
     back_to_back, after_break = [], []

@@ -2,7 +2,7 @@
 
 Algorithm 1 first estimates the unmeasured states with an observer and then fits Δθ to them.  Whatever the
 observer gets wrong (a model-free KF lags the velocities it infers) becomes data the network learns, and a fit
-run to convergence learns it exactly (on cartpole seed 0, L-BFGS run to convergence on the KF
+run to convergence learns it exactly (measured on cartpole seed 0: L-BFGS run to convergence on the KF
 observer's states gives KNODE-MHE 5.8e-3, against 0.34e-3 when fitted on the true states).  Here the states
 are not fixed: they and the network's weights θ minimise one weighted least-squares objective over the whole
 record,
@@ -233,7 +233,7 @@ def _levenberg_marquardt(problem: _JointProblem, states: np.ndarray, theta: np.n
     Returns the states, θ and J/2 per sample after each step taken (empty when none lowered J)."""
     T, n = states.shape
     m = problem.y.shape[1]
-    # the MHE's compiled block Cholesky (estimators/btd.c): R⁻¹ = I (H is whitened), m + n rows for the damping
+    # the MHE's compiled block Cholesky (estimators/native/btd.c): R⁻¹ = I (H is whitened), m + n rows for the damping
     solver = BlockTridiagonal(n, m + n, T, np.diag(problem.inv_sigma_q**2), np.eye(m + n))
     cost, damping, losses = problem.cost(states, theta), 1e-3, []
     if not np.isfinite(cost):

@@ -1,6 +1,6 @@
 """A model's numbers as one input of its compiled functions, so their C code depends on its architecture only.
 
-Why: `estimators.codegen` caches a library by the hash of its source.  A model whose trained weights,
+Why: `estimators.native.codegen` caches a library by the hash of its source.  A model whose trained weights,
 identified parameters and sample time were baked into the CasADi graph as constants made every trained
 model new source and a new compilation (~20 s for a KNODE's MHE and UKF functions).  Built from
 `symbolic_model`, the functions take those numbers as an input vector filled once per estimator, and the

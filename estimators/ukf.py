@@ -9,7 +9,7 @@ Where the time goes (B2_circle_fast_rep2, 3290 steps, the 9-state prior and a 16
 load ~1.2): with the model compiled (`compiled_sigma_functions`) but the loop in Python (`BatchedUKF`),
 the two filters took 2.7 s, of which 0.6 s in the compiled model and the rest numpy and ctypes overhead
 (update 1.3 s, an np.linalg.inv of S alone 0.4 s; predict 1.3 s).  So with a compiler the whole loop runs
-in C (`ukf.c` via `estimators.ukf_native`, the same algorithm; S is solved by Cholesky, not inverted):
+in C (`ukf.c` via `estimators.native.ukf_native`, the same algorithm; S is solved by Cholesky, not inverted):
 0.27 s for both, 0.015 ms/step (prior) and 0.09 ms/step (KNODE), nearly all of it the model.  `BatchedUKF`
 stays the reference and the path for models without a compiler (numpy model, ~0.4-0.8 ms/step).
 """
@@ -28,8 +28,8 @@ from .protocols import StateSpaceModel
 from .results import FilterResult
 
 if TYPE_CHECKING:
+    from .native.ukf_native import NativeUKF
     from .ukf_filterpy import BatchedUKF
-    from .ukf_native import NativeUKF
 
 __all__ = ["SigmaFunctions", "compiled_sigma_functions", "make_ukf", "run_ukf", "spd_factor"]
 
@@ -43,7 +43,7 @@ def _rows(u: np.ndarray, count: int) -> np.ndarray:
 
 class SigmaFunctions(tuple):
     """The pair (fx, hx) of `compiled_sigma_functions`, plus ``native``: the whole filter loop in C over
-    the same compiled functions (`estimators.ukf_native`), or None when ukf.c could not be built."""
+    the same compiled functions (`estimators.native.ukf_native`), or None when ukf.c could not be built."""
 
     native: NativeUKF | None
 
@@ -55,7 +55,7 @@ class SigmaFunctions(tuple):
 
 def compiled_sigma_functions(model: StateSpaceModel, dt: float,
                              cache_dir: str | Path | None = None) -> SigmaFunctions | None:
-    """fx(sigmas, dt, u) and hx(sigmas, u) over the 2n+1 sigma points as compiled C (`estimators.codegen`),
+    """fx(sigmas, dt, u) and hx(sigmas, u) over the 2n+1 sigma points as compiled C (`estimators.native.codegen`),
     or None without a working compiler (CasADi's interpreter would be slower than numpy here).  With them
     comes the C filter loop `run_ukf` uses (`SigmaFunctions.native`).
 
@@ -66,9 +66,9 @@ def compiled_sigma_functions(model: StateSpaceModel, dt: float,
     """
     import casadi as ca
 
-    from .codegen import compiled, mapped, model_key
+    from .native.codegen import compiled, mapped, model_key
+    from .native.ukf_native import NativeUKF, load_library
     from .parametric import symbolic_model
-    from .ukf_native import NativeUKF, load_library
 
     n, count = model.n, 2 * model.n + 1
     x, u = ca.SX.sym("x", n), ca.SX.sym("u", model.n_inputs)
@@ -158,7 +158,7 @@ def run_ukf(model: StateSpaceModel, y: ArrayLike, u: ArrayLike | None = None, *,
         Evaluate the model as compiled C (`make_ukf`); for a model used on many steps (an evaluation), not
         for one built per fit (every new model architecture compiles once).
     codegen_dir : path, optional
-        Where the compiled functions are cached (`estimators.codegen`; default ``~/.cache/learnest/codegen``).
+        Where the compiled functions are cached (`estimators.native.codegen`; default ``~/.cache/learnest/codegen``).
     sigma_functions : tuple, optional
         A prebuilt (fx, hx) pair of `compiled_sigma_functions` for this model and dt (`make_ukf`); when it
         carries the C loop (`SigmaFunctions.native`), the whole filter runs there (same algorithm).

@@ -394,28 +394,49 @@ def build_flight(path: str | Path, *, t_mocap: ArrayLike, p: ArrayLike, quat: Ar
     _, acc_gap = resample(t_acc, acc_body_g, grid, max_gap_s=5.0 / rate_hz)
     t_filtered, acc_filtered, filtered = anti_alias(t_acc, acc_body_g, rate_hz)
     acc_grid, _ = resample(t_filtered, acc_filtered, grid)
-    low_passed = ["acc"] if filtered else []
+    extra, low_passed = _resample_channels(channels, grid, rate_hz, ["acc"] if filtered else [])
+    extra["acc_body"] = acc_grid * GRAVITY
+    meta = _grid_meta(meta, rate_hz, t0, p, t_mocap if mocap_alive_t is None else mocap_alive_t, t_acc, low_passed)
+    flight = Flight(grid - grid[0], p_grid, world_acceleration(acc_grid, q_grid), q_grid, extra, meta)
+    start, stop, rule = _window(flight, rate_hz, parse_cut(cut))
+    if stop - start < 2:  # e.g. one corrupt height sample is the only "airborne" one
+        raise IngestError(path, f"the flying part has {stop - start} sample(s) ({rule}): no flight to keep")
+    flight = flight.slice(start, stop)
+    _record_window(flight, grid, start, stop, rule, cut, mocap_gap, acc_gap)
+    return flight
+
+
+def _resample_channels(channels: dict | None, grid: np.ndarray, rate_hz: float, low_passed: list[str]):
+    """`build_flight`'s optional streams on the grid, those in `ANTI_ALIAS_CHANNELS` low-passed first when
+    sampled faster: ``({name: values on the grid}, low_passed + the names of those filtered)``."""
     extra = {}
     for name, (ts, vals) in (channels or {}).items():
         if name in ANTI_ALIAS_CHANNELS:
             ts, vals, channel_filtered = anti_alias(ts, vals, rate_hz)
             low_passed += [name] if channel_filtered else []
         extra[name] = resample(ts, vals, grid)[0]
-    extra["acc_body"] = acc_grid * GRAVITY
+    return extra, low_passed
+
+
+def _grid_meta(meta: dict | None, rate_hz: float, t0: float, p: ArrayLike, t_mocap_alive: np.ndarray,
+               t_acc: np.ndarray, low_passed: list[str]) -> dict:
+    """`build_flight`'s metadata: ``meta`` with the grid's rate and start, the mocap's resolution, the
+    streams' timing (unless the adapter gave it) and the anti-alias filter applied, if any."""
     meta = dict(meta or {})
     meta["rate_hz"] = rate_hz
     meta["t0_source_s"] = float(t0)
     meta["mocap_resolution_m"] = position_resolution(p)
-    meta.setdefault("timing", {"mocap": stream_timing(t_mocap if mocap_alive_t is None else mocap_alive_t),
-                               "acc": stream_timing(t_acc)})
+    meta.setdefault("timing", {"mocap": stream_timing(t_mocap_alive), "acc": stream_timing(t_acc)})
     if low_passed:
         meta["anti_alias"] = {"streams": low_passed, "cutoff_hz": ANTI_ALIAS_CUTOFF * rate_hz,
                               "filter": f"Butterworth order {ANTI_ALIAS_ORDER}, zero phase (forwards-backwards)"}
-    flight = Flight(grid - grid[0], p_grid, world_acceleration(acc_grid, q_grid), q_grid, extra, meta)
-    start, stop, rule = _window(flight, rate_hz, parse_cut(cut))
-    if stop - start < 2:  # e.g. one corrupt height sample is the only "airborne" one
-        raise IngestError(path, f"the flying part has {stop - start} sample(s) ({rule}): no flight to keep")
-    flight = flight.slice(start, stop)
+    return meta
+
+
+def _record_window(flight: Flight, grid: np.ndarray, start: int, stop: int, rule: str, cut, mocap_gap: np.ndarray,
+                   acc_gap: np.ndarray) -> None:
+    """Write the stretch kept (s on the recording's grid, the rule, the cut asked for) and the samples in
+    gaps into ``flight.meta``."""
     flight.meta["flying_window"] = {"start_s": float(grid[start] - grid[0]),
                                     "stop_s": float(grid[stop - 1] - grid[0]),
                                     "recording_s": float(grid[-1] - grid[0]), "rule": rule,
@@ -423,4 +444,3 @@ def build_flight(path: str | Path, *, t_mocap: ArrayLike, p: ArrayLike, quat: Ar
     # counted on the rows kept: gaps while the vehicle sits on the ground are not the flight's
     flight.meta["gaps"] = {"mocap_samples_in_gaps": int(mocap_gap[start:stop].sum()),
                            "acc_samples_in_gaps": int(acc_gap[start:stop].sum())}
-    return flight

@@ -174,35 +174,12 @@ def find_flight(t: ArrayLike, p: ArrayLike, rate_hz: float, channels: dict | Non
     n = len(t)
     z = p[:, 2]
     power, power_names = powered(channels, rate_hz)
-    rest = resting(channels.get("acc_body"), rate_hz)
     signals = list(power_names)
 
     if power is not None and power.all():
-        # no ground time with the motors off: either airborne throughout or idling on the floor at an end,
-        # which only the heights can tell
-        if height_rule is None:
-            return FlightSpan(0, n, f"whole recording kept: the motors run from its first to its last sample "
-                                    f"({', '.join(power_names)})", signals)
-        start, stop, rule = height_rule(t, p, rate_hz)
-        if (start, stop) == (0, n):
-            rule = "whole recording kept: the heights show no take-off from a floor and no landing"
-        return FlightSpan(start, stop, f"{rule} (the motors run from the first to the last sample: "
-                                       f"{', '.join(power_names)}, height)", signals + ["height"])
+        return _powered_throughout(t, p, rate_hz, power_names, signals, height_rule)
 
-    # ground: motors off, narrowed to where the accelerometer rests when it can tell (a hand holding the
-    # vehicle with the motors off is not the floor); without a power signal, the resting accelerometer alone
-    ground = ~power if power is not None else np.zeros(n, dtype=bool)
-    floor = None
-    if rest is not None:
-        still = rest & ground if power is not None else rest
-        floor = floor_height(z, still, rate_hz)
-        if floor is not None and floor > np.percentile(z[np.isfinite(z)], 1) + FLOOR_BAND_M:
-            floor = None   # still, but above the lowest the vehicle ever was: a calm hover, not the floor
-        if floor is not None:
-            signals.append("accelerometer at rest")
-            ground = still
-    if floor is None and power is not None:
-        floor = floor_height(z, ground, rate_hz)    # the lowest cluster of the motors-off samples
+    floor, ground = _floor_and_ground(z, power, resting(channels.get("acc_body"), rate_hz), rate_hz, signals)
 
     if floor is None:
         if height_rule is None:
@@ -248,6 +225,42 @@ def find_flight(t: ArrayLike, p: ArrayLike, rate_hz: float, channels: dict | Non
 
 
 # -- helpers ---------------------------------------------------------------------------------------------
+def _powered_throughout(t: np.ndarray, p: np.ndarray, rate_hz: float, power_names: list, signals: list,
+                        height_rule) -> FlightSpan:
+    """`find_flight` when the motors run from the first to the last sample: no ground time with the motors
+    off, so either airborne throughout or idling on the floor at an end, which only the heights can tell."""
+    n = len(t)
+    if height_rule is None:
+        return FlightSpan(0, n, f"whole recording kept: the motors run from its first to its last sample "
+                                f"({', '.join(power_names)})", signals)
+    start, stop, rule = height_rule(t, p, rate_hz)
+    if (start, stop) == (0, n):
+        rule = "whole recording kept: the heights show no take-off from a floor and no landing"
+    return FlightSpan(start, stop, f"{rule} (the motors run from the first to the last sample: "
+                                   f"{', '.join(power_names)}, height)", signals + ["height"])
+
+
+def _floor_and_ground(z: np.ndarray, power: np.ndarray | None, rest: np.ndarray | None, rate_hz: float,
+                      signals: list) -> tuple[float | None, np.ndarray]:
+    """The floor height (m, None when no signal sees the vehicle on the ground) and the ground samples (T,)
+    bool: motors off, narrowed to where the accelerometer rests when it can tell (a hand holding the
+    vehicle with the motors off is not the floor); without a power signal, the resting accelerometer alone.
+    Appends to ``signals`` the accelerometer when it decided."""
+    ground = ~power if power is not None else np.zeros(len(z), dtype=bool)
+    floor = None
+    if rest is not None:
+        still = rest & ground if power is not None else rest
+        floor = floor_height(z, still, rate_hz)
+        if floor is not None and floor > np.percentile(z[np.isfinite(z)], 1) + FLOOR_BAND_M:
+            floor = None   # still, but above the lowest the vehicle ever was: a calm hover, not the floor
+        if floor is not None:
+            signals.append("accelerometer at rest")
+            ground = still
+    if floor is None and power is not None:
+        floor = floor_height(z, ground, rate_hz)    # the lowest cluster of the motors-off samples
+    return floor, ground
+
+
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     edges = np.diff(np.r_[0, mask.astype(np.int8), 0])
     return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist()))

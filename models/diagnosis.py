@@ -14,10 +14,16 @@ that are not there.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from .residual_problem import Fit as Fit
+from .residual_problem import ResidualProblem as ResidualProblem
+from .residual_problem import autocorrelation_time as autocorrelation_time
+from .residual_problem import bic_eff as bic_eff
+from .residual_problem import common_bic as common_bic
 
 if TYPE_CHECKING:
     from .effects import Effect
@@ -31,112 +37,6 @@ MULTIPLE_SHARE = 1.05     # a rival's share of the chosen effect's gain from her
 # an alternative explanation, whatever the BIC says: with many samples a small misfit of the prior (a sensor
 # filter, drag) moves BIC_eff by tens, so a BIC margin alone would hide a tilt behind a bias.
 ALTERNATIVE_FRACTION = 0.9
-
-
-@dataclass
-class ResidualProblem:
-    """One channel of data in regression form for effect selection.
-
-    Attributes
-    ----------
-    name : str
-        Channel name (``"accelerometer"``, ``"dynamics"``, ...), reported as ``channel``.
-    candidates : list of Effect
-        Effects the selection may choose from; all sit at their nominal values unless fitted.
-    residual : callable
-        ``residual(values, rows) -> ndarray (len(rows), k)``: observed minus predicted for parameter
-        ``values`` {name: value} on the given row indices.
-    n_rows : int
-        Number of rows.
-    blocks : list of ndarray
-        Held-out row blocks of the cross-validation (flights or time); default 5 contiguous blocks.
-    frozen : dict
-        Parameter name -> why the data cannot identify it; such parameters stay nominal.
-    times : ndarray, optional
-        (n_rows,) time of each row, s, where rows are samples of a flight (for plotting the residual).
-    """
-
-    name: str
-    candidates: list                       # [Effect]
-    residual: Callable                     # (values: dict, rows: ndarray) -> (len(rows), k)
-    n_rows: int
-    blocks: list = field(default_factory=list)   # held-out blocks (row index arrays): flights or time
-    frozen: dict = field(default_factory=dict)   # param name -> why the data cannot identify it (kept nominal)
-    times: np.ndarray | None = None              # (n_rows,) s, when rows are samples in time
-
-    def __post_init__(self):
-        if not self.blocks:
-            self.blocks = np.array_split(np.arange(self.n_rows), 5)
-
-
-@dataclass
-class Fit:
-    """A least-squares fit of some effects.
-
-    Attributes
-    ----------
-    effects : list of Effect
-    values : dict
-        Fitted parameter values {name: value} (frozen parameters are absent).
-    residual : ndarray, shape (n_rows, k)
-        The residual at those values.
-    rss : float
-        Residual sum of squares.
-    bic : float
-        BIC_eff (`bic_eff`).
-    tau : float
-        Integrated autocorrelation time of the residual, samples.
-    """
-
-    effects: list
-    values: dict
-    residual: np.ndarray
-    rss: float
-    bic: float
-    tau: float       # integrated autocorrelation time of the residual, samples
-
-
-def autocorrelation_time(residual: np.ndarray) -> float:
-    """Integrated autocorrelation time τ = 1 + 2 Σ ρ_k (samples), summed until ρ_k first drops below zero
-    (Geyer's initial positive sequence), averaged over the residual's columns."""
-    r = residual - residual.mean(axis=0)
-    n = len(r)
-    if n < 4:
-        return 1.0
-    spectrum = np.fft.rfft(r, n=2 * n, axis=0)
-    acf = np.fft.irfft(spectrum * np.conj(spectrum), axis=0)[:n]
-    taus = []
-    for column in acf.T:
-        if column[0] <= 0:
-            continue
-        rho = column / column[0]
-        negative = np.flatnonzero(rho < 0)
-        cut = negative[0] if negative.size else n
-        taus.append(1.0 + 2.0 * rho[1:cut].sum())
-    return float(np.clip(np.mean(taus), 1.0, n)) if taus else 1.0
-
-
-def bic_eff(residual: np.ndarray, n_params: int, tau: float | None = None) -> tuple[float, float]:
-    """BIC with the effective number of independent samples N/τ (see autocorrelation_time).
-
-    Returns ``(bic, tau)``: N_eff·log(mean r²) + n_params·log(N_eff), with N = residual.size, N_eff at
-    least n_params + 2, and τ in samples (the residual's own unless ``tau`` is given; compare models only
-    at a common τ, see `common_bic`).
-    """
-    tau = autocorrelation_time(residual) if tau is None else tau
-    n_eff = max(residual.size / tau, n_params + 2.0)
-    return n_eff * np.log(max(np.mean(residual**2), 1e-300)) + n_params * np.log(n_eff), tau
-
-
-def common_bic(fit_: Fit, tau: float) -> float:
-    """BIC_eff of ``fit_`` with a given autocorrelation time τ (samples) instead of its own residual's.
-
-    Models compared with each other must share N_eff = N/τ: with each its own, the term N_eff·log(mean r²)
-    (whose sign depends on the residual's units) rewards a whiter residual over a smaller one — on a real
-    flight an accelerometer delay that removed 7× less residual than a tilt won on its whiter residual.
-    Differences at a common N_eff, N_eff·log(RSS₁/RSS₀) + Δk·log N_eff, do not depend on the units.
-    """
-    return bic_eff(fit_.residual, len(fit_.values), tau)[0]
 
 
 def _all_values(candidates, chosen_values=None):
@@ -377,12 +277,35 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
     """
     current = fit(problem, [])
     baseline_rss = current.rss
+    current, chosen, trace, near_ties, cancelled, alternatives, alone, alone_delta = \
+        _forward_selection(problem, current, max_effects, min_cv_gain)
+    intervals = bootstrap_ci(problem, current)
+    at_bound, share, identified, values_identified = _identified(problem, chosen, current, intervals, baseline_rss)
+    results = _effect_results(problem, chosen, current, intervals, baseline_rss, at_bound, share, identified,
+                              alternatives)
+    confounded = confounded_pairs(problem, chosen, current.values, near_ties) + cancelled
+    candidates = [{"id": e.id, "target": e.target, "chosen": e in chosen,
+                   "params": {p.name: alone[e.id].values.get(p.name, p.nominal) for p in e.params}
+                   if e.id in alone else e.nominal(),
+                   "nominal": e.nominal(), "units": {p.name: p.unit for p in e.params},
+                   "delta_bic_alone": alone_delta.get(e.id)}
+                  for e in problem.candidates]
+    return {"channel": problem.name, "effects": results, "confounded": confounded, "values": current.values,
+            "values_identified": values_identified,
+            "rss_before": baseline_rss, "rss_after": current.rss, "trace": trace, "fit": current,
+            "candidates": candidates}
+
+
+def _forward_selection(problem: ResidualProblem, current: Fit, max_effects: int, min_cv_gain: float):
+    """`select_effects`' forward selection: ``(current, chosen, trace, near_ties, cancelled, alternatives,
+    alone, alone_delta)``, the final `Fit`, the chosen effects in order, each step's record, the rivals
+    within the threshold, the cancelling pairs, each chosen effect's alternatives, and each candidate fitted
+    alone with its BIC_eff change.  ``current`` is the fit of no effect."""
     current_cv = cv_error(problem, [])
     chosen: list[Effect] = []
     trace: list[dict[str, Any]] = []
     near_ties: list[tuple[Effect, Effect, float, float]] = []
     cancelled: list[dict[str, Any]] = []
-    all_candidates = list(problem.candidates)
     alternatives: dict[str, list[dict[str, Any]]] = {}    # chosen effect id -> rivals that explain as much
     alone: dict[str, Fit] = {}     # each candidate fitted on its own (the first step)
     alone_delta: dict[str, float] = {}   # and its BIC_eff change against no effect
@@ -407,24 +330,12 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
             step["stop"] = "no candidate lowers BIC_eff enough"
             trace.append(step)
             break
-        cancels: list[tuple[Effect, dict]] = []
-        for c in chosen:
-            how = cancelling(problem, best.values, c, best.effects[-1])
-            if how:
-                cancels.append((c, how))
-        if cancels:
+        pairs = _cancelling_pairs(problem, chosen, best, round(float(bic[id(best)] - bic[id(current)]), 2))
+        if pairs:
             # never both: the simpler explanation (the one already chosen) stays, the pair is reported
             rival = best.effects[-1]
-            for c, how in cancels:
-                cancelled.append({
-                    "effects": [c.id, rival.id], "params": [c.params[0].name, rival.params[0].name],
-                    "cosine": how["cosine"], "delta_bic": round(float(bic[id(best)] - bic[id(current)]), 2),
-                    "fraction_of_chosen": None, "data_prefer": None, "cancelling": True,
-                    "note": (f"{rival.id} and {c.id} fitted together cancel each other (their contributions point "
-                             f"opposite ways, cosine {how['cosine']:.2f}, each {how['ratio']:.1f}× larger than "
-                             f"their sum): their joint values are not physical, so {rival.id} is not added and "
-                             f"{c.id} is kept alone")})
-            step["cancelled"] = [c.id for c, _ in cancels] + [rival.id]
+            cancelled += pairs
+            step["cancelled"] = [pair["effects"][0] for pair in pairs] + [rival.id]
             problem = replace(problem, candidates=[e for e in problem.candidates if e is not rival])
             trace.append(step)
             continue
@@ -448,9 +359,30 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
         current, current_cv = best, cv
         step["chosen"] = best.effects[-1].id
         trace.append(step)
+    return current, chosen, trace, near_ties, cancelled, alternatives, alone, alone_delta
 
-    problem = replace(problem, candidates=all_candidates)
-    intervals = bootstrap_ci(problem, current)
+
+def _cancelling_pairs(problem: ResidualProblem, chosen: list, best: Fit, delta_bic: float) -> list[dict[str, Any]]:
+    """The ``confounded`` entries of each chosen effect that ``best``'s new effect cancels (`cancelling`)."""
+    rival = best.effects[-1]
+    pairs = []
+    for c in chosen:
+        how = cancelling(problem, best.values, c, rival)
+        if how:
+            pairs.append({
+                "effects": [c.id, rival.id], "params": [c.params[0].name, rival.params[0].name],
+                "cosine": how["cosine"], "delta_bic": delta_bic,
+                "fraction_of_chosen": None, "data_prefer": None, "cancelling": True,
+                "note": (f"{rival.id} and {c.id} fitted together cancel each other (their contributions point "
+                         f"opposite ways, cosine {how['cosine']:.2f}, each {how['ratio']:.1f}× larger than "
+                         f"their sum): their joint values are not physical, so {rival.id} is not added and "
+                         f"{c.id} is kept alone")})
+    return pairs
+
+
+def _identified(problem: ResidualProblem, chosen: list, current: Fit, intervals: dict, baseline_rss: float):
+    """``(at_bound, share, identified, values_identified)`` of the chosen effects' parameters (see
+    `select_effects`): on a bound, share of the prior's RSS, identified, and the values a repair may use."""
     everything = np.arange(problem.n_rows)
     allv = _all_values(problem.candidates, current.values)
     at_bound = {p.name: _at_bound(p, current.values[p.name]) for e in chosen for p in e.params
@@ -470,6 +402,12 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
         held = {name: "not identified" for name, ok in identified.items() if not ok}
         kept = [e for e in chosen if any(identified.get(p.name) for p in e.params)]
         values_identified = fit(replace(problem, frozen={**problem.frozen, **held}), kept).values if kept else {}
+    return at_bound, share, identified, values_identified
+
+
+def _effect_results(problem: ResidualProblem, chosen: list, current: Fit, intervals: dict, baseline_rss: float,
+                    at_bound: dict, share: dict, identified: dict, alternatives: dict) -> list[dict[str, Any]]:
+    """`select_effects`' ``effects``: one entry per chosen effect, largest explained fraction first."""
     results: list[dict[str, Any]] = []
     for effect in chosen:
         without_rss = fit(problem, [e for e in chosen if e is not effect]).rss if len(chosen) > 1 else baseline_rss
@@ -492,14 +430,4 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
                         "explained_fraction": float((without_rss - current.rss) / baseline_rss),
                         "equation": effect.equation({**effect.nominal(), **current.values})})
     results.sort(key=lambda r: -r["explained_fraction"])
-    confounded = confounded_pairs(problem, chosen, current.values, near_ties) + cancelled
-    candidates = [{"id": e.id, "target": e.target, "chosen": e in chosen,
-                   "params": {p.name: alone[e.id].values.get(p.name, p.nominal) for p in e.params}
-                   if e.id in alone else e.nominal(),
-                   "nominal": e.nominal(), "units": {p.name: p.unit for p in e.params},
-                   "delta_bic_alone": alone_delta.get(e.id)}
-                  for e in problem.candidates]
-    return {"channel": problem.name, "effects": results, "confounded": confounded, "values": current.values,
-            "values_identified": values_identified,
-            "rss_before": baseline_rss, "rss_after": current.rss, "trace": trace, "fit": current,
-            "candidates": candidates}
+    return results

@@ -12,6 +12,9 @@ from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 
 from . import crazyflie as cf
+from .crazyflie.motor_heating import HISTORY_KEY, motor_power, with_motor_heating
+from .crazyflie.thrust_axis import calibrated_attitude, heading_removed, thrust_axis_offset
+from .crazyflie.thrust_gain import thrust_gain, with_thrust_gain
 from .metadata import (
     ATTITUDE_CALIBRATED,
     ATTITUDE_CALIBRATED_FORMAT,
@@ -20,10 +23,7 @@ from .metadata import (
     format_meta,
     input_format,
 )
-from .motor_heating import HISTORY_KEY, motor_power, with_motor_heating
 from .systems import System
-from .thrust_axis import calibrated_attitude, heading_removed, thrust_axis_offset
-from .thrust_gain import thrust_gain, with_thrust_gain
 
 # channel -> what carries it in each supported format (for the error message)
 CHANNEL_SOURCES = {
@@ -64,11 +64,11 @@ def thrust_columns(flight: Flight, source: str) -> np.ndarray:
         thrust = np.asarray(flight.channels["motors" if source == "pwm" else "rotor_speed"], float).reshape(n, 4)
     return np.column_stack([thrust, vbat])
 # systems whose prior turns thrust into acceleration through the attitude: their attitude input is the
-# mocap attitude rotated onto the flight's thrust axis, with the heading removed (`models.thrust_axis`)
+# mocap attitude rotated onto the flight's thrust axis, with the heading removed (`models.crazyflie.thrust_axis`)
 THRUST_THROUGH_ATTITUDE = frozenset({"crazyflie"})
 # A model trained on such inputs records which in its meta (`models.metadata`): the integer
 # ``format_version`` and the sentence ``attitude_input``.  The battery voltage may also carry the flight's
-# thrust gain (`models.thrust_gain`).  A model keeps being fed the inputs it was trained on: one of the
+# thrust gain (`models.crazyflie.thrust_gain`).  A model keeps being fed the inputs it was trained on: one of the
 # calibrated formats, else it is scored with a warning to retrain.  (The motors' heating is a parameter of
 # the prior, `kappa_th`: a model whose stored prior has none is fed no heating.)
 INPUT_CALIBRATIONS = (ATTITUDE_CALIBRATED, THRUST_GAIN_CALIBRATED)   # the sentences of calibrated formats
@@ -87,7 +87,7 @@ def missing_inputs(flight: Flight, system_name: str, source: str = "pwm") -> lis
 
 def flight_thrust_axis(flight: Flight) -> np.ndarray:
     """(d_x, d_y), sines of the lean (≈ rad): the flight's thrust axis in its mocap body frame
-    (`models.thrust_axis`).
+    (`models.crazyflie.thrust_axis`).
 
     Raises
     ------
@@ -101,8 +101,8 @@ def flight_thrust_axis(flight: Flight) -> np.ndarray:
 
 
 def flight_thrust_gain(flight: Flight, system: System, u: np.ndarray) -> float:
-    """The flight's thrust gain against ``system``'s thrust map (`models.thrust_gain`), from the prior's inputs
-    ``u`` (T, 9) with the attitude already calibrated and the motors' heating applied.
+    """The flight's thrust gain against ``system``'s thrust map (`models.crazyflie.thrust_gain`), from the prior's
+    inputs ``u`` (T, 9) with the attitude already calibrated and the motors' heating applied.
 
     Raises
     ------
@@ -139,9 +139,9 @@ def calibrates_attitude(meta: dict | None) -> bool:
 
 def thrust_calibration(flight: Flight, system: System, thrust_gain: bool = True) -> dict:
     """What the prior's thrust carries on this flight, for reports: ``heating_thrust_loss_pct``, the largest
-    thrust loss to the motors' heating (%, `models.motor_heating`; only for a prior with ``kappa_th``), and, with
-    ``thrust_gain``, the flight's gain against the heated map (`flight_thrust_gain`; 1 for a prior whose voltage
-    exponent cannot carry it)."""
+    thrust loss to the motors' heating (%, `models.crazyflie.motor_heating`; only for a prior with
+    ``kappa_th``), and, with ``thrust_gain``, the flight's gain against the heated map (`flight_thrust_gain`; 1
+    for a prior whose voltage exponent cannot carry it)."""
     u = system_inputs(flight, system, motor_heating=False)
     out = {}
     if system.prior_params.get("kappa_th"):
@@ -156,9 +156,9 @@ def system_inputs(flight: Flight, system: System, thrust_gain: bool = False,
                   motor_heating: bool = True) -> np.ndarray:
     """u (T, system.n_inputs) for this flight: empty for input-free systems, [quat, PWM x4, vbat] for crazyflie,
     whose attitude is calibrated onto the flight's thrust axis (`flight_thrust_axis`) and has its heading
-    removed (`models.thrust_axis.heading_removed`: the prior depends on the body z axis only).  Its battery
-    voltage is scaled so the prior's thrust carries the motors' heating (`models.motor_heating`, from the
-    prior's ``kappa_th``, ``tau_th_s``; ``motor_heating=False`` leaves it to the caller, as `models.identify`
+    removed (`models.crazyflie.thrust_axis.heading_removed`: the prior depends on the body z axis only).  Its battery
+    voltage is scaled so the prior's thrust carries the motors' heating (`models.crazyflie.motor_heating`, from the
+    prior's ``kappa_th``, ``tau_th_s``; ``motor_heating=False`` leaves it to the caller, as `models.crazyflie.identify`
     does) and, with ``thrust_gain``, the flight's thrust gain (`flight_thrust_gain`); estimation asks for the
     gain, the diagnosis not (the gain would absorb the payload and thrust effects it looks for)."""
     if system.n_inputs == 0:
@@ -196,7 +196,7 @@ def system_inputs(flight: Flight, system: System, thrust_gain: bool = False,
 
 def slice_keeping_heat(flight: Flight, start: int, stop: int) -> Flight:
     """``flight.slice(start, stop)`` whose meta carries the motor power before ``start``
-    (`models.motor_heating.HISTORY_KEY`, after any history ``flight`` itself carries), so the slice's motors
+    (`models.crazyflie.motor_heating.HISTORY_KEY`, after any history ``flight`` itself carries), so the slice's motors
     start as warm as the flight's were there.  A flight without motor PWM and battery voltage is sliced plainly."""
     piece = flight.slice(start, stop)
     if "motors" not in flight.channels or "vbat" not in flight.channels:

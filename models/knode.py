@@ -48,7 +48,7 @@ class Residual:
         """This network with its weights as CasADi symbols: (network, θ (k, 1), values (k,)).
 
         Why: code generated from the symbols serves every network of this architecture (compiled once,
-        `estimators.codegen`), where numeric weights would make each trained network new code.  Only the
+        `estimators.native.codegen`), where numeric weights would make each trained network new code.  Only the
         nonzero weights become symbols, in layer order (weight, then bias; CasADi's column-major order
         within each); exact zeros stay structural zeros, so a masked output row (`System.residual_masks`)
         is exactly zero and a blind input is never read.  The zero pattern is thus part of the architecture.

@@ -154,13 +154,7 @@ def _train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, confi
 
     from .residual_net import Adam
 
-    zeta = check_sequence("zeta", zeta, cols=system.n)
-    u = check_sequence("u", np.asarray(u, dtype=float).reshape(len(zeta), -1), rows=len(zeta), cols=system.n_inputs)
-    if len(zeta) < 3:
-        raise InvalidInput(f"training needs at least 3 state observations, got {len(zeta)}")
-    dt = check_dt(dt)
-    if config.epochs < 1:
-        raise InvalidInput(f"epochs must be at least 1, got {config.epochs}")
+    zeta, u, dt = _checked_record(system, zeta, u, dt, config)
     torch.manual_seed(config.seed)
     mlp = new_residual(system, zeta, u, config.hidden)
 
@@ -262,6 +256,19 @@ def attitude_blind(system: System, battery: bool = False) -> System:
     return replace(system, residual_blind=(*system.residual_blind, *extra)) if extra else system
 
 
+def _checked_record(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, config: TrainingConfig):
+    """`train_knode`'s data checked: ``(zeta (T, n), u (T, n_inputs), dt s)``; InvalidInput when they or
+    ``config.epochs`` cannot be trained on."""
+    zeta = check_sequence("zeta", zeta, cols=system.n)
+    u = check_sequence("u", np.asarray(u, dtype=float).reshape(len(zeta), -1), rows=len(zeta), cols=system.n_inputs)
+    if len(zeta) < 3:
+        raise InvalidInput(f"training needs at least 3 state observations, got {len(zeta)}")
+    dt = check_dt(dt)
+    if config.epochs < 1:
+        raise InvalidInput(f"epochs must be at least 1, got {config.epochs}")
+    return zeta, u, dt
+
+
 @dataclass
 class TrainingRecord:
     """One record's Algorithm-1 data for `train_knode_pooled`.
@@ -292,6 +299,53 @@ _ONE_THIRD = 1 / 3
 # 3 held out, 150 epochs) the held-out one-step loss falls 14.7 % below the prior's with these mini-batches, 10.2 %
 # with one full-batch step per epoch (still falling at the last epoch), and 14.9 % with 600 full-batch epochs.
 POOLED_BATCH_PAIRS = 4096
+
+
+def _checked_records(system: System, records: list[TrainingRecord], held_out: list[bool],
+                     config: TrainingConfig) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """`train_knode_pooled`'s records checked: ``[(zeta (T, n), u (T, n_inputs), dt s)]``; InvalidInput when
+    they, ``held_out`` or ``config.epochs`` cannot be trained on."""
+    if len(held_out) != len(records):
+        raise InvalidInput(f"held_out has {len(held_out)} entries for {len(records)} records")
+    if not records or all(held_out):
+        raise InvalidInput("pooled training needs at least one record to train on (every record is held out)")
+    if config.epochs < 1:
+        raise InvalidInput(f"epochs must be at least 1, got {config.epochs}")
+    checked = []
+    for record in records:
+        zeta = check_sequence(f"{record.name}: zeta", record.zeta, cols=system.n)
+        u = check_sequence(f"{record.name}: u", np.asarray(record.u, dtype=float).reshape(len(zeta), -1),
+                           rows=len(zeta), cols=system.n_inputs)
+        if len(zeta) < 3:
+            raise InvalidInput(f"{record.name}: training needs at least 3 state observations, got {len(zeta)}")
+        checked.append((zeta, u, check_dt(record.dt)))
+    return checked
+
+
+def _pooled_pairs(checked: list, held_out: list[bool], which: bool):
+    """The one-step pairs of the records held out (``which`` True) or trained on, as tensors
+    ``(z_now, u_now, z_next, step)`` with each pair's dt (P, 1) s; None when there are no such records."""
+    import torch
+
+    chosen = [c for c, held in zip(checked, held_out) if held == which]
+    if not chosen:
+        return None
+    z_now = torch.as_tensor(np.concatenate([z[:-1] for z, _, _ in chosen]))
+    u_now = torch.as_tensor(np.concatenate([u[:-1] for _, u, _ in chosen]))
+    z_next = torch.as_tensor(np.concatenate([z[1:] for z, _, _ in chosen]))
+    step = torch.as_tensor(np.concatenate([np.full((len(z) - 1, 1), dt) for z, _, dt in chosen]))
+    return z_now, u_now, z_next, step
+
+
+def _per_record_losses(errors, records: list[TrainingRecord], checked: list, held_out: list[bool]) -> dict:
+    """{name: mean squared one-step error} of each held-out record, from ``errors`` (P,) of their pairs in
+    order."""
+    per_record, offset = {}, 0
+    for record, (zeta, _, _), held in zip(records, checked, held_out):
+        if held:
+            per_record[record.name] = errors[offset:offset + len(zeta) - 1].mean().item()
+            offset += len(zeta) - 1
+    return per_record
 
 
 def _rk4_38(field_fn, x, u, dt):
@@ -356,36 +410,12 @@ def _train_knode_pooled(system: System, records: list[TrainingRecord], held_out:
 
     from .residual_net import Adam
 
-    if len(held_out) != len(records):
-        raise InvalidInput(f"held_out has {len(held_out)} entries for {len(records)} records")
-    if not records or all(held_out):
-        raise InvalidInput("pooled training needs at least one record to train on (every record is held out)")
-    if config.epochs < 1:
-        raise InvalidInput(f"epochs must be at least 1, got {config.epochs}")
-    checked = []
-    for record in records:
-        zeta = check_sequence(f"{record.name}: zeta", record.zeta, cols=system.n)
-        u = check_sequence(f"{record.name}: u", np.asarray(record.u, dtype=float).reshape(len(zeta), -1),
-                           rows=len(zeta), cols=system.n_inputs)
-        if len(zeta) < 3:
-            raise InvalidInput(f"{record.name}: training needs at least 3 state observations, got {len(zeta)}")
-        checked.append((zeta, u, check_dt(record.dt)))
-
-    def pairs(which: bool):
-        chosen = [c for c, held in zip(checked, held_out) if held == which]
-        if not chosen:
-            return None
-        z_now = torch.as_tensor(np.concatenate([z[:-1] for z, _, _ in chosen]))
-        u_now = torch.as_tensor(np.concatenate([u[:-1] for _, u, _ in chosen]))
-        z_next = torch.as_tensor(np.concatenate([z[1:] for z, _, _ in chosen]))
-        step = torch.as_tensor(np.concatenate([np.full((len(z) - 1, 1), dt) for z, _, dt in chosen]))
-        return z_now, u_now, z_next, step
-
+    checked = _checked_records(system, records, held_out, config)
     train_zeta = np.concatenate([z for (z, _, _), held in zip(checked, held_out) if not held])
     train_u = np.concatenate([u for (_, u, _), held in zip(checked, held_out) if not held])
     torch.manual_seed(config.seed)
     mlp = new_residual(system, train_zeta, train_u, config.hidden)
-    fit_data, val_data = pairs(False), pairs(True)
+    fit_data, val_data = _pooled_pairs(checked, held_out, False), _pooled_pairs(checked, held_out, True)
     n_fit = len(fit_data[0])
 
     def vector_field(x, u0):
@@ -430,11 +460,7 @@ def _train_knode_pooled(system: System, records: list[TrainingRecord], held_out:
     per_record = {}
     if val_data is not None:
         with torch.no_grad():
-            errors, offset = squared_errors(val_data), 0
-            for record, (zeta, _, _), held in zip(records, checked, held_out):
-                if held:
-                    per_record[record.name] = errors[offset:offset + len(zeta) - 1].mean().item()
-                    offset += len(zeta) - 1
+            per_record = _per_record_losses(squared_errors(val_data), records, checked, held_out)
     seconds = time.perf_counter() - started
     residual = mlp.export()
     best_epoch = best[2] if val_data is not None else config.epochs - 1

@@ -29,7 +29,7 @@ Sensors (SensorModel, all parameters known):
   gyro           same stamps, misalignment and delay as the accelerometer; white noise (rad/s)
 
 `write_flight` writes a SimulatedFlight as nanobench, usd, usd-v1, vicon+cfclient, mcap-ros2 or mcap-json;
-`write_canonical_flight` writes any Flight (e.g. one flown by `models.simulate_crazyflie`) with the inputs it
+`write_canonical_flight` writes any Flight (e.g. one flown by `models.crazyflie.simulate_crazyflie`) with the inputs it
 carries (motor PWM, battery voltage, gyro, setpoint) as nanobench, usd, usd-v1, vicon+cfclient or mcap-ros2
 (crazyswarm2 LogDataGeneric topics /cf1/<channel> and the <stem>_crazyflies.yaml that names their values),
 and as cfclient (the CSV carrying the pose), mcap-json, rosbag-db3, rosbag-mcap or rosbag-ros1

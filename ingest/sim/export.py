@@ -140,7 +140,7 @@ def sim_times(flight: Flight, fmt: str) -> np.ndarray:
     return flight.t + (flight.meta["t0_source_s"] - SOURCE_TIME_AT_SIM_ZERO[fmt]) + start
 
 
-# -- a canonical Flight (any source, e.g. models.simulate_crazyflie) written back as a log ---------------
+# -- a canonical Flight (any source, e.g. models.crazyflie.simulate_crazyflie) written back as a log ---------------
 # The firmware variables each Flight channel is written as in the uSD and cfclient logs (the first source of
 # ingest.formats.crazyflie_variables.OPTIONAL_SOURCES, in the firmware's own units), with the uSD value type.
 FIRMWARE_VARIABLES: dict[str, tuple[tuple[str, ...], str, Callable[[np.ndarray], np.ndarray]]] = {

@@ -22,6 +22,7 @@ from learnest.estimators.yardsticks import GapPlan, flight_yardsticks, learned_n
 from learnest.ingest.baseline import centred_window, references
 from learnest.ingest.flight import Flight
 from learnest.ingest.profile import MASS_TOLERANCE, RATE_TOLERANCE, flight_profile, profile_mismatches
+from learnest.models.crazyflie.thrust_gain import with_thrust_gain
 from learnest.models.effects import correct_acc_body, world_from_body
 from learnest.models.envelope import envelope_report
 from learnest.models.inputs import (
@@ -46,7 +47,6 @@ from learnest.models.presets import (
     TrainingConfig,
 )
 from learnest.models.systems import System, make_system
-from learnest.models.thrust_gain import with_thrust_gain
 from learnest.models.training import TrainingRecord, TrainingResult, attitude_blind, train_knode, train_knode_pooled
 
 # Systems a model of a real flight may use: the paper's kinematic chain, or the Crazyflie prior driven by
@@ -68,7 +68,7 @@ def system_for(flight: Flight, name: str = "quadrotor") -> System:
 
 def model_system(model: HybridModel, flight: Flight) -> System:
     """``model``'s system on this flight's grid with the model's own prior parameters: a diagnosis may have
-    extended them, and a model trained before the motors' heating has none (`models.motor_heating`)."""
+    extended them, and a model trained before the motors' heating has none (`models.crazyflie.motor_heating`)."""
     return replace(system_for(flight, model.system.name), prior_params=dict(model.system.prior_params))
 
 
@@ -103,7 +103,7 @@ def train_on_flight(flight: Flight, config: TrainingConfig = CRAZYFLIE_TRAINING,
     return result
 
 
-# Thrust gains (`models.thrust_gain`, against the prior's map with the battery voltage and the motors' heating
+# Thrust gains (`models.crazyflie.thrust_gain`, against the prior's map with the battery voltage and the motors' heating
 # already in it) of one vehicle's flights lie within 0.987-1.048 on the 29 shared NanoBench flights of CF_01
 # (the high one flown by another controller): the battery and the warm motors are explained by the map.  A
 # training set whose gains spread more than twice that (max/min above 1 + GAIN_SPREAD) is not one thrust map:
@@ -267,11 +267,7 @@ def train_on_flights(flights: Sequence[Flight], config: TrainingConfig = CRAZYFL
     if twice:
         raise InvalidInput(f"flight(s) given more than once: {', '.join(twice)}")
     if len(flights) == 1 and not validate:
-        result = train_on_flight(flights[0], config, progress=progress, system=system)
-        lineage = [_flight_lineage(flights[0], None)]
-        result.model.meta.update({"training_flights": lineage, "validation_flights": [],
-                                  "validation": "held-out time blocks of the flight"})
-        return result
+        return _train_on_one(flights[0], config, progress, system)
     if validate:
         unknown = [n for n in validate if n not in names]
         if unknown:
@@ -300,6 +296,15 @@ def train_on_flights(flights: Sequence[Flight], config: TrainingConfig = CRAZYFL
         "training_flights": [lineage[i] for i in trained],
         "validation_flights": [lineage[i] for i, h in enumerate(held) if h],
         "validation": "held-out flights"})
+    return result
+
+
+def _train_on_one(flight: Flight, config, progress, system) -> TrainingResult:
+    """`train_on_flights` with one flight and no validation flights: validated on held-out time blocks of it."""
+    result = train_on_flight(flight, config, progress=progress, system=system)
+    lineage = [_flight_lineage(flight, None)]
+    result.model.meta.update({"training_flights": lineage, "validation_flights": [],
+                              "validation": "held-out time blocks of the flight"})
     return result
 
 
@@ -445,8 +450,8 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
     A prior that turns thrust into acceleration through the attitude (the Crazyflie's) gets the mocap
     attitude calibrated onto each flight's thrust axis; ``thrust_axis_offset_deg`` [x, y] says by how much;
     its thrust map scaled by the motors' heating where its prior has it (the largest loss over the flight in
-    ``heating_thrust_loss_pct``, `models.motor_heating`) and, unless the model was trained before it, by the
-    flight's ``thrust_gain`` (`models.thrust_gain`).
+    ``heating_thrust_loss_pct``, `models.crazyflie.motor_heating`) and, unless the model was trained before it, by the
+    flight's ``thrust_gain`` (`models.crazyflie.thrust_gain`).
     ``progress`` is called with each flight's entry;
     ``on_estimates(index, FlightEstimates)`` with the per-step estimates of each scored flight (index into
     ``flights``), when given; ``on_stage`` with each method's name before it runs and "MHE build (...)"

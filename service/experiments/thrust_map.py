@@ -2,8 +2,9 @@
 
 The question a user asks of their logs: how well do the inputs alone (motor PWM, battery voltage, mocap
 attitude and velocity; no accelerometer) predict the body-frame z specific force the accelerometer reads?
-The protocol is `models.identify`'s (both sides low-passed at 5 Hz, samples the recorder
-interpolated across gaps and the filter edges left out); the model is `models.thrust_map`.
+The protocol is the held-out specific-force target's (`models.crazyflie.identify`: both sides low-passed
+at 5 Hz, samples the recorder interpolated across gaps and the filter edges left out); the model is
+`models.crazyflie.thrust_map`.
 """
 from __future__ import annotations
 
@@ -12,8 +13,8 @@ from collections.abc import Callable
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 from learnest.models import crazyflie as cf
-from learnest.models import thrust_map as tm
-from learnest.models.identify import LOWPASS_HZ, FlightArrays, flight_arrays
+from learnest.models.crazyflie import thrust_map as tm
+from learnest.models.crazyflie.identify import LOWPASS_HZ, FlightArrays, flight_arrays
 from learnest.models.inputs import CHANNEL_SOURCES
 
 PROTOCOL = {"target": "accelerometer body-frame z specific force, m/s²",
@@ -61,7 +62,7 @@ def _scores(fitted: tm.ThrustMap, arrays: list[FlightArrays]) -> dict:
 
 def thrust_map_report(fit_flights: list[Flight], score_flights: list[Flight],
                       progress: Callable[[str, int, int], object] | None = None) -> dict:
-    """Fit `models.thrust_map` on ``fit_flights`` and score it on each of ``score_flights`` (whole flights
+    """Fit `models.crazyflie.thrust_map` on ``fit_flights`` and score it on each of ``score_flights`` (whole flights
     held out).  ``progress(stage, done, total)`` is told the stages "fitting" (grid points of the two time
     constants) and "scoring" (flights).
 
@@ -69,7 +70,7 @@ def thrust_map_report(fit_flights: list[Flight], score_flights: list[Flight],
     -------
     dict
         ``protocol``; ``fit_on`` (names); ``map`` {``terms``, ``coef`` {term: m/s² per unit}, ``tau_s``,
-        ``vbat_tau_s`` (s), ``rmse_train`` (m/s²)}; ``readings`` (`models.thrust_map.readings` at the fit
+        ``vbat_tau_s`` (s), ``rmse_train`` (m/s²)}; ``readings`` (`models.crazyflie.thrust_map.readings` at the fit
         flights' mean); ``flights`` [{``flight``, ``rmse``, ``r2``, ``constant_rmse``,
         ``fraction_of_constant``}] and ``held_out`` (the same, pooled); ``excluded`` [{``flight``, ``file``,
         ``role``, ``reason``}]: failed quality, missing inputs, or a score flight that is also a fit flight
@@ -181,7 +182,8 @@ def read_bench_csv(path) -> dict:
 
 
 def bench_thrust_map_report(path, mass_kg: float | None = None) -> dict:
-    """Fit one motor's thrust map on a bench calibration CSV (`read_bench_csv`, `models.thrust_map.fit_bench_map`).
+    """Fit one motor's thrust map on a bench calibration CSV (`read_bench_csv`,
+    `models.crazyflie.thrust_map.fit_bench_map`).
 
     Returns
     -------

@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from learnest.estimators.codegen import compiled
 from learnest.estimators.kf import run_kf
 from learnest.estimators.mhe import MHE
+from learnest.estimators.native.codegen import compiled
 from learnest.models.knode import HybridModel, Residual
 from learnest.models.systems import make_system
 

@@ -2,7 +2,7 @@
 right effect first, its parameters within 20 % of the truth, the held-out specific-force error lower
 after; nothing claimed where there is nothing; a pair the data cannot separate reported as such.
 
-The flights are flown closed-loop by `models.simulate_crazyflie` (the truth), the diagnosis sees only
+The flights are flown closed-loop by `models.crazyflie.simulate_crazyflie` (the truth), the diagnosis sees only
 what a log carries: mocap, accelerometer, motor PWM, battery voltage."""
 import json
 
@@ -14,10 +14,10 @@ from learnest.ingest.formats.nanobench import writer as nanobench
 from learnest.ingest.sim import CANONICAL_FORMATS, write_canonical_flight
 from learnest.ingest.sim.export import CFCLIENT_CLOCK_OFFSET_S, SOURCE_TIME_AT_SIM_ZERO
 from learnest.models import crazyflie as cf
+from learnest.models.crazyflie.motor_heating import with_motor_heating
+from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.models.effects import LIBRARY, effects_for
 from learnest.models.inputs import MissingInputs
-from learnest.models.motor_heating import with_motor_heating
-from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.service.cli import main
 from learnest.service.experiments.diagnosis import diagnose_crazyflie, format_diagnosis
 
@@ -160,7 +160,7 @@ def test_simulated_flight_is_what_the_model_predicts():
     flight = simulate_crazyflie(SimulatedFlight(truth=truth, duration_s=14, accel_noise=0.0, mocap_noise=0.0,
                                                 vbat_noise=0.0))
     u = np.column_stack([flight.quat, flight.channels["motors"], flight.channels["vbat"]])
-    u, _ = with_motor_heating(u, flight.dt, truth)     # the motors warm as the truth's do (models.motor_heating)
+    u, _ = with_motor_heating(u, flight.dt, truth)     # the motors warm as the truth's do (models.crazyflie.motor_heating)
     assert flight.p[:, 2].min() < 0.06 and flight.p[:, 2].max() > 0.6          # near the floor and up high
     v = np.gradient(flight.p, flight.dt, axis=0)
     f_b, _ = cf.specific_force_body(list(v.T), flight.p[:, 2], list(u.T), truth)

@@ -1,7 +1,7 @@
 """The Crazyflie diagnosis on what a log carries of the thrust (motor PWM + battery, rotor speed, thrust in N),
 with physically true names and values: a thrust gain unless the mass is known, a flag for a vehicle that is
 not the prior's, no parameter claimed at a physical bound, cancelling pairs never both claimed, a repair
-registered only when it helps held-out flights.  Simulated flights: `models.simulate_crazyflie` (the truth)."""
+registered only when it helps held-out flights.  Simulated flights: `models.crazyflie.simulate_crazyflie` (the truth)."""
 from __future__ import annotations
 
 import contextlib
@@ -16,10 +16,10 @@ import learnest as le
 from learnest.ingest import read_flights
 from learnest.ingest.formats.nanobench import writer as nanobench
 from learnest.models import crazyflie as cf
+from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
+from learnest.models.crazyflie.thrust_map import fit_bench_map
 from learnest.models.knode import HybridModel
-from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.models.systems import make_system
-from learnest.models.thrust_map import fit_bench_map
 from learnest.service.cli import main
 from learnest.service.experiments.diagnosis import diagnose_crazyflie, format_diagnosis
 from learnest.service.experiments.thrust_map import bench_thrust_map_report

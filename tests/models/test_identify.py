@@ -1,5 +1,5 @@
 """Identification of the input-driven physics: parameters recovered from a simulated flight whose truth is
-known, and on the real NanoBench flights the held-out body-z specific-force target."""
+known, and on the real NanoBench flights the held-out body-z specific-force prediction the prior must reach."""
 from pathlib import Path
 
 import numpy as np
@@ -8,9 +8,20 @@ import pytest
 from learnest.ingest.flight import Flight
 from learnest.ingest.frames import GRAVITY
 from learnest.models import crazyflie as cf
-from learnest.models import thrust_map
-from learnest.models.identify import (FULL, VARIANTS, FlightArrays, Variant, first_order_lag, fit_z, flight_arrays,
-                                      interpolated_rows, lowpass, rmse_constant, rmse_z)
+from learnest.models.crazyflie import thrust_map
+from learnest.models.crazyflie.identify import (
+    FULL,
+    VARIANTS,
+    FlightArrays,
+    Variant,
+    first_order_lag,
+    fit_z,
+    flight_arrays,
+    interpolated_rows,
+    lowpass,
+    rmse_constant,
+    rmse_z,
+)
 from learnest.models.systems import make_system
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
@@ -125,7 +136,7 @@ def test_thrust_map_recovers_its_coefficients_and_both_time_constants():
 def test_real_flights_meet_the_held_out_force_target():
     """The target on the real flights: body-z specific force from the inputs alone, both sides low-passed
     at 5 Hz, fit on one family and scored on the other: RMSE <= 0.15 m/s² and <= 60 % of the constant 1 g.
-    The physics prior alone (above) reaches 73 / 88 %; the identified thrust map (`models.thrust_map`) 54.6 /
+    The physics prior alone (above) reaches 73 / 88 %; the identified thrust map (`models.crazyflie.thrust_map`) 54.6 /
     53.7 % (0.117 / 0.113 m/s², benchmarks/results/crazyflie_thrust_map)."""
     from learnest.ingest import read_flights
     flights = [f for f in read_flights(sorted(NANOBENCH.glob("B*.csv"))) if f.quality["ok"]]

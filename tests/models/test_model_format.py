@@ -21,7 +21,7 @@ from learnest.models.metadata import (
     ModelMetadata,
     input_format,
 )
-from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
+from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.models.systems import make_system
 from learnest.service.experiments.flights import evaluate_flights
 

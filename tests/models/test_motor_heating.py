@@ -1,4 +1,4 @@
-"""Motor heating in the Crazyflie prior (`models.motor_heating`): the thermal state is the first-order step
+"""Motor heating in the Crazyflie prior (`models.crazyflie.motor_heating`): the thermal state is the first-order step
 response it claims and causal, it scales the prior's thrust exactly, it recovers the thrust of a simulated
 vehicle whose motors warm, and estimation applies it only to priors that have it."""
 from __future__ import annotations
@@ -9,6 +9,15 @@ import numpy as np
 import pytest
 
 from learnest.models import crazyflie as cf
+from learnest.models.crazyflie.identify import flight_arrays, predict_body_force
+from learnest.models.crazyflie.motor_heating import (
+    P_REF_V2,
+    hover_power,
+    thermal_state,
+    with_motor_heating,
+)
+from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
+from learnest.models.crazyflie.thrust_gain import with_thrust_gain
 from learnest.models.inputs import (
     ATTITUDE_CALIBRATED,
     THRUST_GAIN_CALIBRATED,
@@ -18,16 +27,7 @@ from learnest.models.inputs import (
     thrust_calibration,
 )
 from learnest.models.knode import HybridModel, Residual
-from learnest.models.identify import flight_arrays, predict_body_force
-from learnest.models.motor_heating import (
-    P_REF_V2,
-    hover_power,
-    thermal_state,
-    with_motor_heating,
-)
-from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.models.systems import make_system
-from learnest.models.thrust_gain import with_thrust_gain
 from learnest.service.cli import format_report
 from learnest.service.experiments.flights import evaluate_flights
 

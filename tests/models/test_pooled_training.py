@@ -17,9 +17,9 @@ import pytest
 
 from learnest.errors import InvalidInput
 from learnest.models import crazyflie as cf
+from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.models.knode import HybridModel
 from learnest.models.presets import CRAZYFLIE_TRAINING
-from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.models.systems import make_system
 from learnest.models.training import (
     ATTITUDE_INPUTS,

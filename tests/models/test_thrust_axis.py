@@ -1,4 +1,4 @@
-"""The thrust axis calibrated against the mocap body frame (`models.thrust_axis`): an exact circle flown
+"""The thrust axis calibrated against the mocap body frame (`models.crazyflie.thrust_axis`): an exact circle flown
 with a known offset between the markers' frame and the motors' axis, and the real NanoBench flight whose
 offset is largest."""
 from pathlib import Path
@@ -10,9 +10,9 @@ from scipy.spatial.transform import Rotation
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 from learnest.ingest.frames import GRAVITY, quat_to_matrix
+from learnest.models.crazyflie.thrust_axis import calibrated_attitude, heading_removed, thrust_axis_offset
 from learnest.models.inputs import ATTITUDE_CALIBRATED, flight_thrust_axis, system_inputs
 from learnest.models.systems import make_system
-from learnest.models.thrust_axis import calibrated_attitude, heading_removed, thrust_axis_offset
 
 NANOBENCH = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "nanobench"
 needs_data = pytest.mark.skipif(not NANOBENCH.is_dir(), reason="../shared/data/nanobench not present")
@@ -120,8 +120,8 @@ def test_on_the_real_flight_with_the_largest_offset_the_calibrated_crazyflie_pri
 
 
 def test_a_crazyflie_knode_trained_before_the_calibration_is_scored_with_a_warning():
+    from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
     from learnest.models.knode import HybridModel, Residual
-    from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
     from learnest.models.systems import make_system
     from learnest.service.cli import format_report
     from learnest.service.experiments.flights import evaluate_flights
@@ -144,7 +144,7 @@ def test_a_crazyflie_knode_trained_before_the_calibration_is_scored_with_a_warni
 def test_the_model_a_crazyflie_diagnosis_repairs_records_its_calibrated_attitude_input():
     """The repaired model a diagnosis registers was trained on `system_inputs`: its meta must say so, or every
     evaluation of it would carry the warning for models trained on the raw attitude."""
-    from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
+    from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
     from learnest.service.experiments.diagnosis import diagnose_flights
 
     flights = [simulate_crazyflie(SimulatedFlight(duration_s=8), seed=seed) for seed in (0, 1)]

@@ -1,4 +1,4 @@
-"""The per-flight thrust gain of the Crazyflie prior (`models.thrust_gain`): it recovers a payload the prior
+"""The per-flight thrust gain of the Crazyflie prior (`models.crazyflie.thrust_gain`): it recovers a payload the prior
 does not know from the mocap and the inputs alone, it scales the prior's thrust exactly, estimation uses it
 and reports it, and a model keeps being fed the inputs it was trained on."""
 from __future__ import annotations
@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 
 from learnest.models import crazyflie as cf
+from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
+from learnest.models.crazyflie.thrust_gain import thrust_gain, with_thrust_gain
 from learnest.models.inputs import (
     ATTITUDE_CALIBRATED,
     THRUST_GAIN_CALIBRATED,
@@ -16,9 +18,7 @@ from learnest.models.inputs import (
     system_inputs,
 )
 from learnest.models.knode import HybridModel, Residual
-from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.models.systems import make_system
-from learnest.models.thrust_gain import thrust_gain, with_thrust_gain
 from learnest.service.cli import format_report
 from learnest.service.experiments.flights import evaluate_flights
 

@@ -7,7 +7,7 @@ import pytest
 
 from learnest.ingest.formats.nanobench import writer as nanobench
 from learnest.models import crazyflie as cf
-from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
+from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.service.cli import main
 
 
@@ -33,7 +33,7 @@ def test_fit_on_two_flights_score_on_a_third_and_name_the_one_without_motors(log
     report = json.loads(capsys.readouterr().out)
     assert report["fit_on"] == ["fit0", "fit1"] and [f["flight"] for f in report["flights"]] == ["score"]
     # the simulator's truth is the physics prior (quadratic PWM map x (V/V_ref)^gamma, a motor lag): the linear
-    # map holds it on a flight it never saw, well inside the held-out target's bar of 60 % of the constant
+    # map holds it on a flight it never saw, well inside the bar of 60 % of the constant
     held_out = report["held_out"]
     assert held_out["fraction_of_constant"] < 0.1 and held_out["r2"] > 0.98        # measured: 5 %, 0.997
     assert report["map"]["tau_s"] == pytest.approx(cf.IDENTIFIED["tau_s"], abs=0.02)

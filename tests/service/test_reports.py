@@ -13,7 +13,7 @@ from learnest.models import crazyflie as cf
 from learnest.models.inputs import training_meta
 from learnest.models.knode import HybridModel, Residual
 from learnest.models.metadata import THRUST_GAIN_FORMAT, ModelMetadata
-from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
+from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.models.systems import make_system
 from learnest.service.experiments.diagnosis import diagnose_crazyflie
 from learnest.service.experiments.flights import evaluate_flights

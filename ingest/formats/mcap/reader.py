@@ -243,6 +243,19 @@ def read_channels(path: Path, channels: Sequence[Channel], warnings: list[str], 
         raise IngestError(path, f"pose and acceleration overlap for {overlap:.6g} s, more than "
                                 f"{MAX_DURATION_S:.0f} s: corrupt time stamps?")
 
+    meta = _recording_meta(path, config, container, pose_choice, accel_choice, found, (t_pose, t_acc),
+                           {"pose": pose_source, "accel": acc_source}, origin_ns,
+                           {"pose": pose_report, "accel": acc_report}, inputs_meta, notes)
+    return build_flight(path, t_mocap=t_pose, p=mocap[:, :3], quat=mocap[:, 3:7], t_acc=t_acc, channels=inputs,
+                        acc_body_g=acc_g, rate_hz=rate_hz, meta=meta, cut=cut)
+
+
+def _recording_meta(path: Path, config: Path | None, container: str, pose_choice: Candidate, accel_choice: Candidate,
+                    found: list[Candidate], times: tuple, time_source: dict, origin_ns: int, streams: dict,
+                    inputs_meta: dict, notes: list[str]) -> dict:
+    """`read_channels`' Flight meta: adapter, source files with sha256, rates of the pose and acceleration
+    ``times`` (s), the topics and where the pose comes from, warnings, and the container's details."""
+    t_pose, t_acc = times
     encodings = frozenset({pose_choice.channels[0].message_encoding, accel_choice.channels[0].message_encoding})
     source, why = pose_choice.source
     meta = {
@@ -256,14 +269,13 @@ def read_channels(path: Path, channels: Sequence[Channel], warnings: list[str], 
                     + _vehicle_mismatch(pose_choice, accel_choice, found),
         container: {"pose_topic": pose_choice.label, "accel_topic": accel_choice.label,
                     "pose_type": pose_choice.type_name, "accel_type": accel_choice.type_name,
-                    "time_source": {"pose": pose_source, "accel": acc_source}, "time_origin_ns": origin_ns,
-                    "streams": {"pose": pose_report, "accel": acc_report}, "inputs": inputs_meta,
+                    "time_source": time_source, "time_origin_ns": origin_ns,
+                    "streams": streams, "inputs": inputs_meta,
                     "warnings": notes},
     }
     if pose_choice.body:
         meta["vehicle"] = pose_choice.body
-    return build_flight(path, t_mocap=t_pose, p=mocap[:, :3], quat=mocap[:, 3:7], t_acc=t_acc, channels=inputs,
-                        acc_body_g=acc_g, rate_hz=rate_hz, meta=meta, cut=cut)
+    return meta
 
 
 def _vehicle_mismatch(pose: Candidate, accel: Candidate, found: list[Candidate]) -> list[str]:

@@ -12,9 +12,9 @@ from learnest.ingest.formats.rosbag import reader as rosbag_reader
 from learnest.ingest.formats.rosbag.writer import BagWriter
 from learnest.ingest.frames import GRAVITY
 from learnest.ingest.sim import write_canonical_flight
+from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
+from learnest.models.crazyflie.thrust_axis import calibrated_attitude, heading_removed
 from learnest.models.inputs import MissingInputs, flight_thrust_axis, system_inputs
-from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
-from learnest.models.thrust_axis import calibrated_attitude, heading_removed
 from learnest.models.systems import Crazyflie, Quadrotor
 
 INNER = slice(5, -5)    # the grid's ends hold the first/last sample

@@ -179,7 +179,7 @@ def test_post_diagnoses_with_the_crazyflie_prior(tmp_path):
     wrong), the report names its prior; a flight without motor PWM fails with the message saying so."""
     from learnest.ingest.formats.nanobench import writer as nanobench
     from learnest.models import crazyflie as cf
-    from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
+    from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 
     truth = {**cf.IDENTIFIED, "gamma": 1.2}
     paths = []

@@ -435,7 +435,7 @@ def test_a_crazyflie_report_page_shows_the_thrust_calibration_and_the_gain_inter
     motors' heating, the flight's thrust gain) and the KNODE's gain with its 95 % interval, the JSON's numbers."""
     from learnest.ingest.formats.nanobench import writer as nanobench
     from learnest.models import crazyflie as cf
-    from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
+    from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 
     paths = []
     for seed in (0, 1):

@@ -300,12 +300,12 @@ def upload_flight_file(driver, base: str, path: Path) -> None:
 
 
 def crazyflie_logs(folder: Path) -> list[Path]:
-    """Two 20-s Crazyflie flights flown by `learnest.models.simulate_crazyflie` whose battery exponent
+    """Two 20-s Crazyflie flights flown by `learnest.models.crazyflie.simulate_crazyflie` whose battery exponent
     (gamma 1.2) the prior gets wrong, written as NanoBench CSVs with motor PWM and battery voltage: the
     Crazyflie prior applies, and the diagnosis has a known effect to find and a repair that helps."""
     from learnest.ingest.formats.nanobench import writer as nanobench
     from learnest.models import crazyflie as cf
-    from learnest.models.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
+    from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 
     paths = []
     for seed in (0, 1):

@@ -15,6 +15,14 @@ depends_on = None
 
 
 def upgrade() -> None:
+    _create_flight_tables()
+    _create_job_tables()
+    _create_registry_tables()
+    _create_evaluation_tables()
+
+
+def _create_flight_tables() -> None:
+    """The flights and their raw files."""
     op.create_table(
         "flights",
         sa.Column("id", sa.Integer(), autoincrement=True, nullable=False),
@@ -53,6 +61,9 @@ def upgrade() -> None:
     )
     op.create_index("ix_flight_files_sha256", "flight_files", ["sha256"])
 
+
+def _create_job_tables() -> None:
+    """The jobs and the leases that let one process at a time run a scheduler round."""
     op.create_table(
         "jobs",
         sa.Column("id", sa.Integer(), autoincrement=True, nullable=False),
@@ -78,6 +89,9 @@ def upgrade() -> None:
         sa.PrimaryKeyConstraint("name"),
     )
 
+
+def _create_registry_tables() -> None:
+    """The model registry: registered models, their aliases and immutable versions."""
     op.create_table(
         "registered_models",
         sa.Column("name", sa.String(length=100), nullable=False),
@@ -121,6 +135,9 @@ def upgrade() -> None:
     )
     op.create_index("ix_model_versions_name", "model_versions", ["name"])
 
+
+def _create_evaluation_tables() -> None:
+    """The evaluations and the per-flight results cache."""
     op.create_table(
         "evaluations",
         sa.Column("id", sa.Integer(), autoincrement=True, nullable=False),

@@ -4,7 +4,7 @@ Why: the prior's thrust map has one set of parameters for a vehicle, but the thr
 from flight to flight: the motors warm over a session (`benchmarks/motor_heating.py`: 2-3 % of thrust per
 flight), a battery sags differently, a payload changes what the thrust must carry.  On the NanoBench flights
 the mean body-z specific force the mocap sees is 0.98-1.01 of what the identified map predicts (0.99-1.02
-once the motors' heating is applied, `models.motor_heating`), and a 1 %
+once the motors' heating is applied, `models.crazyflie.motor_heating`), and a 1 %
 error is 0.1 m/s² of vertical acceleration all flight long.  The KNODE residual learned its training flight's
 offset and carried it to the others, where it fits or not by chance (`docs/results/transfer.md`,
 "Per-flight thrust gain").  Calibrated per flight, the prior-only UKF's median MSE falls by 1 % on the figure-eights and
@@ -12,7 +12,7 @@ offset and carried it to the others, where it fits or not by chance (`docs/resul
 
 The gain c is the ratio of the mocap's to the prior's body-z specific force, summed over the airborne samples:
 mocap R(q)ᵀ(p̈ + g e₃)·e₃ with p̈ from twice-differentiated position, low-passed at 2 Hz like the thrust axis
-(`models.thrust_axis`), against `models.crazyflie.specific_force_body` on the same attitude, velocity, height
+(`models.crazyflie.thrust_axis`), against `models.crazyflie.specific_force_body` on the same attitude, velocity, height
 and inputs.  It is applied through the battery voltage the prior sees, V → V·c^(1/γ): the prior's thrust is
 ∝ (V/V_ref)^γ, so this multiplies it by c exactly and keeps the inputs' shape (stored models, generated code).
 
@@ -29,7 +29,7 @@ from learnest.errors import InvalidInput
 from learnest.ingest.align import FLYING_HEIGHT_M
 from learnest.ingest.frames import GRAVITY
 
-from . import crazyflie as cf
+from . import prior as cf
 from .motor_heating import MIN_GAMMA
 from .thrust_axis import EDGE_S, LOWPASS_HZ
 
@@ -59,7 +59,7 @@ def thrust_gain(p: np.ndarray, u: np.ndarray, dt: float, params: dict) -> float:
         c, the mocap's body-z specific force over the prior's, summed over the airborne samples (1 for a
         record with less than `MIN_AIRBORNE_S` airborne or sampled too coarsely to low-pass, and for a prior
         whose |gamma| is below `MIN_GAMMA`).  With the motors' heating applied to ``u`` first
-        (`models.motor_heating`), it is the flight's level against the heated map.
+        (`models.crazyflie.motor_heating`), it is the flight's level against the heated map.
 
     Raises
     ------

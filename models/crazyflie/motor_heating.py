@@ -18,7 +18,7 @@ before the cut in its meta (`HISTORY_KEY`), and starts as warm as the flight was
 (`models.crazyflie`: `kappa_th`, `tau_th_s`; a prior without them has no heating).  Heating is not a function
 of (x, u) at one instant, so it is applied to the inputs: through the battery voltage the prior sees,
 V → V·(1 − kappa_th h)^(1/gamma), which multiplies the prior's thrust by (1 − kappa_th h) exactly and keeps
-the inputs' shape (stored models, generated code).  The per-flight thrust gain (`models.thrust_gain`) is
+the inputs' shape (stored models, generated code).  The per-flight thrust gain (`models.crazyflie.thrust_gain`) is
 calibrated after it, so the gain takes the flight's level and the heating the drift within it.
 
 Identified on the 16 NanoBench flights (`benchmarks/crazyflie_heating_prior.py`: the mocap's body-z specific
@@ -32,9 +32,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import crazyflie as cf
+from . import prior as cf
 
-MIN_GAMMA = 0.1   # below this |gamma| the battery voltage cannot carry a thrust factor (models.thrust_gain too)
+MIN_GAMMA = 0.1   # below this |gamma| the battery voltage cannot carry a thrust factor (thrust_gain too)
 
 PWM_FULL_SCALE = 65535.0
 # Flight.meta: P of every sample before a slice's first, oldest first (a plain Flight.slice drops it)

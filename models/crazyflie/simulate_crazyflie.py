@@ -4,13 +4,13 @@ A position controller flies the input-driven model closed-loop along a varied pa
 cm above the floor (ground effect), a climb, circles at several speeds with climbs and descents (thrust
 and airspeed vary), a descent and a landing hover.  The battery sags linearly over the flight.  What the
 truth differs in from the prior (payload mass, voltage exponent, rotor drag, motor lag, ground effect) is
-set by ``truth`` (its ``kappa_th``, ``tau_th_s``: motors that lose thrust as they warm, `models.motor_heating`,
+set by ``truth`` (its ``kappa_th``, ``tau_th_s``: motors that lose thrust as they warm, `motor_heating`,
 from cold at the start); the controller flies with the prior's thrust map and an integrator, as the firmware does.
 
 The Flight carries what a NanoBench log carries: mocap position and attitude, the accelerometer's
 body-frame specific force (``acc_body``, white noise, optionally the sensor's low-pass), the four motor PWM
 (``motors``) and the battery voltage (``vbat``).  The motor lag acts on the body-frame specific force as a
-first-order filter, the form `models.identify` predicts.  Writing these inputs into the log formats of
+first-order filter, the form `models.crazyflie.identify` predicts.  Writing these inputs into the log formats of
 `ingest` is not done here (ingest must not import models).
 """
 from __future__ import annotations
@@ -23,8 +23,8 @@ from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 from learnest.ingest.frames import GRAVITY
 
-from . import crazyflie as cf
-from .effects import predict_acc_body, world_from_body
+from ..effects import predict_acc_body, world_from_body
+from . import prior as cf
 from .identify import lowpass
 from .motor_heating import motor_power
 
@@ -144,7 +144,7 @@ def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int 
     """Fly ``settings.truth`` closed-loop along a varied path and log it as a Flight.
 
     The inputs are held over each sample, and so is the specific force they command (the motor lag
-    filters it exactly, as `models.identify.first_order_lag` assumes); position and velocity are
+    filters it exactly, as `models.crazyflie.identify.first_order_lag` assumes); position and velocity are
     integrated in `SUBSTEPS` steps per sample.
 
     Parameters
@@ -171,15 +171,11 @@ def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int 
     t, p_ref, v_ref, a_ref, yaw = reference_path(settings, rng)
     n, dt = len(t), 1.0 / settings.rate_hz
     h = dt / SUBSTEPS
-    volts = np.linspace(settings.vbat[0], settings.vbat[1], n)
-    spread = TORQUE_SPREAD * rng.standard_normal((n, 4))
-    spread -= spread.mean(axis=1, keepdims=True)            # differential: the collective is unchanged
-    # the lagged force at the start of each substep and at the end of the sample: f_cmd + (f - f_cmd)·decay
-    decay = np.exp(-np.arange(SUBSTEPS + 1) * h / truth["tau_s"]) if truth["tau_s"] > 1e-6 \
-        else np.r_[1.0, np.zeros(SUBSTEPS)]
+    volts, spread = _battery_and_spread(settings, n, rng)
+    decay = _lag_decay(h, truth["tau_s"])
     gravity = np.array([0.0, 0.0, GRAVITY])
     p, v = p_ref[0].copy(), np.zeros(3)
-    heat = {"h": 0.0}      # the motors' thermal state (models.motor_heating), cold at the start
+    heat = {"h": 0.0}      # the motors' thermal state (models.crazyflie.motor_heating), cold at the start
     kappa_th = float(truth.get("kappa_th", 0.0))
     heat_decay = np.exp(-dt / truth["tau_th_s"]) if kappa_th else 0.0
 
@@ -198,11 +194,7 @@ def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int 
             f_b[2] -= kappa_th * heat["h"] * float(cf.thrust_acceleration(p[2], list(u), truth))
         return R, u, f_b
 
-    # start in a steady hover: the trim makes the controller's thrust hold the true vehicle, as the
-    # firmware's integrator has done by the time a flight's log starts
-    trim = 1.0
-    for _ in range(3):
-        trim *= GRAVITY / step(0, trim)[2][2]
+    trim = _hover_trim(step)   # start in a steady hover
     f = step(0, trim)[2]
     log_p, log_f, log_u = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 9))
     log_thrust_cmd, log_motor_thrust = np.empty(n), np.empty((n, 4))
@@ -217,16 +209,55 @@ def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int 
         # the controller's thrust command (N) and each motor's thrust after its lag (what its speed gives)
         log_thrust_cmd[k], log_motor_thrust[k] = command["thrust_n"], motor
         motor = motor_cmd + (motor - motor_cmd) * decay[-1]
-        # symplectic Euler with the acceleration at the start of each substep: the second difference of
-        # the logged positions then is the acceleration at the sample, not a substep later
-        for fraction in decay[:-1]:
-            v = v + h * (R @ (f_cmd + (f - f_cmd) * fraction) - gravity)
-            p = p + h * v
+        p, v = _substeps(p, v, R, f_cmd, f, decay, h, gravity)
         f = f_cmd + (f - f_cmd) * decay[-1]
         trim += KI * (p_ref[k, 2] - p[2]) * dt / GRAVITY
         if kappa_th:   # exact step of τ h' = P − h with the power of this sample's inputs held
             heat["h"] = heat_decay * heat["h"] + (1.0 - heat_decay) * float(motor_power(u))
 
+    return _as_flight(settings, rng, t, log_p, log_f, log_u, log_thrust_cmd, log_motor_thrust, truth,
+                      name or f"sim_crazyflie_{seed}")
+
+def _battery_and_spread(settings: SimulatedFlight, n: int, rng: np.random.Generator):
+    """The battery voltage (T,) V, falling linearly, and each motor's torque spread (T, 4)."""
+    volts = np.linspace(settings.vbat[0], settings.vbat[1], n)
+    spread = TORQUE_SPREAD * rng.standard_normal((n, 4))
+    spread -= spread.mean(axis=1, keepdims=True)            # differential: the collective is unchanged
+    return volts, spread
+
+
+def _lag_decay(h: float, tau_s: float) -> np.ndarray:
+    """(SUBSTEPS + 1,): the lagged force at the start of each substep and at the end of the sample is
+    f_cmd + (f - f_cmd)·decay (a motor lag of ``tau_s`` s, substeps of ``h`` s)."""
+    return np.exp(-np.arange(SUBSTEPS + 1) * h / tau_s) if tau_s > 1e-6 else np.r_[1.0, np.zeros(SUBSTEPS)]
+
+
+def _hover_trim(step) -> float:
+    """The thrust trim that makes the controller hold the true vehicle in a steady hover, as the firmware's
+    integrator has done by the time a flight's log starts."""
+    trim = 1.0
+    for _ in range(3):
+        trim *= GRAVITY / step(0, trim)[2][2]
+    return trim
+
+
+def _substeps(p: np.ndarray, v: np.ndarray, R: np.ndarray, f_cmd: np.ndarray, f: np.ndarray, decay: np.ndarray,
+              h: float, gravity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Position (m) and velocity (m/s) after one sample's substeps of ``h`` s, the body force lagging from
+    ``f`` towards ``f_cmd`` (`_lag_decay`).  Symplectic Euler with the acceleration at the start of each
+    substep: the second difference of the logged positions then is the acceleration at the sample, not a
+    substep later."""
+    for fraction in decay[:-1]:
+        v = v + h * (R @ (f_cmd + (f - f_cmd) * fraction) - gravity)
+        p = p + h * v
+    return p, v
+
+
+def _as_flight(settings: SimulatedFlight, rng: np.random.Generator, t: np.ndarray, log_p: np.ndarray,
+               log_f: np.ndarray, log_u: np.ndarray, log_thrust_cmd: np.ndarray, log_motor_thrust: np.ndarray,
+               truth: dict, name: str) -> Flight:
+    """The simulated states and inputs as the sensors log them (`simulate_crazyflie`'s Flight)."""
+    n = len(t)
     sensor = {"roll_rad": settings.accel_tilt_rad[0], "pitch_rad": settings.accel_tilt_rad[1],
               **{f"bias_{a}": b for a, b in zip("xyz", settings.accel_bias)}}
     acc = predict_acc_body(log_f, t, sensor) + settings.accel_noise * rng.standard_normal(log_f.shape)
@@ -243,6 +274,6 @@ def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int 
         channels["rotor_speed"] = cf.thrust_columns_for(log_motor_thrust, "rpm")
     else:
         channels["thrust_si"] = log_thrust_cmd.reshape(n, 1)
-    meta = {"name": name or f"sim_crazyflie_{seed}", "adapter": "simulated crazyflie",
+    meta = {"name": name, "adapter": "simulated crazyflie",
             "quality": {"ok": True, "issues": []}, "simulated_truth": dict(truth)}
     return Flight(t, positions, world_from_body(acc, log_u[:, :4]), log_u[:, :4], channels, meta)

@@ -16,8 +16,8 @@ import numpy as np
 
 from learnest.errors import InvalidInput
 
-from .covariance_factor import spd_factor
-from .results import FilterResult
+from ..covariance_factor import spd_factor
+from ..results import FilterResult
 
 C_FLAGS = ("-O2", "-fPIC", "-shared")   # a small hand-written file: -O2 compiles in well under a second
 

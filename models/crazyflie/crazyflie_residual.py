@@ -3,16 +3,16 @@ inputs (motor PWM, battery voltage, mocap attitude and velocity) predict through
 
 Each row is one kept sample of a flight (every `ROW_STRIDE`-th) with 6 columns (m/s², body frame):
 
-- columns 0-2, inputs: acc_body − A(f_inputs), with f_inputs = `models.identify.predict_body_force` (the
+- columns 0-2, inputs: acc_body − A(f_inputs), with f_inputs = `models.crazyflie.identify.predict_body_force` (the
   thrust map, ground effect and rotor drag at the effects' parameters, the motor lag as a first-order
   filter) and A the accelerometer model `models.effects.predict_acc_body` (bias, scale, delay, tilt);
 - columns 3-5, mocap: acc_body − A(f_mocap), with f_mocap = Rᵀ (p̈ + g e₃) from the mocap position.
 
-Both sides of both blocks are low-passed alike: at `models.identify.LOWPASS_HZ` (5 Hz, 2nd-order
+Both sides of both blocks are low-passed alike: at `models.crazyflie.identify.LOWPASS_HZ` (5 Hz, 2nd-order
 Butterworth, zero phase), the mocap block then again at `MOCAP_LOWPASS_HZ` (2 Hz).  The mocap block sees
 only the accelerometer effects: it is what tells an accelerometer scale error from a payload, which
 through the inputs alone act identically (both scale T/m).  Samples the recorder interpolated across
-gaps and the filter edges are left out (`models.identify.flight_arrays`).
+gaps and the filter edges are left out (`models.crazyflie.identify.flight_arrays`).
 """
 from __future__ import annotations
 
@@ -23,9 +23,7 @@ import numpy as np
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 
-from . import crazyflie as cf
-from .diagnosis import ResidualProblem
-from .effects import (
+from ..effects import (
     Effect,
     crazyflie_effects,
     effects_for,
@@ -33,9 +31,11 @@ from .effects import (
     specific_force_body,
     unidentifiable_scales,
 )
+from ..inputs import system_inputs
+from ..residual_problem import ResidualProblem
+from ..systems import Crazyflie
+from . import prior as cf
 from .identify import FlightArrays, flight_arrays, lowpass, predict_body_force
-from .inputs import system_inputs
-from .systems import Crazyflie
 
 # ground effect is below 0.1 % of thrust above ~10 rotor radii: without samples that low r_m is not fitted
 GROUND_EFFECT_HEIGHT_M = 10 * cf.BITCRAZE_ROTOR_RADIUS_M
@@ -169,13 +169,21 @@ def crazyflie_problem(flights: list[Flight], prior: dict | None = None, name: st
                            "measured samples away from gaps and the record's ends")
     offsets = np.cumsum([0] + lengths)
     blocks = [np.arange(offsets[i], offsets[i + 1]) for i in range(len(data))] if len(data) > 1 else []
+    frozen = _frozen_params(data)
+    times = np.concatenate([d.t[d.rows] for d in data])
+    return ResidualProblem(name, candidates, residual, int(offsets[-1]), blocks, frozen, times)
+
+
+def _frozen_params(data: list) -> dict:
+    """{param: why} for the parameters these flights cannot identify: the scales the mocap's specific force
+    cannot tell apart (`effects.unidentifiable_scales`), and the ground effect's r_m without enough samples
+    near the floor."""
     frozen = unidentifiable_scales(np.concatenate([d.f_mocap[d.arrays.keep] for d in data]))
     low = sum(int(np.sum(d.arrays.z[d.arrays.keep] < GROUND_EFFECT_HEIGHT_M)) for d in data)
     if low < MIN_GROUND_SAMPLES:
         frozen["r_m"] = (f"only {low} samples below {GROUND_EFFECT_HEIGHT_M:.2f} m: ground effect is not "
                          f"identifiable on these flights and r_m is held at the prior's value")
-    times = np.concatenate([d.t[d.rows] for d in data])
-    return ResidualProblem(name, candidates, residual, int(offsets[-1]), blocks, frozen, times)
+    return frozen
 
 
 def specific_force_rmse(problem: ResidualProblem, values: dict | None = None) -> float:

@@ -1,7 +1,7 @@
 """Identify the Crazyflie's input-driven physics from real flights: body-frame specific force predicted
 from motor PWM, battery voltage, mocap attitude and velocity, scored against the accelerometer.
 
-Protocol: the accelerometer's body-frame z specific force and the model's
+Protocol (the held-out specific-force target's): the accelerometer's body-frame z specific force and the model's
 prediction are both low-passed at 5 Hz (2nd-order Butterworth, zero phase) and compared by RMSE (m/s²).
 Samples the recorder interpolated across radio gaps are not measurements and are left out of every fit
 and score, as are the first and last 0.5 s of each flight (the zero-phase filter's edges).  Fitting is
@@ -19,9 +19,9 @@ from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 from learnest.ingest.frames import quat_to_matrix
 
-from .crazyflie import BOUNDS, GRAVITY, PUBLIC, specific_force_body, thrust_acceleration
-from .filters import LOWPASS_HZ, lowpass  # noqa: F401  (LOWPASS_HZ: the identification's, re-exported)
+from ..filters import LOWPASS_HZ, lowpass  # noqa: F401  (LOWPASS_HZ: the identification's, re-exported)
 from .motor_heating import HISTORY_KEY, thermal_state
+from .prior import BOUNDS, GRAVITY, PUBLIC, specific_force_body, thrust_acceleration
 
 EDGE_S = 0.5
 GAP_DILATION = 5          # samples either side of an interpolated row that are also left out
@@ -53,7 +53,7 @@ def interpolated_rows(values: np.ndarray, tol: float = 1e-9) -> np.ndarray:
 def flight_arrays(flight: Flight, source: str = "pwm") -> FlightArrays:
     """Arrays for identification, the thrust columns from ``source`` (`models.crazyflie.THRUST_SOURCES`);
     raises ValueError naming the missing inputs."""
-    from .inputs import SOURCE_CHANNELS, thrust_columns  # inputs imports this module's neighbours
+    from ..inputs import SOURCE_CHANNELS, thrust_columns  # inputs imports this module's neighbours
 
     missing = [name for name in (*SOURCE_CHANNELS[source], "acc_body") if name not in flight.channels]
     if missing:
@@ -91,7 +91,7 @@ def first_order_lag(x: np.ndarray, tau: float, dt: float) -> np.ndarray:
 
 def predict_body_force(arrays: FlightArrays, params: dict) -> np.ndarray:
     """(T, 3) body-frame specific force predicted from the inputs (the motors' heating applied when ``params``
-    has ``kappa_th``, `models.motor_heating`), lagged by tau_s, low-passed."""
+    has ``kappa_th``, `models.crazyflie.motor_heating`), lagged by tau_s, low-passed."""
     f_b, _ = specific_force_body(list(arrays.v_world.T), arrays.z, list(arrays.u.T), params)
     f_b = np.column_stack([np.broadcast_to(c, arrays.z.shape) for c in f_b])
     if params.get("kappa_th"):

@@ -34,7 +34,7 @@ DEFAULT_CACHE = Path.home() / ".cache" / "learnest" / "codegen"
 # -O1: CasADi's long straight-line functions compile in a fraction of -O2's time (the KNODE's exact
 # Jacobian, 23k instructions: -O0 2.7 s, -O1 5 s, -O2 24 s) and run within ~1.6x of -O2's code
 # (21 Jacobians: 870 vs 550 µs on a busy machine); a new model must not wait half a minute.  Re-measured
-# on one node's Jacobian, -O1 vs -O2: 10 vs 18 µs, compile 4.8 vs 13.4 s; the gradient sweep
+# one node's Jacobian -O1 vs -O2: 10 vs 18 µs, compile 4.8 vs 13.4 s; the gradient sweep
 # 96 vs 89 µs, 1.2 vs 2.1 s (noisy, load ~3): -O2 does not pay here.  Re-measured once compiling became
 # once per architecture (weights as an input): the 16-unit KNODE's MHE functions compile in 17 s (-O1) vs
 # 42 s (-O2), its UKF's in 1.2 vs 2.3 s; KNODE-MHE 1.11 vs 1.07 ms/step, KNODE-UKF 0.47 vs 0.50 ms/step
@@ -94,7 +94,7 @@ class CompiledFunction(_Buffers):
 
     def pointers(self) -> tuple:
         """(function, arg, res, iw, w, mem) as integers: what C code needs to call this function itself
-        (`estimators/gn.c`), valid as long as this object lives."""
+        (`estimators/native/gn.c`), valid as long as this object lives."""
         return (ctypes.cast(self._fn, ctypes.c_void_p).value, *self._call_args)
 
     def __call__(self):

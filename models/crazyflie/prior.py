@@ -4,7 +4,7 @@ ground effect, motor lag.  Written once against the numpy/torch/CasADi namespace
 Every number has one home here: `PUBLIC` holds published values with their source, `IDENTIFIED` the
 values fitted on the real NanoBench flights by `benchmarks/crazyflie_physics.py` (committed results in
 `benchmarks/results/crazyflie_physics/`), `BOUNDS` the physically plausible range of each parameter.
-Parameter names follow the effect contract (`EFFECTS`): `m_kg`, `gamma`, `k_xy`, `k_z`, `r_m`, `tau_s`.
+Parameter names follow the effect contract (`EFFECTS` below): `m_kg`, `gamma`, `k_xy`, `k_z`, `r_m`, `tau_s`.
 
 Thrust of one motor (N), PWM p in 0..65535, battery voltage V (V):
 
@@ -23,8 +23,8 @@ G(z) = 1 / (1 − (r_m / (4 z))²) is Cheeseman & Bennett's ground-effect factor
 in the mocap frame), and the world acceleration is a = R f_b − g e₃.
 
 Motor heating (`kappa_th`, `tau_th_s`) multiplies the thrust by 1 − kappa_th·h, h a thermal state of the
-inputs' history (`models.motor_heating`); it is not a function of (x, u) at one instant, so it is applied to
-the inputs before they reach these functions (`models.inputs.system_inputs`, `models.identify`).
+inputs' history (`models.crazyflie.motor_heating`); it is not a function of (x, u) at one instant, so it is applied to
+the inputs before they reach these functions (`models.inputs.system_inputs`, `models.crazyflie.identify`).
 """
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ import numpy as np
 from learnest.errors import InvalidInput
 from learnest.ingest.frames import GRAVITY
 
-from .backend import ops_for
+from ..backend import ops_for
 
 # -- published values ----------------------------------------------------------------------------------
 # J. Förster, "System Identification of the Crazyflie 2.0 Nano Quadrocopter", BSc thesis, ETH Zürich,
@@ -81,7 +81,7 @@ PUBLIC = {
     "tau_s": 0.03,
     "v_ref": V_REF,
     # No published thermal model of the Crazyflie's motors was found: no heating, and the identified time
-    # constant (models.motor_heating).
+    # constant (models.crazyflie.motor_heating).
     "kappa_th": 0.0,
     "tau_th_s": 75.0,
 }
@@ -99,7 +99,7 @@ IDENTIFIED = {
     "r_m": BITCRAZE_ROTOR_RADIUS_M,   # not identifiable at 1 m flying height: the public value is kept
     "tau_s": 0.061,
     "v_ref": V_REF,
-    # motor heating (models.motor_heating), fitted after the rest with a free thrust gain per flight
+    # motor heating (models.crazyflie.motor_heating), fitted after the rest with a free thrust gain per flight
     # (benchmarks/crazyflie_heating_prior.py): thrust × (1 − kappa_th·h), τ_th ḣ = P − h
     "kappa_th": 0.055,
     "tau_th_s": 75.0,
@@ -136,7 +136,7 @@ EFFECTS = {
     "rotor_drag": {"params": ("k_xy", "k_z"), "equation": "f_b −= diag(k_xy, k_xy, k_z)·Rᵀ v"},
     "ground_effect": {"params": ("r_m",), "equation": "Σ T_i /= 1 − (r_m / (4 z))²  (Cheeseman–Bennett)"},
     "motor_lag": {"params": ("tau_s",), "equation": "ȧ = (a_cmd(v, z, u) − a) / tau_s"},
-    # tau_th_s is held at the prior's: flights of 20-40 s determine kappa_th/tau_th_s, not both (models.motor_heating)
+    # tau_th_s is held at the prior's: flights of 20-40 s determine kappa_th/tau_th_s, not both (motor_heating)
     "motor_heating": {"params": ("kappa_th",),
                       "equation": "Σ T_i ×= 1 − kappa_th·h,  tau_th_s·ḣ = Σ (p_i V)² / P_ref − h  (cold at the start)"},
 }

@@ -6,7 +6,7 @@ linear in its coefficients (a least-squares fit: no local minima, every smaller 
 with p_i = PWM_i / 65535, V the battery voltage (V) through a first-order filter of time constant
 ``vbat_tau_s``, R₃₃ the cosine of the tilt and v_z± the climb and descent speeds (m/s, world frame).  Every
 column then goes through the motor lag (first order, ``tau_s``) and the protocol's 5 Hz low-pass
-(`models.identify`), as the physics prior's prediction does.  Both time constants are picked from grids on
+(`models.crazyflie.identify`), as the physics prior's prediction does.  Both time constants are picked from grids on
 the training flights only.
 
 Why these terms (held-out evidence in `docs/results/thrust-maps.md`): the summed duty's
@@ -32,7 +32,7 @@ import numpy as np
 from learnest.errors import InvalidInput
 from learnest.ingest.frames import GRAVITY, quat_to_matrix
 
-from . import crazyflie as cf
+from . import prior as cf
 from .identify import FlightArrays, first_order_lag, lowpass, rmse_constant
 
 __all__ = ["TERMS", "BenchMap", "ThrustMap", "columns", "design", "fit_bench_map", "fit_thrust_map", "r2", "readings",

@@ -1,0 +1,350 @@
+"""The diagnosis of Crazyflie flights with the input-driven prior: one channel, the body-frame specific
+force the accelerometer reads against what motors (or rotor speed, or the thrust command), battery and
+mocap predict (`models.crazyflie.crazyflie_residual`), traces the physical effects and the accelerometer's together."""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import replace
+
+import numpy as np
+
+from learnest.errors import InvalidInput
+from learnest.estimators.observers import pretraining_observer
+from learnest.ingest.flight import Flight
+from learnest.ingest.profile import flight_profile
+from learnest.models import crazyflie as cf
+from learnest.models.crazyflie.crazyflie_residual import CRAZYFLIE_MIN_CV_GAIN, crazyflie_problem, specific_force_rmse
+from learnest.models.crazyflie.identify import LOWPASS_HZ
+from learnest.models.diagnosis import AT_BOUND_FRACTION, bootstrap_ci, fit, select_effects
+from learnest.models.inputs import (
+    CHANNEL_SOURCES,
+    SOURCE_CHANNELS,
+    MissingInputs,
+    flight_thrust_source,
+    system_inputs,
+    training_meta,
+)
+from learnest.models.knode import HybridModel
+from learnest.models.presets import CRAZYFLIE_TRAINING
+from learnest.models.training import train_knode
+
+from .diagnosis_problems import _channel, _split_for_fitting, repair_interval, repair_verdict, residual_series
+from .flights import evaluate_flight, system_for
+
+
+# -- Crazyflie flights, input-driven prior -------------------------------------------------------------
+def _split_crazyflie(flights: list[Flight]):
+    """Fit on the first half of the flights (rounded up; blocked CV by flight when that is several), score
+    on the others; one flight: fit on its first 60 %, score the rest."""
+    if len(flights) == 1:
+        return _split_for_fitting(flights)
+    cut = (len(flights) + 1) // 2
+    return flights[:cut], flights[cut:], f"fit on the first {cut} flight(s), scored on the other {len(flights) - cut}"
+
+
+def _crazyflie_model(flight: Flight, params: dict, train: bool, config) -> HybridModel:
+    """The Crazyflie prior with ``params`` on ``flight``'s grid; with ``train``, a KNODE trained on top."""
+    system = replace(system_for(flight, "crazyflie"), prior_params=dict(params))
+    if not train:
+        return HybridModel(system, "prior")
+    u = system_inputs(flight, system)
+    zeta = pretraining_observer(system, flight.measurements(), u, system.dt)
+    model = train_knode(system, zeta, u, system.dt, config).model
+    model.meta.update({"system": "crazyflie", "training_flight": flight.name,
+                       "training_flight_sha256": [s["sha256"] for s in flight.meta.get("sources", [])],
+                       "training_profile": flight_profile(flight), **training_meta(system, thrust_gain=False)})
+    return model
+
+
+def crazyflie_prior_for(flights: list[Flight], knode: HybridModel | None = None, mass_kg: float | None = None,
+                        prior: dict | None = None) -> tuple[dict, str, float | None]:
+    """(prior parameters, thrust source, declared mass in kg or None) of a Crazyflie diagnosis.
+
+    The thrust source is the prior's when a model or ``prior`` is given, else the first of "pwm", "rpm",
+    "thrust_n" every flight carries (`models.inputs.flight_thrust_source`).  The declared mass is
+    ``mass_kg``, else the flights' ``meta["mass_kg"]`` (crazyswarm2's info*.yaml) when they all agree.
+    With thrust in N or rotor speed the declared mass is the prior's m_kg (`models.crazyflie.prior_for`).
+
+    Raises
+    ------
+    models.inputs.MissingInputs
+        If some flight carries no thrust source, or not the model's.
+    InvalidInput
+        If ``mass_kg`` is not a plausible Crazyflie mass.
+    """
+    if mass_kg is not None and not cf.BOUNDS["m_kg"][0] <= mass_kg <= cf.BOUNDS["m_kg"][1]:
+        raise InvalidInput(f"--mass-kg {mass_kg:g}: a Crazyflie weighs between {cf.BOUNDS['m_kg'][0]:g} and "
+                           f"{cf.BOUNDS['m_kg'][1]:g} kg")
+    declared = mass_kg
+    if declared is None:
+        masses = {f.meta.get("mass_kg") for f in flights}
+        if len(masses) == 1 and None not in masses:
+            declared = float(masses.pop())
+    if prior is None and knode is not None:
+        prior = knode.system.prior_params
+    if prior is not None:
+        prior = dict(prior)
+        source = cf.thrust_source_of(prior)
+        if declared is not None and source != "pwm" and mass_kg is not None:
+            prior["m_kg"] = float(mass_kg)
+        return prior, source, declared
+    sources = [flight_thrust_source(f) for f in flights]
+    for source in ("pwm", "rpm", "thrust_n"):
+        if all(source == s or (s is not None and _carries(f, source)) for f, s in zip(flights, sources)):
+            return cf.prior_for(source, declared), source, declared
+    lacking = next(f for f, s in zip(flights, sources) if s is None) if None in sources else flights[0]
+    raise MissingInputs(f"{lacking.name}: the 'crazyflie' prior needs the thrust from the log, and the flights "
+                        f"do not share one source ({'; '.join(CHANNEL_SOURCES[c] for c in ALL_THRUST_CHANNELS)}). "
+                        "The kinematic prior (system 'quadrotor') works without them.")
+
+
+ALL_THRUST_CHANNELS = ("motors", "vbat", "rotor_speed", "thrust_si")
+
+
+def _carries(flight: Flight, source: str) -> bool:
+    return all(name in flight.channels for name in SOURCE_CHANNELS[source])
+
+
+# the thrust gain against the prior's map beyond which the vehicle is not the one the map describes
+FITS_PRIOR_GAIN = (0.7, 1.4)
+
+
+def _name_thrust_scale(effects: list[dict], candidates: list[dict], prior: dict, source: str,
+                       declared: float | None) -> tuple[list[dict], dict]:
+    """The mass effect under its true name, and whether the vehicle fits the prior's thrust map.
+
+    What the data measure is thrust over mass.  With thrust in N (or rotor speed on Förster's map) and a mass
+    in the prior, or with a declared mass, a change is a mass in kg: ``mass`` {m_kg}, scaled onto the declared
+    mass for the PWM source (m = m_declared · m_fit / m_prior).  Otherwise it is a thrust gain against the
+    prior's map, ``thrust_gain`` {gain = m_prior / m_fit} (1 = the map as it is), dimensionless.
+    """
+    m_prior = float(prior["m_kg"])
+    as_mass = source == "thrust_n" or declared is not None
+    scale = (declared / m_prior) if (as_mass and source == "pwm" and declared) else 1.0
+
+    def convert(value: float) -> float:
+        return value * scale if as_mass else m_prior / value
+
+    out = []
+    for e in effects:
+        if e["id"] != "mass":
+            out.append(e)
+            continue
+        e = dict(e)
+        value = e["params"]["m_kg"]
+        interval = e["ci95"].get("m_kg")
+        if as_mass:
+            e["params"] = {"m_kg": convert(value)}
+            e["nominal"] = {"m_kg": convert(m_prior)}
+            e["ci95"] = {"m_kg": [convert(interval[0]), convert(interval[1])]} if interval else {}
+            e["equation"] = f"mass: m_kg = {convert(value):.4g} kg"
+            if scale != 1.0:
+                e["note"] = (f"the declared mass {declared:g} kg times the change the data see against the "
+                             f"prior's thrust map ({value / m_prior:.3f})")
+        else:
+            keys = ("identified", "at_bound", "claimed", "determined", "explained_by_param", "held_nominal",
+                    "units", "bounds")
+            e.update({"id": "thrust_gain", "params": {"gain": convert(value)}, "nominal": {"gain": 1.0},
+                      "ci95": {"gain": sorted([convert(interval[0]), convert(interval[1])])} if interval else {},
+                      "equation": f"thrust_gain: gain = {convert(value):.4g} (thrust against the prior's map; "
+                                  "a payload or another vehicle's motors)",
+                      "note": "no mass is declared and the thrust is not known in N: only thrust over mass is "
+                              "measured, reported as a gain on the prior's thrust map"})
+            for key in keys:
+                if key in e and isinstance(e[key], dict) and "m_kg" in e[key]:
+                    v = e[key].pop("m_kg")
+                    if key == "units":
+                        v = ""
+                    elif key == "bounds":
+                        v = sorted([convert(v[1]), convert(v[0])])
+                    e[key]["gain"] = v
+        out.append(e)
+    alone = next((c for c in candidates if c["id"] == "mass"), None)
+    fitted = next((e for e in effects if e["id"] == "mass"), None)
+    m_fit = (fitted or alone or {"params": {"m_kg": m_prior}})["params"]["m_kg"]
+    m_ref = declared if (declared is not None and source != "pwm") else m_prior
+    gain = float(m_ref / m_fit) if m_fit else 1.0
+    ok = bool(FITS_PRIOR_GAIN[0] <= gain <= FITS_PRIOR_GAIN[1])
+    what = {"pwm": "motor PWM and battery voltage", "rpm": "rotor speed", "thrust_n": "commanded thrust in N"}[source]
+    if ok:
+        message = (f"the vehicle's thrust is {gain:.2f}× what the prior's map predicts from the {what}: within "
+                   f"×{FITS_PRIOR_GAIN[0]:g}–×{FITS_PRIOR_GAIN[1]:g}, the prior's map fits this vehicle")
+    else:
+        message = (f"the vehicle's thrust is {gain:.2f}× what the prior's map predicts from the {what} "
+                   f"(outside ×{FITS_PRIOR_GAIN[0]:g}–×{FITS_PRIOR_GAIN[1]:g}): this vehicle does not match the "
+                   "prior's thrust map (other motors or propellers, a brushless vehicle, a controller whose thrust "
+                   "command is not the thrust made); effects fitted against this map describe the mismatch, not "
+                   "the vehicle.  Fit a map for it: `learnest thrust-map --fit FLIGHTS --score FLIGHTS`, or give "
+                   "a bench calibration, `learnest thrust-map --bench CSV` (thrust in N against PWM or rpm)")
+        if source == "thrust_n":
+            message += ("; with thrust in N this is the commanded thrust the motors do not make: an integrator "
+                        "in the controller makes up the difference")
+    return out, {"ok": ok, "thrust_gain": round(gain, 4), "message": message}
+
+
+def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, methods: Sequence[str] = ("ukf",),
+                       epochs: int = CRAZYFLIE_TRAINING.epochs, return_model: bool = False,
+                       prior: dict | None = None, mass_kg: float | None = None):
+    """Trace what the input-driven Crazyflie prior lacks on real flights; score before and after on
+    flights not used to fit.
+
+    The thrust comes from what the flights carry (`crazyflie_prior_for`): motor PWM and battery voltage,
+    rotor speed, or the controller's thrust in N.  The residual is the body-frame specific force
+    (`models.crazyflie.crazyflie_residual.crazyflie_problem`, both sides low-passed at 5 Hz); effects are selected on
+    the fitting flights (`_split_crazyflie`) and scored on the others: the RMSE of the specific force
+    predicted from the inputs alone (``specific_force_rmse``, m/s²) and, for each of ``methods``, the
+    estimator's MSE with the prior before and after (KNODE methods train a KNODE on the first fitting
+    flight, ``epochs`` epochs, on each prior).  Only identified parameters repair the prior
+    (`models.diagnosis.select_effects`).  ``prior`` holds the prior's parameters; by default ``knode``'s
+    own, else the thrust source's.  ``mass_kg`` is a declared mass (kg), else the flights' own.
+
+    Returns
+    -------
+    dict or (dict, HybridModel)
+        `diagnose`'s report with ``system`` "crazyflie", ``prior`` {``system``, ``params``},
+        ``thrust_source``, ``declared_mass_kg``, ``vehicle_fits_prior`` {``ok``, ``thrust_gain``,
+        ``message``}, ``repair`` (`repair_verdict`), ``candidates`` (every candidate effect, fitted alone),
+        ``lowpass_hz``; with ``return_model`` also the repaired model (a KNODE on the repaired prior,
+        measurement effects in its meta).
+
+    Raises
+    ------
+    models.inputs.MissingInputs
+        If a flight carries no thrust source the prior can use.
+    InvalidInput
+        If ``knode`` is not a crazyflie model, or the flights hold too few usable samples.
+    """
+    if knode is not None and knode.system.name != "crazyflie":
+        raise InvalidInput(f"model {knode.meta.get('name') or ''} has the {knode.system.name!r} prior: diagnosing "
+                           "with --system crazyflie needs a model trained with the crazyflie prior")
+    flights = [f for f in flights if f.quality["ok"]] or flights
+    prior, source, declared = crazyflie_prior_for(flights, knode, mass_kg, prior)
+    for flight in flights:
+        system_inputs(flight, replace(system_for(flight, "crazyflie"), prior_params=dict(prior)))
+    fitting, scoring, split = _split_crazyflie(flights)
+    problem = crazyflie_problem(fitting, prior)
+    selection = select_effects(problem, min_cv_gain=CRAZYFLIE_MIN_CV_GAIN)
+    held_out_problems = [crazyflie_problem([flight], prior) for flight in scoring]
+    values = _transferring(selection, held_out_problems, [f.name for f in scoring])
+    chosen = [e for e in problem.candidates if e.id in {c["id"] for c in selection["effects"]}]
+    repaired = {**prior, **{p.name: values[p.name] for e in chosen if e.target == "dynamics" for p in e.params
+                            if p.name in values}}
+    measurement = {p.name: values[p.name] for e in chosen if e.target == "measurement" for p in e.params
+                   if p.name in values}
+
+    config = replace(CRAZYFLIE_TRAINING, epochs=epochs)
+    learn = any(m.startswith("knode") for m in methods)
+    model_before = knode or _crazyflie_model(fitting[0], prior, learn, config)
+    model_after = _crazyflie_model(fitting[0], repaired, learn or return_model, config)
+    model_after.meta.update({"measurement_effects": measurement,
+                             "effects": [e.id for e in chosen if any(p.name in values for p in e.params)],
+                             "parent": model_before.meta.get("name"), "system": "crazyflie",
+                             "thrust_source": source})
+    keys = ["specific_force_rmse", *methods]
+    before, after, per_flight, series = _score_repair(scoring, held_out_problems, selection["channel"], values,
+                                                      methods, model_before, model_after, knode)
+    effects, fits_prior = _name_thrust_scale([{**e, "channel": selection["channel"]} for e in selection["effects"]],
+                                             selection["candidates"], prior, source, declared)
+    report = {
+        "system": "crazyflie", "prior": {"system": "crazyflie", "params": prior},
+        "thrust_source": source, "declared_mass_kg": declared, "vehicle_fits_prior": fits_prior,
+        "effects": effects, "confounded": selection["confounded"],
+        "candidates": [{**c, "channel": selection["channel"]} for c in selection["candidates"]],
+        "before": {k: float(np.median(v)) for k, v in before.items()},
+        "after": {k: float(np.median(v)) for k, v in after.items()},
+        "per_flight": per_flight, "split": split, "lowpass_hz": LOWPASS_HZ,
+        "improved_flights": {k: f"{sum(p['after'][k] < p['before'][k] for p in per_flight)}/{len(per_flight)}"
+                             for k in keys},
+        "residuals": {"specific_force_rmse_fitting_before": specific_force_rmse(problem),
+                      "specific_force_rmse_fitting_after": specific_force_rmse(problem, values)},
+        "channels": {selection["channel"]: _channel(selection)}, "residual_series": series}
+    report["repair"] = repair_verdict(report, methods)
+    if source == "pwm":
+        report["thrust_map_fit"] = thrust_map_fit(problem, prior, declared)
+    return (report, model_after) if return_model else report
+
+
+def _score_repair(scoring: list[Flight], held_out_problems: list, channel: str, values: dict,
+                  methods: Sequence[str], model_before: HybridModel, model_after: HybridModel,
+                  knode: HybridModel | None):
+    """`diagnose_crazyflie`'s scores on the held-out flights, before and after the repair: the specific-force
+    RMSE (m/s²) predicted from the inputs and each method's MSE, per flight and as lists per key, with the
+    residual series of the first held-out flight: ``(before, after, per_flight, series)``."""
+    keys = ["specific_force_rmse", *methods]
+    before: dict[str, list[float]] = {k: [] for k in keys}
+    after: dict[str, list[float]] = {k: [] for k in keys}
+    per_flight: list[dict] = []
+    mhe_cache: dict = {}
+    series: dict = {}
+    for flight, held_out in zip(scoring, held_out_problems):
+        # the specific force predicted from the inputs on the first held-out flight, before and after
+        series = series or {channel: residual_series(held_out, values, flight.name)}
+        b = {"specific_force_rmse": specific_force_rmse(held_out)}
+        a = {"specific_force_rmse": specific_force_rmse(held_out, values)}
+        intervals = {}
+        if methods:
+            # the diagnosis's priors see the thrust as the map predicts it: a per-flight thrust gain would
+            # absorb the payload and battery effects it fits (a user's model keeps the inputs it was trained on)
+            scored_b = evaluate_flight(model_before, flight, methods, mhe_cache=mhe_cache, keep_estimates=True,
+                                       thrust_gain=None if model_before is knode else False)
+            scored_a = evaluate_flight(model_after, flight, methods, mhe_cache=mhe_cache, keep_estimates=True,
+                                       thrust_gain=False)
+            b.update({m: scored_b["results"][m]["mse"] for m in methods})
+            a.update({m: scored_a["results"][m]["mse"] for m in methods})
+            intervals = {m: repair_interval(scored_b, scored_a, m, flight.dt) for m in methods}
+        per_flight.append({"flight": flight.name, "before": b, "after": a, "repair_gain_interval_pct": intervals})
+        for k in keys:
+            before[k].append(b[k])
+            after[k].append(a[k])
+    return before, after, per_flight, series
+
+
+def _transferring(selection: dict, held_out: list, names: list[str]) -> dict:
+    """``selection``'s identified values without the effects that make the held-out flights worse.
+
+    Each chosen effect with an identified parameter is scored on every held-out flight: the specific-force
+    RMSE from the inputs with the identified values, against the same without that effect.  An effect that
+    does not lower it on more than half the held-out flights does not transfer: its entries are marked not
+    identified (``held_out`` says why) and the repair leaves it out.  Returns the values a repair uses."""
+    values = dict(selection["values_identified"])
+    for effect in selection["effects"]:
+        names_ = [k for k, ok in effect["identified"].items() if ok and k in values]
+        if not names_ or not held_out:
+            continue
+        without = {k: v for k, v in values.items() if k not in names_}
+        better = [specific_force_rmse(p, values) < specific_force_rmse(p, without) for p in held_out]
+        effect["held_out_better"] = f"{sum(better)}/{len(better)}"
+        if 2 * sum(better) <= len(better):
+            worse = [n for n, b in zip(names, better) if not b]
+            effect["held_out"] = (f"does not transfer: the held-out specific force is not better with it on "
+                                  f"{len(worse)} of {len(better)} flights ({', '.join(worse)}); not claimed, "
+                                  "not repaired")
+            for k in names_:
+                effect["identified"][k] = effect["claimed"][k] = False
+            values = without
+    return values
+
+
+def thrust_map_fit(problem, prior: dict, declared: float | None) -> dict:
+    """The thrust gain and battery exponent against the prior's PWM map, fitted together on the fitting
+    flights with 95 % block-bootstrap intervals, whether or not the selection chose them: how far this
+    vehicle's thrust is from the map.  ``gain`` = m_prior / m_fit (dimensionless), or ``m_kg`` scaled onto a
+    declared mass; ``gamma`` the exponent of (V / V_ref); ``at_bound`` for each fitted parameter."""
+    effects = [e for e in problem.candidates if e.id in ("mass", "battery_thrust")]
+    fitted = fit(problem, effects)
+    intervals = bootstrap_ci(problem, fitted)
+    m_prior = float(prior["m_kg"])
+    m_fit, (m_lo, m_hi) = fitted.values["m_kg"], intervals["m_kg"]
+    params = {p.name: p for e in effects for p in e.params}
+    out = {"gain": m_prior / m_fit, "gain_ci95": [m_prior / m_hi, m_prior / m_lo],
+           "gamma": fitted.values["gamma"], "gamma_ci95": intervals["gamma"], "gamma_prior": float(prior["gamma"]),
+           "at_bound": {k: bool(_at_bound_param(params[k], fitted.values[k])) for k in ("m_kg", "gamma")},
+           "gamma_bounds": list(cf.BOUNDS["gamma"])}
+    if declared is not None:
+        out.update(m_kg=declared * m_fit / m_prior, m_kg_ci95=[declared * m_lo / m_prior, declared * m_hi / m_prior])
+    return out
+
+
+def _at_bound_param(param, value) -> bool:
+    margin = AT_BOUND_FRACTION * (param.upper - param.lower)
+    return value <= param.lower + margin or value >= param.upper - margin
