@@ -15,6 +15,7 @@ from numpy.typing import ArrayLike
 from learnest.models.checks import check_sequence
 from learnest.models.presets import MHE_HORIZON
 
+from .headline import MEASURES, headline
 from .mhe import MHE
 from .protocols import StateSpaceModel
 from .ukf import compiled_sigma_functions, run_ukf
@@ -310,7 +311,6 @@ def summarize(flight_reports: list[dict]) -> dict:
     clearly_worse = {base: [f["flight"] for f in scored
                             if ((f.get("gain_interval_pct") or {}).get(f"knode-{base}_vs_{base}") or [0, 0])[1] < 0]
                      for base in ("ukf", "mhe") if f"knode-{base}_vs_{base}" in improvement}
-    from .yardsticks import MEASURES, headline  # it runs evaluate_sequence: imported here, not at the top
     return {"median": median, "improvement_pct": improvement, "flights_scored": len(scored),
             "outside_training_envelope": outside, "knode_predicts_worse": worse,
             "knode_clearly_worse": clearly_worse, "recommended": _recommended_summary(scored, median),

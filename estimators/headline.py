@@ -1,0 +1,102 @@
+"""What an evaluation says first, and what each yardstick measures (`estimators.yardsticks` computes them).
+
+Apart from the yardsticks so that `estimators.evaluate.summarize` can state the headline without importing
+the module that runs the estimators through it.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+MEASURES = {
+    "mocap_gaps": "position error (m, RMS of the 3-D error) inside windows where the mocap was hidden from the "
+                  "estimator, against the hidden mocap: how well the model carries the estimate through occlusions",
+    "fast_reference": "velocity error (m/s, RMS of the 3-D error) outside the gaps against a short-window "
+                      "derivative of the raw mocap: how closely the estimate follows the motion",
+    "paper_sg": "the MSE over [p, v, a] against a Savitzky-Golay fit of the mocap position (1.5-s window by "
+                "default), which is smoother than the motion itself (the paper's protocol and its Table I)",
+}
+NOTHING_LEARNED = "the residual did not improve held-out prediction; this version equals its prior"
+
+
+# -- over flights -----------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Headline:
+    """What an evaluation says first: the KNODE's gain on the mocap-gap yardstick over the scored flights.
+
+    Attributes
+    ----------
+    yardstick : str
+        "mocap_gaps".
+    median_gain_pct : dict
+        {"knode-ukf_vs_ukf": median over the flights with gaps of the per-flight gap gain, %, ...}.
+    flights_better : dict
+        {same keys: number of flights whose gap gain is above 0}.
+    flights_worse_beyond_interval : dict
+        {same keys: number of flights whose gain's 95 % interval lies wholly below 0}.
+    flights_worse_names : dict
+        {same keys: [names] of those flights}.
+    median_rmse_m : dict
+        {method: median over the flights with gaps of the gap RMSE, m}.
+    flights_with_gaps : int
+        Scored flights that had at least one gap.
+    flights_without_gaps : list of str
+        Scored flights without a gap score ("name: reason").
+    gap_s, every_s, start_s : float or None
+        The gap plan of the flights (`GapPlan`), s; None when no flight was scored.
+    measures : str
+        What the yardstick measures, one sentence.
+    """
+
+    yardstick: str = "mocap_gaps"
+    median_gain_pct: dict[str, float | None] = field(default_factory=dict)
+    flights_better: dict[str, int] = field(default_factory=dict)
+    flights_worse_beyond_interval: dict[str, int] = field(default_factory=dict)
+    flights_worse_names: dict[str, list[str]] = field(default_factory=dict)
+    median_rmse_m: dict[str, float] = field(default_factory=dict)
+    flights_with_gaps: int = 0
+    flights_without_gaps: list[str] = field(default_factory=list)
+    gap_s: float | None = None
+    every_s: float | None = None
+    start_s: float | None = None
+    measures: str = MEASURES["mocap_gaps"]
+
+    def to_dict(self) -> dict:
+        """JSON-able dict (the report's ``headline``)."""
+        return asdict(self)
+
+
+def headline(flight_reports: Sequence[dict]) -> Headline:
+    """The `Headline` of per-flight report entries (their ``yardsticks.mocap_gaps``); excluded flights and
+    entries without yardsticks are left out."""
+    scored = [f for f in flight_reports if not f.get("excluded") and f.get("yardsticks")]
+    with_gaps = [f for f in scored if not f["yardsticks"]["mocap_gaps"].get("skipped")]
+    without = [f"{f['flight']}: {f['yardsticks']['mocap_gaps']['skipped']}" for f in scored if f not in with_gaps]
+    gaps = [(f["flight"], f["yardsticks"]["mocap_gaps"]) for f in with_gaps]
+    keys = sorted({k for _, g in gaps for k in g["gain_pct"]})
+    methods = sorted({m for _, g in gaps for m in g["rmse_m"]})
+    median_gain, better, worse, worse_names = {}, {}, {}, {}
+    for key in keys:
+        values = [(name, g["gain_pct"][key], (g.get("gain_interval_pct") or {}).get(key)) for name, g in gaps
+                  if g["gain_pct"].get(key) is not None]
+        median_gain[key] = float(np.median([v for _, v, _ in values])) if values else None
+        better[key] = int(sum(bool(v > 0) for _, v, _ in values))
+        worse_names[key] = [name for name, _, interval in values if interval is not None and interval[1] < 0]
+        worse[key] = len(worse_names[key])
+    median_rmse = {m: float(np.median([g["rmse_m"][m] for _, g in gaps if m in g["rmse_m"]])) for m in methods}
+    plan = scored[0]["yardsticks"]["mocap_gaps"] if scored else {}
+    return Headline(median_gain_pct=median_gain, flights_better=better, flights_worse_beyond_interval=worse,
+                    flights_worse_names=worse_names, median_rmse_m=median_rmse, flights_with_gaps=len(with_gaps),
+                    flights_without_gaps=without, gap_s=plan.get("gap_s"), every_s=plan.get("every_s"),
+                    start_s=plan.get("start_s"))
+
+
+def learned_note(meta: Mapping) -> dict:
+    """What an evaluation report says about whether the model learned anything: ``learned`` (the model's
+    ``learned`` flag: True, False, or None when the model does not say) and ``learned_note`` (the sentence
+    when it learned nothing, else None)."""
+    learned = meta.get("learned")
+    learned = None if learned is None else bool(learned)
+    return {"learned": learned, "learned_note": NOTHING_LEARNED if learned is False else None}
