@@ -1,7 +1,7 @@
 """The text the `learnest` subcommands print: reports, trained and registered models, diagnoses."""
 from __future__ import annotations
 
-from learnest.models.presets import EVALUATION_METHODS
+from learnest.models.presets import EVALUATION_METHODS, GAP_START_S
 
 
 def format_report(report: dict) -> str:
@@ -13,7 +13,9 @@ def format_report(report: dict) -> str:
     """
     methods = list(report["median"])
     prior = f" ({report['system']} prior)" if report.get("system") else ""
-    lines = headline_lines(report) + _yardstick_lines(report, prior)
+    # a model that learned nothing says so before anything else: every number below is then its prior's
+    note = [f"NOTE {report['model']}: {report['learned_note']}"] if report.get("learned_note") else []
+    lines = note + headline_lines(report) + _yardstick_lines(report, prior)
     lines += [f"The paper's score (paper_sg), model {report['model']}{prior}: MSE over [p, v, a] vs "
               "Savitzky-Golay references (x 1e-3)",
              f"{'flight':<28}" + "".join(f"{m:>12}" for m in methods) + "  outside envelope"]
@@ -92,8 +94,6 @@ def _yardstick_lines(report: dict, prior: str) -> list[str]:
     import statistics
 
     lines = []
-    if report.get("learned_note"):
-        lines.append(f"NOTE {report['model']}: {report['learned_note']}")
     definitions = report.get("yardstick_definitions") or {}
     scored = [f for f in report["flights"] if not f.get("excluded") and f.get("yardsticks")]
     if not scored:
@@ -102,7 +102,8 @@ def _yardstick_lines(report: dict, prior: str) -> list[str]:
     gapped = [f for f in scored if not f["yardsticks"]["mocap_gaps"].get("skipped")]
     plan = scored[0]["yardsticks"]["mocap_gaps"]
     lines.append(f"Mocap gaps (headline), model {report['model']}{prior}: mocap hidden {plan['gap_s']:g} s every "
-                 f"{plan['every_s']:g} s after the first {plan['start_s']:g} s; position RMSE in the gaps (m)")
+                 f"{plan['every_s']:g} s after the first {plan.get('start_s', GAP_START_S):g} s; position RMSE in the "
+                 "gaps (m)")
     if definitions.get("mocap_gaps"):
         lines.append(f"  measures {_the(definitions['mocap_gaps'])}")
     methods = sorted({m for f in gapped for m in f["yardsticks"]["mocap_gaps"]["rmse_m"]}, key=_method_order)
@@ -131,7 +132,7 @@ def _yardstick_lines(report: dict, prior: str) -> list[str]:
         median = head["median_gain_pct"].get(key)
         lines.append(f"  {key.replace('_vs_', ' vs ')}: median gain "
                      f"{'-' if median is None else format(median, '+.1f')} % (mean "
-                     f"squared gap error), better on {head['flights_better'][key]} of {head['flights_with_gaps']} "
+                     f"squared gap error), better on {head['flights_better'][key]} of {head.get('flights_with_gaps', len(gapped))} "
                      f"flights, worse beyond the 95 % interval on {len(worse)}"
                      + (f": {', '.join(worse)}" if worse else ""))
     fast = scored[0]["yardsticks"]["fast_reference"]
