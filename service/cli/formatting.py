@@ -132,7 +132,8 @@ def _yardstick_lines(report: dict, prior: str) -> list[str]:
         median = head["median_gain_pct"].get(key)
         lines.append(f"  {key.replace('_vs_', ' vs ')}: median gain "
                      f"{'-' if median is None else format(median, '+.1f')} % (mean "
-                     f"squared gap error), better on {head['flights_better'][key]} of {head.get('flights_with_gaps', len(gapped))} "
+                     f"squared gap error), better on {head['flights_better'][key]} of "
+                     f"{head.get('flights_with_gaps', len(gapped))} "
                      f"flights, worse beyond the 95 % interval on {len(worse)}"
                      + (f": {', '.join(worse)}" if worse else ""))
     fast = scored[0]["yardsticks"]["fast_reference"]

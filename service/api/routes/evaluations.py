@@ -73,7 +73,7 @@ def delete_evaluation(evaluation_id: RowId, db: Database = Depends(get_db)):
     return Response(status_code=204)
 
 
-@router.get("/{evaluation_id}", response_model=EvaluationReport,
+@router.get("/{evaluation_id}", response_model=EvaluationReport, response_model_exclude_unset=True,  # as stored
             responses={200: {"description": "the report (evaluate_flights' JSON)"},
                                            202: {"model": EvaluationPending, "description": "not finished yet"},
                                            409: {"description": "the evaluation job failed"}})
