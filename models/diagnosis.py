@@ -245,7 +245,8 @@ def _determined(param, interval) -> bool:
     return bool(not lo <= param.nominal <= hi or hi - lo < 0.05 * (param.upper - param.lower))
 
 
-def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: float = MIN_CV_GAIN) -> dict:
+def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: float = MIN_CV_GAIN,
+                   on_stage: Callable[[str, float], None] | None = None) -> dict:
     """Forward selection; returns the chosen effects with values, intervals, explained fractions, the
     confounded pairs and the selection trace.
 
@@ -274,11 +275,18 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
         ``rss_before``; ``rss_after``;
         ``trace``; ``fit`` (the final `Fit`); ``candidates`` (every candidate: ``id``, ``target``, ``chosen``,
         ``params`` fitted on its own, ``nominal``, ``units``, ``delta_bic_alone`` its BIC_eff change alone).
+
+    ``on_stage``, when given, is called as ``on_stage(name, fraction)`` before each candidate is fitted
+    ("fitting effects on <channel> (<effect>, i/M)") and before the bootstrap intervals, with the fraction
+    (0..1, non-decreasing) of the selection done: each of the ``max_effects`` steps and the bootstrap count
+    as one equal part.
     """
     current = fit(problem, [])
     baseline_rss = current.rss
     current, chosen, trace, near_ties, cancelled, alternatives, alone, alone_delta = \
-        _forward_selection(problem, current, max_effects, min_cv_gain)
+        _forward_selection(problem, current, max_effects, min_cv_gain, on_stage)
+    if on_stage is not None:
+        on_stage(f"fitting effects on {problem.name} (bootstrap intervals)", max_effects / (max_effects + 1))
     intervals = bootstrap_ci(problem, current)
     at_bound, share, identified, values_identified = _identified(problem, chosen, current, intervals, baseline_rss)
     results = _effect_results(problem, chosen, current, intervals, baseline_rss, at_bound, share, identified,
@@ -296,7 +304,8 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
             "candidates": candidates}
 
 
-def _forward_selection(problem: ResidualProblem, current: Fit, max_effects: int, min_cv_gain: float):
+def _forward_selection(problem: ResidualProblem, current: Fit, max_effects: int, min_cv_gain: float,
+                       on_stage: Callable[[str, float], None] | None = None):
     """`select_effects`' forward selection: ``(current, chosen, trace, near_ties, cancelled, alternatives,
     alone, alone_delta)``, the final `Fit`, the chosen effects in order, each step's record, the rivals
     within the threshold, the cancelling pairs, each chosen effect's alternatives, and each candidate fitted
@@ -313,7 +322,7 @@ def _forward_selection(problem: ResidualProblem, current: Fit, max_effects: int,
         remaining = [e for e in problem.candidates if e not in chosen]
         if not remaining:
             break
-        trials = [fit(problem, chosen + [e]) for e in remaining]
+        trials = _trials(problem, chosen, remaining, on_stage, len(chosen) / (max_effects + 1), 1 / (max_effects + 1))
         # one N_eff for all models compared at this step (see common_bic): the τ of the best-fitting
         # candidate's residual, the best estimate here of how correlated the noise is
         tau = min(trials, key=lambda f: f.rss).tau
@@ -360,6 +369,18 @@ def _forward_selection(problem: ResidualProblem, current: Fit, max_effects: int,
         step["chosen"] = best.effects[-1].id
         trace.append(step)
     return current, chosen, trace, near_ties, cancelled, alternatives, alone, alone_delta
+
+
+def _trials(problem: ResidualProblem, chosen: list, remaining: list, on_stage, start: float, width: float) -> list:
+    """Each of ``remaining`` fitted together with ``chosen``; ``on_stage`` told before each, the fraction
+    moving from ``start`` across ``width``."""
+    trials = []
+    for i, effect in enumerate(remaining):
+        if on_stage is not None:
+            on_stage(f"fitting effects on {problem.name} ({effect.id}, {i + 1}/{len(remaining)})",
+                     start + width * i / len(remaining))
+        trials.append(fit(problem, chosen + [effect]))
+    return trials
 
 
 def _cancelling_pairs(problem: ResidualProblem, chosen: list, best: Fit, delta_bic: float) -> list[dict[str, Any]]:

@@ -46,6 +46,11 @@ class StageProgress:
 
             self._bar = tqdm(total=self.STEPS, desc=label, file=self.stream, bar_format=self.BAR_FORMAT)
 
+    @property
+    def draws_bar(self) -> bool:
+        """Whether a bar is drawn (else each new stage is one plain line)."""
+        return self._bar is not None
+
     def __enter__(self) -> StageProgress:
         return self
 

@@ -47,6 +47,7 @@ from .diagnosis_problems import (
     repair_verdict,
     residual_series,
 )
+from .diagnosis_stages import DiagnosisStages, StageCallback
 from .flights import corrected_flight, evaluate_flight, quadrotor_for, train_on_flight
 
 # the names callers import from here (the notebook's `diagnose`, the CLI, the service, the tests)
@@ -141,7 +142,7 @@ def _score_simulated(system, zeta, train, test, methods, config):
 def diagnose_flights(flights: list[Flight], knode: HybridModel | None = None,
                      methods: Sequence[str] = ("ukf", "knode-ukf"), epochs: int = CRAZYFLIE_TRAINING.epochs,
                      return_model: bool = False, system: str | None = None, prior: dict | None = None,
-                     mass_kg: float | None = None):
+                     mass_kg: float | None = None, on_stage: StageCallback | None = None):
     """The diagnosis report; with return_model, also the repaired model (prior + dynamics effects,
     measurement effects in its meta, KNODE retrained on top) ready to be registered as a new version:
     ``report`` or ``(report, model)``.
@@ -149,20 +150,23 @@ def diagnose_flights(flights: list[Flight], knode: HybridModel | None = None,
     Flights failing the quality checks are left out unless all fail.  ``system`` is the prior diagnosed:
     "quadrotor" (kinematic) or "crazyflie" (input-driven, see `diagnose_crazyflie`; ``prior`` its
     parameters; ``mass_kg`` a declared mass).  None: the given model's prior, else "quadrotor".  See
-    `diagnose` for the report.
+    `diagnose` for the report.  ``on_stage(name, fraction)``, when given, is told each named stage as it
+    starts ("fitting effects on accelerometer (accel_bias, 2/5)", "training the KNODE on the repaired prior
+    (epoch 3/20)", "scoring before/after (flight3, 1/2)") with the fraction of the diagnosis done (0..1, never
+    lower than before; `diagnosis_stages.DiagnosisStages`).
     """
     if system is None:
         system = knode.system.name if knode is not None else "quadrotor"
     if system == "crazyflie":
         out = diagnose_crazyflie(flights, knode=knode, methods=methods, epochs=epochs, return_model=return_model,
-                                 prior=prior, mass_kg=mass_kg)
+                                 prior=prior, mass_kg=mass_kg, on_stage=on_stage)
     elif system != "quadrotor":
         raise InvalidInput(f"diagnosing flights needs system 'quadrotor' or 'crazyflie', not {system!r}")
     elif knode is not None and knode.system.name != "quadrotor":
         raise InvalidInput(f"model {knode.meta.get('name') or ''} has the {knode.system.name!r} prior: diagnose it "
                            f"with system {knode.system.name!r} (the default for a model is its own prior)")
     else:
-        out = _diagnose_quadrotor(flights, knode, methods, epochs, return_model)
+        out = _diagnose_quadrotor(flights, knode, methods, epochs, return_model, on_stage)
     report = out[0] if return_model else out
     report.update(split_names(flights, system))
     return out
@@ -178,29 +182,39 @@ def split_names(flights: list[Flight], system: str) -> dict:
     return {"fitting_flights": [f.name for f in kept[:cut]], "scored_flights": [f.name for f in kept[cut:]]}
 
 
+# the parts of a kinematic-prior diagnosis and their rough relative costs (a KNODE training dominates)
+QUADROTOR_PLAN = {"accelerometer": 1.0, "observer": 0.3, "dynamics": 1.0, "before": 3.0, "after": 3.0, "scoring": 2.0}
+
+
 def _diagnose_quadrotor(flights: list[Flight], knode: HybridModel | None, methods: Sequence[str], epochs: int,
-                        return_model: bool):
+                        return_model: bool, on_stage: StageCallback | None = None):
     """`diagnose_flights` with the kinematic prior: accelerometer channel, then translational dynamics."""
     flights = [f for f in flights if f.quality["ok"]] or flights
     fitting, scoring, split = _split_for_fitting(flights)
-    accel = select_effects(accelerometer_problem(fitting))
+    stages = DiagnosisStages(on_stage, QUADROTOR_PLAN if knode is None else {**QUADROTOR_PLAN, "before": 0.0})
+    accel = select_effects(accelerometer_problem(fitting), on_stage=stages.part("accelerometer"))
     # only identified parameters repair (models.diagnosis.select_effects: a fit at a bound is no value)
     fixed_fitting = [corrected_flight(f, accel["values_identified"]) for f in fitting]
     # the fitting data is one flight (or the first 60 % of one): trace the jerk residual on its states
     fitting_flight = fixed_fitting[0]
     system = quadrotor_for(fitting_flight)
     no_input = np.zeros((len(fitting_flight.t), 0))
+    stages.report("observer", f"pre-training observer ({fitting_flight.name}, 1/2)")
     zeta = pretraining_observer(system, fitting_flight.measurements(), no_input, system.dt)
     dynamics = select_effects(dynamics_problem(system, zeta, no_input, system.dt, effects_for("quadrotor", "dynamics"),
-                                               components=[6, 7, 8], name="translational dynamics"))
+                                               components=[6, 7, 8], name="translational dynamics"),
+                              on_stage=stages.part("dynamics"))
     chosen_dyn = [LIBRARY[e["id"]] for e in dynamics["effects"]]
     new_prior = dynamics_params(system, {**_nominal(chosen_dyn), **dynamics["values_identified"]}, chosen_dyn)
 
     config = replace(CRAZYFLIE_TRAINING, epochs=epochs)
-    knode_before = knode or train_on_flight(fitting[0], config).model
+    knode_before = knode or train_on_flight(fitting[0], config, progress=stages.epochs("before", "the prior",
+                                                                                       epochs)).model
     repaired_system = replace(system, prior_params=new_prior)
+    stages.report("after", f"pre-training observer ({fitting_flight.name}, 2/2)")
     zeta_after = pretraining_observer(repaired_system, fitting_flight.measurements(), no_input, system.dt)
-    knode_after = train_knode(repaired_system, zeta_after, no_input, system.dt, config).model
+    knode_after = train_knode(repaired_system, zeta_after, no_input, system.dt, config,
+                              progress=stages.epochs("after", "the repaired prior", epochs)).model
     chosen_meas = [LIBRARY[e["id"]] for e in accel["effects"]]
     knode_after.meta.update({
         "measurement_effects": {p.name: accel["values_identified"][p.name] for e in chosen_meas for p in e.params
@@ -214,7 +228,8 @@ def _diagnose_quadrotor(flights: list[Flight], knode: HybridModel | None, method
     after: dict[str, list[float]] = {m: [] for m in methods}
     per_flight: list[dict] = []
     mhe_cache: dict = {}  # keyed by model: before and after never share an MHE
-    for flight in scoring:
+    for k, flight in enumerate(scoring):
+        stages.report("scoring", f"scoring before/after ({flight.name}, {k + 1}/{len(scoring)})", k / len(scoring))
         scored_b = evaluate_flight(knode_before, flight, methods, mhe_cache=mhe_cache, keep_estimates=True)
         scored_a = evaluate_flight(knode_after, flight, methods, mhe_cache=mhe_cache, keep_estimates=True)
         b, a = scored_b["results"], scored_a["results"]

@@ -29,6 +29,7 @@ from learnest.models.presets import CRAZYFLIE_TRAINING
 from learnest.models.training import train_knode
 
 from .diagnosis_problems import _channel, _split_for_fitting, repair_interval, repair_verdict, residual_series
+from .diagnosis_stages import DiagnosisStages, StageCallback
 from .flights import evaluate_flight, system_for
 
 
@@ -42,14 +43,19 @@ def _split_crazyflie(flights: list[Flight]):
     return flights[:cut], flights[cut:], f"fit on the first {cut} flight(s), scored on the other {len(flights) - cut}"
 
 
-def _crazyflie_model(flight: Flight, params: dict, train: bool, config) -> HybridModel:
-    """The Crazyflie prior with ``params`` on ``flight``'s grid; with ``train``, a KNODE trained on top."""
+def _crazyflie_model(flight: Flight, params: dict, train: bool, config, stages: DiagnosisStages | None = None,
+                     part: str = "before") -> HybridModel:
+    """The Crazyflie prior with ``params`` on ``flight``'s grid; with ``train``, a KNODE trained on top
+    (its observer and epochs reported to ``stages`` as ``part``: "before", the prior, or "after", the repaired)."""
     system = replace(system_for(flight, "crazyflie"), prior_params=dict(params))
     if not train:
         return HybridModel(system, "prior")
+    stages = stages or DiagnosisStages(None, {})
+    what = "the prior" if part == "before" else "the repaired prior"
     u = system_inputs(flight, system)
+    stages.report(part, f"pre-training observer ({flight.name}, for {what})")
     zeta = pretraining_observer(system, flight.measurements(), u, system.dt)
-    model = train_knode(system, zeta, u, system.dt, config).model
+    model = train_knode(system, zeta, u, system.dt, config, progress=stages.epochs(part, what, config.epochs)).model
     model.meta.update({"system": "crazyflie", "training_flight": flight.name,
                        "training_flight_sha256": [s["sha256"] for s in flight.meta.get("sources", [])],
                        "training_profile": flight_profile(flight), **training_meta(system, thrust_gain=False)})
@@ -182,9 +188,14 @@ def _name_thrust_scale(effects: list[dict], candidates: list[dict], prior: dict,
     return out, {"ok": ok, "thrust_gain": round(gain, 4), "message": message}
 
 
+# the parts of a Crazyflie-prior diagnosis and their rough relative costs (a KNODE training dominates)
+CRAZYFLIE_PLAN = {"effects": 1.5, "before": 3.0, "after": 3.0, "scoring": 2.0}
+
+
 def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, methods: Sequence[str] = ("ukf",),
                        epochs: int = CRAZYFLIE_TRAINING.epochs, return_model: bool = False,
-                       prior: dict | None = None, mass_kg: float | None = None):
+                       prior: dict | None = None, mass_kg: float | None = None,
+                       on_stage: StageCallback | None = None):
     """Trace what the input-driven Crazyflie prior lacks on real flights; score before and after on
     flights not used to fit.
 
@@ -197,6 +208,7 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
     flight, ``epochs`` epochs, on each prior).  Only identified parameters repair the prior
     (`models.diagnosis.select_effects`).  ``prior`` holds the prior's parameters; by default ``knode``'s
     own, else the thrust source's.  ``mass_kg`` is a declared mass (kg), else the flights' own.
+    ``on_stage(name, fraction)``: the named stages as they start (`diagnosis.diagnose_flights`).
 
     Returns
     -------
@@ -222,27 +234,25 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
     for flight in flights:
         system_inputs(flight, replace(system_for(flight, "crazyflie"), prior_params=dict(prior)))
     fitting, scoring, split = _split_crazyflie(flights)
+    stages = DiagnosisStages(on_stage, {**CRAZYFLIE_PLAN, "before": 0.0} if knode else CRAZYFLIE_PLAN)
+    stages.report("effects", f"reading the specific force ({len(fitting)} fitting flight(s))")
     problem = crazyflie_problem(fitting, prior)
-    selection = select_effects(problem, min_cv_gain=CRAZYFLIE_MIN_CV_GAIN)
+    selection = select_effects(problem, min_cv_gain=CRAZYFLIE_MIN_CV_GAIN, on_stage=stages.part("effects"))
     held_out_problems = [crazyflie_problem([flight], prior) for flight in scoring]
     values = _transferring(selection, held_out_problems, [f.name for f in scoring])
     chosen = [e for e in problem.candidates if e.id in {c["id"] for c in selection["effects"]}]
-    repaired = {**prior, **{p.name: values[p.name] for e in chosen if e.target == "dynamics" for p in e.params
-                            if p.name in values}}
-    measurement = {p.name: values[p.name] for e in chosen if e.target == "measurement" for p in e.params
-                   if p.name in values}
+    repaired, measurement = _repaired_values(prior, chosen, values)
 
-    config = replace(CRAZYFLIE_TRAINING, epochs=epochs)
-    learn = any(m.startswith("knode") for m in methods)
-    model_before = knode or _crazyflie_model(fitting[0], prior, learn, config)
-    model_after = _crazyflie_model(fitting[0], repaired, learn or return_model, config)
+    config, learn = replace(CRAZYFLIE_TRAINING, epochs=epochs), any(m.startswith("knode") for m in methods)
+    model_before = knode or _crazyflie_model(fitting[0], prior, learn, config, stages, "before")
+    model_after = _crazyflie_model(fitting[0], repaired, learn or return_model, config, stages, "after")
     model_after.meta.update({"measurement_effects": measurement,
                              "effects": [e.id for e in chosen if any(p.name in values for p in e.params)],
                              "parent": model_before.meta.get("name"), "system": "crazyflie",
                              "thrust_source": source})
     keys = ["specific_force_rmse", *methods]
     before, after, per_flight, series = _score_repair(scoring, held_out_problems, selection["channel"], values,
-                                                      methods, model_before, model_after, knode)
+                                                      methods, model_before, model_after, knode, stages)
     effects, fits_prior = _name_thrust_scale([{**e, "channel": selection["channel"]} for e in selection["effects"]],
                                              selection["candidates"], prior, source, declared)
     report = {
@@ -264,9 +274,19 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
     return (report, model_after) if return_model else report
 
 
+def _repaired_values(prior: dict, chosen: list, values: dict) -> tuple[dict, dict]:
+    """(the repaired prior's parameters: ``prior`` with the chosen dynamics effects' ``values``, the chosen
+    measurement effects' values)."""
+    repaired = {**prior, **{p.name: values[p.name] for e in chosen if e.target == "dynamics" for p in e.params
+                            if p.name in values}}
+    measurement = {p.name: values[p.name] for e in chosen if e.target == "measurement" for p in e.params
+                   if p.name in values}
+    return repaired, measurement
+
+
 def _score_repair(scoring: list[Flight], held_out_problems: list, channel: str, values: dict,
                   methods: Sequence[str], model_before: HybridModel, model_after: HybridModel,
-                  knode: HybridModel | None):
+                  knode: HybridModel | None, stages: DiagnosisStages | None = None):
     """`diagnose_crazyflie`'s scores on the held-out flights, before and after the repair: the specific-force
     RMSE (m/s²) predicted from the inputs and each method's MSE, per flight and as lists per key, with the
     residual series of the first held-out flight: ``(before, after, per_flight, series)``."""
@@ -276,7 +296,9 @@ def _score_repair(scoring: list[Flight], held_out_problems: list, channel: str, 
     per_flight: list[dict] = []
     mhe_cache: dict = {}
     series: dict = {}
-    for flight, held_out in zip(scoring, held_out_problems):
+    stages = stages or DiagnosisStages(None, {})
+    for k, (flight, held_out) in enumerate(zip(scoring, held_out_problems)):
+        stages.report("scoring", f"scoring before/after ({flight.name}, {k + 1}/{len(scoring)})", k / len(scoring))
         # the specific force predicted from the inputs on the first held-out flight, before and after
         series = series or {channel: residual_series(held_out, values, flight.name)}
         b = {"specific_force_rmse": specific_force_rmse(held_out)}

@@ -80,12 +80,12 @@ def run_diagnosis(services: Services, ctx: JobContext, diagnosis_id: int) -> Non
             weights = registry.weights_of(registry.resolve(session, diagnosis.model_ref))
         settings, model_ref, register = dict(diagnosis.settings), diagnosis.model_ref, diagnosis.register_as
         first_flight_id = diagnosis.flight_ids[0]
-    ctx.progress(0.01, "diagnosis: pre-training observer, KNODE training, effect search, before/after scores")
+    ctx.progress(0.01, f"reading {len(blobs)} flight(s)")
     out = ctx.wait(services.executor,
                    services.executor.submit(diagnose_task, [services.blobs.read_bytes(b) for b in blobs],
                                             services.blobs.read_bytes(weights) if weights else None,
                                             settings["methods"], settings["epochs"],
-                                            settings.get("system", "quadrotor")))
+                                            settings.get("system", "quadrotor"), ctx.progress_target))
     ctx.progress(0.95, "storing the report" + (f" and registering {register}" if register else ""))
     registered = None
     verdict = out["report"].get("repair") or {"improves": True}

@@ -139,17 +139,45 @@ def evaluate_task(model_json: bytes, flight_bytes: bytes, settings: dict,
 
 
 def diagnose_task(flights_bytes: list[bytes], model_json: bytes | None, methods: list[str], epochs: int,
-                  system: str = "quadrotor") -> dict:
+                  system: str = "quadrotor", progress_target: tuple[str, int] | None = None) -> dict:
     """service.experiments.diagnosis.diagnose_flights on stored flights; the report as plain JSON, the
-    repaired model as HybridModel JSON, and the name of the flight it was fitted on."""
+    repaired model as HybridModel JSON, and the name of the flight it was fitted on.  With
+    ``progress_target`` the job's stage and progress follow the diagnosis' named stages (`diagnosis_stages`):
+    the diagnosis' fraction f is written as DIAGNOSIS_SPAN[0] + f · (DIAGNOSIS_SPAN[1] - DIAGNOSIS_SPAN[0]);
+    `TaskCancelled` when the job stops running."""
     from ..experiments.diagnosis import diagnose_flights
 
     init_worker()
+    report_progress(progress_target, DIAGNOSIS_SPAN[0], f"reading {len(flights_bytes)} flight(s)")
     knode = registry.model_from_json(model_json) if model_json is not None else None
     report, repaired = diagnose_flights([flight_from_bytes(b) for b in flights_bytes], knode=knode,
-                                        methods=tuple(methods), epochs=epochs, return_model=True, system=system)
+                                        methods=tuple(methods), epochs=epochs, return_model=True, system=system,
+                                        on_stage=_stage_writer(progress_target) if progress_target else None)
     return {"report": json_compatible(report), "model_json": registry.model_to_json(repaired),
             "fitting_flight": repaired.meta.get("training_flight")}
+
+
+# the share of a diagnosis job's progress the diagnosis itself covers (the rest: reading, storing the report)
+DIAGNOSIS_SPAN = (0.02, 0.94)
+
+
+def _stage_writer(target: tuple[str, int]):
+    """``on_stage(name, fraction)`` writing a diagnosis' stages to its job: every new kind of stage at once,
+    the ticks within one (epochs, effects tried) at most every PROGRESS_EVERY_S / 2."""
+    from ..experiments.diagnosis_stages import stage_kind
+
+    last = {"kind": None, "at": 0.0}
+
+    def on_stage(name: str, fraction: float | None) -> None:
+        now, kind = time.monotonic(), stage_kind(name)
+        if kind == last["kind"] and now - last["at"] < PROGRESS_EVERY_S / 2:
+            return
+        last.update(kind=kind, at=now)
+        share = None if fraction is None else DIAGNOSIS_SPAN[0] + fraction * (DIAGNOSIS_SPAN[1] - DIAGNOSIS_SPAN[0])
+        if not report_progress(target, share, name):
+            raise TaskCancelled(f"job {target[1]} is no longer running")
+
+    return on_stage
 
 
 def training_metrics(model: HybridModel) -> dict:

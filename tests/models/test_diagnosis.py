@@ -276,3 +276,39 @@ def test_a_rival_admitted_by_its_share_alone_is_a_close_rival_the_data_rank_lowe
     assert how_much(7.36) == "removes 7.4× as much" and how_much(0.93) == "explains 93 % as much"
     (tie,) = confounded_pairs(problem, [a], {"alpha": 0.0}, [(a, b, 3.0, 0.99)])
     assert tie["data_prefer"] is None and confounded_label(tie) == "cannot tell apart"
+
+
+def test_select_effects_names_each_candidate_it_fits_and_its_fraction_only_grows(tmp_path):
+    problem = accelerometer_problem(_flights(tmp_path, SensorModel(bias=(0.3, -0.2, 0.25)), n=1))
+    seen: list[tuple[str, float]] = []
+    selection = select_effects(problem, on_stage=lambda name, fraction: seen.append((name, fraction)))
+    assert selection["effects"][0]["id"] == "accel_bias"
+    # the first step fits every candidate once, each named with its place among them
+    ids = [e.id for e in problem.candidates]
+    first = [name for name, _ in seen[:len(ids)]]
+    assert first == [f"fitting effects on {problem.name} ({i}, {k + 1}/{len(ids)})" for k, i in enumerate(ids)]
+    assert seen[-1] == (f"fitting effects on {problem.name} (bootstrap intervals)", 3 / 4)   # max_effects 3
+    fractions = [f for _, f in seen]
+    assert fractions == sorted(fractions) and 0.0 == fractions[0] and fractions[-1] < 1.0
+    # telling the stages changes nothing in the answer
+    assert select_effects(problem)["values"] == selection["values"]
+
+
+def test_diagnosis_stages_map_each_part_into_its_share_and_never_go_back():
+    from learnest.service.experiments.diagnosis_stages import DiagnosisStages, stage_kind
+
+    seen: list[tuple[str, float]] = []
+    stages = DiagnosisStages(lambda name, fraction: seen.append((name, fraction)),
+                             {"effects": 1.0, "before": 0.0, "after": 2.0, "scoring": 1.0})
+    stages.report("effects", "fitting effects on x (a, 1/2)", 0.5)
+    stages.report("after", "pre-training observer (f, 2/2)")
+    progress = stages.epochs("after", "the repaired prior", 4)
+    for epoch in range(4):
+        progress(epoch, 0.1)
+    stages.report("effects", "late report of an earlier part", 1.0)   # never back
+    stages.report("scoring", "scoring before/after (f, 1/1)", 7.0)     # clamped to the part's end
+    assert [f for _, f in seen] == [0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.75, 1.0]
+    assert seen[2][0] == "training the KNODE on the repaired prior (epoch 1/4)"
+    assert stage_kind(seen[2][0]) == "training the KNODE on the repaired prior"
+    assert stage_kind("reading 2 file(s)") == "reading 2 file(s)"
+    assert DiagnosisStages(None, {"a": 1.0}).part("a") is None

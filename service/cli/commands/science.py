@@ -216,10 +216,9 @@ def _diagnose(args) -> int:
             batch = _read_batch(args.files, args.rate, _topics(args), args.cut)
             flights = batch.flights
             epochs = args.epochs or CRAZYFLIE_TRAINING.epochs
-            bar.update(0.05, f"fitting effects and training the KNODEs ({epochs} epochs each), then scoring "
-                             f"before and after on {max(1, len(flights) - 1)} flight(s)")
             result, repaired = diagnose_flights(flights, knode=model, methods=methods, epochs=epochs,
-                                                return_model=True, system=args.system, mass_kg=args.mass_kg)
+                                                return_model=True, system=args.system, mass_kg=args.mass_kg,
+                                                on_stage=_diagnosis_stages(bar))
         if args.register:
             _register_diagnosed(args, result, repaired, flights, model)
         result["errors"] = batch.errors
@@ -234,6 +233,19 @@ def _diagnose(args) -> int:
     elif result.get("not_registered") and not args.json:
         print(f"nothing registered: {result['not_registered']}", file=sys.stderr)
     return _batch_status(result.get("errors") or [])
+
+
+def _diagnosis_stages(bar):
+    """``on_stage(name, fraction)`` for `diagnose_flights` drawing on ``bar`` (a `StageProgress`): a bar shows
+    every tick ("... (epoch 3/20)"); a plain log one line per kind of stage (`diagnosis_stages.stage_kind`).
+    Reading the files took the first 5 %."""
+    from ...experiments.diagnosis_stages import stage_kind
+
+    def on_stage(name: str, fraction: float | None) -> None:
+        bar.update(None if fraction is None else 0.05 + 0.95 * fraction,
+                   name if bar.draws_bar else stage_kind(name))
+
+    return on_stage
 
 
 def _register_diagnosed(args, result: dict, repaired, flights, model) -> None:

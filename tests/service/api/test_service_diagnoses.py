@@ -92,6 +92,35 @@ def assert_diagnosis_page(client, diagnosis_id: int, job_id: int, report: dict) 
     assert client.get("/diagnoses/999/report.html").status_code == 404
 
 
+def stages_while(client, job_id: int, timeout: float = 120.0) -> tuple[list[tuple[str, float]], dict]:
+    """(every (stage, progress) GET /jobs/{id} answered while the job ran, in order, the finished job)."""
+    import time
+
+    seen: list[tuple[str, float]] = []
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        job = client.get(f"/jobs/{job_id}").json()
+        if job["state"] not in ("queued", "running"):
+            return seen, job
+        if job["state"] == "running" and job["stage"] and (not seen or seen[-1] != (job["stage"], job["progress"])):
+            seen.append((job["stage"], job["progress"]))
+        time.sleep(0.01)
+    raise AssertionError(f"job {job_id} did not finish")
+
+
+def assert_honest_stages(seen: list[tuple[str, float]], job: dict) -> None:
+    """A diagnosis job names more than one kind of stage as it runs (effects fitted, KNODEs trained, flights
+    scored), and its progress only grows, within 0..1."""
+    from learnest.service.experiments.diagnosis_stages import stage_kind
+
+    kinds = list(dict.fromkeys(stage_kind(stage) for stage, _ in seen))
+    assert len(kinds) > 1, seen
+    assert {"fitting effects on accelerometer", "training the KNODE on the repaired prior"} & set(kinds), kinds
+    fractions = [fraction for _, fraction in seen]
+    assert all(0.0 <= f <= 1.0 for f in fractions) and fractions == sorted(fractions), seen
+    assert job["progress"] == 1.0
+
+
 def test_post_diagnoses_registers_the_repaired_model(tmp_path, biased_logs):
     from learnest.service.experiments.flights import evaluate_flight
     from learnest.service.registry import load_model_ref
@@ -111,8 +140,9 @@ def test_post_diagnoses_registers_the_repaired_model(tmp_path, biased_logs):
         client.headers.update(key)
         accepted = client.post("/diagnoses", json=body)
         assert accepted.status_code == 202, accepted.text
-        job = wait_for_job(client, accepted.json()["job_id"])
+        seen, job = stages_while(client, accepted.json()["job_id"])
         assert job["state"] == "succeeded", job
+        assert_honest_stages(seen, job)
         report = client.get(f"/diagnoses/{accepted.json()['diagnosis_id']}").json()
         assert_bias_found(report)
         assert report["registered"] == {"name": "cf", "version": 1, "parent": None}
@@ -147,15 +177,29 @@ def test_cli_diagnose_registers_a_child_version(tmp_path, biased_logs, monkeypat
         monkeypatch.delenv(name, raising=False)
     files = [str(p) for paths in biased_logs for p in paths]
 
+    log = io.StringIO()   # stderr piped into a file: no bar, one plain line per kind of stage
+
     def run(*argv) -> dict:
         buffer = io.StringIO()
-        with contextlib.redirect_stdout(buffer):
+        with contextlib.redirect_stdout(buffer), contextlib.redirect_stderr(log):
             assert main([*argv, "--json"]) == 0
         return json.loads(buffer.getvalue())
 
     assert run("train", files[0], "--name", "cf", "--epochs", "2")["ref"] == "cf:1"
+    log.seek(0)
+    log.truncate()
     report = run("diagnose", *files, "--model", "cf:1", "--register", "cf", "--epochs", str(EPOCHS))
     assert_bias_found(report)
+    lines = [line for line in log.getvalue().splitlines() if line.startswith("learnest: diagnosing: ")]
+    assert "\r" not in log.getvalue()
+    stages = [line.removeprefix("learnest: diagnosing: ").rsplit(" (", 1)[0] for line in lines]
+    # the model is given: no KNODE is trained on the unrepaired prior
+    assert stages == [f"reading {len(files)} file(s)", "fitting effects on accelerometer", "pre-training observer",
+                      "fitting effects on translational dynamics", "pre-training observer",
+                      "training the KNODE on the repaired prior",
+                      "scoring before/after", "done"], lines
+    percents = [int(line.rsplit("(", 1)[1].split(" %")[0]) for line in lines[:-1]]
+    assert percents == sorted(percents) and 0 <= percents[0] and percents[-1] <= 100, lines
     assert report["registered"] == {"name": "cf", "version": 2, "parent": "cf:1"}
     # the kinematic prior's split: the first flight fits, the others are scored; the CLI's text says so second
     from learnest.service.cli import diagnosis_lead
