@@ -34,10 +34,14 @@ def format_report(report: dict) -> str:
     checks = {f["flight"]: f["prediction_check"] for f in report["flights"] if f.get("prediction_check")}
     if checks:   # estimators.evaluate.prediction_check: no ground truth, only the flight's own measurements
         lines.append("one-step position innovations, KNODE / prior (above 1: the KNODE predicts the flight worse): "
-                     + ", ".join(f"{name} {c['innovation_ratio']:.2f}" for name, c in checks.items()))
+                     + ", ".join(f"{name} {c['innovation_ratio']:.3f}" for name, c in checks.items()))
     worse = report.get("knode_predicts_worse")
-    if worse:
-        lines.append(f"do not trust the KNODE on: {', '.join(worse)} (it predicts these flights worse than its prior)")
+    if worse:   # three digits: a flagged ratio of 1.003 must not print as 1.00
+        flagged = ", ".join(f"{name} ({checks[name]['innovation_ratio']:.3f})" if name in checks else name
+                            for name in worse)
+        lines.append(f"do not trust the KNODE on: {flagged}: the prediction check (one-step innovations, no ground "
+                     "truth) finds it predicts these flights worse than its prior, so the recommended estimate "
+                     "uses the prior's there")
     for base, names in (report.get("knode_clearly_worse") or {}).items():
         # estimators.evaluate.gain_interval: the gain's 95 % block-bootstrap interval lies below 0
         lines.append(f"KNODE-{base.upper()} worse than {base.upper()} beyond the flight's own variability (95 % "

@@ -66,7 +66,10 @@ def test_the_true_effect_predicts_better_and_the_wrong_sign_is_flagged(circle):
     assert f"do not trust the KNODE on: {circle.name}" in table
     assert f"KNODE-UKF worse than UKF beyond the flight's own variability (95 % interval of the gain below 0) on: " \
            f"{circle.name}" in table
-    assert f"{circle.name} {wrong_check['innovation_ratio']:.2f}" in table
+    assert f"{circle.name} {wrong_check['innovation_ratio']:.3f}" in table
+    assert f"do not trust the KNODE on: {circle.name} ({wrong_check['innovation_ratio']:.3f}): the prediction " \
+           "check (one-step innovations, no ground truth) finds it predicts these flights worse than its prior, " \
+           "so the recommended estimate uses the prior's there" in table
     # the recommended estimate falls back to the prior exactly where the check flags the flight
     assert wrong["recommended"]["prior_on"] == [circle.name] and right["recommended"]["prior_on"] == []
     assert wrong["recommended"]["median"]["ukf"] == wrong["flights"][0]["mse"]["ukf"]
