@@ -169,7 +169,7 @@ def main(argv=None) -> int:
     by_name = {f.name: f for f in flights}
     usable = [f for f in flights if f.quality["ok"]]
     methods = [m for m in args.methods.split(",") if m]
-    command = "python benchmarks/family_holdout.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    command = ("python benchmarks/family_holdout.py " + " ".join(argv if argv is not None else sys.argv[1:])).strip()
     args.out.mkdir(parents=True, exist_ok=True)
     runs = []
     for training in args.trainings.split(","):
