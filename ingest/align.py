@@ -396,7 +396,8 @@ def build_flight(path: str | Path, *, t_mocap: ArrayLike, p: ArrayLike, quat: Ar
     acc_grid, _ = resample(t_filtered, acc_filtered, grid)
     extra, low_passed = _resample_channels(channels, grid, rate_hz, ["acc"] if filtered else [])
     extra["acc_body"] = acc_grid * GRAVITY
-    meta = _grid_meta(meta, rate_hz, t0, p, t_mocap if mocap_alive_t is None else mocap_alive_t, t_acc, low_passed)
+    alive_t = t_mocap if mocap_alive_t is None else np.asarray(mocap_alive_t, dtype=float)
+    meta = _grid_meta(meta, rate_hz, t0, p, alive_t, t_acc, low_passed)
     flight = Flight(grid - grid[0], p_grid, world_acceleration(acc_grid, q_grid), q_grid, extra, meta)
     start, stop, rule = _window(flight, rate_hz, parse_cut(cut))
     if stop - start < 2:  # e.g. one corrupt height sample is the only "airborne" one

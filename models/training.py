@@ -256,7 +256,8 @@ def attitude_blind(system: System, battery: bool = False) -> System:
     return replace(system, residual_blind=(*system.residual_blind, *extra)) if extra else system
 
 
-def _checked_record(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, config: TrainingConfig):
+def _checked_record(system: System, zeta: ArrayLike, u: ArrayLike, dt: float,
+                    config: TrainingConfig) -> tuple[np.ndarray, np.ndarray, float]:
     """`train_knode`'s data checked: ``(zeta (T, n), u (T, n_inputs), dt s)``; InvalidInput when they or
     ``config.epochs`` cannot be trained on."""
     zeta = check_sequence("zeta", zeta, cols=system.n)

@@ -39,7 +39,9 @@ class StageProgress:
 
     def __init__(self, label: str, stream: IO[str] | None = None, bar: bool | None = None):
         self.label, self.stream = label, stream or sys.stderr
-        self.fraction, self.stage, self._printed = 0.0, None, None
+        self.fraction = 0.0
+        self.stage: str | None = None
+        self._printed: str | None = None
         self._bar = None
         if is_terminal(self.stream) if bar is None else bar:
             from tqdm import tqdm

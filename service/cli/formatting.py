@@ -97,7 +97,7 @@ def _yardstick_lines(report: dict, prior: str) -> list[str]:
     yardstick says what it measures.  Rows are indented so a flight's first line stays its paper_sg row."""
     import statistics
 
-    lines = []
+    lines: list[str] = []
     definitions = report.get("yardstick_definitions") or {}
     scored = [f for f in report["flights"] if not f.get("excluded") and f.get("yardsticks")]
     if not scored:

@@ -85,7 +85,7 @@ def crazyflie_prior_for(flights: list[Flight], knode: HybridModel | None = None,
     if declared is None:
         masses = {f.meta.get("mass_kg") for f in flights}
         if len(masses) == 1 and None not in masses:
-            declared = float(masses.pop())
+            declared = float(next(m for m in masses if m is not None))
     if prior is None and knode is not None:
         prior = knode.system.prior_params
     if prior is not None:
@@ -315,9 +315,9 @@ def _score_repair(scoring: list[Flight], held_out_problems: list, channel: str, 
             a.update({m: scored_a["results"][m]["mse"] for m in methods})
             intervals = {m: repair_interval(scored_b, scored_a, m, flight.dt) for m in methods}
         per_flight.append({"flight": flight.name, "before": b, "after": a, "repair_gain_interval_pct": intervals})
-        for k in keys:
-            before[k].append(b[k])
-            after[k].append(a[k])
+        for key in keys:
+            before[key].append(b[key])
+            after[key].append(a[key])
     return before, after, per_flight, series
 
 

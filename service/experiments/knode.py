@@ -95,7 +95,7 @@ class KNODE:
         if self.system not in FLIGHT_SYSTEMS:
             raise InvalidInput(f"system {self.system!r} cannot be fitted on a flight; choose one of "
                                f"{', '.join(FLIGHT_SYSTEMS)}")
-        given = [flights] if isinstance(flights, Flight) else list(flights) \
+        given: list = [flights] if isinstance(flights, Flight) else list(flights) \
             if isinstance(flights, (list, tuple)) else [flights]
         wrong = [type(f).__name__ for f in given if not isinstance(f, Flight)]
         if wrong or not given:

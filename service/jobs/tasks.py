@@ -9,6 +9,7 @@ from __future__ import annotations
 import logging
 import os
 import time
+from typing import Any
 
 from sqlalchemy import update
 
@@ -166,7 +167,7 @@ def _stage_writer(target: tuple[str, int]):
     the ticks within one (epochs, effects tried) at most every PROGRESS_EVERY_S / 2."""
     from ..experiments.diagnosis_stages import stage_kind
 
-    last = {"kind": None, "at": 0.0}
+    last: dict[str, Any] = {"kind": None, "at": 0.0}
 
     def on_stage(name: str, fraction: float | None) -> None:
         now, kind = time.monotonic(), stage_kind(name)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from statistics import median
+from typing import Any
 
 PAIRS = (("knode-ukf", "ukf"), ("knode-mhe", "mhe"))   # (KNODE, its prior-only method)
 
@@ -46,7 +47,7 @@ def _gap_rows(report: dict, key: str) -> list[dict]:
     for f in _scored(report):
         gaps = (f.get("yardsticks") or {}).get("mocap_gaps") or {}
         gain = (gaps.get("gain_pct") or {}).get(key)
-        if _finite(gain):
+        if gain is not None and _finite(gain):
             rows.append({"flight": f["flight"], "gain_pct": float(gain),
                          "interval_pct": (gaps.get("gain_interval_pct") or {}).get(key)})
     return rows
@@ -95,10 +96,10 @@ def evaluation_headline(report: dict) -> dict:
         else:
             mid = (report.get("improvement_pct") or {}).get(key)   # the medians' ratio, as the tables show it
             better = worse = None
-        mid = float(mid) if _finite(mid) else median(r["gain_pct"] for r in rows)
+        mid = float(mid) if mid is not None and _finite(mid) else median(r["gain_pct"] for r in rows)
         better = int(better) if isinstance(better, int) else sum(r["gain_pct"] > 0 for r in rows)
         worse = int(worse) if isinstance(worse, int) else _worse_beyond(rows)
-        pair = {"knode": knode, "prior": prior, "key": key, "median_gain_pct": mid, "better": better,
+        pair: dict[str, Any] = {"knode": knode, "prior": prior, "key": key, "median_gain_pct": mid, "better": better,
                 "worse_beyond_interval": worse, "flights": len(rows), "rows": rows}
         pair["sentence"] = _sentence(pair, gaps)
         pairs.append(pair)

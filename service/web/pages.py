@@ -179,8 +179,10 @@ def upload_flight_form(request: Request, files: list[UploadFile | str] = File(de
         return error_page(refused[0].http_status or 422, refused[0].message or "refused")
     statuses = [o.status for o in outcomes]
     return page("upload_results.html", "Upload", 201 if "stored" in statuses else 200 if rows else 422,
-                outcomes=outcomes, stored=len({o.flight.id for o in outcomes if o.status == "stored"}),
-                existing=len({o.flight.id for o in outcomes if o.status == "existing"}), refused=len(refused))
+                outcomes=outcomes,
+                stored=len({o.flight.id for o in outcomes if o.status == "stored" and o.flight is not None}),
+                existing=len({o.flight.id for o in outcomes
+                              if o.status == "existing" and o.flight is not None}), refused=len(refused))
 
 
 @pages.post("/ui/flights/{flight_id}/cut")
@@ -424,7 +426,7 @@ def _report_inputs(services: Services, evaluation: Evaluation) -> tuple:
 
 def _report_page(services: Services, evaluation: Evaluation, flight: int | None, group: str) -> tuple[bytes, bool]:
     """(the report page's HTML, whether it is final: False while its velocity figure is still computed)."""
-    report = evaluation.report
+    report = evaluation.report or {}
     title = f"Evaluation {evaluation.id}: model {report.get('model')}"
     entries = dict(zip(evaluation.flight_ids, report["flights"], strict=True))
     scored = [(fid, entry["flight"]) for fid, entry in entries.items() if not entry.get("excluded")]
@@ -518,7 +520,7 @@ def diagnosis_report_page(diagnosis_id: RowId, services: Services = Depends(get_
     flights = catalog.flight_names(services.db, diagnosis.flight_ids)
     return page("diagnosis.html", f"Diagnosis {diagnosis.id}: {report.get('system')}", diagnosis=diagnosis,
                 report=report, flights=flights, headline=diagnosis_headline(report),
-                split=diagnosis_split(report, [name for _fid, name in flights]),
+                split=diagnosis_split(report, [name or f"flight {fid} (deleted)" for fid, name in flights]),
                 prior=[(k, v, CRAZYFLIE_UNITS[k]) for k, v in prior.items() if k in CRAZYFLIE_UNITS],
                 summary=figures.png_data_uri(figures.diagnosis_summary(report), dpi=110),
                 series=figures.png_data_uri(figures.residual_series(series), dpi=110) if series else None,

@@ -286,7 +286,8 @@ def _thrust_map(args) -> int:
     if not args.fit or not args.score:
         raise InvalidInput("thrust-map needs --fit and --score flight logs (or --bench CSV, a bench calibration)")
 
-    sets, errors = {}, []
+    sets: dict[str, list] = {}
+    errors: list[dict] = []
     for role, given in (("fit", args.fit), ("score", args.score)):
         try:
             batch = _read_batch(given, args.rate)

@@ -462,7 +462,7 @@ def test_an_upload_to_a_full_database_is_a_507_and_stores_nothing(tmp_path):
     from utils.service import flight_csv
 
     csv = flight_csv(tmp_path / "logs", seed=4)
-    script = Path(__file__).parent / "utils" / "full_database.py"
+    script = Path(__file__).resolve().parents[2] / "utils" / "full_database.py"
     mount = tmp_path / "small"
     mount.mkdir()
     done = subprocess.run(["unshare", "-rm", sys.executable, str(script), str(mount), str(tmp_path / "home"),
