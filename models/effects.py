@@ -96,7 +96,9 @@ class Effect:
 
     def equation(self, values: dict) -> str:
         """The fitted effect as a human-readable term (pysindy-style)."""
-        return f"{self.id}: " + ", ".join(f"{p.name} = {values[p.name]:.4g} {p.unit}".rstrip() for p in self.params)
+        # a dimensionless parameter (unit "1") prints bare: "gamma = 1.155", not "gamma = 1.155 1"
+        return f"{self.id}: " + ", ".join(f"{p.name} = {values[p.name]:.4g} {'' if p.unit == '1' else p.unit}".rstrip()
+                                          for p in self.params)
 
 
 def _dyn(effect_id, system, description, *params):

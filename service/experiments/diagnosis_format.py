@@ -49,14 +49,19 @@ def confounded_label(pair: dict) -> str:
     return f"close rival (the data prefer {pair['data_prefer']})" if pair.get("data_prefer") else "cannot tell apart"
 
 
+def _unit(unit: str | None) -> str:
+    """A unit as printed after a value: nothing for a dimensionless one ("1") or none."""
+    return "" if unit in (None, "1") else unit
+
+
 def format_diagnosis(result: dict) -> str:
     """The human-readable report: effects as equations, intervals, what could not be told apart, and
     the estimators' error before and after.  ``result`` is `diagnose`'s or `diagnose_simulated`'s dict."""
     lines = [f"diagnosis of {result['system']}"]
     if result.get("prior"):
         prior = result["prior"]["params"]
-        lines.append("  prior: " + ", ".join(f"{k} = {v:.4g} {cf.UNITS.get(k, '')}".rstrip() for k, v in prior.items()
-                                            if k in cf.UNITS))
+        lines.append("  prior: " + ", ".join(f"{k} = {v:.4g} {_unit(cf.UNITS.get(k))}".rstrip()
+                                            for k, v in prior.items() if k in cf.UNITS))
     if result.get("thrust_source"):
         declared = result.get("declared_mass_kg")
         lines.append(f"  thrust from: {THRUST_SOURCE_TEXT[result['thrust_source']]}"
@@ -80,12 +85,13 @@ def format_diagnosis(result: dict) -> str:
                      "these candidates describe")
     for e in result["effects"]:
         units = e.get("units", {})
-        cis = ", ".join(f"{k} in [{lo:.4g}, {hi:.4g}] {units.get(k, '')}".rstrip() for k, (lo, hi) in e["ci95"].items())
+        cis = ", ".join(f"{k} in [{lo:.4g}, {hi:.4g}] {_unit(units.get(k))}".rstrip()
+                        for k, (lo, hi) in e["ci95"].items())
         shaky = [k for k, ok in e.get("determined", {}).items() if not ok]
         lines.append(f"  {e['equation']}  ({e['channel']}; explains {100 * e['explained_fraction']:.1f} % of the "
                      f"residual; 95 % CI {cis})")
         if "nominal" in e:
-            lines.append("    prior's value: " + ", ".join(f"{k} = {v:.4g} {units.get(k, '')}".rstrip()
+            lines.append("    prior's value: " + ", ".join(f"{k} = {v:.4g} {_unit(units.get(k))}".rstrip()
                                                           for k, v in e["nominal"].items()))
         for name, why in e.get("held_nominal", {}).items():
             lines.append(f"    {name}: {why}")
@@ -102,7 +108,7 @@ def format_diagnosis(result: dict) -> str:
         if unclaimed:
             lines.append(f"    not claimed (the interval holds the prior's value): {', '.join(unclaimed)}")
         for alt in e.get("alternatives", []):
-            values = ", ".join(f"{k} = {v:.4g} {alt['units'].get(k, '')}".rstrip() for k, v in alt["params"].items())
+            values = ", ".join(f"{k} = {v:.4g} {_unit(alt['units'].get(k))}".rstrip() for k, v in alt["params"].items())
             lines.append(f"    alternative: {alt['id']} with {values} {how_much(alt['fraction_of_chosen'])} "
                          f"(ΔBIC_eff {alt['delta_bic']:+g})")
     for c in result["confounded"]:

@@ -204,3 +204,16 @@ def test_crazyswarm2_logs_carry_thrust_in_newtons_and_the_declared_mass():
     assert report["prior"]["params"]["m_kg"] == pytest.approx(0.032)
     assert "thrust_gain" not in {e["id"] for e in report["effects"]}     # thrust in N: a mass in kg
     assert "mass" in format_diagnosis(report)
+
+
+def test_dimensionless_parameters_print_without_a_unit():
+    """gamma and kappa_th are dimensionless (unit "1"): "gamma = 1.155", never "gamma = 1.155 1"; a
+    parameter with a unit keeps it."""
+    from learnest.models.effects import crazyflie_effects
+    from learnest.service.experiments.diagnosis_format import _unit
+
+    battery = next(e for e in crazyflie_effects() if e.id == "battery_thrust")
+    assert battery.equation({"gamma": 1.155}) == "battery_thrust: gamma = 1.155"
+    lag = next(e for e in crazyflie_effects() if e.id == "motor_lag")
+    assert lag.equation({"tau_s": 0.03}) == "motor_lag: tau_s = 0.03 s"
+    assert _unit("1") == "" and _unit(None) == "" and _unit("kg") == "kg"
