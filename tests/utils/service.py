@@ -7,6 +7,8 @@ estimators in seconds.
 from __future__ import annotations
 
 import atexit
+import socket
+import threading
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -151,3 +153,68 @@ def without_timing(report: dict) -> dict:
 def blob_files(home: Path) -> set[str]:
     root = Path(home) / "blobs"
     return {p.parent.name + p.name for p in root.glob("??/*") if p.is_file()}
+
+
+MULTIPART_XYZ = (b"content-type", b"multipart/form-data; boundary=xyz")
+
+
+def raw_post(app, path: str, chunks: list[bytes], headers: list) -> tuple[int, int, bytes]:
+    """POST ``chunks`` to the ASGI ``app`` one receive() at a time; -> (status, chunks the app pulled, answer
+    body).  What a TestClient cannot show: how much of a body the server read before it answered."""
+    import asyncio
+
+    pulled, sent = [0], []
+
+    async def receive():
+        if pulled[0] < len(chunks):
+            pulled[0] += 1
+            return {"type": "http.request", "body": chunks[pulled[0] - 1], "more_body": pulled[0] < len(chunks)}
+        return {"type": "http.disconnect"}
+
+    async def send(message):
+        sent.append(message)
+
+    scope = {"type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1", "method": "POST", "scheme": "http",
+             "path": path, "raw_path": path.encode(), "query_string": b"", "root_path": "",
+             "server": ("testserver", 80), "client": ("127.0.0.1", 5000),
+             "headers": [(b"host", b"testserver"), (b"content-length", str(sum(map(len, chunks))).encode()),
+                         *headers]}
+    asyncio.run(app(scope, receive, send))
+    return sent[0]["status"], pulled[0], b"".join(m.get("body", b"") for m in sent[1:])
+
+
+TIMEOUT_S = 1.0   # s: the live server's header, body and keep-alive timeouts
+
+
+@contextmanager
+def live_server(home, **changes):
+    """The app under uvicorn (in a thread, with `learnest serve`'s options) on 127.0.0.1:<free port>."""
+    import uvicorn
+
+    from learnest.service.api.app import create_app
+    from learnest.service.api.server import DeadlineH11Protocol, uvicorn_options
+
+    settings = settings_for(home, header_timeout_s=TIMEOUT_S, body_timeout_s=TIMEOUT_S, body_min_rate=1000,
+                            keep_alive_s=TIMEOUT_S, **changes)
+
+    class Protocol(DeadlineH11Protocol):
+        header_timeout_s = TIMEOUT_S
+
+    options = {**uvicorn_options(settings), "http": Protocol}
+    config = uvicorn.Config(create_app(settings, executor=shared_pool(), scheduler=False), log_level="warning",
+                            **options)
+    server = uvicorn.Server(config)
+    sock = socket.socket()
+    sock.bind(("127.0.0.1", 0))
+    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 20
+    while not server.started and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert server.started
+    try:
+        yield sock.getsockname()[1]
+    finally:
+        server.should_exit = True
+        thread.join(10)
+        sock.close()

@@ -3,9 +3,9 @@ definitions: every pose type read back against the analytic flight, topic and ve
 list, the onboard-estimate warning, damaged files, the CLI's --pose-topic and an upload with pose_topic."""
 import numpy as np
 import pytest
-from test_ingest_mcap import (
-    accelerometer_g,
+from utils.analytic_flight import (
     acc_interpolation_tolerance,
+    accelerometer_g,
     assert_matches_truth,
     imu_times,
     mocap_times,

@@ -7,7 +7,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import yaml
-from utils.service import running_app, settings_for
+from utils.service import MULTIPART_XYZ, raw_post, running_app, settings_for
 
 from learnest.ingest.sim import simulate
 from learnest.ingest.sim.export import write_canonical_flight
@@ -145,7 +145,6 @@ def test_the_batch_route_keeps_the_upload_limits(batch, tmp_path, monkeypatch):
 
 def test_the_batch_key_is_checked_before_its_body_is_read(tmp_path):
     """Raw ASGI, so the test sees how much of the body the app pulls: none without the key."""
-    import asyncio
 
     from fastapi.testclient import TestClient
     from utils.service import shared_pool
@@ -158,24 +157,7 @@ def test_the_batch_key_is_checked_before_its_body_is_read(tmp_path):
     chunks = [head] + [b"1" * (1 << 16)] * 64 + [b"\r\n--xyz--\r\n"]
 
     def post(headers: list) -> tuple[int, int]:
-        pulled, sent = [0], []
-
-        async def receive():
-            if pulled[0] < len(chunks):
-                pulled[0] += 1
-                return {"type": "http.request", "body": chunks[pulled[0] - 1], "more_body": pulled[0] < len(chunks)}
-            return {"type": "http.disconnect"}
-
-        async def send(message):
-            sent.append(message)
-
-        scope = {"type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1", "method": "POST",
-                 "scheme": "http", "path": "/flights/batch", "raw_path": b"/flights/batch", "query_string": b"",
-                 "root_path": "", "server": ("testserver", 80), "client": ("127.0.0.1", 5000),
-                 "headers": [(b"host", b"testserver"), (b"content-type", b"multipart/form-data; boundary=xyz"),
-                             (b"content-length", str(sum(map(len, chunks))).encode()), *headers]}
-        asyncio.run(app(scope, receive, send))
-        return sent[0]["status"], pulled[0]
+        return raw_post(app, "/flights/batch", chunks, [MULTIPART_XYZ, *headers])[:2]
 
     with TestClient(app):
         assert post([]) == (401, 0)

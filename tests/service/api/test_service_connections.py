@@ -3,48 +3,10 @@ throttled.  Real sockets against a real uvicorn server on an ephemeral loopback 
 from __future__ import annotations
 
 import socket
-import threading
 import time
-from contextlib import contextmanager
 
 import pytest
-from utils.service import running_app, settings_for, shared_pool
-
-TIMEOUT_S = 1.0
-
-
-@contextmanager
-def live_server(home, **changes):
-    """The app under uvicorn (in a thread, with `learnest serve`'s options) on 127.0.0.1:<free port>."""
-    import uvicorn
-
-    from learnest.service.api.app import create_app
-    from learnest.service.api.server import DeadlineH11Protocol, uvicorn_options
-
-    settings = settings_for(home, header_timeout_s=TIMEOUT_S, body_timeout_s=TIMEOUT_S, body_min_rate=1000,
-                            keep_alive_s=TIMEOUT_S, **changes)
-
-    class Protocol(DeadlineH11Protocol):
-        header_timeout_s = TIMEOUT_S
-
-    options = {**uvicorn_options(settings), "http": Protocol}
-    config = uvicorn.Config(create_app(settings, executor=shared_pool(), scheduler=False), log_level="warning",
-                            **options)
-    server = uvicorn.Server(config)
-    sock = socket.socket()
-    sock.bind(("127.0.0.1", 0))
-    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 20
-    while not server.started and time.monotonic() < deadline:
-        time.sleep(0.02)
-    assert server.started
-    try:
-        yield sock.getsockname()[1]
-    finally:
-        server.should_exit = True
-        thread.join(10)
-        sock.close()
+from utils.service import TIMEOUT_S, live_server, running_app
 
 
 @pytest.fixture(scope="module")

@@ -3,7 +3,7 @@ able to start jobs through the user's browser (CSRF), and a server on localhost 
 other host names (DNS rebinding).  The real app, the real forms; the attack is what a browser would send.
 Numbers and dates out of range are a 422, not a 500."""
 import pytest
-from utils.service import flight_csv, running_app, settings_for, upload
+from utils.service import MULTIPART_XYZ, flight_csv, raw_post, running_app, settings_for, upload
 
 
 @pytest.fixture(scope="module")
@@ -98,7 +98,6 @@ def _multipart(boundary: bytes, size: int, chunk: int = 1 << 16) -> list[bytes]:
 def test_an_upload_without_the_key_is_refused_before_its_body_is_read(tmp_path):
     """Raw ASGI, so the test sees how much of the body the app pulls: none (FastAPI used to spool all of it to
     a temp file - an unnamed one on Linux, so watching the temp folder would prove nothing)."""
-    import asyncio
 
     from fastapi.testclient import TestClient
     from utils.service import shared_pool
@@ -109,24 +108,7 @@ def test_an_upload_without_the_key_is_refused_before_its_body_is_read(tmp_path):
     chunks = _multipart(b"xyz", 8 << 20)
 
     def post(headers: list) -> tuple[int, int]:
-        pulled, sent = [0], []
-
-        async def receive():
-            if pulled[0] < len(chunks):
-                pulled[0] += 1
-                return {"type": "http.request", "body": chunks[pulled[0] - 1], "more_body": pulled[0] < len(chunks)}
-            return {"type": "http.disconnect"}
-
-        async def send(message):
-            sent.append(message)
-
-        scope = {"type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1", "method": "POST",
-                 "scheme": "http", "path": "/flights", "raw_path": b"/flights", "query_string": b"", "root_path": "",
-                 "server": ("testserver", 80), "client": ("127.0.0.1", 5000),
-                 "headers": [(b"host", b"testserver"), (b"content-type", b"multipart/form-data; boundary=xyz"),
-                             (b"content-length", str(sum(map(len, chunks))).encode()), *headers]}
-        asyncio.run(app(scope, receive, send))
-        return sent[0]["status"], pulled[0]
+        return raw_post(app, "/flights", chunks, [MULTIPART_XYZ, *headers])[:2]
 
     with TestClient(app):   # the lifespan: database, services
         assert post([]) == (401, 0)

@@ -8,6 +8,7 @@ import asyncio
 import time
 
 import pytest
+from utils.service import MULTIPART_XYZ, raw_post
 
 
 # -- the body deadline covers receiving a body, never sending a response -----------------------------------
@@ -94,7 +95,7 @@ def test_a_body_that_never_ends_still_gets_its_408(tmp_path):
 
 # -- a .db3 is bounded by the bytes SQLite yields, whatever it computes ---------------------------------------
 def _small_bag(tmp_path):
-    from test_ingest_mcap import accelerometer_g, imu_times, mocap_times, true_position, true_quaternion
+    from utils.analytic_flight import accelerometer_g, imu_times, mocap_times, true_position, true_quaternion
 
     from learnest.ingest.formats.rosbag.writer import BagWriter
 
@@ -258,28 +259,6 @@ def test_the_largest_id_is_a_plain_404(app_with_a_model):
 
 
 # -- the API key of a form upload is checked before its body is read -----------------------------------------
-def _raw_post(app, path: str, chunks: list[bytes], headers: list) -> tuple[int, int, bytes]:
-    """POST ``chunks`` to the app over raw ASGI; -> (status, chunks the app pulled, answer body)."""
-    pulled, sent = [0], []
-
-    async def receive():
-        if pulled[0] < len(chunks):
-            pulled[0] += 1
-            return {"type": "http.request", "body": chunks[pulled[0] - 1], "more_body": pulled[0] < len(chunks)}
-        return {"type": "http.disconnect"}
-
-    async def send(message):
-        sent.append(message)
-
-    scope = {"type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1", "method": "POST", "scheme": "http",
-             "path": path, "raw_path": path.encode(), "query_string": b"", "root_path": "",
-             "server": ("testserver", 80), "client": ("127.0.0.1", 5000),
-             "headers": [(b"host", b"testserver"), (b"content-length", str(sum(map(len, chunks))).encode()),
-                         *headers]}
-    asyncio.run(app(scope, receive, send))
-    return sent[0]["status"], pulled[0], b"".join(m.get("body", b"") for m in sent[1:])
-
-
 def _upload_form(key: str | None, key_first: bool = True, size: int = 8 << 20) -> list[bytes]:
     """A multipart upload of one ``size``-byte file in 64-kB chunks, the api_key field before or after it."""
     field = (b'--xyz\r\nContent-Disposition: form-data; name="api_key"\r\n\r\n' + key.encode() + b"\r\n"
@@ -292,7 +271,6 @@ def _upload_form(key: str | None, key_first: bool = True, size: int = 8 << 20) -
     return chunks + [b"--xyz--\r\n"]
 
 
-MULTIPART = (b"content-type", b"multipart/form-data; boundary=xyz")
 
 
 def test_a_form_upload_without_the_key_is_refused_before_its_body_is_read(tmp_path):
@@ -305,16 +283,16 @@ def test_a_form_upload_without_the_key_is_refused_before_its_body_is_read(tmp_pa
                      decoder=shared_decoder(), scheduler=False)
     chunks = _upload_form(None)
     with TestClient(app):
-        status, pulled, answer = _raw_post(app, "/ui/flights", chunks, [MULTIPART])
+        status, pulled, answer = raw_post(app, "/ui/flights", chunks, [MULTIPART_XYZ])
         assert (status, pulled) == (401, 1) and b"API key" in answer          # the file's head only
-        status, pulled, _ = _raw_post(app, "/ui/flights", _upload_form("wrong"), [MULTIPART])
+        status, pulled, _ = raw_post(app, "/ui/flights", _upload_form("wrong"), [MULTIPART_XYZ])
         assert (status, pulled) == (401, 2)                   # the key field and the head of the file part
-        status, pulled, _ = _raw_post(app, "/ui/flights", _upload_form("sesame", key_first=False), [MULTIPART])
+        status, pulled, _ = raw_post(app, "/ui/flights", _upload_form("sesame", key_first=False), [MULTIPART_XYZ])
         assert (status, pulled) == (401, 1)        # a key after the files is not waited for
         # the right key (field first, as the upload form sends it; or the cookie): the body is read
         cookie = [(b"cookie", b"learnest_api_key=sesame")]
         for chunks, extra in ((_upload_form("sesame"), []), (_upload_form(None), cookie)):
-            status, pulled, answer = _raw_post(app, "/ui/flights", chunks, [MULTIPART, *extra])
+            status, pulled, answer = raw_post(app, "/ui/flights", chunks, [MULTIPART_XYZ, *extra])
             assert status == 422 and pulled == len(chunks), (status, answer[:200])   # read, and no flight
 
 
@@ -328,8 +306,8 @@ def test_a_throttled_address_gets_429_before_its_form_body_is_read(tmp_path):
                      decoder=shared_decoder(), scheduler=False)
     with TestClient(app):
         for _ in range(2):
-            assert _raw_post(app, "/ui/flights", _upload_form("guess"), [MULTIPART])[0] == 401
-        status, pulled, _ = _raw_post(app, "/ui/flights", _upload_form("sesame"), [MULTIPART])
+            assert raw_post(app, "/ui/flights", _upload_form("guess"), [MULTIPART_XYZ])[0] == 401
+        status, pulled, _ = raw_post(app, "/ui/flights", _upload_form("sesame"), [MULTIPART_XYZ])
         assert (status, pulled) == (429, 0)
 
 
@@ -355,7 +333,7 @@ def _post_with_forwarded(port: int, key: str, forwarded: str) -> int:
 
 
 def test_a_rotating_x_forwarded_for_does_not_escape_the_key_throttle(tmp_path):
-    from test_service_connections import live_server
+    from utils.service import live_server
 
     with live_server(tmp_path, api_key="s3cret", key_failures=3) as port:
         answers = [_post_with_forwarded(port, "guess", f"10.0.0.{k}") for k in range(6)]
@@ -364,7 +342,7 @@ def test_a_rotating_x_forwarded_for_does_not_escape_the_key_throttle(tmp_path):
 
 
 def test_a_configured_proxy_names_the_client(tmp_path):
-    from test_service_connections import live_server
+    from utils.service import live_server
 
     with live_server(tmp_path, api_key="s3cret", key_failures=2, trusted_proxies="127.0.0.1") as port:
         assert [_post_with_forwarded(port, "guess", "10.0.0.1") for _ in range(3)] == [401, 401, 429]
