@@ -15,7 +15,7 @@ from learnest.models.diagnosis import AT_BOUND_FRACTION
 from learnest.models.effects import LIBRARY
 
 RESULTS = Path(__file__).parent / "results"
-PARAMS = {p.name: p for e in LIBRARY.values() for p in e.params}
+PARAMS = {(e.id, p.name): p for e in LIBRARY.values() for p in e.params}   # two effects have a "k"
 
 
 def _effects(node):
@@ -47,8 +47,8 @@ def main() -> None:
                 value = e["params"][name]
                 if e.get("at_bound", {}).get(name):
                     problems.append(f"{path.relative_to(RESULTS)}: {e['id']}.{name} = {value:.4g} flagged at a bound")
-                if name in PARAMS:
-                    p = PARAMS[name]
+                if (e["id"], name) in PARAMS:
+                    p = PARAMS[(e["id"], name)]
                     margin = AT_BOUND_FRACTION * (p.upper - p.lower)
                     if not p.lower + margin < value < p.upper - margin:
                         problems.append(f"{path.relative_to(RESULTS)}: {e['id']}.{name} = {value:.4g} outside or at "

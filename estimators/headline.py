@@ -10,6 +10,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from learnest.models.training import NOT_LEARNED
+
 MEASURES = {
     "mocap_gaps": "position error (m, RMS of the 3-D error) inside windows where the mocap was hidden from the "
                   "estimator, against the hidden mocap: how well the model carries the estimate through occlusions",
@@ -18,7 +20,7 @@ MEASURES = {
     "paper_sg": "the MSE over [p, v, a] against a Savitzky-Golay fit of the mocap position (1.5-s window by "
                 "default), which is smoother than the motion itself (the paper's protocol and its Table I)",
 }
-NOTHING_LEARNED = "the residual did not improve held-out prediction; this version equals its prior"
+NOTHING_LEARNED = NOT_LEARNED   # the training surfaces' sentence, word for word
 
 
 # -- over flights -----------------------------------------------------------------------------------------
@@ -73,7 +75,8 @@ def headline(flight_reports: Sequence[dict]) -> Headline:
     entries without yardsticks are left out."""
     scored = [f for f in flight_reports if not f.get("excluded") and f.get("yardsticks")]
     with_gaps = [f for f in scored if not f["yardsticks"]["mocap_gaps"].get("skipped")]
-    without = [f"{f['flight']}: {f['yardsticks']['mocap_gaps']['skipped']}" for f in scored if f not in with_gaps]
+    without = [f"{f['flight']}: {f['yardsticks']['mocap_gaps']['skipped']}" for f in scored
+               if f["yardsticks"]["mocap_gaps"].get("skipped")]
     gaps = [(f["flight"], f["yardsticks"]["mocap_gaps"]) for f in with_gaps]
     keys = sorted({k for _, g in gaps for k in g["gain_pct"]})
     methods = sorted({m for _, g in gaps for m in g["rmse_m"]})

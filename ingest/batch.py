@@ -17,8 +17,6 @@ from learnest.errors import InvalidInput
 from .flight import IngestError
 from .names import unique_names
 
-# A suffix built from a folder name keeps the characters a stored flight name may hold.
-
 
 @dataclass
 class BatchRead:

@@ -194,8 +194,9 @@ def find_flight(t: ArrayLike, p: ArrayLike, rate_hz: float, channels: dict | Non
         first, last = _longest_run(power)
     # take-off is measured from where the vehicle sat before, touchdown where it sits after (a pad, another
     # spot of an uneven floor): the floor of each side when that side has ground samples of its own
-    floor_in = floor_height(z[:first], ground[:first], rate_hz) or floor
-    floor_out = floor_height(z[last:], ground[last:], rate_hz) or floor
+    before, after = floor_height(z[:first], ground[:first], rate_hz), floor_height(z[last:], ground[last:], rate_hz)
+    floor_in = floor if before is None else before   # 0.000 m is a floor: only None means no ground samples
+    floor_out = floor if after is None else after
     rising = np.flatnonzero(z[first:last] > floor_in + flying_height_m) + first
     falling = np.flatnonzero(z[first:last] > floor_out + flying_height_m) + first
     used = ", ".join(signals)

@@ -21,7 +21,6 @@ import numpy as np
 
 from .residual_problem import Fit as Fit
 from .residual_problem import ResidualProblem as ResidualProblem
-from .residual_problem import autocorrelation_time as autocorrelation_time
 from .residual_problem import bic_eff as bic_eff
 from .residual_problem import common_bic as common_bic
 
@@ -318,8 +317,9 @@ def _forward_selection(problem: ResidualProblem, current: Fit, max_effects: int,
     alternatives: dict[str, list[dict[str, Any]]] = {}    # chosen effect id -> rivals that explain as much
     alone: dict[str, Fit] = {}     # each candidate fitted on its own (the first step)
     alone_delta: dict[str, float] = {}   # and its BIC_eff change against no effect
+    excluded: list[Effect] = []    # rivals that cancel a chosen effect: never tried again
     while len(chosen) < max_effects:
-        remaining = [e for e in problem.candidates if e not in chosen]
+        remaining = [e for e in problem.candidates if e not in chosen and e not in excluded]
         if not remaining:
             break
         trials = _trials(problem, chosen, remaining, on_stage, len(chosen) / (max_effects + 1), 1 / (max_effects + 1))
@@ -345,7 +345,9 @@ def _forward_selection(problem: ResidualProblem, current: Fit, max_effects: int,
             rival = best.effects[-1]
             cancelled += pairs
             step["cancelled"] = [pair["effects"][0] for pair in pairs] + [rival.id]
-            problem = replace(problem, candidates=[e for e in problem.candidates if e is not rival])
+            # left out of the next steps, not out of the problem: its parameters stay in every fit's values
+            # (at their nominal), which the residuals look up by name
+            excluded.append(rival)
             trace.append(step)
             continue
         cv = cv_error(problem, chosen + [best.effects[-1]])

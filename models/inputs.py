@@ -16,9 +16,9 @@ from .crazyflie.motor_heating import HISTORY_KEY, motor_power, with_motor_heatin
 from .crazyflie.thrust_axis import calibrated_attitude, heading_removed, thrust_axis_offset
 from .crazyflie.thrust_gain import thrust_gain, with_thrust_gain
 from .metadata import (
-    ATTITUDE_CALIBRATED,
+    ATTITUDE_CALIBRATED,  # noqa: F401  (re-exported: the inputs a model was trained on)
     ATTITUDE_CALIBRATED_FORMAT,
-    THRUST_GAIN_CALIBRATED,
+    THRUST_GAIN_CALIBRATED,  # noqa: F401
     THRUST_GAIN_FORMAT,
     format_meta,
     input_format,
@@ -71,7 +71,6 @@ THRUST_THROUGH_ATTITUDE = frozenset({"crazyflie"})
 # thrust gain (`models.crazyflie.thrust_gain`).  A model keeps being fed the inputs it was trained on: one of the
 # calibrated formats, else it is scored with a warning to retrain.  (The motors' heating is a parameter of
 # the prior, `kappa_th`: a model whose stored prior has none is fed no heating.)
-INPUT_CALIBRATIONS = (ATTITUDE_CALIBRATED, THRUST_GAIN_CALIBRATED)   # the sentences of calibrated formats
 
 
 class MissingInputs(InvalidInput):

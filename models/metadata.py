@@ -23,7 +23,6 @@ from learnest.records import Record, doc
 RAW_ATTITUDE = 0            # the mocap attitude as logged
 ATTITUDE_CALIBRATED_FORMAT = 1   # the attitude rotated onto the flight's thrust axis, heading removed
 THRUST_GAIN_FORMAT = 2      # as 1, and the battery voltage carrying the flight's thrust gain
-FORMAT_VERSION = THRUST_GAIN_FORMAT   # what training records today
 
 # the sentences models recorded in meta["attitude_input"] before the integer existed (kept for reading them)
 ATTITUDE_CALIBRATED = "mocap attitude calibrated onto the thrust axis, heading removed"

@@ -20,7 +20,7 @@ if TYPE_CHECKING:
 from learnest.ingest.flight import Flight as CanonicalFlight
 
 from ..storage.tables import ModelVersion
-from .palette import AFTER_COLOUR, BEFORE_COLOUR, GAP_SHADE, REFERENCE_COLOUR, colour
+from .palette import AFTER_COLOUR, BEFORE_COLOUR, REFERENCE_COLOUR, colour
 
 BOX_ORDER = ("mhe", "knode-mhe", "ukf", "knode-ukf")   # the order of the paper's Fig. 3
 VELOCITY_METHODS = ("ukf", "knode-ukf")                # the velocity plot's estimators: quick to run on a request
@@ -353,22 +353,4 @@ def evaluation_summary(report: dict) -> Figure:
     top, bottom = cast("np.ndarray", fig.subfigures(2, 1, height_ratios=[1.2 + 0.32 * flights, 4.3]))
     draw_gain(top.subplots(), head, title=head["sentence"] if len(head["sentence"]) < 110 else None)
     _draw_paired(bottom.subplots(), report)
-    return fig
-
-
-def error_difference(t: np.ndarray, differences: dict[str, np.ndarray], gaps: list[tuple[float, float]],
-                     unit: str, title: str) -> Figure:
-    """KNODE − prior error over time, one line per comparison (``differences``: "KNODE-UKF − UKF" ->
-    (T,) array of |error| differences in ``unit``), the mocap gaps shaded (``gaps``: [(start, stop)] in s on
-    ``t``'s axis).  Below zero the KNODE's error is smaller."""
-    fig = _figure(figsize=(10, 3.2), layout="constrained")
-    ax = fig.subplots()
-    for k, (start, stop) in enumerate(gaps):
-        ax.axvspan(start, stop, color=GAP_SHADE, alpha=0.5, lw=0, label="mocap hidden (gap)" if k == 0 else None)
-    for label, values in differences.items():
-        ax.plot(t, values, lw=0.9, color=colour(label.split(" ")[0]), label=label)
-    ax.axhline(0, color="black", lw=0.6)
-    ax.set(xlabel="t (s)", ylabel=f"|error| difference ({unit})", title=title)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize="small", loc="upper right", ncol=3)
     return fig

@@ -10,6 +10,7 @@ fonts, no CDN), so /manual works offline like /docs.
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.util
 import os
@@ -39,6 +40,7 @@ def manual_sources() -> Path | None:
     return folder if (folder / "mkdocs.yml").is_file() and (folder / "index.md").is_file() else None
 
 
+@functools.lru_cache(maxsize=4)   # once per process: the installed sources do not change while it serves
 def _key(sources: Path) -> str:
     """Hash of every source file and the installed version: a change of either is a new build."""
     from importlib.metadata import PackageNotFoundError, version

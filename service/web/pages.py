@@ -403,6 +403,11 @@ def evaluation_report_page(evaluation_id: RowId,
     # a finished evaluation's report is written once and its ids are never reused: the page changes only with
     # its flights' stored estimates (a flight deleted since) and figures, so it is drawn once per those, flight
     # and state group, then served from the page cache
+    # keyed on the flight the page shows (any other ?flight= shows the first scored one): arbitrary ids in
+    # the query cannot make an anonymous client redraw the same page again and again
+    entries = dict(zip(evaluation.flight_ids, (evaluation.report or {}).get("flights", [])))
+    scored = [fid for fid, entry in entries.items() if not entry.get("excluded")]
+    flight = flight if flight in scored else (scored[0] if scored else None)
     key = ("evaluation-report", evaluation.id, flight, group, _report_inputs(services, evaluation))
     body = page_cache.pages.get(key, lambda: _report_page(services, evaluation, flight, group),
                                 keep=lambda drawn: drawn[1])

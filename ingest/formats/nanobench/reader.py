@@ -338,9 +338,9 @@ MAX_METADATA_ROWS = 1e12   # past any recorder's row count; larger (or a 400-dig
 
 def _stream_rate(name: str, t: np.ndarray, metadata: dict | None, warnings: list[str]) -> float | None:
     """The stream's sample rate (Hz) from the time stamps of its measured rows (`ingest.align.samples_per_second`:
-    one over the median step).  The metadata's row count is not a rate: the radio drops packets (a 100 Hz IMU
-    delivering 77 % of its samples is 100 Hz with gaps), and a file cut short holds fewer rows than it
-    counts.  A row count that is not a plausible number is ignored with a warning."""
+    one over the mean of the ordinary steps, gaps left out).  The metadata's row count is not a rate: the radio
+    drops packets (a 100 Hz IMU delivering 77 % of its samples is 100 Hz with gaps), and a file cut short holds
+    fewer rows than it counts.  A row count that is not a plausible number is ignored with a warning."""
     _row_count(name, metadata, warnings)
     return samples_per_second(t)
 

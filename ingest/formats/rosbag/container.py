@@ -186,7 +186,8 @@ def _check_sqlite_sizes(path: Path, what: str, budget: int) -> None:
     import sqlite3
 
     try:
-        connection = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+        # a URI built by pathlib escapes "#" and "?": a bag named run#1.db3 is opened, read-only, as itself
+        connection = sqlite3.connect(Path(path).resolve().as_uri() + "?mode=ro", uri=True)
     except sqlite3.Error as err:
         raise IngestError(path, f"cannot open the {what}: {_reason(err)}") from None
     steps = [0]
