@@ -138,6 +138,23 @@ def test_a_db3_whose_rows_sqlite_computes_is_refused_by_what_it_yields(tmp_path,
     assert path.name in str(err.value)
 
 
+def test_a_db3_bomb_whose_path_holds_a_uri_character_is_still_refused(tmp_path):
+    """A '#' in the path must not cut the file's SQLite URI short: the check reads this file (and
+    creates no other), so the bomb is refused as it is under a plain name."""
+    from learnest.ingest import read_flights
+    from learnest.ingest.flight import IngestError
+
+    built = _small_bag(tmp_path)     # written under a plain name (the bag writer cuts URIs at '#' itself)
+    _rebuild_messages(built, "zeroblob(1000000)", 60)
+    folder = built.parent.rename(tmp_path / "run#1")
+    path = folder / built.name
+    before = sorted(p.name for p in tmp_path.rglob("*"))
+    with pytest.raises(IngestError) as err:
+        read_flights([path])
+    assert "yields more than" in str(err.value) or "larger than" in str(err.value), str(err.value)
+    assert sorted(p.name for p in tmp_path.rglob("*")) == before
+
+
 def test_a_db3_whose_messages_are_a_view_is_refused(tmp_path):
     import sqlite3
 
