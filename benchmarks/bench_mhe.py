@@ -39,12 +39,13 @@ from bench_core import timed_side_by_side  # noqa: E402  (the script folder is o
 
 import learnest.estimators.native.codegen as codegen  # noqa: E402
 from learnest.estimators.mhe import MHE  # noqa: E402
+from learnest.estimators.prepared import initial_state, system_for  # noqa: E402
 from learnest.estimators.ukf import run_ukf  # noqa: E402
 from learnest.ingest import read_flights  # noqa: E402
 from learnest.models.knode import HybridModel  # noqa: E402
 from learnest.models.systems import make_system  # noqa: E402
 from learnest.models.training import TrainingConfig  # noqa: E402
-from learnest.service.experiments.flights import evaluate_flight, initial_state, quadrotor_for, train_on_flight  # noqa: E402
+from learnest.service.experiments.flights import evaluate_flight, train_on_flight  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "nanobench"
 OUT = Path(__file__).parent / "results"
@@ -83,7 +84,7 @@ def main():
     config = TrainingConfig(hidden=16, epochs=50, lr=1e-3)
     knode = train_on_flight(train_flight, config).model
     other = train_on_flight(other_flight, config).model   # same architecture, other weights
-    system = quadrotor_for(flight)
+    system = system_for(flight)
     knode = HybridModel(replace(knode.system, dt=flight.dt), knode.kind, knode.residual, knode.meta)
     prior = HybridModel(system, "prior")
     T = min(args.steps, len(flight.t))

@@ -32,7 +32,7 @@ from learnest.estimators.observers import pretraining_observer
 from learnest.ingest import read_flights
 from learnest.models.inputs import system_inputs
 from learnest.models.presets import CRAZYFLIE_TRAINING
-from learnest.service.experiments.flights import system_for
+from learnest.estimators.prepared import system_for
 flight = read_flights([sys.argv[1]])[0]
 imported = time.perf_counter()
 system = system_for(flight, "quadrotor")

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from learnest.estimators.prepared import system_for
 from learnest.ingest import read_flights
 from learnest.ingest.align import FLYING_HEIGHT_M
 from learnest.ingest.frames import GRAVITY
@@ -38,7 +39,7 @@ from learnest.models.crazyflie.motor_heating import thermal_state
 from learnest.models.crazyflie.thrust_axis import EDGE_S, LOWPASS_HZ
 from learnest.models.inputs import system_inputs
 from learnest.models.knode import HybridModel
-from learnest.service.experiments.flights import evaluate_flight, system_for
+from learnest.service.experiments.flights import evaluate_flight
 
 DATA = Path("../shared/data/nanobench")
 HEATING = {name: cf.IDENTIFIED[name] for name in ("tau_th_s", "kappa_th")}   # the package's values

@@ -26,7 +26,7 @@ from learnest.ingest.baseline import references
 from learnest.models.inputs import flight_thrust_axis, system_inputs
 from learnest.models.knode import HybridModel
 from learnest.models.presets import SG_WINDOW
-from learnest.service.experiments.flights import initial_state, system_for
+from learnest.estimators.prepared import initial_state, system_for
 
 DATA = Path("../shared/data/nanobench")
 METHODS = ("ukf", "mhe")

@@ -123,7 +123,7 @@ def pooled(result: dict) -> list[str]:
     the other family, median gain across families positive), for the KNODE and for the recommended estimate."""
     lines = ["## Both directions pooled (16 flights per prior)", "",
              "Worse beyond its interval: the flight's 95 % interval of the KNODE's gain (paired circular block bootstrap, blocks of at least 2 s and 3 correlation lengths, "
-             "`estimators.evaluate.gain_interval`) lies below 0.", "",
+             "`estimators.metrics.gain_interval`) lies below 0.", "",
              "| prior | estimate | flights worse than prior UKF / MHE | of them worse beyond the interval | "
              "median per-flight gain UKF / MHE |", "|---|---|---|---|---|"]
     systems = sorted({system for by_system in result["runs"].values() for system in by_system})

@@ -26,9 +26,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from family_holdout import DATA, family_of  # noqa: E402
 
+from learnest.estimators.algorithm1 import Algorithm1  # noqa: E402
 from learnest.ingest import read_flights  # noqa: E402
 from learnest.models.knode import HybridModel  # noqa: E402
-from learnest.service.experiments.flights import flight_training_data, train_on_flights  # noqa: E402
+from learnest.service.experiments.flights import train_on_flights  # noqa: E402
 
 HORIZON_S = 0.5
 EVERY = 10
@@ -62,7 +63,7 @@ def main(argv=None) -> int:
     tau = knode.system.prior_params["tau_s"]
     rows = []
     for flight in flights:
-        system, zeta, u, _ = flight_training_data(flight, "crazyflie")
+        system, zeta, u, _ = Algorithm1().observe_flight(flight, "crazyflie")
         prior = HybridModel(system, "prior")
         model = HybridModel(system, "knode", knode.residual, knode.meta)
         r = knode.residual(zeta, u)[:, 6:9]

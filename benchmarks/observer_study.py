@@ -19,8 +19,8 @@ import time
 
 import numpy as np
 
+from learnest.estimators.algorithm1 import Algorithm1, first_observation
 from learnest.estimators.mhe import MHE
-from learnest.estimators.observer_training import first_observation, train_with_observer
 from learnest.estimators.ukf import run_ukf
 from learnest.models.knode import HybridModel
 from learnest.models.presets import MHE_HORIZON, PAPER_TRAINING, TrainingConfig
@@ -62,7 +62,7 @@ def main() -> None:
             kind, rounds = VARIANTS[name]
             started = time.perf_counter()
             zeta0 = first_observation(system, train.y, train.u, system.dt, kind)
-            result = train_with_observer(system, train.y, train.u, system.dt, config, kind, rounds)
+            result = Algorithm1(kind, config, rounds).fit(system, train.y, train.u, system.dt)
             train_s = time.perf_counter() - started
             scores = _scores(result.model, system, test)
             line = {"task": args.task, "seed": seed, "variant": name, "baseline": baseline,

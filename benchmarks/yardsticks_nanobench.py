@@ -19,9 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
+from learnest.estimators.prepared import system_for
 from learnest.ingest import read_flights
 from learnest.models.knode import HybridModel
-from learnest.service.experiments.flights import evaluate_flights, system_for, train_on_flight
+from learnest.service.experiments.flights import evaluate_flights, train_on_flight
 
 DATA = Path("../shared/data/nanobench")
 METHODS_PRIOR = ["ukf", "mhe", "onboard"]

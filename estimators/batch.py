@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .mhe_gn import BlockTridiagonal
+from .native.block_tridiagonal import BlockTridiagonal
 
 
 def batch_smoother(F, H, Q, R, x0, P0, y) -> np.ndarray:

@@ -12,15 +12,14 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from learnest.models.checks import check_sequence
 from learnest.models.presets import MHE_HORIZON
 
 from .headline import MEASURES, headline
+from .metrics import gain_interval_over_time, gain_pct, group_scores, squared_errors, worse_beyond_interval
 from .mhe import MHE
 from .protocols import StateSpaceModel
 from .ukf import compiled_sigma_functions, run_ukf
 
-STATE_GROUPS = {"p": slice(0, 3), "v": slice(3, 6), "a": slice(6, 9)}
 # the units of an evaluation report's numbers (the report's "units"); the overall MSE averages the squared
 # errors of all nine states, each in its own squared SI unit
 MSE_UNITS = {"mse": "mean of squared errors of p (m^2), v (m^2/s^2) and a (m^2/s^4)",
@@ -54,107 +53,6 @@ def _ukf_functions_for(cache: dict, model, dt) -> tuple | None:
     return cache[key]
 
 
-def score(estimates: np.ndarray, reference: np.ndarray, groups: dict[str, slice] | None = None) -> dict:
-    """{"mse": overall, "groups": {name: mse}}; groups default to p, v, a for the 9-state quadrotor.
-
-    ``estimates`` and ``reference`` have shape (T, n); the MSE is the mean of the squared error over all
-    samples and columns, in the squared units of the states (m², (m/s)², (m/s²)² per group).
-    """
-    return _scores(_squared_errors(estimates, reference), groups)
-
-
-def _squared_errors(estimates: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """(estimates − reference)², (T, n), the shapes checked."""
-    estimates = check_sequence("estimates", estimates)
-    reference = check_sequence("reference", reference, rows=len(estimates), cols=estimates.shape[1])
-    return (estimates - reference) ** 2
-
-
-def _scores(err2: np.ndarray, groups: dict[str, slice] | None) -> dict:
-    """`score`'s dict from the squared errors (T, n)."""
-    if groups is None:
-        groups = STATE_GROUPS if err2.shape[1] == 9 else {}
-    return {"mse": float(err2.mean()), "groups": {name: float(err2[:, cols].mean()) for name, cols in groups.items()}}
-
-
-# Shortest block of the gain's bootstrap, s.  The per-step difference of two estimators' squared errors stays
-# correlated for 0.24-0.6 s on most NanoBench circles and 1.7 s on one (autocorrelation below 0.05 after 24-168
-# steps at 100 Hz): each record's blocks are 3x its own correlation length, and never shorter than this.
-GAIN_BLOCK_S = 2.0
-GAIN_MIN_BLOCKS = 3          # a record of fewer blocks has no interval: its resamples would all be alike
-GAIN_REPLICATES = 1000
-
-
-def correlation_steps(series: np.ndarray, level: float = 0.05) -> int:
-    """The first lag (steps) at which the autocorrelation of ``series`` (T,) falls below ``level``; T if never."""
-    centred = np.asarray(series, dtype=float) - np.mean(series)
-    steps = len(centred)
-    spectrum = np.fft.rfft(centred, 2 * steps)                       # zero-padded: the linear autocorrelation
-    autocorrelation = np.fft.irfft(spectrum * np.conj(spectrum))[:steps]
-    if autocorrelation[0] <= 0:
-        return 1
-    below = np.flatnonzero(autocorrelation / autocorrelation[0] < level)
-    return int(below[0]) if len(below) else steps
-
-
-def gain_interval(prior_error: ArrayLike, knode_error: ArrayLike, min_block: int,
-                  replicates: int = GAIN_REPLICATES, seed: int = 0) -> list[float] | None:
-    """95 % interval of the KNODE's MSE gain over its prior on one record, by a paired circular block bootstrap.
-
-    The gain is 100 (1 − Σ knode_error / Σ prior_error).  Both series are resampled with the same blocks of
-    consecutive steps, so what the two estimators share (the flight's hard stretches) cancels, and the errors'
-    autocorrelation stays inside the blocks: a block is 3 times the lag at which the autocorrelation of the
-    per-step difference falls below 0.05 (`correlation_steps`), and at least ``min_block``.  Blocks wrap around
-    the record's end (Politis & Romano's circular bootstrap): every step is drawn equally often, where plain
-    moving blocks under-draw the first and last steps, which hold the filters' start-up error, and shift the
-    interval off the gain.  Each resample is T steps long, its last block cut short.
-    Why not ``scipy.stats.bootstrap``: it resamples single observations, which for autocorrelated estimation
-    errors gives intervals several times too narrow (`tests/estimators/test_gain_interval.py`).
-
-    Parameters
-    ----------
-    prior_error, knode_error : array_like, shape (T,)
-        Squared estimation error per step (mean over the state's columns), of the prior-only and the KNODE
-        estimator on the same steps, in the states' squared units.
-    min_block : int
-        Shortest block, steps.
-    replicates : int
-        Bootstrap replicates.
-    seed : int
-        Seed of the block starts (the interval is reproducible).
-
-    Returns
-    -------
-    list of float or None
-        [2.5 %, 97.5 %] percentiles of the gain, %.  A flight whose upper bound is below 0 is worse with the
-        KNODE beyond what the flight's own variability explains.  None when the record holds fewer than
-        `GAIN_MIN_BLOCKS` blocks or the prior's error is zero (no interval can be told).
-    """
-    prior = np.asarray(prior_error, dtype=float).reshape(-1)
-    knode = np.asarray(knode_error, dtype=float).reshape(-1)
-    steps = len(prior)
-    if steps == 0 or not np.sum(prior) > 0:
-        return None
-    block = max(int(min_block), 3 * correlation_steps(knode - prior), 1)
-    if steps < GAIN_MIN_BLOCKS * block:
-        return None
-    # the sum of each block (starting anywhere, wrapping), from cumulative sums of the record with its first
-    # block - 1 steps appended; a resample is n_full whole blocks and one of the remaining length
-    n_full, rest = divmod(steps, block)
-    rng = np.random.default_rng(seed)
-    starts = rng.integers(0, steps, size=(replicates, n_full))
-    tail = rng.integers(0, steps, size=replicates)
-
-    def resampled_sums(error: np.ndarray) -> np.ndarray:
-        cumulative = np.concatenate([[0.0], np.cumsum(np.concatenate([error, error[:block - 1]]))])
-        whole = (cumulative[starts + block] - cumulative[starts]).sum(axis=1)
-        return whole + cumulative[tail + rest] - cumulative[tail]
-
-    prior_sum, knode_sum = resampled_sums(prior), resampled_sums(knode)
-    gains = 100.0 * (1.0 - knode_sum / np.maximum(prior_sum, np.finfo(float).tiny))
-    return [float(np.percentile(gains, 2.5)), float(np.percentile(gains, 97.5))]
-
-
 def evaluate_sequence(methods: Sequence[str], prior_model: StateSpaceModel, knode_model: StateSpaceModel,
                       y: np.ndarray, u: np.ndarray, dt: float, Q: np.ndarray, R: np.ndarray, x0: np.ndarray,
                       P0: np.ndarray, reference: np.ndarray, horizon: int = MHE_HORIZON,
@@ -169,8 +67,8 @@ def evaluate_sequence(methods: Sequence[str], prior_model: StateSpaceModel, knod
     Q and P0 (n, n), R (m, m), reference (T, n); dt in s; ``ms_per_step`` is wall time per sample, ms;
     ``innovation_ms`` (UKF methods) is the mean square of the one-step innovations per measurement channel,
     (m,) in the measurements' squared units (`prediction_check`); ``gain_interval_pct`` (a ``knode-*`` method
-    run beside its base) is `gain_interval` of its gain over the base method, %, or None for a record too short
-    to tell.
+    run beside its base) is `estimators.metrics.gain_interval` of its gain over the base method, %, or None for a
+    record too short to tell.
     """
     mhe_cache = {} if mhe_cache is None else mhe_cache
     results, step_errors = {}, {}
@@ -190,9 +88,9 @@ def evaluate_sequence(methods: Sequence[str], prior_model: StateSpaceModel, knod
         else:
             filtered, estimates = None, mhe.run(y, u, x0)
         elapsed = time.perf_counter() - started
-        err2 = _squared_errors(estimates, reference)
+        err2 = squared_errors(estimates, reference)
         step_errors[method] = err2.mean(axis=1)          # per step, for the gain's interval below
-        results[method] = {**_scores(err2, None), "ms_per_step": 1e3 * elapsed / len(y)}
+        results[method] = {**group_scores(err2), "ms_per_step": 1e3 * elapsed / len(y)}
         if filtered is not None:
             results[method]["innovation_ms"] = np.mean(filtered.innovations**2, axis=0).tolist()
         if keep_estimates:
@@ -200,8 +98,7 @@ def evaluate_sequence(methods: Sequence[str], prior_model: StateSpaceModel, knod
     for method in results:
         base = method.removeprefix("knode-")
         if method != base and base in step_errors:
-            results[method]["gain_interval_pct"] = gain_interval(step_errors[base], step_errors[method],
-                                                                 round(GAIN_BLOCK_S / dt))
+            results[method]["gain_interval_pct"] = gain_interval_over_time(step_errors[base], step_errors[method], dt)
     return results
 
 
@@ -270,7 +167,7 @@ def _recommended_summary(scored: list[dict], median: dict[str, float]) -> dict |
             continue
         mse = [f["mse"][f"knode-{base}" if model == "knode" else base] for f, model in chosen]
         summary["median"][base] = float(np.median(mse))
-        summary["improvement_pct"][base] = 100.0 * (1.0 - summary["median"][base] / median[base])
+        summary["improvement_pct"][base] = gain_pct(median[base], summary["median"][base])
         summary["flights_worse_than_prior"][base] = [f["flight"] for (f, _), value in zip(chosen, mse)
                                                      if value > f["mse"][base]]
     if not summary["median"]:
@@ -305,11 +202,11 @@ def summarize(flight_reports: list[dict]) -> dict:
     improvement = {}
     for base in ("ukf", "mhe"):
         if base in median and f"knode-{base}" in median:
-            improvement[f"knode-{base}_vs_{base}"] = 100.0 * (1.0 - median[f"knode-{base}"] / median[base])
+            improvement[f"knode-{base}_vs_{base}"] = gain_pct(median[base], median[f"knode-{base}"])
     outside = [f["flight"] for f in scored if (f.get("envelope") or {}).get("outside_training_envelope")]
     worse = [f["flight"] for f in scored if (f.get("prediction_check") or {}).get("knode_predicts_worse")]
     clearly_worse = {base: [f["flight"] for f in scored
-                            if ((f.get("gain_interval_pct") or {}).get(f"knode-{base}_vs_{base}") or [0, 0])[1] < 0]
+                            if worse_beyond_interval((f.get("gain_interval_pct") or {}).get(f"knode-{base}_vs_{base}"))]
                      for base in ("ukf", "mhe") if f"knode-{base}_vs_{base}" in improvement}
     return {"median": median, "improvement_pct": improvement, "flights_scored": len(scored),
             "outside_training_envelope": outside, "knode_predicts_worse": worse,

@@ -12,6 +12,8 @@ import numpy as np
 
 from learnest.models.training import NOT_LEARNED
 
+from .metrics import worse_beyond_interval
+
 MEASURES = {
     "mocap_gaps": "position error (m, RMS of the 3-D error) inside windows where the mocap was hidden from the "
                   "estimator, against the hidden mocap: how well the model carries the estimate through occlusions",
@@ -86,7 +88,7 @@ def headline(flight_reports: Sequence[dict]) -> Headline:
                   if g["gain_pct"].get(key) is not None]
         median_gain[key] = float(np.median([v for _, v, _ in values])) if values else None
         better[key] = int(sum(bool(v > 0) for _, v, _ in values))
-        worse_names[key] = [name for name, _, interval in values if interval is not None and interval[1] < 0]
+        worse_names[key] = [name for name, _, interval in values if worse_beyond_interval(interval)]
         worse[key] = len(worse_names[key])
     median_rmse = {m: float(np.median([g["rmse_m"][m] for _, g in gaps if m in g["rmse_m"]])) for m in methods}
     plan = scored[0]["yardsticks"]["mocap_gaps"] if scored else {}
@@ -98,8 +100,10 @@ def headline(flight_reports: Sequence[dict]) -> Headline:
 
 def learned_note(meta: Mapping) -> dict:
     """What an evaluation report says about whether the model learned anything: ``learned`` (the model's
-    ``learned`` flag: True, False, or None when the model does not say) and ``learned_note`` (the sentence
-    when it learned nothing, else None)."""
+    ``learned`` flag: True, False, or None when the model does not say) and ``learned_note``: the model's
+    own note where it recorded one (`models.training.NOT_CHECKED` for a model trained with nothing held out,
+    which kept its last epoch unchecked), else `NOT_LEARNED` when it learned nothing, else None."""
     learned = meta.get("learned")
     learned = None if learned is None else bool(learned)
-    return {"learned": learned, "learned_note": NOTHING_LEARNED if learned is False else None}
+    note = meta.get("learned_note") or (NOTHING_LEARNED if learned is False else None)
+    return {"learned": learned, "learned_note": note}

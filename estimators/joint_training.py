@@ -43,7 +43,7 @@ from learnest.models.presets import TrainingConfig
 from learnest.models.systems import System
 from learnest.models.training import TrainingResult, new_residual
 
-from .mhe_gn import BlockTridiagonal
+from .native.block_tridiagonal import BlockTridiagonal
 
 ITERATIONS = 40        # Levenberg–Marquardt iterations at most: part of the regularisation (module docstring)
 # λ of the weight prior λ‖θ‖², in the units of J's whitened squared residuals: a Gaussian prior θ ~ N(0, I/λ) on the

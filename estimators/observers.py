@@ -3,7 +3,7 @@
 As in Sec. V: a KF for the cartpole and the quadrotor, a precursory UKF followed by a linear KF for the
 ground robot.  They run offline, so each ends with a Rauch-Tung-Striebel backward pass (no lag to learn).
 `model_smoother` is the model-based alternative: an unscented RTS smoother with a given model (the prior,
-or a KNODE learned in an earlier round, `estimators.observer_training`).
+or a KNODE learned in an earlier round, `estimators.algorithm1`).
 """
 from __future__ import annotations
 

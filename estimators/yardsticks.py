@@ -43,8 +43,9 @@ import numpy as np
 from learnest.errors import InvalidInput
 from learnest.models.presets import GAP_EVERY_S, GAP_S, GAP_START_S, ONBOARD
 
-from .evaluate import evaluate_sequence, gain_interval
+from .evaluate import evaluate_sequence
 from .headline import MEASURES, NOTHING_LEARNED, Headline, headline, learned_note  # noqa: F401  (re-exported)
+from .metrics import gain_interval, gain_pct, rms_norm
 from .mocap_gaps import POSITION_ROWS, PositionGapModel, gap_mask, masked_measurements
 from .protocols import StateSpaceModel
 
@@ -163,12 +164,6 @@ def fast_derivatives(p: np.ndarray, dt: float, velocity_window_s: float = FAST_V
     return {"v": v, "a": a, "velocity_window_s": wv * dt, "acceleration_window_s": wa * dt}
 
 
-def rms_norm(error: np.ndarray) -> float:
-    """RMS of the Euclidean norm of the rows of ``error`` (K, 3): sqrt(mean |e|²); nan for no rows."""
-    error = np.asarray(error, dtype=float)
-    return float(np.sqrt(np.mean(np.sum(error**2, axis=1)))) if len(error) else float("nan")
-
-
 @dataclass(frozen=True)
 class MocapGaps:
     """The mocap-gap yardstick of one flight.
@@ -182,7 +177,7 @@ class MocapGaps:
         mean squared gap error (the same quantity as the interval); None where the prior's error is zero.
     gain_interval_pct : dict
         {same keys: [low, high] 95 % paired block-bootstrap interval, %, or None when the flight has too few
-        gaps to tell} (`estimators.evaluate.gain_interval` over the gap samples, blocks at least one gap).
+        gaps to tell} (`estimators.metrics.gain_interval` over the gap samples, blocks at least one gap).
     gap_s, every_s, start_s : float
         The plan (`GapPlan`), s.
     gaps : int
@@ -281,7 +276,7 @@ def gap_scores(p_mocap: np.ndarray, gapped: Mapping[str, np.ndarray], windows: S
         if base in err2 and f"knode-{base}" in err2:
             key = f"knode-{base}_vs_{base}"
             prior, knode = err2[base], err2[f"knode-{base}"]
-            gains[key] = float(100.0 * (1.0 - np.sum(knode) / np.sum(prior))) if np.sum(prior) > 0 else None
+            gains[key] = gain_pct(np.sum(prior), np.sum(knode)) if np.sum(prior) > 0 else None
             # blocks of at least one gap: the gaps are the independent units (re-converged in between)
             intervals[key] = gain_interval(prior, knode, per_gap)
     return MocapGaps(rmse, gains, intervals, plan.gap_s, plan.every_s, plan.start_s, len(windows),

@@ -129,7 +129,7 @@ PAPER_TRAINING = {  # Sec. V: 2 layers x 8 tanh; 250 epochs (cartpole), 10000 ep
 }
 
 # Pre-training observer of Table I per task: (first observer, observer -> train rounds), see
-# estimators.observer_training.  Measured on a few seeds (benchmarks/results/table1_observer_study.md,
+# estimators.algorithm1.  Measured on a few seeds (benchmarks/results/table1_observer_study.md,
 # KNODE-MHE / MHE (true dynamics), lower is better):
 # - cartpole: re-smoothing the record with the learned model and retraining (3 rounds) halves the ratio
 #   (median of seeds 0-3: 10.4 -> 4.8; UKF / KNODE-UKF 19.9 -> 45.4); a model-based smoother with the prior

@@ -257,13 +257,15 @@ def attitude_blind(system: System, battery: bool = False) -> System:
 
 
 def _checked_record(system: System, zeta: ArrayLike, u: ArrayLike, dt: float,
-                    config: TrainingConfig) -> tuple[np.ndarray, np.ndarray, float]:
-    """`train_knode`'s data checked: ``(zeta (T, n), u (T, n_inputs), dt s)``; InvalidInput when they or
-    ``config.epochs`` cannot be trained on."""
-    zeta = check_sequence("zeta", zeta, cols=system.n)
-    u = check_sequence("u", np.asarray(u, dtype=float).reshape(len(zeta), -1), rows=len(zeta), cols=system.n_inputs)
+                    config: TrainingConfig, name: str = "") -> tuple[np.ndarray, np.ndarray, float]:
+    """One record's training data checked: ``(zeta (T, n), u (T, n_inputs), dt s)``; InvalidInput (its
+    message starting with the record's ``name`` when given) when they or ``config.epochs`` cannot be trained on."""
+    label = f"{name}: " if name else ""
+    zeta = check_sequence(f"{label}zeta", zeta, cols=system.n)
+    u = check_sequence(f"{label}u", np.asarray(u, dtype=float).reshape(len(zeta), -1), rows=len(zeta),
+                       cols=system.n_inputs)
     if len(zeta) < 3:
-        raise InvalidInput(f"training needs at least 3 state observations, got {len(zeta)}")
+        raise InvalidInput(f"{label}training needs at least 3 state observations, got {len(zeta)}")
     dt = check_dt(dt)
     if config.epochs < 1:
         raise InvalidInput(f"epochs must be at least 1, got {config.epochs}")
@@ -304,23 +306,13 @@ POOLED_BATCH_PAIRS = 4096
 
 def _checked_records(system: System, records: list[TrainingRecord], held_out: list[bool],
                      config: TrainingConfig) -> list[tuple[np.ndarray, np.ndarray, float]]:
-    """`train_knode_pooled`'s records checked: ``[(zeta (T, n), u (T, n_inputs), dt s)]``; InvalidInput when
-    they, ``held_out`` or ``config.epochs`` cannot be trained on."""
+    """`train_knode_pooled`'s records checked (each by `_checked_record`): ``[(zeta (T, n), u (T, n_inputs), dt s)]``;
+    InvalidInput when they, ``held_out`` or ``config.epochs`` cannot be trained on."""
     if len(held_out) != len(records):
         raise InvalidInput(f"held_out has {len(held_out)} entries for {len(records)} records")
     if not records or all(held_out):
         raise InvalidInput("pooled training needs at least one record to train on (every record is held out)")
-    if config.epochs < 1:
-        raise InvalidInput(f"epochs must be at least 1, got {config.epochs}")
-    checked = []
-    for record in records:
-        zeta = check_sequence(f"{record.name}: zeta", record.zeta, cols=system.n)
-        u = check_sequence(f"{record.name}: u", np.asarray(record.u, dtype=float).reshape(len(zeta), -1),
-                           rows=len(zeta), cols=system.n_inputs)
-        if len(zeta) < 3:
-            raise InvalidInput(f"{record.name}: training needs at least 3 state observations, got {len(zeta)}")
-        checked.append((zeta, u, check_dt(record.dt)))
-    return checked
+    return [_checked_record(system, r.zeta, r.u, r.dt, config, r.name) for r in records]
 
 
 def _pooled_pairs(checked: list, held_out: list[bool], which: bool):

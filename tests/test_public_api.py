@@ -170,7 +170,7 @@ def test_readme_example_runs(tmp_path):
 def test_a_repaired_model_sees_its_measurement_effects_in_ukf_and_mhe():
     """A model a diagnosis repaired carries accelerometer effects: le.ukf/le.mhe correct the flight
     exactly as le.evaluate does, so the same model gives the same estimates through every entry point."""
-    from learnest.service.experiments.flights import corrected_flight
+    from learnest.estimators.prepared import corrected_flight
 
     [flight] = le.read_flights([SAMPLES / "circle_rep2.csv"])
     flight = flight.slice(0, 150)

@@ -1,6 +1,7 @@
 """The text the `learnest` subcommands print: reports, trained and registered models, diagnoses."""
 from __future__ import annotations
 
+from learnest.estimators.metrics import gain_pct, worse_beyond_interval
 from learnest.models.presets import EVALUATION_METHODS, GAP_START_S
 
 
@@ -43,7 +44,7 @@ def format_report(report: dict) -> str:
                      "truth) finds it predicts these flights worse than its prior, so the recommended estimate "
                      "uses the prior's there")
     for base, names in (report.get("knode_clearly_worse") or {}).items():
-        # estimators.evaluate.gain_interval: the gain's 95 % block-bootstrap interval lies below 0
+        # estimators.metrics.gain_interval: the gain's 95 % block-bootstrap interval lies below 0
         lines.append(f"KNODE-{base.upper()} worse than {base.upper()} beyond the flight's own variability (95 % "
                      f"interval of the gain below 0) on: {', '.join(names) or 'no flight'}")
     recommended = report.get("recommended")
@@ -85,7 +86,7 @@ def headline_lines(report: dict) -> list[str]:
         lines.append(f"{'flight':<28}{label:>30}  95 % interval")
         for r in pair["rows"]:
             ci = r["interval_pct"]
-            beyond = "  WORSE beyond its interval" if ci and ci[1] < 0 else ""
+            beyond = "  WORSE beyond its interval" if worse_beyond_interval(ci) else ""
             lines.append(f"{r['flight']:<28}{r['gain_pct']:>+30.1f}  "
                          + (f"[{ci[0]:+.1f}, {ci[1]:+.1f}]" if ci else "-") + beyond)
     return lines + [""]
@@ -205,7 +206,7 @@ def format_trained(out: dict) -> str:
     if not out["learned"]:
         lines.append(f"NOT LEARNED: {out.get('learned_note') or NOT_LEARNED}")
     elif out.get("prior_validation_loss") and out.get("best_validation_loss") is not None:
-        gain = 100 * (1 - out["best_validation_loss"] / out["prior_validation_loss"])
+        gain = gain_pct(out["prior_validation_loss"], out["best_validation_loss"])
         lines.append(f"learned: the held-out one-step loss is {gain:.1f} % below the prior's")
     elif out.get("learned_note"):
         lines.append(out["learned_note"])
@@ -274,7 +275,7 @@ def _trained_on_lines(lineage: dict, flight: dict, metrics: dict) -> list[str]:
     if lineage.get("learned") is False:
         lines.append(f"  NOT LEARNED: {lineage.get('learned_note')}")
     elif metrics.get("prior_validation_loss") and metrics.get("best_validation_loss") is not None:
-        gain = 100 * (1 - metrics["best_validation_loss"] / metrics["prior_validation_loss"])
+        gain = gain_pct(metrics["prior_validation_loss"], metrics["best_validation_loss"])
         lines.append(f"  learned: held-out one-step loss {gain:.1f} % below the prior's")
     elif lineage.get("learned_note"):
         lines.append(f"  {lineage['learned_note']}")

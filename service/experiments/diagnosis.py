@@ -20,6 +20,7 @@ import numpy as np
 from learnest.errors import InvalidInput, LearnestError
 from learnest.estimators.evaluate import evaluate_sequence
 from learnest.estimators.observers import pretraining_observer
+from learnest.estimators.prepared import corrected_flight, system_for
 from learnest.ingest.flight import Flight
 from learnest.ingest.profile import flight_profile
 from learnest.models.diagnosis import select_effects
@@ -48,7 +49,7 @@ from .diagnosis_problems import (
     residual_series,
 )
 from .diagnosis_stages import DiagnosisStages, StageCallback
-from .flights import corrected_flight, evaluate_flight, quadrotor_for, train_on_flight
+from .flights import evaluate_flight, train_on_flight
 
 # the names callers import from here (the notebook's `diagnose`, the CLI, the service, the tests)
 __all__ = ["DIAGNOSIS_LOWPASS_HZ", "DIAGNOSIS_SG_ORDER", "DIAGNOSIS_SG_WINDOW", "THRUST_SOURCE_TEXT",
@@ -197,7 +198,7 @@ def _diagnose_quadrotor(flights: list[Flight], knode: HybridModel | None, method
     fixed_fitting = [corrected_flight(f, accel["values_identified"]) for f in fitting]
     # the fitting data is one flight (or the first 60 % of one): trace the jerk residual on its states
     fitting_flight = fixed_fitting[0]
-    system = quadrotor_for(fitting_flight)
+    system = system_for(fitting_flight)
     no_input = np.zeros((len(fitting_flight.t), 0))
     stages.report("observer", f"pre-training observer ({fitting_flight.name}, 1/2)")
     zeta = pretraining_observer(system, fitting_flight.measurements(), no_input, system.dt)

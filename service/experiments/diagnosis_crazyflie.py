@@ -10,6 +10,7 @@ import numpy as np
 
 from learnest.errors import InvalidInput
 from learnest.estimators.observers import pretraining_observer
+from learnest.estimators.prepared import system_for
 from learnest.ingest.flight import Flight
 from learnest.ingest.profile import flight_profile
 from learnest.models import crazyflie as cf
@@ -30,7 +31,7 @@ from learnest.models.training import train_knode
 
 from .diagnosis_problems import _channel, _split_for_fitting, repair_interval, repair_verdict, residual_series
 from .diagnosis_stages import DiagnosisStages, StageCallback
-from .flights import evaluate_flight, system_for
+from .flights import evaluate_flight
 
 
 # -- Crazyflie flights, input-driven prior -------------------------------------------------------------

@@ -8,8 +8,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from learnest.estimators.evaluate import GAIN_BLOCK_S, gain_interval
+from learnest.estimators.metrics import better_beyond_interval, gain_interval_over_time, worse_beyond_interval
 from learnest.estimators.observers import pretraining_observer
+from learnest.estimators.prepared import initial_state
 from learnest.estimators.ukf import run_ukf
 from learnest.ingest.baseline import sg_references
 from learnest.ingest.flight import Flight
@@ -27,8 +28,6 @@ from learnest.models.inputs import slice_keeping_heat
 from learnest.models.knode import HybridModel
 from learnest.models.residual_problem import ResidualProblem
 from learnest.models.systems import System
-
-from .flights import initial_state
 
 # The SG reference of the accelerometer channel: 0.41 s, order 4.  Its passband must stay flat over the
 # manoeuvres: the reference is rotated into the body frame with the *unsmoothed* mocap attitude, and an
@@ -162,12 +161,12 @@ def _nominal(effects) -> dict:
 
 def repair_interval(before: dict, after: dict, method: str, dt: float) -> list[float] | None:
     """95 % interval of the repair's gain on one flight, % (100 (1 − Σ after / Σ before) of the per-step
-    squared error), by the evaluation's paired block bootstrap (`estimators.evaluate.gain_interval`).
+    squared error), by the evaluation's paired block bootstrap (`estimators.metrics.gain_interval`).
     ``before``/``after`` are `evaluate_flight` results kept with their estimates."""
     reference = before["reference"]
     err_b = ((before["results"][method]["estimates"] - reference) ** 2).mean(axis=1)
     err_a = ((after["results"][method]["estimates"] - reference) ** 2).mean(axis=1)
-    return gain_interval(err_b, err_a, round(GAIN_BLOCK_S / dt))
+    return gain_interval_over_time(err_b, err_a, dt)
 
 
 def repair_verdict(report: dict, methods: Sequence[str]) -> dict:
@@ -190,8 +189,8 @@ def repair_verdict(report: dict, methods: Sequence[str]) -> dict:
     method = next((m for m in methods if m.startswith("knode")), methods[0])
     b, a = report["before"][method], report["after"][method]
     intervals = [p["repair_gain_interval_pct"].get(method) for p in per_flight]
-    worse: list[str] = [p["flight"] for p, i in zip(per_flight, intervals) if i and i[1] < 0]
-    better: list[str] = [p["flight"] for p, i in zip(per_flight, intervals) if i and i[0] > 0]
+    worse: list[str] = [p["flight"] for p, i in zip(per_flight, intervals) if worse_beyond_interval(i)]
+    better: list[str] = [p["flight"] for p, i in zip(per_flight, intervals) if better_beyond_interval(i)]
     # a flight too short for an interval (fewer than 3 bootstrap blocks) counts by its MSE alone
     untold = [p for p, i in zip(per_flight, intervals) if i is None]
     worse += [p["flight"] for p in untold if p["after"][method] >= p["before"][method]]

@@ -15,14 +15,14 @@ from learnest.errors import InvalidInput, NumericalWarning
 from learnest.estimators.covariance import linearized_covariances
 from learnest.estimators.estimates import FlightEstimates
 from learnest.estimators.mhe import MHE
+from learnest.estimators.prepared import FLIGHT_SYSTEMS, prepare
 from learnest.estimators.results import FilterResult
 from learnest.estimators.ukf import run_ukf
 from learnest.ingest.flight import Flight
-from learnest.models.inputs import calibrates_thrust_gain, system_inputs
 from learnest.models.knode import HybridModel
 from learnest.models.presets import EVALUATION_METHODS, GAP_EVERY_S, GAP_S, MHE_HORIZON, parse_methods
 
-from .flights import FLIGHT_SYSTEMS, corrected_flight, evaluate_flights, initial_state, model_system
+from .flights import evaluate_flights
 
 
 class MHEResult(NamedTuple):
@@ -53,11 +53,8 @@ def _checked(model: HybridModel, flight: Flight):
     if model.system.name not in FLIGHT_SYSTEMS:
         raise InvalidInput(f"a {model.system.name!r} model cannot run on a flight; flights need one of "
                            f"{', '.join(FLIGHT_SYSTEMS)}")
-    system = model_system(model, flight)
-    if model.meta.get("measurement_effects"):  # a model a diagnosis repaired sees the flight as evaluate does
-        flight = corrected_flight(flight, model.meta["measurement_effects"])
-    u = system_inputs(flight, system, thrust_gain=calibrates_thrust_gain(model.meta, model.kind))
-    return system, flight.measurements(), u, initial_state(flight)
+    prepared = prepare(model, flight)   # a model a diagnosis repaired sees the flight as evaluate does
+    return prepared.system, prepared.y, prepared.u, prepared.x0
 
 
 def ukf(model: HybridModel, flight: Flight, alpha: float = 1e-3) -> FilterResult:

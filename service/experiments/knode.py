@@ -9,10 +9,11 @@ from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 from learnest.errors import InvalidInput
+from learnest.estimators.prepared import FLIGHT_SYSTEMS
 from learnest.ingest.flight import Flight
 from learnest.models.presets import CRAZYFLIE_TRAINING
 
-from .flights import FLIGHT_SYSTEMS, train_on_flights
+from .flights import train_on_flights
 
 
 class KNODE:

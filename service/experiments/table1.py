@@ -13,8 +13,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from learnest.errors import InvalidInput
+from learnest.estimators import metrics
+from learnest.estimators.algorithm1 import Algorithm1
 from learnest.estimators.mhe import MHE
-from learnest.estimators.observer_training import train_with_observer
 from learnest.estimators.observers import full_state_observer, pretraining_observer
 from learnest.estimators.ukf import run_ukf
 from learnest.models.envelope import envelope_report
@@ -52,7 +53,7 @@ class ReproduceSettings:
     horizon : int
         MHE window N, samples.
     observer_rounds : int, optional
-        Observer -> train rounds of the partial-state KNODE (`train_with_observer`); None: the task's
+        Observer -> train rounds of the partial-state KNODE (`estimators.algorithm1.Algorithm1`); None: the task's
         default in `PAPER_OBSERVER`.
     observer : {"filter", "smoother", "joint"}, optional
         The partial-state KNODE's pre-training observer; None: the task's in `PAPER_OBSERVER`.
@@ -90,7 +91,7 @@ def run_seed(settings: ReproduceSettings, seed: int) -> dict:
         "": HybridModel(system, "prior"),
         # partial measurements y: the task's observer, then `rounds` rounds of smoothing with the learned model
         # (or, for "joint", the record's states fitted together with the residual from the filter's)
-        "KNODE-": train_with_observer(system, train.y, train.u, system.dt, config, kind, rounds).model,
+        "KNODE-": Algorithm1(kind, config, rounds).fit(system, train.y, train.u, system.dt).model,
         "KNODE- (full state)": train_knode(system, zeta_full, train.u, system.dt, config).model,
         " (true dynamics)": HybridModel(system, "true"),
     }
@@ -110,7 +111,7 @@ def run_seed(settings: ReproduceSettings, seed: int) -> dict:
             else:
                 xh = MHE(model, system.dt, system.Q, system.R, system.P0, horizon=settings.horizon).run(
                     test.y, test.u, x0)
-            mse[row] = float(np.mean((xh - test.x) ** 2))
+            mse[row] = metrics.mse(xh, test.x)
             seconds[row] = time.perf_counter() - started
     return {"seed": seed, "mse": mse, "seconds": seconds, "envelope": envelope}
 

@@ -48,7 +48,7 @@ def start_training(services: Services, name: str, flight_id: int | Sequence[int]
     Conflict
         If the parent version is not ready.
     """
-    from ..experiments.flights import default_validation
+    from learnest.estimators.flight_training import default_validation
 
     registry.check_name(name)
     ids = [flight_id] if isinstance(flight_id, int) else [int(i) for i in flight_id]

@@ -17,6 +17,8 @@ import math
 from statistics import median
 from typing import Any
 
+from learnest.estimators.metrics import gain_pct, worse_beyond_interval
+
 PAIRS = (("knode-ukf", "ukf"), ("knode-mhe", "mhe"))   # (KNODE, its prior-only method)
 
 # What each yardstick measures, in one sentence (shown under the headline).
@@ -59,13 +61,13 @@ def _mse_rows(report: dict, knode: str, prior: str) -> list[dict]:
     for f in _scored(report):
         mse = f.get("mse") or {}
         if _finite(mse.get(knode)) and _finite(mse.get(prior)) and mse[prior] > 0:
-            rows.append({"flight": f["flight"], "gain_pct": 100.0 * (1.0 - mse[knode] / mse[prior]),
+            rows.append({"flight": f["flight"], "gain_pct": gain_pct(mse[prior], mse[knode]),
                          "interval_pct": (f.get("gain_interval_pct") or {}).get(pair_key(knode, prior))})
     return rows
 
 
 def _worse_beyond(rows: list[dict]) -> int:
-    return sum(1 for r in rows if r["interval_pct"] and r["interval_pct"][1] < 0)
+    return sum(1 for r in rows if worse_beyond_interval(r["interval_pct"]))
 
 
 def evaluation_headline(report: dict) -> dict:
@@ -177,7 +179,7 @@ def diagnosis_headline(report: dict) -> str:
                 if _finite(before.get(k)) and _finite(after.get(k))), None)
     if key is None:
         return found + "."
-    change = 100.0 * (1.0 - after[key] / before[key]) if before[key] else 0.0
+    change = gain_pct(before[key], after[key]) if before[key] else 0.0
     what = ("the specific force predicted from the inputs" if key == "specific_force_rmse"
             else f"{key.upper()}'s MSE")
     on = f" (better on {improved[key]} flights)" if key in improved else ""

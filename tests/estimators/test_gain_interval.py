@@ -1,8 +1,8 @@
-"""The KNODE's gain over its prior with a 95 % interval (estimators.evaluate.gain_interval): paired, and wide
+"""The KNODE's gain over its prior with a 95 % interval (estimators.metrics.gain_interval): paired, and wide
 enough for autocorrelated errors, against known answers."""
 import numpy as np
 
-from learnest.estimators.evaluate import correlation_steps, gain_interval
+from learnest.estimators.metrics import correlation_steps, gain_interval
 
 
 def _ar1(rng, steps: int, phi: float, std: float) -> np.ndarray:

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from learnest.errors import InvalidInput
+from learnest.estimators.algorithm1 import Algorithm1, first_observation
 from learnest.estimators.joint_training import ITERATIONS, WEIGHT_PRIOR, solve_bordered_tridiagonal, train_jointly
-from learnest.estimators.observer_training import first_observation
 from learnest.models.knode import HybridModel
 from learnest.models.presets import PAPER_TRAINING
 from learnest.models.systems import make_system
@@ -39,11 +39,9 @@ def test_the_joint_fit_learns_the_true_dynamics_better_than_the_observer_fit():
 
 
 def test_the_joint_observer_of_algorithm_1_records_what_it_ran():
-    from learnest.estimators.observer_training import train_with_observer
-
     system = make_system("cartpole")
     record = system.simulate(10_000, 300)
-    result = train_with_observer(system, record.y, record.u, system.dt, PAPER_TRAINING["cartpole"], "joint", 2)
+    result = Algorithm1("joint", PAPER_TRAINING["cartpole"], 2).fit(system, record.y, record.u, system.dt)
     meta = result.model.meta
     assert meta["observer"] == {"kind": "joint", "rounds": 2, "kept_round": 0, "misfit": []}
     assert meta["training"]["hidden"] == 8 and meta["training"]["seed"] == 0
@@ -68,7 +66,7 @@ def test_the_joint_fit_refuses_mismatched_or_non_finite_records():
 def test_the_bordered_block_tridiagonal_solve_equals_a_dense_solve():
     """The normal equations' solver against numpy's dense solve of the same matrix, with and without damping:
     J's process rows reach x_k, x_{k+1} and θ, its measurement rows one x_k."""
-    from learnest.estimators.mhe_gn import BlockTridiagonal
+    from learnest.estimators.native.block_tridiagonal import BlockTridiagonal
 
     rng = np.random.default_rng(3)
     T, n, m, P = 7, 3, 2, 4

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from learnest.errors import InvalidInput
-from learnest.estimators.observer_training import train_with_observer
+from learnest.estimators.algorithm1 import Algorithm1
 from learnest.estimators.observers import observe_robot
 from learnest.estimators.smoother import run_urts
 from learnest.estimators.ukf import run_ukf
@@ -54,13 +54,13 @@ def test_training_with_the_smoother_and_iteration_runs(cartpole_run):
     system, run = cartpole_run
     y, u = run.y[:200], run.u[:200]                              # it only has to run: keep it short
     config = TrainingConfig(hidden=8, epochs=5, lr=2e-2, validation_fraction=0.0)
-    result = train_with_observer(system, y, u, system.dt, config, observer="smoother", rounds=1)
+    result = Algorithm1("smoother", config, rounds=1).fit(system, y, u, system.dt)
     observer = result.model.meta["observer"]
     assert observer["kind"] == "smoother" and observer["rounds"] == 1
     assert len(observer["misfit"]) == 2 and observer["kept_round"] == int(np.argmin(observer["misfit"]))
     assert all(np.isfinite(observer["misfit"]))
     assert result.model.kind == "knode" and "envelope" in result.model.meta
     with pytest.raises(InvalidInput, match="observer must be one of"):
-        train_with_observer(system, y, u, system.dt, config, observer="oracle")
+        Algorithm1("oracle", config)
     with pytest.raises(InvalidInput, match="rounds"):
-        train_with_observer(system, y, u, system.dt, config, rounds=-1)
+        Algorithm1(config=config, rounds=-1)

@@ -16,6 +16,9 @@ import numpy as np
 import pytest
 
 from learnest.errors import InvalidInput
+from learnest.estimators.algorithm1 import Algorithm1
+from learnest.estimators.flight_training import check_one_vehicle, default_validation, pooled_profile
+from learnest.estimators.prepared import system_for
 from learnest.models import crazyflie as cf
 from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.models.knode import HybridModel
@@ -30,14 +33,7 @@ from learnest.models.training import (
     train_knode,
     train_knode_pooled,
 )
-from learnest.service.experiments.flights import (
-    check_one_vehicle,
-    default_validation,
-    flight_training_data,
-    system_for,
-    train_on_flight,
-    train_on_flights,
-)
+from learnest.service.experiments.flights import train_on_flight, train_on_flights
 
 DRAG_TRUTH = {**cf.IDENTIFIED, "k_xy": 3 * cf.IDENTIFIED["k_xy"]}   # rotor drag the prior underestimates 3-fold
 
@@ -49,7 +45,7 @@ def _sims(truth, seeds, duration_s=20.0, **settings):
 
 def _one_step_error(model: HybridModel, flight) -> float:
     """Mean squared one-step prediction error (eq. 8) of the model on a flight's observer states."""
-    _, zeta, u, _ = flight_training_data(flight, model.system.name)
+    _, zeta, u, _ = Algorithm1().observe_flight(flight, model.system.name)
     model = HybridModel(replace(model.system, dt=flight.dt), model.kind, model.residual)
     prediction = model.step(zeta[:-1], u[:-1], flight.dt)
     return float(np.mean(np.sum((prediction - zeta[1:]) ** 2, axis=1)))
@@ -86,7 +82,7 @@ def test_records_that_follow_the_prior_teach_nothing_and_the_model_says_so():
     records = []
     for seed in range(4):
         flight = simulate_crazyflie(SimulatedFlight(duration_s=12), seed=seed)
-        system, zeta, u, _ = flight_training_data(flight, "crazyflie")
+        system, zeta, u, _ = Algorithm1().observe_flight(flight, "crazyflie")
         prior = HybridModel(system, "prior")
         rng = np.random.default_rng(100 + seed)
         noise = np.r_[np.full(3, 1e-5), np.full(3, 1e-3), np.full(3, 3e-2)]
@@ -268,7 +264,6 @@ def test_the_shared_nanobench_flights_are_one_vehicle_and_a_changed_thrust_map_i
 
 def test_a_pooled_models_profile_holds_the_rates_its_flights_share_and_none_it_saw_several_of():
     from learnest.ingest.profile import profile_mismatches
-    from learnest.service.experiments.flights import pooled_profile
 
     flights = _sims(cf.IDENTIFIED, (0, 1, 2), duration_s=6)
     for flight, acc in zip(flights, (77.5, 98.2, 100.1)):
@@ -310,7 +305,7 @@ def test_a_pooled_residual_is_blind_to_the_attitude_and_still_learns_the_drag(dr
     assert np.all(blind.model.residual.layers[0][0][:, [names.index(k) for k in BATTERY_INPUTS]] == 0.0)
     assert np.any(seen.model.residual.layers[0][0][:, columns] != 0.0)
     assert set(ATTITUDE_INPUTS) <= set(blind.model.meta["residual_blind"])
-    _, zeta, u, _ = flight_training_data(test, "crazyflie")
+    _, zeta, u, _ = Algorithm1().observe_flight(test, "crazyflie")
     turned = u.copy()
     turned[:, [system.input_names.index(k) for k in ATTITUDE_INPUTS]] = [0.0, np.sin(0.2), 0.0, np.cos(0.2)]
     np.testing.assert_array_equal(blind.model.residual(zeta, u), blind.model.residual(zeta, turned))

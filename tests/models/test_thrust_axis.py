@@ -95,12 +95,12 @@ def test_on_the_real_flight_with_the_largest_offset_the_calibrated_crazyflie_pri
     """B3_figure8_medium_rep2: the specific force leans ~2.7° off the mocap z axis; the Crazyflie prior's UKF
     with the mocap attitude as logged scored 0.041 (the kinematic prior 0.024), calibrated 0.021
     (benchmarks/results/crazyflie_thrust_axis)."""
+    from learnest.estimators.prepared import initial_state, system_for
     from learnest.estimators.ukf import run_ukf
     from learnest.ingest import read_flights
     from learnest.ingest.baseline import references
     from learnest.models.knode import HybridModel
     from learnest.models.presets import SG_WINDOW
-    from learnest.service.experiments.flights import initial_state, system_for
 
     flight = read_flights([NANOBENCH / "B3_figure8_medium_rep2.csv"])[0]
     offset = np.degrees(flight_thrust_axis(flight))
