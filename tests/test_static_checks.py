@@ -93,3 +93,5 @@ def test_mypy_clean_on_the_installed_package(mypy_run):
     """`mypy -p learnest` on the installed package reports nothing."""
     code, output, _ = mypy_run
     assert code == 0, output
+    checked = re.search(r"no issues found in (\d+) source files", output)
+    assert checked and int(checked.group(1)) > 100, output  # the whole package, not a folder excluded by mistake
