@@ -19,7 +19,7 @@ from learnest.models.presets import (
     parse_methods,
 )
 
-from ..references import NAME
+from ..storage.references import NAME
 
 NAME_REGEX = rf"^{NAME}$"  # references.NAME: one definition of a valid name
 

@@ -14,9 +14,9 @@ Pages   /                       flights (newest first; search: ?q=) and the uplo
                                 held-out error before/after per flight (linear axes)
 Forms   POST /ui/flights, /ui/models, /ui/evaluations, /ui/diagnoses, /ui/models/{name}/aliases,
         /ui/jobs/{id}/cancel take the
-        same request models as the JSON routes (service.web.forms), call the same service functions (service.uploads,
-        service.jobs, service.catalog) and answer 303 to the page of what they made, or an HTML error page
-        with the API's status code and message.
+        same request models as the JSON routes (service.web.forms), call the same service functions
+        (service.operations.uploads, service.jobs, service.operations.catalog) and answer 303 to the page of what
+        they made, or an HTML error page with the API's status code and message.
 
 The evaluations list, version pages, comparisons and delete confirmations are service.web.registry_pages.
 
@@ -50,17 +50,18 @@ from learnest.models.presets import (
     SG_WINDOW_RANGE,
 )
 
-from .. import catalog, references
 from ..api.deps import MAX_ROW_ID, Offset, RowId, get_services
-from ..exports import evaluation_estimates
 from ..jobs.diagnosis import start_diagnosis
 from ..jobs.evaluation import start_evaluation
 from ..jobs.result_cache import EstimatorSettings
 from ..jobs.runner import ACTIVE, seconds_left
 from ..jobs.services import Services
 from ..jobs.training import start_training
+from ..operations import catalog
+from ..operations.exports import evaluation_estimates
+from ..operations.uploads import add_flights, recut_flight
+from ..storage import references
 from ..storage.tables import Diagnosis, Evaluation, FlightRecord, Job, ReportFigure, Result
-from ..uploads import add_flights, recut_flight
 from . import evaluation_plots, figures, flight_plots, forms, page_cache, zoomable
 from .headline import diagnosis_headline, diagnosis_split, evaluation_headline, gap_methods
 from .registry_figures import loss_curves_of

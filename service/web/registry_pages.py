@@ -6,10 +6,10 @@ Pages   /ui/evaluations                     evaluations, newest first: MSE per m
         /ui/models/{name}/versions/{v}      hyperparameters, metrics, loss curves (training and validation),
                                             lineage (training flight, parent, children, the diagnosis that
                                             produced it and the effects it added), evaluations, delete button
-        /ui/compare?refs=a:1&refs=a:2       versions side by side (service.comparison.compare_versions)
+        /ui/compare?refs=a:1&refs=a:2       versions side by side (service.operations.comparison.compare_versions)
         /ui/{flights/ID|models/NAME/versions/V|evaluations/ID}/delete
                                             GET: what is deleted with it and what keeps a record of it
-                                            (service.deletion), and a confirm button; POST: delete (forced:
+                                            (service.operations.deletion), and a confirm button; POST: delete (forced:
                                             the page listed the dependents), then 303 to the list it was in
 """
 from __future__ import annotations
@@ -17,9 +17,10 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, Form, Query, Request
 from fastapi.responses import HTMLResponse
 
-from .. import catalog, comparison, deletion, registry
 from ..api.deps import Offset, RowId, get_services
 from ..jobs.services import Services
+from ..operations import catalog, comparison, deletion
+from ..storage import registry
 from . import forms, registry_figures
 from .pages import PAGE_SIZE, html_errors, page
 

@@ -1,4 +1,4 @@
-"""`learnest train / evaluate / diagnose` on the model registry (service.local_registry): the CLI registers versions
+"""`learnest train / evaluate / diagnose` on the model registry (service.local): the CLI registers versions
 under LEARNEST_HOME like the API does, and takes NAME, NAME:VERSION and NAME@ALIAS; a reference that names
 nothing is exit code 2 with a one-line reason."""
 import contextlib
@@ -247,7 +247,7 @@ def test_registry_command_arguments_are_checked_before_any_import(tmp_path):
     code = ("import sys; from learnest.service.cli import main; "
             "codes = [main(a) for a in (['alias', 'set', 'bad name', '1', 'p'], ['alias', 'set', 'm', '0', 'p'], "
             "['alias', 'set', 'm', '1', '@p'], ['models', 'show', 'm:x'], ['models', 'frob'])]; "
-            "print(codes, ','.join(m for m in ('sqlalchemy', 'learnest.service.registry', 'torch') "
+            "print(codes, ','.join(m for m in ('sqlalchemy', 'learnest.service.storage.registry', 'torch') "
             "if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=tmp_path,
                          env={"LEARNEST_HOME": str(tmp_path / "home"), "PATH": "/usr/bin:/bin"})

@@ -12,12 +12,12 @@ from starlette.background import BackgroundTask
 
 from learnest.estimators.export import FORMATS, MEDIA_TYPES
 
-from ... import comparison, deletion
-from ...catalog import row_and_job
-from ...exports import export_evaluation, export_filename
 from ...jobs.evaluation import start_evaluation
 from ...jobs.result_cache import EstimatorSettings
 from ...jobs.services import Services
+from ...operations import comparison, deletion
+from ...operations.catalog import row_and_job
+from ...operations.exports import export_evaluation, export_filename
 from ...storage.blobs import BlobStore, storage_errors, temp_prefix
 from ...storage.database import Database
 from ...storage.tables import Evaluation

@@ -31,10 +31,10 @@ from learnest.ingest.align import cut_text, parse_cut
 from learnest.ingest.flight import Flight as CanonicalFlight
 from learnest.ingest.sidecar import CRAZYSWARM_CONFIG
 
-from .reading import StagedFile, read_uploaded_flight
-from .storage.blobs import CHUNK, BlobStore, storage_errors
-from .storage.database import Database, discard_blobs
-from .storage.tables import FlightFile, FlightRecord, utcnow
+from ..jobs.reading import StagedFile, read_uploaded_flight
+from ..storage.blobs import CHUNK, BlobStore, storage_errors
+from ..storage.database import Database, discard_blobs
+from ..storage.tables import FlightFile, FlightRecord, utcnow
 
 log = logging.getLogger("learnest.uploads")
 
@@ -219,7 +219,7 @@ def content_sha256(staged: list[StagedFile], topics: dict[str, str | None] | Non
 
 
 def _topic_or_none(topic: str | None, what: str) -> str | None:
-    from .references import check_topic
+    from ..storage.references import check_topic
 
     return check_topic(topic, what) if topic and topic.strip() else None
 

@@ -4,7 +4,7 @@ It uses the same database and blob folder as `learnest serve` (LEARNEST_HOME, or
 model trained by `learnest train` is `name:version` for the API and the web pages too, and the reverse.  This
 replaces the plain file store of the ingest issue (home/models/NAME.json files are no longer read).
 
-- `add_flight`: store a flight's log file(s) as POST /flights does (service.uploads.add_flight: raw files +
+- `add_flight`: store a flight's log file(s) as POST /flights does (service.operations.uploads.add_flight: raw files +
   normalized flight as blobs, one row, deduplicated by sha256).
 - `train`: register the next version of a model trained on those flights (one, or several of one vehicle), as
   POST /models does (a training job on a one-process local pool, with the same provenance), and wait for it.
@@ -14,9 +14,9 @@ replaces the plain file store of the ingest issue (home/models/NAME.json files a
   stored as by an upload), as POST /diagnoses with "register" does.
 - `evaluate`: store the flights (as `add_flight`) and evaluate a registered version on them as POST /evaluations
   does, here and now (`InlineExecutor`); the evaluation is then in the registry, its page and its exports.
-- `export`: write a stored evaluation's state estimates (service.exports).
+- `export`: write a stored evaluation's state estimates (service.operations.exports).
 - `load_model`: "NAME" (its latest ready version), "NAME:VERSION" or "NAME@ALIAS" -> HybridModel, through
-  service.registry.load_model_ref; a reference that names nothing usable is a NotFound or Conflict listing the
+  service.storage.registry.load_model_ref; a reference that names nothing usable is a NotFound or Conflict listing the
   known models.
 """
 from __future__ import annotations
@@ -34,20 +34,21 @@ from learnest.ingest.flight import existing_file
 from learnest.ingest.sidecar import info_sidecar
 from learnest.models.knode import HybridModel
 
-from . import catalog, registry
-from .config import Settings
-from .jobs.evaluation import start_evaluation
-from .jobs.executors import Executor, InlineExecutor
-from .jobs.result_cache import EstimatorSettings
-from .jobs.runner import ACTIVE, seconds_left
-from .jobs.services import Services, open_services
-from .jobs.tasks import diagnosis_metrics
-from .jobs.training import start_training, training_config
-from .storage.blobs import BlobStore
-from .storage.database import Database
-from .storage.tables import Evaluation, FlightRecord, Job, ModelVersion, RegisteredModel
-from .uploads import LocalFile
-from .uploads import add_flight as add_uploaded_flight
+from ..config import Settings
+from ..jobs.evaluation import start_evaluation
+from ..jobs.executors import Executor, InlineExecutor
+from ..jobs.result_cache import EstimatorSettings
+from ..jobs.runner import ACTIVE, seconds_left
+from ..jobs.services import Services, open_services
+from ..jobs.tasks import diagnosis_metrics
+from ..jobs.training import start_training, training_config
+from ..operations import catalog
+from ..operations.uploads import LocalFile
+from ..operations.uploads import add_flight as add_uploaded_flight
+from ..storage import registry
+from ..storage.blobs import BlobStore
+from ..storage.database import Database
+from ..storage.tables import Evaluation, FlightRecord, Job, ModelVersion, RegisteredModel
 
 
 class TrainingFailed(LearnestError):
@@ -396,9 +397,9 @@ def _readable_groups(paths) -> tuple[list, list[dict]]:
 
 def export(evaluation_id: int, path: str | Path, fmt: str, flight_id: int | None = None,
            settings: Settings | None = None) -> list:
-    """Write evaluation ``evaluation_id``'s state estimates to ``path`` as ``fmt`` (service.exports);
+    """Write evaluation ``evaluation_id``'s state estimates to ``path`` as ``fmt`` (service.operations.exports);
     returns the `FlightEstimates` written.  NotFound when there is no registry yet or no such evaluation."""
-    from .exports import export_evaluation
+    from ..operations.exports import export_evaluation
 
     settings = settings or cli_settings()
     if settings.database_url is None and not (settings.home / "learnest.db").is_file():
@@ -505,9 +506,9 @@ def list_models(q: str | None = None, settings: Settings | None = None) -> dict:
 
 def show_model(ref: str, settings: Settings | None = None) -> dict:
     """"NAME": the model with its versions and aliases; "NAME:N" or "NAME@ALIAS": that version with its
-    hyperparameters, metrics, timing, lineage and evaluations (service.comparison.version_lineage)."""
-    from .comparison import version_lineage
-    from .references import parse_ref
+    hyperparameters, metrics, timing, lineage and evaluations (service.operations.comparison.version_lineage)."""
+    from ..operations.comparison import version_lineage
+    from ..storage.references import parse_ref
 
     parsed = parse_ref(ref)
     with registry_database(settings) as db:
