@@ -22,7 +22,7 @@ from ..jobs.services import Services
 from ..operations import catalog, comparison, deletion
 from ..storage import registry
 from . import forms, registry_figures
-from .pages import PAGE_SIZE, html_errors, page
+from .rendering import PAGE_SIZE, html_errors, page
 
 router = APIRouter(include_in_schema=False)
 
