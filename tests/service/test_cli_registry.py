@@ -83,8 +83,8 @@ def test_train_twice_registers_versions_1_and_2_on_one_stored_flight(trained):
 
 
 def test_evaluate_by_version_alias_and_bare_name(trained, monkeypatch, capsys):
-    from learnest.service.storage import registry
     from learnest.service.config import Settings
+    from learnest.service.storage import registry
     from learnest.service.storage.database import Database
 
     use_home(monkeypatch, trained["home"])
