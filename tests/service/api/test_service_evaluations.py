@@ -482,4 +482,5 @@ def test_the_report_carries_the_yardsticks_and_the_gap_settings_asked_for(regist
                                                     "gap_every_s": 0.8})
         assert refused.status_code == 422 and "gap_every_s" in refused.text
         schemas = client.get("/openapi.json").json()["components"]["schemas"]
-        assert {"EvaluationReport", "Headline", "MocapGaps", "FastReference", "PaperSG"} <= set(schemas)
+        assert {"EvaluationReportOut", "FlightScoreOut", "Headline", "MocapGaps", "FastReference",
+                "PaperSG"} <= set(schemas)
