@@ -70,14 +70,13 @@ def flights_page(request: Request, offset: Offset = 0, q: str = Query("", max_le
 
 @pages.post("/ui/flights")
 @html_errors
-def upload_flight_form(request: Request, files: list[UploadFile | str] = File(default=[]),
+def upload_flight_form(files: list[UploadFile | str] = File(default=[]),
                        vehicle: str = Form(""), notes: str = Form(""), pose_topic: str = Form(""),
                        imu_topic: str = Form(""), cut: str = Form(""), api_key: str = Form(""),
                        services: Services = Depends(get_services)):
     """Upload form: store the flights among the chosen files (as POST /flights/batch does).  One flight read:
     303 to its page; one flight refused: the error page; otherwise a page that says per file what was stored,
     found stored already or refused and why."""
-    forms.require_key(request, services.settings, api_key)
     chosen = forms.chosen_files(files)
     outcomes = add_flights(services.db, services.blobs, chosen, *forms.upload_text(vehicle, notes),
                            pose_topic=pose_topic, imu_topic=imu_topic, cut=cut.strip() or None,
@@ -98,11 +97,10 @@ def upload_flight_form(request: Request, files: list[UploadFile | str] = File(de
 
 @pages.post("/ui/flights/{flight_id}/cut")
 @html_errors
-def cut_flight_form(request: Request, flight_id: RowId, cut: str = Form(""), api_key: str = Form(""),
+def cut_flight_form(flight_id: RowId, cut: str = Form(""), api_key: str = Form(""),
                     services: Services = Depends(get_services)):
     """Cut form: read the flight's raw file(s) again with the cut asked for (as POST /flights/{id}/cut does),
     then 303 to the flight holding that stretch."""
-    forms.require_key(request, services.settings, api_key)
     row = catalog.get_flight(services.db, flight_id)
     new, _created = recut_flight(services.db, services.blobs, row, cut.strip() or None,
                                  decode=services.decoder.decode)
@@ -140,13 +138,12 @@ def _draw_trajectory(services: Services, row: FlightRecord) -> dict:
 # -- models ----------------------------------------------------------------------------------------------
 @pages.post("/ui/models")
 @html_errors
-def train_model_form(request: Request, name: str = Form(""), flight_id: str = Form(""), epochs: str = Form(""),
+def train_model_form(name: str = Form(""), flight_id: str = Form(""), epochs: str = Form(""),
                      include_bad: str | None = Form(None), api_key: str = Form(""),
                      flight_ids: list[str] = Form(default=[]), system: str = Form(""),
                      services: Services = Depends(get_services)):
     """Train form (a flight's page: that flight; the flight list: the checked flights, several making one
     model of one vehicle): start a training job (as POST /models does), then 303 to the job's page."""
-    forms.require_key(request, services.settings, api_key)
     body = forms.train_request(name, flight_id, epochs, include_bad, flight_ids, system)
     job, _version = start_training(services, body.name, body.flights(), {"epochs": body.epochs,
                                                                           "system": body.system},
@@ -197,22 +194,20 @@ def still_falling(losses: list | None) -> bool:
 
 @pages.post("/ui/models/{name}/aliases")
 @html_errors
-def alias_form_post(request: Request, name: str, alias: str = Form(""), version: str = Form(""),
+def alias_form_post(name: str, alias: str = Form(""), version: str = Form(""),
                     api_key: str = Form(""), services: Services = Depends(get_services)):
     """Alias form: point name@alias at a version, then 303 to the model's page."""
-    forms.require_key(request, services.settings, api_key)
     catalog.set_alias(services.db, name, alias.strip(), forms.alias_version(version))
     return forms.redirect(f"/ui/models/{name}", services.settings, api_key)
 
 
 @pages.post("/ui/evaluations")
 @html_errors
-def evaluate_form_post(request: Request, model: str = Form(""), flights: list[str] = Form(default=[]),
+def evaluate_form_post(model: str = Form(""), flights: list[str] = Form(default=[]),
                        methods: list[str] = Form(default=[]), horizon: str = Form(str(MHE_HORIZON)),
                        include_bad: str | None = Form(None), sg_window: str = Form(""), api_key: str = Form(""),
                        services: Services = Depends(get_services)):
     """Evaluate form: start an evaluation job (as POST /evaluations does), then 303 to the job's page."""
-    forms.require_key(request, services.settings, api_key)
     body = forms.evaluation_request(model, flights, methods, horizon, include_bad, sg_window)
     settings = EstimatorSettings(tuple(body.methods), body.horizon, body.include_bad, body.sg_window)
     job_id, _evaluation_id, _state = start_evaluation(services, body.model, body.flights, settings)
@@ -221,13 +216,12 @@ def evaluate_form_post(request: Request, model: str = Form(""), flights: list[st
 
 @pages.post("/ui/diagnoses")
 @html_errors
-def diagnose_form_post(request: Request, flights: list[str] = Form(default=[]), model: str = Form(""),
+def diagnose_form_post(flights: list[str] = Form(default=[]), model: str = Form(""),
                        system: str = Form("quadrotor"), methods: list[str] = Form(default=[]), epochs: str = Form(""),
                        register_checked: str | None = Form(None, alias="register"), register_as: str = Form(""),
                        api_key: str = Form(""),
                        services: Services = Depends(get_services)):
     """Diagnose form: start a diagnosis job (as POST /diagnoses does), then 303 to the job's page."""
-    forms.require_key(request, services.settings, api_key)
     body = forms.diagnosis_request(flights, model, system, methods, epochs, register_checked, register_as)
     job_id, _diagnosis_id = start_diagnosis(services, body.flights, body.model, body.register_as, body.methods,
                                             body.epochs, body.system)
@@ -268,10 +262,9 @@ def job_page(request: Request, job_id: RowId, services: Services = Depends(get_s
 
 @pages.post("/ui/jobs/{job_id}/cancel")
 @html_errors
-def cancel_job_form(request: Request, job_id: RowId, api_key: str = Form(""),
+def cancel_job_form(job_id: RowId, api_key: str = Form(""),
                     services: Services = Depends(get_services)):
     """Cancel button: cancel the job (as POST /jobs/{id}/cancel does), then 303 back to its page."""
-    forms.require_key(request, services.settings, api_key)
     services.runner.cancel(job_id)
     return forms.redirect(f"/ui/jobs/{job_id}", services.settings, api_key)
 

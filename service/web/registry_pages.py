@@ -86,10 +86,9 @@ def confirm_flight_delete(request: Request, flight_id: RowId, services: Services
 
 @router.post("/ui/flights/{flight_id}/delete")
 @html_errors
-def delete_flight_form(request: Request, flight_id: RowId, api_key: str = Form(""),
+def delete_flight_form(flight_id: RowId, api_key: str = Form(""),
                        services: Services = Depends(get_services)):
     """Delete the flight (as DELETE /flights/{id}), then 303 to the flights."""
-    forms.require_key(request, services.settings, api_key)
     deletion.delete_flight(services.db, services.blobs, flight_id)
     return forms.redirect("/", services.settings, api_key)
 
@@ -104,10 +103,9 @@ def confirm_version_delete(request: Request, name: str, version: RowId, services
 
 @router.post("/ui/models/{name}/versions/{version}/delete")
 @html_errors
-def delete_version_form(request: Request, name: str, version: RowId, api_key: str = Form(""),
+def delete_version_form(name: str, version: RowId, api_key: str = Form(""),
                         services: Services = Depends(get_services)):
     """Delete the version with what the confirmation page listed (force), then 303 to the model's page."""
-    forms.require_key(request, services.settings, api_key)
     deletion.delete_version(services.db, services.blobs, name, version, force=True)
     return forms.redirect(f"/ui/models/{name}", services.settings, api_key)
 
@@ -122,9 +120,8 @@ def confirm_evaluation_delete(request: Request, evaluation_id: RowId, services: 
 
 @router.post("/ui/evaluations/{evaluation_id}/delete")
 @html_errors
-def delete_evaluation_form(request: Request, evaluation_id: RowId, api_key: str = Form(""),
+def delete_evaluation_form(evaluation_id: RowId, api_key: str = Form(""),
                            services: Services = Depends(get_services)):
     """Delete the evaluation, then 303 to the evaluations list."""
-    forms.require_key(request, services.settings, api_key)
     deletion.delete_evaluation(services.db, evaluation_id)
     return forms.redirect("/ui/evaluations", services.settings, api_key)
