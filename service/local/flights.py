@@ -12,6 +12,7 @@ from learnest.ingest.sidecar import info_sidecar
 from ..jobs.services import Services
 from ..operations.uploads import LocalFile
 from ..operations.uploads import add_flight as add_uploaded_flight
+from ..operations.uploads import readable_groups as group_readable
 from ..storage.tables import FlightRecord
 
 
@@ -86,23 +87,8 @@ def nothing_read(what: str, errors: list[dict]) -> str:
 
 
 def readable_groups(paths) -> tuple[list, list[dict]]:
-    """The flights among ``paths`` as `learnest.ingest.group_files` groups them, leaving out (and listing) the
-    files no adapter recognises or that lack their pair: ``(groups, [{"file", "message"}])``."""
-    from learnest.ingest import IngestError, detect, group_files
-
-    errors, readable = [], []
-    for path in map(Path, paths):
-        try:
-            detect(path)
-            readable.append(path)
-        except IngestError as err:
-            errors.append({"file": err.path, "message": err.problem})
-    while readable:
-        try:
-            return group_files(readable), errors
-        except IngestError as err:
-            remaining = [path for path in readable if str(path) != err.path]
-            errors.append({"file": err.path, "message": err.problem})
-            readable = remaining if len(remaining) < len(readable) else []
-    return [], errors
-
+    """The flights among ``paths`` as an upload groups them (`service.operations.uploads.readable_groups`),
+    leaving out (and listing) the files no adapter recognises or that lack their pair:
+    ``(groups, [{"file", "message"}])``."""
+    groups, left_out = group_readable([Path(path) for path in paths])
+    return groups, [{"file": err.path, "message": err.problem} for _, err in left_out]
