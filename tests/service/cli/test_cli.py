@@ -6,7 +6,7 @@ import pytest
 
 from learnest.service.cli import main
 
-DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
+DATA = Path(__file__).resolve().parents[3].parent / "shared" / "data"
 NANOBENCH = DATA / "nanobench"
 needs_data = pytest.mark.data  # skipped by conftest.py when ../shared/data is absent
 
