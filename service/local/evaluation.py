@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-from learnest.errors import Conflict, InvalidInput, NotFound
+from learnest.errors import Conflict, InvalidInput
 
 from ..config import Settings
 from ..jobs.evaluation import start_evaluation
@@ -13,10 +13,9 @@ from ..jobs.executors import InlineExecutor
 from ..jobs.result_cache import EstimatorSettings
 from ..operations import catalog
 from ..storage.blobs import BlobStore
-from ..storage.database import Database
 from ..storage.tables import Evaluation
 from .flights import add_flight, readable_groups
-from .services import cli_settings, local_services, watching_stages
+from .services import cli_settings, local_services, registry_database, watching_stages
 
 
 def evaluate(paths, model_ref: str, estimator_settings: EstimatorSettings, *, pose_topic: str | None = None,
@@ -76,13 +75,7 @@ def export(evaluation_id: int, path: str | Path, fmt: str, flight_id: int | None
     from ..operations.exports import export_evaluation
 
     settings = settings or cli_settings()
-    if settings.database_url is None and not (settings.home / "learnest.db").is_file():
-        raise NotFound(f"evaluation {evaluation_id} not found: nothing is stored under {settings.home} "
-                       "(LEARNEST_HOME)")
-    database = Database(settings.url)
-    try:
-        database.require_current_schema()
+    missing = f"evaluation {evaluation_id} not found: nothing is stored under {settings.home} (LEARNEST_HOME)"
+    with registry_database(settings, missing) as database:
         return export_evaluation(database, BlobStore(settings.home / "blobs"), evaluation_id, path, fmt, flight_id)
-    finally:
-        database.dispose()
 

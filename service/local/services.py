@@ -37,13 +37,14 @@ def local_services(settings: Settings | None = None, executor: Executor | None =
 
 
 @contextmanager
-def registry_database(settings: Settings | None = None) -> Iterator[Database]:
+def registry_database(settings: Settings | None = None, missing: str | None = None) -> Iterator[Database]:
     """The registry's database for reading (or a small write such as an alias), never migrated; NotFound when
-    nothing is stored under LEARNEST_HOME yet, Conflict when its schema is older than this learnest."""
+    nothing is stored under LEARNEST_HOME yet (``missing``: its message), Conflict when its schema is older than
+    this learnest."""
     settings = settings or cli_settings()
     if settings.database_url is None and not (settings.home / "learnest.db").is_file():
-        raise NotFound(f"nothing is stored under {settings.home} (LEARNEST_HOME) yet: `learnest train`, "
-                       "`learnest evaluate` or `learnest serve` store flights and models there")
+        raise NotFound(missing or f"nothing is stored under {settings.home} (LEARNEST_HOME) yet: `learnest train`, "
+                                  "`learnest evaluate` or `learnest serve` store flights and models there")
     database = Database(settings.url)
     try:
         database.require_current_schema()
