@@ -28,7 +28,7 @@ from bench_service import flight_samples, machine, timed_evaluations, without_ti
 from learnest.service.config import Settings
 from learnest.service.jobs.executors import DaskExecutor, LocalPoolExecutor
 from learnest.service.jobs.training import start_training
-from learnest.service.local_registry import add_flight, local_services, wait_for_job
+from learnest.service.local import add_flight, local_services, wait_for_job
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data" / "nanobench"

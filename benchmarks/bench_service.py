@@ -146,7 +146,7 @@ def warm(executor, workers: int) -> None:
 
 def train_model(home: Path, training_flight: Path) -> None:
     """bench:1 on the 17th flight, stored (as by an upload) next to the other 16 under `home`."""
-    from learnest.service.local_registry import add_flight, local_services, wait_for_job
+    from learnest.service.local import add_flight, local_services, wait_for_job
 
     with local_services(Settings(home=home, pool_workers=1)) as services:
         row, _ = add_flight(services, [training_flight])

@@ -426,7 +426,6 @@ def large_downloads(root: Path, small: Path) -> dict:
 def kill_during_export(root: Path, evaluation_id: int) -> dict:
     home = root / "home-large"
     server = Server(home, settings={"LEARNEST_BODY_TIMEOUT_S": BODY_TIMEOUT_S})
-    children = psutil.Process(server.process.pid).children(recursive=True)
     reader: dict = {}
     thread = threading.Thread(target=lambda: reader.update(slow_read(
         server.url, f"/evaluations/{evaluation_id}/estimates?format=csv", rate=2 << 20)), daemon=True)
@@ -437,6 +436,8 @@ def kill_during_export(root: Path, evaluation_id: int) -> dict:
         time.sleep(0.05)
     time.sleep(3)   # the export is being written or sent
     temp_during = len(list(temp.iterdir()))
+    # the server's children as the kill finds them: its workers start on demand, after the server is up
+    children = psutil.Process(server.process.pid).children(recursive=True)
     os.kill(server.process.pid, signal.SIGKILL)
     server.process.wait()
     server.log.close()
@@ -459,7 +460,8 @@ def kill_during_export(root: Path, evaluation_id: int) -> dict:
     with sqlite3.connect(home / "learnest.db") as connection:
         integrity = connection.execute("PRAGMA integrity_check").fetchone()[0]
     return {"client_saw": {k: reader.get(k) for k in ("status", "content_length", "bytes", "ended")},
-            "temp_entries_during_export": temp_during, "orphaned_processes": len(alive),
+            "temp_entries_during_export": temp_during, "server_children_at_kill": len(children),
+            "orphaned_processes": len(alive),
             "temp_entries_before_restart": temp_before, "temp_entries_after_restart": len(list(temp.iterdir())),
             "stuck_jobs": sum(1 for j in jobs if j["state"] in ("queued", "running")), "integrity_check": integrity}
 

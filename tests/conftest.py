@@ -28,3 +28,14 @@ def data_dir(tmp_path):
     directory = tmp_path / "logs"
     directory.mkdir()
     return directory
+
+
+@pytest.fixture(scope="module")
+def sim():
+    """An 8-s circle at 1 m with take-off and landing, 4 s on the floor after touchdown (room for a pick-up):
+    the simulated flight that the flight-span and batch-upload tests write in every format, cut and upload."""
+    from learnest.ingest.sim import simulate
+    from learnest.ingest.sim.trajectories import Circle, Timing
+
+    return simulate(Circle(radius=0.5, speed=0.8, duration_s=8.0), timing=Timing(sit_after_s=4.0), seed=3,
+                    name="circle")

@@ -39,3 +39,27 @@ def test_the_contracts_catch_a_violation(graph):
     illegal = graph.find_illegal_dependencies_for_layers(
         layers=["learnest.service", "learnest.estimators", "learnest.models", "learnest.ingest"])
     assert {(d.importer, d.imported) for d in illegal} == {("learnest.estimators", "learnest.service")}
+
+
+def _rooms_layers() -> list:
+    """The service rooms contract of pyproject.toml as grimp layers ("a : b" is one layer of siblings that may
+    import each other)."""
+    import tomllib
+
+    contracts = tomllib.loads(PYPROJECT.read_text())["tool"]["importlinter"]["contracts"]
+    [rooms] = [c for c in contracts if c["name"].startswith("service rooms")]
+    return [grimp.Layer(*(name.strip() for name in layer.split(":")), independent=False) for layer in rooms["layers"]]
+
+
+def test_the_service_rooms_contract_is_live(graph):
+    """The rooms hold on the package as it is, and a storage module importing a service function (a room
+    reaching up) would be found."""
+    layers = _rooms_layers()
+    assert [layer.module_tails for layer in layers][-3:] == [{"learnest.service.jobs"}, {"learnest.service.storage"},
+                                                            {"learnest.service.config"}]
+    assert graph.find_illegal_dependencies_for_layers(layers=layers) == set()
+    reaching_up = grimp.build_graph("learnest", cache_dir=None)   # the module's graph stays as the package is
+    reaching_up.add_import(importer="learnest.service.storage.registry", imported="learnest.service.operations.catalog",
+                           line_number=1, line_contents="from ..operations import catalog")
+    illegal = reaching_up.find_illegal_dependencies_for_layers(layers=layers)
+    assert {(d.importer, d.imported) for d in illegal} == {("learnest.service.storage", "learnest.service.operations")}

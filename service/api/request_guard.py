@@ -37,7 +37,7 @@ from .throttle import KeyThrottle, client_address
 SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
 FORM_PREFIX = "/ui/"   # web form posts: the key comes in the form or the cookie (service.web.forms)
 KEY_HEADER = "x-api-key"
-KEY_COOKIE = "learnest_api_key"   # service.web.forms.COOKIE
+KEY_COOKIE = "learnest_api_key"   # the web forms' cookie (service.web.forms keeps a typed key in it)
 KEY_FIELD = "api_key"             # the forms' field
 FORM_PEEK_BYTES = 1 << 20         # of a form's body read to find its key field (a form without files: ~1 kB)
 MULTIPART_PEEK_BYTES = 64 << 10   # of a multipart form's body read to find the key field before the files

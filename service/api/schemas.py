@@ -1,4 +1,5 @@
-"""Request and response bodies of the HTTP API (pydantic), kept apart from the storage tables in db.py."""
+"""Request and response bodies of the HTTP API (pydantic), kept apart from the storage tables
+(service.storage.tables).  The reports' response schemas are built from the typed reports: service.api.report_models."""
 from __future__ import annotations
 
 from datetime import datetime
@@ -6,7 +7,6 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from learnest.estimators.yardsticks import FlightYardsticks, Headline
 from learnest.models.presets import (
     CRAZYFLIE_TRAINING,
     DIAGNOSIS_SPLIT_RULE,
@@ -19,7 +19,7 @@ from learnest.models.presets import (
     parse_methods,
 )
 
-from ..references import NAME
+from ..storage.references import NAME
 
 NAME_REGEX = rf"^{NAME}$"  # references.NAME: one definition of a valid name
 
@@ -240,39 +240,6 @@ class EvaluationAccepted(BaseModel):
     job_id: int
     evaluation_id: int
     state: str
-
-
-class FlightReport(BaseModel):
-    """One flight of an evaluation report (`service.experiments.flights.evaluate_flights`); fields not listed
-    here (envelope, prediction check, thrust calibration, warnings, ...) are passed through as they are."""
-
-    model_config = ConfigDict(extra="allow")
-
-    flight: str = Field(description="the flight's name")
-    excluded: bool = Field(description="not scored (quality, training flight, failed): see reason")
-    reason: str | None = None
-    yardsticks: FlightYardsticks | None = Field(
-        None, description="mocap_gaps first (position RMSE in the gaps, m), fast_reference (velocity RMSE, m/s), "
-                          "paper_sg (the paper's MSE); None for an excluded flight")
-    mse: dict[str, float] = Field(default_factory=dict, description="the paper's SG score per method (as "
-                                                                    "yardsticks.paper_sg.mse)")
-
-
-class EvaluationReport(BaseModel):
-    """An evaluation report: the headline (the mocap-gap yardstick) first, then every flight; fields not listed
-    here (median, improvement_pct, units, recommended, ...) are passed through as they are."""
-
-    model_config = ConfigDict(extra="allow")
-
-    model: str | None = Field(None, description='"name:version" of the model evaluated')
-    headline: Headline | None = Field(None, description="the KNODE's median gain on the mocap-gap yardstick, the "
-                                                        "flights it is better on, and worse beyond their interval")
-    learned: bool | None = Field(None, description="the model's own flag: False when its residual did not improve "
-                                                   "held-out prediction (it equals its prior); None when unknown")
-    learned_note: str | None = None
-    yardstick_definitions: dict[str, str] | None = Field(None, description="what each yardstick measures")
-    flights: list[FlightReport]
-    flights_scored: int
 
 
 class EvaluationPending(BaseModel):

@@ -57,7 +57,7 @@ def _sg_window(text: str) -> int:
 
 def _model_ref(text: str) -> str:
     """A registry reference, checked for its form only (whether it exists needs the registry)."""
-    from ..references import parse_ref
+    from ..storage.references import parse_ref
 
     try:
         return str(parse_ref(text))
@@ -67,7 +67,7 @@ def _model_ref(text: str) -> str:
 
 def _name(text: str) -> str:
     """A registered model or alias name (references.NAME), checked before any import of the service."""
-    from ..references import check_name
+    from ..storage.references import check_name
 
     try:
         return check_name(text)
@@ -77,7 +77,7 @@ def _name(text: str) -> str:
 
 def _topic(text: str) -> str:
     """A ROS topic name, optionally with ":BODY" (one body of a TFMessage / NamedPoseArray topic)."""
-    from ..references import check_topic
+    from ..storage.references import check_topic
 
     try:
         return check_topic(text)

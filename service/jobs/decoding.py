@@ -29,8 +29,8 @@ from concurrent.futures.process import BrokenProcessPool
 from learnest.errors import InvalidInput, LearnestError
 from learnest.ingest.flight import Flight as CanonicalFlight
 
-from ..reading import StagedFile, read_uploaded_flight
 from .executors import EXIT_GRACE_S, watch_parent
+from .reading import StagedFile, read_uploaded_flight
 
 
 def init_decoder(parent_pid: int, warm: bool = True) -> None:

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from learnest.errors import InvalidInput, NotFound
 
-from .. import registry
 from ..experiments.reports import DiagnosisReport
+from ..storage import registry
 from ..storage.database import flights_by_id, get_row
 from ..storage.tables import Diagnosis, utcnow
 from . import quotas

@@ -12,8 +12,8 @@ from sqlalchemy.orm import Session
 
 from learnest.errors import InvalidInput, NotFound
 
-from .. import registry
 from ..experiments.reports import EvaluationReport
+from ..storage import registry
 from ..storage.database import discard_blobs, flights_by_id, get_row
 from ..storage.tables import Evaluation, FlightRecord, ModelVersion, utcnow
 from .result_cache import EstimatorSettings, cached_entries, store_result

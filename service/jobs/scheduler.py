@@ -18,8 +18,8 @@ from sqlalchemy import select
 
 from learnest.models.presets import PRODUCTION_ALIAS, parse_methods
 
-from .. import registry
 from ..config import Settings
+from ..storage import registry
 from ..storage.database import get_row
 from ..storage.leases import acquire_lease, release_lease
 from ..storage.tables import Job, ModelAlias

@@ -4,8 +4,8 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
-from .. import registry
 from ..config import Settings
+from ..storage import registry
 from ..storage.blobs import BlobStore
 from ..storage.database import Database, blob_is_referenced, referenced_blobs
 from .decoding import DecodePool

@@ -18,7 +18,7 @@ from learnest.ingest.flight import Flight, json_compatible
 from learnest.models.knode import HybridModel
 from learnest.models.presets import GAP_EVERY_S, GAP_S, SG_WINDOW
 
-from .. import registry
+from ..storage import registry
 from ..storage.database import Database, dml_rowcount
 from ..storage.tables import Job
 from .executors import init_worker

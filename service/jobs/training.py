@@ -10,7 +10,7 @@ from sqlalchemy.orm import Session
 from learnest.errors import InvalidInput
 from learnest.models.presets import CRAZYFLIE_TRAINING
 
-from .. import registry
+from ..storage import registry
 from ..storage.database import discard_blobs, get_row
 from ..storage.tables import FlightRecord, Job, ModelVersion, utcnow
 from . import quotas

@@ -4,10 +4,11 @@ A form sends every field as text and an empty field for "not given"; the parsers
 same pydantic request models the JSON routes take, so a form and a JSON body are checked by the same rules
 and fail with the same messages (a pydantic ValidationError, which the pages show as a 422 page).
 
-API key: with LEARNEST_API_KEY set, a form write needs the key, typed into the form's "API key" field; the
-answer then stores it in an HttpOnly, SameSite=Strict cookie (`learnest_api_key`, for the browser session),
-so later forms need not ask again.  SameSite=Strict keeps other sites' forms from using that cookie.  Pages
-themselves (GET) need no key, as in the JSON API.
+API key: with LEARNEST_API_KEY set, a form write needs the key, typed into the form's "API key" field or held
+in the cookie; the request guard (service.api.request_guard) checks it, with the JSON API's throttle, before
+any route reads the body.  The answer then stores a typed key in an HttpOnly, SameSite=Strict cookie
+(`learnest_api_key`, for the browser session), so later forms need not ask again.  SameSite=Strict keeps
+other sites' forms from using that cookie.  Pages themselves (GET) need no key, as in the JSON API.
 """
 from __future__ import annotations
 
@@ -18,27 +19,14 @@ from fastapi import Request, UploadFile
 from fastapi.responses import RedirectResponse
 from pydantic import ValidationError
 
-from learnest.errors import InvalidInput, LearnestError
+from learnest.errors import InvalidInput
 
 from ..api.deps import key_matches
+from ..api.request_guard import KEY_COOKIE as COOKIE
 from ..api.schemas import AliasIn, DiagnosisRequest, EvaluationRequest, TrainRequest
-from ..api.throttle import KeyThrottle, client_address
 from ..config import Settings
 
-COOKIE = "learnest_api_key"
 MAX_VEHICLE, MAX_NOTES = 200, 10_000   # the JSON upload's Form(max_length=...) limits
-
-
-class MissingKey(LearnestError):
-    """A form write without the right API key."""
-
-    status = 401
-
-
-class KeyThrottled(LearnestError):
-    """Too many failed key attempts from this address (see service.api.throttle)."""
-
-    status = 429
 
 
 # -- API key ---------------------------------------------------------------------------------------------
@@ -48,29 +36,6 @@ def key_state(request: Request, settings: Settings) -> Literal["open", "remember
     if settings.api_key is None:
         return "open"
     return "remembered" if key_matches(settings, request.cookies.get(COOKIE)) else "ask"
-
-
-def require_key(request: Request, settings: Settings, form_key: str) -> None:
-    """Let a form write go ahead: no key configured, or the right one in the form or in the cookie.
-
-    Raises
-    ------
-    MissingKey
-        (401) Neither holds the right key.
-    KeyThrottled
-        (429) This address failed too often lately (the JSON API's throttle, counted together).
-    """
-    if settings.api_key is None:
-        return
-    throttle: KeyThrottle | None = getattr(request.app.state, "key_throttle", None)
-    address = client_address(request)
-    wait = throttle.retry_after(address) if throttle else None
-    if throttle is not None and wait is not None:
-        raise KeyThrottled(throttle.message(wait))
-    if not key_matches(settings, form_key or request.cookies.get(COOKIE)):
-        if throttle is not None:
-            throttle.failed(address)
-        raise MissingKey("missing or wrong API key: type it into the form's API key field")
 
 
 def redirect(url: str, settings: Settings, form_key: str) -> RedirectResponse:

@@ -6,141 +6,52 @@ Pages   /                       flights (newest first; search: ?q=) and the uplo
         /ui/models/{name}       versions, aliases (+ form), loss curves, evaluations, evaluate form
         /ui/jobs, /ui/jobs/{id} state, progress, stage and time left; a job page reloads itself every second
                                 until it is done and has a cancel button while it is
-        /evaluations/{id}/report.html
-                                the Fig. 3-style box plot, per-flight MSE table, estimated vs reference velocity
-                                of one chosen flight (documented in the OpenAPI schema with the JSON report)
-        /diagnoses/{id}/report.html
-                                effects with units, intervals and alternatives, residual over time before/after,
-                                held-out error before/after per flight (linear axes)
 Forms   POST /ui/flights, /ui/models, /ui/evaluations, /ui/diagnoses, /ui/models/{name}/aliases,
         /ui/jobs/{id}/cancel take the
-        same request models as the JSON routes (service.web.forms), call the same service functions (service.uploads,
-        service.jobs, service.catalog) and answer 303 to the page of what they made, or an HTML error page
-        with the API's status code and message.
+        same request models as the JSON routes (service.web.forms), call the same service functions
+        (service.operations.uploads, service.jobs, service.operations.catalog) and answer 303 to the page of what
+        they made, or an HTML error page with the API's status code and message.
 
-The evaluations list, version pages, comparisons and delete confirmations are service.web.registry_pages.
+The evaluations list, version pages, comparisons and delete confirmations are service.web.registry_pages; the
+evaluation and diagnosis reports (/evaluations/{id}/report.html, /diagnoses/{id}/report.html) are
+service.web.report_pages, whose routers `router` serves with these pages.
 
-Every page is a Jinja2 template extending templates/base.html with autoescaping on, so text from users
-(names, notes, file names, error messages) is escaped unless a template says otherwise - and none does.
+Every page is a Jinja2 template extending templates/base.html with autoescaping on (service.web.rendering), so
+text from users (names, notes, file names, error messages) is escaped unless a template says otherwise - and
+none does.
 """
 from __future__ import annotations
 
-import functools
 import json
 import logging
-from collections.abc import Callable
-from typing import Literal
 
 from fastapi import APIRouter, Depends, File, Form, Query, Request, UploadFile
 from fastapi.responses import FileResponse, HTMLResponse
-from jinja2 import Environment, PackageLoader, StrictUndefined, select_autoescape
-from pydantic import ValidationError
-from sqlalchemy import func, select
 
-from learnest.errors import LearnestError
-from learnest.ingest.baseline import centred_window
 from learnest.ingest.flight import Flight as CanonicalFlight
-from learnest.models.crazyflie import UNITS as CRAZYFLIE_UNITS
 from learnest.models.presets import (
-    CRAZYFLIE_TRAINING,
-    DIAGNOSIS_SPLIT_RULE,
-    METHODS,
     MHE_HORIZON,
-    SG_WINDOW,
-    SG_WINDOW_RANGE,
 )
 
-from .. import catalog, references
-from ..api.deps import MAX_ROW_ID, Offset, RowId, get_services
-from ..exports import evaluation_estimates
+from ..api.deps import Offset, RowId, get_services
 from ..jobs.diagnosis import start_diagnosis
 from ..jobs.evaluation import start_evaluation
 from ..jobs.result_cache import EstimatorSettings
 from ..jobs.runner import ACTIVE, seconds_left
 from ..jobs.services import Services
 from ..jobs.training import start_training
-from ..storage.tables import Diagnosis, Evaluation, FlightRecord, Job, ReportFigure, Result
-from ..uploads import add_flights, recut_flight
-from . import evaluation_plots, figures, flight_plots, forms, page_cache, zoomable
-from .headline import diagnosis_headline, diagnosis_split, evaluation_headline, gap_methods
+from ..operations import catalog
+from ..operations.uploads import add_flights, recut_flight
+from ..storage.tables import FlightRecord, Job
+from . import figures, flight_plots, forms, page_cache, zoomable
+from .headline import diagnosis_headline, evaluation_headline
 from .registry_figures import loss_curves_of
-from .report_figures import velocity_figure
+from .rendering import PAGE_SIZE, error_page, html_errors, page
+from .report_pages import diagnosis_reports, reports
 
 log = logging.getLogger("learnest.web")
 
-PAGE_SIZE = 100
 EVALUATIONS_SHOWN = 20   # on a model's page
-
-
-# -- rendering ---------------------------------------------------------------------------------------------
-def _when(moment) -> str:
-    return moment.strftime("%Y-%m-%d %H:%M:%S") if moment else ""
-
-
-TEMPLATES = Environment(loader=PackageLoader("learnest.service.web", "templates"),
-                        autoescape=select_autoescape(default=True, default_for_string=True),
-                        undefined=StrictUndefined,          # a misspelt variable fails the page (and the tests)
-                        finalize=lambda value: "" if value is None else value,  # None shows as nothing
-                        trim_blocks=True, lstrip_blocks=True)
-def _duration(seconds: float) -> str:
-    """"42 s", "3 min 20 s", "1 h 05 min"."""
-    seconds = round(seconds)
-    if seconds < 60:
-        return f"{seconds} s"
-    if seconds < 3600:
-        return f"{seconds // 60} min {seconds % 60:02d} s"
-    return f"{seconds // 3600} h {seconds % 3600 // 60:02d} min"
-
-
-TEMPLATES.filters["when"] = _when
-TEMPLATES.filters["duration"] = _duration
-TEMPLATES.globals.update(NAME_PATTERN=references.NAME, METHODS=METHODS, MHE_HORIZON=MHE_HORIZON,
-                         VELOCITY_METHODS=figures.VELOCITY_METHODS, MAX_VEHICLE=forms.MAX_VEHICLE,
-                         MAX_NOTES=forms.MAX_NOTES, PAGE_SIZE=PAGE_SIZE,
-                         DEFAULT_EPOCHS=CRAZYFLIE_TRAINING.epochs, SG_WINDOW=SG_WINDOW,
-                         SG_WINDOW_RANGE=SG_WINDOW_RANGE, PLOTLY_JS_ROUTE=zoomable.PLOTLY_JS_ROUTE,
-                         DIAGNOSIS_SPLIT_RULE=DIAGNOSIS_SPLIT_RULE,
-                         MIN_GAP_S=flight_plots.MIN_GAP_S,
-                         VELOCITY_SG_S=flight_plots.VELOCITY_SG_S)
-
-
-def page(template: str, title: str, status: int = 200, refresh_s: float | None = None, **context) -> HTMLResponse:
-    """Render templates/`template` (which extends base.html) as a response.
-
-    Parameters
-    ----------
-    template : str
-        File name under templates/.
-    title : str
-        The page's <title> and <h1> (escaped).
-    status : int
-        HTTP status of the answer.
-    refresh_s : float, optional
-        Reload the page after this many seconds (pages of running jobs).
-    **context
-        The template's variables.
-    """
-    html = TEMPLATES.get_template(template).render(title=title, refresh_s=refresh_s, **context)
-    return HTMLResponse(html, status_code=status)
-
-
-def error_page(status: int, message: str) -> HTMLResponse:
-    """The API's status code and message as a page (a form post never gets JSON back)."""
-    return page("error.html", f"Error {status}", status, message=message)
-
-
-def html_errors(handler: Callable) -> Callable:
-    """Show the service's errors (LearnestError: its status) and bad form fields (422) as an error page."""
-    @functools.wraps(handler)
-    def wrapper(*args, **kwargs):
-        try:
-            return handler(*args, **kwargs)
-        except ValidationError as err:
-            return error_page(422, forms.validation_message(err))
-        except LearnestError as err:
-            return error_page(err.status, str(err))
-    return wrapper
-
 
 pages = APIRouter(include_in_schema=False)
 
@@ -159,14 +70,13 @@ def flights_page(request: Request, offset: Offset = 0, q: str = Query("", max_le
 
 @pages.post("/ui/flights")
 @html_errors
-def upload_flight_form(request: Request, files: list[UploadFile | str] = File(default=[]),
+def upload_flight_form(files: list[UploadFile | str] = File(default=[]),
                        vehicle: str = Form(""), notes: str = Form(""), pose_topic: str = Form(""),
                        imu_topic: str = Form(""), cut: str = Form(""), api_key: str = Form(""),
                        services: Services = Depends(get_services)):
     """Upload form: store the flights among the chosen files (as POST /flights/batch does).  One flight read:
     303 to its page; one flight refused: the error page; otherwise a page that says per file what was stored,
     found stored already or refused and why."""
-    forms.require_key(request, services.settings, api_key)
     chosen = forms.chosen_files(files)
     outcomes = add_flights(services.db, services.blobs, chosen, *forms.upload_text(vehicle, notes),
                            pose_topic=pose_topic, imu_topic=imu_topic, cut=cut.strip() or None,
@@ -187,11 +97,10 @@ def upload_flight_form(request: Request, files: list[UploadFile | str] = File(de
 
 @pages.post("/ui/flights/{flight_id}/cut")
 @html_errors
-def cut_flight_form(request: Request, flight_id: RowId, cut: str = Form(""), api_key: str = Form(""),
+def cut_flight_form(flight_id: RowId, cut: str = Form(""), api_key: str = Form(""),
                     services: Services = Depends(get_services)):
     """Cut form: read the flight's raw file(s) again with the cut asked for (as POST /flights/{id}/cut does),
     then 303 to the flight holding that stretch."""
-    forms.require_key(request, services.settings, api_key)
     row = catalog.get_flight(services.db, flight_id)
     new, _created = recut_flight(services.db, services.blobs, row, cut.strip() or None,
                                  decode=services.decoder.decode)
@@ -229,13 +138,12 @@ def _draw_trajectory(services: Services, row: FlightRecord) -> dict:
 # -- models ----------------------------------------------------------------------------------------------
 @pages.post("/ui/models")
 @html_errors
-def train_model_form(request: Request, name: str = Form(""), flight_id: str = Form(""), epochs: str = Form(""),
+def train_model_form(name: str = Form(""), flight_id: str = Form(""), epochs: str = Form(""),
                      include_bad: str | None = Form(None), api_key: str = Form(""),
                      flight_ids: list[str] = Form(default=[]), system: str = Form(""),
                      services: Services = Depends(get_services)):
     """Train form (a flight's page: that flight; the flight list: the checked flights, several making one
     model of one vehicle): start a training job (as POST /models does), then 303 to the job's page."""
-    forms.require_key(request, services.settings, api_key)
     body = forms.train_request(name, flight_id, epochs, include_bad, flight_ids, system)
     job, _version = start_training(services, body.name, body.flights(), {"epochs": body.epochs,
                                                                           "system": body.system},
@@ -286,22 +194,20 @@ def still_falling(losses: list | None) -> bool:
 
 @pages.post("/ui/models/{name}/aliases")
 @html_errors
-def alias_form_post(request: Request, name: str, alias: str = Form(""), version: str = Form(""),
+def alias_form_post(name: str, alias: str = Form(""), version: str = Form(""),
                     api_key: str = Form(""), services: Services = Depends(get_services)):
     """Alias form: point name@alias at a version, then 303 to the model's page."""
-    forms.require_key(request, services.settings, api_key)
     catalog.set_alias(services.db, name, alias.strip(), forms.alias_version(version))
     return forms.redirect(f"/ui/models/{name}", services.settings, api_key)
 
 
 @pages.post("/ui/evaluations")
 @html_errors
-def evaluate_form_post(request: Request, model: str = Form(""), flights: list[str] = Form(default=[]),
+def evaluate_form_post(model: str = Form(""), flights: list[str] = Form(default=[]),
                        methods: list[str] = Form(default=[]), horizon: str = Form(str(MHE_HORIZON)),
                        include_bad: str | None = Form(None), sg_window: str = Form(""), api_key: str = Form(""),
                        services: Services = Depends(get_services)):
     """Evaluate form: start an evaluation job (as POST /evaluations does), then 303 to the job's page."""
-    forms.require_key(request, services.settings, api_key)
     body = forms.evaluation_request(model, flights, methods, horizon, include_bad, sg_window)
     settings = EstimatorSettings(tuple(body.methods), body.horizon, body.include_bad, body.sg_window)
     job_id, _evaluation_id, _state = start_evaluation(services, body.model, body.flights, settings)
@@ -310,13 +216,12 @@ def evaluate_form_post(request: Request, model: str = Form(""), flights: list[st
 
 @pages.post("/ui/diagnoses")
 @html_errors
-def diagnose_form_post(request: Request, flights: list[str] = Form(default=[]), model: str = Form(""),
+def diagnose_form_post(flights: list[str] = Form(default=[]), model: str = Form(""),
                        system: str = Form("quadrotor"), methods: list[str] = Form(default=[]), epochs: str = Form(""),
                        register_checked: str | None = Form(None, alias="register"), register_as: str = Form(""),
                        api_key: str = Form(""),
                        services: Services = Depends(get_services)):
     """Diagnose form: start a diagnosis job (as POST /diagnoses does), then 303 to the job's page."""
-    forms.require_key(request, services.settings, api_key)
     body = forms.diagnosis_request(flights, model, system, methods, epochs, register_checked, register_as)
     job_id, _diagnosis_id = start_diagnosis(services, body.flights, body.model, body.register_as, body.methods,
                                             body.epochs, body.system)
@@ -357,10 +262,9 @@ def job_page(request: Request, job_id: RowId, services: Services = Depends(get_s
 
 @pages.post("/ui/jobs/{job_id}/cancel")
 @html_errors
-def cancel_job_form(request: Request, job_id: RowId, api_key: str = Form(""),
+def cancel_job_form(job_id: RowId, api_key: str = Form(""),
                     services: Services = Depends(get_services)):
     """Cancel button: cancel the job (as POST /jobs/{id}/cancel does), then 303 back to its page."""
-    forms.require_key(request, services.settings, api_key)
     services.runner.cancel(job_id)
     return forms.redirect(f"/ui/jobs/{job_id}", services.settings, api_key)
 
@@ -378,160 +282,11 @@ def job_subject(job: Job) -> str:
     return f"{payload.get('model')} on {len(payload.get('flights') or [])} flight(s)"
 
 
-# -- the evaluation report ---------------------------------------------------------------------------------
-# A page of its own API path (/evaluations/...), documented next to the JSON report; its errors stay the
-# API's JSON ones (404 unknown, 409 failed), as before it joined the site template.
-reports = APIRouter(tags=["evaluations"])
-
-
-@reports.get("/evaluations/{evaluation_id}/report.html", response_class=HTMLResponse,
-             responses={202: {"description": "not finished yet (the page reloads itself)"},
-                        409: {"description": "the evaluation job failed"}})
-def evaluation_report_page(evaluation_id: RowId,
-                           flight: int | None = Query(None, ge=1, le=MAX_ROW_ID,
-                                                      description="flight id of the time series "
-                                                                  "(default: the first scored flight)"),
-                           group: Literal["p", "v", "a"] = Query("v", description="state group of the time "
-                                                                "series: position, velocity or acceleration"),
-                           services: Services = Depends(get_services)):
-    """The evaluation report for people: per-flight MSE table and paired dots (prior vs KNODE), and for one
-    flight the error over time with its running RMS and the estimates against the reference (zoomable),
-    read from the stored estimates."""
-    evaluation, job = catalog.row_and_job(services.db, Evaluation, evaluation_id, "evaluation")
-    if job.state != "succeeded":
-        return page("report_pending.html", f"Evaluation {evaluation.id}", status=202, refresh_s=2, job=job)
-    # a finished evaluation's report is written once and its ids are never reused: the page changes only with
-    # its flights' stored estimates (a flight deleted since) and figures, so it is drawn once per those, flight
-    # and state group, then served from the page cache
-    # keyed on the flight the page shows (any other ?flight= shows the first scored one): arbitrary ids in
-    # the query cannot make an anonymous client redraw the same page again and again
-    entries = dict(zip(evaluation.flight_ids, (evaluation.report or {}).get("flights", [])))
-    scored = [fid for fid, entry in entries.items() if not entry.get("excluded")]
-    flight = flight if flight in scored else (scored[0] if scored else None)
-    key = ("evaluation-report", evaluation.id, flight, group, _report_inputs(services, evaluation))
-    body = page_cache.pages.get(key, lambda: _report_page(services, evaluation, flight, group),
-                                keep=lambda drawn: drawn[1])
-    return HTMLResponse(body[0])
-
-
-def _report_inputs(services: Services, evaluation: Evaluation) -> tuple:
-    """What a finished evaluation's page is drawn from besides its report: the estimates blob of each of its
-    flights (a deleted flight has none) and the stored report figures."""
-    key = EstimatorSettings.from_dict(evaluation.settings).key
-    with services.db.transaction() as session:
-        shas = {row.id: row.sha256 for row in session.scalars(
-            select(FlightRecord).where(FlightRecord.id.in_(list(evaluation.flight_ids))))}
-        blobs = dict(session.execute(select(Result.flight_sha256, Result.estimates_blob).where(
-            Result.model_version_id == evaluation.model_version_id, Result.settings_key == key,
-            Result.flight_sha256.in_(list(shas.values())))).all())
-        figures_stored = session.scalar(select(func.count(ReportFigure.id))
-                                        .where(ReportFigure.evaluation_id == evaluation.id))
-    return tuple(sorted((i, blobs.get(sha)) for i, sha in shas.items())), figures_stored
-
-
-def _report_page(services: Services, evaluation: Evaluation, flight: int | None, group: str) -> tuple[bytes, bool]:
-    """(the report page's HTML, whether it is final: False while its velocity figure is still computed)."""
-    report = evaluation.report or {}
-    title = f"Evaluation {evaluation.id}: model {report.get('model')}"
-    entries = dict(zip(evaluation.flight_ids, report["flights"], strict=True))
-    scored = [(fid, entry["flight"]) for fid, entry in entries.items() if not entry.get("excluded")]
-    chosen = flight if flight in {fid for fid, _ in scored} else (scored[0][0] if scored else None)
-    settings = EstimatorSettings.from_dict(evaluation.settings)
-    series = _stored_series(services, evaluation, chosen, group, centred_window(settings.sg_window),
-                            entries.get(chosen))
-    head = evaluation_headline(report)
-    gain = figures.gain_per_flight(head)
-    # evaluated before estimates were stored: the velocity figure computed once by a task (report_figures)
-    velocity = _velocity(services, evaluation, chosen) if chosen is not None and "figure" not in series else {}
-    waiting = velocity.get("pending") or velocity.get("busy")
-    paired = evaluation_plots.paired_figure(report)
-    response = page("report.html", title, refresh_s=2 if waiting else None, evaluation=evaluation, report=report,
-                head=head, gain_png=figures.png_data_uri(gain, dpi=100) if gain else None,
-                gap_methods=gap_methods(report),
-                gap_settings=_gap_settings(report),
-                methods=list(report.get("median", {})), settings=evaluation.settings,
-                sg_window=settings.sg_window, sg_window_used=centred_window(settings.sg_window),
-                paired=zoomable.embed(paired) if paired else None,
-                paired_png=figures.png_data_uri(figures.paired_mse(report), dpi=110) if figures.has_scores(report)
-                else None,
-                scored=scored, chosen=chosen, chosen_entry=entries.get(chosen), group=group,
-                GROUPS=evaluation_plots.GROUPS, MSE_UNITS=evaluation_plots.MSE_UNITS, series=series,
-                velocity=velocity, model_name=evaluation.model_ref.split(":", 1)[0])
-    return bytes(response.body), not waiting
-
-
-def _stored_series(services: Services, evaluation: Evaluation, flight_id: int | None, group: str,
-                   window_used: int, entry: dict | None = None) -> dict:
-    """{"figure": spec JSON, "clipping": `reference_clipping`, "difference": KNODE − prior spec JSON or None,
-    "gaps": the mocap gaps shaded} from the flight's stored estimates, or {"missing": why} (no flight, or
-    evaluated before estimates were stored)."""
-    if flight_id is None:
-        return {"missing": "no scored flight"}
-    try:
-        [estimates] = evaluation_estimates(services.db, services.blobs, evaluation.id, flight_id)
-    except LearnestError as err:
-        return {"missing": str(err)}
-    gaps = evaluation_plots.gap_windows(entry, estimates.t)
-    difference = evaluation_plots.difference_figure(estimates, group, gaps)
-    return {"figure": zoomable.embed(evaluation_plots.error_figure(estimates, group)),
-            "clipping": evaluation_plots.reference_clipping(estimates, window_used),
-            "difference": zoomable.embed(difference) if difference else None, "gaps": gaps}
-
-
-def _gap_settings(report: dict) -> dict | None:
-    """The gap length and spacing of the first flight scored on the mocap-gap yardstick (the report's
-    settings; the same for every flight of an evaluation), or None."""
-    for f in report.get("flights", []):
-        gaps = (f.get("yardsticks") or {}).get("mocap_gaps") or {}
-        if gaps.get("gap_s") is not None and gaps.get("every_s") is not None:
-            return {"gap_s": gaps["gap_s"], "every_s": gaps["every_s"]}
-    return None
-
-
-def _velocity(services: Services, evaluation: Evaluation, flight_id: int) -> dict:
-    """The stored velocity figure, or that it is being computed (service.web.report_figures)."""
-    return velocity_figure(services, evaluation, flight_id)
-
-
 @pages.get(zoomable.PLOTLY_JS_ROUTE)
 def plotly_js():
     """plotly.js from the installed `plotly` package (pages need no CDN); cached by browsers for a day."""
     return FileResponse(zoomable.plotly_js_path(), media_type="text/javascript",
                         headers={"Cache-Control": "public, max-age=86400"})
-
-
-# -- the diagnosis report -----------------------------------------------------------------------------------
-diagnosis_reports = APIRouter(tags=["diagnoses"])
-
-
-@diagnosis_reports.get("/diagnoses/{diagnosis_id}/report.html", response_class=HTMLResponse,
-                       responses={202: {"description": "not finished yet (the page reloads itself)"},
-                                  409: {"description": "the diagnosis job failed"}})
-def diagnosis_report_page(diagnosis_id: RowId, services: Services = Depends(get_services)):
-    """The diagnosis report for people: effects with units, 95 % intervals and alternatives, the residual over
-    time before and after, and the held-out error before and after (linear axes)."""
-    from learnest.service.experiments.diagnosis import (  # numpy only; kept off app start
-        confounded_label,
-        how_much,
-        unchanged_prior_note,
-    )
-
-    diagnosis, job = catalog.row_and_job(services.db, Diagnosis, diagnosis_id, "diagnosis")
-    if job.state != "succeeded":
-        return page("report_pending.html", f"Diagnosis {diagnosis.id}", status=202, refresh_s=2, job=job)
-    report = diagnosis.report or {}
-    series = report.get("residual_series") or {}
-    prior = (report.get("prior") or {}).get("params", {})
-    flights = catalog.flight_names(services.db, diagnosis.flight_ids)
-    return page("diagnosis.html", f"Diagnosis {diagnosis.id}: {report.get('system')}", diagnosis=diagnosis,
-                report=report, flights=flights, headline=diagnosis_headline(report),
-                split=diagnosis_split(report, [name or f"flight {fid} (deleted)" for fid, name in flights]),
-                prior=[(k, v, CRAZYFLIE_UNITS[k]) for k, v in prior.items() if k in CRAZYFLIE_UNITS],
-                summary=figures.png_data_uri(figures.diagnosis_summary(report), dpi=110),
-                series=figures.png_data_uri(figures.residual_series(series), dpi=110) if series else None,
-                note=unchanged_prior_note(report), registered=diagnosis.registered, how_much=how_much,
-                confounded_label=confounded_label,
-                model_name=diagnosis.model_ref.split(":", 1)[0] if diagnosis.model_ref else None)
 
 
 # One router for the app: the pages (left out of the OpenAPI schema) and the report (in it).

@@ -6,10 +6,10 @@ Pages   /ui/evaluations                     evaluations, newest first: MSE per m
         /ui/models/{name}/versions/{v}      hyperparameters, metrics, loss curves (training and validation),
                                             lineage (training flight, parent, children, the diagnosis that
                                             produced it and the effects it added), evaluations, delete button
-        /ui/compare?refs=a:1&refs=a:2       versions side by side (service.comparison.compare_versions)
+        /ui/compare?refs=a:1&refs=a:2       versions side by side (service.operations.comparison.compare_versions)
         /ui/{flights/ID|models/NAME/versions/V|evaluations/ID}/delete
                                             GET: what is deleted with it and what keeps a record of it
-                                            (service.deletion), and a confirm button; POST: delete (forced:
+                                            (service.operations.deletion), and a confirm button; POST: delete (forced:
                                             the page listed the dependents), then 303 to the list it was in
 """
 from __future__ import annotations
@@ -17,11 +17,12 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, Form, Query, Request
 from fastapi.responses import HTMLResponse
 
-from .. import catalog, comparison, deletion, registry
 from ..api.deps import Offset, RowId, get_services
 from ..jobs.services import Services
+from ..operations import catalog, comparison, deletion
+from ..storage import registry
 from . import forms, registry_figures
-from .pages import PAGE_SIZE, html_errors, page
+from .rendering import PAGE_SIZE, html_errors, page
 
 router = APIRouter(include_in_schema=False)
 
@@ -85,10 +86,9 @@ def confirm_flight_delete(request: Request, flight_id: RowId, services: Services
 
 @router.post("/ui/flights/{flight_id}/delete")
 @html_errors
-def delete_flight_form(request: Request, flight_id: RowId, api_key: str = Form(""),
+def delete_flight_form(flight_id: RowId, api_key: str = Form(""),
                        services: Services = Depends(get_services)):
     """Delete the flight (as DELETE /flights/{id}), then 303 to the flights."""
-    forms.require_key(request, services.settings, api_key)
     deletion.delete_flight(services.db, services.blobs, flight_id)
     return forms.redirect("/", services.settings, api_key)
 
@@ -103,10 +103,9 @@ def confirm_version_delete(request: Request, name: str, version: RowId, services
 
 @router.post("/ui/models/{name}/versions/{version}/delete")
 @html_errors
-def delete_version_form(request: Request, name: str, version: RowId, api_key: str = Form(""),
+def delete_version_form(name: str, version: RowId, api_key: str = Form(""),
                         services: Services = Depends(get_services)):
     """Delete the version with what the confirmation page listed (force), then 303 to the model's page."""
-    forms.require_key(request, services.settings, api_key)
     deletion.delete_version(services.db, services.blobs, name, version, force=True)
     return forms.redirect(f"/ui/models/{name}", services.settings, api_key)
 
@@ -121,9 +120,8 @@ def confirm_evaluation_delete(request: Request, evaluation_id: RowId, services: 
 
 @router.post("/ui/evaluations/{evaluation_id}/delete")
 @html_errors
-def delete_evaluation_form(request: Request, evaluation_id: RowId, api_key: str = Form(""),
+def delete_evaluation_form(evaluation_id: RowId, api_key: str = Form(""),
                            services: Services = Depends(get_services)):
     """Delete the evaluation, then 303 to the evaluations list."""
-    forms.require_key(request, services.settings, api_key)
     deletion.delete_evaluation(services.db, evaluation_id)
     return forms.redirect("/ui/evaluations", services.settings, api_key)

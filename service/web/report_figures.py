@@ -15,9 +15,10 @@ import threading
 from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 
-from .. import catalog, registry
 from ..jobs.runner import error_message
 from ..jobs.services import Services
+from ..operations import catalog
+from ..storage import registry
 from ..storage.tables import Evaluation, ReportFigure, utcnow
 from .figures import velocity_png
 

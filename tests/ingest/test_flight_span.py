@@ -39,13 +39,6 @@ CSV_FORMATS = ("nanobench", "vicon+cfclient", "cfclient")   # the ones a copy ca
 
 
 @pytest.fixture(scope="module")
-def sim():
-    """An 8-s circle at 1 m with take-off and landing, 4 s on the floor after touchdown (room for a pick-up)."""
-    return simulate(Circle(radius=0.5, speed=0.8, duration_s=8.0), timing=Timing(sit_after_s=4.0), seed=3,
-                    name="circle")
-
-
-@pytest.fixture(scope="module")
 def truth(sim):
     return flight_truth(sim)
 

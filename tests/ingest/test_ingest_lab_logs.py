@@ -115,8 +115,8 @@ def test_crazyswarm2_info_sidecar_gives_mass_and_controller(circle, tmp_path):
     assert flight.meta["profile"]["mass_kg"] == pytest.approx(0.034)
 
     # uploaded together (the web form, POST /flights): staged where the reader looks for it
-    from learnest.service.reading import read_uploaded_flight
-    from learnest.service.uploads import LocalFile, stage_uploads
+    from learnest.service.jobs.reading import read_uploaded_flight
+    from learnest.service.operations.uploads import LocalFile, stage_uploads
 
     staging = tmp_path / "staging"
     staging.mkdir()

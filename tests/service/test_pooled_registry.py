@@ -182,9 +182,9 @@ def test_a_version_that_learned_nothing_says_so_on_every_surface(tmp_path, monke
     from learnest.service.cli import format_trained
     from learnest.service.config import Settings
     from learnest.service.jobs.training import training_config
-    from learnest.service.registry import register_model
     from learnest.service.storage.blobs import BlobStore
     from learnest.service.storage.database import Database
+    from learnest.service.storage.registry import register_model
     from learnest.service.storage.tables import FlightRecord
 
     model, metrics = _not_learned_model()

@@ -10,10 +10,10 @@ import pytest
 
 from learnest.estimators.yardsticks import FlightYardsticks
 from learnest.models import crazyflie as cf
+from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.models.inputs import training_meta
 from learnest.models.knode import HybridModel, Residual
 from learnest.models.metadata import THRUST_GAIN_FORMAT, ModelMetadata
-from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.models.systems import make_system
 from learnest.service.experiments.diagnosis import diagnose_crazyflie
 from learnest.service.experiments.flights import evaluate_flights
@@ -74,11 +74,13 @@ def test_model_metadata_reads_a_meta_and_its_prior():
     assert full.prior_params == system.prior_params and full.to_dict() == {**meta, "prior_params": system.prior_params}
 
 
-def test_the_evaluation_schema_names_only_fields_the_typed_report_has():
-    """The API's evaluation schema (service.api.schemas) and the typed report cannot drift apart."""
-    from learnest.service.api.schemas import EvaluationReport as EvaluationSchema
-    from learnest.service.api.schemas import FlightReport as FlightSchema
+def test_the_evaluation_schema_is_the_typed_report():
+    """The API's evaluation schema (service.api.report_models) is built from the typed report: the same fields,
+    each with the typed report's description, and the nested flights' schema from `FlightScore`."""
+    from learnest.service.api.report_models import EvaluationReportOut, schema_of
     from learnest.service.experiments.reports import FlightScore
 
-    assert set(EvaluationSchema.model_fields) <= set(EvaluationReport.typed_fields())
-    assert set(FlightSchema.model_fields) <= set(FlightScore.typed_fields())
+    assert list(EvaluationReportOut.model_fields) == EvaluationReport.typed_fields()
+    assert list(schema_of(FlightScore).model_fields) == FlightScore.typed_fields()
+    assert EvaluationReportOut.model_fields["flights_scored"].description == "flights scored"
+    assert EvaluationReportOut.model_fields["flights"].annotation == list[schema_of(FlightScore)]

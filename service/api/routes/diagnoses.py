@@ -5,10 +5,10 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, Response
 from fastapi.responses import JSONResponse
 
-from ...catalog import row_and_job
 from ...experiments.reports import DiagnosisReport
 from ...jobs.diagnosis import start_diagnosis
 from ...jobs.services import Services
+from ...operations.catalog import row_and_job
 from ...storage.database import Database
 from ...storage.tables import Diagnosis
 from ..deps import RowId, get_db, get_services, pending, require_api_key

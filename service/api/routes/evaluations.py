@@ -1,6 +1,6 @@
 """/evaluations: batch KNODE-UKF / KNODE-MHE (and their priors) over stored flights as a job; the report
 is service.experiments.flights.evaluate_flights' JSON.  Its HTML page, /evaluations/{id}/report.html, is one
-of the web pages (service.web.pages)."""
+of the web pages (service.web.report_pages)."""
 from __future__ import annotations
 
 import tempfile
@@ -12,22 +12,22 @@ from starlette.background import BackgroundTask
 
 from learnest.estimators.export import FORMATS, MEDIA_TYPES
 
-from ... import comparison, deletion
-from ...catalog import row_and_job
-from ...exports import export_evaluation, export_filename
 from ...jobs.evaluation import start_evaluation
 from ...jobs.result_cache import EstimatorSettings
 from ...jobs.services import Services
+from ...operations import comparison, deletion
+from ...operations.catalog import row_and_job
+from ...operations.exports import export_evaluation, export_filename
 from ...storage.blobs import BlobStore, storage_errors, temp_prefix
 from ...storage.database import Database
 from ...storage.tables import Evaluation
 from ..deps import MAX_ROW_ID, Offset, RowId, get_blobs, get_db, get_services, pending, require_api_key
+from ..report_models import EvaluationReportOut
 from ..schemas import (
     Dependents,
     EvaluationAccepted,
     EvaluationPage,
     EvaluationPending,
-    EvaluationReport,
     EvaluationRequest,
 )
 
@@ -73,7 +73,7 @@ def delete_evaluation(evaluation_id: RowId, db: Database = Depends(get_db)):
     return Response(status_code=204)
 
 
-@router.get("/{evaluation_id}", response_model=EvaluationReport, response_model_exclude_unset=True,  # as stored
+@router.get("/{evaluation_id}", response_model=EvaluationReportOut, response_model_exclude_unset=True,  # as stored
             responses={200: {"description": "the report (evaluate_flights' JSON)"},
                                            202: {"model": EvaluationPending, "description": "not finished yet"},
                                            409: {"description": "the evaluation job failed"}})

@@ -1,8 +1,8 @@
 """/flights: upload (ingest + dedupe; several flights at once: /flights/batch), list, detail, normalized data
 as CSV, raw files, delete.
 
-The routes shape answers; what an upload is and how it is stored is service.uploads (the upload form and the
-CLI use it too), and reading rows is service.catalog.
+The routes shape answers; what an upload is and how it is stored is service.operations.uploads (the upload form and the
+CLI use it too), and reading rows is service.operations.catalog.
 """
 from __future__ import annotations
 
@@ -26,12 +26,12 @@ from starlette.datastructures import UploadFile as StarletteUpload
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight as CanonicalFlight
 
-from ... import catalog, deletion
 from ...jobs.services import Services
+from ...operations import catalog, deletion
+from ...operations.uploads import MAX_BATCH_FILES, FileOutcome, add_flight, add_flights, recut_flight
 from ...storage.blobs import CHUNK, BlobStore, temp_prefix
 from ...storage.database import Database
 from ...storage.tables import FlightRecord
-from ...uploads import MAX_BATCH_FILES, FileOutcome, add_flight, add_flights, recut_flight
 from ..deps import Offset, RowId, get_blobs, get_db, get_services, require_api_key
 from ..schemas import Dependents, FlightDetail, FlightOut, FlightPage
 
@@ -73,7 +73,7 @@ def upload_flight(response: Response,
                       "the stretch to keep: auto (default: the flying part, take-off and landing cut), none (the "
                       "whole recording) or START:STOP in seconds from the recording's start, e.g. 2.5:14")),
                   services: Services = Depends(get_services)):
-    """One flight's file(s) (see service.uploads): 201 and the new flight, or 200 and the flight that
+    """One flight's file(s) (see service.operations.uploads): 201 and the new flight, or 200 and the flight that
     already holds identical content (and the same topic choice).  The file(s) are decoded in a worker process
     within LEARNEST_DECODE_TIMEOUT_S (service.jobs.decoding); the answer comes when the flight is stored."""
     row, created = add_flight(services.db, services.blobs, files, vehicle, notes, pose_topic=pose_topic,
@@ -111,7 +111,7 @@ def file_outcome(outcome: FileOutcome) -> dict:
 async def upload_flights(request: Request):
     """Several flights at once (several files, or a folder's worth): grouped into flights as `learnest ingest`
     groups them (a Vicon export with its cfclient log, a CSV with its *_metadata.yaml, ...), each stored as
-    POST /flights stores one (service.uploads.add_flights).  The answer says per file ``status`` "stored"
+    POST /flights stores one (service.operations.uploads.add_flights).  The answer says per file ``status`` "stored"
     (a new flight), "existing" (identical content stored before) or "refused" with its ``message``; one bad
     file does not stop the others.  The API key is checked before the body is read (api.request_guard), the
     body's size and time are limited as every upload's, and the multipart parser stops past MAX_BATCH_FILES
@@ -159,7 +159,7 @@ def cut_flight(flight_id: RowId, response: Response,
                    "the stretch to keep: auto (the flying part), none (the whole recording) or START:STOP in "
                    "seconds from the recording's start, e.g. 2.5:14")),
                services: Services = Depends(get_services)):
-    """Read a stored flight's raw file(s) again with another cut (service.uploads.recut_flight): 201 and the
+    """Read a stored flight's raw file(s) again with another cut (service.operations.uploads.recut_flight): 201 and the
     flight holding that stretch, or 200 when it is stored already."""
     row = catalog.get_flight(services.db, flight_id)
     new, created = recut_flight(services.db, services.blobs, row, cut, decode=services.decoder.decode)

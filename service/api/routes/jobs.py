@@ -5,9 +5,9 @@ from typing import Literal
 
 from fastapi import APIRouter, Depends, Query
 
-from ... import catalog
 from ...jobs.runner import seconds_left
 from ...jobs.services import Services
+from ...operations import catalog
 from ...storage.database import Database
 from ...storage.tables import Job
 from ..deps import Offset, RowId, get_db, get_services, require_api_key

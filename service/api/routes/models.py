@@ -9,9 +9,10 @@ from fastapi.responses import JSONResponse
 
 from learnest.models.metadata import ModelMetadata
 
-from ... import catalog, comparison, deletion, registry
 from ...jobs.services import Services
 from ...jobs.training import start_training
+from ...operations import catalog, comparison, deletion
+from ...storage import registry
 from ...storage.blobs import BlobStore
 from ...storage.database import Database
 from ...storage.tables import ModelVersion

@@ -10,8 +10,8 @@ from ..formatting import format_model
 
 
 def _flights_list(args) -> int:
-    """The stored flights (service.local_registry.list_flights)."""
-    from ...local_registry import list_flights
+    """The stored flights (service.local.list_flights)."""
+    from ...local import list_flights
 
     out = list_flights(args.q)
     if args.json:
@@ -28,8 +28,8 @@ def _flights_list(args) -> int:
 
 
 def _models_list(args) -> int:
-    """The registered models (service.local_registry.list_models)."""
-    from ...local_registry import list_models
+    """The registered models (service.local.list_models)."""
+    from ...local import list_models
 
     out = list_models(args.q)
     if args.json:
@@ -47,7 +47,7 @@ def _models_list(args) -> int:
 
 def _models_show(args) -> int:
     """A model's versions, or one version with its lineage and evaluations."""
-    from ...local_registry import show_model
+    from ...local import show_model
 
     out = show_model(args.ref)
     print(json.dumps(out, indent=2, default=str) if args.json else format_model(out))
@@ -55,8 +55,8 @@ def _models_show(args) -> int:
 
 
 def _alias_set(args) -> int:
-    """Point NAME@ALIAS at VERSION (service.local_registry.set_alias)."""
-    from ...local_registry import set_alias
+    """Point NAME@ALIAS at VERSION (service.local.set_alias)."""
+    from ...local import set_alias
 
     out = set_alias(args.name, args.version, args.alias)
     before = out["previous_version"]
@@ -67,8 +67,8 @@ def _alias_set(args) -> int:
 
 
 def _export(args) -> int:
-    """Write a stored evaluation's state estimates (service.exports) as CSV, Parquet or MCAP."""
-    from ...local_registry import export
+    """Write a stored evaluation's state estimates (service.operations.exports) as CSV, Parquet or MCAP."""
+    from ...local import export
 
     fmt = args.format or _export_format(args.output)
     flights = export(args.evaluation_id, args.output, fmt, args.flight)

@@ -51,11 +51,11 @@ def _ingest(args) -> int:
 
 
 def _train(args) -> int:
-    """Store the flights and register the next version of NAME in the registry (service.local_registry)."""
+    """Store the flights and register the next version of NAME in the registry (service.local)."""
     from learnest.ingest.batch import format_errors
 
-    from ...local_registry import UnreadableFile, train
-    from ...progress import StageProgress
+    from ...local import UnreadableFile, train
+    from ..progress import StageProgress
 
     _registry_grid(args.rate)
     try:
@@ -78,7 +78,7 @@ def _evaluate(args) -> int:
     web UI's), or with --no-store only computed here."""
     from learnest.models.presets import parse_methods
 
-    from ...local_registry import load_model
+    from ...local import load_model
     from ...web.figures import evaluation_summary, save_figure
 
     if args.new:
@@ -113,15 +113,15 @@ def _evaluate(args) -> int:
 
 
 def _evaluate_stored(args, model, ref: str, methods: list[str]) -> dict:
-    """Store the flights and the evaluation in the registry (service.local_registry.evaluate)."""
+    """Store the flights and the evaluation in the registry (service.local.evaluate)."""
     from learnest.ingest.batch import format_errors
 
     from ...jobs.result_cache import EstimatorSettings
-    from ...local_registry import evaluate, export
+    from ...local import evaluate, export
 
     settings = EstimatorSettings(tuple(methods), args.horizon, args.include_bad, args.sg_window, args.gap_s,
                                  args.gap_every_s)
-    from ...progress import StageProgress
+    from ..progress import StageProgress
 
     with StageProgress("evaluating") as bar:
         report = evaluate(args.files, ref, settings, progress=bar.progress, on_stage=bar.on_stage, **_topics(args),
@@ -138,7 +138,7 @@ def _evaluate_here(args, model, ref: str, methods: list[str]) -> dict:
     from learnest.estimators.export import write_estimates
 
     from ...experiments.flights import evaluate_flights
-    from ...progress import StageProgress
+    from ..progress import StageProgress
 
     batch = _read_batch(args.files, args.rate, _topics(args), args.cut)
     flights = batch.flights
@@ -203,13 +203,13 @@ def _diagnose(args) -> int:
             raise InvalidInput("diagnose needs flight files (or --system cartpole|robot --simulate ...)")
         model = None
         if args.model:
-            from ...local_registry import load_model
+            from ...local import load_model
             model = load_model(args.model)
         if args.register:
-            from ...references import check_name
+            from ...storage.references import check_name
             _registry_grid(args.rate)
             check_name(args.register)  # before the work
-        from ...progress import StageProgress
+        from ..progress import StageProgress
 
         with StageProgress("diagnosing") as bar:
             bar.update(0.0, f"reading {len(args.files)} file(s)")
@@ -252,7 +252,7 @@ def _register_diagnosed(args, result: dict, repaired, flights, model) -> None:
     """Register the repaired model only when the diagnosis says it improves the held-out flights (its
     ``repair`` verdict, the evaluation's interval rule); ``--force`` registers anyway, with a warning
     stored in the version.  Sets ``result["registered"]`` or ``result["not_registered"]`` (why)."""
-    from ...local_registry import register_repaired
+    from ...local import register_repaired
 
     verdict = result.get("repair") or {"improves": True, "reason": ""}
     warning = None
@@ -294,7 +294,7 @@ def _thrust_map(args) -> int:
         except InvalidInput as err:
             raise InvalidInput(f"{err} (--{role})") from None
         sets[role], errors = batch.flights, errors + batch.errors
-    from ...progress import StageProgress
+    from ..progress import StageProgress
 
     with StageProgress("thrust map") as bar:
         def stage(name: str, done: int, total: int) -> None:
@@ -312,7 +312,7 @@ def _reproduce(args) -> int:
 
     settings = ReproduceSettings(task=args.task, eval_samples=args.samples, epochs=args.epochs, horizon=args.horizon,
                                  observer_rounds=args.observer_rounds, observer=args.observer)
-    from ...progress import StageProgress
+    from ..progress import StageProgress
 
     with StageProgress(f"Table I {args.task}") as bar:
         done = [0]
@@ -336,9 +336,9 @@ def _demo(args) -> int:
     from learnest.models.presets import parse_methods
 
     from ...experiments.flights import evaluate_flights
-    from ...local_registry import load_model, train
-    from ...progress import StageProgress
+    from ...local import load_model, train
     from ...web.figures import evaluation_summary, save_figure
+    from ..progress import StageProgress
 
     _registry_grid(args.rate)
     folder = Path(args.folder)

@@ -122,8 +122,8 @@ def test_crazyflies_yaml_topics_merge_all_robot_type_and_robot_scopes():
 
 def test_crazyflies_yaml_beside_a_recording_is_read_with_it_from_a_folder_and_an_upload(flight, tmp_path):
     from learnest.ingest import collect_logs
-    from learnest.service.reading import read_uploaded_flight
-    from learnest.service.uploads import LocalFile, stage_uploads
+    from learnest.service.jobs.reading import read_uploaded_flight
+    from learnest.service.operations.uploads import LocalFile, stage_uploads
 
     folder = tmp_path / "run"
     write_canonical_flight(flight, "mcap-ros2", folder, "flight")

@@ -9,19 +9,11 @@ import pytest
 import yaml
 from utils.service import MULTIPART_XYZ, raw_post, running_app, settings_for
 
-from learnest.ingest.sim import simulate
 from learnest.ingest.sim.export import write_canonical_flight
 from learnest.ingest.sim.recordings import flight_truth, recording
-from learnest.ingest.sim.trajectories import Circle, Timing
 
 TOLERANCE_S = 0.1
 SETTLE_S = 1.0     # ingest.align: take-off and landing transients trimmed
-
-
-@pytest.fixture(scope="module")
-def sim():
-    return simulate(Circle(radius=0.5, speed=0.8, duration_s=8.0), timing=Timing(sit_after_s=4.0), seed=3,
-                    name="circle")
 
 
 @pytest.fixture(scope="module")

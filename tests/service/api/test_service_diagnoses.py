@@ -123,7 +123,7 @@ def assert_honest_stages(seen: list[tuple[str, float]], job: dict) -> None:
 
 def test_post_diagnoses_registers_the_repaired_model(tmp_path, biased_logs):
     from learnest.service.experiments.flights import evaluate_flight
-    from learnest.service.registry import load_model_ref
+    from learnest.service.storage.registry import load_model_ref
 
     home = tmp_path / "home"
     with running_app(home, api_key="secret") as client:
@@ -170,7 +170,7 @@ def test_post_diagnoses_registers_the_repaired_model(tmp_path, biased_logs):
 
 def test_cli_diagnose_registers_a_child_version(tmp_path, biased_logs, monkeypatch):
     from learnest.service.cli import main
-    from learnest.service.registry import load_model_ref
+    from learnest.service.storage.registry import load_model_ref
 
     monkeypatch.setenv("LEARNEST_HOME", str(tmp_path / "home"))
     for name in ("LEARNEST_DATABASE_URL", "LEARNEST_DASK", "LEARNEST_API_KEY"):

@@ -75,7 +75,7 @@ def assert_same_numbers(report: dict, expected: dict) -> None:
 
 def test_report_equals_evaluate_flights_and_is_cached(registry_home):
     from learnest.service.experiments.flights import evaluate_flights
-    from learnest.service.registry import load_model_ref
+    from learnest.service.storage.registry import load_model_ref
 
     home, ids = registry_home["home"], registry_home["ids"]
     with running_app(home) as client:
@@ -119,7 +119,7 @@ def test_report_equals_evaluate_flights_and_is_cached(registry_home):
 
 def test_mhe_numbers_equal_evaluate_flights(registry_home):
     from learnest.service.experiments.flights import evaluate_flights
-    from learnest.service.registry import load_model_ref
+    from learnest.service.storage.registry import load_model_ref
 
     home, flight_id = registry_home["home"], registry_home["ids"][1]
     methods = ["mhe", "knode-mhe"]
@@ -462,7 +462,7 @@ def test_the_report_carries_the_yardsticks_and_the_gap_settings_asked_for(regist
     """GET /evaluations/{id} through its typed response: per flight the three yardsticks (the gaps as asked),
     the headline first; the same numbers as evaluate_flights; gaps that leave no mocap between them are a 422."""
     from learnest.service.experiments.flights import evaluate_flights
-    from learnest.service.registry import load_model_ref
+    from learnest.service.storage.registry import load_model_ref
 
     home = registry_home["home"]
     ids = registry_home["ids"][:2]   # a test above deletes the third flight of this module's registry
@@ -482,4 +482,5 @@ def test_the_report_carries_the_yardsticks_and_the_gap_settings_asked_for(regist
                                                     "gap_every_s": 0.8})
         assert refused.status_code == 422 and "gap_every_s" in refused.text
         schemas = client.get("/openapi.json").json()["components"]["schemas"]
-        assert {"EvaluationReport", "Headline", "MocapGaps", "FastReference", "PaperSG"} <= set(schemas)
+        assert {"EvaluationReportOut", "FlightScoreOut", "Headline", "MocapGaps", "FastReference",
+                "PaperSG"} <= set(schemas)

@@ -244,7 +244,7 @@ def test_delete_removes_row_and_blobs(tmp_path, data_dir):
 def test_unexpected_errors_show_no_traceback(tmp_path, data_dir, monkeypatch):
     from fastapi.testclient import TestClient  # the app stack loads when a test runs, not at collection
 
-    import learnest.service.uploads as uploads
+    import learnest.service.operations.uploads as uploads
     from learnest.service.api.app import create_app
 
     def explode(*_args):

@@ -527,14 +527,14 @@ def test_a_result_stored_after_its_flight_was_deleted_is_not_cached(app_with_a_m
     estimates blob is handed back to be collected."""
     from utils.service import flight_csv, upload
 
-    from learnest.service.deletion import delete_flight
     from learnest.service.jobs.result_cache import store_result
+    from learnest.service.operations.deletion import delete_flight
     from learnest.service.storage.database import discard_blobs
 
     client, _ = app_with_a_model
     services = client.app.state.services
     flight = upload(client, flight_csv(services.settings.home / "logs", seed=7)).json()
-    from learnest.service.registry import get_version
+    from learnest.service.storage.registry import get_version
 
     with services.db.transaction() as session:
         version_id = get_version(session, "quad", 1).id

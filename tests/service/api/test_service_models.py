@@ -1,5 +1,5 @@
 """HTTP service, /models and /jobs: training as a job, immutable versions with provenance, aliases, loading
-"name:version" / "name@alias" from the API and from Python (service.registry.load_model_ref)."""
+"name:version" / "name@alias" from the API and from Python (service.storage.registry.load_model_ref)."""
 import json
 import threading
 
@@ -17,7 +17,7 @@ from utils.service import (
 
 
 def test_training_registers_versions_and_aliases(tmp_path, data_dir):
-    from learnest.service.registry import load_model_ref
+    from learnest.service.storage.registry import load_model_ref
 
     home = tmp_path / "home"
     with running_app(home) as client:
@@ -115,7 +115,7 @@ def test_training_on_a_flight_that_failed_quality_needs_include_bad(tmp_path, da
 
 
 def test_model_references_parse():
-    from learnest.service.registry import parse_ref
+    from learnest.service.storage.registry import parse_ref
 
     assert str(parse_ref("quad:3")) == "quad:3" and parse_ref("quad:3").version == 3
     assert parse_ref("quad@production").alias == "production" and parse_ref("quad").version is None

@@ -131,7 +131,7 @@ def test_cancelling_needs_the_api_key_when_the_server_has_one(tmp_path):
 def test_an_interrupted_cli_training_leaves_no_version(tmp_path):
     from sqlalchemy import select
 
-    from learnest.service.local_registry import cli_settings, train
+    from learnest.service.local import cli_settings, train
     from learnest.service.storage.database import Database, referenced_blobs
     from learnest.service.storage.tables import Job, ModelVersion, RegisteredModel
 

@@ -42,7 +42,7 @@ def test_the_killed_decoder_is_replaced_and_the_next_upload_is_decoded(tmp_path,
     """After a refusal the pool's worker was killed; the shared pool of the other tests still decodes, and a
     pool whose worker timed out decodes a real file again (no slot is lost)."""
     from learnest.service.jobs.decoding import DecodePool
-    from learnest.service.reading import StagedFile, read_uploaded_flight
+    from learnest.service.jobs.reading import StagedFile, read_uploaded_flight
 
     pool = DecodePool(workers=1, waiting=0, timeout_s=0.5, read=sleepy_read)
     path = flight_csv(data_dir, 4)

@@ -70,8 +70,8 @@ def test_loading_a_model_never_migrates_an_older_database(tmp_path):
 
     from learnest.errors import Conflict
     from learnest.service.config import Settings
-    from learnest.service.registry import load_model_ref
     from learnest.service.storage.database import Database
+    from learnest.service.storage.registry import load_model_ref
 
     home = tmp_path / "home"
     home.mkdir()

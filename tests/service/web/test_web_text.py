@@ -11,7 +11,7 @@ import pytest
 from learnest.service.cli import format_report
 from learnest.service.web import evaluation_plots
 from learnest.service.web.headline import diagnosis_headline, diagnosis_split, evaluation_headline, gap_methods
-from learnest.service.web.pages import page
+from learnest.service.web.rendering import page
 
 BLOCKS = {"p", "div", "tr", "li", "ul", "table", "h1", "h2", "section", "details", "summary", "br", "td", "th",
           "form", "fieldset", "legend", "nav", "option", "select", "label"}

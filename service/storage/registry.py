@@ -21,11 +21,11 @@ from sqlalchemy.orm import Session
 from learnest.errors import Conflict, NotFound
 from learnest.models.knode import HybridModel
 
-from .config import Settings
+from ..config import Settings
+from .blobs import BlobStore
+from .database import Database, discard_blobs
 from .references import ModelRef, check_name, parse_ref
-from .storage.blobs import BlobStore
-from .storage.database import Database, discard_blobs
-from .storage.tables import FlightRecord, ModelAlias, ModelVersion, RegisteredModel, utcnow
+from .tables import FlightRecord, ModelAlias, ModelVersion, RegisteredModel, utcnow
 
 LIBRARIES = ("torch", "casadi", "filterpy", "numpy", "scipy", "torchdiffeq")
 

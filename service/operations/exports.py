@@ -16,11 +16,11 @@ from learnest.errors import Conflict, NotFound
 from learnest.estimators.estimates import FlightEstimates
 from learnest.estimators.export import FORMATS, check_format, write_estimates
 
+from ..jobs.result_cache import EstimatorSettings
+from ..storage.blobs import BlobStore
+from ..storage.database import Database, flights_by_id
+from ..storage.tables import Evaluation, Result
 from .catalog import row_and_job
-from .jobs.result_cache import EstimatorSettings
-from .storage.blobs import BlobStore
-from .storage.database import Database, flights_by_id
-from .storage.tables import Evaluation, Result
 
 __all__ = ["FORMATS", "evaluation_estimates", "export_evaluation", "export_filename"]
 

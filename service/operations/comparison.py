@@ -1,5 +1,5 @@
 """The registry seen across rows, as MLflow shows it: the evaluations list, a version's lineage, and versions
-side by side.  Data functions shared by the JSON routes, the web pages and the CLI (like service.catalog).
+side by side.  Data functions shared by the JSON routes, the web pages and the CLI (like service.operations.catalog).
 
 - `list_evaluations`: one page of evaluations, newest first, each with its median MSE per method and the
   KNODE improvements (`evaluation_summary`).
@@ -18,10 +18,10 @@ from sqlalchemy import func, select
 
 from learnest.errors import InvalidInput
 
-from . import registry
-from .references import parse_ref
-from .storage.database import Database, flights_by_id
-from .storage.tables import Diagnosis, Evaluation, FlightRecord, Job, ModelAlias, ModelVersion
+from ..storage import registry
+from ..storage.database import Database, flights_by_id
+from ..storage.references import parse_ref
+from ..storage.tables import Diagnosis, Evaluation, FlightRecord, Job, ModelAlias, ModelVersion
 
 MAX_COMPARED = 10
 

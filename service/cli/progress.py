@@ -76,7 +76,7 @@ class StageProgress:
             print(f"learnest: {self.label}: {stage} ({100 * self.fraction:.0f} %{left})", file=self.stream,
                   flush=True)
 
-    # the callbacks the service functions take (service.local_registry calls both from one poll of the
+    # the callbacks the service functions take (service.local calls both from one poll of the
     # job row: the fraction is kept and drawn with the stage that comes with it, never alone)
     def progress(self, fraction: float) -> None:
         """``progress(fraction)`` callback: kept, shown by the next ``on_stage`` (or `close`)."""

@@ -1,6 +1,6 @@
 """Model names and references ("name", "name:version", "name@alias"), and the topic names an upload or the
 CLI may choose: the grammar alone, with no database, so the CLI and the request models check them before any
-heavy import or work (`service.registry` resolves references; the readers find topics).
+heavy import or work (`service.storage.registry` resolves references; the readers find topics).
 """
 from __future__ import annotations
 

@@ -52,7 +52,7 @@ def test_a_prior_whose_inputs_the_flight_lacks_is_refused_and_nothing_is_registe
     from pathlib import Path
 
     monkeypatch.setenv("LEARNEST_HOME", str(tmp_path / "home"))
-    log = Path(__file__).resolve().parents[2] / "sample_logs" / "circle_rep1.csv"   # no motors, no battery
+    log = Path(__file__).resolve().parents[3] / "sample_logs" / "circle_rep1.csv"   # no motors, no battery
     assert main(["train", "--name", "cf", "--system", "crazyflie", "--epochs", "2", str(log)]) == 2
     err = capsys.readouterr().err
     assert "circle_rep1: the 'crazyflie' prior needs motors, vbat" in err and "Traceback" not in err

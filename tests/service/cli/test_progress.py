@@ -1,4 +1,4 @@
-"""Progress shown by the CLI (service.progress.StageProgress): never above 100 %, never back, label and bar
+"""Progress shown by the CLI (service.cli.progress.StageProgress): never above 100 %, never back, label and bar
 from the same report, and one plain line per stage when stderr is not a terminal."""
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import io
 import re
 import warnings
 
-from learnest.service.progress import StageProgress
+from learnest.service.cli.progress import StageProgress
 
 
 def test_a_bar_never_exceeds_100_percent_nor_goes_back():

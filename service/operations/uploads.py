@@ -29,12 +29,13 @@ from sqlalchemy.exc import IntegrityError
 from learnest.errors import Conflict
 from learnest.ingest.align import cut_text, parse_cut
 from learnest.ingest.flight import Flight as CanonicalFlight
+from learnest.ingest.flight import IngestError
 from learnest.ingest.sidecar import CRAZYSWARM_CONFIG
 
-from .reading import StagedFile, read_uploaded_flight
-from .storage.blobs import CHUNK, BlobStore, storage_errors
-from .storage.database import Database, discard_blobs
-from .storage.tables import FlightFile, FlightRecord, utcnow
+from ..jobs.reading import StagedFile, read_uploaded_flight
+from ..storage.blobs import CHUNK, BlobStore, storage_errors
+from ..storage.database import Database, discard_blobs
+from ..storage.tables import FlightFile, FlightRecord, utcnow
 
 log = logging.getLogger("learnest.uploads")
 
@@ -196,14 +197,23 @@ def stage_uploads(uploads: Sequence[Upload], directory: Path) -> list[StagedFile
 
 
 def _copy_and_hash(source, target: Path) -> tuple[str, int]:
-    digest, size = hashlib.sha256(), 0
+    """Copy the upload to `target`, hashing on the way -> (sha256, size in bytes)."""
+    digest = hashlib.sha256()
+    size = _copy(source, target, digest)
+    return digest.hexdigest(), size
+
+
+def _copy(source, target: Path, digest=None) -> int:
+    """Copy the upload to `target` from its start (feeding `digest` when given) -> its size in bytes."""
+    size = 0
     source.seek(0)
     with open(target, "wb") as handle:
         for chunk in iter(lambda: source.read(CHUNK), b""):
-            digest.update(chunk)
+            if digest is not None:
+                digest.update(chunk)
             size += len(chunk)
             handle.write(chunk)
-    return digest.hexdigest(), size
+    return size
 
 
 def content_sha256(staged: list[StagedFile], topics: dict[str, str | None] | None = None) -> str:
@@ -219,7 +229,7 @@ def content_sha256(staged: list[StagedFile], topics: dict[str, str | None] | Non
 
 
 def _topic_or_none(topic: str | None, what: str) -> str | None:
-    from .references import check_topic
+    from ..storage.references import check_topic
 
     return check_topic(topic, what) if topic and topic.strip() else None
 
@@ -322,6 +332,36 @@ def _is_sidecar(name: str) -> bool:
             or CRAZYSWARM_CONFIG.fullmatch(name) is not None)
 
 
+def readable_groups(paths: Sequence[Path]) -> tuple[list[tuple[str, list[Path]]], list[tuple[Path, IngestError]]]:
+    """The flights among ``paths`` as `learnest.ingest.group_files` groups them, leaving out the files no adapter
+    recognises and those that lack their other half (a Vicon export without its cfclient log, or the reverse).
+
+    Returns
+    -------
+    (groups, left_out)
+        groups: ``[(adapter, [files])]``, one per flight; left_out: ``[(path, IngestError)]``, each file left
+        out with the error that says why (in the order found).
+    """
+    from learnest.ingest import detect, group_files
+
+    left_out: list[tuple[Path, IngestError]] = []
+    readable: list[Path] = []
+    for path in paths:
+        try:
+            detect(path)
+            readable.append(path)
+        except IngestError as err:
+            left_out.append((path, err))
+    while readable:
+        try:
+            return group_files(readable), left_out
+        except IngestError as err:   # a file without its other half: that file only (the one the error names)
+            named = [path for path in readable if str(path) == err.path] or readable[-1:]
+            left_out.append((named[0], err))
+            readable.remove(named[0])
+    return [], left_out
+
+
 def group_uploads(uploads: Sequence[Upload], directory: Path) -> tuple[list[list[int]], dict[int, str]]:
     """The flights among uploaded files, grouped as `learnest.ingest.group_files` groups files on disk.
 
@@ -342,9 +382,6 @@ def group_uploads(uploads: Sequence[Upload], directory: Path) -> tuple[list[list
         groups: per flight, the indices of its files in `uploads` (the log(s) first, then its sidecars);
         refused: {index: why}, the reason naming the client's file.
     """
-    from learnest.ingest import detect, group_files
-    from learnest.ingest.flight import IngestError
-
     names = [original_basename(upload.filename, i) for i, upload in enumerate(uploads)]
     logs = [i for i, name in enumerate(names) if not _is_sidecar(name)]
     log_stems = {Path(names[i]).stem: i for i in logs}
@@ -363,7 +400,7 @@ def group_uploads(uploads: Sequence[Upload], directory: Path) -> tuple[list[list
     for rank, i in enumerate(sorted(logs, key=lambda i: (names[i], i))):
         paths[i] = directory / f"{rank:06d}{_safe_suffix(names[i])}"
         with storage_errors("accept uploads"):
-            _copy_and_hash(uploads[i].file, paths[i])
+            _copy(uploads[i].file, paths[i])   # to tell the format only: stage_uploads hashes what is stored
     index_of = {str(path): i for i, path in paths.items()}
 
     def reason(err: IngestError) -> str:
@@ -373,22 +410,9 @@ def group_uploads(uploads: Sequence[Upload], directory: Path) -> tuple[list[list
             problem = problem.replace(path, names[j])
         return f"{names[i] if i is not None else Path(str(err.path)).name}: {problem}"
 
-    remaining = []
-    for i in sorted(paths, key=lambda i: str(paths[i])):
-        try:
-            detect(paths[i])
-            remaining.append(i)
-        except IngestError as err:
-            refused[i] = reason(err)
-    groups: list[tuple[str, list[Path]]] = []
-    while remaining:
-        try:
-            groups = group_files([paths[i] for i in remaining])
-            break
-        except IngestError as err:   # a Vicon export or cfclient log without its other half: that file only
-            i = index_of.get(str(err.path), remaining[-1])
-            refused[i] = reason(err)
-            remaining.remove(i)
+    groups, left_out = readable_groups(sorted(paths.values(), key=str))
+    for path, err in left_out:
+        refused[index_of[str(path)]] = reason(err)
     flights = []
     for _adapter, files in groups:
         members = [index_of[str(path)] for path in files]

@@ -1,4 +1,4 @@
-"""`learnest train / evaluate / diagnose` on the model registry (service.local_registry): the CLI registers versions
+"""`learnest train / evaluate / diagnose` on the model registry (service.local): the CLI registers versions
 under LEARNEST_HOME like the API does, and takes NAME, NAME:VERSION and NAME@ALIAS; a reference that names
 nothing is exit code 2 with a one-line reason."""
 import contextlib
@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from utils.service import running_app
 
-SAMPLES = Path(__file__).resolve().parents[2] / "sample_logs"
+SAMPLES = Path(__file__).resolve().parents[3] / "sample_logs"
 TRAIN, OTHER = SAMPLES / "circle_rep1.csv", SAMPLES / "circle_rep2.csv"
 
 
@@ -83,8 +83,8 @@ def test_train_twice_registers_versions_1_and_2_on_one_stored_flight(trained):
 
 
 def test_evaluate_by_version_alias_and_bare_name(trained, monkeypatch, capsys):
-    from learnest.service import registry
     from learnest.service.config import Settings
+    from learnest.service.storage import registry
     from learnest.service.storage.database import Database
 
     use_home(monkeypatch, trained["home"])
@@ -247,7 +247,7 @@ def test_registry_command_arguments_are_checked_before_any_import(tmp_path):
     code = ("import sys; from learnest.service.cli import main; "
             "codes = [main(a) for a in (['alias', 'set', 'bad name', '1', 'p'], ['alias', 'set', 'm', '0', 'p'], "
             "['alias', 'set', 'm', '1', '@p'], ['models', 'show', 'm:x'], ['models', 'frob'])]; "
-            "print(codes, ','.join(m for m in ('sqlalchemy', 'learnest.service.registry', 'torch') "
+            "print(codes, ','.join(m for m in ('sqlalchemy', 'learnest.service.storage.registry', 'torch') "
             "if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=tmp_path,
                          env={"LEARNEST_HOME": str(tmp_path / "home"), "PATH": "/usr/bin:/bin"})

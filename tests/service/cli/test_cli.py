@@ -6,7 +6,7 @@ import pytest
 
 from learnest.service.cli import main
 
-DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
+DATA = Path(__file__).resolve().parents[3].parent / "shared" / "data"
 NANOBENCH = DATA / "nanobench"
 needs_data = pytest.mark.data  # skipped by conftest.py when ../shared/data is absent
 
@@ -115,14 +115,15 @@ def test_a_lone_half_of_a_vicon_cfclient_pair_is_named(tmp_path, capsys):
 
 
 def test_a_model_reference_is_checked_without_the_database_stack():
-    """The reference's form is checked from `service.references` alone: parsing the arguments loads no
+    """The reference's form is checked from `service.storage.references` alone: parsing the arguments loads no
     SQLAlchemy, registry or torch (the checks run before any heavy import, as the error promises)."""
     import subprocess
     import sys
 
     code = ("import sys; from learnest.service.cli import build_parser; "
             "build_parser().parse_args(['evaluate', '--model', 'quad@production', 'f.csv']); "
-            "print(','.join(m for m in ('sqlalchemy', 'learnest.service.registry', 'torch') if m in sys.modules))")
+            "print(','.join(m for m in ('sqlalchemy', 'learnest.service.storage.registry', 'torch') "
+            "if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd="/")
     assert out.stdout.strip() == ""
 

@@ -15,9 +15,9 @@ from sqlalchemy import ColumnElement, func, select
 
 from learnest.errors import Conflict, NotFound
 
-from . import registry
-from .storage.database import Database, flights_by_id
-from .storage.tables import Diagnosis, Evaluation, FlightRecord, Job, ModelVersion, RegisteredModel
+from ..storage import registry
+from ..storage.database import Database, flights_by_id
+from ..storage.tables import Diagnosis, Evaluation, FlightRecord, Job, ModelVersion, RegisteredModel
 
 
 # -- flights ---------------------------------------------------------------------------------------------

@@ -102,7 +102,7 @@ def test_no_readable_file_at_all_is_an_error_naming_each(logs, tmp_path, monkeyp
 
 
 def test_the_library_call_lists_the_errors_and_strict_raises(logs, tmp_path, monkeypatch):
-    from learnest.service.local_registry import UnreadableFile, train
+    from learnest.service.local import UnreadableFile, train
 
     use_home(monkeypatch, tmp_path / "home")
     with pytest.raises(UnreadableFile, match="imu_acc_x"):

@@ -26,11 +26,11 @@ from sqlalchemy.orm import Session
 
 from learnest.errors import Conflict, NotFound
 
-from . import registry
-from .jobs.runner import ACTIVE
-from .storage.blobs import BlobStore
-from .storage.database import Database, blob_is_referenced
-from .storage.tables import (
+from ..jobs.runner import ACTIVE
+from ..storage import registry
+from ..storage.blobs import BlobStore
+from ..storage.database import Database, blob_is_referenced
+from ..storage.tables import (
     Diagnosis,
     Evaluation,
     FlightRecord,

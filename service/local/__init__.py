@@ -1,0 +1,34 @@
+"""The service in this process, without HTTP: the model registry and flight store as the CLI's commands (and
+scripts, benchmarks, notebooks) use them.  Beside the JSON API and the web pages it is the third surface over the
+same service functions (service.operations) and jobs.
+
+It uses the same database and blob folder as `learnest serve` (LEARNEST_HOME, or LEARNEST_DATABASE_URL), so a
+model trained by `learnest train` is `name:version` for the API and the web pages too, and the reverse.
+Modules: `services` (settings, Services opened here, watching a job), `flights` (storing local files as an
+upload would), `training`, `evaluation`, `browsing` (reading the registry); their public names are here.
+
+- `add_flight`: store a flight's log file(s) as POST /flights does (service.operations.uploads.add_flight: raw files +
+  normalized flight as blobs, one row, deduplicated by sha256).
+- `train`: register the next version of a model trained on those flights (one, or several of one vehicle), as
+  POST /models does (a training job on a one-process local pool, with the same provenance), and wait for it.
+  Interrupted (Ctrl-C), the job is
+  cancelled, its worker stopped and its reserved version removed: nothing half-registered is left.
+- `register_repaired`: register a diagnosis' repaired model as the next version of a name (its fitting flight
+  stored as by an upload), as POST /diagnoses with "register" does.
+- `evaluate`: store the flights (as `add_flight`) and evaluate a registered version on them as POST /evaluations
+  does, here and now (`InlineExecutor`); the evaluation is then in the registry, its page and its exports.
+- `export`: write a stored evaluation's state estimates (service.operations.exports).
+- `load_model`: "NAME" (its latest ready version), "NAME:VERSION" or "NAME@ALIAS" -> HybridModel, through
+  service.storage.registry.load_model_ref; a reference that names nothing usable is a NotFound or Conflict listing the
+  known models.
+"""
+from .browsing import known_models, list_flights, list_models, load_model, set_alias, show_model
+from .evaluation import evaluate, export
+from .flights import UnreadableFile, add_flight, flight_files
+from .services import cli_settings, local_services, registry_database, wait_for_job, watching_stages
+from .training import TrainingFailed, abandon_training, register_repaired, train
+
+__all__ = ["TrainingFailed", "UnreadableFile", "abandon_training", "add_flight", "cli_settings", "evaluate", "export",
+           "flight_files", "known_models", "list_flights", "list_models", "load_model", "local_services",
+           "register_repaired", "registry_database", "set_alias", "show_model", "train", "wait_for_job",
+           "watching_stages"]
