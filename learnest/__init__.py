@@ -42,7 +42,7 @@ _LAZY = {
     "HybridModel": "learnest.models.knode",
     "make_system": "learnest.models.systems",
     "FilterResult": "learnest.estimators.results",
-    "KNODE": "learnest.service.experiments.knode",
+    "KNODE": "learnest.estimators.knode_estimator",
     "MHEResult": "learnest.service.experiments.estimation",
     "ukf": "learnest.service.experiments.estimation",
     "mhe": "learnest.service.experiments.estimation",
@@ -69,6 +69,7 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # what type checkers and IDEs see
+    from .estimators.knode_estimator import KNODE
     from .estimators.results import FilterResult
     from .ingest import read_flights
     from .ingest.flight import Flight, IngestError
@@ -76,5 +77,4 @@ if TYPE_CHECKING:  # what type checkers and IDEs see
     from .models.systems import make_system
     from .service.experiments.diagnosis import diagnose
     from .service.experiments.estimation import MHEResult, evaluate, mhe, ukf
-    from .service.experiments.knode import KNODE
     from .service.experiments.thrust_map import thrust_map

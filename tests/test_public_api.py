@@ -46,7 +46,7 @@ def test_import_learnest_is_light():
 
 def test_science_layers_import_without_the_service_stack():
     code = ("import sys; import learnest.service.experiments.estimation, learnest.service.experiments.diagnosis, "
-            "learnest.service.experiments.table1, learnest.service.experiments.knode; "
+            "learnest.service.experiments.table1, learnest.estimators.knode_estimator; "
             "print(','.join(m for m in ('fastapi', 'sqlalchemy', 'starlette', 'alembic') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd="/")
     assert out.stdout.strip() == ""

@@ -1,4 +1,5 @@
-"""`KNODE`: Algorithm 1 as an estimator object a notebook user fits (pysindy/scikit-learn habit).
+"""`KNODE`: Algorithm 1 (`algorithm1.Algorithm1`) as an estimator object a notebook user fits
+(pysindy/scikit-learn habit).
 
 Hyperparameters go to the constructor, `fit(flight)` (or `fit(flights)`, several flights of one vehicle) runs
 the pre-training observer and the training and returns ``self``; what was learned ends in ``_``.
@@ -9,11 +10,11 @@ from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 from learnest.errors import InvalidInput
-from learnest.estimators.prepared import FLIGHT_SYSTEMS
 from learnest.ingest.flight import Flight
 from learnest.models.presets import CRAZYFLIE_TRAINING
 
-from .flights import train_on_flights
+from .algorithm1 import Algorithm1
+from .prepared import FLIGHT_SYSTEMS
 
 
 class KNODE:
@@ -76,7 +77,7 @@ class KNODE:
         ----------
         flights : Flight or sequence of Flight
             The training flight(s) (position and world-frame acceleration are the measurements).  Several
-            flights train one residual on one pooled loss (`service.experiments.flights.train_on_flights`).
+            flights train one residual on one pooled loss (`estimators.algorithm1.Algorithm1.fit_flights`).
         progress : callable, optional
             Called as ``progress(epoch, mean_training_loss)`` after every epoch.
         validate : sequence of str, optional
@@ -104,7 +105,7 @@ class KNODE:
                                f"{wrong[0] if wrong else 'an empty list'}")
         config = replace(CRAZYFLIE_TRAINING, hidden=self.hidden, epochs=self.epochs, lr=self.lr,
                          validation_fraction=self.validation_fraction, seed=self.seed)
-        result = train_on_flights(given, config, progress=progress, system=self.system, validate=validate)
+        result = Algorithm1(config=config).fit_flights(given, self.system, validate, progress=progress)
         self.model_ = result.model
         self.losses_, self.validation_losses_ = result.losses, result.validation_losses
         self.seconds_ = result.seconds
