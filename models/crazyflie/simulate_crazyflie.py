@@ -9,8 +9,9 @@ from cold at the start); the controller flies with the prior's thrust map and an
 
 The Flight carries what a NanoBench log carries: mocap position and attitude, the accelerometer's
 body-frame specific force (``acc_body``, white noise, optionally the sensor's low-pass), the four motor PWM
-(``motors``) and the battery voltage (``vbat``).  The motor lag acts on the body-frame specific force as a
-first-order filter, the form `models.crazyflie.identify` predicts.  Writing these inputs into the log formats of
+(``motors``) and the battery voltage (``vbat``).  The motor lag acts on the thrust, the body-z specific force, as a
+first-order filter (the drag across it follows the velocity at once), the form `models.crazyflie.identify`
+predicts and the `crazyflie` system integrates.  Writing these inputs into the log formats of
 `ingest` is not done here (ingest must not import models).
 """
 from __future__ import annotations
@@ -119,11 +120,7 @@ def reference_path(settings: SimulatedFlight, rng: np.random.Generator) -> tuple
 
 def _pwm_for(thrust_n: np.ndarray, vbat: float, params: dict) -> np.ndarray:
     """PWM (0..65535) at which each motor gives thrust_n (N) at vbat (V) on the map ``params``."""
-    poly = thrust_n / (vbat / params.get("v_ref", cf.V_REF)) ** params["gamma"]
-    a2, a1, a0 = params.get("q_pwm2", 1.0) * cf.FOERSTER_A2, cf.FOERSTER_A1, cf.FOERSTER_A0 - poly
-    if abs(a2) < 1e-30:
-        return np.clip(-a0 / a1, 0.0, cf.PWM_MAX)
-    return np.clip((-a1 + np.sqrt(np.maximum(a1 * a1 - 4 * a2 * a0, 0.0))) / (2 * a2), 0.0, cf.PWM_MAX)
+    return np.clip(cf.pwm_for_thrust(thrust_n, params, vbat), 0.0, cf.PWM_MAX)
 
 
 def _attitude(force: np.ndarray, yaw: float) -> tuple[np.ndarray, np.ndarray]:
@@ -207,6 +204,8 @@ def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int 
         motor_cmd = np.array([float(cf.motor_thrust(x, volts[k], truth)) for x in u[4:8]])
         if lagless:   # no lag: the force is the command's from the sample on (not the last sample's)
             f, motor = f_cmd, motor_cmd
+        else:         # the motors lag the thrust (body z); the drag across it (body x/y) follows at once
+            f = np.r_[f_cmd[:2], f[2]]
         log_p[k], log_f[k], log_u[k], log_f_cmd[k] = p, f, u, f_cmd
         # the controller's thrust command (N) and each motor's thrust after its lag (what its speed gives)
         log_thrust_cmd[k], log_motor_thrust[k] = command["thrust_n"], motor
@@ -277,12 +276,14 @@ def _sensor_reading(settings: SimulatedFlight, forces: tuple[np.ndarray, np.ndar
     fine = (f_cmd[:, None, :] + (f_start - f_cmd)[:, None, :] * within[None, :, None]).reshape(-1, 3)
     fine_t = np.arange(len(fine)) / (up * settings.rate_hz)
     read = predict_acc_body(fine, fine_t, sensor) + np.repeat(noise, up, axis=0)
-    b, a = replace(CRAZYFLIE_ACCEL_LOWPASS, cutoff_hz=settings.accel_lpf_hz, rate_hz=up * settings.rate_hz).coefficients()
+    lowpass = replace(CRAZYFLIE_ACCEL_LOWPASS, cutoff_hz=settings.accel_lpf_hz, rate_hz=up * settings.rate_hz)
+    b, a = lowpass.coefficients()
     return lfilter(b, a, read - read[0], axis=0)[::up] + read[0]
 
 
 def _as_flight(settings: SimulatedFlight, rng: np.random.Generator, t: np.ndarray, log_p: np.ndarray,
-               forces: tuple[np.ndarray, np.ndarray], log_u: np.ndarray, log_thrust_cmd: np.ndarray, log_motor_thrust: np.ndarray,
+               forces: tuple[np.ndarray, np.ndarray], log_u: np.ndarray, log_thrust_cmd: np.ndarray,
+               log_motor_thrust: np.ndarray,
                truth: dict, name: str) -> Flight:
     """The simulated states and inputs as the sensors log them (`simulate_crazyflie`'s Flight)."""
     n = len(t)

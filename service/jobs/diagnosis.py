@@ -3,6 +3,7 @@ as a child version when asked, and storing the report."""
 from __future__ import annotations
 
 from learnest.errors import InvalidInput, NotFound
+from learnest.models.presets import diagnosis_fitting_count
 
 from .. import registry
 from ..experiments.reports import DiagnosisReport
@@ -62,8 +63,7 @@ def fitting_samples(rows, system: str) -> int:
     the first half, rounded up (input-driven Crazyflie prior).  The quota is charged on these, not on the
     first flight named: a short bad flight named first is dropped, and the big one after it is fitted."""
     used = [row for row in rows if row.quality_ok] or list(rows)
-    fitting = used[:(len(used) + 1) // 2] if system == "crazyflie" else used[:1]
-    return sum(int(row.samples) for row in fitting)
+    return sum(int(row.samples) for row in used[:diagnosis_fitting_count(len(used), system)])
 
 
 def run_diagnosis(services: Services, ctx: JobContext, diagnosis_id: int) -> None:
@@ -88,7 +88,7 @@ def run_diagnosis(services: Services, ctx: JobContext, diagnosis_id: int) -> Non
                                             settings.get("system", "quadrotor"), ctx.progress_target))
     ctx.progress(0.95, "storing the report" + (f" and registering {register}" if register else ""))
     registered = None
-    verdict = out["report"].get("repair") or {"improves": True}
+    verdict = out["report"].get("repair") or {"improves": False, "reason": "the diagnosis gave no verdict on them"}
     if register is not None and not verdict["improves"]:
         # a repair that does not improve the held-out flights is not registered (models.diagnosis's rule)
         out["report"]["not_registered"] = f"the repair does not improve the held-out flights ({verdict['reason']})"
