@@ -58,6 +58,22 @@ def test_thrust_in_newtons_gives_a_payload_as_a_mass_in_kg():
     assert report["after"]["specific_force_rmse"] < report["before"]["specific_force_rmse"]
 
 
+def test_a_thrust_command_the_accelerometer_contradicts_is_a_command_scale_not_a_mass():
+    """A vehicle whose thrust per PWM is 1.6x what its controller's map assumes logs a command 1/1.6 of the
+    thrust it makes: read as exact, the mass would be M0/1.6 against the prior's M0.  Position and
+    accelerometer measure only thrust made / mass, so the report gives the thrust made over the command
+    (1.6, with the prior's mass) and the implied mass, and claims no mass."""
+    prior = cf.prior_for("thrust_n", M0, BASE)
+    report = diagnose_crazyflie(_flights({**BASE, "m_kg": M0 / 1.6}, "thrust_n"), methods=(), prior=prior)
+    _contract(report)
+    assert "mass" not in {e["id"] for e in report["effects"]}
+    scale = report["effects"][0]
+    assert scale["id"] == "thrust_gain" and scale["params"]["gain"] == pytest.approx(1.6, rel=0.05)
+    assert scale["implied_mass_kg"] == pytest.approx(M0 / 1.6, rel=0.05)
+    assert "No mass is claimed" in scale["note"] and "under-promises" in scale["note"]
+    assert not report["vehicle_fits_prior"]["ok"]
+
+
 def test_a_flight_with_only_thrust_in_newtons_picks_the_thrust_prior_and_its_declared_mass():
     flights = _flights({**BASE, "m_kg": 1.2 * M0}, "thrust_n", n=2)
     assert "motors" not in flights[0].channels and "thrust_si" in flights[0].channels
