@@ -1,7 +1,8 @@
 """The Crazyflie diagnosis on what a log carries of the thrust (motor PWM + battery, rotor speed, thrust in N),
 with physically true names and values: a thrust gain unless the mass is known, a flag for a vehicle that is
 not the prior's, no parameter claimed at a physical bound, cancelling pairs never both claimed, a repair
-registered only when it helps held-out flights.  Simulated flights: `models.crazyflie.simulate_crazyflie` (the truth)."""
+registered only when it helps held-out flights.  Simulated flights: `models.crazyflie.simulate_crazyflie` (the
+truth)."""
 from __future__ import annotations
 
 import contextlib
