@@ -55,6 +55,36 @@ def _check(report) -> dict:
             "improved_flights": improved, "repair": report["repair"]}
 
 
+def _mass_lines(flights, report) -> list[str]:
+    """What the thrust-in-N logs say of the mass: the command and the accelerometer per flight, and the mass
+    claimed, or the one implied were the command the thrust made (`diagnosis_crazyflie._command_scale_text`)."""
+    import numpy as np
+
+    lines = []
+    for f in flights:
+        command, acc = np.median(f.channels["thrust_si"]), np.median(np.linalg.norm(f.channels["acc_body"], axis=1))
+        lines.append(f"- {f.name}: median commanded thrust {command:.3f} N, median |accelerometer| {acc:.2f} m/s², "
+                     f"command / |acc| = {1e3 * command / acc:.1f} g")
+    declared = report["declared_mass_kg"]
+    mass = next((e for e in report["effects"] if e["id"] == "mass" and e["identified"].get("m_kg")), None)
+    scale = next((e for e in report["effects"] if "implied_mass_kg" in e), None)
+    if mass is not None:
+        m = mass["params"]["m_kg"]
+        met = declared is not None and abs(m - declared) <= 0.1 * declared
+        lines.append(f"- mass from the data: {1e3 * m:.1f} g against the declared {1e3 * declared:.0f} g: "
+                     f"{'MET' if met else 'NOT MET'} (within 10 %)")
+    elif scale is not None:
+        lo, hi = scale["implied_mass_ci95"] or (float("nan"), float("nan"))
+        g_lo, g_hi = scale["ci95"]["gain"]
+        implied, gain = 1e3 * scale["implied_mass_kg"], scale["params"]["gain"]
+        lines.append(f"- mass from the data: none claimed.  Position and accelerometer give the thrust made over the "
+                     f"mass only; were the command the thrust made, the mass would be {implied:.1f} g "
+                     f"[{1e3 * lo:.1f}, {1e3 * hi:.1f}] against the declared {1e3 * declared:.0f} g; with the "
+                     f"declared mass the thrust made is ×{gain:.3f} [{g_lo:.3f}, {g_hi:.3f}] of the commanded "
+                     "thrust.  Within 10 % of the declared mass: NOT MET (these logs cannot determine the mass)")
+    return lines
+
+
 def main() -> None:
     OUT.mkdir(parents=True, exist_ok=True)
     lines = ["# Crazyflie diagnosis on real logs", "",
@@ -77,6 +107,8 @@ def main() -> None:
                   f"claimed at a bound: {check['claimed_at_bound'] or 'none'};"
                   f" claimed outside the physical range: {check['claimed_outside_bounds'] or 'none'}",
                   f"- held-out flights improved: {check['improved_flights']}; repair verdict: {check['repair']}", ""]
+        if report["thrust_source"] == "thrust_n":
+            lines += _mass_lines(flights, report) + [""]
         for e in report["effects"]:
             lines.append(f"  - {e['id']}: " + ", ".join(
                 f"{k} = {v:.4g} {e['units'].get(k, '')} CI {[round(x, 5) for x in e['ci95'].get(k, [])]} "

@@ -60,8 +60,8 @@ def _case(source: str, effect: str, declared: float | None = None):
         if source == "rpm":     # the rotor speed is measured behind the motor's lag: the prior has none
             prior["tau_s"] = 0.0
             if effect != "motor lag 30 ms":
-                # the simulator lags the whole body force (drag too), as the PWM prior does: a vehicle with
-                # a lag would show it in its drag, which is not what these cases test
+                # the simulator lags the body-z force (the z drag with the thrust), as the PWM prior does: a
+                # vehicle with a lag would show it in its drag, which is not what these cases test
                 truth["tau_s"] = 0.0
     if effect == "payload +20 %":
         if source != "thrust_n" and declared is None:
@@ -83,18 +83,42 @@ def _flights(truth, controller, source, n=3, **settings):
                                                thrust_source=source, **settings), seed=s) for s in range(n)]
 
 
+def _ukf_against_truth(report, flight, truth, controller, source, seed) -> tuple[float, float]:
+    """The prior-only UKF's mean squared error against the simulated truth (p m, v m/s, a m/s², 9 states) on
+    the held-out ``flight``, with the prior before and after the repair.  The service scores against SG
+    references of the noisy mocap, whose own error (~0.06 here, mostly in v and a) is ~70× the estimate's:
+    it cannot see a 30-ms lag.  The truth is the same flight flown without sensor noise (the noise is drawn
+    after the flight, so the path is the same)."""
+    from dataclasses import replace
+
+    from learnest.models.knode import HybridModel
+    from learnest.service.experiments.flights import evaluate_flight, system_for
+
+    twin = simulate_crazyflie(SimulatedFlight(truth=truth, controller=controller, duration_s=DURATION_S,
+                                              thrust_source=source, accel_noise=0.0, mocap_noise=0.0,
+                                              vbat_noise=0.0), seed=seed)
+    states = np.column_stack([twin.p, np.gradient(twin.p, twin.dt, axis=0), twin.a_meas])
+    scores = []
+    for params in (report["prior"]["params"], report["prior_after"]["params"]):
+        system = replace(system_for(flight, "crazyflie"), prior_params=dict(params))
+        run = evaluate_flight(HybridModel(system, "prior"), flight, ("ukf",), thrust_gain=False, keep_estimates=True)
+        scores.append(float(np.mean((np.asarray(run["results"]["ukf"]["estimates"]) - states) ** 2)))
+    return scores[0], scores[1]
+
+
 def _claimed_at_bound(report) -> list[str]:
     return [f"{e['id']}.{k}" for e in report["effects"] for k, ok in e.get("identified", {}).items()
             if ok and e.get("at_bound", {}).get(k)]
 
 
-def _summary(report, expected, values) -> dict:
+def _summary(report, expected, values, truth_scores=(None, None)) -> dict:
     top = report["effects"][0] if report["effects"] else None
     claimed = [e["id"] for e in report["effects"] if any(e.get("identified", {}).values())]
     row = {"first": top["id"] if top else None, "claimed": claimed,
            "params": top["params"] if top else {}, "ci95": top["ci95"] if top else {},
            "before": report["before"]["specific_force_rmse"], "after": report["after"]["specific_force_rmse"],
            "ukf_before": report["before"].get("ukf"), "ukf_after": report["after"].get("ukf"),
+           "ukf_truth_before": truth_scores[0], "ukf_truth_after": truth_scores[1],
            "repair": report.get("repair"),
            "vehicle_fits_prior": report.get("vehicle_fits_prior"), "thrust_source": report.get("thrust_source"),
            "claimed_at_bound": _claimed_at_bound(report), "confounded": [c["effects"] for c in report["confounded"]]}
@@ -105,8 +129,9 @@ def _summary(report, expected, values) -> dict:
             abs(top["params"][k] - v) <= 0.2 * abs(v) for k, v in values.items()))
         row["error_pct"] = {k: round(100 * (top["params"][k] - v) / v, 1) for k, v in values.items()} \
             if top and top["id"] == expected else None
+        # held out: the specific force from the inputs, and the UKF against the simulated truth
         row["met"] = (within and row["after"] < row["before"] and not row["claimed_at_bound"]
-                      and (row["ukf_after"] is None or row["ukf_after"] < row["ukf_before"]))
+                      and (row["ukf_truth_after"] is None or row["ukf_truth_after"] < row["ukf_truth_before"]))
     row["expected"] = expected
     row["truth"] = values
     return row
@@ -121,9 +146,10 @@ def source_matrix() -> list[dict]:
             for declared in (declared_masses if effect == "payload +20 %" else (None,)):
                 prior, truth, controller, expected, values = _case(source, effect, declared)
                 started = time.perf_counter()
-                report = diagnose_crazyflie(_flights(truth, controller, source), methods=METHODS, prior=prior,
-                                            mass_kg=declared)
-                row = _summary(report, expected, values)
+                flights = _flights(truth, controller, source)
+                report = diagnose_crazyflie(flights, methods=METHODS, prior=prior, mass_kg=declared)
+                truth_scores = _ukf_against_truth(report, flights[-1], truth, controller, source, len(flights) - 1)
+                row = _summary(report, expected, values, truth_scores)
                 row.update(source=source, effect=effect + (f", declared {declared * 1e3:g} g" if declared else ""),
                            seconds=round(time.perf_counter() - started, 1))
                 rows.append(row)
@@ -175,19 +201,26 @@ def _markdown(matrix, special) -> str:
     lines = ["# Crazyflie diagnosis by thrust source, simulated flights",
              "", "Command: `.venv/bin/python benchmarks/crazyflie_diagnosis_sources.py > "
              "benchmarks/results/crazyflie_diagnosis_sources/results.md` (results.json beside it).",
-             f"Three {DURATION_S:g}-s closed-loop flights per case (`models.crazyflie.simulate_crazyflie`, seeds 0-2), fitted on "
+             f"Three {DURATION_S:g}-s closed-loop flights per case (`models.crazyflie.simulate_crazyflie`, seeds 0-2), "
+             "fitted on "
              "the first two, scored on the third (body-frame specific force from the inputs, RMSE m/s², 5 Hz).",
              "Target: the right effect first, within 20 %, after < before, nothing claimed at a bound; where the "
              "source already carries the effect (battery or lag behind a measured rotor speed, battery behind a "
              "thrust command), nothing claimed.", "",
-             "Held-out: specific-force RMSE (m/s²) and the prior-only UKF's MSE, before → after the repair.", "",
-             "| source | effect | expected | first | values | error % | force before | force after | UKF before | "
-             "UKF after | claimed | met |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "Held-out (the third flight): specific-force RMSE (m/s²) from the inputs; the prior-only UKF's MSE "
+             "over p, v, a against the simulated truth (the same flight flown without sensor noise), which "
+             "`met` uses; and the service's own score, the UKF's MSE against SG references of the noisy mocap, "
+             "whose own error (~0.06) is ~70× the estimate's and hides a 30-ms lag (the true parameters score "
+             "worse on it than a lag-free prior), shown for reference.", "",
+             "| source | effect | expected | first | values | error % | force before | force after "
+             "| UKF vs truth before | UKF vs truth after | UKF vs SG ref. before | UKF vs SG ref. after "
+             "| claimed | met |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in matrix:
         values = ", ".join(f"{k} {v:.4g}" for k, v in r["params"].items())
         lines.append(f"| {r['source']} | {r['effect']} | {r['expected'] or 'nothing'} | {r['first'] or '-'} | {values} "
                      f"| {r.get('error_pct') or '-'} | {r['before']:.4f} | {r['after']:.4f} | "
+                     f"{r['ukf_truth_before']:.4g} | {r['ukf_truth_after']:.4g} | "
                      f"{r['ukf_before']:.4g} | {r['ukf_after']:.4g} | "
                      f"{', '.join(r['claimed']) or '-'} | {'MET' if r['met'] else 'NOT MET'} |")
     lines += ["", "## Cases a diagnosis can get wrong", ""]

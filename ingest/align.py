@@ -89,7 +89,8 @@ def stream_timing(t: np.ndarray | Sequence[float]) -> dict | None:
     dict or None
         ``rate_hz`` (`samples_per_second`), ``samples``, ``span_s`` (s), ``delivered`` (samples over those a
         gap-free stream at ``rate_hz`` would hold over the span, 0-1), ``gaps`` (steps longer than GAP_STEPS
-        median steps) and ``longest_gap_s`` (s); None for fewer than 2 samples.
+        median positive steps: repeated stamps, as a log that stamps several rows alike writes, are no step)
+        and ``longest_gap_s`` (s); None for fewer than 2 samples.
     """
     t = np.asarray(t, dtype=float)
     rate = samples_per_second(t)
@@ -100,7 +101,8 @@ def stream_timing(t: np.ndarray | Sequence[float]) -> dict | None:
     expected = span * rate + 1
     return {"rate_hz": round(rate, 3), "samples": int(len(t)), "span_s": round(span, 3),
             "delivered": round(min(1.0, len(t) / expected), 4),
-            "gaps": int(np.sum(steps > GAP_STEPS * np.median(steps))), "longest_gap_s": round(float(steps.max()), 4)}
+            "gaps": int(np.sum(steps > GAP_STEPS * np.median(steps[steps > 0]))) if np.any(steps > 0) else 0,
+            "longest_gap_s": round(float(steps.max()), 4)}
 
 
 def resample(t_src: ArrayLike, values: ArrayLike, t_grid: np.ndarray,
@@ -176,7 +178,8 @@ def started_in_air(p: np.ndarray, rate_hz: float) -> tuple[bool, str]:
 
     In the air at the start: the first 0.5 s lie FLYING_HEIGHT_M above the log's lowest height (it comes
     down later), or the vehicle moves sideways faster than a resting one can (mocap noise; a take-off that
-    begins within the first 0.5 s climbs, it does not slide), or it is not still (HEAD_STILL_M).
+    begins within the first 0.5 s climbs, it does not slide), or it is not still (HEAD_STILL_M): it wanders
+    sideways, or it sinks (a vehicle on the floor cannot; a climb is a take-off, not a sign of flight).
     ``p`` (T, 3) m, z up.  A log that starts hovering at its lowest height and holds still at first cannot be
     told from one on a shelf: the user's cut (`parse_cut`) decides then.
     """
@@ -194,7 +197,8 @@ def started_in_air(p: np.ndarray, rate_hz: float) -> tuple[bool, str]:
         from scipy.ndimage import uniform_filter1d
 
         smooth = uniform_filter1d(p[:head], min(HEAD_SMOOTHING, head), axis=0, mode="nearest")
-        span = float(np.max(np.ptp(smooth, axis=0)))
+        sink = float(np.max(np.maximum.accumulate(smooth[:, 2]) - smooth[:, 2]))   # largest fall after a height
+        span = max(float(np.max(np.ptp(smooth[:, :2], axis=0))), sink)
         if span > HEAD_STILL_M:
             return True, f"moving by {1000 * span:.0f} mm in the first {HEAD_S:g} s (a vehicle on the floor is still)"
     return False, ""
@@ -385,18 +389,13 @@ def build_flight(path: str | Path, *, t_mocap: ArrayLike, p: ArrayLike, quat: Ar
     if t1 - t0 < 2.0 / rate_hz:
         raise IngestError(path, "mocap and accelerometer streams do not overlap in time")
     grid = uniform_grid(t0, t1, rate_hz)
-    p_grid, mocap_gap = resample(t_mocap, p, grid, max_gap_s=5.0 / rate_hz)
-    if mocap_alive_t is not None:
-        alive = np.asarray(mocap_alive_t, dtype=float)
-        mocap_gap = resample(alive, np.zeros(len(alive)), grid, max_gap_s=5.0 / rate_hz)[1]
-    q_grid = resample_quaternions(t_mocap, quat, grid)
+    p_grid, q_grid, mocap_gap, alive_t = _mocap_on_grid(t_mocap, p, quat, grid, rate_hz, mocap_alive_t)
     # gaps are told from the stamps as recorded, the values from the low-passed stream
     _, acc_gap = resample(t_acc, acc_body_g, grid, max_gap_s=5.0 / rate_hz)
     t_filtered, acc_filtered, filtered = anti_alias(t_acc, acc_body_g, rate_hz)
     acc_grid, _ = resample(t_filtered, acc_filtered, grid)
     extra, low_passed = _resample_channels(channels, grid, rate_hz, ["acc"] if filtered else [])
     extra["acc_body"] = acc_grid * GRAVITY
-    alive_t = t_mocap if mocap_alive_t is None else np.asarray(mocap_alive_t, dtype=float)
     meta = _grid_meta(meta, rate_hz, t0, p, alive_t, t_acc, low_passed)
     flight = Flight(grid - grid[0], p_grid, world_acceleration(acc_grid, q_grid), q_grid, extra, meta)
     start, stop, rule = _window(flight, rate_hz, parse_cut(cut))
@@ -405,6 +404,17 @@ def build_flight(path: str | Path, *, t_mocap: ArrayLike, p: ArrayLike, quat: Ar
     flight = flight.slice(start, stop)
     _record_window(flight, grid, start, stop, rule, cut, mocap_gap, acc_gap)
     return flight
+
+
+def _mocap_on_grid(t_mocap: np.ndarray, p: ArrayLike, quat: ArrayLike, grid: np.ndarray, rate_hz: float,
+                   mocap_alive_t: ArrayLike | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`build_flight`'s mocap on the grid: (position (G, 3) m, quaternions (G, 4), mask of grid points in a
+    mocap gap longer than 5 grid steps, the stamps the stream was alive at), the gaps told from
+    ``mocap_alive_t`` when given (a repeated pose is not a lost frame)."""
+    alive_t = t_mocap if mocap_alive_t is None else np.asarray(mocap_alive_t, dtype=float)
+    p_grid, _ = resample(t_mocap, p, grid)
+    mocap_gap = resample(alive_t, np.zeros(len(alive_t)), grid, max_gap_s=5.0 / rate_hz)[1]
+    return p_grid, resample_quaternions(t_mocap, quat, grid), mocap_gap, alive_t
 
 
 def _resample_channels(channels: dict | None, grid: np.ndarray, rate_hz: float, low_passed: list[str]):

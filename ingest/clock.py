@@ -25,7 +25,15 @@ Why this quantity:
 
 Both signals pass through the same zero-phase low-pass, so any filter phase is common to both and cannot
 bias the offset; the band keeps the manoeuvre and drops double-differentiated mocap noise (it grows with
-frequency squared) and propeller vibration.
+frequency squared) and propeller vibration.  The Savitzky–Golay derivative is a symmetric window: no lag.
+
+The accelerometer's own low-pass is another matter: it runs on the vehicle before the value is logged, so
+the logged specific force lags the body's by the filter's group delay, and the correlation peak finds the
+clocks' offset less that delay.  The Crazyflie firmware filters the accelerometer with a 2-pole Butterworth
+at 30 Hz on its 1 kHz samples (`CRAZYFLIE_ACCEL_LOWPASS`), a delay of √2/(2π·30 Hz) ≈ 7.5 ms below the
+manoeuvres' few Hz.  `align_mocap_and_accelerometer` adds the declared filter's low-frequency group delay
+(`SensorLowPass.group_delay_s`, flat to 0.1 ms across the correlation's band) back to the peak, so the
+offset is the clocks' and the filter's delay stays what it is, a property of the sensor.
 
 Accuracy (simulated 8 s figure-eight with take-off and landing,
 tests/ingest/formats/test_ingest_vicon_cfclient.py): ~1-3 ms with 0.01 g accelerometer and 0.1 mm mocap noise
@@ -36,7 +44,7 @@ manoeuvres and take-offs give sharper correlation peaks than slow, level motion.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -62,6 +70,47 @@ MIN_SIGNAL_S = 2.0
 MAIN_LOBE_FRACTION = 0.5
 
 
+@dataclass(frozen=True)
+class SensorLowPass:
+    """A sensor's own Butterworth low-pass, run on the vehicle before its values are logged.
+
+    Attributes
+    ----------
+    order : int
+        Number of poles.
+    cutoff_hz : float
+        −3 dB frequency, Hz.
+    rate_hz : float
+        Rate the filter runs at on the vehicle, Hz (the sensor's sampling rate, not the log's).
+    """
+
+    order: int
+    cutoff_hz: float
+    rate_hz: float
+
+    def coefficients(self) -> tuple[np.ndarray, np.ndarray]:
+        """(b, a) of the discrete filter (bilinear, pre-warped at the cut-off: the firmware's ``lpf2p``)."""
+        from scipy.signal import butter  # scipy.signal imports scipy.stats (~1.5 s): loaded on first use
+
+        b, a = butter(self.order, self.cutoff_hz, fs=self.rate_hz)
+        return np.asarray(b, dtype=float), np.asarray(a, dtype=float)
+
+    def group_delay_s(self, frequency_hz: float = 1.0) -> float:
+        """Group delay −dφ/dω at ``frequency_hz`` (default 1 Hz, where a flight's manoeuvres live), s.
+
+        A 2-pole Butterworth at 30 Hz run at 1 kHz: 7.49 ms at 1 Hz, 7.55 ms at 3 Hz (√2/(2π·30 Hz) = 7.50 ms
+        for the analogue filter)."""
+        from scipy.signal import group_delay  # scipy.signal imports scipy.stats (~1.5 s): loaded on first use
+
+        _, samples = group_delay(self.coefficients(), w=[frequency_hz], fs=self.rate_hz)
+        return float(samples[0]) / self.rate_hz
+
+
+# The Crazyflie firmware's accelerometer filter (sensors task: lpf2p, ACCEL_LPF_CUTOFF_FREQ 30 Hz, 1 kHz):
+# what the acc.x/y/z log variables of a cfclient or uSD log have been through.
+CRAZYFLIE_ACCEL_LOWPASS = SensorLowPass(order=2, cutoff_hz=30.0, rate_hz=1000.0)
+
+
 @dataclass
 class ClockAlignment:
     """The result of `align_signals`, with the diagnostics a caller needs to trust it.
@@ -78,6 +127,9 @@ class ClockAlignment:
         rms of the band-limited reference signal, in its units.
     start_offset_s : float
         The offset that aligns the two starts (the centre of the search), s.
+    sensor_delay_s : float
+        The group delay of the other stream's own low-pass, added to the correlation peak to give the
+        clocks' offset (0 when no filter is declared), s.
     """
 
     offset_s: float          # t_ref = t_other + offset_s
@@ -85,6 +137,7 @@ class ClockAlignment:
     runner_up: float         # highest normalised correlation outside the peak's main lobe (periodic motion)
     excitation: float        # rms of the band-limited reference signal, in its units
     start_offset_s: float    # the offset that aligns the two starts: the centre of the search
+    sensor_delay_s: float = 0.0   # the other stream's low-pass group delay, added to the peak
 
     def as_meta(self) -> dict:
         """The fields as a dict of floats (for ``Flight.meta``)."""
@@ -245,14 +298,23 @@ def _odd_window(samples: float, n: int) -> int:
 
 def align_mocap_and_accelerometer(t_mocap: np.ndarray | Sequence[float], p: ArrayLike, t_acc: ArrayLike,
                                   acc_g: ArrayLike, max_lag_s: float = DEFAULT_MAX_LAG_S,
-                                  rate_hz: float = 100.0) -> ClockAlignment:
+                                  rate_hz: float = 100.0,
+                                  accel_lowpass: SensorLowPass | None = None) -> ClockAlignment:
     """Offset with t_mocap = t_acc + offset_s, from the specific-force magnitude (module docstring).
 
-    ``t_mocap`` (N,) s, ``p`` (N, 3) m, ``t_acc`` (M,) s, ``acc_g`` (M, 3) g.  Raises ValueError as
-    `align_signals` does, or for fewer than 2 mocap frames.
+    ``t_mocap`` (N,) s, ``p`` (N, 3) m, ``t_acc`` (M,) s, ``acc_g`` (M, 3) g.  ``accel_lowpass``: the
+    accelerometer's own filter, whose group delay is added to the correlation peak (``sensor_delay_s``);
+    None for an unfiltered accelerometer.  Raises ValueError as `align_signals` does, or for fewer than 2
+    mocap frames.
     """
     if len(t_mocap) < 2:
         raise ValueError("mocap: needs at least 2 frames")
     grid, mocap_norm = mocap_specific_force(t_mocap, p, rate_hz)
-    return align_signals(grid, mocap_norm, t_acc, accelerometer_specific_force(acc_g),
-                         max_lag_s=max_lag_s, rate_hz=rate_hz, names=("mocap", "accelerometer"))
+    alignment = align_signals(grid, mocap_norm, t_acc, accelerometer_specific_force(acc_g),
+                              max_lag_s=max_lag_s, rate_hz=rate_hz, names=("mocap", "accelerometer"))
+    if accel_lowpass is None:
+        return alignment
+    # the logged value at t_acc is the body's specific force one group delay earlier: the peak pairs mocap
+    # time T with accelerometer stamp T - offset + delay, so the clocks' offset is the peak's + delay
+    delay = accel_lowpass.group_delay_s()
+    return replace(alignment, offset_s=alignment.offset_s + delay, sensor_delay_s=delay)

@@ -160,3 +160,10 @@ DIAGNOSIS_SPLIT_RULE = ("the kinematic prior (quadrotor) fits its effects on the
                         "others; the Crazyflie prior fits on the first half of the flights (rounded up) and scores "
                         "on the rest; a single flight is fitted on its first 60 % and scored on the last 40 %; "
                         "flights failing the quality checks are left out first")
+
+
+def diagnosis_fitting_count(n_flights: int, system: str) -> int:
+    """How many of a diagnosis's ``n_flights`` usable flights, in order, it fits on (the rest are scored), by
+    `DIAGNOSIS_SPLIT_RULE`: the first half, rounded up, with the input-driven prior (``system`` "crazyflie"),
+    the first with the kinematic one.  One flight: 1 (its first 60 % is fitted, the rest scored)."""
+    return (n_flights + 1) // 2 if system == "crazyflie" else min(n_flights, 1)

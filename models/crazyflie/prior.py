@@ -57,10 +57,25 @@ V_REF = 3.7
 PWM_MAX = 65535.0
 
 
+def pwm_for_thrust(thrust_n, params: dict | None = None, vbat=None):
+    """The PWM (0..65535 scale, not clipped) at which one motor gives ``thrust_n`` (N) on the PWM map ``params``
+    (Förster's quadratic, its square term × ``q_pwm2``; default Förster's) at battery voltage ``vbat`` (V;
+    None: the map without the battery, i.e. at v_ref): the root on the map's rising branch, for either sign
+    of the square term.  Where no PWM gives the thrust, the vertex (the map's extreme); `hover_pwm` refuses
+    that case.  ``thrust_n`` and ``vbat`` may be arrays (broadcast)."""
+    params = params or {}
+    thrust_n = np.asarray(thrust_n, dtype=float)
+    if vbat is not None:
+        thrust_n = thrust_n / (np.asarray(vbat, dtype=float) / params.get("v_ref", V_REF)) ** params["gamma"]
+    a2, a1, a0 = params.get("q_pwm2", 1.0) * FOERSTER_A2, FOERSTER_A1, FOERSTER_A0 - thrust_n
+    if abs(a2) < 1e-30:
+        return -a0 / a1
+    return (-a1 + np.sqrt(np.maximum(a1 * a1 - 4.0 * a2 * a0, 0.0))) / (2.0 * a2)
+
+
 def _hover_pwm(mass_kg: float) -> float:
     """PWM of each of 4 motors that holds mass_kg on Förster's map at V_ref (positive root)."""
-    a2, a1, a0 = FOERSTER_A2, FOERSTER_A1, FOERSTER_A0 - mass_kg * GRAVITY / 4.0
-    return float((-a1 + np.sqrt(a1 * a1 - 4.0 * a2 * a0)) / (2.0 * a2))
+    return float(pwm_for_thrust(mass_kg * GRAVITY / 4.0))
 
 
 def _rotor_drag_per_second(k_aero: float, mass_kg: float) -> float:
@@ -135,7 +150,8 @@ EFFECTS = {
                        "equation": "T_i = (q_pwm2·a2·p_i² + a1·p_i + a0)·(V / V_ref)^gamma, V_ref = 3.7 V"},
     "rotor_drag": {"params": ("k_xy", "k_z"), "equation": "f_b −= diag(k_xy, k_xy, k_z)·Rᵀ v"},
     "ground_effect": {"params": ("r_m",), "equation": "Σ T_i /= 1 − (r_m / (4 z))²  (Cheeseman–Bennett)"},
-    "motor_lag": {"params": ("tau_s",), "equation": "ȧ = (a_cmd(v, z, u) − a) / tau_s"},
+    "motor_lag": {"params": ("tau_s",),
+                  "equation": "ḟ_z = (f_z,cmd(v, z, u) − f_z) / tau_s (body z; the thrust's direction turns at once)"},
     # tau_th_s is held at the prior's: flights of 20-40 s determine kappa_th/tau_th_s, not both (motor_heating)
     "motor_heating": {"params": ("kappa_th",),
                       "equation": "Σ T_i ×= 1 − kappa_th·h,  tau_th_s·ḣ = Σ (p_i V)² / P_ref − h  (cold at the start)"},
@@ -210,9 +226,7 @@ def thrust_columns_for(thrust_n, source: str, params: dict | None = None):
     thrust_n = np.asarray(thrust_n, dtype=float)
     if source == "thrust_n":
         return thrust_n
-    q = 1.0 if params is None else params.get("q_pwm2", 1.0)
-    a2, a1, a0 = q * FOERSTER_A2, FOERSTER_A1, FOERSTER_A0 - thrust_n
-    pwm = -a0 / a1 if abs(a2) < 1e-30 else (-a1 + np.sqrt(np.maximum(a1 * a1 - 4 * a2 * a0, 0.0))) / (2 * a2)
+    pwm = pwm_for_thrust(thrust_n, {"q_pwm2": 1.0 if params is None else params.get("q_pwm2", 1.0)})
     return pwm if source == "pwm" else FOERSTER_OMEGA_SLOPE * pwm + FOERSTER_OMEGA_OFFSET
 
 
@@ -279,12 +293,10 @@ def hover_pwm(params, vbat: float | None = None) -> float:
     """The PWM (equal on 4 motors) at which the thrust holds the vehicle level in still air, far from
     the floor, at battery voltage vbat (default v_ref): a root of a quadratic in PWM."""
     vbat = params.get("v_ref", V_REF) if vbat is None else vbat
-    per_motor = params["m_kg"] * GRAVITY / 4.0 / (vbat / params.get("v_ref", V_REF)) ** params["gamma"]
-    a2, a1, a0 = params.get("q_pwm2", 1.0) * FOERSTER_A2, FOERSTER_A1, FOERSTER_A0 - per_motor
-    if abs(a2) < 1e-30:
-        return float(-a0 / a1)
-    disc = a1 * a1 - 4.0 * a2 * a0
-    if disc < 0:
+    per_motor = params["m_kg"] * GRAVITY / 4.0
+    pwm = float(pwm_for_thrust(per_motor, params, vbat))
+    made = (params.get("q_pwm2", 1.0) * FOERSTER_A2 * pwm**2 + FOERSTER_A1 * pwm + FOERSTER_A0) \
+        * (vbat / params.get("v_ref", V_REF)) ** params["gamma"]
+    if not np.isclose(made, per_motor, rtol=1e-9, atol=1e-12):    # no PWM on the map gives it: the vertex
         raise InvalidInput(f"the thrust map {params} cannot hold {params['m_kg']} kg at {vbat} V")
-    # the root on the rising branch of the map, for either sign of the quadratic term
-    return float((-a1 + np.sqrt(disc)) / (2.0 * a2))
+    return pwm

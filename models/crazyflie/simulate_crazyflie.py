@@ -9,17 +9,19 @@ from cold at the start); the controller flies with the prior's thrust map and an
 
 The Flight carries what a NanoBench log carries: mocap position and attitude, the accelerometer's
 body-frame specific force (``acc_body``, white noise, optionally the sensor's low-pass), the four motor PWM
-(``motors``) and the battery voltage (``vbat``).  The motor lag acts on the body-frame specific force as a
-first-order filter, the form `models.crazyflie.identify` predicts.  Writing these inputs into the log formats of
+(``motors``) and the battery voltage (``vbat``).  The motor lag acts on the thrust, the body-z specific force, as a
+first-order filter (the drag across it follows the velocity at once), the form `models.crazyflie.identify`
+predicts and the `crazyflie` system integrates.  Writing these inputs into the log formats of
 `ingest` is not done here (ingest must not import models).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from learnest.errors import InvalidInput
+from learnest.ingest.clock import CRAZYFLIE_ACCEL_LOWPASS
 from learnest.ingest.flight import Flight
 from learnest.ingest.frames import GRAVITY
 
@@ -58,8 +60,9 @@ class SimulatedFlight:
     vbat_noise : float
         Voltage reading noise, V.
     accel_lpf_hz : float or None
-        Cut-off of the accelerometer's own 2nd-order low-pass (the firmware's is 30 Hz); None: no filter.
-        Its group delay (~7 ms at 30 Hz) is a real accelerometer delay that a diagnosis reports.
+        Cut-off of the accelerometer's own 2-pole Butterworth low-pass, run as the firmware runs it on the
+        sensor's 1 kHz samples (the firmware's is 30 Hz, `ingest.clock.CRAZYFLIE_ACCEL_LOWPASS`); None: no
+        filter.  Its group delay (7.5 ms at 30 Hz) is a real accelerometer delay that a diagnosis reports.
     rate_hz : float
         Log rate, Hz.
     thrust_source : {"pwm", "rpm", "thrust_n"}
@@ -117,11 +120,7 @@ def reference_path(settings: SimulatedFlight, rng: np.random.Generator) -> tuple
 
 def _pwm_for(thrust_n: np.ndarray, vbat: float, params: dict) -> np.ndarray:
     """PWM (0..65535) at which each motor gives thrust_n (N) at vbat (V) on the map ``params``."""
-    poly = thrust_n / (vbat / params.get("v_ref", cf.V_REF)) ** params["gamma"]
-    a2, a1, a0 = params.get("q_pwm2", 1.0) * cf.FOERSTER_A2, cf.FOERSTER_A1, cf.FOERSTER_A0 - poly
-    if abs(a2) < 1e-30:
-        return np.clip(-a0 / a1, 0.0, cf.PWM_MAX)
-    return np.clip((-a1 + np.sqrt(np.maximum(a1 * a1 - 4 * a2 * a0, 0.0))) / (2 * a2), 0.0, cf.PWM_MAX)
+    return np.clip(cf.pwm_for_thrust(thrust_n, params, vbat), 0.0, cf.PWM_MAX)
 
 
 def _attitude(force: np.ndarray, yaw: float) -> tuple[np.ndarray, np.ndarray]:
@@ -197,7 +196,7 @@ def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int 
     trim = _hover_trim(step)   # start in a steady hover
     f = step(0, trim)[2]
     log_p, log_f, log_u = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 9))
-    log_thrust_cmd, log_motor_thrust = np.empty(n), np.empty((n, 4))
+    log_thrust_cmd, log_motor_thrust, log_f_cmd = np.empty(n), np.empty((n, 4)), np.empty((n, 3))
     motor = np.array([float(cf.motor_thrust(x, volts[0], truth)) for x in step(0, trim)[1][4:8]])
     lagless = truth["tau_s"] <= 1e-6
     for k in range(n):
@@ -205,7 +204,9 @@ def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int 
         motor_cmd = np.array([float(cf.motor_thrust(x, volts[k], truth)) for x in u[4:8]])
         if lagless:   # no lag: the force is the command's from the sample on (not the last sample's)
             f, motor = f_cmd, motor_cmd
-        log_p[k], log_f[k], log_u[k] = p, f, u
+        else:         # the motors lag the thrust (body z); the drag across it (body x/y) follows at once
+            f = np.r_[f_cmd[:2], f[2]]
+        log_p[k], log_f[k], log_u[k], log_f_cmd[k] = p, f, u, f_cmd
         # the controller's thrust command (N) and each motor's thrust after its lag (what its speed gives)
         log_thrust_cmd[k], log_motor_thrust[k] = command["thrust_n"], motor
         motor = motor_cmd + (motor - motor_cmd) * decay[-1]
@@ -215,7 +216,7 @@ def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int 
         if kappa_th:   # exact step of τ h' = P − h with the power of this sample's inputs held
             heat["h"] = heat_decay * heat["h"] + (1.0 - heat_decay) * float(motor_power(u))
 
-    return _as_flight(settings, rng, t, log_p, log_f, log_u, log_thrust_cmd, log_motor_thrust, truth,
+    return _as_flight(settings, rng, t, log_p, (log_f, log_f_cmd), log_u, log_thrust_cmd, log_motor_thrust, truth,
                       name or f"sim_crazyflie_{seed}")
 
 def _battery_and_spread(settings: SimulatedFlight, n: int, rng: np.random.Generator):
@@ -253,19 +254,43 @@ def _substeps(p: np.ndarray, v: np.ndarray, R: np.ndarray, f_cmd: np.ndarray, f:
     return p, v
 
 
+SENSOR_RATE_HZ = CRAZYFLIE_ACCEL_LOWPASS.rate_hz   # the accelerometer's sampling rate on the vehicle
+
+
+def _sensor_reading(settings: SimulatedFlight, forces: tuple[np.ndarray, np.ndarray], t: np.ndarray, tau_s: float,
+                    sensor: dict, noise: np.ndarray) -> np.ndarray:
+    """What the accelerometer logs (T, 3), m/s²: the body specific force through the sensor model
+    (`models.effects.predict_acc_body`) plus ``noise``; with ``settings.accel_lpf_hz``, through its own
+    2-pole low-pass run on the sensor's 1 kHz samples of the force as it moves within each logged sample
+    (from its value at the sample towards the command, with the motor lag ``tau_s``), read at the log's
+    instants (a log block samples the latest filtered value).
+
+    ``forces`` = (the body force at each sample, the force commanded over it), each (T, 3) m/s²."""
+    f_start, f_cmd = forces
+    if not settings.accel_lpf_hz:
+        return predict_acc_body(f_start, t, sensor) + noise
+    from scipy.signal import lfilter  # scipy.signal imports scipy.stats (~1.5 s): loaded on first use
+
+    up = max(1, int(round(SENSOR_RATE_HZ / settings.rate_hz)))
+    within = np.exp(-np.arange(up) / (up * settings.rate_hz * tau_s)) if tau_s > 1e-6 else np.zeros(up)
+    fine = (f_cmd[:, None, :] + (f_start - f_cmd)[:, None, :] * within[None, :, None]).reshape(-1, 3)
+    fine_t = np.arange(len(fine)) / (up * settings.rate_hz)
+    read = predict_acc_body(fine, fine_t, sensor) + np.repeat(noise, up, axis=0)
+    lowpass = replace(CRAZYFLIE_ACCEL_LOWPASS, cutoff_hz=settings.accel_lpf_hz, rate_hz=up * settings.rate_hz)
+    b, a = lowpass.coefficients()
+    return lfilter(b, a, read - read[0], axis=0)[::up] + read[0]
+
+
 def _as_flight(settings: SimulatedFlight, rng: np.random.Generator, t: np.ndarray, log_p: np.ndarray,
-               log_f: np.ndarray, log_u: np.ndarray, log_thrust_cmd: np.ndarray, log_motor_thrust: np.ndarray,
+               forces: tuple[np.ndarray, np.ndarray], log_u: np.ndarray, log_thrust_cmd: np.ndarray,
+               log_motor_thrust: np.ndarray,
                truth: dict, name: str) -> Flight:
     """The simulated states and inputs as the sensors log them (`simulate_crazyflie`'s Flight)."""
     n = len(t)
     sensor = {"roll_rad": settings.accel_tilt_rad[0], "pitch_rad": settings.accel_tilt_rad[1],
               **{f"bias_{a}": b for a, b in zip("xyz", settings.accel_bias)}}
-    acc = predict_acc_body(log_f, t, sensor) + settings.accel_noise * rng.standard_normal(log_f.shape)
-    if settings.accel_lpf_hz:
-        from scipy.signal import butter, lfilter  # scipy.signal imports scipy.stats (~1.5 s): loaded on first use
-
-        b, a = butter(2, settings.accel_lpf_hz, fs=settings.rate_hz)
-        acc = lfilter(b, a, acc - acc[0], axis=0) + acc[0]
+    noise = settings.accel_noise * rng.standard_normal(forces[0].shape)
+    acc = _sensor_reading(settings, forces, t, float(truth["tau_s"]), sensor, noise)
     positions = log_p + settings.mocap_noise * rng.standard_normal(log_p.shape)
     channels = {"acc_body": acc, "vbat": log_u[:, 8] + settings.vbat_noise * rng.standard_normal(n)}
     if settings.thrust_source == "pwm":

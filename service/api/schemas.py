@@ -257,7 +257,10 @@ class DiagnosisRequest(Strict):
                               "one trained on the fitting flight)")
     register_as: str | None = Field(None, alias="register", pattern=NAME_REGEX,
                                     description="register the repaired model as the next version of this name "
-                                                "(parent: `model`)")
+                                                "(parent: `model`), only if it improves the held-out flights by "
+                                                "the evaluation's interval rule (the report's `repair` says)")
+    force: bool = Field(False, description="register even a repair that does not improve the held-out flights, "
+                                           "with a warning stored in the version")
     methods: list[str] = Field(default_factory=lambda: ["ukf", "knode-ukf"],
                                description="estimators scored before and after")
     epochs: int = Field(CRAZYFLIE_TRAINING.epochs, ge=1, le=100_000,

@@ -26,7 +26,7 @@ from learnest.ingest.profile import flight_profile
 from learnest.models.diagnosis import select_effects
 from learnest.models.effects import LIBRARY, dynamics_params, effects_for
 from learnest.models.knode import HybridModel
-from learnest.models.presets import CRAZYFLIE_TRAINING, PAPER_TRAINING
+from learnest.models.presets import CRAZYFLIE_TRAINING, PAPER_TRAINING, diagnosis_fitting_count
 from learnest.models.systems import make_system
 from learnest.models.training import train_knode
 
@@ -179,7 +179,7 @@ def split_names(flights: list[Flight], system: str) -> dict:
     kept = [f for f in flights if f.quality["ok"]] or flights
     if len(kept) == 1:
         return {"fitting_flights": [kept[0].name], "scored_flights": [kept[0].name]}
-    cut = (len(kept) + 1) // 2 if system == "crazyflie" else 1
+    cut = diagnosis_fitting_count(len(kept), system)
     return {"fitting_flights": [f.name for f in kept[:cut]], "scored_flights": [f.name for f in kept[cut:]]}
 
 
@@ -256,6 +256,9 @@ def _diagnose_quadrotor(flights: list[Flight], knode: HybridModel | None, method
         "residual_series": {"accelerometer": residual_series(accelerometer_problem(scoring[:1]),
                                                              accel["values_identified"], scoring[0].name)}
         if "acc_body" in scoring[0].channels else {}}
+    # the same gate as the Crazyflie prior's: registered only when the held-out flights improve
+    report["repair"] = repair_verdict(report, methods) if methods else {
+        "improves": False, "method": None, "reason": "no estimator scored the held-out flights"}
     return (report, knode_after) if return_model else report
 
 

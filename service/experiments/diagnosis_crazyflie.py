@@ -35,15 +35,6 @@ from .flights import evaluate_flight
 
 
 # -- Crazyflie flights, input-driven prior -------------------------------------------------------------
-def _split_crazyflie(flights: list[Flight]):
-    """Fit on the first half of the flights (rounded up; blocked CV by flight when that is several), score
-    on the others; one flight: fit on its first 60 %, score the rest."""
-    if len(flights) == 1:
-        return _split_for_fitting(flights)
-    cut = (len(flights) + 1) // 2
-    return flights[:cut], flights[cut:], f"fit on the first {cut} flight(s), scored on the other {len(flights) - cut}"
-
-
 def _crazyflie_model(flight: Flight, params: dict, train: bool, config, stages: DiagnosisStages | None = None,
                      part: str = "before") -> HybridModel:
     """The Crazyflie prior with ``params`` on ``flight``'s grid; with ``train``, a KNODE trained on top
@@ -124,9 +115,20 @@ def _name_thrust_scale(effects: list[dict], candidates: list[dict], prior: dict,
     in the prior, or with a declared mass, a change is a mass in kg: ``mass`` {m_kg}, scaled onto the declared
     mass for the PWM source (m = m_declared · m_fit / m_prior).  Otherwise it is a thrust gain against the
     prior's map, ``thrust_gain`` {gain = m_prior / m_fit} (1 = the map as it is), dimensionless.
+
+    A mass in kg from thrust in N (or rotor speed) holds only if the command is the thrust made: position and
+    accelerometer measure the thrust made over the mass, so a mass far from the declared one (or the prior's,
+    outside `FITS_PRIOR_GAIN`) is no mass but a scale of the command.  It is then reported as ``thrust_gain``
+    {gain = thrust made / thrust commanded, against that mass}, with ``implied_mass_kg``, the mass the data
+    would give were the command exact, and a note saying why it is not claimed as one.
     """
     m_prior = float(prior["m_kg"])
     as_mass = source == "thrust_n" or declared is not None
+    implied = None
+    if as_mass and source != "pwm":
+        m_fitted = next((e["params"]["m_kg"] for e in effects if e["id"] == "mass"), None)
+        if m_fitted and not FITS_PRIOR_GAIN[0] <= m_prior / m_fitted <= FITS_PRIOR_GAIN[1]:
+            implied, as_mass = float(m_fitted), False
     scale = (declared / m_prior) if (as_mass and source == "pwm" and declared) else 1.0
 
     def convert(value: float) -> float:
@@ -157,6 +159,8 @@ def _name_thrust_scale(effects: list[dict], candidates: list[dict], prior: dict,
                                   "a payload or another vehicle's motors)",
                       "note": "no mass is declared and the thrust is not known in N: only thrust over mass is "
                               "measured, reported as a gain on the prior's thrust map"})
+            if implied is not None:
+                e.update(_command_scale_text(convert(value), implied, interval, m_prior, source, declared))
             for key in keys:
                 if key in e and isinstance(e[key], dict) and "m_kg" in e[key]:
                     v = e[key].pop("m_kg")
@@ -184,9 +188,32 @@ def _name_thrust_scale(effects: list[dict], candidates: list[dict], prior: dict,
                    "the vehicle.  Fit a map for it: `learnest thrust-map --fit FLIGHTS --score FLIGHTS`, or give "
                    "a bench calibration, `learnest thrust-map --bench CSV` (thrust in N against PWM or rpm)")
         if source == "thrust_n":
-            message += ("; with thrust in N this is the commanded thrust the motors do not make: an integrator "
-                        "in the controller makes up the difference")
+            whose = "declared" if declared is not None else "prior's"
+            message += (f"; with thrust in N and the {whose} mass {m_ref * 1e3:.3g} g, the thrust made is "
+                        f"×{gain:.2f} of the commanded thrust: the firmware's thrust map "
+                        f"{'over' if gain < 1 else 'under'}-promises, and the controller's integrator makes up "
+                        "the difference.  Position and accelerometer measure only the thrust made over the mass: "
+                        "these logs cannot tell a wrong mass from a wrong command scale")
     return out, {"ok": ok, "thrust_gain": round(gain, 4), "message": message}
+
+
+def _command_scale_text(gain: float, implied: float, interval, m_ref: float, source: str,
+                        declared: float | None) -> dict:
+    """The entries of a thrust-in-N (or rotor-speed) mass effect too far from ``m_ref`` (kg) to be a mass:
+    ``gain`` the thrust made over the commanded, ``implied`` (kg) the mass were the command exact."""
+    whose = "declared" if declared is not None else "prior's"
+    what = {"thrust_n": "commanded thrust", "rpm": "thrust Förster's map gives the rotor speed"}.get(source, "thrust")
+    promise = "over" if gain < 1 else "under"
+    return {
+        "implied_mass_kg": implied,
+        "implied_mass_ci95": list(interval) if interval else None,
+        "equation": f"thrust_gain: gain = {gain:.4g} (the thrust made over the {what}, with the {whose} mass "
+                    f"{m_ref * 1e3:.3g} g)",
+        "note": (f"were the {what} the thrust made, the mass would be {implied * 1e3:.3g} g, ×{implied / m_ref:.2f} "
+                 f"the {whose} {m_ref * 1e3:.3g} g: not a plausible mass for this vehicle.  Position and "
+                 f"accelerometer measure only the thrust made over the mass, so a mass and a scale of the "
+                 f"{what} cannot be told apart from these logs; with the {whose} mass, the thrust made is "
+                 f"×{gain:.2f} of the {what} (the firmware's thrust map {promise}-promises).  No mass is claimed")}
 
 
 # the parts of a Crazyflie-prior diagnosis and their rough relative costs (a KNODE training dominates)
@@ -203,8 +230,9 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
     The thrust comes from what the flights carry (`crazyflie_prior_for`): motor PWM and battery voltage,
     rotor speed, or the controller's thrust in N.  The residual is the body-frame specific force
     (`models.crazyflie.crazyflie_residual.crazyflie_problem`, both sides low-passed at 5 Hz); effects are selected on
-    the fitting flights (`_split_crazyflie`) and scored on the others: the RMSE of the specific force
-    predicted from the inputs alone (``specific_force_rmse``, m/s²) and, for each of ``methods``, the
+    the fitting flights (the first half, rounded up: `diagnosis_problems._split_for_fitting`) and scored on
+    the others: the RMSE of the specific force predicted from the inputs alone (``specific_force_rmse``, m/s²)
+    and, for each of ``methods``, the
     estimator's MSE with the prior before and after (KNODE methods train a KNODE on the first fitting
     flight, ``epochs`` epochs, on each prior).  Only identified parameters repair the prior
     (`models.diagnosis.select_effects`).  ``prior`` holds the prior's parameters; by default ``knode``'s
@@ -214,7 +242,8 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
     Returns
     -------
     dict or (dict, HybridModel)
-        `diagnose`'s report with ``system`` "crazyflie", ``prior`` {``system``, ``params``},
+        `diagnose`'s report with ``system`` "crazyflie", ``prior`` {``system``, ``params``}, ``prior_after``
+        (the repaired prior, the same keys),
         ``thrust_source``, ``declared_mass_kg``, ``vehicle_fits_prior`` {``ok``, ``thrust_gain``,
         ``message``}, ``repair`` (`repair_verdict`), ``candidates`` (every candidate effect, fitted alone),
         ``lowpass_hz``; with ``return_model`` also the repaired model (a KNODE on the repaired prior,
@@ -234,7 +263,7 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
     prior, source, declared = crazyflie_prior_for(flights, knode, mass_kg, prior)
     for flight in flights:
         system_inputs(flight, replace(system_for(flight, "crazyflie"), prior_params=dict(prior)))
-    fitting, scoring, split = _split_crazyflie(flights)
+    fitting, scoring, split = _split_for_fitting(flights, "crazyflie")
     stages = DiagnosisStages(on_stage, {**CRAZYFLIE_PLAN, "before": 0.0} if knode else CRAZYFLIE_PLAN)
     stages.report("effects", f"reading the specific force ({len(fitting)} fitting flight(s))")
     problem = crazyflie_problem(fitting, prior)
@@ -258,6 +287,7 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
                                              selection["candidates"], prior, source, declared)
     report = {
         "system": "crazyflie", "prior": {"system": "crazyflie", "params": prior},
+        "prior_after": {"system": "crazyflie", "params": repaired},
         "thrust_source": source, "declared_mass_kg": declared, "vehicle_fits_prior": fits_prior,
         "effects": effects, "confounded": selection["confounded"],
         "candidates": [{**c, "channel": selection["channel"]} for c in selection["candidates"]],

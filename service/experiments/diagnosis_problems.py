@@ -26,6 +26,7 @@ from learnest.models.effects import (
 )
 from learnest.models.inputs import slice_keeping_heat
 from learnest.models.knode import HybridModel
+from learnest.models.presets import diagnosis_fitting_count
 from learnest.models.residual_problem import ResidualProblem
 from learnest.models.systems import System
 
@@ -145,11 +146,14 @@ def residual_series(problem: ResidualProblem, values: dict, flight: str, points:
 # (models.presets.DIAGNOSIS_SPLIT_RULE: kept where the API schema can import it without numpy.)
 
 
-def _split_for_fitting(flights: list[Flight]):
-    """Fit on the first flight and score on the others; one flight: fit on its first 60 %, score the rest (its
-    motors as warm as the flight's were there, `models.inputs.slice_keeping_heat`)."""
+def _split_for_fitting(flights: list[Flight], system: str = "quadrotor"):
+    """(fitting, scored, how) by `models.presets.diagnosis_fitting_count`: the first flight (kinematic prior)
+    or the first half, rounded up (``system`` "crazyflie"), fitted, the others scored; one flight: fit on its
+    first 60 %, score the rest (its motors as warm as the flight's were there, `models.inputs.slice_keeping_heat`)."""
     if len(flights) > 1:
-        return flights[:1], flights[1:], "fit on the first flight, scored on the others"
+        cut = diagnosis_fitting_count(len(flights), system)
+        return flights[:cut], flights[cut:], (f"fit on the first {cut} flight(s), scored on the other "
+                                              f"{len(flights) - cut}")
     cut = int(0.6 * len(flights[0].t))
     return [flights[0].slice(0, cut)], [slice_keeping_heat(flights[0], cut, len(flights[0].t))], \
         "one flight: fit on its first 60 %, scored on the last 40 %"

@@ -95,7 +95,7 @@ class DiagnosisReport(Record):
 
     @property
     def improves(self) -> bool:
-        """The repair verdict (a report without one, the kinematic prior's, improves by construction)."""
+        """The repair verdict (True for a stored report that carries none)."""
         return True if self.repair is None else self.repair.improves
 
 

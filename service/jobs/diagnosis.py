@@ -3,6 +3,7 @@ as a child version when asked, and storing the report."""
 from __future__ import annotations
 
 from learnest.errors import InvalidInput, NotFound
+from learnest.models.presets import diagnosis_fitting_count
 
 from ..experiments.reports import DiagnosisReport
 from ..storage import registry
@@ -16,8 +17,11 @@ from .training import training_config
 
 
 def start_diagnosis(services: Services, flight_ids: list[int], model_ref: str | None, register: str | None,
-                    methods: list[str], epochs: int, system: str = "quadrotor") -> tuple[int, int]:
+                    methods: list[str], epochs: int, system: str = "quadrotor", force: bool = False) -> tuple[int, int]:
     """Create the diagnosis and its job and launch it.  -> (job id, diagnosis id)
+
+    ``register``: registered only if the repair improves the held-out flights (the report's ``repair``
+    verdict), unless ``force`` (then with a warning stored in the version's metrics).
 
     Raises
     ------
@@ -44,7 +48,7 @@ def start_diagnosis(services: Services, flight_ids: list[int], model_ref: str | 
         if model_ref is not None:
             version = registry.resolve(session, model_ref)
             model_ref = f"{version.name}:{version.version}"
-        settings = {"methods": list(methods), "epochs": epochs, "system": system}
+        settings = {"methods": list(methods), "epochs": epochs, "system": system, **({"force": True} if force else {})}
         job = services.runner.create(session, "diagnosis", {"flights": ids, "model": model_ref,
                                                             "register": register, **settings})
         diagnosis = Diagnosis(job_id=job.id, flight_ids=ids, model_ref=model_ref, register_as=register,
@@ -62,8 +66,7 @@ def fitting_samples(rows, system: str) -> int:
     the first half, rounded up (input-driven Crazyflie prior).  The quota is charged on these, not on the
     first flight named: a short bad flight named first is dropped, and the big one after it is fitted."""
     used = [row for row in rows if row.quality_ok] or list(rows)
-    fitting = used[:(len(used) + 1) // 2] if system == "crazyflie" else used[:1]
-    return sum(int(row.samples) for row in fitting)
+    return sum(int(row.samples) for row in used[:diagnosis_fitting_count(len(used), system)])
 
 
 def run_diagnosis(services: Services, ctx: JobContext, diagnosis_id: int) -> None:
@@ -87,12 +90,17 @@ def run_diagnosis(services: Services, ctx: JobContext, diagnosis_id: int) -> Non
                                             settings["methods"], settings["epochs"],
                                             settings.get("system", "quadrotor"), ctx.progress_target))
     ctx.progress(0.95, "storing the report" + (f" and registering {register}" if register else ""))
-    registered = None
-    verdict = out["report"].get("repair") or {"improves": True}
+    registered, warning = None, None
+    verdict = out["report"].get("repair") or {"improves": False, "reason": "the diagnosis gave no verdict on them"}
     if register is not None and not verdict["improves"]:
         # a repair that does not improve the held-out flights is not registered (models.diagnosis's rule)
-        out["report"]["not_registered"] = f"the repair does not improve the held-out flights ({verdict['reason']})"
-        register = None
+        if settings.get("force"):
+            warning = ("registered with force although the repair does not improve held-out flights: "
+                       f"{verdict['reason']}")
+        else:
+            out["report"]["not_registered"] = (f"the repair does not improve the held-out flights "
+                                               f"({verdict['reason']}); force registers it anyway")
+            register = None
     if register is not None:
         if not ctx.runner.is_running(ctx.job_id):  # cancelled while diagnosing: register nothing
             raise JobAborted(ctx.job_id)
@@ -104,8 +112,10 @@ def run_diagnosis(services: Services, ctx: JobContext, diagnosis_id: int) -> Non
                                       hyperparameters=training_config({"epochs": settings["epochs"],
                                                                        "system": model.system.name}),
                                       parent=model_ref, job_id=ctx.job_id,
-                                      metrics=diagnosis_metrics(model, out["report"]))
-        registered = {"name": row.name, "version": row.version, "parent": row.parent}
+                                      metrics={**diagnosis_metrics(model, out["report"]),
+                                               **({"warning": warning} if warning else {})})
+        registered = {"name": row.name, "version": row.version, "parent": row.parent,
+                      **({"warning": warning} if warning else {})}
     with services.db.transaction() as session:
         diagnosis = get_row(session, Diagnosis, diagnosis_id, "diagnosis")
         # read into its type where it is stored: the JSON kept is `to_dict`, the same keys as the diagnosis gave

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from learnest.ingest import read_flights
+from learnest.ingest.clock import CRAZYFLIE_ACCEL_LOWPASS
 from learnest.ingest.formats.vicon_cfclient.reader import read_pair
 from learnest.ingest.sim import RandomWaypoints, SensorModel, simulate, write_flight
 from learnest.ingest.sim.export import CFCLIENT_CLOCK_OFFSET_S
@@ -60,10 +61,15 @@ def test_accelerometer_delay_is_recovered_from_every_format(simulated, fmt, tmp_
 
 def test_clock_offset_estimate_holds_the_accelerometer_lag_within_one_mocap_sample(simulated, tmp_path):
     """t_vicon = t_cfclient + offset, estimated by aligning |specific force|: an accelerometer that lags by
-    L looks like a cfclient clock L behind, so the estimate is the true offset minus L."""
+    L looks like a cfclient clock L behind, so with no filter declared the estimate is the true offset minus
+    L; with the Crazyflie firmware's filter declared (the default) its 7.5-ms group delay is given back."""
     sim, lag = simulated
-    flight = read_flights(write_flight(sim, "vicon+cfclient", tmp_path, "pair"))[0]
+    files = write_flight(sim, "vicon+cfclient", tmp_path, "pair")
+    flight = read_pair(*files, accel_lowpass=None)
     assert flight.meta["clock_offset_s"] == pytest.approx(CFCLIENT_CLOCK_OFFSET_S - lag, abs=MOCAP_SAMPLE_S)
+    declared = read_flights(files)[0].meta
+    assert declared["clock_offset_s"] - flight.meta["clock_offset_s"] == pytest.approx(
+        CRAZYFLIE_ACCEL_LOWPASS.group_delay_s(), abs=1e-9)
 
 
 def test_clock_offset_with_only_the_sensor_filter_is_within_one_mocap_sample(tmp_path):

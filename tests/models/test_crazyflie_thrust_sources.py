@@ -1,7 +1,8 @@
 """The Crazyflie diagnosis on what a log carries of the thrust (motor PWM + battery, rotor speed, thrust in N),
 with physically true names and values: a thrust gain unless the mass is known, a flag for a vehicle that is
 not the prior's, no parameter claimed at a physical bound, cancelling pairs never both claimed, a repair
-registered only when it helps held-out flights.  Simulated flights: `models.crazyflie.simulate_crazyflie` (the truth)."""
+registered only when it helps held-out flights.  Simulated flights: `models.crazyflie.simulate_crazyflie` (the
+truth)."""
 from __future__ import annotations
 
 import contextlib
@@ -56,6 +57,22 @@ def test_thrust_in_newtons_gives_a_payload_as_a_mass_in_kg():
     assert top["params"]["m_kg"] == pytest.approx(1.2 * M0, rel=0.05)        # measured: +0.5 %
     assert top["identified"] == {"m_kg": True}
     assert report["after"]["specific_force_rmse"] < report["before"]["specific_force_rmse"]
+
+
+def test_a_thrust_command_the_accelerometer_contradicts_is_a_command_scale_not_a_mass():
+    """A vehicle whose thrust per PWM is 1.6x what its controller's map assumes logs a command 1/1.6 of the
+    thrust it makes: read as exact, the mass would be M0/1.6 against the prior's M0.  Position and
+    accelerometer measure only thrust made / mass, so the report gives the thrust made over the command
+    (1.6, with the prior's mass) and the implied mass, and claims no mass."""
+    prior = cf.prior_for("thrust_n", M0, BASE)
+    report = diagnose_crazyflie(_flights({**BASE, "m_kg": M0 / 1.6}, "thrust_n"), methods=(), prior=prior)
+    _contract(report)
+    assert "mass" not in {e["id"] for e in report["effects"]}
+    scale = report["effects"][0]
+    assert scale["id"] == "thrust_gain" and scale["params"]["gain"] == pytest.approx(1.6, rel=0.05)
+    assert scale["implied_mass_kg"] == pytest.approx(M0 / 1.6, rel=0.05)
+    assert "No mass is claimed" in scale["note"] and "under-promises" in scale["note"]
+    assert not report["vehicle_fits_prior"]["ok"]
 
 
 def test_a_flight_with_only_thrust_in_newtons_picks_the_thrust_prior_and_its_declared_mass():
@@ -202,8 +219,16 @@ def test_crazyswarm2_logs_carry_thrust_in_newtons_and_the_declared_mass():
     _contract(report)
     assert report["thrust_source"] == "thrust_n" and report["declared_mass_kg"] == pytest.approx(0.032)
     assert report["prior"]["params"]["m_kg"] == pytest.approx(0.032)
-    assert "thrust_gain" not in {e["id"] for e in report["effects"]}     # thrust in N: a mass in kg
-    assert "mass" in format_diagnosis(report)
+    # The logs start in the air with a commanded ~0.5 N while the accelerometer reads 1 g: were the command the
+    # thrust made, the mass would be ~51 g against the declared 32 g.  Position and accelerometer measure only
+    # thrust made / mass, so no mass is claimed: the thrust made is ~0.62 of the command, with the declared mass.
+    assert "mass" not in {e["id"] for e in report["effects"]}
+    scale = next(e for e in report["effects"] if e["id"] == "thrust_gain")
+    assert 0.5 < scale["params"]["gain"] < 0.7 and scale["implied_mass_kg"] > 0.045
+    assert scale["params"]["gain"] == pytest.approx(0.032 / scale["implied_mass_kg"], rel=1e-6)
+    text = format_diagnosis(report)
+    assert "thrust made is ×0.6" in text and "No mass is claimed" in text
+    assert not report["vehicle_fits_prior"]["ok"]
 
 
 def test_dimensionless_parameters_print_without_a_unit():

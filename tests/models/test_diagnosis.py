@@ -312,3 +312,28 @@ def test_diagnosis_stages_map_each_part_into_its_share_and_never_go_back():
     assert stage_kind(seen[2][0]) == "training the KNODE on the repaired prior"
     assert stage_kind("reading 2 file(s)") == "reading 2 file(s)"
     assert DiagnosisStages(None, {"a": 1.0}).part("a") is None
+
+
+def test_a_kinematic_prior_repair_is_registered_only_when_held_out_flights_improve(tmp_path, monkeypatch, capsys):
+    """The quadrotor (kinematic prior) path is gated as the Crazyflie one is: clean flights give no identified
+    effect, the repaired model is the prior retrained, and nothing is registered without --force; with it,
+    the version carries the warning."""
+    monkeypatch.setenv("LEARNEST_HOME", str(tmp_path / "home"))
+    for name in ("LEARNEST_DATABASE_URL", "LEARNEST_DASK", "LEARNEST_API_KEY"):
+        monkeypatch.delenv(name, raising=False)
+    files = []
+    for seed in range(2):
+        sim = simulate(RandomWaypoints(count=8, speed=0.8, seed=seed), sensors=SensorModel(), seed=seed,
+                       name=f"f{seed}")
+        files += [str(p) for p in write_flight(sim, "nanobench", tmp_path, f"flight{seed}")]
+    args = ["diagnose", *files, "--system", "quadrotor", "--methods", "ukf", "--epochs", "1", "--register", "q"]
+    assert main([*args, "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["repair"]["improves"] is False and "registered" not in report
+    assert "does not improve" in report["not_registered"] and "--force" in report["not_registered"]
+    assert main([*args, "--force", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["registered"]["version"] == 1 and "--force" in report["registered"]["warning"]
+    assert main(["models", "show", "q:1", "--json"]) == 0
+    shown = capsys.readouterr().out
+    assert "--force" in shown and "quadrotor" in shown

@@ -79,18 +79,22 @@ def read_single(path, rate_hz: float = 100.0, *, cut: bool | tuple = True) -> Fl
 
 def read_pair(vicon_path, cfclient_path, rate_hz: float = 100.0, *, clock_offset_s: float | None = None,
               max_lag_s: float = clock.DEFAULT_MAX_LAG_S, segment: str | None = None,
-              cut: bool | tuple = True) -> Flight:
+              cut: bool | tuple = True,
+              accel_lowpass: clock.SensorLowPass | None = clock.CRAZYFLIE_ACCEL_LOWPASS) -> Flight:
     """A Vicon CSV export and the cfclient log of the same flight as one Flight on the Vicon clock.
 
     clock_offset_s: t_vicon = t_cfclient_s + clock_offset_s (t_cfclient_s = Timestamp / 1000).  None:
-    estimated by cross-correlation (ingest.clock), searched within ±max_lag_s of aligning the starts.
+    estimated by cross-correlation (ingest.clock), searched within ±max_lag_s of aligning the starts, and
+    corrected for the group delay of the accelerometer's own low-pass ``accel_lowpass`` (by default the
+    Crazyflie firmware's, 2 poles at 30 Hz on 1 kHz samples, 7.5 ms; None for an unfiltered accelerometer).
+    The accelerometer keeps that delay on the Vicon clock: it is the sensor's, not the clocks'.
     """
     vicon_path, cfclient_path = Path(vicon_path), Path(cfclient_path)
     track = read_vicon_csv(vicon_path, segment)
     log = read_cfclient_csv(cfclient_path)
     alignment = None
     if clock_offset_s is None:
-        alignment = _estimate_offset(vicon_path, cfclient_path, track, log, max_lag_s, rate_hz)
+        alignment = _estimate_offset(vicon_path, cfclient_path, track, log, max_lag_s, rate_hz, accel_lowpass)
         clock_offset_s = alignment.offset_s
     _require_overlap(vicon_path, cfclient_path, track.t, log.t + clock_offset_s, rate_hz)
 
@@ -105,7 +109,8 @@ def read_pair(vicon_path, cfclient_path, rate_hz: float = 100.0, *, clock_offset
         "clock_offset_s": float(clock_offset_s),
         "clock_offset_score": None if alignment is None else alignment.score,
         "clock_alignment": {"method": "given" if alignment is None else
-                            "cross-correlation of |specific force| (mocap p̈ + g vs accelerometer)",
+                            "cross-correlation of |specific force| (mocap p̈ + g vs accelerometer), plus the "
+                            "accelerometer low-pass's group delay (sensor_delay_s)",
                             **({} if alignment is None else alignment.as_meta())},
         "vicon": {"subject": track.subject, "segment": track.segment, "capture_rate_hz": track.rate_hz,
                   "frames": track.frames, "occluded_frames": track.occluded_frames,
@@ -121,10 +126,11 @@ def read_pair(vicon_path, cfclient_path, rate_hz: float = 100.0, *, clock_offset
                         acc_body_g=log.acc_g, channels=channels, rate_hz=rate_hz, meta=meta, cut=cut)
 
 
-def _estimate_offset(vicon_path, cfclient_path, track, log, max_lag_s, rate_hz) -> clock.ClockAlignment:
+def _estimate_offset(vicon_path, cfclient_path, track, log, max_lag_s, rate_hz,
+                     accel_lowpass: clock.SensorLowPass | None) -> clock.ClockAlignment:
     try:
         return clock.align_mocap_and_accelerometer(track.t, track.p, log.t, log.acc_g, max_lag_s=max_lag_s,
-                                                   rate_hz=rate_hz)
+                                                   rate_hz=rate_hz, accel_lowpass=accel_lowpass)
     except ValueError as err:  # blame the file whose signal failed; a failed search is the pair's
         if str(err).startswith("mocap"):
             raise IngestError(vicon_path, f"cannot align its clock with {cfclient_path.name}: {err}") from None

@@ -23,7 +23,7 @@ def create_diagnosis(body: DiagnosisRequest, response: Response, services: Servi
     """Trace the residual to named effects, add them, retrain the KNODE on top and score before/after; with
     `register`, the repaired model becomes the next version of that name (parent: `model`)."""
     job_id, diagnosis_id = start_diagnosis(services, body.flights, body.model, body.register_as, body.methods,
-                                           body.epochs, body.system)
+                                           body.epochs, body.system, force=body.force)
     response.headers["Location"] = f"/diagnoses/{diagnosis_id}"
     return {"job_id": job_id, "diagnosis_id": diagnosis_id}
 

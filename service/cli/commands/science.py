@@ -254,7 +254,7 @@ def _register_diagnosed(args, result: dict, repaired, flights, model) -> None:
     stored in the version.  Sets ``result["registered"]`` or ``result["not_registered"]`` (why)."""
     from ...local import register_repaired
 
-    verdict = result.get("repair") or {"improves": True, "reason": ""}
+    verdict = result.get("repair") or {"improves": False, "reason": "the diagnosis gave no verdict on them"}
     warning = None
     if not verdict["improves"]:
         if not args.force:

@@ -78,7 +78,8 @@ class Scenario:
     """Both files of one simulated flight plus the truth written into them."""
 
     def __init__(self, directory: Path, kind="figure8", seed=0, occluded=(), vicon_kwargs=None,
-                 duration=DURATION_S, name="flight"):
+                 duration=DURATION_S, name="flight", lowpass: clock.SensorLowPass | None = None):
+        self.lowpass = lowpass     # the accelerometer's own filter, run on its samples before they are logged
         rng = np.random.default_rng(seed)
         self.kind = kind
         # Vicon frames on its own clock: 0, 10 ms, ... (capture ends 1.7 s before the log does).
@@ -94,14 +95,27 @@ class Scenario:
         # cfclient: ~100 Hz packets with ±2 ms jitter in the sample instants, 1 % of packets lost.
         tau_acc = np.arange(0.0, duration, SAMPLE_S) + rng.uniform(-0.002, 0.002, int(round(duration * RATE_HZ)))
         tau_acc = tau_acc[rng.random(len(tau_acc)) > 0.01]
-        acc = accelerometer_g(tau_acc, kind) + rng.normal(0.0, ACC_NOISE_G, (len(tau_acc), 3))
+        acc = self._sensed_g(tau_acc, kind, duration) + rng.normal(0.0, ACC_NOISE_G, (len(tau_acc), 3))
         gyro_deg_s = np.tile([10.0, -20.0, 30.0], (len(tau_acc), 1))
         self.cfclient = directory / f"{name}_cfclient.csv"
         pair_writer.write_cfclient_csv(self.cfclient, tau_acc + BOOT_AHEAD_S, acc, extra={
             "gyro.x": gyro_deg_s[:, 0], "gyro.y": gyro_deg_s[:, 1], "gyro.z": gyro_deg_s[:, 2],
             "pm.vbat": np.full(len(tau_acc), 3.9)})
 
+    def _sensed_g(self, tau_acc, kind, duration):
+        """The accelerometer at the log's instants: ideal, or through ``lowpass`` run on its own samples."""
+        if self.lowpass is None:
+            return accelerometer_g(tau_acc, kind)
+        from scipy.signal import lfilter
+
+        tau_fine = np.arange(-1.0, duration + 0.01, 1.0 / self.lowpass.rate_hz)
+        fine = accelerometer_g(tau_fine, kind)
+        filtered = lfilter(*self.lowpass.coefficients(), fine - fine[0], axis=0) + fine[0]
+        return np.column_stack([np.interp(tau_acc, tau_fine, filtered[:, j]) for j in range(3)])
+
     def read(self, **kwargs):
+        # the written accelerometer is unfiltered unless the scenario says otherwise
+        kwargs.setdefault("accel_lowpass", self.lowpass)
         return pair_reader.read_pair(self.vicon, self.cfclient, **kwargs)
 
 
@@ -133,6 +147,21 @@ def test_clock_offset_is_recovered_within_one_sample(flight):
     assert flight.meta["clock_offset_score"] > 0.95
     assert flight.meta["clock_alignment"]["runner_up"] < 0.8 * flight.meta["clock_offset_score"]
     assert "quality" not in flight.meta and flight.meta["warnings"] == []
+
+
+def test_the_accelerometer_low_pass_delay_is_not_taken_for_a_clock_offset(tmp_path):
+    # The Crazyflie firmware's 2-pole 30 Hz filter at 1 kHz delays the logged accelerometer by
+    # sqrt(2)/(2 pi 30 Hz) = 7.5 ms: uncorrected, the correlation takes it for the clocks' offset.
+    lowpass = clock.CRAZYFLIE_ACCEL_LOWPASS
+    assert lowpass.group_delay_s() == pytest.approx(np.sqrt(2) / (2 * np.pi * 30.0), abs=1e-4)
+    scenario = Scenario(tmp_path, lowpass=lowpass)
+    corrected, uncorrected = scenario.read(), scenario.read(accel_lowpass=None)
+    assert corrected.meta["clock_alignment"]["sensor_delay_s"] == pytest.approx(0.0075, abs=1e-4)
+    assert abs(corrected.meta["clock_offset_s"] - TRUE_OFFSET_S) < 0.003
+    assert uncorrected.meta["clock_offset_s"] - TRUE_OFFSET_S == pytest.approx(-0.0075, abs=0.003)
+    # the default is the Crazyflie firmware's filter: a cfclient log's acc.x/y/z have been through it
+    assert pair_reader.read_pair(scenario.vicon, scenario.cfclient).meta["clock_offset_s"] == \
+        corrected.meta["clock_offset_s"]
 
 
 def test_parser_returns_the_written_positions_and_attitudes(scenario):

@@ -130,7 +130,9 @@ def test_post_diagnoses_registers_the_repaired_model(tmp_path, biased_logs):
         key = {"X-API-Key": "secret"}
         ids = [upload(client, *paths, names=[p.name.replace("biased", HOSTILE) for p in paths], headers=key).json()["id"]
                for paths in biased_logs]
-        body = {"flights": ids, "register": "cf", "epochs": EPOCHS}
+        # the bias repair is right but within the flights' own variability on the held-out UKF score (the
+        # interval rule): it is registered only when forced, with the warning stored in the version
+        body = {"flights": ids, "register": "cf", "epochs": EPOCHS, "force": True}
         assert client.post("/diagnoses", json=body).status_code == 401
         assert client.post("/diagnoses", json={**body, "flights": []}, headers=key).status_code == 422
         assert client.post("/diagnoses", json={**body, "flights": [999]}, headers=key).status_code == 404
@@ -145,7 +147,9 @@ def test_post_diagnoses_registers_the_repaired_model(tmp_path, biased_logs):
         assert_honest_stages(seen, job)
         report = client.get(f"/diagnoses/{accepted.json()['diagnosis_id']}").json()
         assert_bias_found(report)
-        assert report["registered"] == {"name": "cf", "version": 1, "parent": None}
+        assert not report["repair"]["improves"]
+        warning = report["registered"].pop("warning")
+        assert report["registered"] == {"name": "cf", "version": 1, "parent": None} and "force" in warning
         assert set(report["before"]) == set(report["after"]) == set(FAST_METHODS)
         assert_residual_series(report["residual_series"]["accelerometer"])
         assert_diagnosis_page(client, accepted.json()["diagnosis_id"], accepted.json()["job_id"], report)
@@ -188,7 +192,7 @@ def test_cli_diagnose_registers_a_child_version(tmp_path, biased_logs, monkeypat
     assert run("train", files[0], "--name", "cf", "--epochs", "2")["ref"] == "cf:1"
     log.seek(0)
     log.truncate()
-    report = run("diagnose", *files, "--model", "cf:1", "--register", "cf", "--epochs", str(EPOCHS))
+    report = run("diagnose", *files, "--model", "cf:1", "--register", "cf", "--epochs", str(EPOCHS), "--force")
     assert_bias_found(report)
     lines = [line for line in log.getvalue().splitlines() if line.startswith("learnest: diagnosing: ")]
     assert "\r" not in log.getvalue()
@@ -200,6 +204,7 @@ def test_cli_diagnose_registers_a_child_version(tmp_path, biased_logs, monkeypat
                       "scoring before/after", "done"], lines
     percents = [int(line.rsplit("(", 1)[1].split(" %")[0]) for line in lines[:-1]]
     assert percents == sorted(percents) and 0 <= percents[0] and percents[-1] <= 100, lines
+    assert report["registered"].pop("warning").startswith("registered with --force")
     assert report["registered"] == {"name": "cf", "version": 2, "parent": "cf:1"}
     # the kinematic prior's split: the first flight fits, the others are scored; the CLI's text says so second
     from learnest.service.cli import diagnosis_lead
