@@ -182,11 +182,7 @@ def find_flight(t: ArrayLike, p: ArrayLike, rate_hz: float, channels: dict | Non
     floor, ground = _floor_and_ground(z, power, resting(channels.get("acc_body"), rate_hz), rate_hz, signals)
 
     if floor is None:
-        if height_rule is None:
-            return FlightSpan(0, n, "whole recording kept: no signal saw the vehicle on the ground", signals)
-        start, stop, rule = height_rule(t, p, rate_hz)
-        return FlightSpan(start, stop, f"{rule} (from the height alone: no signal saw the vehicle on the "
-                                       f"ground)", ["height"])
+        return _span_without_a_floor(t, p, rate_hz, signals, height_rule)
     signals.append("height above the floor")
 
     first, last = 0, n
@@ -226,6 +222,15 @@ def find_flight(t: ArrayLike, p: ArrayLike, rate_hz: float, channels: dict | Non
 
 
 # -- helpers ---------------------------------------------------------------------------------------------
+def _span_without_a_floor(t: np.ndarray, p: np.ndarray, rate_hz: float, signals: list, height_rule) -> FlightSpan:
+    """No signal saw the vehicle on the ground: the height-only rule where one is given, else all of it."""
+    if height_rule is None:
+        return FlightSpan(0, len(t), "whole recording kept: no signal saw the vehicle on the ground", signals)
+    start, stop, rule = height_rule(t, p, rate_hz)
+    return FlightSpan(start, stop, f"{rule} (from the height alone: no signal saw the vehicle on the ground)",
+                      ["height"])
+
+
 def _powered_throughout(t: np.ndarray, p: np.ndarray, rate_hz: float, power_names: list, signals: list,
                         height_rule) -> FlightSpan:
     """`find_flight` when the motors run from the first to the last sample: no ground time with the motors

@@ -134,42 +134,51 @@ def _name_thrust_scale(effects: list[dict], candidates: list[dict], prior: dict,
     def convert(value: float) -> float:
         return value * scale if as_mass else m_prior / value
 
-    out = []
-    for e in effects:
-        if e["id"] != "mass":
-            out.append(e)
-            continue
-        e = dict(e)
-        value = e["params"]["m_kg"]
-        interval = e["ci95"].get("m_kg")
-        if as_mass:
-            e["params"] = {"m_kg": convert(value)}
-            e["nominal"] = {"m_kg": convert(m_prior)}
-            e["ci95"] = {"m_kg": [convert(interval[0]), convert(interval[1])]} if interval else {}
-            e["equation"] = f"mass: m_kg = {convert(value):.4g} kg"
-            if scale != 1.0:
-                e["note"] = (f"the declared mass {declared:g} kg times the change the data see against the "
-                             f"prior's thrust map ({value / m_prior:.3f})")
-        else:
-            keys = ("identified", "at_bound", "claimed", "determined", "explained_by_param", "held_nominal",
-                    "units", "bounds")
-            e.update({"id": "thrust_gain", "params": {"gain": convert(value)}, "nominal": {"gain": 1.0},
-                      "ci95": {"gain": sorted([convert(interval[0]), convert(interval[1])])} if interval else {},
-                      "equation": f"thrust_gain: gain = {convert(value):.4g} (thrust against the prior's map; "
-                                  "a payload or another vehicle's motors)",
-                      "note": "no mass is declared and the thrust is not known in N: only thrust over mass is "
-                              "measured, reported as a gain on the prior's thrust map"})
-            if implied is not None:
-                e.update(_command_scale_text(convert(value), implied, interval, m_prior, source, declared))
-            for key in keys:
-                if key in e and isinstance(e[key], dict) and "m_kg" in e[key]:
-                    v = e[key].pop("m_kg")
-                    if key == "units":
-                        v = ""
-                    elif key == "bounds":
-                        v = sorted([convert(v[1]), convert(v[0])])
-                    e[key]["gain"] = v
-        out.append(e)
+    out = [e if e["id"] != "mass" else _mass_effect_named(dict(e), as_mass, convert, scale, declared, m_prior,
+                                                          implied, source)
+           for e in effects]
+    return out, _vehicle_fits_prior(effects, candidates, m_prior, source, declared)
+
+
+def _mass_effect_named(e: dict, as_mass: bool, convert, scale: float, declared: float | None, m_prior: float,
+                      implied: float | None, source: str) -> dict:
+    """One fitted mass effect under its true name (`_name_thrust_scale`): a mass in kg, or a thrust gain."""
+    value = e["params"]["m_kg"]
+    interval = e["ci95"].get("m_kg")
+    if as_mass:
+        e["params"] = {"m_kg": convert(value)}
+        e["nominal"] = {"m_kg": convert(m_prior)}
+        e["ci95"] = {"m_kg": [convert(interval[0]), convert(interval[1])]} if interval else {}
+        e["equation"] = f"mass: m_kg = {convert(value):.4g} kg"
+        if scale != 1.0:
+            e["note"] = (f"the declared mass {declared:g} kg times the change the data see against the "
+                         f"prior's thrust map ({value / m_prior:.3f})")
+    else:
+        keys = ("identified", "at_bound", "claimed", "determined", "explained_by_param", "held_nominal",
+                "units", "bounds")
+        e.update({"id": "thrust_gain", "params": {"gain": convert(value)}, "nominal": {"gain": 1.0},
+                  "ci95": {"gain": sorted([convert(interval[0]), convert(interval[1])])} if interval else {},
+                  "equation": f"thrust_gain: gain = {convert(value):.4g} (thrust against the prior's map; "
+                              "a payload or another vehicle's motors)",
+                  "note": "no mass is declared and the thrust is not known in N: only thrust over mass is "
+                          "measured, reported as a gain on the prior's thrust map"})
+        if implied is not None:
+            e.update(_command_scale_text(convert(value), implied, interval, m_prior, source, declared))
+        for key in keys:
+            if key in e and isinstance(e[key], dict) and "m_kg" in e[key]:
+                v = e[key].pop("m_kg")
+                if key == "units":
+                    v = ""
+                elif key == "bounds":
+                    v = sorted([convert(v[1]), convert(v[0])])
+                e[key]["gain"] = v
+    return e
+
+
+def _vehicle_fits_prior(effects: list[dict], candidates: list[dict], m_prior: float, source: str,
+                        declared: float | None) -> dict:
+    """``vehicle_fits_prior``: the thrust made against the prior's map (or the declared mass), whether it is
+    within `FITS_PRIOR_GAIN`, and what to do when it is not."""
     alone = next((c for c in candidates if c["id"] == "mass"), None)
     fitted = next((e for e in effects if e["id"] == "mass"), None)
     m_fit = (fitted or alone or {"params": {"m_kg": m_prior}})["params"]["m_kg"]
@@ -194,7 +203,7 @@ def _name_thrust_scale(effects: list[dict], candidates: list[dict], prior: dict,
                         f"{'over' if gain < 1 else 'under'}-promises, and the controller's integrator makes up "
                         "the difference.  Position and accelerometer measure only the thrust made over the mass: "
                         "these logs cannot tell a wrong mass from a wrong command scale")
-    return out, {"ok": ok, "thrust_gain": round(gain, 4), "message": message}
+    return {"ok": ok, "thrust_gain": round(gain, 4), "message": message}
 
 
 def _command_scale_text(gain: float, implied: float, interval, m_ref: float, source: str,
@@ -256,13 +265,7 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
     InvalidInput
         If ``knode`` is not a crazyflie model, or the flights hold too few usable samples.
     """
-    if knode is not None and knode.system.name != "crazyflie":
-        raise InvalidInput(f"model {knode.meta.get('name') or ''} has the {knode.system.name!r} prior: diagnosing "
-                           "with --system crazyflie needs a model trained with the crazyflie prior")
-    flights = [f for f in flights if f.quality["ok"]] or flights
-    prior, source, declared = crazyflie_prior_for(flights, knode, mass_kg, prior)
-    for flight in flights:
-        system_inputs(flight, replace(system_for(flight, "crazyflie"), prior_params=dict(prior)))
+    flights, prior, source, declared = _diagnosable(flights, knode, mass_kg, prior)
     fitting, scoring, split = _split_for_fitting(flights, "crazyflie")
     stages = DiagnosisStages(on_stage, {**CRAZYFLIE_PLAN, "before": 0.0} if knode else CRAZYFLIE_PLAN)
     stages.report("effects", f"reading the specific force ({len(fitting)} fitting flight(s))")
@@ -303,6 +306,21 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
     if source == "pwm":
         report["thrust_map_fit"] = thrust_map_fit(problem, prior, declared)
     return (report, model_after) if return_model else report
+
+
+def _diagnosable(flights: list[Flight], knode: HybridModel | None, mass_kg: float | None,
+                 prior: dict | None) -> tuple[list[Flight], dict, str, float | None]:
+    """The flights to diagnose (the good ones, or all when none is), the prior's parameters, the thrust source
+    and the declared mass (`crazyflie_prior_for`); refuses a model of another prior, or flights without the
+    inputs the prior needs (`models.inputs.MissingInputs`, raised before any work)."""
+    if knode is not None and knode.system.name != "crazyflie":
+        raise InvalidInput(f"model {knode.meta.get('name') or ''} has the {knode.system.name!r} prior: diagnosing "
+                           "with --system crazyflie needs a model trained with the crazyflie prior")
+    flights = [f for f in flights if f.quality["ok"]] or flights
+    params, source, declared = crazyflie_prior_for(flights, knode, mass_kg, prior)
+    for flight in flights:
+        system_inputs(flight, replace(system_for(flight, "crazyflie"), prior_params=dict(params)))
+    return flights, params, source, declared
 
 
 def _repaired_values(prior: dict, chosen: list, values: dict) -> tuple[dict, dict]:

@@ -84,33 +84,7 @@ def format_diagnosis(result: dict) -> str:
         lines.append("  no effect explains the residual better than noise: the model is not missing anything "
                      "these candidates describe")
     for e in result["effects"]:
-        units = e.get("units", {})
-        cis = ", ".join(f"{k} in [{lo:.4g}, {hi:.4g}] {_unit(units.get(k))}".rstrip()
-                        for k, (lo, hi) in e["ci95"].items())
-        shaky = [k for k, ok in e.get("determined", {}).items() if not ok]
-        lines.append(f"  {e['equation']}  ({e['channel']}; explains {100 * e['explained_fraction']:.1f} % of the "
-                     f"residual; 95 % CI {cis})")
-        if "nominal" in e:
-            lines.append("    prior's value: " + ", ".join(f"{k} = {v:.4g} {_unit(units.get(k))}".rstrip()
-                                                          for k, v in e["nominal"].items()))
-        for name, why in e.get("held_nominal", {}).items():
-            lines.append(f"    {name}: {why}")
-        at_bound = [k for k, b in e.get("at_bound", {}).items() if b]
-        if at_bound:
-            lines.append(f"    at a physical bound, so not identified: {', '.join(at_bound)}")
-        for key in ("note", "held_out"):
-            if e.get(key):
-                lines.append(f"    {e[key]}")
-        shaky = [k for k in shaky if k not in e.get("held_nominal", {})]
-        if shaky:
-            lines.append(f"    not pinned down by this data: {', '.join(shaky)}")
-        unclaimed = [k for k, claimed in e.get("claimed", {}).items() if not claimed and k in e["ci95"]]
-        if unclaimed:
-            lines.append(f"    not claimed (the interval holds the prior's value): {', '.join(unclaimed)}")
-        for alt in e.get("alternatives", []):
-            values = ", ".join(f"{k} = {v:.4g} {_unit(alt['units'].get(k))}".rstrip() for k, v in alt["params"].items())
-            lines.append(f"    alternative: {alt['id']} with {values} {how_much(alt['fraction_of_chosen'])} "
-                         f"(ΔBIC_eff {alt['delta_bic']:+g})")
+        lines += _effect_lines(e)
     for c in result["confounded"]:
         lines.append(f"  {confounded_label(c)}: {c['note']}")
     if result.get("repair"):
@@ -135,3 +109,37 @@ def format_diagnosis(result: dict) -> str:
         lines.append(f"    {m:<20}{result['before'][m]:>10.4g}  {result['after'][m]:>10.4g}"
                      + (f"   better on {helped} flights" if helped else ""))
     return "\n".join(lines)
+
+
+def _effect_lines(e: dict) -> list[str]:
+    """One effect of a diagnosis report: its equation, interval, prior value, and why a parameter is not
+    claimed (held at the prior, at a bound, not pinned down) or what else fits."""
+    lines = []
+    units = e.get("units", {})
+    cis = ", ".join(f"{k} in [{lo:.4g}, {hi:.4g}] {_unit(units.get(k))}".rstrip()
+                    for k, (lo, hi) in e["ci95"].items())
+    shaky = [k for k, ok in e.get("determined", {}).items() if not ok]
+    lines.append(f"  {e['equation']}  ({e['channel']}; explains {100 * e['explained_fraction']:.1f} % of the "
+                 f"residual; 95 % CI {cis})")
+    if "nominal" in e:
+        lines.append("    prior's value: " + ", ".join(f"{k} = {v:.4g} {_unit(units.get(k))}".rstrip()
+                                                      for k, v in e["nominal"].items()))
+    for name, why in e.get("held_nominal", {}).items():
+        lines.append(f"    {name}: {why}")
+    at_bound = [k for k, b in e.get("at_bound", {}).items() if b]
+    if at_bound:
+        lines.append(f"    at a physical bound, so not identified: {', '.join(at_bound)}")
+    for key in ("note", "held_out"):
+        if e.get(key):
+            lines.append(f"    {e[key]}")
+    shaky = [k for k in shaky if k not in e.get("held_nominal", {})]
+    if shaky:
+        lines.append(f"    not pinned down by this data: {', '.join(shaky)}")
+    unclaimed = [k for k, claimed in e.get("claimed", {}).items() if not claimed and k in e["ci95"]]
+    if unclaimed:
+        lines.append(f"    not claimed (the interval holds the prior's value): {', '.join(unclaimed)}")
+    for alt in e.get("alternatives", []):
+        values = ", ".join(f"{k} = {v:.4g} {_unit(alt['units'].get(k))}".rstrip() for k, v in alt["params"].items())
+        lines.append(f"    alternative: {alt['id']} with {values} {how_much(alt['fraction_of_chosen'])} "
+                     f"(ΔBIC_eff {alt['delta_bic']:+g})")
+    return lines
