@@ -27,7 +27,7 @@ from learnest.service.experiments.thrust_map import bench_thrust_map_report
 
 M0 = 0.016
 BASE = {**cf.IDENTIFIED, "m_kg": M0, "kappa_th": 0.0}
-DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
+DATA = Path(__file__).resolve().parents[4] / "shared" / "data"
 LOG182 = str(DATA / "crazyswarm2-tools" / "log182")
 NANOBENCH = DATA / "nanobench"
 

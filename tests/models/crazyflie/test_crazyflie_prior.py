@@ -18,7 +18,7 @@ from learnest.models.knode import HybridModel
 from learnest.models.systems import make_system
 from learnest.models.training import TrainingConfig, train_knode
 
-DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
+DATA = Path(__file__).resolve().parents[4] / "shared" / "data"
 NANOBENCH = DATA / "nanobench"
 needs_data = pytest.mark.skipif(not NANOBENCH.is_dir(), reason="../shared/data/nanobench not present")
 

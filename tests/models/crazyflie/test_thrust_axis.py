@@ -14,7 +14,7 @@ from learnest.models.crazyflie.thrust_axis import calibrated_attitude, heading_r
 from learnest.models.inputs import ATTITUDE_CALIBRATED, flight_thrust_axis, system_inputs
 from learnest.models.systems import make_system
 
-NANOBENCH = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "nanobench"
+NANOBENCH = Path(__file__).resolve().parents[4] / "shared" / "data" / "nanobench"
 needs_data = pytest.mark.skipif(not NANOBENCH.is_dir(), reason="../shared/data/nanobench not present")
 
 

@@ -24,7 +24,7 @@ from learnest.models.crazyflie.identify import (
 )
 from learnest.models.systems import make_system
 
-DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
+DATA = Path(__file__).resolve().parents[4] / "shared" / "data"
 NANOBENCH = DATA / "nanobench"
 needs_data = pytest.mark.skipif(not NANOBENCH.is_dir(), reason="../shared/data/nanobench not present")
 
