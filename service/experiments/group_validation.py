@@ -50,7 +50,8 @@ def gap_gains_by_scale(knode: HybridModel, flights: Sequence[Flight], scales: Se
     plan : GapPlan, optional
         Where the mocap is hidden (default `GapPlan()`).
     cache : dict, optional
-        Compiled functions shared across calls (`estimators.evaluate.evaluate_sequence`'s ``mhe_cache``).
+        Compiled functions (`estimators.evaluate.evaluate_sequence`'s ``mhe_cache``), keyed by the models' ids: share
+        it only across calls whose models are all still alive (a freed model's id may be reused by another).
 
     Returns
     -------
@@ -131,21 +132,20 @@ def train_with_scale_choice(groups: Mapping[str, Sequence[Flight]], system: str 
                            f"(got {', '.join(f'{k}: {len(v)}' for k, v in groups.items()) or 'none'})")
     started = time.perf_counter()
     table: dict[float, list[dict]] = {s: [] for s in scales if s > 0}
-    cache: dict = {}
     for held, scored in groups.items():
         if progress:
             progress(f"{held} held out")
         train = [f for name, flights in groups.items() if name != held for f in flights]
         inner = train_on_flights(train, config, system=system, **train_kwargs).model
-        for scale, rows in gap_gains_by_scale(inner, scored, scales, cache=cache).items():
+        for scale, rows in gap_gains_by_scale(inner, scored, scales).items():
             table[scale].append({"group": held, **group_summary(rows)})
     chosen = choose_scale(table)
     choice_seconds = time.perf_counter() - started
-    choice: dict = {"rule": "largest scale whose inner KNODE-UKF beats its prior UKF in the mocap gaps on the median of "
-                      "every held-out group with no flight worse beyond its 95 % interval; else the scale better "
-                      "than the prior on the most held-out flights",
-              "scales": {str(s): rows for s, rows in table.items()}, "chosen": chosen,
-              "seconds": choice_seconds}
+    choice: dict = {"rule": "largest scale whose inner KNODE-UKF beats its prior UKF in the mocap gaps on the median "
+                            "of every held-out group with no flight worse beyond its 95 % interval; else the scale "
+                            "better than the prior on the most held-out flights",
+                    "scales": {str(s): rows for s, rows in table.items()}, "chosen": chosen,
+                    "seconds": choice_seconds}
     if progress:
         progress("final training")
     final = train_on_flights([f for flights in groups.values() for f in flights], config, system=system,
