@@ -5,7 +5,9 @@ and `../shared/data/nanobench-more`).  For each family held out, KNODEs are trai
 scored on every flight of the held-out family:
 
 - training: one flight (the paper's protocol; a medium-speed repetition of another family) or pooled (every
-  flight of the other three families, one in five whole flights held out for validation);
+  flight of the other three families, one in five whole flights held out for validation), the pooled residual
+  scaled by the scale chosen with each of the three training families held out in turn
+  (`service.experiments.group_validation`; ``--scale full`` keeps the whole residual);
 - prior: the paper's kinematic chain (``quadrotor``) or the Crazyflie driven by its motors and battery;
 - estimators: UKF, KNODE-UKF, MHE, KNODE-MHE, and the vehicle's own onboard EKF (``onboard``, fast reference
   only);
@@ -19,6 +21,7 @@ gaps).
 Run from the repository root (needs ../shared/data; ~30 min on 2 cores):
     .venv/bin/python benchmarks/family_holdout.py [--families circle,figure8,helix,ramp]
         [--trainings pooled,one] [--systems crazyflie,quadrotor] [--attitude blind|seen] [--battery blind|seen]
+        [--scale chosen|full]
         [--out benchmarks/results/family_holdout]
 """
 from __future__ import annotations
@@ -33,6 +36,7 @@ import numpy as np
 
 from learnest.ingest import read_flights
 from learnest.service.experiments.flights import evaluate_flights, train_on_flights
+from learnest.service.experiments.group_validation import train_with_scale_choice
 
 DATA = (Path("../shared/data/nanobench"), Path("../shared/data/nanobench-more"))
 FAMILIES = {"circle": "B2_circle", "figure8": "B3_figure8", "helix": "B5_helix", "ramp": "B6_linear_ramp"}
@@ -126,11 +130,22 @@ def markdown(result: dict) -> str:
                      + " | ".join(_fmt(s[m]["gap_median_rmse_m"], ".4f", "") for m in METHODS if m != "onboard")
                      + " | " + " | ".join(_fmt(s[m]["fast_median_rmse_m_s"], ".4f", "") for m in METHODS) + " |")
     lines += ["", "## Training", "", "| held out | training | prior | flights trained / validated | learned | "
-              "best epoch | seconds |", "|---|---|---|---|---|---|---|"]
+              "best epoch | residual scale | seconds |", "|---|---|---|---|---|---|---|---|"]
     for run in result["runs"]:
         t = run["train"]
+        scale = t.get("residual_scale")
         lines.append(f"| {run['family']} | {run['training']} | {run['system']} | {t['trained']} / {t['validated']} | "
-                     f"{t['learned']} | {t['best_epoch']} | {t['seconds']:.1f} |")
+                     f"{t['learned']} | {t['best_epoch']} | {'1 (full)' if scale is None else scale} | "
+                     f"{t['seconds']:.1f} |")
+    lines += ["", "## How each pooled residual scale was chosen (training families held out in turn; KNODE-UKF gap "
+              "gain median %, flights worse beyond their interval)", ""]
+    for run in result["runs"]:
+        choice = run["train"].get("residual_scale_choice")
+        if not choice:
+            continue
+        lines += [f"- {run['family']} held out, {run['system']}: chosen {choice['chosen']}; " + "; ".join(
+            f"scale {s}: " + ", ".join(f"{r['group']} {_fmt(r['median_gain_pct'])} ({r['worse_beyond']} worse)"
+                                     for r in rows) for s, rows in choice["scales"].items())]
     lines += ["", "## Per flight (gap gain, % — interval)", ""]
     for run in result["runs"]:
         lines += [f"### {run['family']} held out — {run['training']}, {run['system']}", "",
@@ -159,6 +174,9 @@ def main(argv=None) -> int:
                         help="pooled residual blind to the attitude (the default of train_on_flights) or seeing it")
     parser.add_argument("--battery", choices=("blind", "seen"), default="blind",
                         help="with --attitude blind: the pooled residual blind to the battery voltage too")
+    parser.add_argument("--scale", choices=("chosen", "full"), default="chosen",
+                        help="pooled residual scaled by the scale chosen on held-out training families "
+                             "(service.experiments.group_validation), or the full residual")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/family_holdout"))
     args = parser.parse_args(argv)
     started = time.perf_counter()
@@ -179,8 +197,14 @@ def main(argv=None) -> int:
                 train = ([f for f in usable if family_of(f.name) != family] if training == "pooled"
                          else [by_name[ONE_FLIGHT[family]]])
                 t0 = time.perf_counter()
-                trained = train_on_flights(train, system=system, blind_attitude=args.attitude == "blind",
-                                           blind_battery=args.battery == "blind")
+                blind = {"blind_attitude": args.attitude == "blind", "blind_battery": args.battery == "blind"}
+                if training == "pooled" and args.scale == "chosen":   # the scale chosen on training families only
+                    groups: dict = {}
+                    for f in train:
+                        groups.setdefault(family_of(f.name), []).append(f)
+                    trained = train_with_scale_choice(groups, system=system, **blind)
+                else:
+                    trained = train_on_flights(train, system=system, **blind)
                 meta = trained.model.meta
                 report = evaluate_flights(trained.model, test, methods)
                 rows = per_flight(report)
@@ -190,7 +214,8 @@ def main(argv=None) -> int:
                              "train": {"trained": len(meta.get("training_flights") or [1]),
                                        "validated": len(meta.get("validation_flights") or []),
                                        "learned": meta.get("learned"), "best_epoch": meta.get("best_epoch"),
-                                       "seconds": trained.seconds},
+                                       "seconds": trained.seconds, "residual_scale": meta.get("residual_scale"),
+                                       "residual_scale_choice": meta.get("residual_scale_choice")},
                              "seconds": time.perf_counter() - t0})
                 print(f"{family} held out, {training}, {system}: {runs[-1]['summary']['knode-ukf_vs_ukf']} "
                       f"({runs[-1]['seconds']:.0f} s)", file=sys.stderr, flush=True)
