@@ -27,9 +27,11 @@ MSE_UNITS = {"mse": "mean of squared errors of p (m^2), v (m^2/s^2) and a (m^2/s
              "ms_per_step": "ms of wall time per sample", "improvement_pct": "% (100 (1 - knode / prior-only))"}
 
 
-def _model_key(model, dt) -> tuple:
-    """What tells the models of one evaluation apart (they outlive the cache, so their ids stay unique)."""
+def _model_key(model, dt, cache: dict) -> tuple:
+    """What tells the models of one cache apart.  The cache holds each residual it keys by id, so no residual
+    is freed while the cache lives and no other can take over its id (and its compiled functions)."""
     system = model.system
+    cache.setdefault(("residual held by its key", id(model.residual)), model.residual)
     return (model.kind, id(model.residual), system.name, tuple(sorted(system.prior_params.items())),
             tuple(sorted(system.true_params.items())), float(dt))
 
@@ -37,7 +39,7 @@ def _model_key(model, dt) -> tuple:
 def _mhe_for(cache: dict, model, dt, Q, R, P0, horizon: int) -> MHE:
     """One MHE per model and tuning, built before any timing: a batch of flights reuses it (compiling the
     Gauss–Newton functions or building the IPOPT problems costs seconds)."""
-    key = ("mhe", *_model_key(model, dt), horizon, Q.tobytes(), R.tobytes(), P0.tobytes())
+    key = ("mhe", *_model_key(model, dt, cache), horizon, Q.tobytes(), R.tobytes(), P0.tobytes())
     if key not in cache:
         cache[key] = MHE(model, dt, Q, R, P0, horizon=horizon).prepare()
     return cache[key]
@@ -47,7 +49,7 @@ def _ukf_functions_for(cache: dict, model, dt) -> tuple | None:
     """The UKF's compiled sigma-point functions of a model, built once per batch before any timing
     (generating and loading the code costs ~0.1 s per flight, a first compile seconds: neither belongs in
     ms_per_step); None, so numpy, for a model that does not take CasADi symbols (no ``parametric``)."""
-    key = ("ukf", *_model_key(model, dt))
+    key = ("ukf", *_model_key(model, dt, cache))
     if key not in cache:
         cache[key] = compiled_sigma_functions(model, dt) if hasattr(model, "parametric") else None
     return cache[key]

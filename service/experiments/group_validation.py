@@ -19,6 +19,7 @@ import numpy as np
 
 from learnest.errors import InvalidInput
 from learnest.estimators.mocap_gaps import gap_mask
+from learnest.estimators.prepared import initial_state, model_system
 from learnest.estimators.yardsticks import GapPlan, gap_scores, run_with_gaps
 from learnest.ingest.flight import Flight
 from learnest.models.inputs import calibrates_thrust_gain, system_inputs
@@ -27,7 +28,7 @@ from learnest.models.presets import CRAZYFLIE_TRAINING, MHE_HORIZON, TrainingCon
 from learnest.models.residual_scale import RESIDUAL_SCALES, choose_scale, scaled_model
 from learnest.models.training import TrainingResult
 
-from .flights import initial_state, model_system, train_on_flights
+from .flights import train_on_flights
 
 PAIR = "knode-ukf_vs_ukf"
 # What a model says when no scale passed on the held-out groups.
