@@ -91,8 +91,9 @@ def _ukf_against_truth(report, flight, truth, controller, source, seed) -> tuple
     after the flight, so the path is the same)."""
     from dataclasses import replace
 
+    from learnest.estimators.prepared import system_for
     from learnest.models.knode import HybridModel
-    from learnest.service.experiments.flights import evaluate_flight, system_for
+    from learnest.service.experiments.flights import evaluate_flight
 
     twin = simulate_crazyflie(SimulatedFlight(truth=truth, controller=controller, duration_s=DURATION_S,
                                               thrust_source=source, accel_noise=0.0, mocap_noise=0.0,
