@@ -231,9 +231,10 @@ def repair_verdict(report: dict, methods: Sequence[str]) -> dict:
     for one gap (the reason says so).  The deciding method is the first KNODE method asked for, else the first.
     The repair improves when its median held-out error is lower, no held-out flight is worse beyond its gain's
     95 % interval and at least one is better beyond it (`estimators.metrics`); a flight too short for an
-    interval counts as better or worse by its error alone.  Without an estimator: when the specific-force RMSE
-    is lower on every held-out flight.  Returns {"improves": bool, "method", "reason", "yardstick":
-    "mocap_gaps" | "paper_sg" | None, "paper_sg": the SG rule's own {"improves", "reason"}, where scored}.
+    interval counts neither way, unless no flight has one: then it must be better on every flight.  Without an
+    estimator: when the specific-force RMSE is lower on every held-out flight.  Returns {"improves": bool,
+    "method", "reason", "yardstick": "mocap_gaps" | "paper_sg" | None, "paper_sg": the SG rule's own
+    {"improves", "reason"}, where scored}.
     """
     per_flight = report["per_flight"]
     if not report["effects"] or not any(any(e.get("identified", {}).values()) for e in report["effects"]):
@@ -264,16 +265,19 @@ def repair_verdict(report: dict, methods: Sequence[str]) -> dict:
 
 def _interval_rule(per_flight: list[dict], method: str, what: str, scores: list, median_before: float,
                    median_after: float) -> dict:
-    """{"improves", "reason"} by the evaluation's counting over flights: ``scores`` [(before, after, gain
-    interval or None)] per flight of ``per_flight``; better when the median is lower (``median_before`` →
-    ``median_after``, in ``what``), no flight is worse beyond its interval and one is better beyond it; a flight
-    without an interval (fewer than 3 bootstrap blocks) counts by its error alone."""
+    """{"improves", "reason"} by the evaluation's counting over flights (`estimators.headline`): ``scores``
+    [(before, after, gain interval or None)] per flight of ``per_flight``; better when the median is lower
+    (``median_before`` → ``median_after``, in ``what``), no flight is worse beyond its gain's interval and one
+    is better beyond it.  A flight without an interval (fewer than 3 bootstrap blocks) cannot tell, and counts
+    neither way, as in the evaluation; only when no flight has one does each flight's error decide (better on
+    every flight), else a short held-out set could never be judged."""
     names = [p["flight"] for p in per_flight]
-    untold = " (by its error alone: too short for an interval)"
     worse = [n + " (beyond its interval)" for n, (_, _, i) in zip(names, scores) if worse_beyond_interval(i)]
     better = [n + " (beyond its interval)" for n, (_, _, i) in zip(names, scores) if better_beyond_interval(i)]
-    worse += [n + untold for n, (b, a, i) in zip(names, scores) if i is None and a >= b]
-    better += [n + untold for n, (b, a, i) in zip(names, scores) if i is None and a < b]
+    untold = [n for n, (_, _, i) in zip(names, scores) if i is None]
+    if len(untold) == len(names):   # no flight can tell by an interval: each one's error decides
+        worse = [n + " (by its error: no flight has an interval)" for n, (b, a, _) in zip(names, scores) if a >= b]
+        better = [n + " (by its error: no flight has an interval)" for n, (b, a, _) in zip(names, scores) if a < b]
     change = f"median {method} {what} {median_before:.4g} → {median_after:.4g}"
     if median_after >= median_before:
         reason = f"held-out {change}: no improvement"
@@ -284,6 +288,8 @@ def _interval_rule(per_flight: list[dict], method: str, what: str, scores: list,
                   "the flights' own variability")
     else:
         reason = f"{change}, better on {', '.join(better)}, worse on none"
+    if untold and len(untold) < len(names):
+        reason += f" ({', '.join(untold)}: too short for an interval, counted neither way)"
     return {"improves": bool(median_after < median_before and not worse and better), "reason": reason}
 
 

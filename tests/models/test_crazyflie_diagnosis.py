@@ -306,3 +306,26 @@ def test_a_held_out_flight_too_short_for_a_gap_is_judged_on_the_sg_yardstick_and
     assert "too short for one mocap gap" in verdict["reason"] and flight.name in verdict["reason"]
     assert report["yardsticks"]["mocap_gaps"]["before_rmse_m"] is None
     assert "no mocap-gap score" in format_diagnosis(report)
+
+
+@pytest.mark.parametrize("intervals, improves", [
+    ([None, [38.0, 93.0]], True),        # an untold flight, worse by its error, counts neither way
+    ([[-30.0, -2.0], [38.0, 93.0]], False),   # one flight worse beyond its interval vetoes
+    ([[-10.0, 60.0], [-5.0, 80.0]], False),   # better by the medians, but no flight beyond its interval
+    ([None, None], False),               # no flight has an interval: each must be better by its error
+])
+def test_the_repair_verdict_counts_flights_by_their_gap_gain_intervals(intervals, improves):
+    """The verdict's counting, on gap scores with known intervals: held-out gap RMSE 10 → 7 mm on the
+    second flight, 7.2 → 7.4 mm on the first (worse by its error)."""
+    from learnest.service.experiments.diagnosis import repair_verdict
+
+    errors = [(0.0072, 0.0074), (0.010, 0.007)]
+    per_flight = [{"flight": f"f{k}", "before": {"ukf": 0.07}, "after": {"ukf": 0.07},
+                   "repair_gain_interval_pct": {"ukf": None},
+                   "mocap_gaps": {"rmse_before_m": {"ukf": b}, "rmse_after_m": {"ukf": a},
+                                  "gain_interval_pct": {"ukf": i}, "skipped": None}}
+                  for k, ((b, a), i) in enumerate(zip(errors, intervals))]
+    report = {"effects": [{"identified": {"tau_s": True}}], "per_flight": per_flight,
+              "before": {"ukf": 0.07}, "after": {"ukf": 0.07}}
+    verdict = repair_verdict(report, ("ukf",))
+    assert verdict["improves"] is improves and verdict["yardstick"] == "mocap_gaps", verdict["reason"]
