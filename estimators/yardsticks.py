@@ -262,23 +262,34 @@ class FlightYardsticks:
                 "paper_sg": self.paper_sg.to_dict()}
 
 
+def gap_squared_errors(p_mocap: np.ndarray, estimates: np.ndarray, windows: Sequence[tuple[int, int]]) -> np.ndarray:
+    """(K,) squared 3-D position error, m², of a gap-masked run's ``estimates`` (T, n) against the hidden mocap
+    ``p_mocap`` (T, 3) at the K samples inside the gaps ``windows`` (`GapPlan.windows`)."""
+    inside = gap_mask(len(p_mocap), windows)
+    return np.sum((np.asarray(estimates)[inside][:, POSITION_ROWS] - np.asarray(p_mocap)[inside]) ** 2, axis=1)
+
+
+def gap_gain(prior_err2: np.ndarray, knode_err2: np.ndarray,
+             windows: Sequence[tuple[int, int]]) -> tuple[float | None, list[float] | None]:
+    """(gain %, its 95 % interval or None) of the second run over the first on the same gap samples
+    (`gap_squared_errors` of each, (K,) m²): 100 (1 − Σ knode / Σ prior), None where the first's error is zero;
+    the interval by `estimators.metrics.gain_interval` with blocks of at least one gap."""
+    gain = gain_pct(np.sum(prior_err2), np.sum(knode_err2)) if np.sum(prior_err2) > 0 else None
+    # blocks of at least one gap: the gaps are the independent units (re-converged in between)
+    return gain, gain_interval(prior_err2, knode_err2, windows[0][1] - windows[0][0])
+
+
 def gap_scores(p_mocap: np.ndarray, gapped: Mapping[str, np.ndarray], windows: Sequence[tuple[int, int]],
                plan: GapPlan, ms_per_step: Mapping[str, float] | None = None) -> MocapGaps:
     """`MocapGaps` from the gap-masked runs' estimates {method: (T, n)} and the hidden mocap p (T, 3), m
     (``ms_per_step``: the runs' wall time per sample, ms)."""
-    inside = gap_mask(len(p_mocap), windows)
-    err2 = {m: np.sum((np.asarray(x)[inside][:, POSITION_ROWS] - p_mocap[inside]) ** 2, axis=1)
-            for m, x in gapped.items()}
+    err2 = {m: gap_squared_errors(p_mocap, x, windows) for m, x in gapped.items()}
     rmse = {m: float(np.sqrt(np.mean(e))) for m, e in err2.items()}
     gains, intervals = {}, {}
-    per_gap = windows[0][1] - windows[0][0]
     for base in BASES:
         if base in err2 and f"knode-{base}" in err2:
             key = f"knode-{base}_vs_{base}"
-            prior, knode = err2[base], err2[f"knode-{base}"]
-            gains[key] = gain_pct(np.sum(prior), np.sum(knode)) if np.sum(prior) > 0 else None
-            # blocks of at least one gap: the gaps are the independent units (re-converged in between)
-            intervals[key] = gain_interval(prior, knode, per_gap)
+            gains[key], intervals[key] = gap_gain(err2[base], err2[f"knode-{base}"], windows)
     return MocapGaps(rmse, gains, intervals, plan.gap_s, plan.every_s, plan.start_s, len(windows),
                      dict(ms_per_step or {}))
 

@@ -36,6 +36,7 @@ from .diagnosis_problems import (
     DIAGNOSIS_LOWPASS_HZ,
     DIAGNOSIS_SG_ORDER,
     DIAGNOSIS_SG_WINDOW,
+    REPAIR_GAPS,
     _channel,
     _nominal,
     _public,
@@ -45,7 +46,9 @@ from .diagnosis_problems import (
     accelerometer_problem,
     dynamics_problem,
     repair_interval,
+    repair_scores,
     repair_verdict,
+    repair_yardsticks,
     residual_series,
 )
 from .diagnosis_stages import DiagnosisStages, StageCallback
@@ -55,7 +58,8 @@ from .flights import evaluate_flight, train_on_flight
 __all__ = ["DIAGNOSIS_LOWPASS_HZ", "DIAGNOSIS_SG_ORDER", "DIAGNOSIS_SG_WINDOW", "THRUST_SOURCE_TEXT",
            "accelerometer_problem", "confounded_label", "crazyflie_prior_for", "diagnose", "diagnose_crazyflie",
            "diagnose_flights", "diagnose_simulated", "dynamics_problem", "effects_for", "format_diagnosis",
-           "how_much", "parse_simulate", "repair_interval", "repair_verdict", "residual_series", "split_names",
+           "how_much", "parse_simulate", "repair_interval", "repair_scores", "repair_verdict", "residual_series",
+           "split_names",
            "thrust_map_fit", "unchanged_prior_note"]
 
 
@@ -231,13 +235,14 @@ def _diagnose_quadrotor(flights: list[Flight], knode: HybridModel | None, method
     mhe_cache: dict = {}  # keyed by model: before and after never share an MHE
     for k, flight in enumerate(scoring):
         stages.report("scoring", f"scoring before/after ({flight.name}, {k + 1}/{len(scoring)})", k / len(scoring))
-        scored_b = evaluate_flight(knode_before, flight, methods, mhe_cache=mhe_cache, keep_estimates=True)
-        scored_a = evaluate_flight(knode_after, flight, methods, mhe_cache=mhe_cache, keep_estimates=True)
+        scored_b = evaluate_flight(knode_before, flight, methods, mhe_cache=mhe_cache, keep_estimates=True,
+                                   gaps=REPAIR_GAPS)
+        scored_a = evaluate_flight(knode_after, flight, methods, mhe_cache=mhe_cache, keep_estimates=True,
+                                   gaps=REPAIR_GAPS)
         b, a = scored_b["results"], scored_a["results"]
         per_flight.append({"flight": flight.name, "before": {m: b[m]["mse"] for m in methods},
                            "after": {m: a[m]["mse"] for m in methods},
-                           "repair_gain_interval_pct": {m: repair_interval(scored_b, scored_a, m, flight.dt)
-                                                        for m in methods}})
+                           **repair_scores(scored_b, scored_a, methods, flight)})
         for m in methods:
             before[m].append(b[m]["mse"])
             after[m].append(a[m]["mse"])
@@ -256,6 +261,7 @@ def _diagnose_quadrotor(flights: list[Flight], knode: HybridModel | None, method
         "residual_series": {"accelerometer": residual_series(accelerometer_problem(scoring[:1]),
                                                              accel["values_identified"], scoring[0].name)}
         if "acc_body" in scoring[0].channels else {}}
+    report["yardsticks"] = repair_yardsticks(per_flight, methods)
     # the same gate as the Crazyflie prior's: registered only when the held-out flights improve
     report["repair"] = repair_verdict(report, methods) if methods else {
         "improves": False, "method": None, "reason": "no estimator scored the held-out flights"}

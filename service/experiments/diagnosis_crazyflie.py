@@ -29,7 +29,15 @@ from learnest.models.knode import HybridModel
 from learnest.models.presets import CRAZYFLIE_TRAINING
 from learnest.models.training import train_knode
 
-from .diagnosis_problems import _channel, _split_for_fitting, repair_interval, repair_verdict, residual_series
+from .diagnosis_problems import (
+    REPAIR_GAPS,
+    _channel,
+    _split_for_fitting,
+    repair_scores,
+    repair_verdict,
+    repair_yardsticks,
+    residual_series,
+)
 from .diagnosis_stages import DiagnosisStages, StageCallback
 from .flights import evaluate_flight
 
@@ -302,6 +310,8 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
         "residuals": {"specific_force_rmse_fitting_before": specific_force_rmse(problem),
                       "specific_force_rmse_fitting_after": specific_force_rmse(problem, values)},
         "channels": {selection["channel"]: _channel(selection)}, "residual_series": series}
+    if methods:   # the evaluation's headline yardstick beside the paper's (``before``/``after``)
+        report["yardsticks"] = repair_yardsticks(per_flight, methods)
     report["repair"] = repair_verdict(report, methods)
     if source == "pwm":
         report["thrust_map_fit"] = thrust_map_fit(problem, prior, declared)
@@ -337,8 +347,9 @@ def _score_repair(scoring: list[Flight], held_out_problems: list, channel: str, 
                   methods: Sequence[str], model_before: HybridModel, model_after: HybridModel,
                   knode: HybridModel | None, stages: DiagnosisStages | None = None):
     """`diagnose_crazyflie`'s scores on the held-out flights, before and after the repair: the specific-force
-    RMSE (m/s²) predicted from the inputs and each method's MSE, per flight and as lists per key, with the
-    residual series of the first held-out flight: ``(before, after, per_flight, series)``."""
+    RMSE (m/s²) predicted from the inputs and each method's MSE (the paper's SG yardstick), per flight and as
+    lists per key, each flight also with `repair_scores` (its mocap-gap score, the repair's yardstick), with
+    the residual series of the first held-out flight: ``(before, after, per_flight, series)``."""
     keys = ["specific_force_rmse", *methods]
     before: dict[str, list[float]] = {k: [] for k in keys}
     after: dict[str, list[float]] = {k: [] for k in keys}
@@ -352,18 +363,18 @@ def _score_repair(scoring: list[Flight], held_out_problems: list, channel: str, 
         series = series or {channel: residual_series(held_out, values, flight.name)}
         b = {"specific_force_rmse": specific_force_rmse(held_out)}
         a = {"specific_force_rmse": specific_force_rmse(held_out, values)}
-        intervals = {}
+        scores: dict = {"repair_gain_interval_pct": {}}
         if methods:
             # the diagnosis's priors see the thrust as the map predicts it: a per-flight thrust gain would
             # absorb the payload and battery effects it fits (a user's model keeps the inputs it was trained on)
             scored_b = evaluate_flight(model_before, flight, methods, mhe_cache=mhe_cache, keep_estimates=True,
-                                       thrust_gain=None if model_before is knode else False)
+                                       thrust_gain=None if model_before is knode else False, gaps=REPAIR_GAPS)
             scored_a = evaluate_flight(model_after, flight, methods, mhe_cache=mhe_cache, keep_estimates=True,
-                                       thrust_gain=False)
+                                       thrust_gain=False, gaps=REPAIR_GAPS)
             b.update({m: scored_b["results"][m]["mse"] for m in methods})
             a.update({m: scored_a["results"][m]["mse"] for m in methods})
-            intervals = {m: repair_interval(scored_b, scored_a, m, flight.dt) for m in methods}
-        per_flight.append({"flight": flight.name, "before": b, "after": a, "repair_gain_interval_pct": intervals})
+            scores = repair_scores(scored_b, scored_a, methods, flight)
+        per_flight.append({"flight": flight.name, "before": b, "after": a, **scores})
         for key in keys:
             before[key].append(b[key])
             after[key].append(a[key])

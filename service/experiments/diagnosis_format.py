@@ -102,13 +102,29 @@ def format_diagnosis(result: dict) -> str:
                      f"low-passed at {result.get('lowpass_hz', LOWPASS_HZ):g} Hz): before {before:.4g}, after "
                      f"{after:.4g}" + (f"; better on {helped} flights" if helped else ""))
     methods = [m for m in result["before"] if m != "specific_force_rmse"]
+    lines += _gap_lines(result, methods, median)
     if methods:
-        lines.append(f"  MSE on held-out data{median}   before        after")
+        lines.append(f"  MSE on held-out data, the paper's SG yardstick{median}   before        after")
     for m in methods:
         helped = result.get("improved_flights", {}).get(m)
         lines.append(f"    {m:<20}{result['before'][m]:>10.4g}  {result['after'][m]:>10.4g}"
                      + (f"   better on {helped} flights" if helped else ""))
     return "\n".join(lines)
+
+
+def _gap_lines(result: dict, methods: list[str], median: str) -> list[str]:
+    """The repair's yardstick, the evaluation's headline: position RMSE inside the mocap gaps, before and after."""
+    gaps = (result.get("yardsticks") or {}).get("mocap_gaps")
+    if not gaps or not methods:
+        return []
+    if gaps["before_rmse_m"] is None:
+        return [f"  no mocap-gap score: {'; '.join(gaps['skipped'])}"]
+    lines = [f"  position RMSE (m) inside {gaps['gap_s']:g}-s mocap gaps on held-out data{median}   before        "
+             "after"]
+    for m in methods:
+        lines.append(f"    {m:<20}{gaps['before_rmse_m'][m]:>10.4g}  {gaps['after_rmse_m'][m]:>10.4g}"
+                     f"   better on {gaps['improved_flights'][m]} flights")
+    return lines
 
 
 def _effect_lines(e: dict) -> list[str]:

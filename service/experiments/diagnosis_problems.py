@@ -8,10 +8,12 @@ from dataclasses import replace
 
 import numpy as np
 
+from learnest.estimators.headline import MEASURES
 from learnest.estimators.metrics import better_beyond_interval, gain_interval_over_time, worse_beyond_interval
 from learnest.estimators.observers import pretraining_observer
 from learnest.estimators.prepared import initial_state
 from learnest.estimators.ukf import run_ukf
+from learnest.estimators.yardsticks import GapPlan, gap_gain, gap_squared_errors
 from learnest.ingest.baseline import sg_references
 from learnest.ingest.flight import Flight
 from learnest.models.backend import rk4_step
@@ -173,43 +175,122 @@ def repair_interval(before: dict, after: dict, method: str, dt: float) -> list[f
     return gain_interval_over_time(err_b, err_a, dt)
 
 
-def repair_verdict(report: dict, methods: Sequence[str]) -> dict:
-    """Whether the repaired model is better on the held-out flights, by the evaluation's interval rule.
+# The held-out flights of a repair are scored as an evaluation scores them: the mocap hidden 0.5 s every 2.5 s
+# after the first 5 s (`estimators.yardsticks.GapPlan`'s defaults, the evaluation's headline yardstick).
+REPAIR_GAPS = GapPlan()
 
-    The deciding method is the first KNODE method asked for, else the first.  The repair improves when its
-    median held-out MSE is lower, no held-out flight is clearly worse (its gain interval wholly below 0) and
-    at least one is clearly better (wholly above 0); without an estimator, when the specific-force RMSE is
-    lower on every held-out flight.  A flight too short for an interval counts as better or worse by its MSE
-    alone.  Returns {"improves": bool, "method", "reason"}.
+
+def repair_scores(scored_b: dict, scored_a: dict, methods: Sequence[str], flight: Flight) -> dict:
+    """What one held-out ``flight`` says of a repair, on both yardsticks.
+
+    ``scored_b``/``scored_a`` are `evaluate_flight` results of the model before and after the repair on
+    ``flight``, run with ``gaps=REPAIR_GAPS`` and ``keep_estimates``.  Returns ``repair_gain_interval_pct``
+    {method: the interval on the paper's SG yardstick (`repair_interval`)} and ``mocap_gaps`` {``rmse_before_m``,
+    ``rmse_after_m`` {method: RMS of the 3-D position error inside the gaps, m}, ``gain_pct`` {method:
+    100 (1 − Σ after / Σ before) of the squared gap errors, %}, ``gain_interval_pct`` {method: its 95 % paired
+    block-bootstrap interval, or None when the flight has too few gaps to tell}, ``gaps``, ``gap_s``,
+    ``skipped``: why the flight has no gap score (too short for one gap), else None}.
+    """
+    sg = {m: repair_interval(scored_b, scored_a, m, flight.dt) for m in methods}
+    before, after = scored_b["yardsticks"].mocap_gaps, scored_a["yardsticks"].mocap_gaps
+    gaps: dict = {"rmse_before_m": {}, "rmse_after_m": {}, "gain_pct": {}, "gain_interval_pct": {},
+                  "gaps": before.gaps, "gap_s": before.gap_s, "skipped": before.skipped}
+    if before.skipped is None:
+        windows = REPAIR_GAPS.windows(len(flight.p), flight.dt)
+        for m in methods:
+            err_b = gap_squared_errors(flight.p, scored_b["gap_estimates"][m], windows)
+            err_a = gap_squared_errors(flight.p, scored_a["gap_estimates"][m], windows)
+            gaps["rmse_before_m"][m], gaps["rmse_after_m"][m] = before.rmse_m[m], after.rmse_m[m]
+            gaps["gain_pct"][m], gaps["gain_interval_pct"][m] = gap_gain(err_b, err_a, windows)
+    return {"repair_gain_interval_pct": sg, "mocap_gaps": gaps}
+
+
+def repair_yardsticks(per_flight: list[dict], methods: Sequence[str]) -> dict:
+    """The report's ``mocap_gaps`` (medians over the held-out flights of `repair_scores`' gap RMSE before and
+    after, m, and the flights each improved, "k/n"; None where a flight has no gap score, ``skipped`` naming
+    them) and ``paper_sg`` (what the report's ``before``/``after`` MSE measure)."""
+    skipped = [f"{p['flight']}: {p['mocap_gaps']['skipped']}" for p in per_flight if p["mocap_gaps"]["skipped"]]
+    gaps: dict = {"measures": MEASURES["mocap_gaps"], "gap_s": REPAIR_GAPS.gap_s, "every_s": REPAIR_GAPS.every_s,
+                  "start_s": REPAIR_GAPS.start_s, "skipped": skipped, "before_rmse_m": None, "after_rmse_m": None,
+                  "improved_flights": None}
+    if per_flight and not skipped:
+        rmse = {side: {m: float(np.median([p["mocap_gaps"][f"rmse_{side}_m"][m] for p in per_flight]))
+                       for m in methods} for side in ("before", "after")}
+        gaps.update(before_rmse_m=rmse["before"], after_rmse_m=rmse["after"], improved_flights={
+            m: f"{sum(p['mocap_gaps']['rmse_after_m'][m] < p['mocap_gaps']['rmse_before_m'][m] for p in per_flight)}"
+               f"/{len(per_flight)}" for m in methods})
+    return {"mocap_gaps": gaps, "paper_sg": {"measures": MEASURES["paper_sg"],
+                                             "note": "the report's before, after and per-flight MSE"}}
+
+
+def repair_verdict(report: dict, methods: Sequence[str]) -> dict:
+    """Whether the repaired model is better on the held-out flights, by the evaluation's yardstick and rule.
+
+    The yardstick is the evaluation's headline, the mocap gaps (`repair_scores`: position RMSE inside 0.5-s
+    windows where the mocap was hidden); the paper's SG MSE decides only when a held-out flight is too short
+    for one gap (the reason says so).  The deciding method is the first KNODE method asked for, else the first.
+    The repair improves when its median held-out error is lower, no held-out flight is worse beyond its gain's
+    95 % interval and at least one is better beyond it (`estimators.metrics`); a flight too short for an
+    interval counts neither way, unless no flight has one: then it must be better on every flight.  Without an
+    estimator: when the specific-force RMSE is lower on every held-out flight.  Returns {"improves": bool,
+    "method", "reason", "yardstick": "mocap_gaps" | "paper_sg" | None, "paper_sg": the SG rule's own
+    {"improves", "reason"}, where scored}.
     """
     per_flight = report["per_flight"]
     if not report["effects"] or not any(any(e.get("identified", {}).values()) for e in report["effects"]):
-        return {"improves": False, "method": None, "reason": "no identified effect: the repaired prior is the prior"}
+        return {"improves": False, "method": None, "yardstick": None,
+                "reason": "no identified effect: the repaired prior is the prior"}
     if not methods:
         everywhere = all(p["after"]["specific_force_rmse"] < p["before"]["specific_force_rmse"] for p in per_flight)
-        return {"improves": everywhere, "method": "specific_force_rmse",
+        return {"improves": everywhere, "method": "specific_force_rmse", "yardstick": "specific_force_rmse",
                 "reason": ("the specific force from the inputs is better on every held-out flight" if everywhere else
                            "the specific force from the inputs is not better on every held-out flight")}
     method = next((m for m in methods if m.startswith("knode")), methods[0])
-    b, a = report["before"][method], report["after"][method]
-    intervals = [p["repair_gain_interval_pct"].get(method) for p in per_flight]
-    worse: list[str] = [p["flight"] for p, i in zip(per_flight, intervals) if worse_beyond_interval(i)]
-    better: list[str] = [p["flight"] for p, i in zip(per_flight, intervals) if better_beyond_interval(i)]
-    # a flight too short for an interval (fewer than 3 bootstrap blocks) counts by its MSE alone
-    untold = [p for p, i in zip(per_flight, intervals) if i is None]
-    worse += [p["flight"] for p in untold if p["after"][method] >= p["before"][method]]
-    better += [p["flight"] + " (too short for an interval: by its MSE)" for p in untold
-               if p["after"][method] < p["before"][method]]
-    if a >= b:
-        reason = f"held-out median {method} MSE does not improve ({b:.4g} → {a:.4g})"
+    sg = _interval_rule(per_flight, method, "MSE on the paper's SG yardstick",
+                        [(p["before"][method], p["after"][method], p["repair_gain_interval_pct"].get(method))
+                         for p in per_flight], report["before"][method], report["after"][method])
+    skipped = [f"{p['flight']} ({p['mocap_gaps']['skipped']})" for p in per_flight
+               if (p.get("mocap_gaps") or {"skipped": "not scored with mocap gaps"})["skipped"]]
+    if skipped:
+        return {**sg, "method": method, "yardstick": "paper_sg", "paper_sg": dict(sg),
+                "reason": f"decided on the paper's SG yardstick, as a held-out flight has no mocap gap: "
+                          f"{'; '.join(skipped)}. {sg['reason']}"}
+    gaps = [p["mocap_gaps"] for p in per_flight]
+    verdict = _interval_rule(per_flight, method, "mocap-gap position RMSE (m)",
+                             [(g["rmse_before_m"][method], g["rmse_after_m"][method], g["gain_interval_pct"][method])
+                              for g in gaps], float(np.median([g["rmse_before_m"][method] for g in gaps])),
+                             float(np.median([g["rmse_after_m"][method] for g in gaps])))
+    return {**verdict, "method": method, "yardstick": "mocap_gaps", "paper_sg": sg}
+
+
+def _interval_rule(per_flight: list[dict], method: str, what: str, scores: list, median_before: float,
+                   median_after: float) -> dict:
+    """{"improves", "reason"} by the evaluation's counting over flights (`estimators.headline`): ``scores``
+    [(before, after, gain interval or None)] per flight of ``per_flight``; better when the median is lower
+    (``median_before`` → ``median_after``, in ``what``), no flight is worse beyond its gain's interval and one
+    is better beyond it.  A flight without an interval (fewer than 3 bootstrap blocks) cannot tell, and counts
+    neither way, as in the evaluation; only when no flight has one does each flight's error decide (better on
+    every flight), else a short held-out set could never be judged."""
+    names = [p["flight"] for p in per_flight]
+    worse = [n + " (beyond its interval)" for n, (_, _, i) in zip(names, scores) if worse_beyond_interval(i)]
+    better = [n + " (beyond its interval)" for n, (_, _, i) in zip(names, scores) if better_beyond_interval(i)]
+    untold = [n for n, (_, _, i) in zip(names, scores) if i is None]
+    if len(untold) == len(names):   # no flight can tell by an interval: each one's error decides
+        worse = [n + " (by its error: no flight has an interval)" for n, (b, a, _) in zip(names, scores) if a >= b]
+        better = [n + " (by its error: no flight has an interval)" for n, (b, a, _) in zip(names, scores) if a < b]
+    change = f"median {method} {what} {median_before:.4g} → {median_after:.4g}"
+    if median_after >= median_before:
+        reason = f"held-out {change}: no improvement"
     elif worse:
-        reason = f"clearly worse (gain interval below 0) on {', '.join(worse)}"
+        reason = f"{change}, but worse on {', '.join(worse)}"
     elif not better:
-        reason = (f"median {method} MSE {b:.4g} → {a:.4g}, but on no held-out flight is the gain's 95 % interval "
-                  "above 0: the change is within the flights' own variability")
+        reason = (f"{change}, but on no held-out flight is the gain's 95 % interval above 0: the change is within "
+                  "the flights' own variability")
     else:
-        reason = f"median {method} MSE {b:.4g} → {a:.4g}, clearly better on {', '.join(better)}, worse on none"
-    return {"improves": bool(a < b and not worse and better), "method": method, "reason": reason}
+        reason = f"{change}, better on {', '.join(better)}, worse on none"
+    if untold and len(untold) < len(names):
+        reason += f" ({', '.join(untold)}: too short for an interval, counted neither way)"
+    return {"improves": bool(median_after < median_before and not worse and better), "reason": reason}
 
 
 def _residual_summary(fitting, fixed_fitting, accel, dynamics, knode):

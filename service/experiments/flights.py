@@ -97,7 +97,8 @@ def evaluate_prepared(prepared: PreparedFlight, methods: Sequence[str], horizon:
         ``prediction_check`` (`flight_prediction_check`) when ``check_prediction`` and the model is a KNODE,
         else None.  ``yardsticks`` (`estimators.yardsticks.FlightYardsticks`: mocap gaps, fast reference, the
         paper's SG score) when ``gaps`` is given, else None; ``onboard`` in ``methods`` scores the log's own
-        estimate there.
+        estimate there.  ``gap_estimates`` {method: (T, n)} of the gap-masked runs when ``gaps`` and
+        ``keep_estimates`` (empty when no gap fits), else None: what compares two models on the same gaps.
     """
     flight, system, knode, prior = prepared.flight, prepared.system, prepared.model, prepared.prior
     y, u, x0 = prepared.y, prepared.u, prepared.x0
@@ -107,10 +108,10 @@ def evaluate_prepared(prepared: PreparedFlight, methods: Sequence[str], horizon:
     results = evaluate_sequence(run, prior, knode, y, u, flight.dt, system.Q, system.R, x0, system.P0, reference,
                                 horizon=horizon, keep_estimates=keep_estimates or gaps is not None,
                                 mhe_cache=mhe_cache, on_stage=on_stage)
-    yardsticks = None
+    yardsticks, gapped = None, None
     if gaps is not None:
         onboard = onboard_estimate(flight.channels) if ONBOARD in methods else None
-        yardsticks, _ = flight_yardsticks(run, prior, knode, y, u, flight.dt, system.Q, system.R, x0, system.P0,
+        yardsticks, gapped = flight_yardsticks(run, prior, knode, y, u, flight.dt, system.Q, system.R, x0, system.P0,
                                           flight.p, {m: r["estimates"] for m, r in results.items()},
                                           {m: r["mse"] for m, r in results.items()}, gaps, horizon, onboard=onboard,
                                           sg_window_s=centred_window(sg_window) * flight.dt, mhe_cache=mhe_cache,
@@ -126,7 +127,7 @@ def evaluate_prepared(prepared: PreparedFlight, methods: Sequence[str], horizon:
     estimates = FlightEstimates(flight.name, flight.t, reference, y, flight.quat,
                                 {m: r["estimates"] for m, r in results.items()}, log_start_ns(flight))
     return {"results": results, "reference": reference, "estimates": estimates, "prediction_check": check,
-            "yardsticks": yardsticks}
+            "yardsticks": yardsticks, "gap_estimates": gapped}
 
 
 def flight_prediction_check(prepared: PreparedFlight, results: dict, cache: dict | None = None) -> dict:

@@ -237,7 +237,7 @@ def draw_summary(fig, diagnosis: dict) -> None:
     axes[0].set_xticks(x, names, fontsize="small")
     axes[0].set(ylabel="√RSS, whitened residual", title="residual on the fitting data")
     axes[0].legend(fontsize="small")
-    _paired(axes[1], flights, methods, "MSE on held-out data")
+    _paired(axes[1], flights, methods, "MSE on held-out data (paper's SG yardstick)")
     from matplotlib.patches import Patch
     axes[1].legend(handles=[Patch(color=BEFORE_COLOUR, alpha=0.35, label="median before (prior)"),
                             Patch(color=AFTER_COLOUR, alpha=0.35, label="median after (with the effects)")],
