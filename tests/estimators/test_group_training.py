@@ -4,7 +4,8 @@ answers on simulated Crazyflie flights.
 - Two groups flown by vehicles with opposite unmodelled rotor drag (5x the prior's, and none): the residual learned
   on either group makes the other's mocap-gap estimate worse at every scale, so the scale chosen is 0 and the model
   says it equals its prior.
-- Two groups with the same unmodelled drag: the residual carries, and the whole residual is kept (scale 1).
+- Two groups with the same unmodelled drag: the residual carries, and the whole residual is kept (scale 1); a
+  flight named for validation stays held out.
 - One trajectory family: the whole residual, exactly the plain pooled training's, with the reason in words.
 - The groups: by declared family, by a name pattern, none; bad rules and unmatched names are refused.
 """
@@ -56,8 +57,11 @@ def test_a_residual_that_cannot_carry_between_the_groups_is_scaled_to_the_prior(
 
 
 def test_a_residual_that_carries_between_the_groups_is_kept_whole():
+    """A flight named for validation is held out of the final training and of the inner one that holds it."""
     flights = _flights(4 * K_XY, (0, 1), "circle") + _flights(4 * K_XY, (2, 3), "helix")
-    meta = train_flights(flights, "crazyflie", CONFIG).model.meta
+    meta = train_flights(flights, "crazyflie", CONFIG, validate=[flights[0].name]).model.meta
+    assert [f["name"] for f in meta["validation_flights"]] == [flights[0].name]
+    assert [f["name"] for f in meta["training_flights"]] == [f.name for f in flights[1:]]
     for rows in meta["residual_scale_choice"]["scales"].values():
         assert all(row["median_gain_pct"] > 0 and row["worse_beyond"] == 0 for row in rows)
     assert meta["residual_scale"] == 1.0 and meta["learned"] is True
