@@ -269,14 +269,16 @@ def train_with_scale_choice(groups: Mapping[str, Sequence[Flight]], system: str 
 
 
 def scale_note(table: Mapping[float, Sequence[Mapping]], chosen: float) -> str:
-    """The choice of `train_with_scale_choice` in words: which scale, held out on which groups, by which rule."""
+    """How `train_with_scale_choice` chose ``chosen``, in words: the groups held out, the rule that decided (the
+    surfaces print it after the scale: "residual scale 0.25: chosen with circle, helix held out in turn: ...")."""
     held = ", ".join(str(g["group"]) for g in next(iter(table.values()), []))
     if chosen == 0.0:
-        return f"residual scale 0 with {held} held out in turn: {NO_SCALE}"
+        return (f"chosen with {held} held out in turn: no scale was better than the prior in the mocap gaps on any "
+                "held-out flight; the residual is off")
     how = ("better than the prior in the mocap gaps on the median of every held-out group, no flight worse beyond "
            "its interval") if passes(table[chosen]) else \
         "no scale met the goal on every held-out group; this one was better than the prior on the most held-out flights"
-    return f"residual scale {chosen:g} chosen with {held} held out in turn: {how}"
+    return f"chosen with {held} held out in turn: {how}"
 
 
 def train_flights(flights: Sequence[Flight], system: str = "quadrotor", config: TrainingConfig = CRAZYFLIE_TRAINING,

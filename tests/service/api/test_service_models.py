@@ -161,7 +161,7 @@ def test_several_flights_by_name_groups_choose_the_residual_scale_and_the_versio
         assert version["hyperparameters"]["group_by"] == r"name:^flight(\d)"
         assert version["residual_scale_groups"] == ["0", "1", "2"]
         assert version["residual_scale"] in (0.0, 0.25, 0.5, 0.75, 1.0)
-        assert version["residual_scale_note"].startswith(f"residual scale {version['residual_scale']:g} ")
+        assert version["residual_scale_note"].startswith("chosen with 0, 1, 2 held out in turn: ")
         meta = client.get("/models/g/versions/1/metadata").json()
         assert meta["residual_scale"] == version["residual_scale"] and meta["residual_scale_groups"] == ["0", "1", "2"]
         assert set(meta["residual_scale_choice"]["groups"]) == {"0", "1", "2"}
