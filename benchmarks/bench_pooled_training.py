@@ -1,11 +1,14 @@
 """Pooled training speed: one Crazyflie-prior KNODE on the 16 shared NanoBench circles and figure-eights that pass
 the quality checks (`../shared/data/nanobench`; the 17th fails and is left out), 150 epochs, one in five flights
-held out whole.  The target is under 2 minutes on a 2-core machine.
+held out whole, the residual's scale chosen by holding out each trajectory family in turn (the default of every
+training surface, `estimators.group_training`: two inner pooled trainings, the UKF in the held-out family's mocap
+gaps at each candidate scale, then the final training).  The target is under 2 minutes on a 2-core machine.
 
 Two measurements, each in a fresh process so one-time imports count:
 
   library   `learnest.read_flights` of the folder, then `service.experiments.flights.train_on_flights` (the
-            pre-training observer on each flight, the thrust gains, the vehicle check, the epochs)
+            pre-training observer on each flight, the thrust gains, the vehicle check, the epochs, the scale
+            choice)
   cli       `learnest train ../shared/data/nanobench --system crazyflie --name bench --json` into an empty
             LEARNEST_HOME: the whole command, storing the 17 flights and the model included
 
@@ -47,7 +50,10 @@ print(json.dumps({"flights": len(flights), "read_s": read - started, "train_s": 
                   "best_epoch": meta["best_epoch"], "learned": meta["learned"],
                   "prior_validation_loss": meta["prior_validation_loss"],
                   "best_validation_loss": meta["best_validation_loss"],
-                  "first_validation_loss": result.validation_losses[0], "final_loss": result.losses[-1]}))
+                  "first_validation_loss": result.validation_losses[0], "final_loss": result.losses[-1],
+                  "residual_scale": meta["residual_scale"], "residual_scale_groups": meta["residual_scale_groups"],
+                  "residual_scale_note": meta["residual_scale_note"],
+                  "choice_s": (meta.get("residual_scale_choice") or {}).get("seconds")}))
 """
 
 
@@ -73,7 +79,10 @@ def cli_run(folder: Path) -> dict:
     return {"wall_s": wall, "epochs_s": report["seconds"], "job_s": report["total_seconds"],
             "training_flights": len(report["training_flights"]), "validation_flights": report["validation_flights"],
             "skipped_flights": report["skipped_flights"], "learned": report["learned"],
-            "best_epoch": report["best_epoch"], "load_before": load, "load_after": os.getloadavg()[0]}
+            "best_epoch": report["best_epoch"], "residual_scale": report["residual_scale"],
+            "residual_scale_groups": report["residual_scale_groups"],
+            "residual_scale_note": report["residual_scale_note"], "load_before": load,
+            "load_after": os.getloadavg()[0]}
 
 
 def main(argv=None) -> int:

@@ -204,7 +204,7 @@ def main(argv=None) -> int:
                         groups.setdefault(family_of(f.name), []).append(f)
                     trained = train_with_scale_choice(groups, system=system, **blind)
                 else:
-                    trained = train_on_flights(train, system=system, **blind)
+                    trained = train_on_flights(train, system=system, group_by="none", **blind)
                 meta = trained.model.meta
                 report = evaluate_flights(trained.model, test, methods)
                 rows = per_flight(report)

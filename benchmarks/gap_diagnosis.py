@@ -58,7 +58,7 @@ def main(argv=None) -> int:
     flights = [f for f in read_flights(paths) if family_of(f.name)]
     train = [f for f in flights if f.quality["ok"] and family_of(f.name) != args.family]
     trained = train_on_flights(train, system="crazyflie", blind_attitude=args.attitude == "blind",
-                               blind_battery=args.battery == "blind")
+                               blind_battery=args.battery == "blind", group_by="none")
     knode = trained.model
     tau = knode.system.prior_params["tau_s"]
     rows = []

@@ -32,13 +32,14 @@ from family_holdout import DATA, family_of  # noqa: E402
 
 from learnest.estimators.evaluate import gain_interval  # noqa: E402
 from learnest.estimators.mocap_gaps import PositionGapModel, gap_mask, masked_measurements  # noqa: E402
+from learnest.estimators.prepared import initial_state, model_system  # noqa: E402
 from learnest.estimators.ukf import compiled_sigma_functions, run_ukf  # noqa: E402
 from learnest.estimators.yardsticks import GapPlan  # noqa: E402
 from learnest.ingest import read_flights  # noqa: E402
 from learnest.models.inputs import system_inputs  # noqa: E402
 from learnest.models.knode import HybridModel  # noqa: E402
 from learnest.models.residual_scale import scaled_model  # noqa: E402
-from learnest.service.experiments.flights import initial_state, model_system, train_on_flights  # noqa: E402
+from learnest.service.experiments.flights import train_on_flights  # noqa: E402
 
 ALL_ROWS = (0, 1, 2, 3, 4, 5)
 
@@ -116,7 +117,7 @@ def main(argv=None) -> int:
     paths = sorted(p for folder in DATA for p in folder.glob("B*.csv"))
     flights = [f for f in read_flights(paths) if family_of(f.name)]
     train = [f for f in flights if f.quality["ok"] and family_of(f.name) != args.family]
-    knode = train_on_flights(train, system="crazyflie").model
+    knode = train_on_flights(train, system="crazyflie", group_by="none").model
     cache: dict = {}
     gains: dict[str, list] = {}
     for flight in (f for f in flights if family_of(f.name) == args.family and f.quality["ok"]):

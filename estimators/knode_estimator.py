@@ -13,7 +13,7 @@ from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 from learnest.models.presets import CRAZYFLIE_TRAINING
 
-from .algorithm1 import Algorithm1
+from .group_training import GROUP_BY, train_flights
 from .prepared import FLIGHT_SYSTEMS
 
 
@@ -37,6 +37,10 @@ class KNODE:
         it best are kept.  Several flights are validated on whole held-out flights instead.
     seed : int
         Seed of the network's initial weights.
+    group_by : str
+        Several flights: the groups held out in turn to choose how much of the residual to keep
+        (`estimators.group_training`): ``"family"`` (the trajectory family the logs declare; the default),
+        ``"name:REGEX"`` (one capture group of the flight's name) or ``"none"`` (the whole residual).
 
     Attributes
     ----------
@@ -51,6 +55,10 @@ class KNODE:
     learned_ : bool
         False when no epoch predicted the held-out data better than the prior: ``model_`` equals its prior
         (``model_.meta["learned_note"]`` says so in words).
+    residual_scale_ : float
+        The scale s of the residual kept, f = f_prior + s Δθ (1.0: the whole residual).
+    residual_scale_note_ : str
+        How it was chosen, or why no scale was chosen (one trajectory family: nothing to hold out).
     training_flights_, validation_flights_ : list of str
         Names of the flights trained on and of those held out whole (empty for one flight).
 
@@ -65,9 +73,10 @@ class KNODE:
 
     def __init__(self, system: str = "quadrotor", hidden: int = CRAZYFLIE_TRAINING.hidden,
                  epochs: int = CRAZYFLIE_TRAINING.epochs, lr: float = CRAZYFLIE_TRAINING.lr,
-                 validation_fraction: float = CRAZYFLIE_TRAINING.validation_fraction, seed: int = 0) -> None:
+                 validation_fraction: float = CRAZYFLIE_TRAINING.validation_fraction, seed: int = 0,
+                 group_by: str = GROUP_BY) -> None:
         self.system, self.hidden, self.epochs, self.lr = system, hidden, epochs, lr
-        self.validation_fraction, self.seed = validation_fraction, seed
+        self.validation_fraction, self.seed, self.group_by = validation_fraction, seed, group_by
 
     def fit(self, flights: Flight | Sequence[Flight], progress: Callable[[int, float], None] | None = None,
             validate: Sequence[str] | None = None) -> KNODE:
@@ -77,7 +86,8 @@ class KNODE:
         ----------
         flights : Flight or sequence of Flight
             The training flight(s) (position and world-frame acceleration are the measurements).  Several
-            flights train one residual on one pooled loss (`estimators.algorithm1.Algorithm1.fit_flights`).
+            flights train one residual on one pooled loss (`estimators.algorithm1.Algorithm1.fit_flights`), its
+            scale chosen on held-out groups of them (``group_by``, `estimators.group_training.train_flights`).
         progress : callable, optional
             Called as ``progress(epoch, mean_training_loss)`` after every epoch.
         validate : sequence of str, optional
@@ -105,15 +115,17 @@ class KNODE:
                                f"{wrong[0] if wrong else 'an empty list'}")
         config = replace(CRAZYFLIE_TRAINING, hidden=self.hidden, epochs=self.epochs, lr=self.lr,
                          validation_fraction=self.validation_fraction, seed=self.seed)
-        result = Algorithm1(config=config).fit_flights(given, self.system, validate, progress=progress)
+        result = train_flights(given, self.system, config, self.group_by, validate, progress=progress)
         self.model_ = result.model
         self.losses_, self.validation_losses_ = result.losses, result.validation_losses
         self.seconds_ = result.seconds
         self.learned_ = result.learned
+        self.residual_scale_ = float(result.model.meta.get("residual_scale", 1.0))
+        self.residual_scale_note_ = str(result.model.meta.get("residual_scale_note", ""))
         self.training_flights_ = [f["name"] for f in result.model.meta.get("training_flights", [])]
         self.validation_flights_ = [f["name"] for f in result.model.meta.get("validation_flights", [])]
         return self
 
     def __repr__(self) -> str:
         return (f"KNODE(system={self.system!r}, hidden={self.hidden}, epochs={self.epochs}, lr={self.lr}, "
-                f"validation_fraction={self.validation_fraction}, seed={self.seed})")
+                f"validation_fraction={self.validation_fraction}, seed={self.seed}, group_by={self.group_by!r})")

@@ -94,6 +94,9 @@ class ModelMetadata(Record):
         thrust gain); `format` reads it for models stored before it was recorded.
     training : dict or None
         The training settings (epochs, hidden width, learning rate, ...).
+    residual_scale, residual_scale_groups, residual_scale_note, residual_scale_choice
+        The scale of the residual kept, the groups held out in turn to choose it, the choice in words and its
+        table (`learnest.estimators.group_training`).
     prior_params : dict or None
         {name: value in SI units} of the prior; only in `of_model` (a meta does not hold it).
     """
@@ -115,6 +118,14 @@ class ModelMetadata(Record):
                                                                   "1 calibrated attitude, 2 and the per-flight "
                                                                   "thrust gain"))
     training: dict[str, Any] | None = field(default=None, metadata=doc("training settings (epochs, hidden, lr, ...)"))
+    residual_scale: float | None = field(default=None, metadata=doc(
+        "the scale s of the residual kept, f = f_prior + s Δθ (1.0 the whole residual; None: stored before it)"))
+    residual_scale_groups: list[str] = field(default_factory=list, metadata=doc(
+        "the groups of training flights (e.g. trajectory families) held out in turn to choose the scale"))
+    residual_scale_note: str | None = field(default=None, metadata=doc(
+        "how the scale was chosen, or why none was (one trajectory family: nothing to hold out)"))
+    residual_scale_choice: dict[str, Any] | None = field(default=None, metadata=doc(
+        "the choice: rule, groups' flights, per scale and held-out group the inner gap gains (%), seconds"))
     prior_params: dict[str, Any] | None = field(default=None, metadata=doc(
         "the prior's parameters, SI units (kg, m, s, ...); from the model file beside its meta (`of_model`)"))
 

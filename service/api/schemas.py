@@ -93,6 +93,11 @@ class TrainRequest(Strict):
     system: Literal["quadrotor", "crazyflie"] = Field(
         "quadrotor", description="the prior: the paper's kinematic chain, or the Crazyflie driven by its motors "
                                  "and battery (the flight must carry motor PWM and battery voltage)")
+    group_by: str | None = Field(
+        None, max_length=200, description="several flights: the groups held out in turn to choose how much of the "
+                                          "residual to keep: 'family' (the trajectory family the logs declare; the "
+                                          "default), 'name:REGEX' (one capture group of each flight's name) or "
+                                          "'none' (the whole residual)")
     parent: str | None = Field(None, description='"name:version" or "name@alias" this version derives from')
     include_bad: bool = Field(False, description="train even if the flight failed the quality checks")
 
@@ -135,6 +140,11 @@ class VersionSummary(BaseModel):
                                                    "prior: the version equals its prior (None: not known, e.g. "
                                                    "still training or stored before it was recorded)")
     learned_note: str | None = Field(None, description="what `learned: false` means, in words")
+    residual_scale: float | None = Field(None, description="the scale s of the residual kept, f = f_prior + s Δθ "
+                                                           "(None: not known, e.g. still training)")
+    residual_scale_groups: list[str] = Field(default_factory=list,
+                                             description="the groups of training flights held out to choose it")
+    residual_scale_note: str | None = Field(None, description="how the scale was chosen, or why none was")
     parent: str | None
     hyperparameters: dict[str, Any]
     metrics: dict[str, Any] | None

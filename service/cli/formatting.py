@@ -200,6 +200,8 @@ def format_trained(out: dict) -> str:
              f"{out['seconds']:.1f} s, kept epoch {out['best_epoch']}; {out['command_seconds']:.1f} s in all (this "
              "command: imports, storing the flights, starting a worker, the pre-training observer, the epochs, storing "
              f"the model); registry in {out['home']}"]
+    if out.get("residual_scale_note"):
+        lines.append(residual_scale_line(out))
     if out.get("skipped_flights"):
         lines.append("left out (failed the quality checks; --include-bad keeps them): "
                      + "; ".join(out["skipped_flights"]))
@@ -211,6 +213,11 @@ def format_trained(out: dict) -> str:
     elif out.get("learned_note"):
         lines.append(out["learned_note"])
     return "\n".join(lines)
+
+
+def residual_scale_line(out: dict) -> str:
+    """The residual's scale and how it was chosen (or why none was), in one line."""
+    return f"residual scale {float(out.get('residual_scale', 1.0)):g}: {out['residual_scale_note']}"
 
 
 def format_model(out: dict) -> str:
@@ -272,6 +279,8 @@ def _trained_on_lines(lineage: dict, flight: dict, metrics: dict) -> list[str]:
     else:
         lines = [f"  trained on {len(trained)} flights: {listed(trained)}",
                  f"  validated on {len(held)} held-out flight(s): {listed(held) or 'none'}"]
+    if metrics.get("residual_scale_note"):
+        lines.append("  " + residual_scale_line(metrics))
     if lineage.get("learned") is False:
         lines.append(f"  NOT LEARNED: {lineage.get('learned_note')}")
     elif metrics.get("prior_validation_loss") and metrics.get("best_validation_loss") is not None:

@@ -117,6 +117,11 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
     tr.add_argument("--validate", nargs="+", metavar="FILE", default=None,
                     help="log files of flights held out whole to choose the kept epoch (default with several flights: "
                          "one in five; one flight alone is validated on time blocks of it)")
+    tr.add_argument("--group-by", default=None, metavar="RULE",
+                    help="groups of several flights, each held out in turn to choose how much of the residual to keep "
+                         "(its scale): 'family' (the trajectory family the logs declare; the default), "
+                         "'name:REGEX' (the regex's one capture group in each flight's name) or 'none' (the whole "
+                         "residual); fewer than two groups keep the whole residual")
     tr.add_argument("--name", required=True, help="registered model name")
     tr.add_argument("--epochs", type=_positive_int, default=None,
                     help=f"default {CRAZYFLIE_TRAINING.epochs} (Sec. V-C)")

@@ -15,6 +15,7 @@ from learnest.estimators.evaluate import (
     prediction_check,
     summarize,
 )
+from learnest.estimators.group_training import GROUP_BY, StageCallback, train_flights
 from learnest.estimators.headline import learned_note
 from learnest.estimators.mhe import MHE
 from learnest.estimators.observers import pretraining_observer
@@ -61,10 +62,14 @@ def train_on_flight(flight: Flight, config: TrainingConfig = CRAZYFLIE_TRAINING,
 def train_on_flights(flights: Sequence[Flight], config: TrainingConfig = CRAZYFLIE_TRAINING,
                      progress: Callable[[int, float], None] | None = None, system: str = "quadrotor",
                      validate: Sequence[str] | None = None, blind_attitude: bool = True,
-                     blind_battery: bool = True) -> TrainingResult:
-    """Algorithm 1 on flights of one vehicle with the paper's filter observer
-    (`estimators.algorithm1.Algorithm1.fit_flights`: parameters, meta and errors there)."""
-    return Algorithm1(config=config).fit_flights(flights, system, validate, blind_attitude, blind_battery, progress)
+                     blind_battery: bool = True, group_by: str = GROUP_BY,
+                     on_stage: StageCallback | None = None) -> TrainingResult:
+    """Algorithm 1 on flights of one vehicle with the paper's filter observer, the residual's scale chosen on
+    held-out groups of them (``group_by``: by trajectory family by default, ``"none"`` for the whole residual;
+    `estimators.group_training.train_flights`: parameters, meta and errors there and in
+    `estimators.algorithm1.Algorithm1.fit_flights`)."""
+    return train_flights(flights, system, config, group_by, validate, progress, on_stage,
+                         blind_attitude=blind_attitude, blind_battery=blind_battery)
 
 
 def evaluate_flight(knode: HybridModel, flight: Flight, methods: Sequence[str], horizon: int = MHE_HORIZON,

@@ -54,14 +54,17 @@ def report_progress(target: tuple[str, int] | None, fraction: float | None, stag
 def train_task(flight_bytes: bytes | list[bytes], config: dict, progress_target: tuple[str, int] | None = None,
                meta: dict | None = None, validate: list[str] | None = None) -> dict:
     """Algorithm 1 on one flight, or on several of one vehicle with the flights ``validate`` names held out
-    whole (service.experiments.flights.train_on_flights); the model comes back as JSON.
+    whole (service.experiments.flights.train_on_flights: the residual's scale chosen on held-out groups of the
+    flights by ``config["group_by"]``; a version stored before it, without the key, keeps the whole residual);
+    the model comes back as JSON.
 
     ``config`` holds `TrainingConfig`'s fields; ``meta`` is added to the model's meta.  Returns
     ``model_json``, ``losses``, ``validation_losses``, ``seconds`` (the epochs), ``total_seconds`` (the
     whole task: reading the flight, the pre-training observer and the epochs), ``library_versions``,
     ``code_version`` and ``metrics``.  Stages: "observer", then "epoch i/n" with an ETA from the epochs'
-    pace.  The worker exits if its parent process dies; `TaskCancelled` when the job stops running
-    (checked with each progress report, about every PROGRESS_EVERY_S).
+    pace; with the scale chosen on held-out groups, each training's stage first ("circle held out: epoch i/n",
+    "final training: epoch i/n").  The worker exits if its parent process dies; `TaskCancelled` when the job
+    stops running (checked with each progress report, about every PROGRESS_EVERY_S).
     """
     from learnest.models.training import TrainingConfig
 
@@ -71,6 +74,12 @@ def train_task(flight_bytes: bytes | list[bytes], config: dict, progress_target:
     init_worker()
     last, parent, first_epoch_done = [0.0], os.getppid(), [0.0]
     epochs = config["epochs"]
+    stage: list = ["", 0, 1]   # the training stage (`estimators.group_training`): its name, index and how many
+
+    def on_stage(name: str, index: int, count: int) -> None:
+        stage[:] = [f"{name}: " if count > 1 else "", index, count]
+        if count > 1:
+            report_progress(progress_target, 0.02 + 0.97 * index / count, name)
 
     def on_epoch(epoch: int, _loss: float) -> None:
         if os.getppid() != parent:  # the server died: an orphaned worker must not train on for hours
@@ -82,18 +91,20 @@ def train_task(flight_bytes: bytes | list[bytes], config: dict, progress_target:
         if now - last[0] >= PROGRESS_EVERY_S or epoch == 1 or epoch + 1 == epochs:
             last[0] = now
             # the pace of the epochs after the first (which may carry one-time set-up)
-            eta = (now - first_epoch_done[0]) / epoch * (epochs - epoch - 1) if epoch else None
-            if not report_progress(progress_target, 0.02 + 0.97 * (epoch + 1) / epochs,
-                                   f"epoch {epoch + 1}/{epochs}", eta):
+            left = epochs - epoch - 1 + epochs * (stage[2] - stage[1] - 1)   # this stage's and the later ones'
+            eta = (now - first_epoch_done[0]) / epoch * left if epoch else None
+            if not report_progress(progress_target, 0.02 + 0.97 * (stage[1] + (epoch + 1) / epochs) / stage[2],
+                                   f"{stage[0]}epoch {epoch + 1}/{epochs}", eta):
                 raise TaskCancelled(f"job {progress_target and progress_target[1]} is no longer running")
 
     hyper = dict(config)
-    system = hyper.pop("system", "quadrotor")
+    system, group_by = hyper.pop("system", "quadrotor"), hyper.pop("group_by", "none")
     stored = [flight_bytes] if isinstance(flight_bytes, bytes) else flight_bytes
     flights = [flight_from_bytes(data) for data in stored]
     report_progress(progress_target, 0.01, "observer (pre-training state estimates)"
                     + (f" of {len(flights)} flights" if len(flights) > 1 else ""))
-    result = train_on_flights(flights, TrainingConfig(**hyper), progress=on_epoch, system=system, validate=validate)
+    result = train_on_flights(flights, TrainingConfig(**hyper), progress=on_epoch, system=system, validate=validate,
+                              group_by=group_by, on_stage=on_stage)
     model = result.model
     model.meta.update(meta or {})
     return {"model_json": registry.model_to_json(model), "losses": [float(x) for x in result.losses],
@@ -186,7 +197,8 @@ def training_metrics(model: HybridModel) -> dict:
     return {**{key: model.meta.get(key) for key in ("final_loss", "best_epoch", "best_validation_loss", "envelope",
                                                     "training_profile")},
             **{key: model.meta[key] for key in ("prior_validation_loss", "learned", "learned_note", "validation",
-                                                "batch_pairs") if key in model.meta}}
+                                                "batch_pairs", "residual_scale", "residual_scale_groups",
+                                                "residual_scale_note") if key in model.meta}}
 
 
 def diagnosis_metrics(model: HybridModel, report: dict) -> dict:

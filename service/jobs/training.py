@@ -21,9 +21,11 @@ from .tasks import train_task
 
 def training_config(overrides: dict) -> dict:
     """The Crazyflie training settings as a dict, with the non-None ``overrides`` applied; "system" is the
-    prior the KNODE is built on (service.experiments.flights.FLIGHT_SYSTEMS), kept with the training
-    hyperparameters so the registry shows it and a retraining reuses it."""
-    return {**CRAZYFLIE_TRAINING.as_dict(), "system": "quadrotor",
+    prior the KNODE is built on (service.experiments.flights.FLIGHT_SYSTEMS) and "group_by" the groups of the
+    training flights held out to choose the residual's scale (`learnest.estimators.group_training`: "family",
+    "none", "name:REGEX"), kept with the training hyperparameters so the registry shows them and a retraining
+    reuses them."""
+    return {**CRAZYFLIE_TRAINING.as_dict(), "system": "quadrotor", "group_by": "family",
             **{k: v for k, v in overrides.items() if v is not None}}
 
 
@@ -49,6 +51,7 @@ def start_training(services: Services, name: str, flight_id: int | Sequence[int]
         If the parent version is not ready.
     """
     from learnest.estimators.flight_training import default_validation
+    from learnest.estimators.group_training import group_rule
 
     registry.check_name(name)
     ids = [flight_id] if isinstance(flight_id, int) else [int(i) for i in flight_id]
@@ -85,6 +88,7 @@ def start_training(services: Services, name: str, flight_id: int | Sequence[int]
             parent = f"{resolved.name}:{resolved.version}"
         samples = sum(rows[i].samples for i in trained)
     config = training_config(overrides)
+    group_rule(config["group_by"])   # a bad grouping is said before a job starts
     quotas.check_training(services.settings, epochs=config["epochs"], hidden=config["hidden"], samples=samples)
     for attempt in range(20):  # another request may take the same version number first
         try:

@@ -27,7 +27,7 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
           progress: Callable[[float], None] | None = None, settings: Settings | None = None,
           system: str = "quadrotor", pose_topic: str | None = None, imu_topic: str | None = None,
           cut: str | None = None, on_stage: Callable[[str, float | None], None] | None = None,
-          validate=None, strict: bool = False) -> dict:
+          validate=None, strict: bool = False, group_by: str | None = None) -> dict:
     """Store the flights, train the next version of `name` on them and wait; `progress(fraction)` while it
     trains, `on_stage(stage, seconds_left)` as the job's stage changes ("ingest", "observer ...", "epoch 12/150").
 
@@ -38,11 +38,15 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
     in ``errors`` and the model is trained on the others; with ``strict`` it is an `UnreadableFile` instead,
     raised before any training.  Of several flights, those failing the quality checks are left out and listed
     (``skipped_flights``) unless ``include_bad``; one such flight alone is refused.
-    ``cut``: the stretch of the log to keep (`learnest.ingest.align.parse_cut`).
+    ``cut``: the stretch of the log to keep (`learnest.ingest.align.parse_cut`).  ``group_by``: the groups of
+    several flights held out in turn to choose the residual's scale (`learnest.estimators.group_training`;
+    default "family", "none" keeps the whole residual).
     Returns what `learnest train --json` prints: ``seconds`` is the epochs' time, ``total_seconds`` the
     job's (observer, epochs, storing), ``training_flights`` and ``validation_flights`` the names, ``learned``
     False when no epoch beat the prior on the held-out data (``learned_note`` says so in words), ``errors``
-    ``[{"file", "message"}]`` the files left out because they could not be read."""
+    ``[{"file", "message"}]`` the files left out because they could not be read, ``residual_scale`` the
+    scale of the residual kept, ``residual_scale_groups`` the groups held out to choose it and
+    ``residual_scale_note`` how it was chosen or why none was."""
     registry.check_name(name)  # before any work
     settings = settings or cli_settings()
     if on_stage:
@@ -61,8 +65,9 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
         rows, held, skipped = _quality_filter(list({row.id: row for row, _ in stored}.values()), held, include_bad)
         for row in rows + held:   # before a worker starts: a missing channel is said at once
             _check_inputs(services, row, system)
-        job, version = _run_training(services, name, rows, held, {"epochs": epochs, "system": system},
-                                     include_bad, progress, on_stage)
+        job, version = _run_training(services, name, rows, held,
+                                     {"epochs": epochs, "system": system, "group_by": group_by}, include_bad, progress,
+                                     on_stage)
     return {**_trained_json(version, job, settings), "skipped_flights": skipped, "errors": errors,
             "flight_stored": "new" if any(created for _, created in stored) else "existing"}
 
@@ -123,7 +128,16 @@ def _trained_json(version: ModelVersion, job: Job, settings: Settings) -> dict:
             "prior_validation_loss": metrics.get("prior_validation_loss"),
             "best_validation_loss": metrics.get("best_validation_loss"),
             "final_loss": version.losses[-1] if version.losses else None, "seconds": version.training_seconds,
+            **residual_scale_of(metrics),
             "total_seconds": (job.result or {}).get("total_seconds"), "home": str(settings.home)}
+
+
+def residual_scale_of(metrics: dict) -> dict:
+    """``residual_scale`` (1.0 for a version stored before it was chosen: the whole residual),
+    ``residual_scale_groups`` and ``residual_scale_note`` of a version's metrics."""
+    return {"residual_scale": float(metrics.get("residual_scale", 1.0)),
+            "residual_scale_groups": list(metrics.get("residual_scale_groups") or []),
+            "residual_scale_note": metrics.get("residual_scale_note")}
 
 
 def _check_inputs(services: Services, row, system: str) -> None:

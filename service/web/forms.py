@@ -70,10 +70,10 @@ def upload_text(vehicle: str, notes: str) -> tuple[str | None, str | None]:
 
 
 def train_request(name: str, flight_id: str, epochs: str, include_bad: str | None,
-                  flight_ids: Sequence[str] = (), system: str = "") -> TrainRequest:
+                  flight_ids: Sequence[str] = (), system: str = "", group_by: str = "") -> TrainRequest:
     """The train form as POST /models' body (ValidationError names the bad field): a flight's page sends its
     ``flight_id``, the flight list the checked ``flight_ids`` (one checked is one flight, several train one
-    model on all of them); an empty ``system`` is the default prior."""
+    model on all of them); an empty ``system`` is the default prior, an empty ``group_by`` the default grouping."""
     body: dict[str, object] = {"name": name.strip(), "epochs": optional(epochs), "include_bad": include_bad is not None}
     checked = [i for i in flight_ids if i.strip()]
     if len(checked) > 1:
@@ -84,6 +84,8 @@ def train_request(name: str, flight_id: str, epochs: str, include_bad: str | Non
         raise InvalidInput("choose the flight(s) to train on")
     if optional(system):
         body["system"] = system.strip()
+    if optional(group_by):
+        body["group_by"] = group_by.strip()
     return TrainRequest.model_validate(body)
 
 

@@ -140,13 +140,14 @@ def _draw_trajectory(services: Services, row: FlightRecord) -> dict:
 @html_errors
 def train_model_form(name: str = Form(""), flight_id: str = Form(""), epochs: str = Form(""),
                      include_bad: str | None = Form(None), api_key: str = Form(""),
-                     flight_ids: list[str] = Form(default=[]), system: str = Form(""),
+                     flight_ids: list[str] = Form(default=[]), system: str = Form(""), group_by: str = Form(""),
                      services: Services = Depends(get_services)):
     """Train form (a flight's page: that flight; the flight list: the checked flights, several making one
     model of one vehicle): start a training job (as POST /models does), then 303 to the job's page."""
-    body = forms.train_request(name, flight_id, epochs, include_bad, flight_ids, system)
+    body = forms.train_request(name, flight_id, epochs, include_bad, flight_ids, system, group_by)
     job, _version = start_training(services, body.name, body.flights(), {"epochs": body.epochs,
-                                                                          "system": body.system},
+                                                                          "system": body.system,
+                                                                          "group_by": body.group_by},
                                    include_bad=body.include_bad)
     return forms.redirect(f"/ui/jobs/{job.id}", services.settings, api_key)
 

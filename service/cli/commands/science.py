@@ -62,7 +62,8 @@ def _train(args) -> int:
         with StageProgress(f"training {args.name}") as bar:
             out = train(args.files, args.name, epochs=args.epochs, include_bad=args.include_bad,
                         progress=bar.progress, system=args.system, on_stage=bar.on_stage, **_topics(args),
-                        cut=args.cut, validate=args.validate, strict=args.strict)
+                        cut=args.cut, validate=args.validate, strict=args.strict,
+                        group_by=args.group_by)
     except UnreadableFile as err:   # --strict: the first unreadable file stops the command, nothing trained
         print(f"learnest: {err}; nothing was trained (--strict)", file=sys.stderr)
         return 1

@@ -140,3 +140,28 @@ def test_training_with_the_crazyflie_prior_is_recorded_and_names_missing_inputs(
         assert "motor PWM" in job["error"] and "battery voltage" in job["error"]
         version = client.get("/models/cf/versions/1").json()
         assert version["hyperparameters"]["system"] == "crazyflie" and version["status"] == "failed"
+
+
+def test_several_flights_by_name_groups_choose_the_residual_scale_and_the_version_says_so(tmp_path, data_dir):
+    """POST /models with flight_ids and group_by "name:REGEX": each named group is held out in turn, and the
+    version's residual_scale, residual_scale_groups and residual_scale_note (and its metadata) say what was kept;
+    a grouping rule that cannot be read is refused before any job starts."""
+    with running_app(tmp_path / "home") as client:
+        ids = [upload(client, flight_csv(data_dir, seed)).json()["id"] for seed in (0, 1, 2)]
+        refused = client.post("/models", json={"name": "g", "flight_ids": ids, "epochs": 2, "group_by": "name:("})
+        assert refused.status_code == 422 and "does not compile" in refused.text
+        refused = client.post("/models", json={"name": "g", "flight_ids": ids, "epochs": 2,
+                                               "group_by": r"name:^(flight)(\d)"})
+        assert refused.status_code == 422 and "exactly one capture group" in refused.text
+        accepted = client.post("/models", json={"name": "g", "flight_ids": ids, "epochs": 2,
+                                                "group_by": r"name:^flight(\d)"})
+        assert accepted.status_code == 202, accepted.text
+        assert wait_for_job(client, accepted.json()["job_id"])["state"] == "succeeded"
+        version = client.get("/models/g/versions/1").json()
+        assert version["hyperparameters"]["group_by"] == r"name:^flight(\d)"
+        assert version["residual_scale_groups"] == ["0", "1", "2"]
+        assert version["residual_scale"] in (0.0, 0.25, 0.5, 0.75, 1.0)
+        assert version["residual_scale_note"].startswith("chosen with 0, 1, 2 held out in turn: ")
+        meta = client.get("/models/g/versions/1/metadata").json()
+        assert meta["residual_scale"] == version["residual_scale"] and meta["residual_scale_groups"] == ["0", "1", "2"]
+        assert set(meta["residual_scale_choice"]["groups"]) == {"0", "1", "2"}

@@ -134,3 +134,29 @@ def test_reproduce_refuses_a_bad_first_seed_before_running_anything(capsys, valu
     assert main(["reproduce", "--task", "cartpole", "--first-seed", value]) == 2
     err = capsys.readouterr().err
     assert f"argument --first-seed: {message}" in err and "Traceback" not in err and "Table I" not in err
+
+
+def test_train_json_says_which_residual_scale_was_kept_and_why(tmp_path, monkeypatch, capsys):
+    """Two simulated flights whose logs declare two trajectory families: by default each family is held out in
+    turn and the scale chosen is in the JSON, the text and `models show`; with `--group-by none` the whole residual
+    is kept and the reason says so."""
+    from utils.service import flight_csv
+
+    monkeypatch.setenv("LEARNEST_HOME", str(tmp_path / "home"))
+    for name in ("LEARNEST_DATABASE_URL", "LEARNEST_DASK", "LEARNEST_API_KEY"):
+        monkeypatch.delenv(name, raising=False)
+    files = [flight_csv(tmp_path, seed) for seed in (0, 1)]
+    for path, family in zip(files, ("circle", "figure8")):
+        path.with_name(f"{path.stem}_metadata.yaml").write_text(f"trajectory_type: {family}\n")
+    assert main(["train", *map(str, files), "--name", "fam", "--epochs", "2", "--json"]) == 0
+    trained = json.loads(capsys.readouterr().out)
+    assert trained["residual_scale_groups"] == ["circle", "figure8"]
+    assert trained["residual_scale"] in (0.0, 0.25, 0.5, 0.75, 1.0)
+    assert trained["residual_scale_note"].startswith("chosen with circle, figure8 held out in turn: ")
+    assert main(["models", "show", "fam:1"]) == 0
+    assert f"residual scale {trained['residual_scale']:g}: {trained['residual_scale_note']}" in capsys.readouterr().out
+    assert main(["train", *map(str, files), "--name", "whole", "--epochs", "2", "--group-by", "none"]) == 0
+    text = capsys.readouterr().out
+    assert "residual scale 1: grouping switched off (group by none): the whole residual, no scale chosen" in text
+    assert main(["train", *map(str, files), "--name", "bad", "--epochs", "2", "--group-by", "name:x"]) == 2
+    assert "exactly one capture group" in capsys.readouterr().err

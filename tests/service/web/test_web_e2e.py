@@ -246,6 +246,9 @@ def test_form_writes_need_the_api_key_pages_do_not(tmp_path):
         assert "learnest_api_key=s3cret" in cookie and "httponly" in cookie and "samesite=strict" in cookie
         # the browser (here: the test client's cookie jar) sends the key from now on
         assert "name='api_key'" not in client.get("/").text
+        assert "name='group_by'" in client.get("/").text   # the train form's grouping, refused when unread
+        bad_group = client.post("/ui/models", data={"name": "q", "flight_id": "1", "epochs": "1", "group_by": "name:("})
+        assert bad_group.status_code == 422 and "does not compile" in bad_group.text
         train = client.post("/ui/models", data={"name": "q", "flight_id": "1", "epochs": "1"}, follow_redirects=False)
         assert train.status_code == 303 and train.headers["location"].startswith("/ui/jobs/")
         job_id = int(train.headers["location"].rsplit("/", 1)[1])
