@@ -375,10 +375,9 @@ class Crazyflie(System):
 
     m v̇ = R(q)·[0, 0, T]ᵀ − m g e₃ + F_drag: the attitude q (mocap), the 4 motor PWM and the battery
     voltage are inputs (`models.crazyflie.INPUT_NAMES`), T = Σ T_i(PWM_i, vbat) through the thrust map.
-    The motor lag is the first-order relaxation of the thrust towards what the inputs command: the part
-    of a_cmd(v, p_z, u) − a along body z relaxes with tau_s, the rest (the thrust's direction, which is the
-    attitude) at once, so a stays the world acceleration that `Flight.a_meas` measures and h = [p, a] is the
-    same as the kinematic quadrotor's: the accelerometer becomes a
+    The motor lag is the first-order relaxation of the acceleration state towards what the inputs
+    command, ȧ = (a_cmd(v, p_z, u) − a) / tau_s, so a stays the world acceleration that `Flight.a_meas`
+    measures and h = [p, a] is the same as the kinematic quadrotor's: the accelerometer becomes a
     measurement of the model's predicted acceleration, and the state layout (and the MSE over p, v, a)
     is the one of the paper's prior.  Parameters: `models.crazyflie` (nominal = identified on NanoBench).
     """
@@ -416,20 +415,10 @@ class Crazyflie(System):
     def dynamics(self, x, u, params):
         ops = ops_for(x)
         _, _, pz, vx, vy, vz, ax, ay, az = ops.unstack(x)
-        inputs = ops.unstack(u)
-        a_cmd = cf.world_acceleration([vx, vy, vz], pz, inputs, params)
-        # The motors lag the thrust, along the body z axis; the thrust's direction is the attitude, which
-        # turns with the vehicle at once.  So only the part of a_cmd − a along body z relaxes with tau_s,
-        # the rest at once (MIN_TAU_S).  Relaxing the whole world acceleration with tau_s would lag the
-        # thrust vector's turn as well: on a circle at 1.5 m/s (the thrust tilted ~25° and turning at
-        # ~3 rad/s) that is ~0.4 m/s² of centripetal acceleration a vehicle does not have.
-        R = cf.rotation_columns(*inputs[:4])
-        b3 = (R[0][2], R[1][2], R[2][2])
-        gap = (a_cmd[0] - ax, a_cmd[1] - ay, a_cmd[2] - az)
-        along = b3[0] * gap[0] + b3[1] * gap[1] + b3[2] * gap[2]
-        fast = 1.0 / self.MIN_TAU_S
-        slow = 1.0 / max(float(params["tau_s"]), self.MIN_TAU_S)
-        return ops.stack([vx, vy, vz, ax, ay, az] + [gap[i] * fast + b3[i] * along * (slow - fast) for i in range(3)])
+        a_cmd = cf.world_acceleration([vx, vy, vz], pz, ops.unstack(u), params)
+        rate = 1.0 / max(float(params["tau_s"]), self.MIN_TAU_S)
+        return ops.stack([vx, vy, vz, ax, ay, az, (a_cmd[0] - ax) * rate, (a_cmd[1] - ay) * rate,
+                          (a_cmd[2] - az) * rate])
 
     def h(self, x, u=None):
         ops = ops_for(x)

@@ -7,7 +7,7 @@ Samples the recorder interpolated across radio gaps are not measurements and are
 and score, as are the first and last 0.5 s of each flight (the zero-phase filter's edges).  Fitting is
 scipy's bounded least squares over all kept samples of the training flights; the model is
 `models.crazyflie` (the same function the `crazyflie` system integrates), followed by the motor lag as
-a first-order filter with time constant `tau_s` on the thrust (body z).
+a first-order filter with time constant `tau_s`.
 """
 from __future__ import annotations
 
@@ -91,10 +91,7 @@ def first_order_lag(x: np.ndarray, tau: float, dt: float) -> np.ndarray:
 
 def predict_body_force(arrays: FlightArrays, params: dict) -> np.ndarray:
     """(T, 3) body-frame specific force predicted from the inputs (the motors' heating applied when ``params``
-    has ``kappa_th``, `models.crazyflie.motor_heating`), its body-z part (the thrust) lagged by tau_s, low-passed.
-
-    The motors lag the thrust they make, along body z; the rotor drag across it (body x/y) follows the
-    velocity at once."""
+    has ``kappa_th``, `models.crazyflie.motor_heating`), lagged by tau_s, low-passed."""
     f_b, _ = specific_force_body(list(arrays.v_world.T), arrays.z, list(arrays.u.T), params)
     f_b = np.column_stack([np.broadcast_to(c, arrays.z.shape) for c in f_b])
     if params.get("kappa_th"):
@@ -103,8 +100,7 @@ def predict_body_force(arrays: FlightArrays, params: dict) -> np.ndarray:
         thrust = thrust_acceleration(arrays.z, list(arrays.u.T), params)
         h = thermal_state(arrays.u, arrays.dt, params["tau_th_s"], arrays.extra.get(HISTORY_KEY))
         f_b[:, 2] -= params["kappa_th"] * h * thrust
-    f_b[:, 2] = first_order_lag(f_b[:, 2], params.get("tau_s", 0.0), arrays.dt)
-    return lowpass(f_b, arrays.dt)
+    return lowpass(first_order_lag(f_b, params.get("tau_s", 0.0), arrays.dt), arrays.dt)
 
 
 @dataclass
@@ -150,7 +146,7 @@ def fit_k_xy(params: dict, flights: list[FlightArrays]) -> dict:
             vb = np.einsum("tji,tj->ti", R, arrays.v_world)
             keep = arrays.keep
             design = np.zeros((keep.sum(), 3))
-            design[:, 0] = -vb[keep, axis]     # drag across the thrust: no motor lag (`predict_body_force`)
+            design[:, 0] = -first_order_lag(vb[:, axis], params.get("tau_s", 0.0), arrays.dt)[keep]
             design[:, 1 + axis] = 1.0
             rows.append(design)
             target.append(arrays.acc_body[keep, axis])

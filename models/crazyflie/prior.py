@@ -150,8 +150,7 @@ EFFECTS = {
                        "equation": "T_i = (q_pwm2·a2·p_i² + a1·p_i + a0)·(V / V_ref)^gamma, V_ref = 3.7 V"},
     "rotor_drag": {"params": ("k_xy", "k_z"), "equation": "f_b −= diag(k_xy, k_xy, k_z)·Rᵀ v"},
     "ground_effect": {"params": ("r_m",), "equation": "Σ T_i /= 1 − (r_m / (4 z))²  (Cheeseman–Bennett)"},
-    "motor_lag": {"params": ("tau_s",),
-                  "equation": "ḟ_z = (f_z,cmd(v, z, u) − f_z) / tau_s (body z; the thrust's direction turns at once)"},
+    "motor_lag": {"params": ("tau_s",), "equation": "ȧ = (a_cmd(v, z, u) − a) / tau_s"},
     # tau_th_s is held at the prior's: flights of 20-40 s determine kappa_th/tau_th_s, not both (motor_heating)
     "motor_heating": {"params": ("kappa_th",),
                       "equation": "Σ T_i ×= 1 − kappa_th·h,  tau_th_s·ḣ = Σ (p_i V)² / P_ref − h  (cold at the start)"},

@@ -9,9 +9,8 @@ from cold at the start); the controller flies with the prior's thrust map and an
 
 The Flight carries what a NanoBench log carries: mocap position and attitude, the accelerometer's
 body-frame specific force (``acc_body``, white noise, optionally the sensor's low-pass), the four motor PWM
-(``motors``) and the battery voltage (``vbat``).  The motor lag acts on the thrust, the body-z specific force, as a
-first-order filter (the drag across it follows the velocity at once), the form `models.crazyflie.identify`
-predicts and the `crazyflie` system integrates.  Writing these inputs into the log formats of
+(``motors``) and the battery voltage (``vbat``).  The motor lag acts on the body-frame specific force as a
+first-order filter, the form `models.crazyflie.identify` predicts.  Writing these inputs into the log formats of
 `ingest` is not done here (ingest must not import models).
 """
 from __future__ import annotations
@@ -204,8 +203,6 @@ def simulate_crazyflie(settings: SimulatedFlight = SimulatedFlight(), seed: int 
         motor_cmd = np.array([float(cf.motor_thrust(x, volts[k], truth)) for x in u[4:8]])
         if lagless:   # no lag: the force is the command's from the sample on (not the last sample's)
             f, motor = f_cmd, motor_cmd
-        else:         # the motors lag the thrust (body z); the drag across it (body x/y) follows at once
-            f = np.r_[f_cmd[:2], f[2]]
         log_p[k], log_f[k], log_u[k], log_f_cmd[k] = p, f, u, f_cmd
         # the controller's thrust command (N) and each motor's thrust after its lag (what its speed gives)
         log_thrust_cmd[k], log_motor_thrust[k] = command["thrust_n"], motor
