@@ -61,8 +61,8 @@ def _case(source: str, effect: str, declared: float | None = None):
         if source == "rpm":     # the rotor speed is measured behind the motor's lag: the prior has none
             prior["tau_s"] = 0.0
             if effect != "motor lag 30 ms":
-                # the simulator lags the body-z force (the z drag with the thrust), as the PWM prior does: a
-                # vehicle with a lag would show it in its drag, which is not what these cases test
+                # the simulator lags the whole body-frame specific force (its drag too), the prior the world
+                # acceleration: a simulated lag would show in every other case, which is not what they test
                 truth["tau_s"] = 0.0
     if effect == "payload +20 %":
         if source != "thrust_n" and declared is None:

@@ -7,7 +7,7 @@ scored on every flight of the held-out family:
 - training: one flight (the paper's protocol; a medium-speed repetition of another family) or pooled (every
   flight of the other three families, one in five whole flights held out for validation), the pooled residual
   scaled by the scale chosen with each of the three training families held out in turn
-  (`service.experiments.group_validation`; ``--scale full`` keeps the whole residual);
+  (`estimators.group_training`; ``--scale full`` keeps the whole residual);
 - prior: the paper's kinematic chain (``quadrotor``) or the Crazyflie driven by its motors and battery;
 - estimators: UKF, KNODE-UKF, MHE, KNODE-MHE, and the vehicle's own onboard EKF (``onboard``, fast reference
   only);
@@ -34,9 +34,9 @@ from pathlib import Path
 
 import numpy as np
 
+from learnest.estimators.group_training import train_with_scale_choice
 from learnest.ingest import read_flights
 from learnest.service.experiments.flights import evaluate_flights, train_on_flights
-from learnest.service.experiments.group_validation import train_with_scale_choice
 
 DATA = (Path("../shared/data/nanobench"), Path("../shared/data/nanobench-more"))
 FAMILIES = {"circle": "B2_circle", "figure8": "B3_figure8", "helix": "B5_helix", "ramp": "B6_linear_ramp"}
@@ -176,7 +176,7 @@ def main(argv=None) -> int:
                         help="with --attitude blind: the pooled residual blind to the battery voltage too")
     parser.add_argument("--scale", choices=("chosen", "full"), default="chosen",
                         help="pooled residual scaled by the scale chosen on held-out training families "
-                             "(service.experiments.group_validation), or the full residual")
+                             "(estimators.group_training), or the full residual")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/family_holdout"))
     args = parser.parse_args(argv)
     started = time.perf_counter()

@@ -36,11 +36,9 @@ from learnest.models.systems import System
 from learnest.models.training import TrainingRecord, TrainingResult, attitude_blind, train_knode, train_knode_pooled
 
 from .flight_training import check_one_vehicle, default_validation, flight_inputs, flight_lineage, pooled_profile
-from .observers import model_smoother, observe_robot, pretraining_observer
+from .observers import Observer, model_smoother, observe_robot, pretraining_observer
 
 OBSERVER_KINDS = ("filter", "smoother", "joint")
-# An observer object: (system, y (T, m), u (T, p), dt s) -> ζ (T, n) in the system's state units.
-Observer = Callable[[System, np.ndarray, np.ndarray, float], np.ndarray]
 
 
 def first_observation(system: System, y: np.ndarray, u: np.ndarray, dt: float, observer: str) -> np.ndarray:
@@ -99,13 +97,9 @@ class Algorithm1:
     def __post_init__(self) -> None:
         if self.rounds < 0:
             raise InvalidInput(f"rounds must be at least 0, got {self.rounds}")
-        if isinstance(self.observer, str):
-            if self.observer not in OBSERVER_KINDS:
-                raise InvalidInput(f"observer must be one of {', '.join(OBSERVER_KINDS)} or a callable, "
-                                   f"got {self.observer!r}")
-        elif not callable(self.observer):
-            raise InvalidInput(f"observer must be one of {', '.join(OBSERVER_KINDS)} or a callable, "
-                               f"got {type(self.observer).__name__}")
+        if not (self.observer in OBSERVER_KINDS if isinstance(self.observer, str) else callable(self.observer)):
+            got = repr(self.observer) if isinstance(self.observer, str) else type(self.observer).__name__
+            raise InvalidInput(f"observer must be one of {', '.join(OBSERVER_KINDS)} or a callable, got {got}")
 
     @property
     def kind(self) -> str:

@@ -10,7 +10,7 @@ scored in the held-out group's mocap gaps (KNODE-UKF against its prior UKF) at e
 final KNODE, pooled over every flight, gets the scale `models.residual_scale.choose_scale` picks.
 Why groups and not single flights: flights of one family share their trajectory, so a held-out flight of a
 trained family cannot show what the residual extrapolates to a new kind of flight (a held-out circle does not test
-a helix).  With fewer than two groups there is nothing to hold out: the whole residual is trained, as before, and
+a helix).  With fewer than two groups there is nothing to hold out: the whole residual is trained (scale 1), and
 the model says why (``residual_scale_note``).
 
 Groups (``group_by``, `flight_groups`):
@@ -50,8 +50,8 @@ PAIR = "knode-ukf_vs_ukf"
 GROUP_BY = "family"            # the default grouping
 UNDECLARED = "undeclared"      # the group of flights whose log declares no trajectory family
 # What a model says when no scale passed on the held-out groups.
-NO_SCALE = ("no residual scale beat the prior in the mocap gaps on every held-out group of training flights; "
-            "this version equals its prior")
+NO_SCALE = ("no residual scale was better than the prior in the mocap gaps on any held-out flight of the "
+            "training groups; this version equals its prior")
 RULE = ("largest scale whose inner KNODE-UKF beats its prior UKF in the mocap gaps on the median of every held-out "
         "group with no flight worse beyond its 95 % interval; else the scale better than the prior on the most "
         "held-out flights")

@@ -1,6 +1,6 @@
 """Signal filters shared by the Crazyflie identification, thrust-axis and thrust-gain code.
 
-Kept apart from `models.identify` so the modules that only need a low-pass (`thrust_axis`, `thrust_gain`) do
+Kept apart from `models.crazyflie.identify` so the modules that only need a low-pass (`thrust_axis`, `thrust_gain`) do
 not import the identification, which imports them through `models.inputs`.
 """
 from __future__ import annotations

@@ -12,7 +12,7 @@ and how far to scale must be chosen without the flights it will be judged on.
 
 The choice (`choose_scale`) is made by holding out whole groups of training flights (trajectory families), one
 at a time: a residual trained on the other groups is scored on the held-out group's mocap gaps at every candidate
-scale (`service.experiments.group_validation`).  The rule is the goal itself where it can be reached: the largest
+scale (`estimators.group_training`).  The rule is the goal itself where it can be reached: the largest
 scale at which the KNODE is better than its prior on the median of every held-out group and no held-out flight
 is worse beyond its 95 % interval.  Where no scale reaches it (on the shared flights, in three of four folds one
 or two inner flights stay worse beyond their interval at every candidate scale), the scale that is better than the

@@ -128,7 +128,7 @@ def evaluate_prepared(prepared: PreparedFlight, methods: Sequence[str], horizon:
         else None
     if not keep_estimates:
         return {"results": results, "reference": None, "estimates": None, "prediction_check": check,
-                "yardsticks": yardsticks}
+                "yardsticks": yardsticks, "gap_estimates": None}
     estimates = FlightEstimates(flight.name, flight.t, reference, y, flight.quat,
                                 {m: r["estimates"] for m, r in results.items()}, log_start_ns(flight))
     return {"results": results, "reference": reference, "estimates": estimates, "prediction_check": check,

@@ -21,7 +21,7 @@ from .tasks import train_task
 
 def training_config(overrides: dict) -> dict:
     """The Crazyflie training settings as a dict, with the non-None ``overrides`` applied; "system" is the
-    prior the KNODE is built on (service.experiments.flights.FLIGHT_SYSTEMS) and "group_by" the groups of the
+    prior the KNODE is built on (estimators.prepared.FLIGHT_SYSTEMS) and "group_by" the groups of the
     training flights held out to choose the residual's scale (`learnest.estimators.group_training`: "family",
     "none", "name:REGEX"), kept with the training hyperparameters so the registry shows them and a retraining
     reuses them."""

@@ -1,4 +1,4 @@
-"""How much of a learned residual to trust (`models.residual_scale`, `service.experiments.group_validation`):
+"""How much of a learned residual to trust (`models.residual_scale`, `estimators.group_training`):
 known answers.
 
 - s·Δθ is exactly s times the network's output, masks kept; s = 0 steps exactly as the prior.
@@ -18,7 +18,7 @@ from learnest.models.inputs import training_meta
 from learnest.models.knode import HybridModel, Residual
 from learnest.models.residual_scale import choose_scale, scaled_model, scaled_residual
 from learnest.models.systems import make_system
-from learnest.service.experiments.group_validation import gap_gains_by_scale, group_summary, train_with_scale_choice
+from learnest.estimators.group_training import gap_gains_by_scale, group_summary, train_with_scale_choice
 
 
 def _random_residual(rng, n_in=18, hidden=16, n_out=9):
