@@ -205,12 +205,8 @@ def _vehicle_fits_prior(effects: list[dict], candidates: list[dict], m_prior: fl
                    "the vehicle.  Fit a map for it: `learnest thrust-map --fit FLIGHTS --score FLIGHTS`, or give "
                    "a bench calibration, `learnest thrust-map --bench CSV` (thrust in N against PWM or rpm)")
         if source == "thrust_n":
-            whose = "declared" if declared is not None else "prior's"
-            message += (f"; with thrust in N and the {whose} mass {m_ref * 1e3:.3g} g, the thrust made is "
-                        f"×{gain:.2f} of the commanded thrust: the firmware's thrust map "
-                        f"{'over' if gain < 1 else 'under'}-promises, and the controller's integrator makes up "
-                        "the difference.  Position and accelerometer measure only the thrust made over the mass: "
-                        "these logs cannot tell a wrong mass from a wrong command scale")
+            message += "; " + _command_scale_sentence(gain, m_ref, declared, "commanded thrust") \
+                + " (the controller's integrator makes up the difference)"
     return {"ok": ok, "thrust_gain": round(gain, 4), "message": message}
 
 
@@ -220,17 +216,23 @@ def _command_scale_text(gain: float, implied: float, interval, m_ref: float, sou
     ``gain`` the thrust made over the commanded, ``implied`` (kg) the mass were the command exact."""
     whose = "declared" if declared is not None else "prior's"
     what = {"thrust_n": "commanded thrust", "rpm": "thrust Förster's map gives the rotor speed"}.get(source, "thrust")
-    promise = "over" if gain < 1 else "under"
     return {
         "implied_mass_kg": implied,
         "implied_mass_ci95": list(interval) if interval else None,
         "equation": f"thrust_gain: gain = {gain:.4g} (the thrust made over the {what}, with the {whose} mass "
                     f"{m_ref * 1e3:.3g} g)",
         "note": (f"were the {what} the thrust made, the mass would be {implied * 1e3:.3g} g, ×{implied / m_ref:.2f} "
-                 f"the {whose} {m_ref * 1e3:.3g} g: not a plausible mass for this vehicle.  Position and "
-                 f"accelerometer measure only the thrust made over the mass, so a mass and a scale of the "
-                 f"{what} cannot be told apart from these logs; with the {whose} mass, the thrust made is "
-                 f"×{gain:.2f} of the {what} (the firmware's thrust map {promise}-promises).  No mass is claimed")}
+                 f"the {whose} {m_ref * 1e3:.3g} g: not a plausible mass for this vehicle.  "
+                 + _command_scale_sentence(gain, m_ref, declared, what) + ".  No mass is claimed")}
+
+
+def _command_scale_sentence(gain: float, m_ref: float, declared: float | None, what: str) -> str:
+    """Why a thrust command's scale is reported and not a mass: what the data measure, and the scale with the
+    declared (or the prior's) mass ``m_ref`` (kg)."""
+    whose = "declared" if declared is not None else "prior's"
+    return (f"position and accelerometer measure only the thrust made over the mass, so a mass and a scale of the "
+            f"{what} cannot be told apart from these logs; with the {whose} mass {m_ref * 1e3:.3g} g, the thrust "
+            f"made is ×{gain:.2f} of the {what} (the firmware's thrust map {'over' if gain < 1 else 'under'}-promises)")
 
 
 # the parts of a Crazyflie-prior diagnosis and their rough relative costs (a KNODE training dominates)
