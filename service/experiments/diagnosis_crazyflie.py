@@ -206,7 +206,7 @@ def _vehicle_fits_prior(effects: list[dict], candidates: list[dict], m_prior: fl
                    "a bench calibration, `learnest thrust-map --bench CSV` (thrust in N against PWM or rpm)")
         if source == "thrust_n":
             message += "; " + _command_scale_sentence(gain, m_ref, declared, "commanded thrust") \
-                + " (the controller's integrator makes up the difference)"
+                + "; the controller's integrator makes up the difference"
     return {"ok": ok, "thrust_gain": round(gain, 4), "message": message}
 
 
@@ -223,7 +223,7 @@ def _command_scale_text(gain: float, implied: float, interval, m_ref: float, sou
                     f"{m_ref * 1e3:.3g} g)",
         "note": (f"were the {what} the thrust made, the mass would be {implied * 1e3:.3g} g, ×{implied / m_ref:.2f} "
                  f"the {whose} {m_ref * 1e3:.3g} g: not a plausible mass for this vehicle.  "
-                 + _command_scale_sentence(gain, m_ref, declared, what) + ".  No mass is claimed")}
+                 + "P" + _command_scale_sentence(gain, m_ref, declared, what)[1:] + ".  No mass is claimed")}
 
 
 def _command_scale_sentence(gain: float, m_ref: float, declared: float | None, what: str) -> str:
