@@ -37,8 +37,10 @@ def _flights(k_xy: float, seeds, family: str | None):
     return flights
 
 
-@pytest.mark.xfail(strict=True, reason="the simulator lags the body-frame force, the prior the world acceleration: "
-                   "a mismatch common to both groups, which the residual learns and carries, so it helps both")
+@pytest.mark.xfail(strict=True, reason="the simulator turns the thrust with its logged attitude at once, the prior "
+                   "relaxes the acceleration across the thrust axis with the attitude lag identified on real "
+                   "flights: a mismatch common to both groups, which the residual learns and carries, so it "
+                   "helps both")
 def test_a_residual_that_cannot_carry_between_the_groups_is_scaled_to_the_prior():
     flights = _flights(5 * K_XY, (0, 1), "circle") + _flights(0.0, (2, 3), "helix")
     stages = []
