@@ -64,8 +64,8 @@ def _case(source: str, effect: str, declared: float | None = None):
         if source == "rpm":     # the rotor speed is measured behind the motor's lag: the prior has none
             prior["tau_s"] = 0.0
             if effect != "motor lag 30 ms":
-                # the simulator lags the whole body-frame specific force (its drag too), the prior the world
-                # acceleration: a simulated lag would show in every other case, which is not what they test
+                # the simulator lags the whole body-frame specific force, its drag too, and a measured rotor
+                # speed carries the lag of the thrust only: a simulated lag would show in every other case
                 truth["tau_s"] = 0.0
     if effect == "payload +20 %":
         if source != "thrust_n" and declared is None:

@@ -7,13 +7,15 @@ real NanoBench flights need: tau_s and tau_att_s are chosen on the circles and f
 and reported on the helices and ramps (``nanobench-more/``), families the choice never saw.  The UKF runs
 the whole grid; the MHE (one compiled library per setting) runs the candidates around the prior's value.
 Last, a check of what the attitude lag is not: the lag at which the attitude's prediction of the horizontal
-acceleration best matches the acceleration of the mocap position (cross-correlation, per flight).
+acceleration best matches the acceleration of the mocap position (cross-correlation, per flight), and the
+UKF with the attitude input advanced by 20-60 ms, which that lead suggests.
 
 Run from the repository root (needs ../shared/data, ~3 min):
     .venv/bin/python benchmarks/crazyflie_lag_axes.py > benchmarks/results/crazyflie_lag_axes/results.md
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -32,6 +34,7 @@ OUT = Path(__file__).parent / "results" / "crazyflie_lag_axes"
 GRID_S = (0.0, 0.015, 0.03, 0.045, 0.061, 0.08, 0.1)
 MHE_ATT_S = (0.03, 0.045, 0.061, 0.07, 0.08)
 MAX_SHIFT = 20        # samples either way in the cross-correlation (0.2 s at 100 Hz)
+ADVANCE_SAMPLES = (0, 2, 4, 6)
 
 
 def _gaps(params: dict, flights, methods) -> np.ndarray:
@@ -55,6 +58,14 @@ def attitude_lead_s(flight) -> float:
     score = [np.sum(x[max(0, -k):n - max(0, k)] * y[max(0, k):n - max(0, -k)])
              for k in range(-MAX_SHIFT, MAX_SHIFT + 1)]
     return (int(np.argmax(score)) - MAX_SHIFT) * flight.dt
+
+
+def attitude_advanced(flight, samples: int):
+    """The flight with its attitude input taken ``samples`` steps later (the last ones held)."""
+    if samples == 0:
+        return flight
+    quat = np.concatenate([flight.quat[samples:], np.repeat(flight.quat[-1:], samples, axis=0)])
+    return dataclasses.replace(flight, quat=quat)
 
 
 def main() -> None:
@@ -99,6 +110,16 @@ def main() -> None:
     print("Shift (ms) of the best match, positive = the acceleration comes after the attitude: "
           + ", ".join(f"{name} {1e3 * s:+.0f}" for name, s in leads.items())
           + f".  Median {1e3 * np.median(list(leads.values())):+.0f} ms.")
+    print("\n## The attitude input advanced\n")
+    print("| advance (ms) | tau_att_s | UKF chosen on | UKF held out |")
+    print("|---|---|---|---|")
+    for samples in ADVANCE_SAMPLES:
+        for tau_att in (0.03, nominal["tau_att_s"]):
+            scores = [np.median(_gaps({**nominal, "tau_att_s": tau_att},
+                                      [attitude_advanced(f, samples) for f in flights], ("ukf",)))
+                      for flights in (chosen_on, held_out)]
+            print(f"| {1e3 * samples * chosen_on[0].dt:.0f} | {tau_att:g} | {1e3 * scores[0]:.2f} "
+                  f"| {1e3 * scores[1]:.2f} |")
     print(f"\n{time.perf_counter() - started:.0f} s.")
     OUT.mkdir(parents=True, exist_ok=True)
     (OUT / "grid.json").write_text(json.dumps(rows, indent=1))

@@ -178,3 +178,35 @@ def test_the_crazyflie_residual_corrects_only_the_acceleration_rows_and_ignores_
     assert not np.array_equal(model.residual(faster, u), model.residual(moved, u))
     inputs, outputs = make_system("quadrotor").residual_masks()
     assert inputs.all() and outputs.all()
+
+
+def test_the_two_lags_split_the_relaxation_along_and_across_the_thrust_axis():
+    """ȧ = b₃b₃ᵀ(a_cmd − a)/tau_s + (I − b₃b₃ᵀ)(a_cmd − a)/tau_att_s, checked component by component against
+    a_cmd computed on its own; equal lags, or no tau_att_s (a stored model's prior), are one relaxation of the
+    whole acceleration; torch and CasADi give the same field."""
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(5, 9))
+    x[:, 2] = rng.uniform(0.5, 2.0, 5)
+    u = random_inputs(rng, 5)
+    two = make_system("crazyflie", prior_params={**cf.IDENTIFIED, "tau_s": 0.03, "tau_att_s": 0.08})
+    for xi, ui in zip(x, u):
+        gap = np.array(cf.world_acceleration(list(xi[3:6]), xi[2], list(ui), two.prior_params)) - xi[6:9]
+        R = np.array(cf.rotation_columns(*ui[:4]))
+        b3 = R[:, 2]
+        rate = two.f_prior(xi, ui)[6:9]
+        assert b3 @ rate == pytest.approx(b3 @ gap / 0.03, rel=1e-9, abs=1e-9)
+        across = np.eye(3) - np.outer(b3, b3)
+        np.testing.assert_allclose(across @ rate, across @ gap / 0.08, rtol=1e-9, atol=1e-9)
+        one = [make_system("crazyflie", prior_params=params).f_prior(xi, ui)[6:9]
+               for params in ({**cf.IDENTIFIED, "tau_s": 0.03, "tau_att_s": 0.03},
+                              {k: v for k, v in {**cf.IDENTIFIED, "tau_s": 0.03}.items() if k != "tau_att_s"})]
+        for field in one:
+            np.testing.assert_allclose(field, gap / 0.03, rtol=1e-12, atol=1e-12)
+    import torch  # not at module level: collection must not import torch
+
+    model = HybridModel(two, "prior")
+    X, U = ca.SX.sym("x", 9), ca.SX.sym("u", 9)
+    step = ca.Function("f", [X, U], [model.step(X, U, 0.01)])
+    f_np = model.step(x, u, 0.01)
+    assert np.max(np.abs(f_np - model.step(torch.as_tensor(x), torch.as_tensor(u), 0.01).numpy())) < 1e-9
+    assert np.max(np.abs(f_np - np.array([np.asarray(step(x[i], u[i])).ravel() for i in range(5)]))) < 1e-9
