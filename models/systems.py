@@ -389,8 +389,9 @@ class Crazyflie(System):
     real NanoBench flights the acceleration across the thrust axis is best predicted ~60-80 ms behind the
     logged attitude (prior-only UKF mocap-gap RMSE, benchmarks/results/crazyflie_lag_axes): without that
     lag the gap error is 40 % (circles, figure-eights) to 76 % (helices, ramps) larger.  What it stands for
-    there is not established; it is not a motor effect, so the diagnosis never moves it.  Without tau_att_s (models stored before it) the whole
-    acceleration relaxes with tau_s.  Parameters: `models.crazyflie` (nominal = identified on NanoBench).
+    there is not established; it is not a motor effect, so the diagnosis never moves it.  Without
+    tau_att_s (models stored before it) the whole acceleration relaxes with tau_s.  Parameters:
+    `models.crazyflie` (nominal = identified on NanoBench).
     """
 
     name: str = "crazyflie"
