@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Diagnosis of the real NanoBench flights (issue: close the loop) and its wall time for one 40-s flight.
+# Diagnosis of the real NanoBench flights (closing the loop) and its wall time for one 40-s flight.
 # Run from the repository root:  bash benchmarks/run_diagnosis.sh   (needs ../shared/data)
 set -euo pipefail
 DATA=../shared/data/nanobench
