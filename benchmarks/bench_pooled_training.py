@@ -12,6 +12,10 @@ Two measurements, each in a fresh process so one-time imports count:
   cli       `learnest train ../shared/data/nanobench --system crazyflie --name bench --json` into an empty
             LEARNEST_HOME: the whole command, storing the 17 flights and the model included
 
+Each measurement also records a hash of the model's weights and of its scale choice's table (the inner trainings'
+validation flights and kept epochs, every inner gap gain): ``same_model`` says whether both surfaces trained the
+same model from the same flights and settings.
+
 The epochs are one batched RK4 over every training flight's one-step pairs (`train_knode_pooled`), not a loop
 over flights.  The machine's load average is recorded next to the times: other work shares its two cores.
 
@@ -53,7 +57,28 @@ print(json.dumps({"flights": len(flights), "read_s": read - started, "train_s": 
                   "first_validation_loss": result.validation_losses[0], "final_loss": result.losses[-1],
                   "residual_scale": meta["residual_scale"], "residual_scale_groups": meta["residual_scale_groups"],
                   "residual_scale_note": meta["residual_scale_note"],
-                  "choice_s": (meta.get("residual_scale_choice") or {}).get("seconds")}))
+                  "choice_s": (meta.get("residual_scale_choice") or {}).get("seconds"),
+                  **fingerprint(result.model)}))
+"""
+
+# What identifies a trained model beside its scale: a hash of its weights and of the scale choice's table (the
+# inner trainings' validation flights and kept epochs, every inner gap gain).  Run in each measured process
+# after the clock stops; the CLI's model is read back from its registry.
+FINGERPRINT = r"""
+import hashlib, json
+def fingerprint(model):
+    weights = hashlib.sha256()
+    for weight, bias in model.residual.layers:
+        weights.update(weight.tobytes()); weights.update(bias.tobytes())
+    choice = model.meta.get("residual_scale_choice") or {}
+    table = {k: choice.get(k) for k in ("inner_trainings", "scales")}
+    return {"weights_sha256": weights.hexdigest()[:16], "inner_trainings": choice.get("inner_trainings"),
+            "choice_sha256": hashlib.sha256(json.dumps(table, sort_keys=True).encode()).hexdigest()[:16]}
+"""
+LIBRARY = FINGERPRINT + LIBRARY
+STORED = FINGERPRINT + r"""
+from learnest.service.storage.registry import load_model_ref
+print(json.dumps(fingerprint(load_model_ref("bench:1"))))
 """
 
 
@@ -75,6 +100,7 @@ def cli_run(folder: Path) -> dict:
         out = subprocess.run([str(learnest), "train", str(folder.resolve()), "--system", "crazyflie", "--name",
                               "bench", "--json"], capture_output=True, text=True, check=True, env=env)
         wall = time.perf_counter() - started
+        stored = subprocess.run([sys.executable, "-c", STORED], capture_output=True, text=True, check=True, env=env)
     report = json.loads(out.stdout)
     return {"wall_s": wall, "epochs_s": report["seconds"], "job_s": report["total_seconds"],
             "training_flights": len(report["training_flights"]), "validation_flights": report["validation_flights"],
@@ -82,7 +108,7 @@ def cli_run(folder: Path) -> dict:
             "best_epoch": report["best_epoch"], "residual_scale": report["residual_scale"],
             "residual_scale_groups": report["residual_scale_groups"],
             "residual_scale_note": report["residual_scale_note"], "load_before": load,
-            "load_after": os.getloadavg()[0]}
+            "load_after": os.getloadavg()[0], **json.loads(stored.stdout.strip().splitlines()[-1])}
 
 
 def main(argv=None) -> int:
@@ -97,7 +123,9 @@ def main(argv=None) -> int:
                "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
                "library": library, "cli": cli,
                "library_total_s_median": statistics.median(r["total_s"] for r in library),
-               "cli_wall_s_median": statistics.median(r["wall_s"] for r in cli), "target_s": 120.0}
+               "cli_wall_s_median": statistics.median(r["wall_s"] for r in cli), "target_s": 120.0,
+               # the same flights and settings give the same model on both surfaces (weights and choice table)
+               "same_model": len({(r["weights_sha256"], r["choice_sha256"]) for r in library + cli}) == 1}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(summary, indent=2) + "\n")
     print(json.dumps(summary, indent=2))

@@ -21,6 +21,12 @@ Groups (``group_by``, `flight_groups`):
   NanoBench flights by their benchmark number); a flight whose name does not match is refused, named;
 - ``"none"``: no groups, the whole residual (the paper's pooled training).
 
+Validation.  The flights held out whole from the epochs (``validate``; by default one in five of all the flights,
+`estimators.flight_training.default_validation` in the given order) are decided once, before any training
+(`held_out_names`): each inner training keeps those among its flights, the final one keeps them all.  A stored
+training decides them the same way when its job is created (its version lists them), so a training in a notebook
+and one through the registry hold out the same flights in every inner training, and give the same model.
+
 The inner scores use the UKF only (the MHE costs minutes per flight set; its gains followed the UKF's on every
 family on the shared flights) and the default gap plan (`models.presets.GAP_S`, `GAP_EVERY_S`).  Only training
 flights take part: the flights the model is later scored on never do.
@@ -41,6 +47,7 @@ from learnest.models.residual_scale import RESIDUAL_SCALES, choose_scale, passes
 from learnest.models.training import TrainingResult
 
 from .algorithm1 import Algorithm1
+from .flight_training import default_validation
 from .metrics import worse_beyond_interval
 from .mocap_gaps import gap_mask
 from .prepared import prepare
@@ -188,6 +195,21 @@ def group_summary(rows: Sequence[Mapping]) -> dict:
 
 
 # -- training -------------------------------------------------------------------------------------------------
+def held_out_names(flights: Sequence[Flight], validate: Sequence[str] | None) -> list[str] | None:
+    """The names of the flights held out whole from the epochs: ``validate`` as given, or (None or empty) the default
+    validation of all ``flights`` in their order (`estimators.flight_training.default_validation`: one in five),
+    None when that holds out nothing (a single flight: the paper's time blocks).
+
+    Why decided once for all the flights: an inner training that picked its own one in five among its own
+    flights would hold out other flights than a stored training, whose version names its validation flights
+    before its job starts; the inner residuals, and so the chosen scale, would then depend on the surface.
+    """
+    if validate:
+        return list(validate)
+    names = [f.name for f in flights]
+    return [names[i] for i in default_validation(len(names))] or None
+
+
 def _fit(flights: Sequence[Flight], config: TrainingConfig, system: str, validate: Sequence[str] | None,
          progress: Callable[[int, float], None] | None, **train_kwargs) -> TrainingResult:
     """`Algorithm1.fit_flights` (the paper's filter observer) on ``flights``, validated on those ``validate``
@@ -219,8 +241,9 @@ def train_with_scale_choice(groups: Mapping[str, Sequence[Flight]], system: str 
     progress : callable, optional
         ``progress(epoch, mean_training_loss)`` after every epoch of every training.
     validate : sequence of str, optional
-        Flights held out whole from the epochs (`Algorithm1.fit_flights`); an inner training keeps those among its
-        flights (the default validation when none or all of its flights are named).
+        Flights held out whole from the epochs (`Algorithm1.fit_flights`; default: one in five of all the groups'
+        flights, listed group after group, `held_out_names`); an inner training keeps those among its flights
+        (its own default validation when none or all of its flights are named).
     **train_kwargs
         Passed to `Algorithm1.fit_flights` (``blind_attitude``, ``blind_battery``).
 
@@ -230,8 +253,9 @@ def train_with_scale_choice(groups: Mapping[str, Sequence[Flight]], system: str 
         The final training's, its model scaled (`models.residual_scale.scaled_model`); the meta's
         ``residual_scale`` is the chosen scale, ``residual_scale_groups`` the groups' names,
         ``residual_scale_note`` the choice in words, and ``residual_scale_choice`` holds the rule, the groups'
-        flights, per candidate scale and held-out group the inner median gap gain (%), the flights' gains and
-        how many were worse beyond their interval, and the seconds the choice took.  ``seconds`` includes the
+        flights, per held-out group the inner training's validation flights and kept epoch
+        (``inner_trainings``), per candidate scale and held-out group the inner median gap gain (%), the flights'
+        gains and how many were worse beyond their interval, and the seconds the choice took.  ``seconds`` includes the
         inner trainings and scores.
 
     Raises
@@ -243,19 +267,23 @@ def train_with_scale_choice(groups: Mapping[str, Sequence[Flight]], system: str 
         raise InvalidInput("choosing the residual scale needs at least two groups of flights, each with flights "
                            f"(got {', '.join(f'{k}: {len(v)}' for k, v in groups.items()) or 'none'})")
     started = time.perf_counter()
+    validate = held_out_names([f for flights in groups.values() for f in flights], validate)
     table: dict[float, list[dict]] = {s: [] for s in scales if s > 0}
+    inner_trainings = {}
     for index, (held, scored) in enumerate(groups.items()):
         if on_stage:
             on_stage(f"{held} held out", index, len(groups) + 1)
         train = [f for name, flights in groups.items() if name != held for f in flights]
         inner = _fit(train, config, system, validate, progress, **train_kwargs).model
+        inner_trainings[held] = {"validation_flights": [f["name"] for f in inner.meta["validation_flights"]],
+                                 "best_epoch": inner.meta.get("best_epoch")}
         for scale, rows in gap_gains_by_scale(inner, scored, scales).items():
             table[scale].append({"group": held, **group_summary(rows)})
     chosen = choose_scale(table)
     seconds = time.perf_counter() - started
     choice = {"rule": RULE, "groups": {name: [f.name for f in flights] for name, flights in groups.items()},
-              "scales": {str(s): rows for s, rows in table.items()}, "chosen": chosen,
-              "seconds": seconds}
+              "inner_trainings": inner_trainings, "scales": {str(s): rows for s, rows in table.items()},
+              "chosen": chosen, "seconds": seconds}
     if on_stage:
         on_stage("final training", len(groups), len(groups) + 1)
     final = _fit([f for flights in groups.values() for f in flights], config, system, validate, progress,
@@ -302,7 +330,8 @@ def train_flights(flights: Sequence[Flight], system: str = "quadrotor", config: 
     group_by : str
         ``"family"`` (default), ``"none"`` or ``"name:REGEX"`` (module docstring).
     validate : sequence of str, optional
-        Names of the flights held out whole from the epochs (default: one in five).
+        Names of the flights held out whole from the epochs (default: one in five of ``flights`` in the given
+        order, decided once for every training: `held_out_names`).
     progress : callable, optional
         ``progress(epoch, mean_training_loss)`` after every epoch of every training.
     on_stage : callable, optional
@@ -327,7 +356,8 @@ def train_flights(flights: Sequence[Flight], system: str = "quadrotor", config: 
     flights = list(flights)
     groups = flight_groups(flights, group_by)
     if len(groups) >= 2:
-        return train_with_scale_choice(groups, system, config, scales, on_stage, progress, validate, **train_kwargs)
+        return train_with_scale_choice(groups, system, config, scales, on_stage, progress,
+                                       held_out_names(flights, validate), **train_kwargs)
     if on_stage:
         on_stage("training", 0, 1)
     result = Algorithm1(config=config).fit_flights(flights, system, validate, progress=progress, **train_kwargs)

@@ -125,7 +125,8 @@ class ModelMetadata(Record):
     residual_scale_note: str | None = field(default=None, metadata=doc(
         "how the scale was chosen, or why none was (one trajectory family: nothing to hold out)"))
     residual_scale_choice: dict[str, Any] | None = field(default=None, metadata=doc(
-        "the choice: rule, groups' flights, per scale and held-out group the inner gap gains (%), seconds"))
+        "the choice: rule, groups' flights, the inner trainings' validation flights and kept epochs, per scale and "
+        "held-out group the inner gap gains (%), seconds"))
     prior_params: dict[str, Any] | None = field(default=None, metadata=doc(
         "the prior's parameters, SI units (kg, m, s, ...); from the model file beside its meta (`of_model`)"))
 

@@ -126,8 +126,10 @@ def run_training(services: Services, ctx: JobContext, version_id: int) -> None:
                 raise InvalidInput(f"training flight {entry.get('id')} ({entry.get('name')}) was deleted")
             rows.append(flight)
         meta = {"name": version.name, "version": version.version, "training_flight_id": rows[0].id}
-        config, blobs = dict(version.hyperparameters), [flight.flight_blob for flight in rows]
         validate = [flight.name for flight in rows[len(trained):]]
+        job = session.get(Job, ctx.job_id)
+        rows = requested_order(rows, (job.payload or {}).get("flight_ids") if job is not None else None)
+        config, blobs = dict(version.hyperparameters), [flight.flight_blob for flight in rows]
     flight_bytes = services.blobs.read_bytes(blobs[0]) if len(blobs) == 1 else \
         [services.blobs.read_bytes(blob) for blob in blobs]
     out = ctx.wait(services.executor, services.executor.submit(train_task, flight_bytes, config,
@@ -156,6 +158,20 @@ def run_training(services: Services, ctx: JobContext, version_id: int) -> None:
         if weights is not None:
             discard_blobs(services.db, services.blobs, [weights])
         raise
+
+
+def requested_order(rows: list[FlightRecord], flight_ids: Sequence[int] | None) -> list[FlightRecord]:
+    """The training's flight rows in the order it was requested (``flight_ids`` of its job: the given flights,
+    then the held-out ones not among them), or as given when the job does not list exactly these flights.
+
+    Why: the order is part of the training's input, as in `service.experiments.flights.train_on_flights`: it
+    orders the groups held out in turn and each group's scored flights (`estimators.group_training`), so the
+    job trains on the flights in the order a notebook given the same list would.
+    """
+    by_id = {row.id: row for row in rows}
+    if flight_ids is None or sorted(int(i) for i in flight_ids) != sorted(by_id):
+        return rows
+    return [by_id[int(i)] for i in flight_ids]
 
 
 def _fail_version(session: Session, version_id: int, message: str) -> None:
