@@ -6,6 +6,8 @@ so the message tells a user what their logger should have recorded.
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from learnest.errors import InvalidInput
@@ -82,6 +84,24 @@ def missing_inputs(flight: Flight, system_name: str, source: str = "pwm") -> lis
     for the crazyflie prior, those of its thrust ``source``."""
     needed = SOURCE_CHANNELS[source] if system_name == "crazyflie" else NEEDED.get(system_name, ())
     return [name for name in needed if name not in flight.channels]
+
+
+def system_for_flight_thrust(system: System, flight: Flight) -> System:
+    """``system`` with the Crazyflie prior of the thrust ``flight`` carries, where it lacks the system's own.
+
+    The Crazyflie prior's default is motor PWM and battery voltage; a flight that carries rotor speed or the
+    controller's thrust in N instead (`flight_thrust_source`) gets `models.crazyflie.prior_for` of that source,
+    with the mass the flight declares (``meta["mass_kg"]``, e.g. crazyswarm2's info*.yaml; else Bitcraze's) and
+    the rest of ``system``'s parameters.  Other systems, flights that carry the system's own source, and flights
+    that carry none (`system_inputs` names what is missing) are returned as they are.
+    """
+    if system.name not in THRUST_THROUGH_ATTITUDE:
+        return system
+    carried = flight_thrust_source(flight)
+    if carried is None or not missing_inputs(flight, system.name, cf.thrust_source_of(system.prior_params)):
+        return system
+    params = cf.prior_for(carried, flight.meta.get("mass_kg"), base=system.prior_params)
+    return replace(system, prior_params=params)
 
 
 def flight_thrust_axis(flight: Flight) -> np.ndarray:
@@ -189,7 +209,8 @@ def system_inputs(flight: Flight, system: System, thrust_gain: bool = False,
         if motor_heating:
             u, _ = with_motor_heating(u, flight.dt, system.prior_params, flight.meta.get(HISTORY_KEY))
         if thrust_gain:
-            u = with_thrust_gain(u, flight_thrust_gain(flight, system, u), system.prior_params["gamma"])
+            u = with_thrust_gain(u, flight_thrust_gain(flight, system, u), system.prior_params["gamma"],
+                                 cf.thrust_source_of(system.prior_params))
     return u
 
 

@@ -15,11 +15,13 @@ mocap R(q)ᵀ(p̈ + g e₃)·e₃ with p̈ from twice-differentiated position, l
 (`models.crazyflie.thrust_axis`), against `models.crazyflie.specific_force_body` on the same attitude, velocity, height
 and inputs.  It is applied through the battery voltage the prior sees, V → V·c^(1/γ): the prior's thrust is
 ∝ (V/V_ref)^γ, so this multiplies it by c exactly and keeps the inputs' shape (stored models, generated code).
+With thrust in N (crazyswarm2's ``ctrlLee.thrustSI``) the thrust is the four columns themselves, scaled by c: a
+controller whose command over-promises the thrust made (×1.6 on crazyswarm2 log182-184) is then the vehicle's.
 
 Offline, like the thrust axis: one number from the whole record, later samples included.  It needs a
 flight: a record with less than `MIN_AIRBORNE_S` above the floor, or a prior whose |γ| is below `MIN_GAMMA`
-(the voltage cannot carry the gain), keeps gain 1.  The diagnosis does not calibrate it: a payload or a
-thrust-gain effect is what it looks for, and the gain would absorb it.
+(the voltage cannot carry the gain) and whose thrust is not in N, keeps gain 1.  The diagnosis does not
+calibrate it: a payload or a thrust-gain effect is what it looks for, and the gain would absorb it.
 """
 from __future__ import annotations
 
@@ -36,6 +38,7 @@ from .thrust_axis import EDGE_S, LOWPASS_HZ
 MIN_AIRBORNE_S = 3.0
 GAIN_BOUNDS = (1.0 / 3.0, 3.0)    # beyond these the thrust map is not this vehicle's, or the inputs are wrong
 VBAT = cf.INPUT_NAMES.index("vbat")
+THRUST_COLUMNS = slice(cf.INPUT_NAMES.index("pwm1"), cf.INPUT_NAMES.index("pwm4") + 1)
 
 
 def thrust_gain(p: np.ndarray, u: np.ndarray, dt: float, params: dict) -> float:
@@ -70,8 +73,9 @@ def thrust_gain(p: np.ndarray, u: np.ndarray, dt: float, params: dict) -> float:
 
     p, u = np.asarray(p, dtype=float), np.asarray(u, dtype=float)
     edge = int(round(EDGE_S / dt))
-    if abs(params["gamma"]) < MIN_GAMMA or 1.0 / dt < 2.5 * LOWPASS_HZ or len(p) <= 2 * edge + 2:
-        return 1.0   # the voltage cannot carry a gain (`with_thrust_gain`), or too little record to low-pass
+    carried = cf.thrust_source_of(params) == "thrust_n" or abs(params["gamma"]) >= MIN_GAMMA
+    if not carried or 1.0 / dt < 2.5 * LOWPASS_HZ or len(p) <= 2 * edge + 2:
+        return 1.0   # the inputs cannot carry a gain (`with_thrust_gain`), or too little record to low-pass
     velocity = np.gradient(p, dt, axis=0)
     acceleration = lowpass(np.gradient(velocity, dt, axis=0), dt, LOWPASS_HZ)
     R = np.array(cf.rotation_columns(*u[:, :4].T))                       # (3, 3, T), body -> world
@@ -91,8 +95,9 @@ def thrust_gain(p: np.ndarray, u: np.ndarray, dt: float, params: dict) -> float:
     return gain
 
 
-def with_thrust_gain(u: np.ndarray, gain: float, gamma: float) -> np.ndarray:
-    """The inputs with the battery voltage scaled by gain^(1/gamma), so the prior's thrust is scaled by gain.
+def with_thrust_gain(u: np.ndarray, gain: float, gamma: float, source: str = "pwm") -> np.ndarray:
+    """The inputs with the prior's thrust scaled by gain: the battery voltage by gain^(1/gamma), or, with thrust in
+    N (``source`` "thrust_n", where the thrust is the columns themselves), the four thrust columns by gain.
 
     Parameters
     ----------
@@ -101,7 +106,10 @@ def with_thrust_gain(u: np.ndarray, gain: float, gamma: float) -> np.ndarray:
     gain : float
         `thrust_gain`.
     gamma : float
-        The prior's voltage exponent (thrust ∝ V^gamma); below `MIN_GAMMA` in magnitude u is returned as is.
+        The prior's voltage exponent (thrust ∝ V^gamma); below `MIN_GAMMA` in magnitude u is returned as is
+        (but with thrust in N).
+    source : str
+        The prior's thrust source (`models.crazyflie.THRUST_SOURCES`).
 
     Returns
     -------
@@ -109,6 +117,8 @@ def with_thrust_gain(u: np.ndarray, gain: float, gamma: float) -> np.ndarray:
         A copy, voltage column scaled.
     """
     u = np.array(u, dtype=float)
-    if abs(gamma) >= MIN_GAMMA and gain != 1.0:
+    if source == "thrust_n":
+        u[:, THRUST_COLUMNS] *= gain
+    elif abs(gamma) >= MIN_GAMMA and gain != 1.0:
         u[:, VBAT] *= gain ** (1.0 / gamma)
     return u
