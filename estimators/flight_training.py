@@ -25,7 +25,7 @@ from .prepared import system_for
 GAIN_SPREAD = 0.12
 # A thrust command in N without the battery voltage (crazyswarm2's ctrlLee.thrustSI) leaves the battery in the
 # gain: from a full to a flat LiPo (4.2 -> 3.4 V) the thrust made at one command falls by up to ~20 % (thrust ∝ V
-# at one duty), so such flights spread up to that much more (crazyswarm2 log182-184: 0.59-0.67, 14 %).
+# at one duty), so such flights spread up to that much more (crazyswarm2 log182 and log183: 0.59 and 0.67, 14 % apart).
 GAIN_SPREAD_WITHOUT_BATTERY = 0.3
 # By default one flight in VALIDATION_EVERY is held out whole (at least one when there are two or more).
 VALIDATION_EVERY = 5

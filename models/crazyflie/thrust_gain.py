@@ -114,7 +114,7 @@ def with_thrust_gain(u: np.ndarray, gain: float, gamma: float, source: str = "pw
     Returns
     -------
     ndarray, shape (T, 9)
-        A copy, voltage column scaled.
+        A copy, its voltage column or (thrust in N) its thrust columns scaled.
     """
     u = np.array(u, dtype=float)
     if source == "thrust_n":
