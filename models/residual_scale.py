@@ -14,7 +14,7 @@ The choice (`choose_scale`) is made by holding out whole groups of training flig
 at a time: a residual trained on the other groups is scored on the held-out group's mocap gaps at every candidate
 scale (`estimators.group_training`).  The rule is the goal itself where it can be reached: the largest
 scale at which the KNODE is better than its prior on the median of every held-out group and no held-out flight
-is worse beyond its 95 % interval.  Where no scale reaches it (on the shared flights, in three of four folds one
+is worse beyond its 95 % interval.  Where no scale reaches it (on the shared flights, in two of four folds one
 or two inner flights stay worse beyond their interval at every candidate scale), the scale that is better than the
 prior on the most held-out flights.  That
 fallback was settled after the strict rule had been seen to keep only the prior on the shared flights.  The scale

@@ -92,7 +92,8 @@ class TrainRequest(Strict):
     lr: float | None = Field(None, gt=0, le=1)
     system: Literal["quadrotor", "crazyflie"] = Field(
         "quadrotor", description="the prior: the paper's kinematic chain, or the Crazyflie driven by its motors "
-                                 "and battery (the flight must carry motor PWM and battery voltage)")
+                                 "and battery (the flight must carry motor PWM and battery voltage, rotor "
+                                 "speed, or the controller's thrust in N)")
     group_by: str | None = Field(
         None, max_length=200, description="several flights: the groups held out in turn to choose how much of the "
                                           "residual to keep: 'family' (the trajectory family the logs declare; the "

@@ -59,8 +59,7 @@ __all__ = ["DIAGNOSIS_LOWPASS_HZ", "DIAGNOSIS_SG_ORDER", "DIAGNOSIS_SG_WINDOW", 
            "accelerometer_problem", "confounded_label", "crazyflie_prior_for", "diagnose", "diagnose_crazyflie",
            "diagnose_flights", "diagnose_simulated", "dynamics_problem", "effects_for", "format_diagnosis",
            "how_much", "parse_simulate", "repair_interval", "repair_scores", "repair_verdict", "residual_series",
-           "split_names",
-           "thrust_map_fit", "unchanged_prior_note"]
+           "split_names", "thrust_map_fit", "unchanged_prior_note"]
 
 
 

@@ -223,7 +223,12 @@ def _command_scale_text(gain: float, implied: float, interval, m_ref: float, sou
                     f"{m_ref * 1e3:.3g} g)",
         "note": (f"were the {what} the thrust made, the mass would be {implied * 1e3:.3g} g, ×{implied / m_ref:.2f} "
                  f"the {whose} {m_ref * 1e3:.3g} g: not a plausible mass for this vehicle.  "
-                 + "P" + _command_scale_sentence(gain, m_ref, declared, what)[1:] + ".  No mass is claimed")}
+                 + _sentence_start(_command_scale_sentence(gain, m_ref, declared, what)) + ".  No mass is claimed")}
+
+
+def _sentence_start(text: str) -> str:
+    """``text`` with its first letter capitalised (the rest as it is)."""
+    return text[:1].upper() + text[1:]
 
 
 def _command_scale_sentence(gain: float, m_ref: float, declared: float | None, what: str) -> str:

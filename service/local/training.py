@@ -141,13 +141,17 @@ def residual_scale_of(metrics: dict) -> dict:
 
 
 def _check_inputs(services: Services, row, system: str) -> None:
-    """MissingInputs (naming the flight and the channels) when the stored flight lacks the prior's inputs."""
+    """MissingInputs (naming the flight and the channels) when the stored flight lacks the prior's inputs; the
+    Crazyflie prior takes the thrust in any form the flight carries (`models.inputs.system_for_flight_thrust`)."""
     from learnest.ingest.flight import Flight
-    from learnest.models.inputs import MissingInputs, missing_inputs
+    from learnest.models.inputs import MissingInputs, flight_thrust_source, missing_inputs
 
     if system == "quadrotor":
         return
-    lacking = missing_inputs(Flight.from_bytes(services.blobs.read_bytes(row.flight_blob)), system)
+    flight = Flight.from_bytes(services.blobs.read_bytes(row.flight_blob))
+    if system == "crazyflie" and flight_thrust_source(flight) is not None:
+        return
+    lacking = missing_inputs(flight, system)
     if lacking:
         raise MissingInputs(f"{row.name}: the {system!r} prior needs {', '.join(lacking)}, which this flight does "
                             "not carry; the kinematic prior (--system quadrotor) works without them")

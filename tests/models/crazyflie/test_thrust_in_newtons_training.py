@@ -4,6 +4,9 @@ scales the command to the thrust made.  Simulated flights (`models.crazyflie.sim
 the real crazyswarm2 uSD logs."""
 from __future__ import annotations
 
+import contextlib
+import io
+import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -81,3 +84,24 @@ def test_crazyswarm2_logs_train_on_their_thrust_in_newtons_and_beat_the_kinemati
     kinematic = le.evaluate(HybridModel(make_system("quadrotor")), flights[2:], methods=("ukf",))["flights"][0]
     assert scored["yardsticks"]["mocap_gaps"]["rmse_m"]["ukf"] < \
         0.8 * kinematic["yardsticks"]["mocap_gaps"]["rmse_m"]["ukf"]
+
+
+@pytest.mark.data
+def test_learnest_train_takes_the_crazyswarm2_logs_with_the_crazyflie_prior(tmp_path, monkeypatch):
+    """The command a lab runs first: `learnest train log182 log183 --system crazyflie` trains (the flights carry
+    no PWM, only the thrust in N) and the stored version's prior is the thrust-in-N one with the declared 32 g."""
+    if not all(path.is_file() for path in LOGS):
+        pytest.skip("../shared/data/crazyswarm2-tools not present")
+    from learnest.service.cli import main
+    from learnest.service.storage.registry import load_model_ref
+
+    monkeypatch.setenv("LEARNEST_HOME", str(tmp_path / "home"))
+    for name in ("LEARNEST_DATABASE_URL", "LEARNEST_DASK", "LEARNEST_API_KEY"):
+        monkeypatch.delenv(name, raising=False)
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        assert main(["train", *map(str, LOGS[:2]), "--system", "crazyflie", "--name", "cs2", "--epochs", "3",
+                     "--json"]) == 0
+    assert json.loads(out.getvalue())["training_flights"] == ["log182"]
+    prior = load_model_ref("cs2:1").system.prior_params
+    assert cf.thrust_source_of(prior) == "thrust_n" and prior["m_kg"] == pytest.approx(0.032)
