@@ -44,8 +44,8 @@ def score_flight(flight, cache: dict) -> dict:
             u = u.copy()
             u[:, :4] = flight.quat
         model = HybridModel(system, "prior")
-        results = evaluate_sequence(METHODS, model, model, y, u, flight.dt, system.Q, system.R, x0, system.P0,
-                                    reference, mhe_cache=cache.setdefault(prior, {}))
+        results = evaluate_sequence(METHODS, model, model, y, u, flight.dt, x0, reference,
+                                    mhe_cache=cache.setdefault(prior, {}))
         out["mse"][prior] = {m: results[m]["mse"] for m in METHODS}
     return out
 

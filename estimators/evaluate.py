@@ -55,9 +55,16 @@ def _ukf_functions_for(cache: dict, model, dt) -> tuple | None:
     return cache[key]
 
 
+def noise_matrices(model: StateSpaceModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(Q (n, n), R (m, m), P0 (n, n)) a model's filters run with: its system's noise settings, which
+    `estimators.prepared.prepare` sets to the model's own (identified or fixed) noise."""
+    system = model.system  # type: ignore[attr-defined]
+    return system.Q, system.R, system.P0
+
+
 def evaluate_sequence(methods: Sequence[str], prior_model: StateSpaceModel, knode_model: StateSpaceModel,
-                      y: np.ndarray, u: np.ndarray, dt: float, Q: np.ndarray, R: np.ndarray, x0: np.ndarray,
-                      P0: np.ndarray, reference: np.ndarray, horizon: int = MHE_HORIZON,
+                      y: np.ndarray, u: np.ndarray, dt: float, x0: np.ndarray,
+                      reference: np.ndarray, horizon: int = MHE_HORIZON,
                       keep_estimates: bool = False, mhe_cache: dict | None = None,
                       on_stage: Callable[[str], object] | None = None) -> dict:
     """{method: {"mse", "groups", "ms_per_step"[, "innovation_ms"][, "estimates"]}} for one flight; pass one `mhe_cache`
@@ -65,8 +72,8 @@ def evaluate_sequence(methods: Sequence[str], prior_model: StateSpaceModel, knod
     ``on_stage`` is told each method before it runs ("knode-ukf") and an MHE build before it starts
     ("MHE build (knode-mhe)").
 
-    ``knode-*`` methods run ``knode_model``, the others ``prior_model``.  y (T, m), u (T, p), x0 (n,),
-    Q and P0 (n, n), R (m, m), reference (T, n); dt in s; ``ms_per_step`` is wall time per sample, ms;
+    ``knode-*`` methods run ``knode_model``, the others ``prior_model``, each with its own noise
+    (`noise_matrices`: like against like).  y (T, m), u (T, p), x0 (n,), reference (T, n); dt in s; ``ms_per_step`` is wall time per sample, ms;
     ``innovation_ms`` (UKF methods) is the mean square of the one-step innovations per measurement channel,
     (m,) in the measurements' squared units (`prediction_check`); ``gain_interval_pct`` (a ``knode-*`` method
     run beside its base) is `estimators.metrics.gain_interval` of its gain over the base method, %, or None for a
@@ -76,6 +83,7 @@ def evaluate_sequence(methods: Sequence[str], prior_model: StateSpaceModel, knod
     results, step_errors = {}, {}
     for method in methods:
         model = knode_model if method.startswith("knode-") else prior_model
+        Q, R, P0 = noise_matrices(model)
         if on_stage and not method.endswith("ukf"):
             on_stage(f"MHE build ({method})")
         mhe = None if method.endswith("ukf") else _mhe_for(mhe_cache, model, dt, Q, R, P0, horizon)
@@ -104,11 +112,13 @@ def evaluate_sequence(methods: Sequence[str], prior_model: StateSpaceModel, knod
     return results
 
 
-def one_step_innovation_ms(model: StateSpaceModel, y: np.ndarray, u: np.ndarray, dt: float, Q: np.ndarray,
-                           R: np.ndarray, x0: np.ndarray, P0: np.ndarray, cache: dict | None = None) -> np.ndarray:
+def one_step_innovation_ms(model: StateSpaceModel, y: np.ndarray, u: np.ndarray, dt: float, x0: np.ndarray,
+                           cache: dict | None = None) -> np.ndarray:
     """Mean square of the UKF's one-step innovations y_k − h(f(x̂_{k−1})) per measurement channel, (m,): how
-    well ``model`` predicts the next measurement of this record.  ``cache`` as `evaluate_sequence`'s."""
+    well ``model`` predicts the next measurement of this record, with its own noise (`noise_matrices`).
+    ``cache`` as `evaluate_sequence`'s."""
     functions = _ukf_functions_for({} if cache is None else cache, model, dt)
+    Q, R, P0 = noise_matrices(model)
     filtered = run_ukf(model, y, u, dt=dt, Q=Q, R=R, x0=x0, P0=P0, sigma_functions=functions)
     return np.mean(filtered.innovations**2, axis=0)
 
@@ -196,10 +206,14 @@ def summarize(flight_reports: list[dict]) -> dict:
         on the prior's median, ...}, ``flights_worse_than_prior`` {"ukf": [names], ...} and ``prior_on``
         (names of the flights where the prior's estimate is recommended); ``headline``
         (`estimators.yardsticks.headline`: the KNODE's gain on the mocap-gap yardstick over the flights) and
-        ``yardstick_definitions`` {yardstick: what it measures, one sentence}.
+        ``yardstick_definitions`` {yardstick: what it measures, one sentence}; ``noise`` {method: "identified" |
+        "paper"}, the noise each method ran with (the flights' ``noise`` entries).
     """
     scored = [f for f in flight_reports if not f.get("excluded")]
     methods = sorted({m for f in scored for m in f["mse"]})
+    noise: dict[str, str] = {}
+    for entry in scored:   # one model, one choice: every scored flight says the same
+        noise.update(entry.get("noise") or {})
     median = {m: float(np.median([f["mse"][m] for f in scored if m in f["mse"]])) for m in methods}
     improvement = {}
     for base in ("ukf", "mhe"):
@@ -213,4 +227,4 @@ def summarize(flight_reports: list[dict]) -> dict:
     return {"median": median, "improvement_pct": improvement, "flights_scored": len(scored),
             "outside_training_envelope": outside, "knode_predicts_worse": worse,
             "knode_clearly_worse": clearly_worse, "recommended": _recommended_summary(scored, median),
-            "headline": headline(scored).to_dict(), "yardstick_definitions": dict(MEASURES)}
+            "headline": headline(scored).to_dict(), "yardstick_definitions": dict(MEASURES), "noise": noise}

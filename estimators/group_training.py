@@ -42,6 +42,7 @@ import numpy as np
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 from learnest.models.knode import HybridModel
+from learnest.models.noise import IDENTIFIED, NOISE_SOURCES, PAPER
 from learnest.models.presets import CRAZYFLIE_TRAINING, MHE_HORIZON, TrainingConfig
 from learnest.models.residual_scale import RESIDUAL_SCALES, choose_scale, passes, scaled_model
 from learnest.models.training import TrainingResult
@@ -50,6 +51,7 @@ from .algorithm1 import Algorithm1
 from .flight_training import default_validation
 from .metrics import worse_beyond_interval
 from .mocap_gaps import gap_mask
+from .noise_identification import with_identified_noise
 from .prepared import prepare
 from .yardsticks import GapPlan, gap_scores, run_with_gaps
 
@@ -172,14 +174,14 @@ def gap_gains_by_scale(knode: HybridModel, flights: Sequence[Flight], scales: Se
         if not flight.quality["ok"] or not windows:
             continue
         prepared = prepare(knode, flight)
-        system, y, u, x0 = prepared.system, prepared.y, prepared.u, prepared.x0
+        y, u, x0 = prepared.y, prepared.u, prepared.x0
         inside = gap_mask(len(flight.t), windows)
-        base = run_with_gaps(["ukf"], prepared.prior, prepared.prior, y, u, flight.dt, system.Q, system.R, x0,
-                             system.P0, inside, MHE_HORIZON, cache)["ukf"]["estimates"]
+        base = run_with_gaps(["ukf"], prepared.prior, prepared.prior, y, u, flight.dt, x0, inside, MHE_HORIZON,
+                             cache)["ukf"]["estimates"]
         for scale, model in models.items():
             model = HybridModel(prepared.model.system, model.kind, model.residual, model.meta)
-            est = run_with_gaps(["knode-ukf"], prepared.prior, model, y, u, flight.dt, system.Q, system.R, x0,
-                                system.P0, inside, MHE_HORIZON, cache)["knode-ukf"]["estimates"]
+            est = run_with_gaps(["knode-ukf"], prepared.prior, model, y, u, flight.dt, x0, inside, MHE_HORIZON,
+                                cache)["knode-ukf"]["estimates"]
             gaps = gap_scores(flight.p, {"ukf": base, "knode-ukf": est}, windows, plan)
             out[scale].append({"flight": flight.name, "gain_pct": gaps.gain_pct[PAIR],
                                "interval_pct": gaps.gain_interval_pct[PAIR]})
@@ -312,8 +314,11 @@ def scale_note(table: Mapping[float, Sequence[Mapping]], chosen: float) -> str:
 def train_flights(flights: Sequence[Flight], system: str = "quadrotor", config: TrainingConfig = CRAZYFLIE_TRAINING,
                   group_by: str = GROUP_BY, validate: Sequence[str] | None = None,
                   progress: Callable[[int, float], None] | None = None, on_stage: StageCallback | None = None,
-                  scales: Sequence[float] = RESIDUAL_SCALES, **train_kwargs) -> TrainingResult:
-    """Algorithm 1 on one flight or several of one vehicle, the residual's scale chosen on held-out groups of them.
+                  scales: Sequence[float] = RESIDUAL_SCALES, noise: str = PAPER,
+                  **train_kwargs) -> TrainingResult:
+    """Algorithm 1 on one flight or several of one vehicle, the residual's scale chosen on held-out groups of them,
+    and, with ``noise="identified"``, the noise of the model and of its prior identified on all of them
+    (`estimators.noise_identification`).
 
     With two groups or more (`flight_groups` under ``group_by``) this is `train_with_scale_choice`; with fewer,
     or ``group_by="none"``, `Algorithm1.fit_flights` with the whole residual, the meta's ``residual_scale`` 1.0 and
@@ -339,6 +344,10 @@ def train_flights(flights: Sequence[Flight], system: str = "quadrotor", config: 
         when there is one stage).
     scales : sequence of float
         Candidate residual scales.
+    noise : {"paper", "identified"}
+        Keep the system's fixed noise (the paper's protocol, the default), or identify the model's and its
+        prior's noise on ``flights`` (stored with the model).  The residual's scale is chosen with the fixed
+        noise either way.
     **train_kwargs
         ``blind_attitude``, ``blind_battery`` (`Algorithm1.fit_flights`).
 
@@ -354,13 +363,24 @@ def train_flights(flights: Sequence[Flight], system: str = "quadrotor", config: 
         A bad ``group_by`` or what `Algorithm1.fit_flights` refuses.
     """
     flights = list(flights)
+    if noise not in NOISE_SOURCES:
+        raise InvalidInput(f"noise must be one of {', '.join(NOISE_SOURCES)}, not {noise!r}")
     groups = flight_groups(flights, group_by)
     if len(groups) >= 2:
-        return train_with_scale_choice(groups, system, config, scales, on_stage, progress,
-                                       held_out_names(flights, validate), **train_kwargs)
-    if on_stage:
-        on_stage("training", 0, 1)
-    result = Algorithm1(config=config).fit_flights(flights, system, validate, progress=progress, **train_kwargs)
-    result.model.meta.update(residual_scale=1.0, residual_scale_groups=list(groups),
-                             residual_scale_note=why_no_choice(flights, groups, group_by))
+        result = train_with_scale_choice(groups, system, config, scales, on_stage, progress,
+                                         held_out_names(flights, validate), **train_kwargs)
+        stages = len(groups) + 1
+    else:
+        if on_stage:
+            on_stage("training", 0, 1)
+        result = Algorithm1(config=config).fit_flights(flights, system, validate, progress=progress, **train_kwargs)
+        result.model.meta.update(residual_scale=1.0, residual_scale_groups=list(groups),
+                                 residual_scale_note=why_no_choice(flights, groups, group_by))
+        stages = 1
+    if noise == IDENTIFIED:
+        started = time.perf_counter()
+        # reported as the last stage, after the epochs: the progress never runs backwards
+        result.model = with_identified_noise(result.model, flights,
+                                             on_stage=(lambda name: on_stage(name, stages, stages)) if on_stage else None)
+        result.seconds += time.perf_counter() - started
     return result

@@ -41,6 +41,10 @@ class KNODE:
         Several flights: the groups held out in turn to choose how much of the residual to keep
         (`estimators.group_training`): ``"family"`` (the trajectory family the logs declare; the default),
         ``"name:REGEX"`` (one capture group of the flight's name) or ``"none"`` (the whole residual).
+    noise : {"paper", "identified"}
+        Keep the system's fixed noise (the paper's protocol, the default), or identify the noise of the model
+        and of its prior on the training flights (stored with ``model_``: `learnest.ukf`, `learnest.mhe` and
+        `learnest.evaluate` run each model with its own).
 
     Attributes
     ----------
@@ -74,9 +78,10 @@ class KNODE:
     def __init__(self, system: str = "quadrotor", hidden: int = CRAZYFLIE_TRAINING.hidden,
                  epochs: int = CRAZYFLIE_TRAINING.epochs, lr: float = CRAZYFLIE_TRAINING.lr,
                  validation_fraction: float = CRAZYFLIE_TRAINING.validation_fraction, seed: int = 0,
-                 group_by: str = GROUP_BY) -> None:
+                 group_by: str = GROUP_BY, noise: str = "paper") -> None:
         self.system, self.hidden, self.epochs, self.lr = system, hidden, epochs, lr
         self.validation_fraction, self.seed, self.group_by = validation_fraction, seed, group_by
+        self.noise = noise
 
     def fit(self, flights: Flight | Sequence[Flight], progress: Callable[[int, float], None] | None = None,
             validate: Sequence[str] | None = None) -> KNODE:
@@ -115,7 +120,8 @@ class KNODE:
                                f"{wrong[0] if wrong else 'an empty list'}")
         config = replace(CRAZYFLIE_TRAINING, hidden=self.hidden, epochs=self.epochs, lr=self.lr,
                          validation_fraction=self.validation_fraction, seed=self.seed)
-        result = train_flights(given, self.system, config, self.group_by, validate, progress=progress)
+        result = train_flights(given, self.system, config, self.group_by, validate, progress=progress,
+                               noise=self.noise)
         self.model_ = result.model
         self.losses_, self.validation_losses_ = result.losses, result.validation_losses
         self.seconds_ = result.seconds
@@ -128,4 +134,5 @@ class KNODE:
 
     def __repr__(self) -> str:
         return (f"KNODE(system={self.system!r}, hidden={self.hidden}, epochs={self.epochs}, lr={self.lr}, "
-                f"validation_fraction={self.validation_fraction}, seed={self.seed}, group_by={self.group_by!r})")
+                f"validation_fraction={self.validation_fraction}, seed={self.seed}, group_by={self.group_by!r}, "
+                f"noise={self.noise!r})")

@@ -5,6 +5,10 @@ have extended them), with the measurement effects it carries corrected, and with
 the flight's thrust gain where the model was trained on it.  The evaluation (`service.experiments.flights`),
 its envelope and prediction checks, the yardsticks and the notebook's `ukf`/`mhe` all start from this one
 `PreparedFlight`, so they cannot disagree about what the model saw.
+
+Each of the two models runs with its own noise (`models.noise`): the KNODE with the noise identified for it,
+the prior-only filters with the noise identified for the prior on the same flights, or both with the system's
+fixed noise when asked for ``noise="paper"`` (or when the model never had its noise identified).
 """
 from __future__ import annotations
 
@@ -17,6 +21,7 @@ from learnest.ingest.flight import Flight
 from learnest.models.effects import correct_acc_body, world_from_body
 from learnest.models.inputs import calibrates_thrust_gain, system_inputs
 from learnest.models.knode import HybridModel
+from learnest.models.noise import IDENTIFIED, NOISE_SOURCES, PAPER, NoiseModel
 from learnest.models.systems import System, make_system
 
 # Systems a model of a real flight may use: the paper's kinematic chain, or the Crazyflie prior driven by
@@ -70,12 +75,12 @@ class PreparedFlight:
     measured : Flight
         The flight with the model's measurement effects corrected (``flight`` itself when it carries none).
     system : System
-        The model's system on the flight's grid with the model's prior parameters (`model_system`); its Q, R,
-        P0 are the estimators' noise settings.
+        The model's system on the flight's grid with the model's prior parameters (`model_system`) and the
+        noise ``model`` runs with (its Q, R, P0).
     model : HybridModel
-        The model with its system's dt set to the flight's.
+        The model with its system's dt set to the flight's and its noise applied.
     prior : HybridModel
-        The prior-only model of ``system``.
+        The prior-only model of ``system``, with the prior's own noise (its ``system.Q`` ...).
     u : ndarray, shape (T, p)
         Inputs (`models.inputs.system_inputs`), the thrust scaled by the flight's gain when ``thrust_gain``.
     y : ndarray, shape (T, m)
@@ -84,6 +89,8 @@ class PreparedFlight:
         First state estimate (`initial_state` of ``measured``).
     thrust_gain : bool
         Whether ``u`` carries the flight's thrust gain.
+    noise : dict
+        Which noise each model runs with, ``{"prior": "identified" | "paper", "knode": ...}``.
     """
 
     flight: Flight
@@ -95,6 +102,7 @@ class PreparedFlight:
     y: np.ndarray
     x0: np.ndarray
     thrust_gain: bool
+    noise: dict
 
     @property
     def dt(self) -> float:
@@ -102,7 +110,27 @@ class PreparedFlight:
         return self.flight.dt
 
 
-def prepare(model: HybridModel, flight: Flight, thrust_gain: bool | None = None) -> PreparedFlight:
+def noise_models(model: HybridModel, system: System, noise: str = IDENTIFIED) -> tuple[NoiseModel, NoiseModel]:
+    """(the model's, its prior's) noise under the choice ``noise``: identified where the model carries it,
+    else the system's fixed noise (`models.noise.NoiseModel.paper`).
+
+    Raises
+    ------
+    InvalidInput
+        If ``noise`` is not ``"identified"`` or ``"paper"``.
+    """
+    if noise not in NOISE_SOURCES:
+        raise InvalidInput(f"noise must be one of {', '.join(NOISE_SOURCES)}, not {noise!r}")
+    paper = NoiseModel.paper(system)
+    if noise == PAPER:
+        return paper, paper
+    own = model.noise or paper
+    prior = model.prior_noise or (own if model.kind == "prior" else paper)
+    return own, prior
+
+
+def prepare(model: HybridModel, flight: Flight, thrust_gain: bool | None = None,
+            noise: str = IDENTIFIED) -> PreparedFlight:
     """Build, once, what every estimator and check of ``model`` on ``flight`` needs.
 
     Parameters
@@ -114,6 +142,8 @@ def prepare(model: HybridModel, flight: Flight, thrust_gain: bool | None = None)
     thrust_gain : bool, optional
         Whether the prior's thrust is scaled by the flight's thrust gain (`models.inputs.system_inputs`);
         None decides by the model (`models.inputs.calibrates_thrust_gain`); the diagnosis passes False.
+    noise : {"identified", "paper"}
+        Each model with its own identified noise (`noise_models`), or both with the system's fixed noise.
 
     Returns
     -------
@@ -122,17 +152,21 @@ def prepare(model: HybridModel, flight: Flight, thrust_gain: bool | None = None)
     Raises
     ------
     InvalidInput
-        If the model's system does not model a flight; `models.inputs.MissingInputs` when the prior needs
-        inputs the flight lacks.
+        If the model's system does not model a flight or ``noise`` is unknown; `models.inputs.MissingInputs`
+        when the prior needs inputs the flight lacks.
     """
     system = model_system(model, flight)
+    own, prior_noise = noise_models(model, system, noise)
     measured = flight
     if model.meta.get("measurement_effects"):
         measured = corrected_flight(flight, model.meta["measurement_effects"])
     if thrust_gain is None:
         thrust_gain = calibrates_thrust_gain(model.meta, model.kind)
     u = system_inputs(flight, system, thrust_gain=thrust_gain)
-    return PreparedFlight(flight, measured, system,
-                          HybridModel(replace(model.system, dt=flight.dt), model.kind, model.residual, model.meta),
-                          HybridModel(system, "prior"), u, measured.measurements(), initial_state(measured),
-                          bool(thrust_gain))
+    own_system = own.apply(system)
+    return PreparedFlight(flight, measured, own_system,
+                          HybridModel(own.apply(replace(model.system, dt=flight.dt)), model.kind, model.residual,
+                                      model.meta, model.noise, model.prior_noise),
+                          HybridModel(prior_noise.apply(system), "prior", noise=prior_noise), u,
+                          measured.measurements(), initial_state(measured), bool(thrust_gain),
+                          {"prior": prior_noise.source, "knode": own.source})

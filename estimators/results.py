@@ -20,9 +20,14 @@ class FilterResult(NamedTuple):
     innovations : ndarray, shape (T, m)
         Measurement innovations y_k - ŷ_{k|k-1} (ŷ the predicted measurement; for the UKF the unscented
         mean of h over the sigma points), in the measurement units.
+    log_likelihoods : ndarray, shape (T,), or None
+        log N(innovation_k; 0, S_k) per step (nats), S_k the predicted measurement covariance: the filter's
+        innovation likelihood, which noise identification maximises (`estimators.noise_identification`).
+        NaN at a step whose S could not be factored; None from an estimator that does not compute it.
     """
 
     t: np.ndarray
     means: np.ndarray
     covariances: np.ndarray
     innovations: np.ndarray
+    log_likelihoods: np.ndarray | None = None

@@ -200,10 +200,21 @@ def _filter(model, sigma_functions, y, u, dt, Q, R, x0, P0, alpha) -> FilterResu
     ukf = make_ukf(model, dt, Q, R, x0, P0, alpha=alpha, sigma_functions=sigma_functions)
     ukf.sigmas_f = ukf._sigmas()
     means, innovations = np.empty((len(y), n)), np.empty(y.shape)
-    covariances = np.empty((len(y), n, n))
+    covariances, log_likelihoods = np.empty((len(y), n, n)), np.empty(len(y))
     for k in range(len(y)):
         if k:
             ukf.predict(u=u[k - 1])
         ukf.update(y[k], u=u[k])
         means[k], innovations[k], covariances[k] = ukf.x, ukf.y, ukf.P
-    return FilterResult(dt * np.arange(len(y)), means, covariances, innovations)
+        log_likelihoods[k] = _log_density(ukf.y, ukf.S)
+    return FilterResult(dt * np.arange(len(y)), means, covariances, innovations, log_likelihoods)
+
+
+def _log_density(v: np.ndarray, S: np.ndarray) -> float:
+    """log N(v; 0, S) for an innovation v (m,) and its covariance S (m, m); NaN when S is not positive definite."""
+    try:
+        factor = np.linalg.cholesky(S)
+    except np.linalg.LinAlgError:
+        return float("nan")
+    white = np.linalg.solve(factor, v)
+    return float(-0.5 * (len(v) * np.log(2 * np.pi) + 2 * np.sum(np.log(np.diag(factor))) + white @ white))

@@ -110,8 +110,7 @@ class GapPlan:
 
 
 def run_with_gaps(methods: Sequence[str], prior_model: StateSpaceModel, knode_model: StateSpaceModel,
-                  y: np.ndarray, u: np.ndarray, dt: float, Q: np.ndarray, R: np.ndarray, x0: np.ndarray,
-                  P0: np.ndarray, inside: np.ndarray, horizon: int, mhe_cache: dict | None = None,
+                  y: np.ndarray, u: np.ndarray, dt: float, x0: np.ndarray, inside: np.ndarray, horizon: int, mhe_cache: dict | None = None,
                   on_stage: Callable[[str], object] | None = None) -> dict[str, dict]:
     """Each method run with the position measurements hidden where ``inside`` (T,) is True.
 
@@ -122,7 +121,7 @@ def run_with_gaps(methods: Sequence[str], prior_model: StateSpaceModel, knode_mo
     prior_gap, knode_gap = PositionGapModel(prior_model), PositionGapModel(knode_model)
     stage = None if on_stage is None else (lambda name: on_stage(f"{name} with mocap gaps"))
     # the reference only feeds evaluate_sequence's SG scores, unused here: the state itself keeps shapes valid
-    results = evaluate_sequence(methods, prior_gap, knode_gap, y_gap, u_gap, dt, Q, R, x0, P0,
+    results = evaluate_sequence(methods, prior_gap, knode_gap, y_gap, u_gap, dt, x0,
                                 np.zeros((len(y), len(x0))), horizon=horizon, keep_estimates=True,
                                 mhe_cache=mhe_cache, on_stage=stage)
     return {m: {"estimates": r["estimates"], "ms_per_step": r["ms_per_step"]} for m, r in results.items()}
@@ -311,8 +310,8 @@ def fast_reference_scores(p_mocap: np.ndarray, dt: float, estimates: Mapping[str
 
 
 def flight_yardsticks(methods: Sequence[str], prior_model: StateSpaceModel, knode_model: StateSpaceModel,
-                      y: np.ndarray, u: np.ndarray, dt: float, Q: np.ndarray, R: np.ndarray, x0: np.ndarray,
-                      P0: np.ndarray, p_mocap: np.ndarray, estimates: Mapping[str, np.ndarray],
+                      y: np.ndarray, u: np.ndarray, dt: float, x0: np.ndarray, p_mocap: np.ndarray,
+                      estimates: Mapping[str, np.ndarray],
                       paper_mse: Mapping[str, float], plan: GapPlan, horizon: int,
                       onboard: Mapping[str, np.ndarray] | None = None, sg_window_s: float | None = None,
                       mhe_cache: dict | None = None,
@@ -323,8 +322,8 @@ def flight_yardsticks(methods: Sequence[str], prior_model: StateSpaceModel, knod
     ----------
     methods : sequence of str
         Estimators to run with gaps (``ukf``, ``mhe``, ``knode-ukf``, ``knode-mhe``).
-    prior_model, knode_model, y, u, dt, Q, R, x0, P0, horizon, mhe_cache, on_stage
-        As `evaluate_sequence` (y (T, m) = [p, a_meas], u (T, p)).
+    prior_model, knode_model, y, u, dt, x0, horizon, mhe_cache, on_stage
+        As `evaluate_sequence` (each model with its own noise) (y (T, m) = [p, a_meas], u (T, p)).
     p_mocap : ndarray, shape (T, 3)
         The mocap position, m: hidden inside the gaps, the reference there; its derivatives are the fast
         reference.
@@ -349,8 +348,7 @@ def flight_yardsticks(methods: Sequence[str], prior_model: StateSpaceModel, knod
     inside = gap_mask(len(p_mocap), windows)
     gapped: dict = {}
     if windows and methods:
-        runs = run_with_gaps(methods, prior_model, knode_model, y, u, dt, Q, R, x0, P0, inside, horizon, mhe_cache,
-                             on_stage)
+        runs = run_with_gaps(methods, prior_model, knode_model, y, u, dt, x0, inside, horizon, mhe_cache, on_stage)
         gapped = {m: r["estimates"] for m, r in runs.items()}
         gaps = gap_scores(p_mocap, gapped, windows, plan, {m: r["ms_per_step"] for m, r in runs.items()})
     else:

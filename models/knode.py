@@ -18,6 +18,7 @@ from learnest.errors import InvalidInput
 
 from .backend import Array, CasadiOps, ops_for, rk4_step
 from .metadata import with_input_format
+from .noise import NoiseModel
 from .systems import System, make_system
 
 
@@ -95,6 +96,12 @@ class HybridModel:
         Required for ``"knode"``; when given it is added to the base field whatever the kind.
     meta : dict, optional
         Free metadata (training settings, losses, ...), saved with the model.
+    noise : NoiseModel, optional
+        The noise this model's filters run with, identified on its training flights
+        (`estimators.noise_identification`); None: never identified (the system's fixed noise is used).
+    prior_noise : NoiseModel, optional
+        The noise of this model's prior identified the same way on the same flights: what a fair comparison
+        runs the prior-only filters with (`estimators.prepared.prepare`).
 
     Raises
     ------
@@ -103,12 +110,14 @@ class HybridModel:
     """
 
     def __init__(self, system: System, kind: str = "prior", residual: Residual | None = None,
-                 meta: dict | None = None) -> None:
+                 meta: dict | None = None, noise: NoiseModel | None = None,
+                 prior_noise: NoiseModel | None = None) -> None:
         if kind not in ("prior", "true", "knode"):
             raise InvalidInput(f"model kind must be 'prior', 'true' or 'knode', not {kind!r}")
         if (kind == "knode") != (residual is not None):
             raise InvalidInput("a 'knode' model needs a trained residual, and only a 'knode' model has one")
         self.system, self.kind, self.residual, self.meta = system, kind, residual, dict(meta or {})
+        self.noise, self.prior_noise = noise, prior_noise
 
     @property
     def n(self) -> int:
@@ -159,7 +168,7 @@ class HybridModel:
         residual, weights, weight_values = None, ca.SX(0, 1), np.zeros(0)
         if self.residual is not None:
             residual, weights, weight_values = self.residual.parametric()
-        model = HybridModel(system, self.kind, residual, self.meta)
+        model = HybridModel(system, self.kind, residual, self.meta, self.noise, self.prior_noise)
         return model, ca.vertcat(physical, weights), np.concatenate([values, weight_values])
 
     def __repr__(self) -> str:
@@ -167,10 +176,15 @@ class HybridModel:
 
     # -- persistence: everything needed to rebuild the model, no pickle --------------------------
     def save(self, path: str | Path) -> None:
-        """Write the model as JSON (format ``learnest-model/1``, no pickle), atomically via ``path.tmp``."""
+        """Write the model as JSON (format ``learnest-model/1``, no pickle), atomically via ``path.tmp``.
+
+        The noise models are optional keys: a file without them loads as a model whose noise was never
+        identified."""
         data = {"format": "learnest-model/1", "system": self.system.name, "kind": self.kind,
                 "prior_params": self.system.prior_params, "true_params": self.system.true_params,
-                "residual": self.residual.to_dict() if self.residual else None, "meta": self.meta}
+                "residual": self.residual.to_dict() if self.residual else None, "meta": self.meta,
+                "noise": self.noise.to_dict() if self.noise else None,
+                "prior_noise": self.prior_noise.to_dict() if self.prior_noise else None}
         path = Path(path)
         tmp = path.with_suffix(path.suffix + ".tmp")
         tmp.write_text(json.dumps(data))
@@ -194,5 +208,7 @@ class HybridModel:
         system = make_system(data["system"], prior_params=data["prior_params"],
                              true_params=data["true_params"])
         residual = Residual.from_dict(data["residual"]) if data["residual"] else None
+        noise, prior_noise = (NoiseModel.from_dict(data[key]) if data.get(key) else None
+                              for key in ("noise", "prior_noise"))
         # a model stored before the integer input format gets it from its sentence: fed as it was trained
-        return cls(system, data["kind"], residual, with_input_format(data.get("meta")))
+        return cls(system, data["kind"], residual, with_input_format(data.get("meta")), noise, prior_noise)

@@ -10,7 +10,8 @@
  * Per step, as BatchedUKF: [k > 0: sigma points from the factor L of P, fx, weighted mean and covariance
  * + Q, P := sym(P), factor] sigma points re-drawn from the factor, hx, weighted mean and covariance + R
  * (S), cross covariance, K = Pxz S^{-1} by a Cholesky solve (not an explicit inverse), x += K (y - zp),
- * P := sym(P - K S K'), factor.  When a factorisation of P fails, the loop returns to Python, which
+ * P := sym(P - K S K'), factor; the innovation's log density log N(v; 0, S) from the same factor of S
+ * (what noise identification maximises, `estimators.noise_identification`).  When a factorisation of P fails, the loop returns to Python, which
  * repairs P with covariance_factor.spd_factor (the same function the Python filter uses, eigenvalue
  * lift and eigen square root included) and resumes here: identical in effect, and rare.
  *
@@ -19,6 +20,8 @@
  */
 #include <math.h>
 #include <string.h>
+
+#define LRN_LOG_2PI 1.8378770664093453   /* log(2 pi) */
 
 typedef int (*lrn_casadi_fn)(const double **arg, double **res, long long *iw, double *w, int mem);
 
@@ -40,6 +43,7 @@ typedef struct {
     const double *Q, *R;       /* (n, n), (m, m) */
     const double *y, *u;       /* (T, m), (T, p) */
     double *means, *covs, *innov;   /* outputs (T, n), (T, n, n), (T, m) */
+    double *loglik;            /* output (T): log N(innovation; 0, S) per step, NaN where S needed LU */
     double *x, *P, *L;         /* state: mean (n), covariance (n, n), its factor L L' = P (n, n) */
     double *work;              /* scratch, lrn_ukf_work_size doubles */
     int k, stage;              /* where the loop stands: resume point, or where a factorisation failed */
@@ -47,7 +51,7 @@ typedef struct {
 
 int lrn_ukf_work_size(int n, int m, int count) {
     (void)count;
-    return 2 * m + 3 * m * m + 2 * n * m + n;
+    return 3 * m + 3 * m * m + 2 * n * m + n;
 }
 
 static int call(const lrn_fn *f) {
@@ -121,6 +125,7 @@ int lrn_ukf_run(lrn_ukf *p) {
     double *zp = p->work;   /* work: zp (m), S, its factor, a copy (m, m each), Pxz, K' (n m each), v */
     double *S = zp + m, *Sf = S + m * m, *Sc = Sf + m * m, *Pxz = Sc + m * m, *K = Pxz + n * m;
     double *v = K + n * m;   /* the innovation y_k - zp (m), kept in work across a return to Python */
+    double *wv = v + m;      /* its whitened form (m) */
     while (p->k < p->T) {
         int k = p->k;
         if (p->stage == 0) {
@@ -153,7 +158,8 @@ int lrn_ukf_run(lrn_ukf *p) {
             /* K' = S^{-1} Pxz' (S symmetric) */
             for (int a = 0; a < n; ++a)
                 for (int b = 0; b < m; ++b) K[b * n + a] = Pxz[a * m + b];
-            if (chol_lower(m, S, Sf) == 0) {
+            int s_factored = chol_lower(m, S, Sf) == 0;
+            if (s_factored) {
                 for (int c = 0; c < n; ++c) {        /* column c of K': L z = b, L' x = z */
                     for (int i = 0; i < m; ++i) {
                         double t = K[i * n + c];
@@ -172,6 +178,20 @@ int lrn_ukf_run(lrn_ukf *p) {
             }
             const double *yk = p->y + k * m;
             for (int b = 0; b < m; ++b) v[b] = yk[b] - zp[b];
+            double ll = NAN;
+            if (s_factored) {   /* -0.5 (m log 2 pi + log det S + |Sf^-1 v|^2) */
+                double quad = 0.0, logdet = 0.0;
+                for (int i = 0; i < m; ++i) {
+                    double t = v[i];
+                    for (int q = 0; q < i; ++q) t -= Sf[i * m + q] * wv[q];
+                    t /= Sf[i * m + i];
+                    wv[i] = t;   /* the whitened innovation Sf^-1 v */
+                    quad += t * t;
+                    logdet += 2.0 * log(Sf[i * m + i]);
+                }
+                ll = -0.5 * (m * LRN_LOG_2PI + logdet + quad);
+            }
+            p->loglik[k] = ll;
             for (int a = 0; a < n; ++a) {
                 double t = 0.0;
                 for (int b = 0; b < m; ++b) t += K[b * n + a] * v[b];

@@ -34,8 +34,8 @@ class _Problem(ctypes.Structure):
 
     _fields_ = [*[(name, ctypes.c_int) for name in ("n", "m", "p", "count", "T")], ("scale", ctypes.c_double),
                 ("Wm", ctypes.c_void_p), ("Wc", ctypes.c_void_p), ("fx", _Fn), ("hx", _Fn),
-                *[(name, ctypes.c_void_p) for name in ("Q", "R", "y", "u", "means", "covs", "innov", "x", "P", "L",
-                                                       "work")],
+                *[(name, ctypes.c_void_p) for name in ("Q", "R", "y", "u", "means", "covs", "innov", "loglik", "x", "P",
+                                                       "L", "work")],
                 ("k", ctypes.c_int), ("stage", ctypes.c_int)]
 
 
@@ -106,13 +106,14 @@ class NativeUKF:
         P, L = spd_factor(np.asarray(P0, dtype=float))
         x, P, L = _c(x0).copy(), _c(P).copy(), _c(L).copy()
         means, covariances, innovations = np.empty((T, n)), np.empty((T, n, n)), np.empty((T, m))
+        log_likelihoods = np.empty(T)
         self.f_c.inputs[2][0, 0] = dt   # θ[0] is dt
         problem = _Problem(n=n, m=m, p=self.p, count=2 * n + 1, T=T, scale=scale, Wm=_address(Wm),
                            Wc=_address(Wc), fx=self.fx, hx=self.hx,
                            **{name: _address(a) for name, a in (("Q", Q), ("R", R), ("y", y), ("u", u),
                                                                 ("means", means), ("covs", covariances),
-                                                                ("innov", innovations), ("x", x), ("P", P),
-                                                                ("L", L), ("work", self.work))},
+                                                                ("innov", innovations), ("loglik", log_likelihoods),
+                                                                ("x", x), ("P", P), ("L", L), ("work", self.work))},
                            k=0, stage=1)   # step 0: update only, from the factor of P0
         while (status := self._run(ctypes.addressof(problem))) == 1:
             # Cholesky failed on the new P: repair it exactly as the Python filter does, then resume
@@ -122,7 +123,7 @@ class NativeUKF:
             raise RuntimeError("compiled CasADi function returned an error")
         if status == -2:
             raise np.linalg.LinAlgError(f"UKF innovation covariance singular at step {problem.k}")
-        return FilterResult(dt * np.arange(T), means, covariances, innovations)
+        return FilterResult(dt * np.arange(T), means, covariances, innovations, log_likelihoods)
 
 
 def _c(array) -> np.ndarray:

@@ -99,6 +99,10 @@ class TrainRequest(Strict):
                                           "residual to keep: 'family' (the trajectory family the logs declare; the "
                                           "default), 'name:REGEX' (one capture group of each flight's name) or "
                                           "'none' (the whole residual)")
+    noise: Literal["paper", "identified"] = Field(
+        "paper", description="'paper': the system's fixed noise; 'identified': the model's and its prior's noise "
+                             "(Q and R per block) identified on the training flights by the UKF's innovation "
+                             "likelihood, stored with the version, and used by every evaluation of it")
     parent: str | None = Field(None, description='"name:version" or "name@alias" this version derives from')
     include_bad: bool = Field(False, description="train even if the flight failed the quality checks")
 
@@ -146,6 +150,10 @@ class VersionSummary(BaseModel):
     residual_scale_groups: list[str] = Field(default_factory=list,
                                              description="the groups of training flights held out to choose it")
     residual_scale_note: str | None = Field(None, description="how the scale was chosen, or why none was")
+    noise: dict[str, Any] = Field(default_factory=dict, description=(
+        "the noise the version's filters run with: {\"model\": ..., \"prior\": ...}, each null (the system's "
+        "fixed noise, the paper's) or {source, process_per_step, measurement, initial: standard deviations per "
+        "block with units, detail: how it was identified on the training flights}"))
     parent: str | None
     hyperparameters: dict[str, Any]
     metrics: dict[str, Any] | None
@@ -233,6 +241,10 @@ class EvaluationRequest(Strict):
     gap_every_s: float = Field(GAP_EVERY_S, gt=0.0, le=300.0,
                                description="mocap-gap yardstick: one gap every this many seconds, after the first "
                                            "5 s of the kept flight; longer than gap_s")
+    noise: Literal["identified", "paper"] = Field(
+        "identified", description="'identified': the KNODE and its prior each with its own noise identified on the "
+                                  "training flights (the system's fixed noise for a model trained without it); "
+                                  "'paper': both with the system's fixed noise")
 
     @field_validator("methods")
     @classmethod

@@ -264,6 +264,23 @@ def format_model(out: dict) -> str:
     return "\n".join(lines)
 
 
+def noise_lines(noise: dict) -> list[str]:
+    """`models show`'s lines on the noise each of the version's filters runs with (`service.jobs.tasks.noise_summary`)."""
+    lines = []
+    for who, label in (("model", "the model"), ("prior", "its prior")):
+        entry = noise.get(who)
+        if not entry:
+            lines.append(f"  noise of {label}: the system's fixed noise (paper)")
+            continue
+        blocks = ", ".join(f"{k} {v}" for k, v in {**{f"Q {k}": v for k, v in entry["process_per_step"].items()},
+                                                   **{f"R {k}": v for k, v in entry["measurement"].items()}}.items())
+        steps = (entry.get("detail") or {}).get("log_likelihood_per_step") or {}
+        how = (f" (log-likelihood per step {steps['start']:.2f} -> {steps['identified']:.2f})"
+               if {"start", "identified"} <= set(steps) else "")
+        lines.append(f"  noise of {label}: {entry['source']}{how}: {blocks}")
+    return lines
+
+
 def _trained_on_lines(lineage: dict, flight: dict, metrics: dict) -> list[str]:
     """`models show`'s lines on a version's training and validation flights (with their sha256) and on
     whether its residual learned anything held-out data confirm."""
@@ -281,6 +298,7 @@ def _trained_on_lines(lineage: dict, flight: dict, metrics: dict) -> list[str]:
                  f"  validated on {len(held)} held-out flight(s): {listed(held) or 'none'}"]
     if metrics.get("residual_scale_note"):
         lines.append("  " + residual_scale_line(metrics))
+    lines += noise_lines(metrics.get("noise") or {})
     if lineage.get("learned") is False:
         lines.append(f"  NOT LEARNED: {lineage.get('learned_note')}")
     elif metrics.get("prior_validation_loss") and metrics.get("best_validation_loss") is not None:

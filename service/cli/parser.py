@@ -135,6 +135,10 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
     tr.add_argument("--system", default="quadrotor", choices=["quadrotor", "crazyflie"],
                     help="the prior: the paper's kinematic chain (default) or the Crazyflie driven by its motors "
                          "and battery (needs motor PWM and battery voltage in the log)")
+    tr.add_argument("--noise", default="paper", choices=["paper", "identified"],
+                    help="paper (default): the system's fixed noise; identified: identify the model's and its prior's "
+                         "noise (Q and R per block) on the training flights by the UKF's innovation likelihood and "
+                         "store it with the version (every evaluation then runs each model with its own)")
     _add_topic_arguments(tr)
     _add_cut_argument(tr)
     tr.set_defaults(func=_train)
@@ -172,6 +176,10 @@ def _add_evaluate(sub: argparse._SubParsersAction) -> None:
                          "they are, so the evaluation shows in the web UI and `learnest export` can write it)")
     ev.add_argument("--export", metavar="PATH", type=_export_path,
                     help="also write the state estimates; the format follows the suffix: .csv, .parquet, .mcap")
+    ev.add_argument("--noise", default="identified", choices=["identified", "paper"],
+                    help="identified (default): the KNODE and its prior each with its own noise identified on the "
+                         "training flights (the system's fixed noise for a model trained without it); paper: both "
+                         "with the system's fixed noise")
     _add_gap_arguments(ev)
     _add_topic_arguments(ev)
     _add_cut_argument(ev)

@@ -138,8 +138,7 @@ def diagnose_simulated(system_name: str, simulate: str = "", seed: int = 0,
 def _score_simulated(system, zeta, train, test, methods, config):
     knode = train_knode(system, zeta, train.u, system.dt, config).model
     prior = HybridModel(system, "prior")
-    results = evaluate_sequence(methods, prior, knode, test.y, test.u, system.dt, system.Q, system.R,
-                                test.x_noisy[0], system.P0, test.x)
+    results = evaluate_sequence(methods, prior, knode, test.y, test.u, system.dt, test.x_noisy[0], test.x)
     return {m: r["mse"] for m, r in results.items()}
 
 

@@ -47,17 +47,17 @@ class MHEResult(NamedTuple):
     solver_failures: int
 
 
-def _checked(model: HybridModel, flight: Flight):
+def _checked(model: HybridModel, flight: Flight, noise: str):
     if not isinstance(flight, Flight):
         raise InvalidInput(f"expected a Flight (learnest.read_flights), got {type(flight).__name__}")
     if model.system.name not in FLIGHT_SYSTEMS:
         raise InvalidInput(f"a {model.system.name!r} model cannot run on a flight; flights need one of "
                            f"{', '.join(FLIGHT_SYSTEMS)}")
-    prepared = prepare(model, flight)   # a model a diagnosis repaired sees the flight as evaluate does
+    prepared = prepare(model, flight, noise=noise)   # a model a diagnosis repaired sees the flight as evaluate does
     return prepared.system, prepared.y, prepared.u, prepared.x0
 
 
-def ukf(model: HybridModel, flight: Flight, alpha: float = 1e-3) -> FilterResult:
+def ukf(model: HybridModel, flight: Flight, alpha: float = 1e-3, noise: str = "identified") -> FilterResult:
     """Unscented Kalman filter of one flight with ``model`` (a KNODE's ``model_`` or a prior).
 
     Parameters
@@ -68,13 +68,16 @@ def ukf(model: HybridModel, flight: Flight, alpha: float = 1e-3) -> FilterResult
         Measurements y = [p, a_meas] on the flight's grid.
     alpha : float
         Merwe sigma-point spread.
+    noise : {"identified", "paper"}
+        The model's own noise, identified on its training flights (the system's fixed noise for a model
+        that never had it identified), or the system's fixed noise (`estimators.prepared.noise_models`).
 
     Returns
     -------
     FilterResult
         ``t`` (T,) s, ``means`` (T, 9), ``covariances`` (T, 9, 9), ``innovations`` (T, 6) in the units of
-        y = [p (m), a_meas (m/s²)].  Q, R and P0 are the Quadrotor defaults on the flight's grid; x0 is
-        `initial_state` (p[0], mean velocity over the first 5 steps, a_meas[0]).
+        y = [p (m), a_meas (m/s²)], ``log_likelihoods`` (T,) nats.  x0 is `initial_state` (p[0], mean
+        velocity over the first 5 steps, a_meas[0]).
 
     Raises
     ------
@@ -90,12 +93,12 @@ def ukf(model: HybridModel, flight: Flight, alpha: float = 1e-3) -> FilterResult
     >>> post.means.shape == (len(flights[1].t), 9)
     True
     """
-    system, y, u, x0 = _checked(model, flight)
+    system, y, u, x0 = _checked(model, flight, noise)
     result = run_ukf(model, y, u, dt=flight.dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0, alpha=alpha)
     return result._replace(t=np.asarray(flight.t, dtype=float))
 
 
-def mhe(model: HybridModel, flight: Flight, horizon: int = MHE_HORIZON) -> MHEResult:
+def mhe(model: HybridModel, flight: Flight, horizon: int = MHE_HORIZON, noise: str = "identified") -> MHEResult:
     """Moving horizon estimate (eq. 2) of one flight with ``model``.
 
     Parameters
@@ -106,12 +109,13 @@ def mhe(model: HybridModel, flight: Flight, horizon: int = MHE_HORIZON) -> MHERe
         Measurements y = [p, a_meas] on the flight's grid.
     horizon : int
         Window length N, samples.
+    noise : {"identified", "paper"}
+        As `ukf`.
 
     Returns
     -------
     MHEResult
-        ``t`` (T,) s, ``means`` (T, 9), ``covariances`` (T, 9, 9), ``solver_failures``.  Noise settings
-        and x0 as in `ukf`.
+        ``t`` (T,) s, ``means`` (T, 9), ``covariances`` (T, 9, 9), ``solver_failures``.  x0 as in `ukf`.
 
     Raises
     ------
@@ -133,7 +137,7 @@ def mhe(model: HybridModel, flight: Flight, horizon: int = MHE_HORIZON) -> MHERe
     >>> result.covariances.shape[1:]
     (9, 9)
     """
-    system, y, u, x0 = _checked(model, flight)
+    system, y, u, x0 = _checked(model, flight, noise)
     estimator = MHE(model, flight.dt, system.Q, system.R, system.P0, horizon=horizon)
     means = estimator.run(y, u, x0)
     failures = int(estimator.stats.get("failures", 0))
@@ -148,7 +152,7 @@ def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[st
              horizon: int = MHE_HORIZON, include_bad: bool = False,
              progress: Callable[[dict], None] | None = None,
              on_estimates: Callable[[int, FlightEstimates], None] | None = None,
-             gap_s: float = GAP_S, gap_every_s: float = GAP_EVERY_S) -> dict:
+             gap_s: float = GAP_S, gap_every_s: float = GAP_EVERY_S, noise: str = "identified") -> dict:
     """Score the estimators on flights against Savitzky–Golay references of their mocap position.
 
     Parameters
@@ -173,11 +177,14 @@ def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[st
     gap_s, gap_every_s : float
         The mocap-gap yardstick: the mocap position is hidden from the estimators for ``gap_s`` s every
         ``gap_every_s`` s after the first 5 s (`learnest.estimators.yardsticks`); ``gap_s = 0`` turns it off.
+    noise : {"identified", "paper"}
+        Each model (the KNODE and its prior) with its own noise identified on the training flights (the
+        system's fixed noise where the model has none), or both with the system's fixed noise.
 
     Returns
     -------
     dict
-        ``flights``: per flight ``mse`` {method: MSE over [p, v, a] in SI units²}, ``groups`` (per p, v,
+        ``noise`` {method: "identified" | "paper"}: what each method ran with; ``flights``: per flight ``mse`` {method: MSE over [p, v, a] in SI units²}, ``groups`` (per p, v,
         a), ``ms_per_step``, ``excluded`` and ``reason``; ``median`` {method: MSE}; ``units`` of these;
         ``improvement_pct`` {"knode-ukf_vs_ukf": %, ...}; ``flights_scored``; ``model`` (the model's
         meta name, None for an unregistered model).  Per flight ``yardsticks``: ``mocap_gaps`` (``rmse_m``
@@ -201,4 +208,5 @@ def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[st
     """
     methods = parse_methods(methods if isinstance(methods, str) else ",".join(methods), EVALUATION_METHODS)
     return evaluate_flights(model, list(flights), methods, include_bad=include_bad, horizon=horizon,
-                            progress=progress, on_estimates=on_estimates, gap_s=gap_s, gap_every_s=gap_every_s)
+                            progress=progress, on_estimates=on_estimates, gap_s=gap_s, gap_every_s=gap_every_s,
+                            noise=noise)

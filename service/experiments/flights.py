@@ -33,6 +33,7 @@ from learnest.models.inputs import (
     thrust_calibration,
 )
 from learnest.models.knode import HybridModel
+from learnest.models.noise import IDENTIFIED
 from learnest.models.presets import (
     CRAZYFLIE_TRAINING,
     GAP_EVERY_S,
@@ -63,12 +64,12 @@ def train_on_flights(flights: Sequence[Flight], config: TrainingConfig = CRAZYFL
                      progress: Callable[[int, float], None] | None = None, system: str = "quadrotor",
                      validate: Sequence[str] | None = None, blind_attitude: bool = True,
                      blind_battery: bool = True, group_by: str = GROUP_BY,
-                     on_stage: StageCallback | None = None) -> TrainingResult:
+                     on_stage: StageCallback | None = None, noise: str = "paper") -> TrainingResult:
     """Algorithm 1 on flights of one vehicle with the paper's filter observer, the residual's scale chosen on
     held-out groups of them (``group_by``: by trajectory family by default, ``"none"`` for the whole residual;
     `estimators.group_training.train_flights`: parameters, meta and errors there and in
     `estimators.algorithm1.Algorithm1.fit_flights`)."""
-    return train_flights(flights, system, config, group_by, validate, progress, on_stage,
+    return train_flights(flights, system, config, group_by, validate, progress, on_stage, noise=noise,
                          blind_attitude=blind_attitude, blind_battery=blind_battery)
 
 
@@ -105,22 +106,22 @@ def evaluate_prepared(prepared: PreparedFlight, methods: Sequence[str], horizon:
         estimate there.  ``gap_estimates`` {method: (T, n)} of the gap-masked runs when ``gaps`` and
         ``keep_estimates`` (empty when no gap fits), else None: what compares two models on the same gaps.
     """
-    flight, system, knode, prior = prepared.flight, prepared.system, prepared.model, prepared.prior
+    flight, knode, prior = prepared.flight, prepared.model, prepared.prior
     y, u, x0 = prepared.y, prepared.u, prepared.x0
     reference = references(flight, window=sg_window)
     mhe_cache = {} if mhe_cache is None else mhe_cache
     run = [m for m in methods if m != ONBOARD]   # the onboard estimate is read from the log, not run
-    results = evaluate_sequence(run, prior, knode, y, u, flight.dt, system.Q, system.R, x0, system.P0, reference,
+    results = evaluate_sequence(run, prior, knode, y, u, flight.dt, x0, reference,
                                 horizon=horizon, keep_estimates=keep_estimates or gaps is not None,
                                 mhe_cache=mhe_cache, on_stage=on_stage)
     yardsticks, gapped = None, None
     if gaps is not None:
         onboard = onboard_estimate(flight.channels) if ONBOARD in methods else None
-        yardsticks, gapped = flight_yardsticks(run, prior, knode, y, u, flight.dt, system.Q, system.R, x0, system.P0,
-                                          flight.p, {m: r["estimates"] for m, r in results.items()},
-                                          {m: r["mse"] for m, r in results.items()}, gaps, horizon, onboard=onboard,
-                                          sg_window_s=centred_window(sg_window) * flight.dt, mhe_cache=mhe_cache,
-                                          on_stage=on_stage)
+        yardsticks, gapped = flight_yardsticks(run, prior, knode, y, u, flight.dt, x0, flight.p,
+                                               {m: r["estimates"] for m, r in results.items()},
+                                               {m: r["mse"] for m, r in results.items()}, gaps, horizon,
+                                               onboard=onboard, sg_window_s=centred_window(sg_window) * flight.dt,
+                                               mhe_cache=mhe_cache, on_stage=on_stage)
         if not keep_estimates:
             for entry in results.values():
                 entry.pop("estimates", None)
@@ -143,7 +144,7 @@ def flight_prediction_check(prepared: PreparedFlight, results: dict, cache: dict
     ms = {}
     for method, model in (("ukf", prepared.prior), ("knode-ukf", prepared.model)):
         ms[method] = results[method]["innovation_ms"] if method in results else \
-            one_step_innovation_ms(model, y, u, prepared.dt, system.Q, system.R, x0, system.P0, cache=cache)
+            one_step_innovation_ms(model, y, u, prepared.dt, x0, cache=cache)
     names = list(system.meas_names)
     return prediction_check(ms["ukf"], ms["knode-ukf"], [names.index(c) for c in PREDICTION_CHANNELS], names)
 
@@ -194,7 +195,7 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
                      horizon: int = MHE_HORIZON, progress: Callable[[dict], None] | None = None,
                      on_estimates: Callable[[int, FlightEstimates], None] | None = None,
                      on_stage: Callable[[str], object] | None = None, sg_window: int = SG_WINDOW,
-                     gap_s: float = GAP_S, gap_every_s: float = GAP_EVERY_S) -> dict:
+                     gap_s: float = GAP_S, gap_every_s: float = GAP_EVERY_S, noise: str = IDENTIFIED) -> dict:
     """The report of `learnest evaluate --json`: per flight, median, improvement %, ``units`` of the numbers.
 
     Flights that fail the quality checks (unless ``include_bad``) and the model's own training flight are
@@ -224,6 +225,8 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
     fast reference (``onboard`` beside the estimators where ``methods`` name it and the log carries it) and
     the paper's SG score; the report's ``headline`` sums up the gap score over the flights, ``learned`` and
     ``learned_note`` say whether the model learned anything (its ``learned`` flag; None when it has none).
+    ``noise`` ("identified" or "paper", `estimators.prepared.prepare`) chooses the noise of both models; each
+    scored flight's ``noise`` and the report's say which noise each method ran with.
     """
     plan = GapPlan(gap_s, gap_every_s)   # checked before any flight runs
     reports: list[dict] = []
@@ -236,7 +239,7 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
         elif _is_training_flight(knode, flight):
             entry.update(excluded=True, reason="training flight (never scored on its own training data)")
         else:
-            prepared = prepare(knode, flight)
+            prepared = prepare(knode, flight, noise=noise)
             out = evaluate_prepared(prepared, methods, horizon, sg_window=sg_window,
                                     keep_estimates=on_estimates is not None, mhe_cache=mhe_cache, on_stage=on_stage,
                                     check_prediction=True, gaps=plan)
@@ -246,6 +249,7 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
             entry["mse"] = {m: r["mse"] for m, r in results.items()}
             entry["groups"] = {m: r["groups"] for m, r in results.items()}
             entry["ms_per_step"] = {m: r["ms_per_step"] for m, r in results.items()}
+            entry["noise"] = {m: prepared.noise["knode" if m.startswith("knode-") else "prior"] for m in results}
             entry["gain_interval_pct"] = {f"{m}_vs_{m.removeprefix('knode-')}": r["gain_interval_pct"]
                                           for m, r in results.items() if "gain_interval_pct" in r}
             entry["envelope"] = flight_envelope(prepared)

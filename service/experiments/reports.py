@@ -117,6 +117,9 @@ class FlightScore(Record):
         '{"knode-ukf_vs_ukf": [low, high] 95 % interval of the KNODE\'s gain over its prior, %}'))
     warnings: list[str] = field(default_factory=list, metadata=doc("how the flight differs from the training "
                                                                    "flight (vehicle, rates, attitude source, ...)"))
+    noise: dict[str, str] = field(default_factory=dict, metadata=doc(
+        '{method: "identified" (the model\'s own noise, identified on its training flights) or "paper" (the '
+        "system's fixed noise)}"))
 
     @property
     def typed_yardsticks(self) -> FlightYardsticks | None:
@@ -145,6 +148,10 @@ class EvaluationReport(Record):
         "the model's own flag: False when its residual did not improve held-out prediction (it equals its "
         "prior); None when unknown"))
     learned_note: str | None = field(default=None, metadata=doc("what learned: false means, in words"))
+    noise: dict[str, str] = field(default_factory=dict, metadata=doc(
+        '{method: "identified" or "paper"}: the noise each method ran with (each model its own, identified on '
+        "its training flights, or the system's fixed noise); a comparison is like with like when both sides "
+        "say the same"))
     flights: list[FlightScore] = field(default_factory=list, metadata=doc("every flight, scored or excluded"))
     flights_scored: int = field(default=0, metadata=doc("flights scored"))
     median: dict[str, float] = field(default_factory=dict, metadata=doc("{method: median MSE over the scored "

@@ -26,7 +26,8 @@ log = logging.getLogger("learnest.jobs")
 # Crazyflie prior scales its thrust by the flight's thrust gain (entries carry `thrust_gain`).  4: and
 # by the motors' heating before it (`heating_thrust_loss_pct`).  5: entries carry the KNODE's
 # `gain_interval_pct`.  6: entries carry the `yardsticks` (mocap gaps, fast reference, the paper's SG score).
-ENTRY_FORMAT = 6
+# 7: entries carry the `noise` each method ran with.
+ENTRY_FORMAT = 7
 
 
 @dataclass(frozen=True)
@@ -47,6 +48,9 @@ class EstimatorSettings:
         windows follow fast manoeuvres (a 1.5-s window clips the velocity peaks of fast figure-eights).
     gap_s, gap_every_s : float
         The mocap-gap yardstick's gaps: length and spacing, s (`estimators.yardsticks.GapPlan`).
+    noise : {"identified", "paper"}
+        Each model with its own identified noise, or both with the system's fixed noise
+        (`estimators.prepared.prepare`).
     """
 
     methods: tuple[str, ...] = METHODS
@@ -55,18 +59,20 @@ class EstimatorSettings:
     sg_window: int = SG_WINDOW
     gap_s: float = GAP_S
     gap_every_s: float = GAP_EVERY_S
+    noise: str = "identified"
 
     @classmethod
     def from_dict(cls, settings: dict) -> EstimatorSettings:
         """Inverse of `as_dict`; an evaluation stored before the window could be chosen used `SG_WINDOW`."""
         return cls(tuple(settings["methods"]), settings["horizon"], settings["include_bad"],
                    settings.get("sg_window", SG_WINDOW), settings.get("gap_s", GAP_S),
-                   settings.get("gap_every_s", GAP_EVERY_S))
+                   settings.get("gap_every_s", GAP_EVERY_S), settings.get("noise", "identified"))
 
     def as_dict(self) -> dict:
         """The fields as JSON-able values."""
         return {"methods": list(self.methods), "horizon": self.horizon, "include_bad": self.include_bad,
-                "sg_window": self.sg_window, "gap_s": self.gap_s, "gap_every_s": self.gap_every_s}
+                "sg_window": self.sg_window, "gap_s": self.gap_s, "gap_every_s": self.gap_every_s,
+                "noise": self.noise}
 
     @property
     def key(self) -> str:
@@ -79,6 +85,8 @@ class EstimatorSettings:
             fields["sg_window"] = self.sg_window
         if (self.gap_s, self.gap_every_s) != (GAP_S, GAP_EVERY_S):
             fields["gaps"] = [float(self.gap_s), float(self.gap_every_s)]
+        if self.noise != "identified":
+            fields["noise"] = self.noise
         return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()
 
 

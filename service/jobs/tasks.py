@@ -99,12 +99,13 @@ def train_task(flight_bytes: bytes | list[bytes], config: dict, progress_target:
 
     hyper = dict(config)
     system, group_by = hyper.pop("system", "quadrotor"), hyper.pop("group_by", "none")
+    noise = hyper.pop("noise", "paper")
     stored = [flight_bytes] if isinstance(flight_bytes, bytes) else flight_bytes
     flights = [flight_from_bytes(data) for data in stored]
     report_progress(progress_target, 0.01, "observer (pre-training state estimates)"
                     + (f" of {len(flights)} flights" if len(flights) > 1 else ""))
     result = train_on_flights(flights, TrainingConfig(**hyper), progress=on_epoch, system=system, validate=validate,
-                              group_by=group_by, on_stage=on_stage)
+                              group_by=group_by, on_stage=on_stage, noise=noise)
     model = result.model
     model.meta.update(meta or {})
     return {"model_json": registry.model_to_json(model), "losses": [float(x) for x in result.losses],
@@ -145,6 +146,7 @@ def evaluate_task(model_json: bytes, flight_bytes: bytes, settings: dict,
     report = evaluate_flights(model, [flight], list(settings["methods"]), include_bad=settings["include_bad"],
                               horizon=settings["horizon"], sg_window=settings.get("sg_window", SG_WINDOW),
                               gap_s=settings.get("gap_s", GAP_S), gap_every_s=settings.get("gap_every_s", GAP_EVERY_S),
+                              noise=settings.get("noise", "identified"),
                               on_estimates=lambda _i, e: kept.append(e.to_bytes()),
                               on_stage=on_stage if progress_target else None)
     return {"entry": report["flights"][0], "estimates": kept[0] if kept else None}
@@ -192,9 +194,18 @@ def _stage_writer(target: tuple[str, int]):
     return on_stage
 
 
+def noise_summary(model: HybridModel) -> dict:
+    """The noise a version's filters run with, as the registry shows it: ``{"model": ..., "prior": ...}``, each
+    None (the system's fixed noise) or its source, standard deviations per block in words and how it was
+    identified (`learnest.models.noise.NoiseModel`)."""
+    def one(noise):
+        return None if noise is None else {**noise.describe(model.system), "detail": noise.detail}
+    return {"model": one(model.noise), "prior": one(model.prior_noise)}
+
+
 def training_metrics(model: HybridModel) -> dict:
     """What the registry keeps of a training run besides its weights and losses."""
-    return {**{key: model.meta.get(key) for key in ("final_loss", "best_epoch", "best_validation_loss", "envelope",
+    return {"noise": noise_summary(model), **{key: model.meta.get(key) for key in ("final_loss", "best_epoch", "best_validation_loss", "envelope",
                                                     "training_profile")},
             **{key: model.meta[key] for key in ("prior_validation_loss", "learned", "learned_note", "validation",
                                                 "batch_pairs", "residual_scale", "residual_scale_groups",

@@ -27,7 +27,7 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
           progress: Callable[[float], None] | None = None, settings: Settings | None = None,
           system: str = "quadrotor", pose_topic: str | None = None, imu_topic: str | None = None,
           cut: str | None = None, on_stage: Callable[[str, float | None], None] | None = None,
-          validate=None, strict: bool = False, group_by: str | None = None) -> dict:
+          validate=None, strict: bool = False, group_by: str | None = None, noise: str = "paper") -> dict:
     """Store the flights, train the next version of `name` on them and wait; `progress(fraction)` while it
     trains, `on_stage(stage, seconds_left)` as the job's stage changes ("ingest", "observer ...", "epoch 12/150").
 
@@ -40,7 +40,8 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
     (``skipped_flights``) unless ``include_bad``; one such flight alone is refused.
     ``cut``: the stretch of the log to keep (`learnest.ingest.align.parse_cut`).  ``group_by``: the groups of
     several flights held out in turn to choose the residual's scale (`learnest.estimators.group_training`;
-    default "family", "none" keeps the whole residual).
+    default "family", "none" keeps the whole residual).  ``noise``: "identified" identifies the model's and its
+    prior's noise on the training flights and stores it with the version; "paper" keeps the system's fixed noise.
     Returns what `learnest train --json` prints: ``seconds`` is the epochs' time, ``total_seconds`` the
     job's (observer, epochs, storing), ``training_flights`` and ``validation_flights`` the names, ``learned``
     False when no epoch beat the prior on the held-out data (``learned_note`` says so in words), ``errors``
@@ -66,7 +67,8 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
         for row in rows + held:   # before a worker starts: a missing channel is said at once
             _check_inputs(services, row, system)
         job, version = _run_training(services, name, rows, held,
-                                     {"epochs": epochs, "system": system, "group_by": group_by}, include_bad, progress,
+                                     {"epochs": epochs, "system": system, "group_by": group_by, "noise": noise},
+                                     include_bad, progress,
                                      on_stage)
     return {**_trained_json(version, job, settings), "skipped_flights": skipped, "errors": errors,
             "flight_stored": "new" if any(created for _, created in stored) else "existing"}

@@ -56,6 +56,7 @@ def version_page(name: str, version: RowId, services: Services = Depends(get_ser
                                                "validation_losses": row.validation_losses}])
     return page("version.html", f"Model version {name}:{version}", v=row, lineage=lineage, model=detail,
                 losses=figure, metrics={k: x for k, x in (row.metrics or {}).items() if not isinstance(x, dict)},
+                noise=(row.metrics or {}).get("noise") or {},
                 methods=sorted({m for e in lineage["evaluations"] for m in e["median_mse"]}, key=_method_order))
 
 

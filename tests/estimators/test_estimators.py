@@ -217,8 +217,7 @@ def test_an_evaluation_builds_each_models_compiled_ukf_once_and_scores_like_nump
     system = make_system("cartpole")
     prior, true = HybridModel(system, "prior"), HybridModel(system, "true")
     run = system.simulate(0, n_samples=200)
-    args = dict(y=run.y, u=run.u, dt=system.dt, Q=system.Q, R=system.R, x0=run.x[0], P0=system.P0,
-                reference=run.x)
+    args = dict(y=run.y, u=run.u, dt=system.dt, x0=run.x[0], reference=run.x)
     cache: dict = {}
     first = evaluate_sequence(["ukf", "knode-ukf"], prior, true, mhe_cache=cache, **args)
     built = {key: value for key, value in cache.items() if key[0] == "ukf"}

@@ -97,7 +97,7 @@ def test_inside_a_gap_the_ukf_and_the_mhe_skip_the_position_update_exactly(circl
     assert windows == [(60, 110), (160, 210)]
     inside = gap_mask(steps, windows)
     expected = _masked_kalman_filter(prior, y, flight.dt, system.Q, system.R, x0, system.P0, inside)
-    ukf = run_with_gaps(["ukf"], prior, prior, y, u, flight.dt, system.Q, system.R, x0, system.P0, inside, 20)
+    ukf = run_with_gaps(["ukf"], prior, prior, y, u, flight.dt, x0, inside, 20)
     np.testing.assert_allclose(ukf["ukf"]["estimates"], expected, atol=1e-6)
     y_gap, u_gap = masked_measurements(y, u, inside)
     mhe = MHE(PositionGapModel(prior), flight.dt, system.Q, system.R, system.P0, horizon=steps).run(y_gap, u_gap, x0)

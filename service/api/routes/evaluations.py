@@ -39,7 +39,7 @@ def create_evaluation(body: EvaluationRequest, response: Response, services: Ser
     """Flights already evaluated with this model version and these settings come from the results cache;
     when all of them do, the job is already "succeeded" in this answer."""
     settings = EstimatorSettings(tuple(body.methods), body.horizon, body.include_bad, body.sg_window, body.gap_s,
-                                 body.gap_every_s)
+                                 body.gap_every_s, body.noise)
     job_id, evaluation_id, state = start_evaluation(services, body.model, body.flights, settings)
     response.headers["Location"] = f"/evaluations/{evaluation_id}"
     return {"job_id": job_id, "evaluation_id": evaluation_id, "state": state}

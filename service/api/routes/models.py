@@ -36,6 +36,7 @@ def version_out(row: ModelVersion, aliases: dict[str, int], full: bool = True) -
            "residual_scale": (row.metrics or {}).get("residual_scale"),
            "residual_scale_groups": list((row.metrics or {}).get("residual_scale_groups") or []),
            "residual_scale_note": (row.metrics or {}).get("residual_scale_note"),
+           "noise": (row.metrics or {}).get("noise") or {"model": None, "prior": None},
            "parent": row.parent, "hyperparameters": row.hyperparameters, "metrics": row.metrics,
            "error": row.error, "aliases": sorted(a for a, v in aliases.items() if v == row.version),
            "created_at": row.created_at, "ready_at": row.ready_at}
@@ -55,7 +56,7 @@ def train_model(body: TrainRequest, response: Response, services: Services = Dep
     now and usable once ready.  Flights of different vehicles fail the job with a message naming them."""
     job, version = start_training(services, body.name, body.flights(),
                                   {"epochs": body.epochs, "hidden": body.hidden, "lr": body.lr,
-                                   "system": body.system, "group_by": body.group_by},
+                                   "system": body.system, "group_by": body.group_by, "noise": body.noise},
                                   parent=body.parent, include_bad=body.include_bad,
                                   validation_ids=body.validation_ids)
     response.headers["Location"] = f"/jobs/{job.id}"

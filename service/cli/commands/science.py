@@ -63,7 +63,7 @@ def _train(args) -> int:
             out = train(args.files, args.name, epochs=args.epochs, include_bad=args.include_bad,
                         progress=bar.progress, system=args.system, on_stage=bar.on_stage, **_topics(args),
                         cut=args.cut, validate=args.validate, strict=args.strict,
-                        group_by=args.group_by)
+                        group_by=args.group_by, noise=args.noise)
     except UnreadableFile as err:   # --strict: the first unreadable file stops the command, nothing trained
         print(f"learnest: {err}; nothing was trained (--strict)", file=sys.stderr)
         return 1
@@ -121,7 +121,7 @@ def _evaluate_stored(args, model, ref: str, methods: list[str]) -> dict:
     from ...local import evaluate, export
 
     settings = EstimatorSettings(tuple(methods), args.horizon, args.include_bad, args.sg_window, args.gap_s,
-                                 args.gap_every_s)
+                                 args.gap_every_s, args.noise)
     from ..progress import StageProgress
 
     with StageProgress("evaluating") as bar:
@@ -153,7 +153,7 @@ def _evaluate_here(args, model, ref: str, methods: list[str]) -> dict:
 
         report = evaluate_flights(model, flights, methods, include_bad=args.include_bad, horizon=args.horizon,
                                   sg_window=args.sg_window, progress=flight_done,
-                                  gap_s=args.gap_s, gap_every_s=args.gap_every_s,
+                                  gap_s=args.gap_s, gap_every_s=args.gap_every_s, noise=args.noise,
                                   on_estimates=(lambda _i, e: kept.append(e)) if args.export else None)
     report["model"] = ref
     report["errors"] = batch.errors
@@ -171,7 +171,7 @@ def _evaluate_new(args) -> int:
 
     _gap_plan(args)
     settings = EstimatorSettings(tuple(parse_methods(args.methods, EVALUATION_METHODS)), args.horizon,
-                                 args.include_bad, gap_s=args.gap_s, gap_every_s=args.gap_every_s)
+                                 args.include_bad, gap_s=args.gap_s, gap_every_s=args.gap_every_s, noise=args.noise)
     rounds = evaluate_new_once(args.alias, settings)
     if args.json:
         print(json.dumps({"alias": args.alias, "busy": rounds is None, "evaluations": rounds or []}, indent=2))

@@ -1,0 +1,226 @@
+"""Identify a model's noise (Q and R per block) from flights by maximising its UKF's innovation likelihood.
+
+For a filter whose model and noise are right, the innovations y_k − ŷ_k|k−1 are zero-mean with the
+covariance S_k the filter predicts; the log-likelihood Σ log N(v_k; 0, S_k) measures how well they agree,
+and its maximiser over Q and R is the maximum-likelihood noise (the classic approach to filter tuning;
+dynamax fits a filter's noise the same way).  A model that misses physics needs more process noise to
+follow the flight; a good residual needs less: each model gets the noise its own errors call for, which is
+what makes comparing a KNODE with its prior fair.
+
+Noise is searched as one scale per block (`models.noise.blocks`: position, velocity, acceleration states;
+mocap and accelerometer measurements) on the log scale, by Nelder–Mead from the paper's noise, each
+evaluation one compiled UKF run over every flight.  The position block of Q stays fixed: ṗ = v is a
+definition, and its noise trades off against the mocap's R with almost no effect on the likelihood.
+"""
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize
+
+from learnest.errors import InvalidInput
+from learnest.ingest.flight import Flight
+from learnest.models.knode import HybridModel
+from learnest.models.noise import IDENTIFIED, PAPER, STD_BOUNDS, NoiseModel, blocks
+
+from .prepared import prepare
+from .protocols import StateSpaceModel
+from .ukf import compiled_sigma_functions, run_ukf
+
+# The blocks searched by default: velocity and acceleration process noise, both measurements (module docstring).
+PROCESS_BLOCKS = ("v", "a")
+MEASUREMENT_BLOCKS = ("p", "a")
+# The first second of each record is the filter settling from x0 and P0: it says little about Q and R.
+WARMUP_S = 1.0
+# How far a block's standard deviation may move from the paper's, each way (a factor).
+MAX_FACTOR = 1e3
+# Nelder–Mead's budget and tolerance: one evaluation is one filter over every record; a scale known to
+# 2 % is far below what changes an estimate.
+MAX_EVALUATIONS = 160
+TOLERANCE_LOG = 0.02
+
+
+@dataclass(frozen=True)
+class NoiseRecord:
+    """One flight as the filter of one model sees it (built by `estimators.prepared.prepare`).
+
+    Attributes
+    ----------
+    name : str
+        The flight's name.
+    model : StateSpaceModel
+        The model whose noise is identified, on this flight's grid; its ``system`` holds the starting noise.
+    y : ndarray, shape (T, m)
+        Measurements.
+    u : ndarray, shape (T, p)
+        Inputs.
+    x0 : ndarray, shape (n,)
+        First state estimate.
+    dt : float
+        Sample period, s.
+    """
+
+    name: str
+    model: StateSpaceModel
+    y: np.ndarray
+    u: np.ndarray
+    x0: np.ndarray
+    dt: float
+
+
+def _indices(names: tuple[str, ...], wanted: Sequence[str], what: str) -> dict[str, list[int]]:
+    grouped = blocks(names)
+    unknown = [b for b in wanted if b not in grouped]
+    if unknown:
+        raise InvalidInput(f"no {what} block named {', '.join(unknown)}; blocks are {', '.join(grouped)}")
+    return {b: grouped[b] for b in wanted}
+
+
+def identify_noise(records: Sequence[NoiseRecord], start: NoiseModel, *,
+                   process_blocks: Sequence[str] = PROCESS_BLOCKS,
+                   measurement_blocks: Sequence[str] = MEASUREMENT_BLOCKS,
+                   max_evaluations: int = MAX_EVALUATIONS,
+                   on_evaluation: Callable[[int, float], object] | None = None) -> NoiseModel:
+    """The noise that maximises the UKF's innovation likelihood over ``records``.
+
+    Parameters
+    ----------
+    records : sequence of NoiseRecord
+        The flights, each with the model whose noise is identified (all of one system).
+    start : NoiseModel
+        Where the search starts, and the noise of every block not searched (usually `NoiseModel.paper`).
+    process_blocks, measurement_blocks : sequence of str
+        The blocks whose scale is searched (`models.noise.blocks` of the state and measurement names).
+    max_evaluations : int
+        Filter runs over all records at most.
+    on_evaluation : callable, optional
+        ``on_evaluation(count, mean_log_likelihood)`` after each evaluation (progress).
+
+    Returns
+    -------
+    NoiseModel
+        Source ``"identified"``; ``detail`` holds the flights, the mean log-likelihood per step (nats) at the
+        start and at the end, each searched block's factor on ``start``'s standard deviation, the blocks held
+        at ``start``, blocks ending within 1 % of their bound, evaluations and seconds.
+
+    Raises
+    ------
+    InvalidInput
+        Without records, with unknown block names, or when no record is longer than the warm-up.
+    """
+    if not records:
+        raise InvalidInput("noise identification needs at least one flight")
+    system = records[0].model.system
+    q_idx = _indices(system.state_names, process_blocks, "state")
+    r_idx = _indices(system.meas_names, measurement_blocks, "measurement")
+    names = [f"Q:{b}" for b in q_idx] + [f"R:{b}" for b in r_idx]
+    base_q, base_r = np.asarray(start.process_std), np.asarray(start.meas_std)
+    functions = {}
+    for record in records:   # compiled once per model and dt, untimed by the search
+        key = (id(record.model), record.dt)
+        if key not in functions:
+            functions[key] = compiled_sigma_functions(record.model, record.dt) if hasattr(record.model, "parametric") \
+                else None
+    steps = sum(max(0, len(r.y) - round(WARMUP_S / r.dt)) for r in records)
+    if steps == 0:
+        raise InvalidInput(f"every flight is shorter than the filter's {WARMUP_S:g}-s warm-up: no noise to identify")
+
+    def noise_at(theta: np.ndarray) -> NoiseModel:
+        q, r = base_q.copy(), base_r.copy()
+        for value, (b, idx) in zip(theta[:len(q_idx)], q_idx.items()):
+            q[idx] = np.clip(base_q[idx] * math.exp(value), *STD_BOUNDS)
+        for value, (b, idx) in zip(theta[len(q_idx):], r_idx.items()):
+            r[idx] = np.clip(base_r[idx] * math.exp(value), *STD_BOUNDS)
+        return NoiseModel(tuple(q), tuple(r), start.initial_std, IDENTIFIED)
+
+    evaluations = [0]
+
+    def mean_log_likelihood(theta: np.ndarray) -> float:
+        noise = noise_at(theta)
+        total = 0.0
+        for record in records:
+            try:
+                result = run_ukf(record.model, record.y, record.u, dt=record.dt, Q=noise.Q, R=noise.R,
+                                 x0=record.x0, P0=noise.P0,
+                                 sigma_functions=functions[(id(record.model), record.dt)])
+            except (np.linalg.LinAlgError, InvalidInput, FloatingPointError):
+                return -math.inf
+            ll = result.log_likelihoods[round(WARMUP_S / record.dt):]
+            if not np.all(np.isfinite(ll)):
+                return -math.inf
+            total += float(np.sum(ll))
+        evaluations[0] += 1
+        value = total / steps
+        if on_evaluation:
+            on_evaluation(evaluations[0], value)
+        return value
+
+    started = time.perf_counter()
+    bound = math.log(MAX_FACTOR)
+    x0 = np.zeros(len(names))
+    before = mean_log_likelihood(x0)
+    # a simplex a factor of 3 wide: the paper's noise may be off by decades, Nelder–Mead expands as needed
+    simplex = np.vstack([x0] + [x0 + math.log(3.0) * e for e in np.eye(len(names))])
+    fit = minimize(lambda th: -mean_log_likelihood(th), x0, method="Nelder-Mead", bounds=[(-bound, bound)] * len(names),
+                   options={"maxfev": max_evaluations, "xatol": TOLERANCE_LOG, "fatol": 1e-5,
+                            "initial_simplex": simplex})
+    theta = fit.x if -fit.fun >= before else x0
+    factors = {name: float(math.exp(v)) for name, v in zip(names, theta)}
+    noise = noise_at(theta)
+    held = [f"Q:{b}" for b in blocks(system.state_names) if b not in q_idx] + \
+        [f"R:{b}" for b in blocks(system.meas_names) if b not in r_idx]
+    detail = {"flights": [r.name for r in records], "steps": int(steps),
+              "log_likelihood_per_step": {"start": round(before, 6), "identified": round(max(-fit.fun, before), 6)},
+              "factors": {k: round(v, 4) for k, v in factors.items()}, "held": held,
+              "at_bound": [k for k, v in zip(names, theta) if abs(abs(v) - bound) < 0.01],
+              "evaluations": evaluations[0], "seconds": round(time.perf_counter() - started, 2),
+              "method": "maximum innovation likelihood of the UKF (Nelder-Mead on the log scale per block)"}
+    return NoiseModel(noise.process_std, noise.meas_std, noise.initial_std, IDENTIFIED, detail)
+
+
+def noise_records(model: HybridModel, flights: Sequence[Flight], which: str) -> list[NoiseRecord]:
+    """The records of ``flights`` for identifying the noise of ``model`` (``which="model"``) or of its prior
+    (``which="prior"``), each prepared as an evaluation prepares it (`estimators.prepared.prepare`, with the
+    system's fixed noise as the start)."""
+    records = []
+    for flight in flights:
+        prepared = prepare(model, flight, noise=PAPER)
+        chosen = prepared.model if which == "model" else prepared.prior
+        records.append(NoiseRecord(flight.name, chosen, prepared.y, prepared.u, prepared.x0, prepared.dt))
+    return records
+
+
+def with_identified_noise(model: HybridModel, flights: Sequence[Flight],
+                          on_stage: Callable[[str], object] | None = None) -> HybridModel:
+    """``model`` with its noise and its prior's identified on ``flights`` (its training flights), each by
+    `identify_noise` from the system's fixed noise: the two filters of every later comparison are tuned the
+    same way on the same flights.
+
+    Parameters
+    ----------
+    model : HybridModel
+        A flight model (prior-only or KNODE).
+    flights : sequence of Flight
+        The flights it was trained on.
+    on_stage : callable, optional
+        ``on_stage(name)`` before each identification ("noise of the prior", "noise of the KNODE").
+
+    Returns
+    -------
+    HybridModel
+        The same dynamics with ``noise`` and ``prior_noise`` set (one identification for a prior-only model).
+    """
+    start = NoiseModel.paper(model.system)
+    if on_stage:
+        on_stage("noise of the prior")
+    prior_noise = identify_noise(noise_records(model, flights, "prior"), start)
+    own = prior_noise
+    if model.kind != "prior":
+        if on_stage:
+            on_stage(f"noise of the {model.kind.upper()}")
+        own = identify_noise(noise_records(model, flights, "model"), start)
+    return HybridModel(model.system, model.kind, model.residual, model.meta, own, prior_noise)
