@@ -73,7 +73,8 @@ def evaluate_sequence(methods: Sequence[str], prior_model: StateSpaceModel, knod
     ("MHE build (knode-mhe)").
 
     ``knode-*`` methods run ``knode_model``, the others ``prior_model``, each with its own noise
-    (`noise_matrices`: like against like).  y (T, m), u (T, p), x0 (n,), reference (T, n); dt in s; ``ms_per_step`` is wall time per sample, ms;
+    (`noise_matrices`: like against like).  y (T, m), u (T, p), x0 (n,), reference (T, n); dt in s;
+    ``ms_per_step`` is wall time per sample, ms;
     ``innovation_ms`` (UKF methods) is the mean square of the one-step innovations per measurement channel,
     (m,) in the measurements' squared units (`prediction_check`); ``gain_interval_pct`` (a ``knode-*`` method
     run beside its base) is `estimators.metrics.gain_interval` of its gain over the base method, %, or None for a

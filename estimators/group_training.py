@@ -380,7 +380,7 @@ def train_flights(flights: Sequence[Flight], system: str = "quadrotor", config: 
     if noise == IDENTIFIED:
         started = time.perf_counter()
         # reported as the last stage, after the epochs: the progress never runs backwards
-        result.model = with_identified_noise(result.model, flights,
-                                             on_stage=(lambda name: on_stage(name, stages, stages)) if on_stage else None)
+        stage = (lambda name: on_stage(name, stages, stages)) if on_stage else None
+        result.model = with_identified_noise(result.model, flights, on_stage=stage)
         result.seconds += time.perf_counter() - started
     return result

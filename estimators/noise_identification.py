@@ -28,8 +28,7 @@ from learnest.models.knode import HybridModel
 from learnest.models.noise import IDENTIFIED, PAPER, STD_BOUNDS, NoiseModel, blocks
 
 from .prepared import prepare
-from .protocols import StateSpaceModel
-from .ukf import compiled_sigma_functions, run_ukf
+from .ukf import SigmaFunctions, compiled_sigma_functions, run_ukf
 
 # The blocks searched by default: velocity and acceleration process noise, both measurements (module docstring).
 PROCESS_BLOCKS = ("v", "a")
@@ -52,8 +51,8 @@ class NoiseRecord:
     ----------
     name : str
         The flight's name.
-    model : StateSpaceModel
-        The model whose noise is identified, on this flight's grid; its ``system`` holds the starting noise.
+    model : HybridModel
+        The model whose noise is identified, on this flight's grid.
     y : ndarray, shape (T, m)
         Measurements.
     u : ndarray, shape (T, p)
@@ -65,7 +64,7 @@ class NoiseRecord:
     """
 
     name: str
-    model: StateSpaceModel
+    model: HybridModel
     y: np.ndarray
     u: np.ndarray
     x0: np.ndarray
@@ -78,6 +77,55 @@ def _indices(names: tuple[str, ...], wanted: Sequence[str], what: str) -> dict[s
     if unknown:
         raise InvalidInput(f"no {what} block named {', '.join(unknown)}; blocks are {', '.join(grouped)}")
     return {b: grouped[b] for b in wanted}
+
+
+class _Likelihood:
+    """The mean innovation log-likelihood per step over the records (after each one's warm-up), as a function of
+    the log-scales θ of the searched blocks (Q blocks first, then R blocks); -inf where a filter fails."""
+
+    def __init__(self, records: Sequence[NoiseRecord], start: NoiseModel, q_idx: dict[str, list[int]],
+                 r_idx: dict[str, list[int]], on_evaluation: Callable[[int, float], object] | None) -> None:
+        self.records, self.start, self.q_idx, self.r_idx = records, start, q_idx, r_idx
+        self.on_evaluation, self.evaluations = on_evaluation, 0
+        self.names = [f"Q:{b}" for b in q_idx] + [f"R:{b}" for b in r_idx]
+        self.functions: dict[tuple[int, float], SigmaFunctions | None] = {}
+        for record in records:   # compiled once per model and dt, before the search
+            key = (id(record.model), record.dt)
+            if key not in self.functions:
+                self.functions[key] = compiled_sigma_functions(record.model, record.dt)
+        self.steps = sum(max(0, len(r.y) - round(WARMUP_S / r.dt)) for r in records)
+        if self.steps == 0:
+            raise InvalidInput(f"every flight is shorter than the filter's {WARMUP_S:g}-s warm-up: no noise to "
+                               "identify")
+
+    def noise_at(self, theta: np.ndarray) -> NoiseModel:
+        """The noise at log-scales θ, each standard deviation kept within `STD_BOUNDS`."""
+        base_q, base_r = np.asarray(self.start.process_std), np.asarray(self.start.meas_std)
+        q, r = base_q.copy(), base_r.copy()
+        for value, idx in zip(theta[:len(self.q_idx)], self.q_idx.values()):
+            q[idx] = np.clip(base_q[idx] * math.exp(value), *STD_BOUNDS)
+        for value, idx in zip(theta[len(self.q_idx):], self.r_idx.values()):
+            r[idx] = np.clip(base_r[idx] * math.exp(value), *STD_BOUNDS)
+        return NoiseModel(tuple(q), tuple(r), self.start.initial_std, IDENTIFIED)
+
+    def __call__(self, theta: np.ndarray) -> float:
+        noise, total = self.noise_at(theta), 0.0
+        for record in self.records:
+            try:
+                result = run_ukf(record.model, record.y, record.u, dt=record.dt, Q=noise.Q, R=noise.R,
+                                 x0=record.x0, P0=noise.P0,
+                                 sigma_functions=self.functions[(id(record.model), record.dt)])
+            except (np.linalg.LinAlgError, InvalidInput, FloatingPointError):
+                return -math.inf
+            ll = result.log_likelihoods
+            if ll is None or not np.all(np.isfinite(ll[round(WARMUP_S / record.dt):])):
+                return -math.inf
+            total += float(np.sum(ll[round(WARMUP_S / record.dt):]))
+        self.evaluations += 1
+        value = total / self.steps
+        if self.on_evaluation:
+            self.on_evaluation(self.evaluations, value)
+        return value
 
 
 def identify_noise(records: Sequence[NoiseRecord], start: NoiseModel, *,
@@ -115,50 +163,9 @@ def identify_noise(records: Sequence[NoiseRecord], start: NoiseModel, *,
     if not records:
         raise InvalidInput("noise identification needs at least one flight")
     system = records[0].model.system
-    q_idx = _indices(system.state_names, process_blocks, "state")
-    r_idx = _indices(system.meas_names, measurement_blocks, "measurement")
-    names = [f"Q:{b}" for b in q_idx] + [f"R:{b}" for b in r_idx]
-    base_q, base_r = np.asarray(start.process_std), np.asarray(start.meas_std)
-    functions = {}
-    for record in records:   # compiled once per model and dt, untimed by the search
-        key = (id(record.model), record.dt)
-        if key not in functions:
-            functions[key] = compiled_sigma_functions(record.model, record.dt) if hasattr(record.model, "parametric") \
-                else None
-    steps = sum(max(0, len(r.y) - round(WARMUP_S / r.dt)) for r in records)
-    if steps == 0:
-        raise InvalidInput(f"every flight is shorter than the filter's {WARMUP_S:g}-s warm-up: no noise to identify")
-
-    def noise_at(theta: np.ndarray) -> NoiseModel:
-        q, r = base_q.copy(), base_r.copy()
-        for value, (b, idx) in zip(theta[:len(q_idx)], q_idx.items()):
-            q[idx] = np.clip(base_q[idx] * math.exp(value), *STD_BOUNDS)
-        for value, (b, idx) in zip(theta[len(q_idx):], r_idx.items()):
-            r[idx] = np.clip(base_r[idx] * math.exp(value), *STD_BOUNDS)
-        return NoiseModel(tuple(q), tuple(r), start.initial_std, IDENTIFIED)
-
-    evaluations = [0]
-
-    def mean_log_likelihood(theta: np.ndarray) -> float:
-        noise = noise_at(theta)
-        total = 0.0
-        for record in records:
-            try:
-                result = run_ukf(record.model, record.y, record.u, dt=record.dt, Q=noise.Q, R=noise.R,
-                                 x0=record.x0, P0=noise.P0,
-                                 sigma_functions=functions[(id(record.model), record.dt)])
-            except (np.linalg.LinAlgError, InvalidInput, FloatingPointError):
-                return -math.inf
-            ll = result.log_likelihoods[round(WARMUP_S / record.dt):]
-            if not np.all(np.isfinite(ll)):
-                return -math.inf
-            total += float(np.sum(ll))
-        evaluations[0] += 1
-        value = total / steps
-        if on_evaluation:
-            on_evaluation(evaluations[0], value)
-        return value
-
+    objective = _Likelihood(records, start, _indices(system.state_names, process_blocks, "state"),
+                            _indices(system.meas_names, measurement_blocks, "measurement"), on_evaluation)
+    names, mean_log_likelihood, noise_at = objective.names, objective, objective.noise_at
     started = time.perf_counter()
     bound = math.log(MAX_FACTOR)
     x0 = np.zeros(len(names))
@@ -171,13 +178,13 @@ def identify_noise(records: Sequence[NoiseRecord], start: NoiseModel, *,
     theta = fit.x if -fit.fun >= before else x0
     factors = {name: float(math.exp(v)) for name, v in zip(names, theta)}
     noise = noise_at(theta)
-    held = [f"Q:{b}" for b in blocks(system.state_names) if b not in q_idx] + \
-        [f"R:{b}" for b in blocks(system.meas_names) if b not in r_idx]
-    detail = {"flights": [r.name for r in records], "steps": int(steps),
+    held = [f"Q:{b}" for b in blocks(system.state_names) if b not in process_blocks] + \
+        [f"R:{b}" for b in blocks(system.meas_names) if b not in measurement_blocks]
+    detail = {"flights": [r.name for r in records], "steps": int(objective.steps),
               "log_likelihood_per_step": {"start": round(before, 6), "identified": round(max(-fit.fun, before), 6)},
               "factors": {k: round(v, 4) for k, v in factors.items()}, "held": held,
               "at_bound": [k for k, v in zip(names, theta) if abs(abs(v) - bound) < 0.01],
-              "evaluations": evaluations[0], "seconds": round(time.perf_counter() - started, 2),
+              "evaluations": objective.evaluations, "seconds": round(time.perf_counter() - started, 2),
               "method": "maximum innovation likelihood of the UKF (Nelder-Mead on the log scale per block)"}
     return NoiseModel(noise.process_std, noise.meas_std, noise.initial_std, IDENTIFIED, detail)
 

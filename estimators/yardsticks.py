@@ -110,7 +110,8 @@ class GapPlan:
 
 
 def run_with_gaps(methods: Sequence[str], prior_model: StateSpaceModel, knode_model: StateSpaceModel,
-                  y: np.ndarray, u: np.ndarray, dt: float, x0: np.ndarray, inside: np.ndarray, horizon: int, mhe_cache: dict | None = None,
+                  y: np.ndarray, u: np.ndarray, dt: float, x0: np.ndarray, inside: np.ndarray, horizon: int,
+                  mhe_cache: dict | None = None,
                   on_stage: Callable[[str], object] | None = None) -> dict[str, dict]:
     """Each method run with the position measurements hidden where ``inside`` (T,) is True.
 

@@ -265,7 +265,8 @@ def format_model(out: dict) -> str:
 
 
 def noise_lines(noise: dict) -> list[str]:
-    """`models show`'s lines on the noise each of the version's filters runs with (`service.jobs.tasks.noise_summary`)."""
+    """`models show`'s lines on the noise each of the version's filters runs with
+    (`service.jobs.tasks.noise_summary`)."""
     lines = []
     for who, label in (("model", "the model"), ("prior", "its prior")):
         entry = noise.get(who)

@@ -184,7 +184,8 @@ def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[st
     Returns
     -------
     dict
-        ``noise`` {method: "identified" | "paper"}: what each method ran with; ``flights``: per flight ``mse`` {method: MSE over [p, v, a] in SI units²}, ``groups`` (per p, v,
+        ``noise`` {method: "identified" | "paper"}: what each method ran with; ``flights``: per flight ``mse``
+        {method: MSE over [p, v, a] in SI units²}, ``groups`` (per p, v,
         a), ``ms_per_step``, ``excluded`` and ``reason``; ``median`` {method: MSE}; ``units`` of these;
         ``improvement_pct`` {"knode-ukf_vs_ukf": %, ...}; ``flights_scored``; ``model`` (the model's
         meta name, None for an unregistered model).  Per flight ``yardsticks``: ``mocap_gaps`` (``rmse_m``

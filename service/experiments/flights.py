@@ -246,10 +246,8 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
             results = out["results"]
             if on_estimates is not None:
                 on_estimates(index, out["estimates"])
-            entry["mse"] = {m: r["mse"] for m, r in results.items()}
-            entry["groups"] = {m: r["groups"] for m, r in results.items()}
-            entry["ms_per_step"] = {m: r["ms_per_step"] for m, r in results.items()}
-            entry["noise"] = {m: prepared.noise["knode" if m.startswith("knode-") else "prior"] for m in results}
+            entry.update({key: {m: r[key] for m, r in results.items()} for key in ("mse", "groups", "ms_per_step")})
+            entry["noise"] = {m: prepared.noise["knode" if m[:6] == "knode-" else "prior"] for m in results}
             entry["gain_interval_pct"] = {f"{m}_vs_{m.removeprefix('knode-')}": r["gain_interval_pct"]
                                           for m, r in results.items() if "gain_interval_pct" in r}
             entry["envelope"] = flight_envelope(prepared)

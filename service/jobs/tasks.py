@@ -205,7 +205,8 @@ def noise_summary(model: HybridModel) -> dict:
 
 def training_metrics(model: HybridModel) -> dict:
     """What the registry keeps of a training run besides its weights and losses."""
-    return {"noise": noise_summary(model), **{key: model.meta.get(key) for key in ("final_loss", "best_epoch", "best_validation_loss", "envelope",
+    return {"noise": noise_summary(model),
+            **{key: model.meta.get(key) for key in ("final_loss", "best_epoch", "best_validation_loss", "envelope",
                                                     "training_profile")},
             **{key: model.meta[key] for key in ("prior_validation_loss", "learned", "learned_note", "validation",
                                                 "batch_pairs", "residual_scale", "residual_scale_groups",
