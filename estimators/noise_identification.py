@@ -27,12 +27,18 @@ from learnest.ingest.flight import Flight
 from learnest.models.knode import HybridModel
 from learnest.models.noise import IDENTIFIED, PAPER, STD_BOUNDS, NoiseModel, blocks
 
+from .mocap_gaps import PositionGapModel, gap_mask, masked_measurements
 from .prepared import prepare
+from .yardsticks import GapPlan
 from .ukf import SigmaFunctions, compiled_sigma_functions, run_ukf
 
 # The blocks searched by default: velocity and acceleration process noise, both measurements (module docstring).
 PROCESS_BLOCKS = ("v", "a")
 MEASUREMENT_BLOCKS = ("p", "a")
+# On real flights the sensors' noise stays the system's: the logged accelerometer is low-pass filtered on board,
+# so its errors are not white, and the likelihood drives its standard deviation to ~1 mm/s² (NanoBench circles
+# and figure-eights), below any MEMS accelerometer's noise floor: a number no vehicle can have.
+FLIGHT_MEASUREMENT_BLOCKS: tuple[str, ...] = ()
 # The first second of each record is the filter settling from x0 and P0: it says little about Q and R.
 WARMUP_S = 1.0
 # How far a block's standard deviation may move from the paper's, each way (a factor).
@@ -51,8 +57,8 @@ class NoiseRecord:
     ----------
     name : str
         The flight's name.
-    model : HybridModel
-        The model whose noise is identified, on this flight's grid.
+    model : HybridModel or PositionGapModel
+        The model whose noise is identified, on this flight's grid (wrapped when the mocap is hidden in gaps).
     y : ndarray, shape (T, m)
         Measurements.
     u : ndarray, shape (T, p)
@@ -64,7 +70,7 @@ class NoiseRecord:
     """
 
     name: str
-    model: HybridModel
+    model: HybridModel | PositionGapModel
     y: np.ndarray
     u: np.ndarray
     x0: np.ndarray
@@ -189,23 +195,35 @@ def identify_noise(records: Sequence[NoiseRecord], start: NoiseModel, *,
     return NoiseModel(noise.process_std, noise.meas_std, noise.initial_std, IDENTIFIED, detail)
 
 
-def noise_records(model: HybridModel, flights: Sequence[Flight], which: str) -> list[NoiseRecord]:
+def noise_records(model: HybridModel, flights: Sequence[Flight], which: str,
+                  gaps: GapPlan | None = None) -> list[NoiseRecord]:
     """The records of ``flights`` for identifying the noise of ``model`` (``which="model"``) or of its prior
     (``which="prior"``), each prepared as an evaluation prepares it (`estimators.prepared.prepare`, with the
-    system's fixed noise as the start)."""
+    system's fixed noise as the start).
+
+    With ``gaps``, the mocap position is hidden in the gaps of the plan (`estimators.mocap_gaps.PositionGapModel`):
+    the likelihood then weighs how well the filter predicts the position across each gap, as the mocap-gap
+    yardstick scores it, beside the one-step innovations.  A hidden step's position innovation is exactly 0 with
+    the mocap's R as its variance: a constant while that R is held, so the mocap's R must not be searched then.
+    """
     records = []
     for flight in flights:
         prepared = prepare(model, flight, noise=PAPER)
-        chosen = prepared.model if which == "model" else prepared.prior
-        records.append(NoiseRecord(flight.name, chosen, prepared.y, prepared.u, prepared.x0, prepared.dt))
+        chosen: HybridModel | PositionGapModel = prepared.model if which == "model" else prepared.prior
+        y, u = prepared.y, prepared.u
+        windows = gaps.windows(len(y), prepared.dt) if gaps is not None else []
+        if windows:
+            y, u = masked_measurements(y, u, gap_mask(len(y), windows))
+            chosen = PositionGapModel(chosen)
+        records.append(NoiseRecord(flight.name, chosen, y, u, prepared.x0, prepared.dt))
     return records
 
 
 def with_identified_noise(model: HybridModel, flights: Sequence[Flight],
                           on_stage: Callable[[str], object] | None = None) -> HybridModel:
     """``model`` with its noise and its prior's identified on ``flights`` (its training flights), each by
-    `identify_noise` from the system's fixed noise: the two filters of every later comparison are tuned the
-    same way on the same flights.
+    `identify_noise` from the system's fixed noise, the process noise only (`FLIGHT_MEASUREMENT_BLOCKS`): the two
+    filters of every later comparison are tuned the same way on the same flights.
 
     Parameters
     ----------
@@ -224,10 +242,12 @@ def with_identified_noise(model: HybridModel, flights: Sequence[Flight],
     start = NoiseModel.paper(model.system)
     if on_stage:
         on_stage("noise of the prior")
-    prior_noise = identify_noise(noise_records(model, flights, "prior"), start)
+    prior_noise = identify_noise(noise_records(model, flights, "prior"), start,
+                                 measurement_blocks=FLIGHT_MEASUREMENT_BLOCKS)
     own = prior_noise
     if model.kind != "prior":
         if on_stage:
             on_stage(f"noise of the {model.kind.upper()}")
-        own = identify_noise(noise_records(model, flights, "model"), start)
+        own = identify_noise(noise_records(model, flights, "model"), start,
+                             measurement_blocks=FLIGHT_MEASUREMENT_BLOCKS)
     return HybridModel(model.system, model.kind, model.residual, model.meta, own, prior_noise)

@@ -129,12 +129,13 @@ def test_a_models_noise_is_stored_with_it_and_runs_each_filter(tmp_path):
 def test_an_evaluation_runs_each_model_with_its_own_noise_and_says_which():
     """On a real flight: the report names the noise of every method, the prior rows change when the prior's
     noise changes and the KNODE rows do not, and noise="paper" puts both back on the fixed noise."""
-    from conftest import SHARED_DATA
+    from pathlib import Path
 
     import learnest as le
     from learnest.estimators.prepared import system_for
 
-    flight = le.read_flights([SHARED_DATA / "nanobench" / "B2_circle_medium_rep1.csv"])[0]
+    shared = Path(__file__).resolve().parents[3] / "shared" / "data"
+    flight = le.read_flights([shared / "nanobench" / "B2_circle_medium_rep1.csv"])[0]
     system = system_for(flight, "crazyflie")
     paper = NoiseModel.paper(system)
     tuned = _scaled(paper, system, {"Q:v": 30.0, "Q:a": 3.0})
@@ -150,3 +151,24 @@ def test_an_evaluation_runs_each_model_with_its_own_noise_and_says_which():
     assert identified["median"]["knode-ukf"] == pytest.approx(fixed["median"]["knode-ukf"], rel=1e-9)
     assert fixed["median"]["ukf"] == pytest.approx(fixed["median"]["knode-ukf"], rel=1e-9)
     assert identified["median"]["ukf"] != pytest.approx(fixed["median"]["ukf"], rel=1e-3)
+
+
+def test_a_training_asked_to_identify_noise_stores_the_models_and_its_priors(tmp_path):
+    """``KNODE(noise="identified")``: the trained model carries its own noise and its prior's, both identified on
+    its training flight from the paper's noise (the sensors' noise kept), and both survive the model file."""
+    from pathlib import Path
+
+    import learnest as le
+
+    sample = Path(__file__).resolve().parents[2] / "sample_logs" / "circle_rep1.csv"
+    flight = le.read_flights([sample])[0]
+    knode = le.KNODE(epochs=3, noise="identified").fit(flight)
+    model = knode.model_
+    paper = NoiseModel.paper(model.system)
+    for noise in (model.noise, model.prior_noise):
+        assert noise.source == IDENTIFIED and noise.detail["flights"] == [flight.name]
+        assert noise.meas_std == paper.meas_std and set(noise.detail["factors"]) == {"Q:v", "Q:a"}
+        assert noise.detail["log_likelihood_per_step"]["identified"] >= noise.detail["log_likelihood_per_step"]["start"]
+    model.save(tmp_path / "knode.json")
+    assert HybridModel.load(tmp_path / "knode.json").noise == model.noise
+    assert le.KNODE(epochs=3).fit(flight).model_.noise is None   # the paper's protocol by default
