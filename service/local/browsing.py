@@ -96,6 +96,7 @@ def _version_json(row, aliases: dict[str, int]) -> dict:
             "training_flights": registry.training_flights_of(row),
             "validation_flights": list(row.validation_flights or []),
             "learned": (row.metrics or {}).get("learned"), "learned_note": (row.metrics or {}).get("learned_note"),
+            "noise": (row.metrics or {}).get("noise") or {"model": None, "prior": None},
             "parent": row.parent, "hyperparameters": row.hyperparameters, "metrics": row.metrics,
             "training_seconds": row.training_seconds, "created_at": row.created_at.isoformat()}
 

@@ -159,9 +159,37 @@ def test_several_flights_by_name_groups_choose_the_residual_scale_and_the_versio
         assert wait_for_job(client, accepted.json()["job_id"])["state"] == "succeeded"
         version = client.get("/models/g/versions/1").json()
         assert version["hyperparameters"]["group_by"] == r"name:^flight(\d)"
+        # the paper's noise unless asked: the version says so
+        assert version["hyperparameters"]["noise"] == "paper" and version["noise"] == {"model": None, "prior": None}
         assert version["residual_scale_groups"] == ["0", "1", "2"]
         assert version["residual_scale"] in (0.0, 0.25, 0.5, 0.75, 1.0)
         assert version["residual_scale_note"].startswith("chosen with 0, 1, 2 held out in turn: ")
         meta = client.get("/models/g/versions/1/metadata").json()
         assert meta["residual_scale"] == version["residual_scale"] and meta["residual_scale_groups"] == ["0", "1", "2"]
         assert set(meta["residual_scale_choice"]["groups"]) == {"0", "1", "2"}
+
+
+def test_a_version_trained_with_identified_noise_carries_it_and_its_evaluations_say_so(tmp_path, data_dir):
+    """POST /models with "noise": "identified": the version's noise names the flight it was identified on, and an
+    evaluation runs each method with its model's noise ("noise" in the report), or with the fixed noise when asked."""
+    with running_app(tmp_path / "home") as client:
+        ids = [upload(client, flight_csv(data_dir, seed)).json()["id"] for seed in (0, 1)]
+        assert client.post("/models", json={"name": "n", "flight_id": ids[0], "epochs": 2,
+                                            "noise": "tuned"}).status_code == 422
+        accepted = client.post("/models", json={"name": "n", "flight_id": ids[0], "epochs": 2, "noise": "identified"})
+        assert accepted.status_code == 202, accepted.text
+        assert wait_for_job(client, accepted.json()["job_id"])["state"] == "succeeded"
+        version = client.get("/models/n/versions/1").json()
+        for who in ("model", "prior"):
+            assert version["noise"][who]["source"] == "identified"
+            assert version["noise"][who]["detail"]["factors"].keys() == {"Q:v", "Q:a"}
+        reports = {}
+        for noise in ("identified", "paper"):
+            started = client.post("/evaluations", json={"model": "n:1", "flights": [ids[1]], "methods": ["ukf"],
+                                                        "gap_s": 0, "noise": noise})
+            assert started.status_code == 202, started.text
+            assert wait_for_job(client, started.json()["job_id"])["state"] == "succeeded"
+            reports[noise] = client.get(f"/evaluations/{started.json()['evaluation_id']}").json()
+        assert reports["identified"]["noise"] == {"ukf": "identified"}
+        assert reports["paper"]["noise"] == {"ukf": "paper"}
+        assert reports["identified"]["median"]["ukf"] != reports["paper"]["median"]["ukf"]

@@ -284,3 +284,28 @@ def test_evaluate_goes_on_past_an_unreadable_file_and_takes_a_cut(trained, monke
                 flight = client.get(f"/flights/{report['stored'][1]['flight_id']}").json()
                 assert flight["duration_s"] == pytest.approx(9.0, abs=0.011)     # the cut asked for
                 assert flight["meta"]["cut_choice"] == "3:12"
+
+
+def test_a_version_trained_with_identified_noise_stores_it_shows_it_and_evaluates_with_it(tmp_path, monkeypatch,
+                                                                                          capsys):
+    """`learnest train --noise identified`: the version's noise (the model's and its prior's, each identified on
+    the training flight) is in `models show`, and `evaluate` runs each method with it, saying so; `--noise paper`
+    runs both with the system's fixed noise, and gives other prior-only scores."""
+    use_home(monkeypatch, tmp_path / "home")
+    run_json(capsys, "train", str(TRAIN), "--name", "tuned", "--epochs", "2", "--noise", "identified")
+    noise = run_json(capsys, "models", "show", "tuned:1")["noise"]
+    for who in ("model", "prior"):
+        assert noise[who]["source"] == "identified" and noise[who]["detail"]["flights"] == ["circle_rep1"]
+        assert set(noise[who]["process_per_step"]) == {"p", "v", "a"}
+    from learnest.service.cli import main
+
+    capsys.readouterr()
+    assert main(["models", "show", "tuned:1"]) == 0
+    text = capsys.readouterr().out
+    assert "noise of the model: identified" in text and "noise of its prior: identified" in text
+    common = ["evaluate", "--model", "tuned", str(OTHER), "--methods", "ukf,knode-ukf", "--gap-s", "0"]
+    identified = run_json(capsys, *common)
+    paper = run_json(capsys, *common, "--noise", "paper")
+    assert identified["noise"] == {"ukf": "identified", "knode-ukf": "identified"}
+    assert paper["noise"] == {"ukf": "paper", "knode-ukf": "paper"}
+    assert identified["median"]["ukf"] != pytest.approx(paper["median"]["ukf"], rel=1e-3)
