@@ -86,7 +86,7 @@ def gap_plan_problem(gap_s, gap_every_s, start_s=GAP_START_S, *, dt: float | Non
         says what the value must be and what it was.
     """
     for name, value in (("gap_s", gap_s), ("gap_every_s", gap_every_s), ("start_s", start_s)):
-        if isinstance(value, bool) or not isinstance(value, numbers.Real) or not (0 <= value < float("inf")):
+        if isinstance(value, bool) or not isinstance(value, numbers.Real) or not (0 <= float(value) < float("inf")):
             return name, f"must be a non-negative number of seconds, got {value!r}"
     if gap_s == 0:
         return None   # the gap yardstick is off: no window is ever laid
