@@ -28,15 +28,21 @@ def template(tmp_path_factory):
     return read_uploaded_flight([StagedFile("log.csv", path, sha256_bytes(path.read_bytes()), 0, "log")])
 
 
-def _store(tmp_path, template, contents: list[bytes], names: list[str], jitter: list[float]):
-    """``contents`` uploaded at once (upload i named ``names[i]``, after ``jitter[i]`` s) through `add_flight`;
-    -> the database, the blob store and [(row, created)] per upload."""
-    from learnest.service.operations.uploads import LocalFile, add_flight
+def _stores(tmp_path):
+    """A fresh database and blob store under ``tmp_path``."""
     from learnest.service.storage.blobs import BlobStore
     from learnest.service.storage.database import Database
 
     db, blobs = Database(f"sqlite:///{tmp_path / 'learnest.db'}"), BlobStore(tmp_path / "blobs")
     db.migrate()
+    return db, blobs
+
+
+def _store(db, blobs, template, contents: list[bytes], names: list[str], jitter: list[float]):
+    """``contents`` uploaded at once (upload i named ``names[i]``, after ``jitter[i]`` s) through `add_flight`;
+    -> [(row, created)] per upload."""
+    from learnest.service.operations.uploads import LocalFile, add_flight
+
     start = threading.Barrier(len(contents))
 
     def decode(staged, **_choice):
@@ -52,8 +58,7 @@ def _store(tmp_path, template, contents: list[bytes], names: list[str], jitter: 
         return add_flight(db, blobs, [LocalFile(names[i], io.BytesIO(contents[i]))], decode=decode)
 
     with ThreadPoolExecutor(len(contents)) as pool:
-        answers = list(pool.map(one, range(len(contents))))
-    return db, blobs, answers
+        return list(pool.map(one, range(len(contents))))
 
 
 def _assert_every_answer_holds_its_files(blobs, contents, answers) -> None:
@@ -75,8 +80,9 @@ def test_concurrent_same_name_uploads_never_answer_for_a_file_they_do_not_hold(t
     contents = [data.draw(st.sampled_from(distinct)) for _ in range(n)]
     names = [data.draw(st.sampled_from(["log.csv", "log.CSV", "other.csv"])) for _ in range(n)]
     jitter = [data.draw(st.sampled_from([0.0, 0.0, 0.001, 0.005])) for _ in range(n)]
-    db, blobs, answers = _store(tmp_path_factory.mktemp("race"), template, contents, names, jitter)
+    db, blobs = _stores(tmp_path_factory.mktemp("race"))
     try:
+        answers = _store(db, blobs, template, contents, names, jitter)
         _assert_every_answer_holds_its_files(blobs, contents, answers)
         assert len({row.id for row, _ in answers}) == len(set(contents))   # one flight per content
         assert sum(created for _, created in answers) == len(set(contents))
@@ -87,16 +93,17 @@ def test_concurrent_same_name_uploads_never_answer_for_a_file_they_do_not_hold(t
 def test_the_16_way_same_name_race_run_20_times_loses_no_file(tmp_path, template):
     """16 different logs all named log.csv at once, 20 times: every flight stored holds its raw file."""
     lost = []
-    for round_ in range(ROUNDS):
-        contents = [f"drone {i} of round {round_}\n".encode() * (1 + i) for i in range(RACE)]
-        db, blobs, answers = _store(tmp_path / f"round{round_}", template, contents, ["log.csv"] * RACE,
-                                    [0.0] * RACE)
-        try:
+    db, blobs = _stores(tmp_path)
+    try:
+        for round_ in range(ROUNDS):   # one name per round: log<round>, then log<round>-<sha8>
+            contents = [f"drone {i} of round {round_}\n".encode() * (1 + i) for i in range(RACE)]
+            answers = _store(db, blobs, template, contents, [f"log{round_}.csv"] * RACE, [0.0] * RACE)
             assert all(created for _, created in answers)
+            assert len({row.name for row, _ in answers}) == RACE
             lost += [row.name for content, (row, _) in zip(contents, answers)
                      if not blobs.exists(row.files[0].sha256) or blobs.read_bytes(row.files[0].sha256) != content]
-        finally:
-            db.dispose()
+    finally:
+        db.dispose()
     assert lost == []
 
 
