@@ -11,8 +11,9 @@ held six copies; here every download of the same export reads the same file:
   served from an old file.
 - **Within a budget.**  The exports kept and those being written may take ``budget_bytes``.  A write that
   would pass it first removes the least recently served exports; one that still does not fit is refused
-  with `ExportBudgetExceeded` (507) and its temp file removed.  An export removed while a client reads it
-  stays readable to that client until it is done (or dropped: the server's send deadline).
+  with `ExportBudgetExceeded` (507) and its temp file removed (one larger than the whole budget removes no
+  other).  An export removed while a client reads it stays readable to that client until it is done (or
+  dropped: the server's send deadline).
 - **Gone with what it shows.**  `forget_exports` removes an evaluation's exports; deleting an evaluation, a
   flight it scored or its model version calls it.  A request making an export while its evaluation is
   deleted does not put it in place (`still_wanted`, checked under the folder's shared lock that
@@ -188,7 +189,9 @@ class ExportCache:
 
         if fits():
             return
-        for path in sorted((p for p in self.folder.iterdir() if not p.name.startswith(".")), key=_mtime):
+        kept = sorted((p for p in self.folder.iterdir() if not p.name.startswith(".")), key=_mtime)
+        # larger than the whole budget: refused as it is, without removing exports it could never make room with
+        for path in [] if size > self.budget_bytes else kept:
             path.unlink(missing_ok=True)
             log.info("export %s removed to make room for %s (LEARNEST_EXPORT_BUDGET_MB)", path.name, final.name)
             if fits():
