@@ -41,7 +41,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from learnest.errors import InvalidInput
-from learnest.models.presets import GAP_EVERY_S, GAP_S, GAP_START_S, ONBOARD
+from learnest.models.presets import GAP_EVERY_S, GAP_S, GAP_START_S, MAX_GAPS, ONBOARD, check_gap_plan
 
 from .evaluate import evaluate_sequence
 from .headline import MEASURES, NOTHING_LEARNED, Headline, headline, learned_note  # noqa: F401  (re-exported)
@@ -67,7 +67,8 @@ class GapPlan:
         Length of each gap, s (0 turns the gap yardstick off).
     every_s : float
         Time from one gap's start to the next's, s; longer than ``gap_s``, so the estimator sees mocap
-        between gaps.
+        between gaps.  Gaps, and the mocap between them, last `MIN_GAP_S` at least, and one sample of the
+        flight they are laid on (`windows`), at most `MAX_GAPS` per flight: InvalidInput otherwise.
     start_s : float
         No gap starts before this, s from the kept flight's start.
     """
@@ -77,27 +78,33 @@ class GapPlan:
     start_s: float = GAP_START_S
 
     def __post_init__(self) -> None:
-        for name in ("gap_s", "every_s", "start_s"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and np.isfinite(value) and value >= 0):
-                raise InvalidInput(f"{name} must be a non-negative number of seconds, got {value!r}")
-        if self.gap_s > 0 and not self.every_s > self.gap_s:
-            raise InvalidInput(f"gap every {self.every_s} s must be longer than the gap ({self.gap_s} s): the "
-                               "estimator needs mocap between gaps")
+        # bounded before any window is laid: a 1e-300-s spacing would never reach the flight's end
+        check_gap_plan(self.gap_s, self.every_s, self.start_s)
 
     def windows(self, n_samples: int, dt: float) -> list[tuple[int, int]]:
-        """[(first, stop), ...] sample indices of each gap (stop exclusive) that fits wholly in the record."""
+        """[(first, stop), ...] sample indices of each gap (stop exclusive) that fits wholly in the record.
+
+        Raises
+        ------
+        InvalidInput
+            A gap, or the mocap between two gaps, shorter than one sample ``dt``, or more than `MAX_GAPS` gaps
+            on the record (`learnest.models.presets.check_gap_plan`).
+        """
         if self.gap_s <= 0:
             return []
+        if not (np.isfinite(dt) and dt > 0):
+            raise InvalidInput(f"the sample period must be a positive number of seconds, got {dt!r}")
+        check_gap_plan(self.gap_s, self.every_s, self.start_s, dt=dt, n_samples=n_samples)
         length = max(1, int(round(self.gap_s / dt)))
         out: list[tuple[int, int]] = []
         start_s = self.start_s
-        while True:
+        for _ in range(MAX_GAPS + 1):   # checked above: never more gaps than this
             first = int(round(start_s / dt))
             if first + length > n_samples:
-                return out
+                break
             out.append((first, first + length))
             start_s += self.every_s
+        return out
 
     def too_short(self, n_samples: int, dt: float) -> str | None:
         """Why a record of ``n_samples`` gets no gap, or None when at least one fits."""

@@ -22,6 +22,11 @@ EVALUATION_METHODS = (*METHODS, ONBOARD)   # what an evaluation scores by defaul
 # the mocap-gap yardstick (estimators.yardsticks): the mocap position is hidden for GAP_S s every GAP_EVERY_S s,
 # none before GAP_START_S s of the kept flight (the estimators' start-up)
 GAP_S, GAP_EVERY_S, GAP_START_S = 0.5, 2.5, 5.0
+# the bounds of a gap plan (`check_gap_plan`): a gap, and the mocap between two gaps, last at least one sample of
+# the flight's grid and never less than MIN_GAP_S (1 ms: one sample at 1 kHz, the Crazyflie's fastest loop, finer
+# than any grid a flight is read on); at most MAX_GAPS gaps per flight (a 30-min flight at the defaults has 720)
+MIN_GAP_S = 0.001
+MAX_GAPS = 10_000
 # the MHE's options (estimators.mhe.MHE): the valid choices, named in every error about them
 MHE_HORIZON_RANGE = (1, 500)     # horizons a user may choose, samples (the API's bounds; the library needs >= 1)
 MHE_SOLVERS = ("gauss-newton", "ipopt")
@@ -58,6 +63,55 @@ def check_mhe_options(horizon, solver: str = "gauss-newton", arrival: str = "ekf
     _choice("hessian", hessian, MHE_HESSIANS)
     if max_iter is not None and (not _whole(max_iter) or max_iter < 1):
         raise InvalidInput(f"max_iter must be a positive integer or None, got {max_iter!r}")
+
+
+def gap_plan_problem(gap_s, gap_every_s, start_s=GAP_START_S, *, dt: float | None = None,
+                     n_samples: int | None = None) -> tuple[str, str] | None:
+    """What is wrong with a mocap-gap plan, before any gap is laid: (the field at fault, why), or None.
+
+    Parameters
+    ----------
+    gap_s, gap_every_s, start_s : float
+        The gaps' length (0: no gaps), the time from one gap's start to the next's and the first gap's
+        earliest start, s (`estimators.yardsticks.GapPlan`).
+    dt : float, optional
+        The flight's sample period, s: a gap and the mocap between two gaps must last one sample at least.
+    n_samples : int, optional
+        The flight's samples (with ``dt``): it may hold at most `MAX_GAPS` gaps.
+
+    Returns
+    -------
+    (field, why) or None
+        ``field`` is "gap_s" or "gap_every_s" (the request's names; the CLI's --gap-s, --gap-every-s); ``why``
+        says what the value must be and what it was.
+    """
+    for name, value in (("gap_s", gap_s), ("gap_every_s", gap_every_s), ("start_s", start_s)):
+        if isinstance(value, bool) or not isinstance(value, numbers.Real) or not (0 <= float(value) < float("inf")):
+            return name, f"must be a non-negative number of seconds, got {value!r}"
+    if gap_s == 0:
+        return None   # the gap yardstick is off: no window is ever laid
+    least = max(MIN_GAP_S, dt or 0.0) * (1 - 1e-9)   # one sample: a grid step computed as 1/rate may round
+    sample = f"one sample ({dt:.3g} s)" if dt and dt > MIN_GAP_S else f"{MIN_GAP_S:g} s"
+    if gap_s < least:
+        return "gap_s", f"must be 0 (no gaps) or at least {sample}, got {gap_s!r}"
+    if not gap_every_s - gap_s >= least:
+        return "gap_every_s", (f"must be longer than the gap (gap_s {gap_s:g} s) by at least {sample}: the "
+                               f"estimators need mocap between gaps; got {gap_every_s!r}")
+    if dt is not None and n_samples is not None:
+        room = n_samples * dt - start_s - gap_s
+        count = 0 if room < 0 else int(room // gap_every_s) + 1
+        if count > MAX_GAPS:
+            return "gap_every_s", (f"{gap_every_s:g} s gives {count} gaps on this {n_samples * dt:.0f}-s flight: at "
+                                   f"most {MAX_GAPS}; space them wider")
+    return None
+
+
+def check_gap_plan(gap_s, gap_every_s, start_s=GAP_START_S, *, dt: float | None = None,
+                   n_samples: int | None = None) -> None:
+    """`gap_plan_problem` as an error: InvalidInput naming the field, when the plan is out of bounds."""
+    problem = gap_plan_problem(gap_s, gap_every_s, start_s, dt=dt, n_samples=n_samples)
+    if problem is not None:
+        raise InvalidInput(f"{problem[0]} {problem[1]}")
 
 
 def parse_methods(text: str, allowed: tuple[str, ...] = METHODS) -> list[str]:

@@ -21,6 +21,9 @@
                                 worker is killed (default 10)
     LEARNEST_JOB_STALL_S        a running job that wrote no progress for this long is failed and its worker
                                 killed (default 21600, 6 h; 0 = never)
+    LEARNEST_EXPORT_BUDGET_MB   disk the estimate exports may take, kept and being written (default 2048);
+                                beyond it the least recently served go, and an export that does not fit is
+                                refused with 507 (service.storage.export_cache)
   uploads are decoded in their own worker processes (service.jobs.decoding):
     LEARNEST_DECODE_WORKERS     uploads decoded at once (default 2)
     LEARNEST_DECODE_QUEUE       uploads that may wait for a decode worker; more get 503 (default 16)
@@ -34,6 +37,7 @@
                                 (default 200; 0 = no limit)
     LEARNEST_MAX_HEADER_BYTES   request line + headers (default 16384)
     LEARNEST_GRACEFUL_SHUTDOWN_S  requests in progress get this long to finish on SIGTERM (default 10)
+    LEARNEST_SEND_TIMEOUT_S     a client that takes no byte of an answer for this long is dropped (default 60)
     LEARNEST_KEY_FAILURES       failed API-key attempts from one address within ...
     LEARNEST_KEY_FAILURE_WINDOW_S  ... this many seconds after which it gets 429 (defaults 10, 60; 0 = off)
     LEARNEST_TRUSTED_PROXIES    addresses of reverse proxies whose X-Forwarded-For / X-Forwarded-Proto name
@@ -76,6 +80,7 @@ class Settings(BaseSettings):
     max_training_work: float = Field(2e9, ge=0)   # epochs x samples x hidden; 0: no limit
     cancel_grace_s: float = Field(10.0, ge=0)
     job_stall_s: float = Field(6 * 3600.0, ge=0)   # 0: never fail a job for making no progress
+    export_budget_mb: float = Field(2048.0, gt=0)   # estimate exports on disk, cached and being written
     # uploads: decoded in worker processes, bounded in number, waiting room and time (service.jobs.decoding)
     decode_workers: int = Field(2, ge=1)
     decode_queue: int = Field(16, ge=0)
@@ -88,6 +93,7 @@ class Settings(BaseSettings):
     limit_concurrency: int = Field(200, ge=0)       # 0: no limit
     max_header_bytes: int = Field(16_384, ge=1024)
     graceful_shutdown_s: float = Field(10.0, ge=0)
+    send_timeout_s: float = Field(60.0, gt=0)
     key_failures: int = Field(10, ge=0)             # 0: no throttling
     key_failure_window_s: float = Field(60.0, gt=0)
     trusted_proxies: str = ""                       # "": no proxy headers are believed
@@ -116,6 +122,11 @@ class Settings(BaseSettings):
     def url(self) -> str:
         """The SQLAlchemy URL: ``database_url``, else the SQLite file ``home/learnest.db``."""
         return self.database_url or f"sqlite:///{(self.home / 'learnest.db').resolve()}"
+
+    @property
+    def export_budget_bytes(self) -> int:
+        """``export_budget_mb`` in bytes (MiB, 1024²)."""
+        return int(self.export_budget_mb * 1024 * 1024)
 
     @property
     def max_upload_bytes(self) -> int:

@@ -14,8 +14,10 @@ from learnest.models.presets import (
     GAP_EVERY_S,
     GAP_S,
     MHE_HORIZON,
+    MIN_GAP_S,
     SG_WINDOW,
     SG_WINDOW_RANGE,
+    gap_plan_problem,
     parse_methods,
 )
 
@@ -251,11 +253,20 @@ class EvaluationRequest(Strict):
     def known_methods(cls, methods: list[str]) -> list[str]:
         return parse_methods(",".join(methods), EVALUATION_METHODS)  # ValueError names the unknown ones
 
+    @field_validator("gap_s")
+    @classmethod
+    def gap_at_least_the_shortest(cls, gap_s: float) -> float:
+        if 0 < gap_s < MIN_GAP_S:
+            raise ValueError(f"gap_s must be 0 (no gaps) or at least {MIN_GAP_S:g} s, got {gap_s!r}")
+        return gap_s
+
     @model_validator(mode="after")
     def gaps_leave_mocap_between(self) -> EvaluationRequest:
-        if self.gap_s > 0 and not self.gap_every_s > self.gap_s:
-            raise ValueError(f"gap_every_s ({self.gap_every_s}) must be longer than gap_s ({self.gap_s}): the "
-                             "estimators need mocap between gaps")
+        # the physical bounds (MIN_GAP_S) here; one sample of each flight's grid and MAX_GAPS per flight when
+        # the job is created (service.jobs.evaluation), before anything runs
+        problem = gap_plan_problem(self.gap_s, self.gap_every_s)
+        if problem is not None:
+            raise ValueError(f"{problem[0]} {problem[1]}")
         return self
 
 

@@ -11,6 +11,10 @@ socket and, once its headers are in, a worker thread.
   ``LEARNEST_BODY_MIN_RATE`` bytes received (the rule of Apache's mod_reqtimeout: a slow but steady upload
   finishes, a trickle does not); past it the request gets a 408 and its connection is closed.  It applies
   to receiving a request's body only, never to sending a response: a slow download runs to its end.
+- Answers: a client that takes no byte of an answer for ``LEARNEST_SEND_TIMEOUT_S`` (its socket full, the
+  server's write buffer not shrinking) is dropped by `DeadlineH11Protocol` (the connection aborted): a
+  stalled reader no longer holds a socket, a worker's stream and the file it reads.  One that reads, however
+  slowly, is never cut off.
 - Proxies: X-Forwarded-For is believed only from ``LEARNEST_TRUSTED_PROXIES`` (none by default), so the
   client address - what the failed-key throttle counts - is the connection's peer unless a configured proxy
   names it (uvicorn alone believes the header from 127.0.0.1).
@@ -32,25 +36,35 @@ from ..config import Settings
 
 
 @lru_cache(maxsize=1)
-def _header_timeout_from_settings() -> float:
+def _timeouts_from_settings() -> tuple[float, float]:
     # The protocol class is named to uvicorn by import path (its worker processes import it), so it reads its
-    # one setting from the environment like the app does; `learnest serve --header-timeout-s` sets it there.
-    return Settings().header_timeout_s
+    # settings from the environment like the app does; `learnest serve --header-timeout-s` sets them there.
+    settings = Settings()
+    return settings.header_timeout_s, settings.send_timeout_s
 
 
 class DeadlineH11Protocol(H11Protocol):
-    """uvicorn's h11 protocol that closes a connection whose request headers do not arrive in time.
+    """uvicorn's h11 protocol that closes a connection whose request headers do not arrive in time, and aborts
+    one whose client stops taking the answer.
 
-    The timer starts when the connection opens and again after each response; it stops when a request's
-    headers are complete (a new request/response cycle begins).  While a request is being answered there is
-    no header timer (the body has its own deadline, `BodyDeadline`).
+    The header timer starts when the connection opens and again after each response; it stops when a
+    request's headers are complete (a new request/response cycle begins).  While a request is being answered
+    there is no header timer (the body has its own deadline, `BodyDeadline`).  The send timer runs while the
+    transport's write buffer is over its high-water mark (the client's socket is full): when it passes and
+    the buffer did not shrink, the connection is aborted; when it shrank, it starts again.
     """
 
     header_timeout_s: float | None = None   # None: LEARNEST_HEADER_TIMEOUT_S (a subclass may fix it)
+    send_timeout_s: float | None = None     # None: LEARNEST_SEND_TIMEOUT_S (a subclass may fix it)
     _header_timer: asyncio.TimerHandle | None = None
+    _send_timer: asyncio.TimerHandle | None = None
+    _send_buffered = 0
 
     def _header_timeout_s(self) -> float:
-        return self.header_timeout_s if self.header_timeout_s is not None else _header_timeout_from_settings()
+        return self.header_timeout_s if self.header_timeout_s is not None else _timeouts_from_settings()[0]
+
+    def _send_timeout_s(self) -> float:
+        return self.send_timeout_s if self.send_timeout_s is not None else _timeouts_from_settings()[1]
 
     def connection_made(self, transport) -> None:
         super().connection_made(transport)
@@ -58,7 +72,16 @@ class DeadlineH11Protocol(H11Protocol):
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._disarm_header_timer()
+        self._disarm_send_timer()
         super().connection_lost(exc)
+
+    def pause_writing(self) -> None:
+        super().pause_writing()
+        self._arm_send_timer()
+
+    def resume_writing(self) -> None:
+        self._disarm_send_timer()
+        super().resume_writing()
 
     def handle_events(self) -> None:
         cycle = self.cycle
@@ -89,6 +112,25 @@ class DeadlineH11Protocol(H11Protocol):
             self.logger.info("closing a connection whose request headers took longer than %g s (LEARNEST_HEADER_"
                              "TIMEOUT_S)", self._header_timeout_s())
             self.transport.close()
+
+    def _arm_send_timer(self) -> None:
+        self._disarm_send_timer()
+        self._send_buffered = self.transport.get_write_buffer_size()
+        self._send_timer = self.loop.call_later(self._send_timeout_s(), self._send_deadline_passed)
+
+    def _disarm_send_timer(self) -> None:
+        if self._send_timer is not None:
+            self._send_timer.cancel()
+            self._send_timer = None
+
+    def _send_deadline_passed(self) -> None:
+        self._send_timer = None
+        if self.transport.get_write_buffer_size() < self._send_buffered:   # it reads, slowly: not stalled
+            self._arm_send_timer()
+            return
+        self.logger.info("dropping a client that took no byte of its answer for %g s (LEARNEST_SEND_TIMEOUT_S)",
+                         self._send_timeout_s())
+        self.transport.abort()   # close() would wait for the buffer to drain, which a stalled client never lets
 
 
 MIN_WAIT_S = 0.05   # BodyDeadline: the shortest wait for a part of the body, s

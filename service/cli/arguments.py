@@ -7,7 +7,7 @@ import math
 from pathlib import Path
 
 from learnest.errors import InvalidInput
-from learnest.models.presets import GAP_EVERY_S, GAP_S, SG_WINDOW_RANGE
+from learnest.models.presets import GAP_EVERY_S, GAP_S, MIN_GAP_S, SG_WINDOW_RANGE, gap_plan_problem
 
 
 # -- argument types: refuse bad values before any import or ingest (one-line error, exit 2) -----------
@@ -33,6 +33,14 @@ def _seconds(text: str) -> float:
         raise argparse.ArgumentTypeError(f"must be a number of seconds, got {text!r}") from None
     if not (math.isfinite(value) and value >= 0):
         raise argparse.ArgumentTypeError(f"must be a non-negative number of seconds, got {text!r}")
+    return value
+
+
+def _gap_length(text: str) -> float:
+    """A gap length: 0 (no gaps) or at least MIN_GAP_S seconds."""
+    value = _seconds(text)
+    if 0 < value < MIN_GAP_S:
+        raise argparse.ArgumentTypeError(f"must be 0 (no gaps) or at least {MIN_GAP_S:g} s, got {text!r}")
     return value
 
 
@@ -130,11 +138,22 @@ def _gap_plan(args):
     return GapPlan(args.gap_s, args.gap_every_s)
 
 
+def gap_options_problem(args: argparse.Namespace) -> str | None:
+    """Why --gap-s and --gap-every-s (on the --rate grid, when the command has one) make no bounded gap plan,
+    naming the option; None when they do or the command has none.  Checked right after parsing, before any
+    import, ingest or stored row (`learnest.models.presets.gap_plan_problem`)."""
+    if not hasattr(args, "gap_s") or not hasattr(args, "gap_every_s"):
+        return None
+    rate = getattr(args, "rate", None)
+    problem = gap_plan_problem(args.gap_s, args.gap_every_s, dt=1.0 / rate if rate else None)
+    return None if problem is None else f"argument --{problem[0].replace('_', '-')}: {problem[1]}"
+
+
 def _add_gap_arguments(parser: argparse.ArgumentParser) -> None:
     """--gap-s and --gap-every-s: where the mocap-gap yardstick hides the mocap (estimators.yardsticks)."""
-    parser.add_argument("--gap-s", type=_seconds, default=GAP_S, metavar="S",
+    parser.add_argument("--gap-s", type=_gap_length, default=GAP_S, metavar="S",
                         help=f"mocap-gap yardstick: hide the mocap position from the estimators for S s per gap "
-                             f"(default {GAP_S}; 0: no gaps)")
+                             f"(default {GAP_S}; 0: no gaps; else at least {MIN_GAP_S:g} s and one sample)")
     parser.add_argument("--gap-every-s", type=_positive_float, default=GAP_EVERY_S, metavar="S",
                         help=f"one gap every S s after the first 5 s of the kept flight (default {GAP_EVERY_S})")
 
@@ -165,6 +184,7 @@ SERVE_LIMITS = {"header_timeout_s": (float, "a request's headers must arrive wit
                 "body_timeout_s": (float, "a request body gets this many seconds (30) ..."),
                 "body_min_rate": (float, "... plus one per this many bytes received (10000); else 408"),
                 "keep_alive_s": (float, "close an idle keep-alive connection after this many seconds (5)"),
+                "send_timeout_s": (float, "drop a client that takes no byte of an answer for this many seconds (60)"),
                 "limit_concurrency": (int, "connections + requests in progress beyond which the answer is 503 "
                                            "(200; 0 = no limit)"),
                 "decode_workers": (int, "uploads decoded at once (2)"),

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from learnest.errors import InvalidInput, LearnestError
 
+from .arguments import gap_options_problem
 from .commands import _alias_set, _export, _flights_list, _ingest, _models_list, _models_show, _serve
 from .commands.common import _command_started
 from .parser import build_parser
@@ -41,6 +42,10 @@ def main(argv=None) -> int:
         except InvalidInput as err:
             print(f"learnest export: error: {err} (or give --format)", file=sys.stderr)
             return 2
+    gaps = gap_options_problem(args)   # a gap plan that would never end is refused before any work
+    if gaps:
+        print(f"learnest {args.command}: error: {gaps}", file=sys.stderr)
+        return 2
     given = _given_paths(args)
     missing = [p for p in given if not Path(p).expanduser().exists()]
     # nothing there at all: said before any import, progress bar or stored row (a typo costs nothing); some

@@ -11,6 +11,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from learnest.errors import InvalidInput, NotFound
+from learnest.models.presets import gap_plan_problem
 
 from ..experiments.reports import EvaluationReport
 from ..storage import registry
@@ -42,6 +43,7 @@ def start_evaluation(services: Services, model_ref: str, flights: Iterable[int] 
         session.add(evaluation)
         session.flush()
         by_id = flights_by_id(session, flight_ids)
+        _check_gaps(settings, [by_id[i] for i in flight_ids])   # before a job exists: the transaction rolls back
         shas = [by_id[i].sha256 for i in flight_ids]
         entries = cached_entries(session, version.id, settings.key, shas)
         if len(entries) == len(flight_ids):  # everything cached: no job to run
@@ -61,6 +63,17 @@ def start_evaluation(services: Services, model_ref: str, flights: Iterable[int] 
     else:
         services.runner.launch(job_id, work)
     return job_id, evaluation_id, "queued"
+
+
+def _check_gaps(settings: EstimatorSettings, flights: Sequence[FlightRecord]) -> None:
+    """InvalidInput naming the field and the flight when the gap plan does not fit a flight's grid: a gap or
+    the mocap between gaps shorter than one sample, or more than MAX_GAPS gaps (`check_gap_plan`)."""
+    for flight in flights:
+        dt = 1.0 / flight.rate_hz if flight.rate_hz and flight.rate_hz > 0 else None
+        problem = gap_plan_problem(settings.gap_s, settings.gap_every_s, dt=dt, n_samples=flight.samples)
+        if problem is not None:
+            raise InvalidInput(f"{problem[0]} {problem[1]} (flight {flight.id}, {flight.name}, at "
+                               f"{flight.rate_hz:.4g} Hz)")
 
 
 def run_evaluation(services: Services, ctx: JobContext, evaluation_id: int) -> None:

@@ -6,7 +6,7 @@ The rule, the same for the API, the web pages and Python:
   that includes things a user made or points at (a version's evaluations or aliases), the delete is refused
   with 409 unless it is forced (``?force=true``; the confirmation page's button forces, after showing them).
   Caches go without asking: a flight's or a version's cached per-flight results (with their stored
-  estimates), an evaluation's report figures.
+  estimates), an evaluation's report figures, the kept estimate exports of the evaluations they show.
 - What **keeps a record** of it stays, with the deleted object's id, name or "name:version" as lineage text
   (shown as deleted): versions trained on a deleted flight, evaluations and diagnoses that used it, versions
   whose parent it was, diagnoses that analysed or registered a deleted version, the job of a deleted
@@ -30,6 +30,7 @@ from ..jobs.runner import ACTIVE
 from ..storage import registry
 from ..storage.blobs import BlobStore
 from ..storage.database import Database, blob_is_referenced
+from ..storage.export_cache import forget_exports
 from ..storage.tables import (
     Diagnosis,
     Evaluation,
@@ -117,6 +118,8 @@ def delete_flight(db: Database, blobs: BlobStore, flight_id: int) -> dict:
         session.execute(delete(Result).where(Result.flight_sha256 == row.sha256))
         session.delete(row)
     blobs.collect(candidates, lambda sha: blob_is_referenced(db, sha))  # after the commit: never half-deleted
+    # the exports of the evaluations that scored it showed it (an evaluation's whole export too)
+    forget_exports(blobs, [d["id"] for d in dependents["keeps_a_record"] if d["kind"] == "evaluation"])
     return dependents
 
 
@@ -190,6 +193,7 @@ def delete_version(db: Database, blobs: BlobStore, name: str, version: int, forc
         session.execute(delete(ModelAlias).where(ModelAlias.name == name, ModelAlias.version == version))
         session.delete(row)
     blobs.collect(candidates, lambda sha: blob_is_referenced(db, sha))
+    forget_exports(blobs, evaluation_ids)
     return dependents
 
 
@@ -230,14 +234,16 @@ def evaluation_dependents(db: Database, evaluation_id: int) -> dict:
         return _evaluation_dependents(session, _evaluation(session, evaluation_id))
 
 
-def delete_evaluation(db: Database, evaluation_id: int) -> dict:
-    """Delete the evaluation and its report figures; its job stays in the job list, and the cached
-    per-flight results stay too (shared by every evaluation of the same version and settings; they go with
-    their version or flight).  Conflict while its job is queued or running."""
+def delete_evaluation(db: Database, blobs: BlobStore, evaluation_id: int) -> dict:
+    """Delete the evaluation, its report figures and its kept estimate exports; its job stays in the job list,
+    and the cached per-flight results stay too (shared by every evaluation of the same version and settings;
+    they go with their version or flight).  Conflict while its job is queued or running."""
     with db.transaction() as session:
         row = _evaluation(session, evaluation_id)
         dependents = _evaluation_dependents(session, row)
         _refuse(dependents, force=False)
         session.execute(delete(ReportFigure).where(ReportFigure.evaluation_id == row.id))
         session.delete(row)
+    forget_exports(blobs, [evaluation_id])   # after the commit, as the blobs
     return dependents
+

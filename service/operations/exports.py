@@ -3,15 +3,19 @@
 
 An evaluation's per-step estimates are stored once per flight result (the result cache's
 ``estimates_blob``: `FlightEstimates.to_bytes`), so an evaluation answered from the cache has them too and a
-download reads them instead of running the estimators again.
+download reads them instead of running the estimators again.  A download's file is made once and kept
+(`cached_export`, within the export budget); `learnest export` writes where it is told.
 """
 from __future__ import annotations
 
+import hashlib
+import json
 from pathlib import Path
-from typing import IO
+from typing import IO, BinaryIO
 
 from sqlalchemy import select
 
+from learnest import __version__
 from learnest.errors import Conflict, NotFound
 from learnest.estimators.estimates import FlightEstimates
 from learnest.estimators.export import FORMATS, check_format, write_estimates
@@ -19,10 +23,12 @@ from learnest.estimators.export import FORMATS, check_format, write_estimates
 from ..jobs.result_cache import EstimatorSettings
 from ..storage.blobs import BlobStore
 from ..storage.database import Database, flights_by_id
+from ..storage.export_cache import ExportCache
 from ..storage.tables import Evaluation, Result
 from .catalog import row_and_job
 
-__all__ = ["FORMATS", "evaluation_estimates", "export_evaluation", "export_filename"]
+__all__ = ["FORMATS", "cached_export", "estimates_sources", "evaluation_estimates", "export_evaluation",
+           "export_filename"]
 
 
 def evaluation_estimates(db: Database, blobs: BlobStore, evaluation_id: int,
@@ -40,6 +46,13 @@ def evaluation_estimates(db: Database, blobs: BlobStore, evaluation_id: int,
         estimates; or a scored flight's estimates were never stored (evaluated before they were kept:
         evaluate it again).
     """
+    return [_read(blobs, source) for source in estimates_sources(db, evaluation_id, flight_id)]
+
+
+def estimates_sources(db: Database, evaluation_id: int,
+                      flight_id: int | None = None) -> list[tuple[int, str, str, str]]:
+    """What `evaluation_estimates` reads, from the database alone: per scored flight still stored, (flight id,
+    name, content sha256, estimates blob).  Raises as `evaluation_estimates` does."""
     evaluation, job = row_and_job(db, Evaluation, evaluation_id, "evaluation")
     if job.state != "succeeded":
         raise Conflict(f"evaluation {evaluation_id} is {job.state}: its estimates exist once it has succeeded")
@@ -65,16 +78,43 @@ def evaluation_estimates(db: Database, blobs: BlobStore, evaluation_id: int,
     if missing:
         raise Conflict(f"evaluation {evaluation_id} has no stored estimates for flight(s) "
                        f"{', '.join(map(str, missing))} (scored before estimates were kept): evaluate them again")
-    flights = []
-    for i, _entry in scored:
-        if i not in shas:  # deleted since
-            continue
-        estimates = FlightEstimates.from_bytes(blobs.read_bytes(blob_of[shas[i]]))
-        estimates.flight, estimates.flight_id, estimates.sha256 = names[i], i, shas[i]
-        flights.append(estimates)
-    if not flights:
+    sources = [(i, names[i], shas[i], blob_of[shas[i]]) for i, _entry in scored if i in shas]  # else deleted since
+    if not sources:
         raise Conflict(f"evaluation {evaluation_id} has no scored flight with estimates to export")
-    return flights
+    return sources
+
+
+def _read(blobs: BlobStore, source: tuple[int, str, str, str]) -> FlightEstimates:
+    flight_id, name, sha, blob = source
+    estimates = FlightEstimates.from_bytes(blobs.read_bytes(blob))
+    estimates.flight, estimates.flight_id, estimates.sha256 = name, flight_id, sha
+    return estimates
+
+
+def cached_export(db: Database, blobs: BlobStore, budget_bytes: int, evaluation_id: int, fmt: str,
+                  flight_id: int | None = None) -> BinaryIO:
+    """An evaluation's estimates as ``fmt``, opened for reading: made once per (evaluation, flight or all,
+    format, stored estimates) and kept within ``budget_bytes`` of disk (`service.storage.export_cache`).
+
+    Raises
+    ------
+    NotFound, Conflict
+        As `evaluation_estimates`.
+    ExportBudgetExceeded
+        The export does not fit in the budget (HTTP 507).
+    """
+    check_format(fmt)
+    sources = estimates_sources(db, evaluation_id, flight_id)
+    # what the file is made of: another version's writer or other stored estimates make another file
+    digest = hashlib.sha256(json.dumps([__version__, fmt, sources]).encode()).hexdigest()
+
+    def still_wanted() -> bool:
+        with db.transaction() as session:
+            return session.get(Evaluation, evaluation_id) is not None
+
+    return ExportCache(blobs, budget_bytes).open(
+        evaluation_id, flight_id, digest, FORMATS[fmt],
+        lambda handle: write_estimates([_read(blobs, source) for source in sources], handle, fmt), still_wanted)
 
 
 def export_filename(evaluation_id: int, fmt: str, flight_id: int | None = None) -> str:

@@ -242,7 +242,9 @@ def store_flight(db: Database, blobs: BlobStore, staged: list[StagedFile], fligh
     evaluation matches a model's training flight by name): a taken name gets the content hash appended.
 
     The name is chosen before any blob is written (the normalized flight's bytes hold it), and a write that
-    fails (a name taken meanwhile, a full blob folder: `StorageUnavailable`) removes the blobs no row names."""
+    fails (a name taken meanwhile, a full blob folder: `StorageUnavailable`) removes the blobs no row names.
+    The staged files stay in the scratch folder until the end (the blobs are links to them), so the attempt
+    under the next name stores every file again: no row is committed naming a blob that is not there."""
     base = flight.meta["name"]
     for name in free_names(db, base, sha):
         flight.meta["name"] = name
@@ -250,9 +252,8 @@ def store_flight(db: Database, blobs: BlobStore, staged: list[StagedFile], fligh
         try:
             with blobs.writing():
                 written.append(blobs.put_bytes(flight.to_bytes()))
-                for f in staged:
-                    if f.path.exists():
-                        written.append(blobs.put_file(f.path, f.sha256))
+                # kept: a retry under the other name stores them again once this attempt's blobs are collected
+                written += [blobs.put_file(f.path, f.sha256, keep=True) for f in staged]
                 with db.transaction() as session:
                     row = _flight_row(flight, sha, written[0], staged, vehicle, notes)
                     session.add(row)

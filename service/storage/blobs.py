@@ -123,7 +123,7 @@ class BlobStore:
     # -- writing ----------------------------------------------------------------------------------------
     @contextmanager
     def temp_dir(self) -> Iterator[Path]:
-        """A private scratch folder on the blob file system (so `put_file` can rename, not copy), named
+        """A private scratch folder on the blob file system (so `put_file` can rename or link, not copy), named
         after this process; `StorageUnavailable` if it cannot be made."""
         with storage_errors("accept uploads"):
             scratch = tempfile.TemporaryDirectory(dir=self.tmp, prefix=temp_prefix(), ignore_cleanup_errors=True)
@@ -143,12 +143,14 @@ class BlobStore:
                 raise
         return self.put_file(Path(name), sha256_bytes(data))
 
-    def put_file(self, source: Path, sha: str | None = None) -> str:
+    def put_file(self, source: Path, sha: str | None = None, *, keep: bool = False) -> str:
         """Move `source` (on this file system) into the store; returns its sha256.
 
-        ``sha`` is trusted when given (computed from the file otherwise).  ``source`` is consumed either way:
-        renamed into place, or deleted when that content is already stored (or when storing fails:
-        `StorageUnavailable`).
+        ``sha`` is trusted when given (computed from the file otherwise).  ``source`` is consumed: renamed into
+        place, or deleted when that content is already stored (or when storing fails: `StorageUnavailable`).
+        With ``keep``, ``source`` stays where it is and the blob is a hard link to it (a copy where the file
+        system cannot link): a caller that may have to store it again - an upload retried under another name
+        after its first attempt's blobs were collected - still holds the file.
         """
         with storage_errors():
             try:
@@ -158,14 +160,38 @@ class BlobStore:
                 target = self.path(sha)
                 target.parent.mkdir(exist_ok=True)
                 if target.exists():  # same content already stored: keep the existing file
-                    source.unlink()
+                    if not keep:
+                        source.unlink()
+                elif keep:
+                    self._link_into_place(source, target)
                 else:
                     os.replace(source, target)
                     _fsync_dir(target.parent)
             except OSError:
-                source.unlink(missing_ok=True)
+                if not keep:
+                    source.unlink(missing_ok=True)
                 raise
         return sha
+
+    def _link_into_place(self, source: Path, target: Path) -> None:
+        """``target`` becomes ``source``'s content atomically, ``source`` stays: a hard link, else a copy."""
+        try:
+            os.link(source, target)
+        except FileExistsError:   # the same content, stored meanwhile by another writer
+            return
+        except OSError as err:
+            if err.errno not in (errno.EXDEV, errno.EPERM, errno.EMLINK, errno.ENOTSUP, errno.EOPNOTSUPP):
+                raise
+            fd, name = tempfile.mkstemp(dir=self.tmp, prefix=temp_prefix())
+            os.close(fd)
+            try:
+                shutil.copyfile(source, name)
+                with open(name, "rb") as handle:
+                    os.fsync(handle.fileno())
+                os.replace(name, target)
+            finally:
+                Path(name).unlink(missing_ok=True)
+        _fsync_dir(target.parent)
 
     @contextmanager
     def writing(self) -> Iterator[None]:

@@ -124,5 +124,5 @@ def confirm_evaluation_delete(request: Request, evaluation_id: RowId, services: 
 def delete_evaluation_form(evaluation_id: RowId, api_key: str = Form(""),
                            services: Services = Depends(get_services)):
     """Delete the evaluation, then 303 to the evaluations list."""
-    deletion.delete_evaluation(services.db, evaluation_id)
+    deletion.delete_evaluation(services.db, services.blobs, evaluation_id)
     return forms.redirect("/ui/evaluations", services.settings, api_key)

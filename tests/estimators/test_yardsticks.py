@@ -268,3 +268,57 @@ def test_the_command_line_refuses_gaps_without_mocap_between_them_before_reading
                    "--gap-every-s", "0.5"])
     assert status == 2
     assert "must be longer than the gap" in capsys.readouterr().err
+
+
+def test_a_gap_plan_that_would_never_end_is_refused_before_any_window():
+    """1e-300-s gaps every 2e-300 s never reach the flight's end (5.0 + 2e-300 == 5.0): refused at once, by
+    the plan itself, naming the field; so are gaps shorter than one sample and more than MAX_GAPS gaps."""
+    import dataclasses
+    import time
+
+    from learnest.models.presets import MAX_GAPS
+
+    started = time.perf_counter()
+    with pytest.raises(InvalidInput, match="^gap_s must be 0 .no gaps. or at least 0.001 s, got 1e-300"):
+        GapPlan(gap_s=1e-300, every_s=2e-300)
+    with pytest.raises(InvalidInput, match="^gap_every_s must be longer than the gap"):
+        GapPlan(gap_s=0.5, every_s=0.5 + 1e-12)
+    with pytest.raises(InvalidInput, match="non-negative"):
+        GapPlan(every_s=float("nan"))
+    fine = GapPlan(gap_s=0.002, every_s=0.004)            # physically possible, finer than a 100 Hz grid
+    assert fine.windows(10_000, 0.001)[:2] == [(5000, 5002), (5004, 5006)]
+    with pytest.raises(InvalidInput, match=r"^gap_s must be 0 \(no gaps\) or at least one sample \(0.01 s\)"):
+        fine.windows(10_000, 0.01)
+    with pytest.raises(InvalidInput, match=r"^gap_every_s must be longer than the gap .* one sample \(0.01 s\)"):
+        GapPlan(gap_s=0.5, every_s=0.505).windows(10_000, 0.01)
+    with pytest.raises(InvalidInput, match=f"gap_every_s 0.02 s gives 49750 gaps .* at most {MAX_GAPS}"):
+        GapPlan(gap_s=0.01, every_s=0.02).windows(100_000, 0.01)      # a 1000-s flight
+    assert len(GapPlan(gap_s=0.01, every_s=0.02).windows(20_500, 0.01)) == MAX_GAPS   # 205 s: just within
+    # the windows refuse a plan that escaped its constructor too (defence in depth: nothing unbounded runs)
+    sneaked = GapPlan()
+    object.__setattr__(sneaked, "gap_s", 1e-300)
+    object.__setattr__(sneaked, "every_s", 2e-300)
+    with pytest.raises(InvalidInput, match="^gap_s"):
+        sneaked.windows(1_000, 0.01)
+    with pytest.raises(InvalidInput, match="sample period"):
+        GapPlan().windows(1_000, 0.0)
+    assert dataclasses.replace(GapPlan(), gap_s=0.0).windows(1_000, 1e-300) == []   # off: nothing to lay
+    assert time.perf_counter() - started < 1.0
+
+
+def test_the_command_line_refuses_a_gap_plan_that_never_ends_within_a_second(capsys, tmp_path):
+    """`learnest evaluate --gap-s 1e-300 --gap-every-s 2e-300` (a MemoryError after minutes, before): a usage
+    error naming the option, exit 2, in well under a second; also a spacing shorter than one --rate sample."""
+    import time
+
+    from learnest.service.cli import main
+
+    junk = str(_junk(tmp_path))
+    for options, named in ((["--gap-s", "1e-300", "--gap-every-s", "2e-300"], "argument --gap-s: must be 0"),
+                           (["--gap-s", "0.5", "--gap-every-s", "0.505"], "argument --gap-every-s: must be longer"),
+                           (["--gap-s", "0.004", "--gap-every-s", "1", "--rate", "100"],
+                            "argument --gap-s: must be 0 (no gaps) or at least one sample (0.01 s)")):
+        started = time.perf_counter()
+        assert main(["evaluate", "--model", "nothing:1", junk, "--no-store", *options]) == 2
+        assert time.perf_counter() - started < 1.0
+        assert named in capsys.readouterr().err

@@ -3,25 +3,26 @@ is service.experiments.flights.evaluate_flights' JSON.  Its HTML page, /evaluati
 of the web pages (service.web.report_pages)."""
 from __future__ import annotations
 
-import tempfile
-from pathlib import Path
+import os
+from collections.abc import Iterator
+from typing import BinaryIO
 
 from fastapi import APIRouter, Depends, HTTPException, Query, Response
-from fastapi.responses import FileResponse
-from starlette.background import BackgroundTask
+from fastapi.responses import StreamingResponse
 
 from learnest.estimators.export import FORMATS, MEDIA_TYPES
 
+from ...config import Settings
 from ...jobs.evaluation import start_evaluation
 from ...jobs.result_cache import EstimatorSettings
 from ...jobs.services import Services
 from ...operations import comparison, deletion
 from ...operations.catalog import row_and_job
-from ...operations.exports import export_evaluation, export_filename
-from ...storage.blobs import BlobStore, storage_errors, temp_prefix
+from ...operations.exports import cached_export, export_filename
+from ...storage.blobs import CHUNK, BlobStore
 from ...storage.database import Database
 from ...storage.tables import Evaluation
-from ..deps import MAX_ROW_ID, Offset, RowId, get_blobs, get_db, get_services, pending, require_api_key
+from ..deps import MAX_ROW_ID, Offset, RowId, get_blobs, get_db, get_services, get_settings, pending, require_api_key
 from ..report_models import EvaluationReportOut
 from ..schemas import (
     Dependents,
@@ -65,11 +66,11 @@ def evaluation_dependents(evaluation_id: RowId, db: Database = Depends(get_db)):
 @router.delete("/{evaluation_id}", status_code=204, dependencies=[Depends(require_api_key)],
                responses={404: {"description": "no such evaluation"},
                           409: {"description": "its job is still queued or running: cancel it first"}})
-def delete_evaluation(evaluation_id: RowId, db: Database = Depends(get_db)):
+def delete_evaluation(evaluation_id: RowId, db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
     """Delete an evaluation and its report figures.  The per-flight results it used stay cached (they are
     shared by every evaluation of that version with those settings, and go with the version or the flight);
     its job stays in the job list."""
-    deletion.delete_evaluation(db, evaluation_id)
+    deletion.delete_evaluation(db, blobs, evaluation_id)
     return Response(status_code=204)
 
 
@@ -92,13 +93,16 @@ def evaluation_report(evaluation_id: RowId, db: Database = Depends(get_db)):
                        400: {"description": "unknown format (the message names the allowed ones)"},
                        404: {"description": "no such evaluation, or the flight is not one of its flights"},
                        409: {"description": "the job failed, the flight was not scored, or no estimates were "
-                                            "stored"}})
+                                            "stored"},
+                       507: {"description": "the export does not fit in the disk budget of estimate exports "
+                                            "(LEARNEST_EXPORT_BUDGET_MB)"}})
 def evaluation_estimates_file(evaluation_id: RowId,
                               format: str = Query("csv", description=f"one of {', '.join(FORMATS)}"),
                               flight: int | None = Query(None, ge=1, le=MAX_ROW_ID,
                                                          description="only this flight (default: every scored "
                                                                      "flight)"),
-                              db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
+                              db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs),
+                              settings: Settings = Depends(get_settings)):
     """The per-step state estimates of every method on every scored flight, with the Savitzky–Golay reference,
     the error and the measurement: a tidy table (CSV, Parquet; unit-suffixed columns) or an MCAP with Foxglove
     schemas (topics /learnest/<method>/position|velocity|acceleration|pose and /learnest/reference/...)."""
@@ -107,15 +111,14 @@ def evaluation_estimates_file(evaluation_id: RowId,
     evaluation, job = row_and_job(db, Evaluation, evaluation_id, "evaluation")
     if job.state != "succeeded":
         return pending("evaluation", evaluation, job)
-    # in the blob folder's temp area, named after this process: a server killed while it writes or sends the
-    # file leaves an entry its next start removes (the system temp folder would keep it)
-    handle = tempfile.NamedTemporaryFile(dir=blobs.tmp, prefix=temp_prefix(), suffix=FORMATS[format], delete=False)
-    try:
-        with handle, storage_errors("write the export"):
-            export_evaluation(db, blobs, evaluation_id, handle, format, flight)
-    except BaseException:
-        Path(handle.name).unlink(missing_ok=True)
-        raise
-    return FileResponse(handle.name, media_type=MEDIA_TYPES[format],
-                        filename=export_filename(evaluation_id, format, flight),
-                        background=BackgroundTask(Path(handle.name).unlink, missing_ok=True))
+    # made once and kept (service.storage.export_cache): every download of it reads the same file, from disk
+    handle = cached_export(db, blobs, settings.export_budget_bytes, evaluation_id, format, flight)
+    return StreamingResponse(_chunks(handle), media_type=MEDIA_TYPES[format], headers={
+        "Content-Length": str(os.fstat(handle.fileno()).st_size),
+        "Content-Disposition": f'attachment; filename="{export_filename(evaluation_id, format, flight)}"'})
+
+
+def _chunks(handle: BinaryIO) -> Iterator[bytes]:
+    """The open export, a chunk at a time; closed when sent or when the client is gone."""
+    with handle:
+        yield from iter(lambda: handle.read(CHUNK), b"")
