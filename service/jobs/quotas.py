@@ -13,18 +13,23 @@ class QuotaExceeded(InvalidInput):
     """A request for more work than the server's limits allow: HTTP 422 naming the limit and its setting."""
 
 
-def check_training(settings: Settings, *, epochs: int, hidden: int, samples: int, what: str = "training") -> None:
-    """Raise `QuotaExceeded` when a training of ``epochs`` epochs of a ``hidden``-unit network on a flight of
-    ``samples`` samples exceeds LEARNEST_MAX_EPOCHS, LEARNEST_MAX_HIDDEN or LEARNEST_MAX_TRAINING_WORK
-    (epochs x samples x hidden; 0 = none)."""
+def check_training(settings: Settings, *, epochs: int, hidden: int, samples: int, what: str = "training",
+                   trainings: int = 1) -> None:
+    """Raise `QuotaExceeded` when ``trainings`` trainings of ``epochs`` epochs of a ``hidden``-unit network on
+    flights of ``samples`` samples in all (training and validation flights: the epochs run over both) exceed
+    LEARNEST_MAX_EPOCHS, LEARNEST_MAX_HIDDEN or LEARNEST_MAX_TRAINING_WORK (trainings x epochs x samples x
+    hidden; 0 = none).  A grouped training is one training per held-out group plus the final one
+    (`estimators.group_training`)."""
     if epochs > settings.max_epochs:
         raise QuotaExceeded(f"epochs: {epochs} is above this server's limit of {settings.max_epochs} "
                             "(LEARNEST_MAX_EPOCHS raises it)")
     if hidden > settings.max_hidden:
         raise QuotaExceeded(f"hidden: {hidden} is above this server's limit of {settings.max_hidden} "
                             "(LEARNEST_MAX_HIDDEN raises it)")
-    work = float(epochs) * samples * hidden
+    work = float(trainings) * epochs * samples * hidden
     if settings.max_training_work and work > settings.max_training_work:
-        raise QuotaExceeded(f"{what} too large: epochs x samples x hidden = {epochs} x {samples} x {hidden} = "
-                            f"{work:,.0f}, above this server's limit of {settings.max_training_work:,.0f} "
-                            "(LEARNEST_MAX_TRAINING_WORK raises it; fewer epochs or hidden units lower it)")
+        runs = f"{trainings} trainings x " if trainings > 1 else ""
+        product = f"{trainings} x " if trainings > 1 else ""
+        raise QuotaExceeded(f"{what} too large: {runs}epochs x samples x hidden = {product}{epochs} x {samples} x "
+                            f"{hidden} = {work:,.0f}, above this server's limit of {settings.max_training_work:,.0f} "
+                            "(LEARNEST_MAX_TRAINING_WORK raises it; fewer epochs, hidden units or groups lower it)")

@@ -51,7 +51,7 @@ def start_training(services: Services, name: str, flight_id: int | Sequence[int]
         If the parent version is not ready.
     """
     from learnest.estimators.flight_training import default_validation
-    from learnest.estimators.group_training import group_rule
+    from learnest.estimators.group_training import group_names
 
     registry.check_name(name)
     ids = [flight_id] if isinstance(flight_id, int) else [int(i) for i in flight_id]
@@ -86,10 +86,15 @@ def start_training(services: Services, name: str, flight_id: int | Sequence[int]
         if parent is not None:
             resolved = registry.resolve(session, parent)
             parent = f"{resolved.name}:{resolved.version}"
-        samples = sum(rows[i].samples for i in trained)
+        # charged on every flight the epochs run over: the validation flights are predicted each epoch too
+        samples = sum(rows[i].samples for i in ids)
+        named = [(rows[i].name, rows[i].meta or {}) for i in ids]
     config = training_config(overrides)
-    group_rule(config["group_by"])   # a bad grouping is said before a job starts
-    quotas.check_training(services.settings, epochs=config["epochs"], hidden=config["hidden"], samples=samples)
+    # a bad grouping (or a pattern that backtracks without end) is said before a job starts; two groups or more
+    # are one training per held-out group plus the final one
+    groups = len(set(group_names(named, config["group_by"])))
+    quotas.check_training(services.settings, epochs=config["epochs"], hidden=config["hidden"], samples=samples,
+                          trainings=1 + groups if groups >= 2 else 1)
     for attempt in range(20):  # another request may take the same version number first
         try:
             with services.db.transaction() as session:
