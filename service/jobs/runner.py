@@ -40,7 +40,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from sqlalchemy import func, select, update
+from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
 from learnest.errors import Conflict, LearnestError, NotFound
@@ -48,6 +48,7 @@ from learnest.errors import Conflict, LearnestError, NotFound
 from ..storage.database import Database, dml_rowcount
 from ..storage.leases import acquire_lease, release_lease
 from ..storage.tables import Job, Lease, utcnow
+from .quotas import check_queue
 
 if TYPE_CHECKING:
     from .executors import Executor
@@ -65,13 +66,6 @@ CANCEL_GRACE_S = 10.0    # a cancelled task's time to stop itself before it is k
 RECORD_RETRIES_S = (0.5, 1.0, 2.0)   # waits between attempts to record a failure before the heartbeat takes over
 ORPHAN_REASON = "the job's worker stopped without recording a result"
 STALL_S = 6 * 3600.0     # a running job with no progress for this long is failed (its worker is wedged)
-
-
-class QueueFull(LearnestError):
-    """Too many jobs wait to start (LEARNEST_MAX_QUEUED_JOBS): HTTP 503, retry later."""
-
-    status = 503
-    headers = {"Retry-After": "30"}
 
 
 class JobAborted(RuntimeError):
@@ -152,8 +146,7 @@ class JobRunner:
     stall_s : float
         Seconds without progress after which a running job of this process is failed (0: never).
     max_queued : int
-        Jobs that may wait to start, on every server of the database; `create` refuses one more with
-        `QueueFull` (0: no limit).
+        Jobs that may wait to start, on every server of the database (0: no limit; `quotas.check_queue`).
 
     Attributes
     ----------
@@ -165,8 +158,7 @@ class JobRunner:
 
     def __init__(self, db: Database, threads: int = 4, cancel_grace_s: float = CANCEL_GRACE_S,
                  stall_s: float = STALL_S, max_queued: int = 0) -> None:
-        self.db = db
-        self.max_queued = max_queued   # 0: no limit
+        self.db, self.max_queued = db, max_queued   # max_queued 0: no limit
         self.cancel_grace_s = cancel_grace_s
         self.stall_s = stall_s   # 0: never fail a job for making no progress
         self._stop_events: dict[int, threading.Event] = {}  # jobs this process runs, set when they must stop
@@ -222,14 +214,8 @@ class JobRunner:
 
     # -- state changes ------------------------------------------------------------------------------------
     def create(self, session: Session, kind: str, payload: dict | None = None) -> Job:
-        """Add a queued job row owned by this process (flushed, so it has an id) in the caller's transaction;
-        `QueueFull` when ``max_queued`` jobs wait already (each one accepted would otherwise wait its turn,
-        however many came: 300 trainings were accepted in 42 s)."""
-        if self.max_queued:
-            waiting = session.scalar(select(func.count()).select_from(Job).where(Job.state == "queued")) or 0
-            if waiting >= self.max_queued:
-                raise QueueFull(f"{waiting} jobs are waiting to start, the limit is {self.max_queued} "
-                                "(LEARNEST_MAX_QUEUED_JOBS): retry when some have run, or cancel some")
+        """Add a queued job row owned by this process (flushed, so it has an id) in the caller's transaction."""
+        check_queue(session, self.max_queued)   # quotas.QueueFull when max_queued jobs wait already
         job = Job(kind=kind, state="queued", progress=0.0, payload=payload, owner=self.owner, created_at=utcnow())
         session.add(job)
         session.flush()
