@@ -18,7 +18,9 @@ Groups (``group_by``, `flight_groups`):
 - ``"family"`` (the default): the trajectory family the log declares (NanoBench's ``trajectory_type``: circle,
   figure8, helix, ramp...); flights that declare none form one group, ``"undeclared"``;
 - ``"name:REGEX"``: the first capture group of REGEX searched in each flight's name (``name:^(B\\d+)_`` groups
-  NanoBench flights by their benchmark number); a flight whose name does not match is refused, named;
+  NanoBench flights by their benchmark number); a flight whose name does not match is refused, named.  REGEX is
+  Python's syntax, run by the `regex` package with a time limit (`PATTERN_TIMEOUT_S` per name): a pattern that
+  backtracks without end (``^((a|aa)+)$``) is refused instead of holding a worker for hours;
 - ``"none"``: no groups, the whole residual (the paper's pooled training).
 
 Validation.  The flights held out whole from the epochs (``validate``; by default one in five of all the flights,
@@ -33,11 +35,11 @@ flights take part: the flights the model is later scored on never do.
 """
 from __future__ import annotations
 
-import re
 import time
 from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
+import regex
 
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
@@ -56,6 +58,7 @@ from .prepared import prepare
 from .yardsticks import GapPlan, gap_scores, run_with_gaps
 
 PAIR = "knode-ukf_vs_ukf"
+PATTERN_TIMEOUT_S = 0.5        # a name:REGEX search on one flight name (names are at most ~100 characters)
 GROUP_BY = "family"            # the default grouping
 UNDECLARED = "undeclared"      # the group of flights whose log declares no trajectory family
 # What a model says when no scale passed on the held-out groups.
@@ -69,7 +72,7 @@ StageCallback = Callable[[str, int, int], object]
 
 
 # -- groups ---------------------------------------------------------------------------------------------------
-def group_rule(group_by: str) -> re.Pattern | None:
+def group_rule(group_by: str) -> regex.Pattern | None:
     """The name pattern of a ``"name:REGEX"`` grouping, None for ``"family"`` and ``"none"``.
 
     Raises
@@ -83,8 +86,8 @@ def group_rule(group_by: str) -> re.Pattern | None:
         raise InvalidInput(f"group_by must be 'family', 'none' or 'name:REGEX' (one capture group naming the "
                            f"group), got {group_by!r}")
     try:
-        pattern = re.compile(group_by.removeprefix("name:"))
-    except re.error as err:
+        pattern = regex.compile(group_by.removeprefix("name:"))
+    except regex.error as err:
         raise InvalidInput(f"group_by {group_by!r}: the pattern does not compile ({err})") from None
     if pattern.groups != 1:
         raise InvalidInput(f"group_by {group_by!r}: the pattern needs exactly one capture group (it names the "
@@ -92,9 +95,9 @@ def group_rule(group_by: str) -> re.Pattern | None:
     return pattern
 
 
-def declared_family(flight: Flight) -> str | None:
-    """The trajectory family the flight's log declares (NanoBench ``trajectory_type``), or None."""
-    family = (flight.meta.get("nanobench") or {}).get("trajectory_type")
+def declared_family(meta: Mapping) -> str | None:
+    """The trajectory family a flight's log declares (NanoBench ``trajectory_type`` in its meta), or None."""
+    family = (meta.get("nanobench") or {}).get("trajectory_type")
     return str(family) if family else None
 
 
@@ -106,25 +109,45 @@ def flight_groups(flights: Sequence[Flight], group_by: str = GROUP_BY) -> dict[s
     InvalidInput
         A bad ``group_by`` (`group_rule`), or a flight whose name the ``name:REGEX`` pattern does not match.
     """
-    pattern = group_rule(group_by)
+    names = group_names([(flight.name, flight.meta) for flight in flights], group_by)
     groups: dict[str, list[Flight]] = {}
-    if group_by == "none":
-        return {"all": list(flights)} if flights else {}
-    unmatched = []
-    for flight in flights:
-        if pattern is None:
-            name = declared_family(flight) or UNDECLARED
-        else:
-            match = pattern.search(flight.name)
-            if match is None or not match.group(1):
-                unmatched.append(flight.name)
-                continue
-            name = match.group(1)
+    for flight, name in zip(flights, names):
         groups.setdefault(name, []).append(flight)
+    return groups
+
+
+def group_names(flights: Sequence[tuple[str, Mapping]], group_by: str = GROUP_BY) -> list[str]:
+    """The group of each (flight name, flight meta) under ``group_by``, in the given order: what `flight_groups`
+    goes by, for flights known by their stored rows alone (a job's quota counts its groups before it starts).
+
+    Raises
+    ------
+    InvalidInput
+        A bad ``group_by`` (`group_rule`), a flight whose name the ``name:REGEX`` pattern does not match, or a
+        pattern that takes longer than `PATTERN_TIMEOUT_S` on a name.
+    """
+    pattern = group_rule(group_by)
+    if group_by == "none":
+        return ["all"] * len(flights)
+    names, unmatched = [], []
+    for flight_name, meta in flights:
+        if pattern is None:
+            names.append(declared_family(meta) or UNDECLARED)
+            continue
+        try:
+            match = pattern.search(flight_name, timeout=PATTERN_TIMEOUT_S)
+        except TimeoutError:
+            raise InvalidInput(f"group_by {group_by!r}: the pattern took more than {PATTERN_TIMEOUT_S:g} s on the "
+                               f"name {flight_name!r} (it backtracks too much: nested repetitions like (a+)+); "
+                               "simplify it") from None
+        if match is None or not match.group(1):
+            unmatched.append(flight_name)
+            continue
+        names.append(match.group(1))
     if unmatched:
         raise InvalidInput(f"group_by {group_by!r} names no group for flight(s) {', '.join(unmatched)}: the pattern "
                            "must match every flight's name")
-    return groups
+    return names
 
 
 def why_no_choice(flights: Sequence[Flight], groups: Mapping[str, Sequence[Flight]], group_by: str) -> str:

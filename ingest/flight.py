@@ -10,9 +10,12 @@ import hashlib
 import io
 import json
 import math
+import zipfile
+from collections.abc import Iterator, Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, BinaryIO
 
 import numpy as np
 
@@ -262,6 +265,36 @@ class Flight:
         except (OSError, ValueError, KeyError) as err:
             raise IngestError(path, f"not a saved learnest flight ({err})") from None
 
+
+
+def stored_array_blocks(path: str | Path | BinaryIO, names: Sequence[str], rows: int) -> Iterator[list[np.ndarray]]:
+    """Blocks of at most ``rows`` rows of the arrays ``names`` (e.g. "t", "p") of a flight written by
+    `Flight.to_bytes` (its path or an open binary file), read from the archive as they are needed: the memory
+    of one block, whatever the flight's length (`Flight.from_bytes` holds every array at once).
+
+    Raises
+    ------
+    ValueError
+        If an array is not a plain C-ordered numeric one, or the arrays' lengths differ.
+    """
+    with zipfile.ZipFile(path) as archive, ExitStack() as stack:
+        readers = []
+        for name in names:
+            handle = stack.enter_context(archive.open(f"{name}.npy"))
+            version = np.lib.format.read_magic(handle)
+            header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            shape, fortran_order, dtype = header(handle)
+            if fortran_order or dtype.hasobject or not shape:
+                raise ValueError(f"{name}: not a C-ordered numeric array")
+            row_items = int(np.prod(shape[1:], dtype=np.int64))
+            readers.append((handle, shape, dtype, row_items * dtype.itemsize))
+        length = readers[0][1][0] if readers else 0
+        if any(shape[0] != length for _, shape, _, _ in readers):
+            raise ValueError(f"arrays {', '.join(names)} differ in length")
+        for start in range(0, length, rows):
+            count = min(rows, length - start)
+            yield [np.frombuffer(handle.read(count * row_bytes), dtype=dtype).reshape(count, *shape[1:])
+                   for handle, shape, dtype, row_bytes in readers]
 
 
 def _split_columns(name: str, values: np.ndarray) -> dict:

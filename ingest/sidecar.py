@@ -6,7 +6,9 @@ it never needs an alias or megabytes, so both are refused before anything is bui
 
 Nesting is limited for every YAML shape: flow (``[[[...``, counted on the text before PyYAML scans it, as its
 scanner is quadratic in that depth) and block (``- - - ...``, counted on the parse events, as is flow).  A
-document nested deeper than a record ever is would be stored and then fail every answer that serializes it.
+document nested deeper than a record ever is would be stored and then fail every answer that serializes it;
+like the other caps it refuses the upload (`SidecarTooLarge`), where a sidecar that is merely unreadable is
+ignored with a warning: a client who sends a hostile sidecar learns so, rather than seeing it vanish.
 """
 from __future__ import annotations
 
@@ -24,7 +26,7 @@ MAX_DEPTH = 32                # nesting of sequences and mappings, block or flow
 
 
 class SidecarTooLarge(IngestError):
-    """A sidecar past a cap (size, aliases, nodes): the whole upload is refused, not just the sidecar."""
+    """A sidecar past a cap (size, aliases, nodes, nesting): the whole upload is refused, not just the sidecar."""
 
 
 def _flow_depth(text: str) -> int:
@@ -37,7 +39,8 @@ def _flow_depth(text: str) -> int:
 
 
 def read_sidecar(path) -> object:
-    """The YAML document in ``path``, refused if it is too big, uses aliases or has too many nodes.
+    """The YAML document in ``path``, refused if it is too big, uses aliases, has too many nodes or is nested
+    too deep.
 
     Parameters
     ----------
@@ -52,7 +55,7 @@ def read_sidecar(path) -> object:
     Raises
     ------
     SidecarTooLarge
-        Naming the file and the cap it broke.
+        Naming the file and the cap it broke (size, aliases, nodes, nesting).
     IngestError
         Unreadable or malformed YAML.
     """
@@ -64,14 +67,14 @@ def read_sidecar(path) -> object:
         text = path.read_text(encoding="utf-8")
         depth = _flow_depth(text)
         if depth > MAX_FLOW_DEPTH:
-            raise IngestError(path, f"unreadable YAML (brackets nested {depth} deep, more than {MAX_FLOW_DEPTH})")
+            raise SidecarTooLarge(path, f"unreadable YAML (brackets nested {depth} deep, more than {MAX_FLOW_DEPTH})")
         nodes = depth = 0
         for event in yaml.parse(text, Loader=yaml.SafeLoader):
             if isinstance(event, (yaml.MappingStartEvent, yaml.SequenceStartEvent)):
                 depth += 1
                 if depth > MAX_DEPTH:
-                    raise IngestError(path, f"unreadable YAML (sequences and mappings nested more than {MAX_DEPTH} "
-                                            "deep)")
+                    raise SidecarTooLarge(path, f"unreadable YAML (sequences and mappings nested more than "
+                                                f"{MAX_DEPTH} deep)")
             elif isinstance(event, (yaml.MappingEndEvent, yaml.SequenceEndEvent)):
                 depth -= 1
             if isinstance(event, yaml.AliasEvent):

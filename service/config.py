@@ -24,6 +24,8 @@
     LEARNEST_EXPORT_BUDGET_MB   disk the estimate exports may take, kept and being written (default 2048);
                                 beyond it the least recently served go, and an export that does not fit is
                                 refused with 507 (service.storage.export_cache)
+    LEARNEST_MAX_QUEUED_JOBS    jobs waiting to start beyond which a new one is refused with 503 (default 64;
+                                0 = no limit)
   uploads are decoded in their own worker processes (service.jobs.decoding):
     LEARNEST_DECODE_WORKERS     uploads decoded at once (default 2)
     LEARNEST_DECODE_QUEUE       uploads that may wait for a decode worker; more get 503 (default 16)
@@ -32,9 +34,12 @@
     LEARNEST_HEADER_TIMEOUT_S   a request's headers must arrive within this (default 10)
     LEARNEST_BODY_TIMEOUT_S     a body gets this many seconds ... (default 30)
     LEARNEST_BODY_MIN_RATE      ... plus one per this many bytes received (default 10000 B/s); else 408
+    LEARNEST_BODY_MAX_S         ... and never more than this in all (default 900)
     LEARNEST_KEEP_ALIVE_S       an idle keep-alive connection is closed after this (default 5)
     LEARNEST_LIMIT_CONCURRENCY  connections + requests in progress beyond which uvicorn answers 503
                                 (default 200; 0 = no limit)
+    LEARNEST_MAX_CLIENT_CONNECTIONS  open connections from one client network (an IPv4 /24, an IPv6 /64)
+                                beyond which a new one gets 503 (default 32; 0 = no limit; proxies exempt)
     LEARNEST_MAX_HEADER_BYTES   request line + headers (default 16384)
     LEARNEST_GRACEFUL_SHUTDOWN_S  requests in progress get this long to finish on SIGTERM (default 10)
     LEARNEST_SEND_TIMEOUT_S     a client that takes no byte of an answer for this long is dropped (default 60)
@@ -81,6 +86,7 @@ class Settings(BaseSettings):
     cancel_grace_s: float = Field(10.0, ge=0)
     job_stall_s: float = Field(6 * 3600.0, ge=0)   # 0: never fail a job for making no progress
     export_budget_mb: float = Field(2048.0, gt=0)   # estimate exports on disk, cached and being written
+    max_queued_jobs: int = Field(64, ge=0)          # 0: no limit (service.jobs.runner)
     # uploads: decoded in worker processes, bounded in number, waiting room and time (service.jobs.decoding)
     decode_workers: int = Field(2, ge=1)
     decode_queue: int = Field(16, ge=0)
@@ -89,8 +95,10 @@ class Settings(BaseSettings):
     header_timeout_s: float = Field(10.0, gt=0)
     body_timeout_s: float = Field(30.0, gt=0)
     body_min_rate: float = Field(10_000.0, gt=0)   # bytes/s
+    body_max_s: float = Field(900.0, gt=0)          # the body's ceiling, however fast its bytes came
     keep_alive_s: float = Field(5.0, gt=0)
     limit_concurrency: int = Field(200, ge=0)       # 0: no limit
+    max_client_connections: int = Field(32, ge=0)   # per client network; 0: no limit
     max_header_bytes: int = Field(16_384, ge=1024)
     graceful_shutdown_s: float = Field(10.0, ge=0)
     send_timeout_s: float = Field(60.0, gt=0)

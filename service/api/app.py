@@ -12,7 +12,7 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI, HTTPException, Request
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
-from starlette.types import Receive, Send
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from ..config import Settings
 from ..jobs.decoding import DecodePool
@@ -24,7 +24,7 @@ from .docs import install_docs
 from .errors import install_error_handlers
 from .request_guard import RequestGuard
 from .routes import diagnoses, evaluations, flights, jobs, models
-from .server import BodyDeadline
+from .server import FORM_FIELD_BYTES, FORM_FIELDS, BodyDeadline
 from .throttle import KeyThrottle
 
 
@@ -53,16 +53,19 @@ def create_app(settings: Settings | None = None, *, executor: Executor | None = 
             services.close()
 
     app = FastAPI(title="learnest", version=_version(), lifespan=lifespan, docs_url=None, redoc_url=None,
+                  form_limits={"max_fields": FORM_FIELDS, "max_part_size": FORM_FIELD_BYTES},
                   description="Upload Crazyflie flight logs, train KNODE models into a registry, and batch-"
                               "evaluate KNODE-UKF / KNODE-MHE against Savitzky-Golay references. Writes need "
                               "the X-API-Key header when the server has LEARNEST_API_KEY set.")
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
-    app.add_middleware(BodyDeadline, timeout_s=settings.body_timeout_s, min_rate=settings.body_min_rate)
+    app.add_middleware(BodyDeadline, timeout_s=settings.body_timeout_s, min_rate=settings.body_min_rate,
+                       max_s=settings.body_max_s)
     # failed keys per client address: the guard (JSON API) and the web forms count into the same throttle
     app.state.key_throttle = KeyThrottle(settings.key_failures, settings.key_failure_window_s)
     # outermost: runs first (host, cross-site and API key checks before any body is read)
     app.add_middleware(RequestGuard, allowed_hosts=settings.allowed_host_names, api_key=settings.api_key,
                        throttle=app.state.key_throttle, peek_timeout_s=settings.body_timeout_s)
+    app.add_middleware(SecurityHeaders)   # on every answer, the guard's refusals too
     install_error_handlers(app)
     for router in (flights.router, models.router, models.compare_router, jobs.router, evaluations.router,
                    diagnoses.router):
@@ -126,3 +129,32 @@ class BodySizeLimit:
     async def _reject(self, receive: Receive, send: Send) -> None:
         response = JSONResponse({"detail": self._message()}, status_code=413, headers={"Connection": "close"})
         await response({"type": "http"}, receive, send)
+
+
+# -- security headers -----------------------------------------------------------------------------------
+SECURITY_HEADERS = [(b"x-frame-options", b"DENY"), (b"content-security-policy", b"frame-ancestors 'none'"),
+                    (b"x-content-type-options", b"nosniff")]
+
+
+class SecurityHeaders:
+    """ASGI middleware: every answer says it may not be framed (X-Frame-Options, CSP frame-ancestors) and that
+    its type is the one declared (X-Content-Type-Options).  Why: a page of another site could otherwise frame a
+    delete confirmation and have the user click its button, which posts from this server's own origin (the
+    cross-site check cannot see it).  No page of ours is framed, so none is refused anything it needs."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+
+        async def send_with_headers(message: Message) -> None:
+            if message["type"] == "http.response.start":
+                present = {name.lower() for name, _ in message.get("headers", [])}
+                extra = [(name, value) for name, value in SECURITY_HEADERS if name not in present]
+                message = {**message, "headers": [*message.get("headers", []), *extra]}
+            await send(message)
+
+        await self.app(scope, receive, send_with_headers)

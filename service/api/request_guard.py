@@ -17,7 +17,8 @@ body - spooling every file to a temp folder - before it runs the route's depende
 header.  The web forms (/ui/...) carry it in the ``learnest_api_key`` cookie or a form field:
 for the field, only the start of the body is read (at most FORM_PEEK_BYTES, within the body deadline), and in
 a multipart form the field must come before the files (the upload form puts it first), so no file byte is
-read before the key is known good.  An address that failed too often gets 429 before any of its body is read.
+read before the key is known good.  A network that sent too many wrong keys gets 429 for its next wrong ones
+(service.api.throttle); the right key always passes.
 """
 from __future__ import annotations
 
@@ -55,7 +56,7 @@ class RequestGuard:
     api_key : str, optional
         The key writes need in X-API-Key (None: writes need none).
     throttle : KeyThrottle, optional
-        Counts failed keys per client address; a throttled address gets 429 with Retry-After.
+        Counts wrong keys per client network; past its limit a wrong key gets 429 with Retry-After.
     """
 
     def __init__(self, app: ASGIApp, allowed_hosts: tuple[str, ...], api_key: str | None = None,
@@ -84,11 +85,6 @@ class RequestGuard:
                 return
             if self.api_key is not None:
                 address = client_address(scope)
-                wait = self.throttle.retry_after(address) if self.throttle else None
-                if wait is not None and self.throttle is not None:
-                    await _refuse(send, 429, self.throttle.message(wait),
-                                  [(b"retry-after", str(wait).encode()), (b"connection", b"close")])
-                    return
                 form = scope["path"].startswith(FORM_PREFIX)
                 if form:   # the forms' key: the cookie, else the form's field (service.web.forms)
                     matches = self._key_matches(cookie_parser(headers.get("cookie", "")).get(KEY_COOKIE))
@@ -103,6 +99,12 @@ class RequestGuard:
                 else:
                     matches = self._key_matches(headers.get(KEY_HEADER))
                 if not matches:
+                    # only wrong keys are throttled: the right one passes, so no one can lock its owner out
+                    wait = self.throttle.retry_after(address) if self.throttle else None
+                    if wait is not None and self.throttle is not None:
+                        await _refuse(send, 429, self.throttle.message(wait),
+                                      [(b"retry-after", str(wait).encode()), (b"connection", b"close")])
+                        return
                     if self.throttle:
                         self.throttle.failed(address)
                     if form:

@@ -33,9 +33,12 @@ RowIdValue = Annotated[int, Field(ge=1, le=MAX_ROW_ID)]
 
 
 class Strict(BaseModel):
-    """Unknown fields are an error (a misspelt "epoch" must not silently train 150 epochs)."""
+    """A request body: unknown fields are an error (a misspelt "epoch" must not silently train 150 epochs), and
+    so is a value of another JSON type (``"epochs": true`` was read as 1, ``"5"`` as 5, ``"flights": [true]``
+    as flight 1).  The web forms, whose every field is text, validate the same models with ``strict=False``
+    (service.web.forms)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
 
 
 # -- flights ------------------------------------------------------------------------------------------

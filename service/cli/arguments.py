@@ -183,9 +183,12 @@ def _add_cut_argument(parser: argparse.ArgumentParser) -> None:
 SERVE_LIMITS = {"header_timeout_s": (float, "a request's headers must arrive within this many seconds (10)"),
                 "body_timeout_s": (float, "a request body gets this many seconds (30) ..."),
                 "body_min_rate": (float, "... plus one per this many bytes received (10000); else 408"),
+                "body_max_s": (float, "... and never more than this many seconds in all (900)"),
                 "keep_alive_s": (float, "close an idle keep-alive connection after this many seconds (5)"),
                 "send_timeout_s": (float, "drop a client that takes no byte of an answer for this many seconds (60)"),
                 "limit_concurrency": (int, "connections + requests in progress beyond which the answer is 503 "
                                            "(200; 0 = no limit)"),
+                "max_client_connections": (int, "connections from one client network (/24, /64) beyond which the "
+                                                "answer is 503 (32; 0 = no limit)"),
                 "decode_workers": (int, "uploads decoded at once (2)"),
                 "decode_timeout_s": (float, "one upload's decode time limit, seconds (60)")}

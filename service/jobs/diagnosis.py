@@ -2,12 +2,12 @@
 as a child version when asked, and storing the report."""
 from __future__ import annotations
 
-from learnest.errors import InvalidInput, NotFound
+from learnest.errors import InvalidInput
 from learnest.models.presets import diagnosis_fitting_count
 
 from ..experiments.reports import DiagnosisReport
 from ..storage import registry
-from ..storage.database import flights_by_id, get_row
+from ..storage.database import flights_by_id, flights_not_found, get_row
 from ..storage.tables import Diagnosis, utcnow
 from . import quotas
 from .runner import JobAborted, JobContext
@@ -42,7 +42,7 @@ def start_diagnosis(services: Services, flight_ids: list[int], model_ref: str | 
         found = flights_by_id(session, ids)
         missing = [i for i in ids if i not in found]
         if missing:
-            raise NotFound(f"flight(s) not found: {', '.join(map(str, missing))}")
+            raise flights_not_found(missing)
         quotas.check_training(services.settings, epochs=epochs, hidden=training_config({})["hidden"],
                               samples=fitting_samples([found[i] for i in ids], system), what="diagnosis")
         if model_ref is not None:

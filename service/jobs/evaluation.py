@@ -10,12 +10,12 @@ from collections.abc import Callable, Iterable, Sequence
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from learnest.errors import InvalidInput, NotFound
+from learnest.errors import InvalidInput
 from learnest.models.presets import gap_plan_problem
 
 from ..experiments.reports import EvaluationReport
 from ..storage import registry
-from ..storage.database import discard_blobs, flights_by_id, get_row
+from ..storage.database import discard_blobs, flights_by_id, flights_not_found, get_row
 from ..storage.tables import Evaluation, FlightRecord, ModelVersion, utcnow
 from .result_cache import EstimatorSettings, cached_entries, store_result
 from .runner import JobContext, error_message
@@ -180,5 +180,5 @@ def _flight_ids(session: Session, flights, version: ModelVersion) -> list[int]:
     found = set(session.scalars(select(FlightRecord.id).where(FlightRecord.id.in_(ids))))
     missing = [i for i in ids if i not in found]
     if missing:
-        raise NotFound(f"flight(s) not found: {', '.join(map(str, missing))}")
+        raise flights_not_found(missing)
     return ids

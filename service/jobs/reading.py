@@ -75,10 +75,14 @@ def read_uploaded_flight(staged: list[StagedFile], pose_topic: str | None = None
 
 
 def _scrub(value, originals: dict[str, str]):
-    """Replace our temp paths by the client's names anywhere in a message or metadata."""
+    """Replace our temp paths, and our staged file names (a reader's warning names "upload_0_metadata.yaml"),
+    by the client's names anywhere in a message or metadata."""
     if isinstance(value, str):
         for path, name in originals.items():
             value = value.replace(path, name)
+        # longest first: "upload_1.csv" is not to be mistaken for part of "upload_1.csv_info.yaml"
+        for staged, name in sorted(((Path(p).name, n) for p, n in originals.items()), key=lambda pair: -len(pair[0])):
+            value = re.sub(rf"(?<![\w.-]){re.escape(staged)}(?![\w.-])", name.replace("\\", "\\\\"), value)
         return value
     if isinstance(value, dict):
         return {k: _scrub(v, originals) for k, v in value.items()}

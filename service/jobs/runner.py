@@ -48,6 +48,7 @@ from learnest.errors import Conflict, LearnestError, NotFound
 from ..storage.database import Database, dml_rowcount
 from ..storage.leases import acquire_lease, release_lease
 from ..storage.tables import Job, Lease, utcnow
+from .quotas import check_queue
 
 if TYPE_CHECKING:
     from .executors import Executor
@@ -144,6 +145,8 @@ class JobRunner:
         Seconds a cancelled executor task gets to stop itself before it is killed.
     stall_s : float
         Seconds without progress after which a running job of this process is failed (0: never).
+    max_queued : int
+        Jobs that may wait to start, on every server of the database (0: no limit; `quotas.check_queue`).
 
     Attributes
     ----------
@@ -154,8 +157,8 @@ class JobRunner:
     """
 
     def __init__(self, db: Database, threads: int = 4, cancel_grace_s: float = CANCEL_GRACE_S,
-                 stall_s: float = STALL_S) -> None:
-        self.db = db
+                 stall_s: float = STALL_S, max_queued: int = 0) -> None:
+        self.db, self.max_queued = db, max_queued   # max_queued 0: no limit
         self.cancel_grace_s = cancel_grace_s
         self.stall_s = stall_s   # 0: never fail a job for making no progress
         self._stop_events: dict[int, threading.Event] = {}  # jobs this process runs, set when they must stop
@@ -212,6 +215,7 @@ class JobRunner:
     # -- state changes ------------------------------------------------------------------------------------
     def create(self, session: Session, kind: str, payload: dict | None = None) -> Job:
         """Add a queued job row owned by this process (flushed, so it has an id) in the caller's transaction."""
+        check_queue(session, self.max_queued)   # quotas.QueueFull when max_queued jobs wait already
         job = Job(kind=kind, state="queued", progress=0.0, payload=payload, owner=self.owner, created_at=utcnow())
         session.add(job)
         session.flush()

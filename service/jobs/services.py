@@ -48,7 +48,8 @@ def open_services(settings: Settings, executor: Executor | None = None,
     db = Database(settings.url)
     db.migrate()
     blobs = BlobStore(settings.home / "blobs")
-    runner = JobRunner(db, cancel_grace_s=settings.cancel_grace_s, stall_s=settings.job_stall_s)
+    runner = JobRunner(db, cancel_grace_s=settings.cancel_grace_s, stall_s=settings.job_stall_s,
+                       max_queued=settings.max_queued_jobs)
     runner.on_stale.append(registry.fail_versions_of_jobs)
     runner.start()
     owns = executor is None

@@ -52,7 +52,6 @@ def start_training(services: Services, name: str, flight_id: int | Sequence[int]
         If the parent version is not ready.
     """
     from learnest.estimators.flight_training import default_validation
-    from learnest.estimators.group_training import group_rule
 
     registry.check_name(name)
     ids = [flight_id] if isinstance(flight_id, int) else [int(i) for i in flight_id]
@@ -87,10 +86,9 @@ def start_training(services: Services, name: str, flight_id: int | Sequence[int]
         if parent is not None:
             resolved = registry.resolve(session, parent)
             parent = f"{resolved.name}:{resolved.version}"
-        samples = sum(rows[i].samples for i in trained)
+        charged = [rows[i] for i in ids]
     config = training_config(overrides)
-    group_rule(config["group_by"])   # a bad grouping is said before a job starts
-    quotas.check_training(services.settings, epochs=config["epochs"], hidden=config["hidden"], samples=samples)
+    _charge(services, charged, config)
     for attempt in range(20):  # another request may take the same version number first
         try:
             with services.db.transaction() as session:
@@ -110,6 +108,17 @@ def start_training(services: Services, name: str, flight_id: int | Sequence[int]
     services.runner.launch(job.id, lambda ctx: run_training(services, ctx, version_id),
                            on_failure=lambda session, message: _fail_version(session, version_id, message))
     return job, version
+
+
+def _charge(services: Services, flights: Sequence[FlightRecord], config: dict) -> None:
+    """Check the quota on all the work the training causes: every flight the epochs run over (the validation
+    flights are predicted each epoch too) and, with two groups or more, one training per held-out group plus
+    the final one.  A bad grouping (or a pattern that backtracks without end) is said here, before a job."""
+    from learnest.estimators.group_training import group_names
+
+    groups = len(set(group_names([(row.name, row.meta or {}) for row in flights], config["group_by"])))
+    quotas.check_training(services.settings, epochs=config["epochs"], hidden=config["hidden"],
+                          samples=sum(row.samples for row in flights), trainings=1 + groups if groups >= 2 else 1)
 
 
 def run_training(services: Services, ctx: JobContext, version_id: int) -> None:

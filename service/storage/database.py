@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import fcntl
 import json
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar, cast
@@ -227,6 +227,18 @@ def get_row(session: Session, table: type[RowT], key: Any, what: str, *, for_upd
 def flights_by_id(session: Session, ids: Iterable[int]) -> dict[int, FlightRecord]:
     """{id: flight row} of the flights among ``ids`` that exist."""
     return {f.id: f for f in session.scalars(select(FlightRecord).where(FlightRecord.id.in_(list(ids))))}
+
+
+MISSING_LISTED = 10   # ids a "not found" message lists before it only counts the rest
+
+
+def flights_not_found(missing: Sequence[int]) -> NotFound:
+    """The 404 for flight ids that do not exist: the first MISSING_LISTED of them and how many more (a request
+    naming 100 000 wrong ids got them all back, 600 kB)."""
+    listed = ", ".join(map(str, missing[:MISSING_LISTED]))
+    more = f" and {len(missing) - MISSING_LISTED} more" if len(missing) > MISSING_LISTED else ""
+    return NotFound(f"flight(s) not found: {listed}{more} ({len(missing)} in all)" if more
+                    else f"flight(s) not found: {listed}")
 
 
 def dml_rowcount(result: QueryResult[Any]) -> int:

@@ -2,7 +2,8 @@
 
 A form sends every field as text and an empty field for "not given"; the parsers here turn that into the
 same pydantic request models the JSON routes take, so a form and a JSON body are checked by the same rules
-and fail with the same messages (a pydantic ValidationError, which the pages show as a 422 page).
+and fail with the same messages (a pydantic ValidationError, which the pages show as a 422 page).  Only the
+types are read leniently (``strict=False``: "5" is 5 in a form, where a JSON body must send a number).
 
 API key: with LEARNEST_API_KEY set, a form write needs the key, typed into the form's "API key" field or held
 in the cookie; the request guard (service.api.request_guard) checks it, with the JSON API's throttle, before
@@ -86,12 +87,12 @@ def train_request(name: str, flight_id: str, epochs: str, include_bad: str | Non
         body["system"] = system.strip()
     if optional(group_by):
         body["group_by"] = group_by.strip()
-    return TrainRequest.model_validate(body)
+    return TrainRequest.model_validate(body, strict=False)
 
 
 def alias_version(version: str) -> int:
     """The alias form's version, checked as PUT /models/{name}/aliases/{alias}'s body."""
-    return AliasIn.model_validate({"version": version}).version
+    return AliasIn.model_validate({"version": version}, strict=False).version
 
 
 def evaluation_request(model: str, flights: list[str], methods: list[str], horizon: str,
@@ -104,7 +105,7 @@ def evaluation_request(model: str, flights: list[str], methods: list[str], horiz
             "include_bad": include_bad is not None}
     if sg_window.strip():
         body["sg_window"] = sg_window.strip()
-    return EvaluationRequest.model_validate(body)
+    return EvaluationRequest.model_validate(body, strict=False)
 
 
 def diagnosis_request(flights: list[str], model: str, system: str, methods: list[str], epochs: str,
@@ -123,7 +124,7 @@ def diagnosis_request(flights: list[str], model: str, system: str, methods: list
         if not optional(register_as):
             raise InvalidInput("register: give the model name the repaired model is registered under")
         body["register"] = register_as.strip()
-    return DiagnosisRequest.model_validate(body)
+    return DiagnosisRequest.model_validate(body, strict=False)
 
 
 def validation_message(err: ValidationError) -> str:

@@ -200,6 +200,8 @@ def live_server(home, **changes):
     class Protocol(DeadlineH11Protocol):
         header_timeout_s = TIMEOUT_S
         send_timeout_s = settings.send_timeout_s
+        max_client_connections = settings.max_client_connections
+        trusted_proxies = settings.trusted_proxy_addresses
 
     options = {**uvicorn_options(settings), "http": Protocol}
     config = uvicorn.Config(create_app(settings, executor=shared_pool(), scheduler=False), log_level="warning",

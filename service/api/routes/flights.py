@@ -6,25 +6,25 @@ CLI use it too), and reading rows is service.operations.catalog.
 """
 from __future__ import annotations
 
-import io
 import re
 import shutil
 import tempfile
 import zipfile
+from collections.abc import Iterator
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Literal
+from typing import BinaryIO, Literal
 
 import numpy as np
 from fastapi import APIRouter, Depends, File, Form, Query, Request, Response, UploadFile
 from fastapi.encoders import jsonable_encoder
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.responses import FileResponse, JSONResponse, StreamingResponse
 from starlette.background import BackgroundTask
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile as StarletteUpload
 
 from learnest.errors import InvalidInput
-from learnest.ingest.flight import Flight as CanonicalFlight
+from learnest.ingest.flight import stored_array_blocks
 
 from ...jobs.services import Services
 from ...operations import catalog, deletion
@@ -34,6 +34,7 @@ from ...storage.database import Database
 from ...storage.tables import FlightRecord
 from ..deps import Offset, RowId, get_blobs, get_db, get_services, require_api_key
 from ..schemas import Dependents, FlightDetail, FlightOut, FlightPage
+from ..server import FORM_FIELD_BYTES
 
 router = APIRouter(prefix="/flights", tags=["flights"])
 
@@ -117,7 +118,8 @@ async def upload_flights(request: Request):
     body's size and time are limited as every upload's, and the multipart parser stops past MAX_BATCH_FILES
     files."""
     services: Services = request.app.state.services
-    async with request.form(max_files=MAX_BATCH_FILES, max_fields=len(BATCH_FIELDS) + 10) as form:
+    async with request.form(max_files=MAX_BATCH_FILES, max_fields=len(BATCH_FIELDS) + 10,
+                            max_part_size=FORM_FIELD_BYTES) as form:
         files = [f for f in form.getlist("files") if isinstance(f, StarletteUpload) and f.filename]
         fields = {}
         for name, limit in BATCH_FIELDS.items():
@@ -206,17 +208,30 @@ def flight_detail(flight_id: RowId, db: Database = Depends(get_db)):
     return flight_out(catalog.get_flight(db, flight_id), detail=True)
 
 
-@router.get("/{flight_id}/data", response_class=Response,
+@router.get("/{flight_id}/data", response_class=StreamingResponse,
             responses={200: {"content": {"text/csv": {}}, "description": f"columns {CSV_COLUMNS}"}})
 def flight_data(flight_id: RowId, db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
-    """The normalized flight: uniform grid, SI units, world frame z-up, a = a_meas (gravity removed)."""
+    """The normalized flight: uniform grid, SI units, world frame z-up, a = a_meas (gravity removed).  Streamed
+    in blocks of CSV_BLOCK_ROWS rows read from the stored flight as they are sent (`csv_blocks`)."""
     row = catalog.get_flight(db, flight_id)
-    flight = CanonicalFlight.from_bytes(blobs.read_bytes(row.flight_blob))
-    table = np.column_stack([flight.t, flight.p, flight.a_meas, flight.quat])
-    buffer = io.StringIO()
-    np.savetxt(buffer, table, delimiter=",", fmt="%.10g", header=CSV_COLUMNS, comments="")
-    return Response(buffer.getvalue(), media_type="text/csv",
-                    headers={"Content-Disposition": f'attachment; filename="{row.name}.csv"'})
+    source = blobs.path(row.flight_blob).open("rb")   # opened here: a missing blob fails before the 200
+    return StreamingResponse(csv_blocks(source), media_type="text/csv",
+                             headers={"Content-Disposition": f'attachment; filename="{row.name}.csv"'})
+
+
+CSV_BLOCK_ROWS = 2048   # rows formatted at once: ~0.3 MB of text, whatever the flight's length
+
+
+def csv_blocks(source: BinaryIO, rows: int = CSV_BLOCK_ROWS) -> Iterator[bytes]:
+    """A stored flight (an open `Flight.to_bytes` file, closed at the end) as CSV, ``rows`` rows per block:
+    the bytes ``np.savetxt`` gives for the whole table, with the memory of one block (20 requests for a
+    180k-sample flight each built its whole CSV, and the server grew by 1.5 GB)."""
+    line = ",".join(["%.10g"] * len(CSV_COLUMNS.split(","))) + "\n"   # np.savetxt's row format, without its
+    # file wrapper (a reference cycle per call: each block's text stayed until the garbage collector ran)
+    with source:
+        yield (CSV_COLUMNS + "\n").encode()
+        for t, p, a, quat in stored_array_blocks(source, ("t", "p", "a_meas", "quat"), rows):
+            yield "".join([line % tuple(row) for row in np.column_stack([t, p, a, quat]).tolist()]).encode()
 
 
 @router.get("/{flight_id}/raw", response_class=FileResponse,

@@ -418,11 +418,18 @@ def test_a_plain_metadata_vehicle_id_is_kept(tmp_path):
 def test_a_sidecar_yaml_can_not_take_down_the_reader(tmp_path, value, error):
     """Found by benchmarks/fuzz_decoders.py: a 5000-digit integer (ValueError from Python's int-from-text
     cap) or a document nested 20 000 deep (RecursionError) escaped read_sidecar, and 3000 unclosed [ took
-    PyYAML's scanner past the 5 s limit; all are unreadable YAML, so the sidecar is ignored with a warning
-    and the flight still reads."""
+    PyYAML's scanner past the 5 s limit.  Each is said at once, naming the file: the unreadable integer is
+    ignored with a warning and the flight still reads; nesting past the cap refuses the flight (`SidecarTooLarge`,
+    as the other caps)."""
+    from learnest.ingest.sidecar import SidecarTooLarge
+
     path = write_csv(synthetic_table(6.0, seed=3), tmp_path / "short.csv")
     path.with_name("short_metadata.yaml").write_text(f"crazyflie_id: {value}\n")
     with pytest.raises(IngestError, match=f"short_metadata.yaml: unreadable YAML \\({error}"):
         read_sidecar(path.with_name("short_metadata.yaml"))
+    if "nested" in error:
+        with pytest.raises(SidecarTooLarge, match="short_metadata.yaml"):
+            nanobench_reader.read(path)
+        return
     flight = nanobench_reader.read(path)
     assert flight.meta["nanobench"] is None and "unreadable YAML" in flight.meta["warnings"][0]
