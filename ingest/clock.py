@@ -6,22 +6,36 @@ Crazyflie booted.  The two clocks share nothing, so the offset is estimated from
     t_ref = t_other + offset_s
 
 `estimate_clock_offset` works on any pair of scalar signals.  For mocap + accelerometer,
-`align_mocap_and_accelerometer` compares the magnitude of the specific force:
+`align_mocap_and_accelerometer` compares the specific-force vector in the body frame, where the mocap has an
+attitude:
 
-    mocap:          |p̈ + g ẑ|      (p̈ = Savitzky–Golay second derivative of the mocap position)
-    accelerometer:  |acc| · g      (body frame, in g from the log)
+    mocap:          R(q)ᵀ (p̈ + g ẑ)   (p̈ = Savitzky–Golay second derivative, q the mocap attitude)
+    accelerometer:  acc · g            (body frame, in g from the log)
 
-Why this quantity:
-  * It needs no attitude.  Rotating the accelerometer into the world (or the mocap acceleration into the
-    body) uses the mocap attitude *at the accelerometer's time stamps* — i.e. the offset being estimated.
-  * It is frame-free: a norm is unchanged by the IMU's mounting rotation, the mocap object's axis
-    definition (its yaw is set when the object is created in Vicon, often unrelated to the IMU axes) and
-    quaternion/axis conventions, none of which the two files tell us.
-  * It is what an ideal accelerometer measures in magnitude, gravity included, so both sides agree up to
-    sensor scale and bias — which the normalised correlation (mean removed) ignores.
-  * Cost: a norm discards direction.  Motion at constant |a + g ẑ| (a hover, a level circle at constant
-    speed) carries no timing information; the score then stays low and the caller must not trust the
-    offset.  Take-off and landing, which every recording normally contains, excite it strongly.
+summing the three axes' cross-correlations.  Why the body frame:
+  * Position and attitude share the mocap's clock, so R(q)ᵀ(p̈ + g ẑ) needs no offset.  Rotating the
+    accelerometer into the world instead needs the attitude at the accelerometer's stamps, i.e. the offset
+    being sought: at a trial offset the rotated thrust points where the mocap says at that offset, so the
+    correlation confirms whatever offset it was given.  Rotated at every trial lag instead, the world-frame sum
+    of products equals the body-frame one, lag by lag (a rotation keeps dot products).
+  * What times the clocks is what changes in the body: the thrust's size (the body z axis) and the body x and
+    y components, which for a quadrotor are the rotor drag (−k Rᵀv/m, ~0.2 m/s² at 1 m/s) turning with the
+    velocity, plus any IMU tilt.  On a constant-speed circle the thrust's size barely changes and the
+    magnitude alone cannot time it (simulated 0.5-m circle at 1.5 m/s without take-off: 39 ms off against the
+    vector's 8.5 ms, tests/ingest/test_clock_vector.py); the drag turning with the vehicle can.
+  * It assumes the mocap object's axes are the IMU's: their mean specific force (gravity's direction in the
+    body) must agree within MAX_FRAME_TILT_DEG, or the magnitude stands in (``note`` says why).  The magnitude is
+    also the fallback without an attitude: frame-free, it needs no convention at all.
+  * Occlusion gaps longer than OCCLUSION_STEPS frames are left out of the vector (bridged linearly they have no
+    p̈ and an interpolated attitude).
+  * Motion with a constant body-frame specific force (a hover) carries no timing information; a periodic
+    one (a circle flown for ever) times the clocks only to within a period: the score and the runner-up
+    say so, and the caller must not trust the offset then.
+
+The offset's uncertainty (``uncertainty_s``) is that of a block bootstrap (`clock_correlation.bootstrap_spread`:
+2-s blocks of the paired samples drawn with replacement, the peak found again in each draw; half the central
+68 % of the draws).  On simulated circles it tracks the spread of the error over noise draws to within ~30 %;
+`ClockAlignment.pins_one_sample` says whether it is within one mocap sample (1 sigma).
 
 Both signals pass through the same zero-phase low-pass, so any filter phase is common to both and cannot
 bias the offset; the band keeps the manoeuvre and drops double-differentiated mocap noise (it grows with
@@ -35,10 +49,10 @@ manoeuvres' few Hz.  `align_mocap_and_accelerometer` adds the declared filter's 
 (`SensorLowPass.group_delay_s`, flat to 0.1 ms across the correlation's band) back to the peak, so the
 offset is the clocks' and the filter's delay stays what it is, a property of the sensor.
 
-Accuracy (simulated 8 s figure-eight with take-off and landing,
+Accuracy of the magnitude (simulated 8 s figure-eight with take-off and landing,
 tests/ingest/formats/test_ingest_vicon_cfclient.py): ~1-3 ms with 0.01 g accelerometer and 0.1 mm mocap noise
-(score 0.99); ~10-15 ms at 0.05 g / 0.5 mm (score 0.9);
-~20-35 ms at 0.1 g / 1 mm (score 0.75).  It is limited by how fast |specific force| changes: brisk
+(score 0.99); ~10-15 ms at 0.05 g / 0.5 mm (score 0.9); ~20-35 ms at 0.1 g / 1 mm (score 0.75); the vector
+does as well there (3 ms).  Both are limited by how fast the body-frame specific force changes: brisk
 manoeuvres and take-offs give sharper correlation peaks than slow, level motion.
 """
 from __future__ import annotations
@@ -49,7 +63,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .align import resample, uniform_grid
+from .align import resample, resample_quaternions, uniform_grid
+from .clock_correlation import Channel, bootstrap_spread, normalised_correlation, overlap, parabolic_vertex, runner_up
 from .frames import GRAVITY
 
 DEFAULT_MAX_LAG_S = 30.0
@@ -61,6 +76,18 @@ BAND_ORDER = 4
 # the noise of double differentiation before the common low-pass.
 SG_WINDOW_S = 0.31
 SG_ORDER = 2
+# The vector's body x and y are small differences (rotor drag, ~0.2 m/s² at 1 m/s) of large terms (g tilted,
+# the manoeuvre): an order-2 derivative loses ~1 % of a 0.3-Hz manoeuvre, which leaks into x and y 90° out of
+# phase with the drag and moved a simulated circle's offset by 33 ms.  Order 4 over 0.51 s is flat to 0.01 %
+# there and no noisier.
+VECTOR_SG_WINDOW_S = 0.51
+VECTOR_SG_ORDER = 4
+# The mocap object's axes and the IMU's must agree for the vector: the mean specific force (gravity's
+# direction in the body, as each sees it) may differ by a few degrees of mounting tilt, not by this.
+MAX_FRAME_TILT_DEG = 20.0
+# A mocap gap of a few frames is bridged well by interpolation; one longer than this many frames (as
+# `align.build_flight` counts gaps) is left out of the vector, with half the derivative's window either side.
+OCCLUSION_STEPS = 5
 # A candidate lag must overlap the shorter signal by this fraction: tiny overlaps can correlate perfectly
 # by chance and would otherwise win.
 MIN_OVERLAP_FRACTION = 0.5
@@ -68,6 +95,8 @@ MIN_OVERLAP_FRACTION = 0.5
 MIN_SIGNAL_S = 2.0
 # The side-lobe search ignores the main lobe: the contiguous lags around the peak above half its height.
 MAIN_LOBE_FRACTION = 0.5
+# Mocap attitudes further than this from unit norm are not quaternions (a position-only stream writes zeros).
+UNIT_QUATERNION_TOLERANCE = 0.1
 
 
 @dataclass(frozen=True)
@@ -124,24 +153,40 @@ class ClockAlignment:
     runner_up : float
         Highest normalised correlation outside the peak's main lobe (periodic motion gives a high one).
     excitation : float
-        rms of the band-limited reference signal, in its units.
+        rms of the band-limited reference signal (all channels), in its units.
     start_offset_s : float
         The offset that aligns the two starts (the centre of the search), s.
     sensor_delay_s : float
         The group delay of the other stream's own low-pass, added to the correlation peak to give the
         clocks' offset (0 when no filter is declared), s.
+    uncertainty_s : float
+        1-sigma spread of the offset over a block bootstrap of the paired samples
+        (`ingest.clock_correlation.bootstrap_spread`), s; NaN for signals too short to draw blocks from.
+    signal : str
+        What was correlated: "specific-force vector" or "specific-force magnitude" (mocap and accelerometer),
+        "signal" (`align_signals` on two scalar signals).
+    note : str
+        Why the magnitude stood in for the vector, when it did ("" otherwise).
     """
 
-    offset_s: float          # t_ref = t_other + offset_s
-    score: float             # normalised correlation at the peak, in [-1, 1]
-    runner_up: float         # highest normalised correlation outside the peak's main lobe (periodic motion)
-    excitation: float        # rms of the band-limited reference signal, in its units
-    start_offset_s: float    # the offset that aligns the two starts: the centre of the search
-    sensor_delay_s: float = 0.0   # the other stream's low-pass group delay, added to the peak
+    offset_s: float
+    score: float
+    runner_up: float
+    excitation: float
+    start_offset_s: float
+    sensor_delay_s: float = 0.0
+    uncertainty_s: float = float("nan")
+    signal: str = "signal"
+    note: str = ""
 
     def as_meta(self) -> dict:
-        """The fields as a dict of floats (for ``Flight.meta``)."""
-        return {name: float(value) for name, value in vars(self).items()}
+        """The fields as a dict of floats, the signal as text (for ``Flight.meta``)."""
+        return {name: value if isinstance(value, str) else float(value) for name, value in vars(self).items()}
+
+    def pins_one_sample(self, sample_s: float) -> bool:
+        """Whether the offset is known to within one sample of ``sample_s`` s: its 1-sigma uncertainty is at
+        most one sample (NaN: not known)."""
+        return bool(self.uncertainty_s <= sample_s)
 
 
 # -- the generic estimator ------------------------------------------------------------------------------
@@ -184,32 +229,43 @@ def align_signals(t_ref: ArrayLike, a_ref: ArrayLike, t_other: ArrayLike, a_othe
     """
     grid_ref, x = _uniform(t_ref, a_ref, rate_hz, names[0])
     grid_other, y = _uniform(t_other, a_other, rate_hz, names[1])
-    x, y = _band_limited(x, rate_hz), _band_limited(y, rate_hz)
-    lags, ncc = _normalised_correlation(x, y)
-    start_offset = grid_ref[0] - grid_other[0]     # lag 0 pairs the first samples of both grids
-    min_overlap = MIN_OVERLAP_FRACTION * min(len(x), len(y))
-    candidates = (np.abs(lags) <= max_lag_s * rate_hz) & (_overlap(lags, len(x), len(y)) >= min_overlap)
+    channel = Channel(_band_limited(x, rate_hz), _band_limited(y, rate_hz))
+    return _align_channels([channel], grid_ref[0] - grid_other[0], max_lag_s, rate_hz, "signal")
+
+
+def _align_channels(channels: list[Channel], start_offset: float, max_lag_s: float, rate_hz: float,
+                    signal: str) -> ClockAlignment:
+    """The correlation peak of band-limited channels on one grid (lag 0 pairs the first samples, which lie
+    ``start_offset`` s apart), refined to a fraction of a sample, with its bootstrap uncertainty."""
+    lags, ncc = normalised_correlation(channels)
+    n_x, n_y = len(channels[0].x), len(channels[0].y)
+    candidates = (np.abs(lags) <= max_lag_s * rate_hz) & (overlap(lags, n_x, n_y) >= MIN_OVERLAP_FRACTION
+                                                          * min(n_x, n_y))
     if not candidates.any():
         raise ValueError("the signals cannot overlap by half the shorter one within the lag range")
     ncc = np.where(candidates, ncc, -np.inf)
     peak = int(np.argmax(ncc))
-    offset = start_offset + (lags[peak] + _parabolic_vertex(ncc, peak)) / rate_hz
-    return ClockAlignment(offset_s=float(offset), score=float(ncc[peak]), runner_up=_runner_up(ncc, peak),
-                          excitation=float(np.sqrt(np.mean(x ** 2))), start_offset_s=float(start_offset))
+    offset = start_offset + (lags[peak] + parabolic_vertex(ncc, peak)) / rate_hz
+    excitation = np.sqrt(np.mean(sum(c.x ** 2 for c in channels)))
+    return ClockAlignment(offset_s=float(offset), score=float(ncc[peak]),
+                          runner_up=runner_up(ncc, peak, MAIN_LOBE_FRACTION), excitation=float(excitation),
+                          start_offset_s=float(start_offset),
+                          uncertainty_s=bootstrap_spread(channels, int(lags[peak]), rate_hz), signal=signal)
 
 
 def _uniform(t, values, rate_hz: float, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """(uniform grid (G,) s, values (G,) or (G, k) on it) from samples (N,) or (N, k) at times (N,) s."""
     t, values = np.asarray(t, dtype=float), np.asarray(values, dtype=float)
-    if t.ndim != 1 or values.shape != t.shape:
-        raise ValueError(f"{name}: times {t.shape} and values {values.shape} must be equal 1-D arrays")
-    finite = np.isfinite(t) & np.isfinite(values)
+    if t.ndim != 1 or values.shape[:1] != t.shape or values.ndim > 2:
+        raise ValueError(f"{name}: times {t.shape} and values {values.shape} must have one row per time")
+    finite = np.isfinite(t) & np.all(np.isfinite(values.reshape(len(t), -1)), axis=1)
     t, values = t[finite], values[finite]
     if len(t) < 2 or not np.all(np.diff(t) > 0):
         raise ValueError(f"{name}: needs at least 2 finite samples with increasing times")
     if t[-1] - t[0] < MIN_SIGNAL_S:
         raise ValueError(f"{name}: {t[-1] - t[0]:.2f} s is too short to align clocks (needs {MIN_SIGNAL_S:g} s)")
     grid = uniform_grid(t[0], t[-1], rate_hz)
-    return grid, np.interp(grid, t, values)
+    return grid, (np.interp(grid, t, values) if values.ndim == 1 else resample(t, values, grid)[0])
 
 
 def _band_limited(signal: np.ndarray, rate_hz: float) -> np.ndarray:
@@ -222,65 +278,38 @@ def _band_limited(signal: np.ndarray, rate_hz: float) -> np.ndarray:
     return filtered - filtered.mean()
 
 
-def _normalised_correlation(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Lags m and sum_n x[n+m] y[n] / sqrt(energy of x and of y over their overlap at m).
-
-    Normalising by the overlap (not the whole signals) keeps a lag with a short but perfect overlap
-    comparable with the full one; the caller bounds the overlap from below.
-    """
-    from scipy.signal import correlate  # scipy.signal imports scipy.stats (~1.5 s): loaded on first use
-
-    lags = np.arange(-(len(y) - 1), len(x))
-    raw = correlate(x, y, mode="full", method="fft")
-    cx, cy = np.r_[0.0, np.cumsum(x ** 2)], np.r_[0.0, np.cumsum(y ** 2)]
-    x_start, x_stop = np.maximum(lags, 0), np.minimum(len(y) + lags, len(x))
-    y_start, y_stop = np.maximum(-lags, 0), np.minimum(len(y), len(x) - lags)
-    energy = (cx[x_stop] - cx[x_start]) * (cy[y_stop] - cy[y_start])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ncc = np.where(energy > 0, raw / np.sqrt(energy), 0.0)
-    return lags, np.clip(ncc, -1.0, 1.0)
-
-
-def _overlap(lags: np.ndarray, n_x: int, n_y: int) -> np.ndarray:
-    return np.minimum(n_y, n_x - lags) - np.maximum(0, -lags)
-
-
-def _parabolic_vertex(values: np.ndarray, peak: int) -> float:
-    """Sub-sample position of the peak (in samples, within ±0.5) from the parabola through 3 points."""
-    if peak == 0 or peak == len(values) - 1 or not np.all(np.isfinite(values[peak - 1:peak + 2])):
-        return 0.0
-    left, centre, right = values[peak - 1:peak + 2]
-    curvature = left - 2 * centre + right
-    return float(np.clip(0.5 * (left - right) / curvature, -0.5, 0.5)) if curvature < 0 else 0.0
-
-
-def _runner_up(ncc: np.ndarray, peak: int) -> float:
-    """Best correlation outside the main lobe: close to the peak when the motion repeats (a periodic
-    trajectory matches itself one period later), so the peak cannot be told from its neighbours."""
-    threshold = MAIN_LOBE_FRACTION * ncc[peak]
-    below = ~(ncc > threshold)
-    left = peak - int(np.argmax(below[peak::-1])) if below[:peak + 1].any() else -1
-    right = peak + int(np.argmax(below[peak:])) if below[peak:].any() else len(ncc)
-    outside = np.r_[ncc[:max(left, 0)], ncc[right:]]
-    outside = outside[np.isfinite(outside)]
-    return float(outside.max()) if outside.size else float("nan")
-
-
 # -- mocap vs accelerometer -----------------------------------------------------------------------------
 def mocap_specific_force(t: ArrayLike, p: ArrayLike, rate_hz: float = 100.0) -> tuple[np.ndarray, np.ndarray]:
-    """(uniform times, |p̈ + g ẑ| in m/s²) from mocap positions (m, world z-up) at frame times `t`.
+    """(uniform times (G,) s, |p̈ + g ẑ| (G,) m/s²) from mocap positions (N, 3) m, world z-up, at frame times
+    ``t`` (N,) s."""
+    grid, acc = _mocap_acceleration(t, p, rate_hz)
+    return grid, np.linalg.norm(acc + [0.0, 0.0, GRAVITY], axis=1)
 
-    Occlusion gaps are bridged linearly (p̈ = 0 inside, a short bump at the edges): harmless for the
-    correlation as long as gaps are a small part of the flight.
-    """
+
+def mocap_body_specific_force(t: ArrayLike, p: ArrayLike, quat: ArrayLike,
+                              rate_hz: float = 100.0) -> tuple[np.ndarray, np.ndarray]:
+    """(uniform times (G,) s, R(q)ᵀ (p̈ + g ẑ) (G, 3) m/s²): the specific force an accelerometer fixed to the
+    mocap object reads, from positions (N, 3) m and attitudes (N, 4) scalar-last at frame times ``t`` (N,) s.
+
+    Position and attitude share the mocap's clock, so this needs no clock offset (module docstring)."""
+    from .frames import quat_to_matrix
+
+    grid, acc = _mocap_acceleration(t, p, rate_hz, VECTOR_SG_WINDOW_S, VECTOR_SG_ORDER)
+    rotation = quat_to_matrix(resample_quaternions(t, quat, grid))
+    return grid, np.einsum("tji,tj->ti", rotation, acc + [0.0, 0.0, GRAVITY])
+
+
+def _mocap_acceleration(t: ArrayLike, p: ArrayLike, rate_hz: float, window_s: float = SG_WINDOW_S,
+                        order: int = SG_ORDER) -> tuple[np.ndarray, np.ndarray]:
+    """(uniform times (G,) s, Savitzky–Golay p̈ (G, 3) m/s², world).  Occlusion gaps are bridged linearly
+    (p̈ = 0 inside, a short bump at the edges): harmless while gaps are a small part of the flight."""
     from scipy.signal import savgol_filter  # scipy.signal imports scipy.stats (~1.5 s): loaded on first use
 
     t, p = np.asarray(t, dtype=float), np.asarray(p, dtype=float)
     grid = uniform_grid(t[0], t[-1], rate_hz)
-    window = _odd_window(SG_WINDOW_S * rate_hz, len(grid))
+    window = _odd_window(window_s * rate_hz, len(grid), order)
     p_grid = resample(t, p, grid)[0]
-    acc = savgol_filter(p_grid, window, SG_ORDER, deriv=2, delta=1.0 / rate_hz, axis=0, mode="interp")
-    return grid, np.linalg.norm(acc + [0.0, 0.0, GRAVITY], axis=1)
+    return grid, savgol_filter(p_grid, window, order, deriv=2, delta=1.0 / rate_hz, axis=0, mode="interp")
 
 
 def accelerometer_specific_force(acc_g: ArrayLike) -> np.ndarray:
@@ -288,8 +317,8 @@ def accelerometer_specific_force(acc_g: ArrayLike) -> np.ndarray:
     return np.linalg.norm(np.asarray(acc_g, dtype=float), axis=1) * GRAVITY
 
 
-def _odd_window(samples: float, n: int) -> int:
-    window = max(SG_ORDER + 1, int(round(samples)))
+def _odd_window(samples: float, n: int, order: int = SG_ORDER) -> int:
+    window = max(order + 1, int(round(samples)))
     window += 1 - window % 2
     if window > n:
         raise ValueError(f"mocap: {n} samples are too few for the {window}-sample differentiation window")
@@ -298,23 +327,94 @@ def _odd_window(samples: float, n: int) -> int:
 
 def align_mocap_and_accelerometer(t_mocap: np.ndarray | Sequence[float], p: ArrayLike, t_acc: ArrayLike,
                                   acc_g: ArrayLike, max_lag_s: float = DEFAULT_MAX_LAG_S,
-                                  rate_hz: float = 100.0,
-                                  accel_lowpass: SensorLowPass | None = None) -> ClockAlignment:
-    """Offset with t_mocap = t_acc + offset_s, from the specific-force magnitude (module docstring).
+                                  rate_hz: float = 100.0, accel_lowpass: SensorLowPass | None = None,
+                                  quat: ArrayLike | None = None) -> ClockAlignment:
+    """Offset with t_mocap = t_acc + offset_s, from the specific-force vector where the mocap has an attitude,
+    else from its magnitude (module docstring).
 
-    ``t_mocap`` (N,) s, ``p`` (N, 3) m, ``t_acc`` (M,) s, ``acc_g`` (M, 3) g.  ``accel_lowpass``: the
-    accelerometer's own filter, whose group delay is added to the correlation peak (``sensor_delay_s``);
-    None for an unfiltered accelerometer.  Raises ValueError as `align_signals` does, or for fewer than 2
-    mocap frames.
+    Parameters
+    ----------
+    t_mocap : array_like, shape (N,)
+        Mocap frame times, s (the mocap's clock).
+    p : array_like, shape (N, 3)
+        Mocap positions, m, world z-up.
+    t_acc : array_like, shape (M,)
+        Accelerometer stamps, s (its own clock).
+    acc_g : array_like, shape (M, 3)
+        Body-frame specific force, g.
+    max_lag_s : float
+        Search half-width around the start-aligned offset, s.
+    rate_hz : float
+        Correlation grid rate, Hz.
+    accel_lowpass : SensorLowPass, optional
+        The accelerometer's own filter, whose group delay is added to the peak (``sensor_delay_s``); None for
+        an unfiltered accelerometer.
+    quat : array_like, shape (N, 4), optional
+        Mocap attitudes, scalar-last.  None, or not finite unit quaternions: the magnitude alone.
+
+    Raises
+    ------
+    ValueError
+        As `align_signals`, or for fewer than 2 mocap frames.
     """
     if len(t_mocap) < 2:
         raise ValueError("mocap: needs at least 2 frames")
-    grid, mocap_norm = mocap_specific_force(t_mocap, p, rate_hz)
-    alignment = align_signals(grid, mocap_norm, t_acc, accelerometer_specific_force(acc_g),
-                              max_lag_s=max_lag_s, rate_hz=rate_hz, names=("mocap", "accelerometer"))
+    alignment, note = None, "the mocap has no attitude"
+    if _attitude_usable(quat, len(t_mocap)):
+        alignment, note = _align_vector(t_mocap, p, quat, t_acc, acc_g, max_lag_s, rate_hz)
+    if alignment is None:
+        grid, mocap_norm = mocap_specific_force(t_mocap, p, rate_hz)
+        alignment = align_signals(grid, mocap_norm, t_acc, accelerometer_specific_force(acc_g),
+                                  max_lag_s=max_lag_s, rate_hz=rate_hz, names=("mocap", "accelerometer"))
+        alignment = replace(alignment, signal="specific-force magnitude", note=note)
     if accel_lowpass is None:
         return alignment
     # the logged value at t_acc is the body's specific force one group delay earlier: the peak pairs mocap
     # time T with accelerometer stamp T - offset + delay, so the clocks' offset is the peak's + delay
     delay = accel_lowpass.group_delay_s()
     return replace(alignment, offset_s=alignment.offset_s + delay, sensor_delay_s=delay)
+
+
+def _attitude_usable(quat: ArrayLike | None, frames: int) -> bool:
+    """Whether ``quat`` is one finite unit quaternion (scalar-last) per mocap frame."""
+    if quat is None:
+        return False
+    quat = np.asarray(quat, dtype=float)
+    return (quat.shape == (frames, 4) and bool(np.all(np.isfinite(quat)))
+            and bool(np.all(np.abs(np.linalg.norm(quat, axis=1) - 1.0) < UNIT_QUATERNION_TOLERANCE)))
+
+
+def _align_vector(t_mocap, p, quat, t_acc, acc_g, max_lag_s: float,
+                  rate_hz: float) -> tuple[ClockAlignment | None, str]:
+    """`align_mocap_and_accelerometer` on the body-frame specific-force vector, the three axes' correlations
+    summed: (the alignment, "") or (None, why the axes cannot be compared)."""
+    grid_ref, mocap = mocap_body_specific_force(t_mocap, p, quat, rate_hz)
+    grid_other, acc = _uniform(t_acc, np.asarray(acc_g, dtype=float) * GRAVITY, rate_hz, "accelerometer")
+    tilt = _angle_deg(np.mean(mocap, axis=0), np.mean(acc, axis=0))
+    if not tilt <= MAX_FRAME_TILT_DEG:
+        return None, (f"the mocap object's axes and the accelerometer's disagree by {tilt:.0f}° "
+                      f"(> {MAX_FRAME_TILT_DEG:g}°) on gravity's direction")
+    _uniform(grid_ref, mocap[:, 2], rate_hz, "mocap")        # long enough to align, as the magnitude requires
+    seen = _seen(t_mocap, grid_ref, VECTOR_SG_WINDOW_S / 2)
+    channels = [Channel(_band_limited(mocap[:, j], rate_hz) * seen, _band_limited(acc[:, j], rate_hz))
+                for j in range(3)]
+    return _align_channels(channels, grid_ref[0] - grid_other[0], max_lag_s, rate_hz, "specific-force vector"), ""
+
+
+def _seen(t_mocap: ArrayLike, grid: np.ndarray, margin_s: float) -> np.ndarray:
+    """(G,) 1.0 where the mocap saw the vehicle, 0.0 within ``margin_s`` of an occlusion gap (a step longer than
+    OCCLUSION_STEPS median steps): bridged linearly, a gap has no p̈ and the attitude turns by interpolation,
+    so the vector there would be compared with nothing the vehicle did."""
+    t_mocap = np.asarray(t_mocap, dtype=float)
+    steps = np.diff(t_mocap)
+    seen = np.ones(len(grid))
+    for gap in np.flatnonzero(steps > OCCLUSION_STEPS * np.median(steps)):
+        seen[(grid > t_mocap[gap] - margin_s) & (grid < t_mocap[gap + 1] + margin_s)] = 0.0
+    return seen
+
+
+def _angle_deg(u: np.ndarray, v: np.ndarray) -> float:
+    """Angle between two 3-vectors, degrees (NaN for a zero vector)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cosine = np.dot(u, v) / (np.linalg.norm(u) * np.linalg.norm(v))
+    return float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))

@@ -18,8 +18,11 @@ signal says what it can:
   touchdown transients are trimmed as by the height rule (`ingest.align.flying_window`).
 
 A recording that starts with the motors running above the floor is kept from its first sample; one that
-ends with them running in the air is kept to its last.  A log with neither a power signal nor a resting
-accelerometer falls back to the height rule alone, and the reason printed says so.
+ends with them running in the air is kept to its last.  One whose motors (or rotor speeds) run from its first
+to its last sample while the accelerometer never rests never stood on anything: it is kept whole, and the
+heights are not asked (a climb is not a take-off, a dip below the starting height in the air not a landing).
+A log with neither a power signal nor a resting accelerometer falls back to the height rule alone, and the
+reason printed says so.
 """
 from __future__ import annotations
 
@@ -67,7 +70,8 @@ class FlightSpan:
     rule : str
         Why, naming the signals used.
     signals : list of str
-        The signals that decided ("motor PWM", "accelerometer at rest", "height above the floor", "height").
+        The signals that decided ("motor PWM", "accelerometer at rest", "accelerometer never at rest",
+        "height above the floor", "height").
     floor_m : float or None
         The floor's height (m, mocap z) when a floor was seen.
     """
@@ -176,10 +180,11 @@ def find_flight(t: ArrayLike, p: ArrayLike, rate_hz: float, channels: dict | Non
     power, power_names = powered(channels, rate_hz)
     signals = list(power_names)
 
+    rest = resting(channels.get("acc_body"), rate_hz)
     if power is not None and power.all():
-        return _powered_throughout(t, p, rate_hz, power_names, signals, height_rule)
+        return _powered_throughout(t, p, rate_hz, power_names, rest, height_rule)
 
-    floor, ground = _floor_and_ground(z, power, resting(channels.get("acc_body"), rate_hz), rate_hz, signals)
+    floor, ground = _floor_and_ground(z, power, rest, rate_hz, signals)
 
     if floor is None:
         return _span_without_a_floor(t, p, rate_hz, signals, height_rule)
@@ -231,19 +236,33 @@ def _span_without_a_floor(t: np.ndarray, p: np.ndarray, rate_hz: float, signals:
                       ["height"])
 
 
-def _powered_throughout(t: np.ndarray, p: np.ndarray, rate_hz: float, power_names: list, signals: list,
+def _powered_throughout(t: np.ndarray, p: np.ndarray, rate_hz: float, power_names: list, rest: np.ndarray | None,
                         height_rule) -> FlightSpan:
-    """`find_flight` when the motors run from the first to the last sample: no ground time with the motors
-    off, so either airborne throughout or idling on the floor at an end, which only the heights can tell."""
-    n = len(t)
+    """`find_flight` when the motors run from the first to the last sample: no ground time with the motors off.
+
+    With an accelerometer that never rests as well, the vehicle never stood on anything (not on the floor,
+    not idling on a pad): airborne throughout, the whole recording is kept and the heights are not asked (a
+    climb is not a take-off, a dip below the starting height not a landing).  Only a resting accelerometer
+    (motors idling on the floor at an end) leaves the ends to the height rule; without an accelerometer too.
+    """
+    n, power = len(t), ", ".join(power_names)
+    if rest is not None and not rest.any():
+        return FlightSpan(0, n, f"whole recording kept: airborne throughout (the motors run from its first to its "
+                                f"last sample ({power}) and the accelerometer never rests: it never stood on "
+                                f"anything)", power_names + ["accelerometer never at rest"])
+    if rest is None:
+        why = f"the motors run from the first to the last sample: {power}; no accelerometer to tell a rest"
+    else:
+        resting_s = np.flatnonzero(rest)[[0, -1]] / rate_hz
+        why = (f"the motors run from the first to the last sample: {power}; the accelerometer rests at "
+               f"{resting_s[0]:.2f}-{resting_s[1]:.2f} s")
+    signals = power_names + ([] if rest is None else ["accelerometer at rest"]) + ["height"]
     if height_rule is None:
-        return FlightSpan(0, n, f"whole recording kept: the motors run from its first to its last sample "
-                                f"({', '.join(power_names)})", signals)
+        return FlightSpan(0, n, f"whole recording kept ({why})", signals)
     start, stop, rule = height_rule(t, p, rate_hz)
     if (start, stop) == (0, n):
         rule = "whole recording kept: the heights show no take-off from a floor and no landing"
-    return FlightSpan(start, stop, f"{rule} (the motors run from the first to the last sample: "
-                                   f"{', '.join(power_names)}, height)", signals + ["height"])
+    return FlightSpan(start, stop, f"{rule} ({why}; the heights tell where it stood)", signals)
 
 
 def _floor_and_ground(z: np.ndarray, power: np.ndarray | None, rest: np.ndarray | None, rate_hz: float,

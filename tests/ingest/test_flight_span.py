@@ -97,7 +97,11 @@ def test_a_recording_that_stays_in_the_air_is_kept_whole(sim, truth, tmp_path, f
     assert start == pytest.approx(first_frame(fmt, begin), abs=TOLERANCE_S)
     assert stop == pytest.approx(end, abs=TOLERANCE_S)
     assert "whole recording kept" in flight.meta["flying_window"]["rule"]
-    assert flight.quality["ok"], flight.quality
+    if fmt == "vicon+cfclient":   # 10 s of circling in the air time the two clocks to ~25 ms only: flagged, so
+        issue, = flight.quality["issues"]                      # (the offset is 28 ms off); the cut is not affected
+        assert issue.startswith("clock offset not pinned to one mocap sample"), issue
+    else:
+        assert flight.quality["ok"], flight.quality
 
 
 # -- picked up by hand after landing, motors off ---------------------------------------------------------------

@@ -13,10 +13,16 @@ from ...limits import QUATERNION_NORM_TOLERANCE
 from .cfclient import ONBOARD_QUATERNION, POSE, read_cfclient_csv
 from .vicon import read_vicon_csv
 
-# Clock alignment is trusted when the specific-force magnitudes correlate at least this well (clean
-# flights with take-off: > 0.95) and no other lag comes within this fraction of the peak (periodic motion).
+# Clock alignment is trusted when the specific forces correlate at least this well (clean flights with
+# take-off: > 0.95), no other lag comes within this fraction of the peak (periodic motion), and the bootstrap
+# pins the offset to one mocap sample (`clock.ClockAlignment.pins_one_sample`).
 MIN_CLOCK_SCORE = 0.5
 MAX_RUNNER_UP_RATIO = 0.9
+CLOCK_METHODS = {
+    "specific-force vector": "cross-correlation of the specific-force vector in the body frame (mocap R(q)ᵀ(p̈ + g) "
+                             "vs accelerometer, the three axes summed)",
+    "specific-force magnitude": "cross-correlation of |specific force| (mocap p̈ + g vs accelerometer)",
+}
 
 
 def read_single(path, rate_hz: float = 100.0, *, cut: bool | tuple = True) -> Flight:
@@ -100,7 +106,7 @@ def read_pair(vicon_path, cfclient_path, rate_hz: float = 100.0, *, clock_offset
 
     warnings = [f"{vicon_path.name}: {w}" for w in track.warnings]
     warnings += [f"{cfclient_path.name}: {w}" for w in log.warnings]
-    clock_issue = _clock_issue(alignment)
+    clock_issue = _clock_issue(alignment, f"{vicon_path.name} + {cfclient_path.name}", 1.0 / track.rate_hz)
     meta = {
         "adapter": "vicon+cfclient",
         "sources": [{"path": str(vicon_path), "sha256": sha256_file(vicon_path)},
@@ -108,10 +114,8 @@ def read_pair(vicon_path, cfclient_path, rate_hz: float = 100.0, *, clock_offset
         "original_rates": {"mocap": track.rate_hz, "acc": samples_per_second(log.t)},
         "clock_offset_s": float(clock_offset_s),
         "clock_offset_score": None if alignment is None else alignment.score,
-        "clock_alignment": {"method": "given" if alignment is None else
-                            "cross-correlation of |specific force| (mocap p̈ + g vs accelerometer), plus the "
-                            "accelerometer low-pass's group delay (sensor_delay_s)",
-                            **({} if alignment is None else alignment.as_meta())},
+        "clock_offset_uncertainty_s": None if alignment is None else alignment.uncertainty_s,
+        "clock_alignment": _clock_meta(alignment),
         "vicon": {"subject": track.subject, "segment": track.segment, "capture_rate_hz": track.rate_hz,
                   "frames": track.frames, "occluded_frames": track.occluded_frames,
                   "missing_frame_numbers": track.missing_frame_numbers, "units": track.units},
@@ -130,24 +134,40 @@ def _estimate_offset(vicon_path, cfclient_path, track, log, max_lag_s, rate_hz,
                      accel_lowpass: clock.SensorLowPass | None) -> clock.ClockAlignment:
     try:
         return clock.align_mocap_and_accelerometer(track.t, track.p, log.t, log.acc_g, max_lag_s=max_lag_s,
-                                                   rate_hz=rate_hz, accel_lowpass=accel_lowpass)
+                                                   rate_hz=rate_hz, accel_lowpass=accel_lowpass, quat=track.quat)
     except ValueError as err:  # blame the file whose signal failed; a failed search is the pair's
         if str(err).startswith("mocap"):
             raise IngestError(vicon_path, f"cannot align its clock with {cfclient_path.name}: {err}") from None
         raise IngestError(cfclient_path, f"cannot align its clock with {vicon_path.name}: {err}") from None
 
 
-def _clock_issue(alignment: clock.ClockAlignment | None) -> str | None:
-    """Why the estimated offset should not be trusted, or None."""
+def _clock_meta(alignment: clock.ClockAlignment | None) -> dict:
+    """``meta["clock_alignment"]``: how the offset was found and the alignment's diagnostics."""
+    if alignment is None:
+        return {"method": "given"}
+    method = CLOCK_METHODS[alignment.signal] + (f" (the magnitude: {alignment.note})" if alignment.note else "")
+    method += (", plus the accelerometer low-pass's group delay (sensor_delay_s); uncertainty_s: 1 sigma (half the "
+               "central 68 %) over a block bootstrap of 2-s blocks")
+    return {"method": method, **alignment.as_meta()}
+
+
+def _clock_issue(alignment: clock.ClockAlignment | None, pair: str, sample_s: float) -> str | None:
+    """Why the estimated offset of the files ``pair`` should not be trusted, or None.  ``sample_s``: the mocap's
+    sample interval, s."""
     if alignment is None:
         return None
+    what = "specific force" if alignment.signal == "specific-force vector" else "|specific force|"
     if not alignment.score >= MIN_CLOCK_SCORE:
-        return (f"clock offset ambiguous: mocap and accelerometer |specific force| correlate only "
+        return (f"clock offset ambiguous ({pair}): mocap and accelerometer {what} correlate only "
                 f"{alignment.score:.2f} at the best lag (< {MIN_CLOCK_SCORE:g}) — too little excitation "
                 f"(hover?) or the files are not of the same flight")
     if alignment.runner_up > MAX_RUNNER_UP_RATIO * alignment.score:
-        return (f"clock offset ambiguous: another lag correlates {alignment.runner_up:.2f} vs "
+        return (f"clock offset ambiguous ({pair}): another lag correlates {alignment.runner_up:.2f} vs "
                 f"{alignment.score:.2f} at the best (repetitive motion without take-off/landing?)")
+    if not alignment.pins_one_sample(sample_s):
+        return (f"clock offset not pinned to one mocap sample ({pair}): {1000 * alignment.offset_s:+.1f} ± "
+                f"{1000 * alignment.uncertainty_s:.1f} ms (1 sigma, block bootstrap) for a "
+                f"{1000 * sample_s:.0f}-ms sample — the motion times the clocks too loosely")
     return None
 
 

@@ -51,7 +51,9 @@ def test_a_ros2_mcap_with_crazyswarm_topics_gives_the_crazyflie_prior_its_inputs
     np.testing.assert_allclose(u[:, :4], heading_removed(calibrated_attitude(read.quat, flight_thrust_axis(read))))
     np.testing.assert_allclose(u[:, 4:8], read.channels["motors"])
     np.testing.assert_allclose(u[:, 8], np.ravel(read.channels["vbat"]))
-    assert 3.4 - 1e-6 <= u[:, 8].min() < u[:, 8].max() <= 4.1 + 1e-6
+    # the flight is airborne throughout and read whole: the battery as simulated (its sag and its noise)
+    logged = np.ravel(flight.channels["vbat"])
+    assert logged.min() - 1e-6 <= u[:, 8].min() < 3.45 and 4.05 < u[:, 8].max() <= logged.max() + 1e-6
 
 
 def test_a_ros2_db3_with_log_variables_converts_each_unit_like_the_usd_reader(flight, tmp_path):

@@ -1,4 +1,5 @@
 """NanoBench adapter: real flights (skipped without the shared data), synthetic CSVs, bad input, fuzzing."""
+import io
 import tempfile
 from pathlib import Path
 
@@ -366,16 +367,17 @@ def test_an_expanding_metadata_sidecar_refuses_the_flight(csv_path, sidecar, cap
 
 def test_a_single_corrupt_height_sample_is_not_a_flight(tmp_path):
     """Found by the fuzzer: a last row with pz = 2e9 was the only 'airborne' sample and became a
-    one-sample flight; it is an IngestError naming the file instead."""
-    lines = BASE_TEXT.strip().split("\n")
-    header, rows = lines[0], lines[1:]
-    pz = header.split(",").index("pz")
-    last = rows[-1].split(",")
-    last[pz] = "2050000000"
-    path = tmp_path / "spike.csv"
-    path.write_text("\n".join([header, *rows[:-1], ",".join(last)]) + "\n")
+    one-sample flight; it is an IngestError naming the file instead.  The table's motors run throughout and
+    its accelerometer vibrates (these tables test the reader, not physics): that reads as airborne throughout
+    and is kept whole, so the height rule is put to the test on the table without its power signals."""
+    table = pd.read_csv(io.StringIO(BASE_TEXT))
+    table.loc[table.index[-1], "pz"] = 2050000000
+    power = [*nanobench_reader.OPTIONAL_STREAMS["motors"], *nanobench_reader.OPTIONAL_STREAMS["thrust_cmd"]]
+    path = write_csv(table.drop(columns=power), tmp_path / "spike.csv")
     with pytest.raises(IngestError, match=r"spike.csv: the flying part has 1 sample\(s\)"):
         nanobench_reader.read(path)
+    whole = nanobench_reader.read(write_csv(table, tmp_path / "powered.csv"))
+    assert whole.meta["flying_window"]["rule"].startswith("whole recording kept: airborne throughout")
 
 
 # -- found by benchmarks/fuzz_decoders.py: sidecar values YAML types the reader did not expect -------------
