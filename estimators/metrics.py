@@ -27,13 +27,19 @@ STATE_GROUPS = {"p": slice(0, 3), "v": slice(3, 6), "a": slice(6, 9)}
 GAIN_BLOCK_S = 2.0
 GAIN_MIN_BLOCKS = 3          # a record of fewer blocks has no interval: its resamples would all be alike
 GAIN_REPLICATES = 1000
-# From this many independent units (gaps) on, `unit_gain_interval` bootstraps the units; below it the Student-t
-# interval of the per-unit log ratios.  Measured on simulated gap errors with a known gain (400 flights each,
-# tests/estimators/test_unit_gain_interval.py): the t interval covers 92-96 % from 3 to 11 gaps; the
-# percentile bootstrap over gaps 69 % with 3 gaps, 84 % with 5, 89 % with 11, 92 % with 20-30, 93-95 % with 50
-# (the block bootstrap over time that this replaces had no interval on 2 of 3 three-gap flights and covered
-# 21-88 % from 3 to 30 gaps).  On simulated flights where the KNODE's effect grows with how hard the gap is,
-# the t interval (it estimates the typical gap's ratio, not the ratio of sums) drifts to 90 % at 30 gaps.
+# How `unit_gain_interval` tells the interval from n independent units (gaps), all on the per-unit log ratios
+# below GAIN_UNITS_BOOTSTRAP: the Student-t interval below GAIN_UNITS_SIGNED_RANK units (with 5 or fewer, no
+# exact distribution-free 95 % interval is finite), the exact signed-rank (Hodges-Lehmann) interval from there,
+# and the paired percentile bootstrap over units from GAIN_UNITS_BOOTSTRAP on.  Measured on simulated gap
+# errors with a known gain (400 flights each, tests/estimators/test_unit_gain_interval.py and the table in
+# docs/concepts/yardsticks.md): the chosen interval covers 92-98 % with 3 to 50 gaps; the percentile
+# bootstrap over gaps covers 69 % with 3 gaps, 84 % with 5, 89 % with 11 and 92 % with 20-30 (the block
+# bootstrap over time that this replaces had no interval on 2 of 3 three-gap flights and covered 79-88 % from
+# 5 to 30 gaps).  The t interval assumes normal log ratios: on 6 gaps that were all worse, by factors from
+# 1.4 to 210, it held 0; the signed-rank interval, exact for any symmetric spread, does not.  Both estimate the
+# typical gap's ratio, not the ratio of sums: where the KNODE's effect grows with how hard the gap is they drift
+# to 90 % coverage at 30 gaps, hence the bootstrap from there.
+GAIN_UNITS_SIGNED_RANK = 6
 GAIN_UNITS_BOOTSTRAP = 30
 VERDICTS = ("better", "worse", "within", "undecided")
 
@@ -166,6 +172,27 @@ def gain_interval_over_time(prior_error: ArrayLike, knode_error: ArrayLike, dt: 
     return gain_interval(prior_error, knode_error, round(GAIN_BLOCK_S / dt))
 
 
+def _signed_rank_limits(log_ratio: np.ndarray, level: float = 0.95) -> tuple[float, float] | None:
+    """The exact ``level`` interval of the centre of a symmetric distribution from the sample ``log_ratio``
+    (n,): the Hodges-Lehmann interval of the Wilcoxon signed-rank test, between the k-th smallest and k-th
+    largest of the n (n + 1) / 2 Walsh averages, k from the statistic's exact null distribution; None when no
+    such interval is finite (n ≤ 5 at 95 %)."""
+    n = len(log_ratio)
+    counts = np.zeros(n * (n + 1) // 2 + 1)
+    counts[0] = 1.0
+    for rank in range(1, n + 1):          # subsets of the ranks 1..n by their sum: the null distribution of W+
+        shifted = counts.copy()
+        shifted[rank:] += counts[:-rank]
+        counts = shifted
+    below = np.cumsum(counts) / 2.0**n
+    k = int(np.sum(below <= (1.0 - level) / 2.0))      # P(W+ ≤ k - 1) ≤ (1 - level) / 2
+    if k < 1:
+        return None
+    first, second = np.triu_indices(n)
+    walsh = np.sort((log_ratio[first] + log_ratio[second]) / 2.0)
+    return float(walsh[k - 1]), float(walsh[len(walsh) - k])
+
+
 def unit_gain_interval(prior_units: ArrayLike, knode_units: ArrayLike, replicates: int = GAIN_REPLICATES,
                        seed: int = 0) -> list[float] | None:
     """95 % interval of the KNODE's gain over its prior from independent units of one record (the gaps of the
@@ -173,20 +200,23 @@ def unit_gain_interval(prior_units: ArrayLike, knode_units: ArrayLike, replicate
 
     The gain is 100 (1 − Σ knode / Σ prior) over the units.  Each unit's error is the sum of its squared
     errors, one number per estimator; the units are independent (the estimate re-converges on the mocap
-    between two gaps) and paired (both estimators fly the same gap).
+    between two gaps) and paired (both estimators fly the same gap).  A gap's error scales with how hard it
+    is (a fast turn drifts more for both estimators) and the KNODE's effect is a factor on it, so the small-
+    sample intervals work on the per-unit log ratios log(knode / prior), which remove the shared difficulty:
 
-    - Fewer than `GAIN_UNITS_BOOTSTRAP` units: the Student-t interval (n − 1 degrees of freedom) of the mean
-      per-unit log ratio log(knode / prior), mapped to a gain.  A gap's error scales with how hard it is
-      (a fast turn drifts more for both estimators), the KNODE's effect is a factor on it, and the log ratio
-      removes the shared difficulty; the t interval keeps its coverage down to 3 units (measured).  A
-      bootstrap over so few units is too narrow (it cannot show more spread than the few units have: 69-84 %
-      coverage from 3-5 gaps).
-    - From `GAIN_UNITS_BOOTSTRAP` units on: the paired percentile bootstrap over units of the gain itself
-      (both estimators' units resampled together), whose target is the ratio of sums the gain reports.
+    - 2 to 5 units: the Student-t interval (n − 1 degrees of freedom) of their mean.  No exact
+      distribution-free 95 % interval is finite from so few; a bootstrap over them is too narrow (it cannot
+      show more spread than the few units have: 69-84 % coverage from 3-5 gaps).
+    - `GAIN_UNITS_SIGNED_RANK` (6) to `GAIN_UNITS_BOOTSTRAP` − 1 units: the exact interval of the Wilcoxon
+      signed-rank test (Hodges-Lehmann), valid for any symmetric spread of the log ratios; it does not take
+      them for normal, which a few far-off gaps are not.
+    - From `GAIN_UNITS_BOOTSTRAP` (30) units on: the paired percentile bootstrap over units of the gain
+      itself (both estimators' units resampled together), whose target is the ratio of sums the gain reports.
 
-    Either interval is widened to hold the record's gain where it lies outside (the t interval estimates the
-    typical unit's ratio, the gain weights the hard units more), so "worse beyond the interval" never
-    contradicts the gain's sign.  Coverage measured in `tests/estimators/test_unit_gain_interval.py`.
+    Each interval on the log ratio is mapped to a gain, 100 (1 − exp(·)), and every interval is widened to
+    hold the record's gain where it lies outside (the log-ratio intervals estimate the typical unit's ratio,
+    the gain weights the hard units more), so "worse beyond the interval" never contradicts the gain's sign.
+    Coverage measured in `tests/estimators/test_unit_gain_interval.py`.
 
     Parameters
     ----------
@@ -212,13 +242,16 @@ def unit_gain_interval(prior_units: ArrayLike, knode_units: ArrayLike, replicate
         return None
     gain = gain_pct(float(np.sum(prior)), float(np.sum(knode)))
     if units < GAIN_UNITS_BOOTSTRAP:
-        from scipy.stats import t as student_t
-
         tiny = np.finfo(float).tiny
         log_ratio = np.log(np.maximum(knode, tiny)) - np.log(np.maximum(prior, tiny))
-        half = float(student_t.ppf(0.975, units - 1) * np.std(log_ratio, ddof=1) / np.sqrt(units))
-        centre = float(np.mean(log_ratio))
-        low, high = 100.0 * (1.0 - np.exp(centre + half)), 100.0 * (1.0 - np.exp(centre - half))
+        limits = _signed_rank_limits(log_ratio) if units >= GAIN_UNITS_SIGNED_RANK else None
+        if limits is None:
+            from scipy.stats import t as student_t
+
+            half = float(student_t.ppf(0.975, units - 1) * np.std(log_ratio, ddof=1) / np.sqrt(units))
+            centre = float(np.mean(log_ratio))
+            limits = (centre - half, centre + half)
+        low, high = 100.0 * (1.0 - np.exp(limits[1])), 100.0 * (1.0 - np.exp(limits[0]))
     else:
         draws = np.random.default_rng(seed).integers(0, units, size=(replicates, units))
         gains = 100.0 * (1.0 - knode[draws].sum(axis=1) / np.maximum(prior[draws].sum(axis=1), np.finfo(float).tiny))
@@ -230,8 +263,10 @@ def unit_interval_method(units: int) -> str | None:
     """How `unit_gain_interval` tells the interval of a record of ``units`` units, in words (None: it cannot)."""
     if units < 2:
         return None
-    if units < GAIN_UNITS_BOOTSTRAP:
+    if units < GAIN_UNITS_SIGNED_RANK:
         return f"Student-t interval of the {units} per-gap log ratios"
+    if units < GAIN_UNITS_BOOTSTRAP:
+        return f"exact signed-rank (Hodges-Lehmann) interval of the {units} per-gap log ratios"
     return f"paired percentile bootstrap over the {units} gaps"
 
 

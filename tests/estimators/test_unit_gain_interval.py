@@ -1,10 +1,17 @@
 """The gain's 95 % interval over the gaps of the mocap-gap yardstick (estimators.metrics.unit_gain_interval):
-every flight with two gaps or more gets one, and it covers a known gain at its nominal rate from 3 gaps to 50."""
+every flight with two gaps or more gets one, and it covers a known gain at its nominal rate from 3 gaps to 50
+(Student-t below 6 gaps, exact signed-rank from 6, bootstrap over gaps from 30)."""
 import numpy as np
 import pytest
 
 from learnest.estimators.headline import headline
-from learnest.estimators.metrics import GAIN_UNITS_BOOTSTRAP, interval_verdict, unit_gain_interval
+from learnest.estimators.metrics import (
+    GAIN_UNITS_BOOTSTRAP,
+    GAIN_UNITS_SIGNED_RANK,
+    interval_verdict,
+    unit_gain_interval,
+    unit_interval_method,
+)
 from learnest.estimators.yardsticks import gap_gain, per_gap_sums
 
 GAP_SAMPLES = 50          # a 0.5-s gap at 100 Hz
@@ -37,12 +44,12 @@ def _windows(gaps: int) -> list[tuple[int, int]]:
     return [(k * GAP_SAMPLES, (k + 1) * GAP_SAMPLES) for k in range(gaps)]
 
 
-@pytest.mark.parametrize("gaps", [3, 5, 11, 50])
+@pytest.mark.parametrize("gaps", [3, 5, 6, 11, 20, 50])
 @pytest.mark.parametrize("true_gain", [20.0, -30.0])
 def test_the_interval_over_gaps_covers_a_known_gain_about_95_percent_of_the_time(gaps, true_gain):
     """400 seeded flights of simulated gap errors with a known true gain: the 95 % interval covers it in
-    90-99 % of them, with 3 gaps (Student-t of the log ratios), 11, and 50 (bootstrap over the gaps); every
-    flight gets one, and it holds the flight's own gain."""
+    90-99 % of them, with 3 and 5 gaps (Student-t of the log ratios), 6 to 20 (signed-rank) and 50 (bootstrap
+    over the gaps); every flight gets one, and it holds the flight's own gain."""
     rng = np.random.default_rng(gaps * 1000 + int(true_gain))
     covered = 0
     for replicate in range(REPLICATES):
@@ -58,11 +65,25 @@ def test_the_bootstrap_takes_over_from_many_gaps_and_both_are_paired():
     """A KNODE whose every gap error is 0.8 times the prior's has a gain of 20 % and no spread, with either
     method; the per-gap sums are the gaps' own."""
     rng = np.random.default_rng(3)
-    for gaps in (2, GAIN_UNITS_BOOTSTRAP - 1, GAIN_UNITS_BOOTSTRAP, 80):
+    for gaps in (2, GAIN_UNITS_SIGNED_RANK - 1, GAIN_UNITS_SIGNED_RANK, GAIN_UNITS_BOOTSTRAP - 1,
+                 GAIN_UNITS_BOOTSTRAP, 80):
         prior = rng.lognormal(0.0, 1.0, gaps)
         assert unit_gain_interval(prior, 0.8 * prior) == pytest.approx([20.0, 20.0])
     err2 = np.arange(6.0)
     assert per_gap_sums(err2, [(10, 12), (20, 24)]).tolist() == [1.0, 2.0 + 3.0 + 4.0 + 5.0]
+
+
+def test_six_gaps_all_worse_by_uneven_factors_are_worse_beyond_the_interval():
+    """A KNODE with a constant acceleration error (tests/models/test_residual_scale.py) is worse than its
+    prior in each of 6 gaps, by factors from 1.4 to 210: the exact signed-rank interval says so (every sign
+    alike has probability 2 / 64), where a t interval, which takes the log ratios for normal, holds 0."""
+    prior = np.ones(6)
+    knode = np.array([1.38, 1.41, 209.75, 4.37, 3.23, 117.75])
+    low, high = unit_gain_interval(prior, knode)
+    assert high < 0 and interval_verdict([low, high]) == "worse"
+    assert high == pytest.approx(-38.0) and low == pytest.approx(100 * (1 - 209.75))   # the extreme gaps' ratios
+    assert "signed-rank" in unit_interval_method(6) and "Student-t" in unit_interval_method(5)
+    assert "bootstrap" in unit_interval_method(GAIN_UNITS_BOOTSTRAP) and unit_interval_method(1) is None
 
 
 def test_no_interval_only_for_one_gap_or_no_prior_error_and_that_flight_is_undecided():

@@ -215,7 +215,7 @@ def test_the_report_leads_with_the_gap_headline_and_says_when_nothing_was_learne
     assert head["flights_worse_beyond_interval"]["knode-ukf_vs_ukf"] == 0
     # nine gaps each: every flight has an interval over its gaps, and each is counted once
     assert all(f["yardsticks"]["mocap_gaps"]["gain_interval_pct"]["knode-ukf_vs_ukf"] is not None
-               and "Student-t" in f["yardsticks"]["mocap_gaps"]["interval_method"] for f in report["flights"])
+               and "signed-rank" in f["yardsticks"]["mocap_gaps"]["interval_method"] for f in report["flights"])
     assert head["flights_undecided"]["knode-ukf_vs_ukf"] == 0
     assert sum(head[f"flights_{c}"]["knode-ukf_vs_ukf"] for c in (
         "better_beyond_interval", "worse_beyond_interval", "within_interval", "undecided")) == head["flights_scored"] == 2
