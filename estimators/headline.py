@@ -12,7 +12,7 @@ import numpy as np
 
 from learnest.models.training import NOT_LEARNED
 
-from .metrics import worse_beyond_interval
+from .metrics import VERDICTS, interval_verdict
 
 MEASURES = {
     "mocap_gaps": "position error (m, RMS of the 3-D error) inside windows where the mocap was hidden from the "
@@ -42,6 +42,18 @@ class Headline:
         {same keys: number of flights whose gain's 95 % interval lies wholly below 0}.
     flights_worse_names : dict
         {same keys: [names] of those flights}.
+    flights_better_beyond_interval : dict
+        {same keys: number of flights whose gain's 95 % interval lies wholly above 0}.
+    flights_within_interval : dict
+        {same keys: number of flights whose gain's 95 % interval holds 0}.
+    flights_undecided : dict
+        {same keys: number of scored flights whose gain has no interval: no gap score (too short, turned
+        off), one gap, or no prior error in the gaps}.  Never left out: per key, better beyond + worse beyond +
+        within + undecided = ``flights_scored``.
+    flights_undecided_names : dict
+        {same keys: ["name: why", ...] of those flights}.
+    flights_scored : int
+        Flights the yardstick scored (not excluded), with or without gaps.
     median_rmse_m : dict
         {method: median over the flights with gaps of the gap RMSE, m}.
     flights_with_gaps : int
@@ -59,6 +71,11 @@ class Headline:
     flights_better: dict[str, int] = field(default_factory=dict)
     flights_worse_beyond_interval: dict[str, int] = field(default_factory=dict)
     flights_worse_names: dict[str, list[str]] = field(default_factory=dict)
+    flights_better_beyond_interval: dict[str, int] = field(default_factory=dict)
+    flights_within_interval: dict[str, int] = field(default_factory=dict)
+    flights_undecided: dict[str, int] = field(default_factory=dict)
+    flights_undecided_names: dict[str, list[str]] = field(default_factory=dict)
+    flights_scored: int = 0
     median_rmse_m: dict[str, float] = field(default_factory=dict)
     flights_with_gaps: int = 0
     flights_without_gaps: list[str] = field(default_factory=list)
@@ -72,28 +89,60 @@ class Headline:
         return asdict(self)
 
 
+def _pair_keys(flights: Sequence[dict]) -> list[str]:
+    """The comparisons "knode-ukf_vs_ukf", ... of the flights: those with a gap gain, and those whose KNODE
+    and prior both ran (a flight without a gap score still ran them: it counts, undecided)."""
+    keys = {k for f in flights for k in f["yardsticks"]["mocap_gaps"].get("gain_pct") or {}}
+    keys |= {f"knode-{base}_vs_{base}" for f in flights for base in ("ukf", "mhe")
+             if {base, f"knode-{base}"} <= set(f.get("mse") or {})}
+    return sorted(keys)
+
+
+def _undecided_reason(gaps: Mapping, key: str) -> str:
+    """Why a flight's gain on ``key`` has no interval, in words."""
+    if gaps.get("skipped"):
+        return str(gaps["skipped"])
+    if (gaps.get("gain_pct") or {}).get(key) is None:
+        return "no gap score for this comparison (the prior's error in the gaps is zero, or it did not run)"
+    if gaps.get("gaps", 0) < 2:
+        return "one gap: an interval needs two"
+    return "no interval could be told"
+
+
 def headline(flight_reports: Sequence[dict]) -> Headline:
     """The `Headline` of per-flight report entries (their ``yardsticks.mocap_gaps``); excluded flights and
-    entries without yardsticks are left out."""
+    entries without yardsticks are left out.  Every other flight is counted once per comparison: better
+    beyond its interval, worse beyond it, within it, or undecided (`estimators.metrics.interval_verdict`)."""
     scored = [f for f in flight_reports if not f.get("excluded") and f.get("yardsticks")]
     with_gaps = [f for f in scored if not f["yardsticks"]["mocap_gaps"].get("skipped")]
     without = [f"{f['flight']}: {f['yardsticks']['mocap_gaps']['skipped']}" for f in scored
                if f["yardsticks"]["mocap_gaps"].get("skipped")]
     gaps = [(f["flight"], f["yardsticks"]["mocap_gaps"]) for f in with_gaps]
-    keys = sorted({k for _, g in gaps for k in g["gain_pct"]})
+    keys = _pair_keys(scored)
     methods = sorted({m for _, g in gaps for m in g["rmse_m"]})
-    median_gain, better, worse, worse_names = {}, {}, {}, {}
+    median_gain, better, worse_names, undecided_names = {}, {}, {}, {}
+    counts: dict[str, dict[str, int]] = {verdict: {} for verdict in VERDICTS}
     for key in keys:
-        values = [(name, g["gain_pct"][key], (g.get("gain_interval_pct") or {}).get(key)) for name, g in gaps
-                  if g["gain_pct"].get(key) is not None]
-        median_gain[key] = float(np.median([v for _, v, _ in values])) if values else None
-        better[key] = int(sum(bool(v > 0) for _, v, _ in values))
-        worse_names[key] = [name for name, _, interval in values if worse_beyond_interval(interval)]
-        worse[key] = len(worse_names[key])
+        values = [g["gain_pct"][key] for _, g in gaps if g["gain_pct"].get(key) is not None]
+        median_gain[key] = float(np.median(values)) if values else None
+        better[key] = int(sum(bool(v > 0) for v in values))
+        verdicts = []
+        for f in scored:
+            g = f["yardsticks"]["mocap_gaps"]
+            interval = (g.get("gain_interval_pct") or {}).get(key)
+            decided = not g.get("skipped") and (g.get("gain_pct") or {}).get(key) is not None
+            verdicts.append((f["flight"], interval_verdict(interval if decided else None), g))
+        for verdict in VERDICTS:
+            counts[verdict][key] = sum(v == verdict for _, v, _ in verdicts)
+        worse_names[key] = [name for name, v, _ in verdicts if v == "worse"]
+        undecided_names[key] = [f"{name}: {_undecided_reason(g, key)}" for name, v, g in verdicts if v == "undecided"]
     median_rmse = {m: float(np.median([g["rmse_m"][m] for _, g in gaps if m in g["rmse_m"]])) for m in methods}
     plan = scored[0]["yardsticks"]["mocap_gaps"] if scored else {}
-    return Headline(median_gain_pct=median_gain, flights_better=better, flights_worse_beyond_interval=worse,
-                    flights_worse_names=worse_names, median_rmse_m=median_rmse, flights_with_gaps=len(with_gaps),
+    return Headline(median_gain_pct=median_gain, flights_better=better,
+                    flights_worse_beyond_interval=counts["worse"], flights_worse_names=worse_names,
+                    flights_better_beyond_interval=counts["better"], flights_within_interval=counts["within"],
+                    flights_undecided=counts["undecided"], flights_undecided_names=undecided_names,
+                    flights_scored=len(scored), median_rmse_m=median_rmse, flights_with_gaps=len(with_gaps),
                     flights_without_gaps=without, gap_s=plan.get("gap_s"), every_s=plan.get("every_s"),
                     start_s=plan.get("start_s"))
 

@@ -11,6 +11,7 @@ from dataclasses import replace
 
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
+from learnest.models.inputs import prior_for_flights
 from learnest.models.presets import CRAZYFLIE_TRAINING
 
 from .group_training import GROUP_BY, train_flights
@@ -23,9 +24,12 @@ class KNODE:
 
     Parameters
     ----------
-    system : str
+    system : str or None
         The prior: ``"quadrotor"`` (the paper's kinematic chain x = [p, v, a], 9 states) or ``"crazyflie"``
-        (the same states driven by the motor PWM and battery voltage the flight must carry).
+        (the same states driven by the motor PWM and battery voltage the flight must carry).  None (the
+        default): chosen from the flights `fit` gets, as ``learnest demo`` chooses it
+        (`models.inputs.prior_for_flights`): "crazyflie" when every flight carries motor PWM and battery
+        voltage, else "quadrotor"; ``system_`` says which.
     hidden : int
         Neurons of the residual's hidden tanh layer (Sec. V-C: 16).
     epochs : int
@@ -48,6 +52,8 @@ class KNODE:
 
     Attributes
     ----------
+    system_ : str
+        The prior the model was trained with: ``system``, or the one chosen from the flights.
     model_ : HybridModel
         The trained discrete model (prior + residual, RK4), ready for `learnest.ukf` / `learnest.mhe`.
     losses_ : list of float
@@ -71,11 +77,13 @@ class KNODE:
     >>> import learnest as le
     >>> flights = le.read_flights(["sample_logs/circle_rep1.csv", "sample_logs/circle_rep2.csv"])
     >>> knode = le.KNODE(epochs=20).fit(flights[0])
+    >>> knode.system_                      # circle_rep1 logs no motors: the kinematic prior
+    'quadrotor'
     >>> knode.model_
     HybridModel(quadrotor, knode)
     """
 
-    def __init__(self, system: str = "quadrotor", hidden: int = CRAZYFLIE_TRAINING.hidden,
+    def __init__(self, system: str | None = None, hidden: int = CRAZYFLIE_TRAINING.hidden,
                  epochs: int = CRAZYFLIE_TRAINING.epochs, lr: float = CRAZYFLIE_TRAINING.lr,
                  validation_fraction: float = CRAZYFLIE_TRAINING.validation_fraction, seed: int = 0,
                  group_by: str = GROUP_BY, noise: str = "paper") -> None:
@@ -106,10 +114,10 @@ class KNODE:
         Raises
         ------
         InvalidInput
-            If ``system`` cannot be fitted on a flight, an item is not a Flight, or the flights are not one
-            vehicle's (the message names them).
+            If ``system`` cannot be fitted on a flight, an item is not a Flight, the flights lack the inputs
+            the asked-for prior needs, or they are not one vehicle's (the message names them).
         """
-        if self.system not in FLIGHT_SYSTEMS:
+        if self.system is not None and self.system not in FLIGHT_SYSTEMS:
             raise InvalidInput(f"system {self.system!r} cannot be fitted on a flight; choose one of "
                                f"{', '.join(FLIGHT_SYSTEMS)}")
         given: list = [flights] if isinstance(flights, Flight) else list(flights) \
@@ -118,10 +126,11 @@ class KNODE:
         if wrong or not given:
             raise InvalidInput(f"fit needs a Flight or a list of Flights (learnest.read_flights), got "
                                f"{wrong[0] if wrong else 'an empty list'}")
+        system = self.system or prior_for_flights(given)
         config = replace(CRAZYFLIE_TRAINING, hidden=self.hidden, epochs=self.epochs, lr=self.lr,
                          validation_fraction=self.validation_fraction, seed=self.seed)
-        result = train_flights(given, self.system, config, self.group_by, validate, progress=progress,
-                               noise=self.noise)
+        result = train_flights(given, system, config, self.group_by, validate, progress=progress, noise=self.noise)
+        self.system_ = system
         self.model_ = result.model
         self.losses_, self.validation_losses_ = result.losses, result.validation_losses
         self.seconds_ = result.seconds

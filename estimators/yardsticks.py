@@ -45,7 +45,7 @@ from learnest.models.presets import GAP_EVERY_S, GAP_S, GAP_START_S, MAX_GAPS, O
 
 from .evaluate import evaluate_sequence
 from .headline import MEASURES, NOTHING_LEARNED, Headline, headline, learned_note  # noqa: F401  (re-exported)
-from .metrics import gain_interval, gain_pct, rms_norm
+from .metrics import gain_pct, rms_norm, unit_gain_interval, unit_interval_method
 from .mocap_gaps import POSITION_ROWS, PositionGapModel, gap_mask, masked_measurements
 from .protocols import StateSpaceModel
 
@@ -183,8 +183,10 @@ class MocapGaps:
         {"knode-ukf_vs_ukf": 100 (1 − Σ|e_knode|² / Σ|e_prior|²) over the gap samples, %, ...}: the gain in
         mean squared gap error (the same quantity as the interval); None where the prior's error is zero.
     gain_interval_pct : dict
-        {same keys: [low, high] 95 % paired block-bootstrap interval, %, or None when the flight has too few
-        gaps to tell} (`estimators.metrics.gain_interval` over the gap samples, blocks at least one gap).
+        {same keys: [low, high] 95 % interval, %, over the gaps as independent units, or None when it cannot be
+        told (one gap, or no prior error)} (`gap_gain`, `estimators.metrics.unit_gain_interval`).
+    interval_method : str or None
+        How the intervals were told (`estimators.metrics.unit_interval_method`), None without one.
     gap_s, every_s, start_s : float
         The plan (`GapPlan`), s.
     gaps : int
@@ -198,6 +200,7 @@ class MocapGaps:
     rmse_m: dict[str, float] = field(default_factory=dict)
     gain_pct: dict[str, float | None] = field(default_factory=dict)
     gain_interval_pct: dict[str, list[float] | None] = field(default_factory=dict)
+    interval_method: str | None = None
     gap_s: float = GAP_S
     every_s: float = GAP_EVERY_S
     start_s: float = GAP_START_S
@@ -276,14 +279,25 @@ def gap_squared_errors(p_mocap: np.ndarray, estimates: np.ndarray, windows: Sequ
     return np.sum((np.asarray(estimates)[inside][:, POSITION_ROWS] - np.asarray(p_mocap)[inside]) ** 2, axis=1)
 
 
+def per_gap_sums(err2: np.ndarray, windows: Sequence[tuple[int, int]]) -> np.ndarray:
+    """(G,) sum of the squared errors ``err2`` (K,) of `gap_squared_errors` within each of the G gaps
+    ``windows``, m² (the samples of ``err2`` are the gaps' in order)."""
+    lengths = [stop - first for first, stop in windows]
+    return np.add.reduceat(np.asarray(err2, dtype=float), np.cumsum([0] + lengths[:-1])) if lengths else np.zeros(0)
+
+
 def gap_gain(prior_err2: np.ndarray, knode_err2: np.ndarray,
              windows: Sequence[tuple[int, int]]) -> tuple[float | None, list[float] | None]:
     """(gain %, its 95 % interval or None) of the second run over the first on the same gap samples
-    (`gap_squared_errors` of each, (K,) m²): 100 (1 − Σ knode / Σ prior), None where the first's error is zero;
-    the interval by `estimators.metrics.gain_interval` with blocks of at least one gap."""
-    gain = gain_pct(np.sum(prior_err2), np.sum(knode_err2)) if np.sum(prior_err2) > 0 else None
-    # blocks of at least one gap: the gaps are the independent units (re-converged in between)
-    return gain, gain_interval(prior_err2, knode_err2, windows[0][1] - windows[0][0])
+    (`gap_squared_errors` of each, (K,) m²): 100 (1 − Σ knode / Σ prior), None where the first's error is zero.
+
+    The interval treats the gaps as the independent units (the estimate re-converges on the mocap between
+    two gaps; within one the error drifts, so its samples are far from independent): each gap's squared
+    errors are summed per run and `estimators.metrics.unit_gain_interval` tells the interval from them, from
+    two gaps on.  None for one gap or no prior error: the flight is then undecided (`headline`)."""
+    prior, knode = per_gap_sums(prior_err2, windows), per_gap_sums(knode_err2, windows)
+    gain = gain_pct(float(np.sum(prior)), float(np.sum(knode))) if np.sum(prior) > 0 else None
+    return gain, unit_gain_interval(prior, knode)
 
 
 def gap_scores(p_mocap: np.ndarray, gapped: Mapping[str, np.ndarray], windows: Sequence[tuple[int, int]],
@@ -297,7 +311,8 @@ def gap_scores(p_mocap: np.ndarray, gapped: Mapping[str, np.ndarray], windows: S
         if base in err2 and f"knode-{base}" in err2:
             key = f"knode-{base}_vs_{base}"
             gains[key], intervals[key] = gap_gain(err2[base], err2[f"knode-{base}"], windows)
-    return MocapGaps(rmse, gains, intervals, plan.gap_s, plan.every_s, plan.start_s, len(windows),
+    method = unit_interval_method(len(windows)) if any(i is not None for i in intervals.values()) else None
+    return MocapGaps(rmse, gains, intervals, method, plan.gap_s, plan.every_s, plan.start_s, len(windows),
                      dict(ms_per_step or {}))
 
 

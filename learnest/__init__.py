@@ -4,7 +4,8 @@ The notebook API::
 
     import learnest as le
     flights = le.read_flights(paths)                   # Flight objects (Flight.to_dataframe())
-    knode = le.KNODE(epochs=150).fit(flights[0])       # Algorithm 1 on one flight (or .fit(flights[:8]): pooled)
+    knode = le.KNODE(epochs=150).fit(flights[0])       # Algorithm 1 on one flight (or .fit(flights[:8]): pooled);
+                                                       # the prior from the flights' inputs: knode.system_
     post = le.ukf(knode.model_, flights[1])            # FilterResult(t, means, covariances, innovations)
     report = le.evaluate(knode.model_, flights[1:])    # MSE per method and flight, medians, improvement
     diagnosis = le.diagnose(flights, model=knode.model_)   # or system="crazyflie": thrust from PWM, rpm or N

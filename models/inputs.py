@@ -6,6 +6,7 @@ so the message tells a user what their logger should have recorded.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -84,6 +85,34 @@ def missing_inputs(flight: Flight, system_name: str, source: str = "pwm") -> lis
     for the crazyflie prior, those of its thrust ``source``."""
     needed = SOURCE_CHANNELS[source] if system_name == "crazyflie" else NEEDED.get(system_name, ())
     return [name for name in needed if name not in flight.channels]
+
+
+def driven_flights(flights: Sequence[Flight]) -> list[Flight]:
+    """The flights that carry the Crazyflie prior's default inputs, motor PWM and battery voltage (nothing
+    `missing_inputs` of "crazyflie"), in order."""
+    return [f for f in flights if not missing_inputs(f, "crazyflie")]
+
+
+def prior_for_flights(flights: Sequence[Flight], least: int | None = None) -> str:
+    """The prior to train on ``flights`` when none is asked for: "crazyflie" where they carry its inputs
+    (motor PWM and battery voltage: it knows the vehicle's thrust, which the kinematic prior leaves to the
+    network), else "quadrotor".
+
+    Parameters
+    ----------
+    flights : sequence of Flight
+        The flights to train on.
+    least : int, optional
+        How many of them must carry the inputs (default: every one, so no flight is refused for lacking
+        them).  ``learnest demo`` asks for two (it trains on one and scores the others that carry them).
+
+    Returns
+    -------
+    str
+        "crazyflie" or "quadrotor".
+    """
+    needed = len(flights) if least is None else least
+    return "crazyflie" if flights and len(driven_flights(flights)) >= max(needed, 1) else "quadrotor"
 
 
 def system_for_flight_thrust(system: System, flight: Flight) -> System:

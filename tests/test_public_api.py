@@ -185,3 +185,23 @@ def test_a_repaired_model_sees_its_measurement_effects_in_ukf_and_mhe():
     np.testing.assert_allclose(le.mhe(repaired, flight, horizon=3).means, le.mhe(prior, fixed, horizon=3).means,
                                rtol=0, atol=1e-9)
     assert not np.allclose(le.ukf(repaired, flight).means, le.ukf(prior, flight).means)
+
+
+def test_the_notebook_knode_picks_its_prior_from_the_flights_inputs_as_the_cli_demo_does():
+    """No system given: a NanoBench log with motor PWM and battery voltage trains the Crazyflie prior, a log
+    without motor channels the kinematic one (`models.inputs.prior_for_flights`, which ``learnest demo`` uses
+    too); the fitted estimator says which, and an asked-for prior is kept."""
+    from learnest.models.inputs import prior_for_flights
+
+    nanobench, plain = le.read_flights([SAMPLES / "B2_circle_fast_rep1.csv", SAMPLES / "circle_rep1.csv"])
+    assert "motors" in nanobench.channels and "motors" not in plain.channels
+    assert le.KNODE().system is None
+    driven = le.KNODE(epochs=2).fit(nanobench)
+    assert driven.system_ == "crazyflie" and driven.model_.system.name == "crazyflie"
+    kinematic = le.KNODE(epochs=2).fit(plain)
+    assert kinematic.system_ == "quadrotor" and kinematic.model_.system.name == "quadrotor"
+    assert le.KNODE(system="quadrotor", epochs=2).fit(nanobench).system_ == "quadrotor"
+    # the one rule: every flight must carry the inputs, unless fewer are asked for (the demo asks for two)
+    assert prior_for_flights([nanobench, plain]) == "quadrotor"
+    assert prior_for_flights([nanobench, nanobench, plain], least=2) == "crazyflie"
+    assert prior_for_flights([]) == "quadrotor"

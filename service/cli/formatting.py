@@ -88,7 +88,10 @@ def headline_lines(report: dict) -> list[str]:
             ci = r["interval_pct"]
             beyond = "  WORSE beyond its interval" if worse_beyond_interval(ci) else ""
             lines.append(f"{r['flight']:<28}{r['gain_pct']:>+30.1f}  "
-                         + (f"[{ci[0]:+.1f}, {ci[1]:+.1f}]" if ci else "-") + beyond)
+                         + (f"[{ci[0]:+.1f}, {ci[1]:+.1f}]" if ci else "undecided (no interval)") + beyond)
+        if pair["undecided_names"]:
+            lines.append(f"  undecided on {pair['undecided']} of {pair['scored']} flights scored: "
+                         + "; ".join(pair["undecided_names"]))
     return lines + [""]
 
 
@@ -126,7 +129,7 @@ def _yardstick_lines(report: dict, prior: str) -> list[str]:
         for key in keys:
             gain, interval = gaps["gain_pct"].get(key), (gaps.get("gain_interval_pct") or {}).get(key)
             text = "-" if gain is None else f"{gain:+.1f} %" + (
-                f" [{interval[0]:+.1f}, {interval[1]:+.1f}]" if interval else " [too few gaps]")
+                f" [{interval[0]:+.1f}, {interval[1]:+.1f}]" if interval else " [no interval]")
             row += f"  {text:>28}"
         lines.append(f"  {f['flight']:<26}" + row + f"  ({gaps['gaps']} gaps)")
     if gapped:
@@ -135,12 +138,19 @@ def _yardstick_lines(report: dict, prior: str) -> list[str]:
     for key in keys:
         worse = (head.get("flights_worse_names") or {}).get(key) or []
         median = head["median_gain_pct"].get(key)
+        counts = {name: (head.get(f"flights_{name}") or {}).get(key)
+                  for name in ("better_beyond_interval", "within_interval", "undecided")}
+        tally = ""
+        if all(isinstance(v, int) for v in counts.values()):   # a report stored before these counts has none
+            tally = (f"; better beyond it on {counts['better_beyond_interval']}, within it on "
+                     f"{counts['within_interval']}, undecided (no interval) on {counts['undecided']} of "
+                     f"{head.get('flights_scored', len(scored))} flights scored")
         lines.append(f"  {key.replace('_vs_', ' vs ')}: median gain "
                      f"{'-' if median is None else format(median, '+.1f')} % (mean "
                      f"squared gap error), better on {head['flights_better'][key]} of "
                      f"{head.get('flights_with_gaps', len(gapped))} "
                      f"flights, worse beyond the 95 % interval on {len(worse)}"
-                     + (f": {', '.join(worse)}" if worse else ""))
+                     + (f": {', '.join(worse)}" if worse else "") + tally)
     fast = scored[0]["yardsticks"]["fast_reference"]
     lines.append(f"Fast reference: velocity RMSE (m/s) vs a {fast['window_s']:g}-s derivative of the raw mocap, "
                  "outside the gaps")

@@ -187,8 +187,8 @@ def repair_scores(scored_b: dict, scored_a: dict, methods: Sequence[str], flight
     ``flight``, run with ``gaps=REPAIR_GAPS`` and ``keep_estimates``.  Returns ``repair_gain_interval_pct``
     {method: the interval on the paper's SG yardstick (`repair_interval`)} and ``mocap_gaps`` {``rmse_before_m``,
     ``rmse_after_m`` {method: RMS of the 3-D position error inside the gaps, m}, ``gain_pct`` {method:
-    100 (1 − Σ after / Σ before) of the squared gap errors, %}, ``gain_interval_pct`` {method: its 95 % paired
-    block-bootstrap interval, or None when the flight has too few gaps to tell}, ``gaps``, ``gap_s``,
+    100 (1 − Σ after / Σ before) of the squared gap errors, %}, ``gain_interval_pct`` {method: its 95 % interval
+    over the gaps (`estimators.yardsticks.gap_gain`), or None for a flight of one gap}, ``gaps``, ``gap_s``,
     ``skipped``: why the flight has no gap score (too short for one gap), else None}.
     """
     sg = {m: repair_interval(scored_b, scored_a, m, flight.dt) for m in methods}
@@ -268,9 +268,10 @@ def _interval_rule(per_flight: list[dict], method: str, what: str, scores: list,
     """{"improves", "reason"} by the evaluation's counting over flights (`estimators.headline`): ``scores``
     [(before, after, gain interval or None)] per flight of ``per_flight``; better when the median is lower
     (``median_before`` → ``median_after``, in ``what``), no flight is worse beyond its gain's interval and one
-    is better beyond it.  A flight without an interval (fewer than 3 bootstrap blocks) cannot tell, and counts
-    neither way, as in the evaluation; only when no flight has one does each flight's error decide (better on
-    every flight), else a short held-out set could never be judged."""
+    is better beyond it.  A flight without an interval (one gap; on the SG yardstick, fewer than 3 bootstrap
+    blocks) cannot tell, and counts neither way, as the evaluation's undecided flights; only when no flight
+    has one does each flight's error decide (better on every flight), else a short held-out set could never
+    be judged."""
     names = [p["flight"] for p in per_flight]
     worse = [n + " (beyond its interval)" for n, (_, _, i) in zip(names, scores) if worse_beyond_interval(i)]
     better = [n + " (beyond its interval)" for n, (_, _, i) in zip(names, scores) if better_beyond_interval(i)]

@@ -5,8 +5,9 @@ An evaluation leads with the mocap-gap yardstick when the report carries it (the
 and each flight's ``yardsticks.mocap_gaps``: how well the estimate is carried through windows where the
 mocap is hidden, scored against the hidden mocap), and otherwise with the paper's yardstick, the MSE
 against the Savitzky-Golay references.  Either way the sentence says which yardstick it is, the median
-gain of each KNODE over its own prior, on how many flights it was better, and on how many it was worse
-beyond the flight's own 95 % interval.
+gain of each KNODE over its own prior, on how many flights it was better, and how every scored flight's own
+95 % interval falls: worse beyond it, better beyond it, within it, or undecided (no interval could be told);
+those four counts add up to the flights scored.
 
 Everything here is plain dicts and strings (no figures, no templates): the CLI imports it without the web
 stack's weight.
@@ -17,7 +18,7 @@ import math
 from statistics import median
 from typing import Any
 
-from learnest.estimators.metrics import gain_pct, worse_beyond_interval
+from learnest.estimators.metrics import VERDICTS, gain_pct, interval_verdict
 
 PAIRS = (("knode-ukf", "ukf"), ("knode-mhe", "mhe"))   # (KNODE, its prior-only method)
 
@@ -66,8 +67,12 @@ def _mse_rows(report: dict, knode: str, prior: str) -> list[dict]:
     return rows
 
 
-def _worse_beyond(rows: list[dict]) -> int:
-    return sum(1 for r in rows if worse_beyond_interval(r["interval_pct"]))
+def _verdict_counts(rows: list[dict], scored: int) -> dict[str, int]:
+    """{verdict: flights} of ``rows`` by their intervals (`interval_verdict`); the ``scored`` flights without a
+    row (no gain to tell) are undecided too."""
+    counts = {verdict: sum(interval_verdict(r["interval_pct"]) == verdict for r in rows) for verdict in VERDICTS}
+    counts["undecided"] += scored - len(rows)
+    return counts
 
 
 def evaluation_headline(report: dict) -> dict:
@@ -79,7 +84,9 @@ def evaluation_headline(report: dict) -> dict:
         ``yardstick`` ("mocap_gaps" or "paper_sg"), ``measures`` (what it measures, one sentence),
         ``sentence`` (the first comparison's, or why there is none), and ``pairs``: per KNODE that ran with
         its prior, ``knode``, ``prior``, ``key``, ``median_gain_pct``, ``better``, ``worse_beyond_interval``,
-        ``flights`` (how many were scored on this yardstick), ``rows`` (per flight ``flight``, ``gain_pct``,
+        ``better_beyond_interval``, ``within_interval``, ``undecided`` (flights whose gain has no interval)
+        and ``undecided_names`` (["name: why"]), ``scored`` (flights scored: the four counts add up to it),
+        ``flights`` (how many have a gain on this yardstick), ``rows`` (per flight ``flight``, ``gain_pct``,
         ``interval_pct`` [low, high] or None) and ``sentence``.  Gains are in %, positive: the KNODE's error
         is lower than its prior's.
     """
@@ -91,23 +98,42 @@ def evaluation_headline(report: dict) -> dict:
         rows = _gap_rows(report, key) if gaps else _mse_rows(report, knode, prior)
         if not rows:
             continue
+        scored = len(_scored(report))
+        counts = _verdict_counts(rows, scored)
+        undecided_names = [f"{r['flight']}: no interval" for r in rows if r["interval_pct"] is None]
         if gaps:   # the service's own counts: the JSON, the page and the CLI say the same numbers
             mid = (given.get("median_gain_pct") or {}).get(key)
             better = (given.get("flights_better") or {}).get(key)
             worse = (given.get("flights_worse_beyond_interval") or {}).get(key)
+            given_counts = {"better": (given.get("flights_better_beyond_interval") or {}).get(key),
+                            "within": (given.get("flights_within_interval") or {}).get(key),
+                            "undecided": (given.get("flights_undecided") or {}).get(key)}
+            # the headline's own four counts; a report stored before it carried them is told from its rows
+            if all(isinstance(v, int) for v in given_counts.values()):
+                counts.update({verdict: value for verdict, value in given_counts.items() if isinstance(value, int)})
+                scored = int(given.get("flights_scored", scored))
+                undecided_names = list((given.get("flights_undecided_names") or {}).get(key) or [])
         else:
             mid = (report.get("improvement_pct") or {}).get(key)   # the medians' ratio, as the tables show it
             better = worse = None
         mid = float(mid) if mid is not None and _finite(mid) else median(r["gain_pct"] for r in rows)
         better = int(better) if isinstance(better, int) else sum(r["gain_pct"] > 0 for r in rows)
-        worse = int(worse) if isinstance(worse, int) else _worse_beyond(rows)
+        worse = int(worse) if isinstance(worse, int) else counts["worse"]
         pair: dict[str, Any] = {"knode": knode, "prior": prior, "key": key, "median_gain_pct": mid, "better": better,
-                "worse_beyond_interval": worse, "flights": len(rows), "rows": rows}
+                                "worse_beyond_interval": worse, "better_beyond_interval": counts["better"],
+                                "within_interval": counts["within"], "undecided": counts["undecided"],
+                                "undecided_names": undecided_names, "scored": scored, "flights": len(rows),
+                                "rows": rows}
         pair["sentence"] = _sentence(pair, gaps)
         pairs.append(pair)
     yardstick = "mocap_gaps" if gaps else "paper_sg"
     if pairs:
         sentence = pairs[0]["sentence"]
+    elif gaps and any((given.get("flights_undecided") or {}).values()):
+        scored = int(given.get("flights_scored") or len(_scored(report)))
+        reasons = "; ".join(given.get("flights_without_gaps") or [])
+        sentence = (f"No flight had a mocap gap to score: the KNODE's gain is undecided (no interval) on all "
+                    f"{scored} flight{'s' if scored != 1 else ''} scored ({reasons}).")
     elif _scored(report):
         sentence = "No KNODE ran beside its prior: there is no gain to report (run ukf with knode-ukf, or mhe " \
                    "with knode-mhe)."
@@ -143,8 +169,12 @@ def _sentence(pair: dict, gaps: bool) -> str:
     what = (f"{knode} carried the estimate through mocap gaps {how}" if gaps else
             f"{knode} scored {how} on the paper's Savitzky-Golay MSE")
     worse = pair["worse_beyond_interval"]
+    scored = pair["scored"]
     return (f"{what} (median of {n} flight{'s' if n != 1 else ''}; {_interval_text(pair['rows'])}): better on "
-            f"{pair['better']} of {n}; worse beyond its 95 % interval on {worse or 'none'}.")
+            f"{pair['better']} of {n}; of {scored} flight{'s' if scored != 1 else ''} scored, worse beyond its 95 % "
+            f"interval on {worse or 'none'}, better beyond it on {pair['better_beyond_interval'] or 'none'}, "
+            f"within it on {pair['within_interval'] or 'none'}, undecided (no interval) on "
+            f"{pair['undecided'] or 'none'}.")
 
 
 # -- the diagnosis --------------------------------------------------------------------------------------

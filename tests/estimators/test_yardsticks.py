@@ -198,6 +198,8 @@ def test_a_flight_too_short_for_one_gap_is_scored_without_it_and_says_why(tmp_pa
     assert entry["mse"]["ukf"] > 0
     assert report["headline"]["flights_with_gaps"] == 0
     assert report["headline"]["flights_without_gaps"] == [f"{short.name}: {gaps['skipped']}"]
+    assert report["headline"]["flights_undecided"] == {"knode-ukf_vs_ukf": 1}      # counted, not dropped
+    assert report["headline"]["flights_undecided_names"]["knode-ukf_vs_ukf"] == [f"{short.name}: {gaps['skipped']}"]
     assert "no gap score: the kept flight is" in format_report({**report, "model": "m:1"})
 
 
@@ -211,6 +213,12 @@ def test_the_report_leads_with_the_gap_headline_and_says_when_nothing_was_learne
     assert head["median_gain_pct"]["knode-ukf_vs_ukf"] == pytest.approx(float(np.median(gains)))
     assert head["flights_better"]["knode-ukf_vs_ukf"] == 2
     assert head["flights_worse_beyond_interval"]["knode-ukf_vs_ukf"] == 0
+    # nine gaps each: every flight has an interval over its gaps, and each is counted once
+    assert all(f["yardsticks"]["mocap_gaps"]["gain_interval_pct"]["knode-ukf_vs_ukf"] is not None
+               and "signed-rank" in f["yardsticks"]["mocap_gaps"]["interval_method"] for f in report["flights"])
+    assert head["flights_undecided"]["knode-ukf_vs_ukf"] == 0
+    assert sum(head[f"flights_{c}"]["knode-ukf_vs_ukf"] for c in (
+        "better_beyond_interval", "worse_beyond_interval", "within_interval", "undecided")) == head["flights_scored"] == 2
     for entry in report["flights"]:
         assert list(entry["yardsticks"]) == ["mocap_gaps", "fast_reference", "paper_sg"]
         assert entry["yardsticks"]["paper_sg"]["mse"] == entry["mse"]          # the paper's score, as before

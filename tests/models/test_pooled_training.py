@@ -195,6 +195,7 @@ def test_the_notebook_knode_fits_one_flight_or_a_list_of_flights(drag_flights):
     import learnest as le
 
     knode = le.KNODE(epochs=3).fit(drag_flights[:3])
+    assert knode.system_ == "crazyflie"          # the simulated logs carry motor PWM and battery voltage
     assert knode.training_flights_ == ["sim_crazyflie_0", "sim_crazyflie_1"]
     assert knode.validation_flights_ == ["sim_crazyflie_2"] and isinstance(knode.learned_, bool)
     assert len(knode.validation_losses_) == 3 and knode.model_.kind == "knode"

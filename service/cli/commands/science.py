@@ -359,13 +359,11 @@ def _demo(args) -> int:
     clean = [f for f in flights if f.quality["ok"]]
     if len(clean) < 2:
         raise InvalidInput(f"{folder}: need at least two flights that pass the quality checks, found {len(clean)}")
-    from learnest.models.inputs import missing_inputs
+    from learnest.models.inputs import driven_flights, prior_for_flights
 
-    # the Crazyflie prior (motors and battery) where the flights carry its inputs: it knows the vehicle's
-    # thrust, which the kinematic prior leaves to the network
-    driven = [f for f in clean if not missing_inputs(f, "crazyflie")]
-    pool = driven if args.system == "crazyflie" or (args.system is None and len(driven) >= 2) else clean
-    system = "crazyflie" if pool is driven else "quadrotor"
+    # the Crazyflie prior (motors and battery) where two flights or more carry its inputs, as le.KNODE() picks it
+    system = args.system or prior_for_flights(clean, least=2)
+    pool = driven_flights(clean) if system == "crazyflie" else clean
     if len(pool) < 2:
         raise InvalidInput(f"{folder}: the {system} prior needs at least two clean flights with motor PWM and "
                            f"battery voltage, found {len(pool)}")

@@ -18,6 +18,10 @@ ROUTES = {
 # fields of nested schemas: (route, path of properties to follow, fields expected there)
 NESTED = [
     ("/evaluations/{evaluation_id}", ("flights",), {"yardsticks", "flight", "excluded"}),
+    # every scored flight counted once: better beyond, worse beyond, within its interval, or undecided
+    ("/evaluations/{evaluation_id}", ("headline",), {"flights_better_beyond_interval", "flights_worse_beyond_interval",
+                                                     "flights_within_interval", "flights_undecided",
+                                                     "flights_undecided_names", "flights_scored"}),
     ("/diagnoses/{diagnosis_id}", ("effects",), {"params", "units", "ci95", "identified", "at_bound"}),
     ("/diagnoses/{diagnosis_id}", ("repair",), {"improves", "reason"}),
 ]

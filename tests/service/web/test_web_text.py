@@ -66,15 +66,19 @@ GAP_REPORT = {"model": "cf:2", "system": "crazyflie",
               "median": {"ukf": 2e-3, "knode-ukf": 1.5e-3}, "improvement_pct": {"knode-ukf_vs_ukf": 25.0},
               "headline": {"yardstick": "mocap_gaps", "median_gain_pct": {"knode-ukf_vs_ukf": 12.0},
                            "flights_better": {"knode-ukf_vs_ukf": 2},
-                           "flights_worse_beyond_interval": {"knode-ukf_vs_ukf": 1}}}
+                           "flights_worse_beyond_interval": {"knode-ukf_vs_ukf": 1},
+                           "flights_better_beyond_interval": {"knode-ukf_vs_ukf": 2},
+                           "flights_within_interval": {"knode-ukf_vs_ukf": 0},
+                           "flights_undecided": {"knode-ukf_vs_ukf": 0}, "flights_scored": 3}}
 
 
 def test_the_gap_headline_leads_when_the_report_has_it():
     head = evaluation_headline(GAP_REPORT)
     assert head["yardstick"] == "mocap_gaps"
     assert head["sentence"] == ("KNODE-UKF carried the estimate through mocap gaps 12.0 % better than its prior UKF "
-                                "(median of 3 flights; flights from -8.0 % to +20.0 %): better on 2 of 3; worse "
-                                "beyond its 95 % interval on 1.")
+                                "(median of 3 flights; flights from -8.0 % to +20.0 %): better on 2 of 3; of 3 "
+                                "flights scored, worse beyond its 95 % interval on 1, better beyond it on 2, within "
+                                "it on none, undecided (no interval) on none.")
     [pair] = head["pairs"]
     assert [r["flight"] for r in pair["rows"]] == ["B2_circle_medium_rep1", "B3_figure8_fast_rep2", "ramp_low"]
 
@@ -88,7 +92,7 @@ def test_without_gap_fields_the_headline_is_the_paper_mse_gain():
     assert [r["gain_pct"] for r in head["pairs"][0]["rows"]] == pytest.approx([25.0] * 3)
     assert head["sentence"].startswith("KNODE-UKF scored 25.0 % better than its prior UKF on the paper's "
                                        "Savitzky-Golay MSE (median of 3 flights")
-    assert "worse beyond its 95 % interval on none." in head["sentence"]
+    assert "worse beyond its 95 % interval on none, better beyond it on 3" in head["sentence"]
 
 
 def test_the_cli_text_starts_with_the_same_sentence_as_the_page():
@@ -190,3 +194,53 @@ def test_the_gain_figure_labels_each_flight_and_uses_the_method_colour():
     # the CLI's --plot: the same gain panel above the paired MSE dots
     figure = evaluation_summary(GAP_REPORT)
     assert len(figure.subfigs) == 2 and len(figure.subfigs[0].axes) == 1 and len(figure.subfigs[1].axes) == 1
+
+
+def _undecided_report() -> dict:
+    """GAP_REPORT with a flight of one gap (a gain, no interval) and one too short for a gap, its headline
+    built by the evaluation's own `estimators.headline.headline`."""
+    from learnest.estimators.headline import headline
+
+    one_gap = gap_entry("trefoil_one_gap", 0.06, -25.0, None)
+    one_gap["yardsticks"]["mocap_gaps"]["gaps"] = 1
+    short = gap_entry("hover_short", 0.02, 0.0, None)
+    short["yardsticks"]["mocap_gaps"] = {"rmse_m": {}, "gain_pct": {}, "gain_interval_pct": {}, "gaps": 0,
+                                         "gap_s": 0.5, "every_s": 2.5,
+                                         "skipped": "the kept flight is 4.0 s long, too short for one mocap gap"}
+    flights = GAP_REPORT["flights"] + [one_gap, short]
+    return {**GAP_REPORT, "flights": flights, "headline": headline(flights).to_dict()}
+
+
+def test_a_flight_without_an_interval_is_counted_undecided_on_every_surface():
+    """The headline's four counts add up to the flights scored in the JSON, the sentence, the CLI text and
+    the page; the undecided flights are named with why."""
+    report = _undecided_report()
+    given = report["headline"]
+    key = "knode-ukf_vs_ukf"
+    assert given["flights_scored"] == 5
+    assert (given["flights_better_beyond_interval"][key], given["flights_worse_beyond_interval"][key],
+            given["flights_within_interval"][key], given["flights_undecided"][key]) == (2, 1, 0, 2)
+    head = evaluation_headline(report)
+    assert head["sentence"].endswith("better on 2 of 4; of 5 flights scored, worse beyond its 95 % interval on 1, "
+                                     "better beyond it on 2, within it on none, undecided (no interval) on 2.")
+    text = format_report(report)
+    assert text.splitlines()[0] == head["sentence"]
+    assert "undecided on 2 of 5 flights scored: trefoil_one_gap: one gap: an interval needs two; hover_short: " \
+           "the kept flight is 4.0 s long" in text
+    assert ("better beyond it on 2, within it on 0, undecided (no interval) on 2 of 5 flights scored" in text)
+    assert "-25.0 % [no interval]" in text
+    page_text = visible_text(render_report(report))
+    assert head["sentence"] in page_text
+    assert "-25.0 undecided (no interval)" in page_text
+    assert "better on 2, worse on 1, within on 0, undecided on 2 of 5 scored" in page_text
+
+
+def test_a_report_stored_before_the_four_counts_is_told_from_its_intervals():
+    """An older report's headline has no undecided count: the page tells it from the flights' intervals."""
+    report = _undecided_report()
+    old = {k: v for k, v in report["headline"].items()
+           if k not in ("flights_better_beyond_interval", "flights_within_interval", "flights_undecided",
+                        "flights_undecided_names", "flights_scored")}
+    pair = evaluation_headline({**report, "headline": old})["pairs"][0]
+    assert (pair["better_beyond_interval"], pair["worse_beyond_interval"], pair["within_interval"],
+            pair["undecided"], pair["scored"]) == (2, 1, 0, 2, 5)
