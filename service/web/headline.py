@@ -124,7 +124,7 @@ def evaluation_headline(report: dict) -> dict:
                                 "within_interval": counts["within"], "undecided": counts["undecided"],
                                 "undecided_names": undecided_names, "scored": scored, "flights": len(rows),
                                 "rows": rows}
-        pair["sentence"] = _sentence(pair, gaps)
+        pair["sentence"] = _sentence(pair, gaps) + noise_clause(report.get("noise") or {}, knode, prior)
         pairs.append(pair)
     yardstick = "mocap_gaps" if gaps else "paper_sg"
     if pairs:
@@ -142,6 +142,19 @@ def evaluation_headline(report: dict) -> dict:
     if report.get("learned") is False:
         sentence += " The residual did not improve held-out prediction in training: this version equals its prior."
     return {"yardstick": yardstick, "measures": YARDSTICK_TEXT[yardstick], "sentence": sentence, "pairs": pairs}
+
+
+def noise_clause(noise: dict, knode: str, prior: str) -> str:
+    """What noise the two sides of a comparison ran with (the report's ``noise`` {method: "identified" |
+    "paper"}), as a sentence starting with a space; "" for a report that does not say."""
+    if knode not in noise or prior not in noise:
+        return ""
+    if noise[knode] == noise[prior] == "identified":
+        return " Each ran with its own noise, identified on the training flights."
+    if noise[knode] == noise[prior] == "paper":
+        return " Both ran with the system's fixed noise (the paper's)."
+    return (f" Noise: {knode.upper()} {noise[knode]}, {prior.upper()} {noise[prior]}: not tuned the same way, "
+            "so not like with like.")
 
 
 def gap_methods(report: dict) -> list[str]:

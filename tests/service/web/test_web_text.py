@@ -244,3 +244,15 @@ def test_a_report_stored_before_the_four_counts_is_told_from_its_intervals():
     pair = evaluation_headline({**report, "headline": old})["pairs"][0]
     assert (pair["better_beyond_interval"], pair["worse_beyond_interval"], pair["within_interval"],
             pair["undecided"], pair["scored"]) == (2, 1, 0, 2, 5)
+
+
+def test_the_headline_says_which_noise_each_side_ran_with():
+    """A report that names its noise (`noise` {method: source}) says it after the gain, like with like or not."""
+    identified = evaluation_headline({**GAP_REPORT, "noise": {"ukf": "identified", "knode-ukf": "identified"}})
+    assert identified["sentence"].endswith("Each ran with its own noise, identified on the training flights.")
+    paper = evaluation_headline({**GAP_REPORT, "noise": {"ukf": "paper", "knode-ukf": "paper"}})
+    assert paper["sentence"].endswith("Both ran with the system's fixed noise (the paper's).")
+    mixed = evaluation_headline({**GAP_REPORT, "noise": {"ukf": "paper", "knode-ukf": "identified"}})
+    assert mixed["sentence"].endswith("Noise: KNODE-UKF identified, UKF paper: not tuned the same way, so not like "
+                                      "with like.")
+    assert evaluation_headline(GAP_REPORT)["sentence"].endswith("undecided (no interval) on none.")
