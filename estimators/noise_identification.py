@@ -29,8 +29,8 @@ from learnest.models.noise import IDENTIFIED, PAPER, STD_BOUNDS, NoiseModel, blo
 
 from .mocap_gaps import PositionGapModel, gap_mask, masked_measurements
 from .prepared import prepare
-from .yardsticks import GapPlan
 from .ukf import SigmaFunctions, compiled_sigma_functions, run_ukf
+from .yardsticks import GapPlan
 
 # The blocks searched by default: velocity and acceleration process noise, both measurements (module docstring).
 PROCESS_BLOCKS = ("v", "a")
@@ -169,6 +169,8 @@ def identify_noise(records: Sequence[NoiseRecord], start: NoiseModel, *,
     if not records:
         raise InvalidInput("noise identification needs at least one flight")
     system = records[0].model.system
+    if system is None:
+        raise InvalidInput(f"{records[0].name}: noise identification needs a model with its system")
     objective = _Likelihood(records, start, _indices(system.state_names, process_blocks, "state"),
                             _indices(system.meas_names, measurement_blocks, "measurement"), on_evaluation)
     names, mean_log_likelihood, noise_at = objective.names, objective, objective.noise_at
