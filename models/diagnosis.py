@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .identifiability import combined_observable, sensitivity, tie_groups
 from .residual_problem import Fit as Fit
 from .residual_problem import ResidualProblem as ResidualProblem
 from .residual_problem import bic_eff as bic_eff
@@ -47,19 +48,21 @@ def _all_values(candidates, chosen_values=None):
 
 
 def fit(problem: ResidualProblem, effects: list, rows: np.ndarray | None = None,
-        offset: np.ndarray | None = None, start: dict[str, float] | None = None) -> Fit:
+        offset: np.ndarray | None = None, start: dict[str, float] | None = None,
+        base: dict[str, float] | None = None) -> Fit:
     """Least squares over the parameters of `effects`, every other candidate at its nominal value.
 
     Bounded trust-region fit (scipy ``least_squares``) on ``rows`` (default all); ``offset`` (same shape as
     the residual) is added to the residual (bootstrap replicates).  It starts at ``start`` ({parameter name:
     value}, e.g. an earlier fit's values) when given, else at each parameter's ``initial`` moved to the best
-    point of its coarse scan (parameters with a ``scan_step``).
+    point of its coarse scan (parameters with a ``scan_step``).  ``base`` holds values of other parameters,
+    kept fixed (default: every other candidate nominal).
     """
     from scipy.optimize import least_squares  # scipy.optimize costs ~1 s to import: loaded on first use
 
     rows = np.arange(problem.n_rows) if rows is None else rows
     params = [p for e in effects for p in e.params if p.name not in problem.frozen]
-    base = _all_values(problem.candidates)
+    base = {**_all_values(problem.candidates), **(base or {})}
 
     def residual_of(theta):
         values = {**base, **{p.name: v for p, v in zip(params, theta)}}
@@ -110,17 +113,6 @@ def cv_error(problem: ResidualProblem, effects: list) -> float:
     return float(np.mean(errors))
 
 
-def _sensitivity(problem, values, params, step=1e-5):
-    """Columns ∂r/∂θ at `values` (finite differences), one per parameter."""
-    rows = np.arange(problem.n_rows)
-    base = problem.residual(values, rows).ravel()
-    columns = []
-    for p in params:
-        h = step * max(1.0, abs(values[p.name]), p.upper - p.lower)
-        columns.append((problem.residual({**values, p.name: values[p.name] + h}, rows).ravel() - base) / h)
-    return np.column_stack(columns)
-
-
 def confounded_pairs(problem: ResidualProblem, chosen: list, values: dict, near_ties: list) -> list[dict]:
     """Chosen effects that another candidate explains about as well (BIC_eff within DELTA_BIC, or removing
     at least ALTERNATIVE_FRACTION of the residual the chosen one removes), with the pair of parameters whose
@@ -135,7 +127,7 @@ def confounded_pairs(problem: ResidualProblem, chosen: list, values: dict, near_
     out = []
     for a, b, delta_bic, *rest in near_ties:
         fraction = rest[0] if rest else None
-        A, B = _sensitivity(problem, allv, a.params), _sensitivity(problem, allv, b.params)
+        A, B = sensitivity(problem, allv, a.params), sensitivity(problem, allv, b.params)
         norms = np.linalg.norm(A, axis=0)[:, None] * np.linalg.norm(B, axis=0)[None, :]
         with np.errstate(invalid="ignore", divide="ignore"):
             cosine = np.nan_to_num(np.abs(A.T @ B) / norms)
@@ -256,8 +248,12 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
 
     A fitted parameter is *identified* (and claimed) only when its 95 % interval excludes the prior's value,
     it does not sit on a physical bound (`AT_BOUND_FRACTION`), and returning it to the prior's value costs at
-    least `MIN_PARAM_SHARE` of the residual the prior leaves.  A repair uses ``values_identified``: the
-    identified parameters refitted with every other one at the prior's value.
+    least `MIN_PARAM_SHARE` of the residual the prior leaves, and only when the data can determine it: never a
+    parameter of ``problem.undetermined`` (the data's own excitation cannot determine it), nor one of a chosen
+    effect that another explains alike (a tie, `identifiability.is_tie`).  Such parameters get no interval; a tie
+    is reported with the one combined observable its effects determine, its interval joint over the tied set.
+    A repair uses ``values_identified``: the identified parameters refitted with every other one at the
+    prior's value.
 
     Returns
     -------
@@ -269,7 +265,9 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
         ``explained_fraction`` of the baseline RSS, ``equation``, ``alternatives``: every rival within the
         criterion's threshold (BIC_eff within ``DELTA_BIC``, or removing ≥ ``ALTERNATIVE_FRACTION`` of the
         residual the effect removes) with ``id``, ``params`` it would take in the effect's place, ``units``,
-        ``delta_bic``, ``fraction_of_chosen``), sorted by explained fraction; ``confounded``; ``values``;
+        ``delta_bic``, ``fraction_of_chosen``), ``undetermined`` {param: why it is not claimed}), sorted by
+        explained fraction; ``confounded`` (a tie's entries with ``tie`` True); ``ties`` (each: ``effects``,
+        ``combined``, `identifiability.combined_observable`); ``excitation`` (the problem's); ``values``;
         ``values_identified``;
         ``rss_before``; ``rss_after``;
         ``trace``; ``fit`` (the final `Fit`); ``candidates`` (every candidate: ``id``, ``target``, ``chosen``,
@@ -287,17 +285,22 @@ def select_effects(problem: ResidualProblem, max_effects: int = 3, min_cv_gain: 
     if on_stage is not None:
         on_stage(f"fitting effects on {problem.name} (bootstrap intervals)", max_effects / (max_effects + 1))
     intervals = bootstrap_ci(problem, current)
-    at_bound, share, identified, values_identified = _identified(problem, chosen, current, intervals, baseline_rss)
-    results = _effect_results(problem, chosen, current, intervals, baseline_rss, at_bound, share, identified,
-                              alternatives)
     confounded = confounded_pairs(problem, chosen, current.values, near_ties) + cancelled
+    ties, unclaimable = _ties(problem, chosen, current, confounded)
+    at_bound, share, identified, values_identified = _identified(problem, chosen, current, intervals, baseline_rss,
+                                                                 unclaimable)
+    results = _effect_results(problem, chosen, current, {k: v for k, v in intervals.items() if k not in unclaimable},
+                              baseline_rss, at_bound, share, identified, alternatives)
+    for e in results:
+        e["undetermined"] = {p: why for p, why in unclaimable.items() if p in e["params"]}
     candidates = [{"id": e.id, "target": e.target, "chosen": e in chosen,
                    "params": {p.name: alone[e.id].values.get(p.name, p.nominal) for p in e.params}
                    if e.id in alone else e.nominal(),
                    "nominal": e.nominal(), "units": {p.name: p.unit for p in e.params},
                    "delta_bic_alone": alone_delta.get(e.id)}
                   for e in problem.candidates]
-    return {"channel": problem.name, "effects": results, "confounded": confounded, "values": current.values,
+    return {"channel": problem.name, "effects": results, "confounded": confounded, "ties": ties,
+            "excitation": problem.excitation, "values": current.values,
             "values_identified": values_identified,
             "rss_before": baseline_rss, "rss_after": current.rss, "trace": trace, "fit": current,
             "candidates": candidates}
@@ -403,9 +406,33 @@ def _cancelling_pairs(problem: ResidualProblem, chosen: list, best: Fit, delta_b
     return pairs
 
 
-def _identified(problem: ResidualProblem, chosen: list, current: Fit, intervals: dict, baseline_rss: float):
+def _ties(problem: ResidualProblem, chosen: list, current: Fit, confounded: list) -> tuple[list[dict], dict]:
+    """The tied sets among ``confounded`` (`identifiability.tie_groups`), each with its combined observable
+    (`identifiability.combined_observable`, led by the chosen effect), and {parameter: why it is not claimed}:
+    the excitation's undetermined parameters and every parameter of a tied set's chosen effects."""
+    unclaimable = dict(problem.undetermined)
+    by_id = {e.id: e for e in problem.candidates}
+    ties = []
+    for group in tie_groups(confounded, problem.undetermined):
+        members = sorted((by_id[i] for i in group), key=lambda e: e not in chosen)   # a chosen effect leads
+        tie = {"effects": [e.id for e in members],
+               "combined": combined_observable(problem, members, current.values, fit,
+                                               tuple(e for e in chosen if e not in members))}
+        for e in members:
+            for p in e.params:
+                if e in chosen and p.name not in unclaimable:
+                    unclaimable[p.name] = (f"tied with {', '.join(i for i in tie['effects'] if i != e.id)}: the two "
+                                           "explain the residual alike, so neither is claimed (see ties)")
+        ties.append(tie)
+    return ties, unclaimable
+
+
+def _identified(problem: ResidualProblem, chosen: list, current: Fit, intervals: dict, baseline_rss: float,
+                unclaimable: dict | None = None):
     """``(at_bound, share, identified, values_identified)`` of the chosen effects' parameters (see
-    `select_effects`): on a bound, share of the prior's RSS, identified, and the values a repair may use."""
+    `select_effects`): on a bound, share of the prior's RSS, identified, and the values a repair may use.
+    Parameters in ``unclaimable`` (undetermined by the excitation, or tied) are never identified."""
+    unclaimable = unclaimable or {}
     everything = np.arange(problem.n_rows)
     allv = _all_values(problem.candidates, current.values)
     at_bound = {p.name: _at_bound(p, current.values[p.name]) for e in chosen for p in e.params
@@ -416,7 +443,7 @@ def _identified(problem: ResidualProblem, chosen: list, current: Fit, intervals:
             if p.name in current.values:
                 r = problem.residual({**allv, p.name: p.nominal}, everything)
                 share[p.name] = float((np.sum(r**2) - current.rss) / baseline_rss) if baseline_rss > 0 else 0.0
-    identified = {name: bool(_claimed(p, intervals.get(name)) and not at_bound[name]
+    identified = {name: bool(_claimed(p, intervals.get(name)) and not at_bound[name] and name not in unclaimable
                              and share.get(name, 0.0) >= MIN_PARAM_SHARE)
                   for e in chosen for p in e.params for name in [p.name] if name in at_bound}
     # the values a repair may use: identified parameters refitted with the others at the prior's values

@@ -30,6 +30,11 @@ class ResidualProblem:
         Parameter name -> why the data cannot identify it; such parameters stay nominal.
     times : ndarray, optional
         (n_rows,) time of each row, s, where rows are samples of a flight (for plotting the residual).
+    undetermined : dict
+        Parameter name -> why the data's own excitation cannot determine it and what data would (a battery
+        that never sags leaves its thrust exponent a mere gain): fitted, never claimed, given no interval.
+    excitation : dict
+        What the data's signals span (their spreads, with units), as the problem's builder measured it.
     """
 
     name: str
@@ -39,6 +44,8 @@ class ResidualProblem:
     blocks: list = field(default_factory=list)   # held-out blocks (row index arrays): flights or time
     frozen: dict = field(default_factory=dict)   # param name -> why the data cannot identify it (kept nominal)
     times: np.ndarray | None = None              # (n_rows,) s, when rows are samples in time
+    undetermined: dict = field(default_factory=dict)   # param name -> why the excitation cannot determine it
+    excitation: dict = field(default_factory=dict)     # the data's spread per signal, as measured by the builder
 
     def __post_init__(self):
         if not self.blocks:

@@ -35,6 +35,7 @@ from ..inputs import system_inputs
 from ..residual_problem import ResidualProblem
 from ..systems import Crazyflie
 from . import prior as cf
+from .excitation import excitation, undetermined_params
 from .identify import FlightArrays, flight_arrays, lowpass, predict_body_force
 
 # ground effect is below 0.1 % of thrust above ~10 rotor radii: without samples that low r_m is not fitted
@@ -50,6 +51,7 @@ CRAZYFLIE_MIN_CV_GAIN = 0.005
 # the residual is low-passed at 5 Hz: every 4th sample (25 Hz at a 100 Hz log) carries all it holds, and
 # the fits run 4 times faster
 ROW_STRIDE = 4
+SHAPE_PARAMS = ("q_pwm2",)   # the thrust map's shape: no candidate, fitted only by the thrust map's fit
 LINEAR = ("m_kg", "k_xy", "k_z")   # parameters the predicted force is linear in (through 1/m_kg for the mass)
 MIN_ROWS = 50      # rows (25 Hz): 2 s of flight, the least a fit of a few parameters and its bootstrap need
 
@@ -116,21 +118,17 @@ def crazyflie_problem(flights: list[Flight], prior: dict | None = None, name: st
     """
     prior = dict(cf.IDENTIFIED if prior is None else prior)
     data = [crazyflie_data(f, prior) for f in flights]
-    # the battery and the motors' heating act between a PWM and the thrust: a rotor speed or a thrust in N
-    # already carries both
-    # (a commanded thrust keeps a battery term: what the firmware's compensation leaves, `models.crazyflie`)
-    skip = {"pwm": (), "thrust_n": ("motor_heating",)}.get(cf.thrust_source_of(prior),
-                                                           ("battery_thrust", "motor_heating"))
-    candidates: list[Effect] = [e for e in crazyflie_effects(prior) if e.id not in skip] + \
-        effects_for("crazyflie", "measurement")
+    candidates = _candidates(prior)
     dynamic_names = [p.name for e in candidates if e.target == "dynamics" for p in e.params]
     # the prediction is linear in 1/m_kg, k_xy and k_z (and the lag and the low-pass are linear filters):
     # two runs of predict_body_force per value of the other parameters give it for every mass and drag
     nonlinear = [k for k in dynamic_names if k not in LINEAR]
+    # the map's shape is no candidate effect, but a fit of the thrust map may move it
+    nonlinear += [k for k in SHAPE_PARAMS if k in prior and k not in nonlinear]
     cache: dict[tuple, list[tuple[np.ndarray, np.ndarray]]] = {}
 
     def predicted(values: dict) -> list[np.ndarray]:
-        key = tuple(values[k] for k in nonlinear)
+        key = tuple(values.get(k, prior[k]) for k in nonlinear)
         if key not in cache:
             params = {**prior, **dict(zip(nonlinear, key))}
             if len(cache) > 8:
@@ -171,7 +169,19 @@ def crazyflie_problem(flights: list[Flight], prior: dict | None = None, name: st
     blocks = [np.arange(offsets[i], offsets[i + 1]) for i in range(len(data))] if len(data) > 1 else []
     frozen = _frozen_params(data)
     times = np.concatenate([d.t[d.rows] for d in data])
-    return ResidualProblem(name, candidates, residual, int(offsets[-1]), blocks, frozen, times)
+    stats = excitation(data, cf.thrust_source_of(prior))
+    return ResidualProblem(name, candidates, residual, int(offsets[-1]), blocks, frozen, times,
+                           undetermined_params(stats, candidates), stats)
+
+
+def _candidates(prior: dict) -> list[Effect]:
+    """The candidate effects for ``prior``'s thrust source: the crazyflie dynamics effects, then the
+    accelerometer's.  The battery and the motors' heating act between a PWM and the thrust: a rotor speed or a
+    thrust in N already carries both (a commanded thrust keeps a battery term: what the firmware's compensation
+    leaves, `models.crazyflie`)."""
+    skip = {"pwm": (), "thrust_n": ("motor_heating",)}.get(cf.thrust_source_of(prior),
+                                                           ("battery_thrust", "motor_heating"))
+    return [e for e in crazyflie_effects(prior) if e.id not in skip] + effects_for("crazyflie", "measurement")
 
 
 def _frozen_params(data: list) -> dict:

@@ -30,8 +30,9 @@ from learnest.models.presets import CRAZYFLIE_TRAINING, PAPER_TRAINING, diagnosi
 from learnest.models.systems import make_system
 from learnest.models.training import train_knode
 
-from .diagnosis_crazyflie import crazyflie_prior_for, diagnose_crazyflie, thrust_map_fit
+from .diagnosis_crazyflie import crazyflie_prior_for, diagnose_crazyflie
 from .diagnosis_format import THRUST_SOURCE_TEXT, confounded_label, format_diagnosis, how_much, unchanged_prior_note
+from .diagnosis_identifiability import thrust_map_fit
 from .diagnosis_problems import (
     DIAGNOSIS_LOWPASS_HZ,
     DIAGNOSIS_SG_ORDER,

@@ -16,7 +16,7 @@ from learnest.ingest.profile import flight_profile
 from learnest.models import crazyflie as cf
 from learnest.models.crazyflie.crazyflie_residual import CRAZYFLIE_MIN_CV_GAIN, crazyflie_problem, specific_force_rmse
 from learnest.models.crazyflie.identify import LOWPASS_HZ
-from learnest.models.diagnosis import AT_BOUND_FRACTION, bootstrap_ci, fit, select_effects
+from learnest.models.diagnosis import select_effects
 from learnest.models.inputs import (
     CHANNEL_SOURCES,
     SOURCE_CHANNELS,
@@ -29,6 +29,7 @@ from learnest.models.knode import HybridModel
 from learnest.models.presets import CRAZYFLIE_TRAINING
 from learnest.models.training import train_knode
 
+from .diagnosis_identifiability import map_shape_check, thrust_map_fit, tie_words
 from .diagnosis_problems import (
     REPAIR_GAPS,
     _channel,
@@ -163,7 +164,7 @@ def _mass_effect_named(e: dict, as_mass: bool, convert, scale: float, declared: 
                          f"prior's thrust map ({value / m_prior:.3f})")
     else:
         keys = ("identified", "at_bound", "claimed", "determined", "explained_by_param", "held_nominal",
-                "units", "bounds")
+                "units", "bounds", "undetermined")
         e.update({"id": "thrust_gain", "params": {"gain": convert(value)}, "nominal": {"gain": 1.0},
                   "ci95": {"gain": sorted([convert(interval[0]), convert(interval[1])])} if interval else {},
                   "equation": f"thrust_gain: gain = {convert(value):.4g} (thrust against the prior's map; "
@@ -270,8 +271,9 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
         (the repaired prior, the same keys),
         ``thrust_source``, ``declared_mass_kg``, ``vehicle_fits_prior`` {``ok``, ``thrust_gain``,
         ``message``}, ``repair`` (`repair_verdict`), ``candidates`` (every candidate effect, fitted alone),
-        ``lowpass_hz``; with ``return_model`` also the repaired model (a KNODE on the repaired prior,
-        measurement effects in its meta).
+        ``lowpass_hz``, ``excitation``, ``undetermined`` and ``ties`` (`_determinable`), ``thrust_map_fit``
+        (PWM logs, `diagnosis_identifiability.thrust_map_fit`); with ``return_model`` also the repaired model
+        (a KNODE on the repaired prior, measurement effects in its meta).
 
     Raises
     ------
@@ -284,7 +286,7 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
     fitting, scoring, split = _split_for_fitting(flights, "crazyflie")
     stages = DiagnosisStages(on_stage, {**CRAZYFLIE_PLAN, "before": 0.0} if knode else CRAZYFLIE_PLAN)
     stages.report("effects", f"reading the specific force ({len(fitting)} fitting flight(s))")
-    problem = crazyflie_problem(fitting, prior)
+    problem, shape = _fitting_problem(fitting, prior, source)
     selection = select_effects(problem, min_cv_gain=CRAZYFLIE_MIN_CV_GAIN, on_stage=stages.part("effects"))
     held_out_problems = [crazyflie_problem([flight], prior) for flight in scoring]
     values = _transferring(selection, held_out_problems, [f.name for f in scoring])
@@ -307,7 +309,7 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
         "system": "crazyflie", "prior": {"system": "crazyflie", "params": prior},
         "prior_after": {"system": "crazyflie", "params": repaired},
         "thrust_source": source, "declared_mass_kg": declared, "vehicle_fits_prior": fits_prior,
-        "effects": effects, "confounded": selection["confounded"],
+        "effects": effects, "confounded": selection["confounded"], **_determinable(problem, selection, prior),
         "candidates": [{**c, "channel": selection["channel"]} for c in selection["candidates"]],
         "before": {k: float(np.median(v)) for k, v in before.items()},
         "after": {k: float(np.median(v)) for k, v in after.items()},
@@ -321,8 +323,26 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
         report["yardsticks"] = repair_yardsticks(per_flight, methods)
     report["repair"] = repair_verdict(report, methods)
     if source == "pwm":
-        report["thrust_map_fit"] = thrust_map_fit(problem, prior, declared)
+        report["thrust_map_fit"] = thrust_map_fit(problem, prior, declared, shape)
     return (report, model_after) if return_model else report
+
+
+def _determinable(problem, selection: dict, prior: dict) -> dict:
+    """The report's ``excitation`` (what the fitting flights span), ``undetermined`` {param: why never claimed}
+    and ``ties`` (each with its combined observable in ``words``, `tie_words`)."""
+    return {"excitation": problem.excitation, "undetermined": dict(problem.undetermined),
+            "ties": [{**t, "words": tie_words(t, prior, problem.excitation, selection["candidates"])}
+                     for t in selection["ties"]]}
+
+
+def _fitting_problem(fitting: list[Flight], prior: dict, source: str) -> tuple:
+    """(the specific-force problem of the fitting flights, `map_shape_check`'s answer): gamma is marked
+    undetermined where the map's shape confounds it or differs from the prior's (PWM logs only)."""
+    problem = crazyflie_problem(fitting, prior)
+    shape = map_shape_check(problem, prior) if source == "pwm" else {"determined": True}
+    if shape.get("reason"):
+        problem.undetermined.setdefault("gamma", shape["reason"])
+    return problem, shape
 
 
 def _diagnosable(flights: list[Flight], knode: HybridModel | None, mass_kg: float | None,
@@ -413,27 +433,3 @@ def _transferring(selection: dict, held_out: list, names: list[str]) -> dict:
             values = without
     return values
 
-
-def thrust_map_fit(problem, prior: dict, declared: float | None) -> dict:
-    """The thrust gain and battery exponent against the prior's PWM map, fitted together on the fitting
-    flights with 95 % block-bootstrap intervals, whether or not the selection chose them: how far this
-    vehicle's thrust is from the map.  ``gain`` = m_prior / m_fit (dimensionless), or ``m_kg`` scaled onto a
-    declared mass; ``gamma`` the exponent of (V / V_ref); ``at_bound`` for each fitted parameter."""
-    effects = [e for e in problem.candidates if e.id in ("mass", "battery_thrust")]
-    fitted = fit(problem, effects)
-    intervals = bootstrap_ci(problem, fitted)
-    m_prior = float(prior["m_kg"])
-    m_fit, (m_lo, m_hi) = fitted.values["m_kg"], intervals["m_kg"]
-    params = {p.name: p for e in effects for p in e.params}
-    out = {"gain": m_prior / m_fit, "gain_ci95": [m_prior / m_hi, m_prior / m_lo],
-           "gamma": fitted.values["gamma"], "gamma_ci95": intervals["gamma"], "gamma_prior": float(prior["gamma"]),
-           "at_bound": {k: bool(_at_bound_param(params[k], fitted.values[k])) for k in ("m_kg", "gamma")},
-           "gamma_bounds": list(cf.BOUNDS["gamma"])}
-    if declared is not None:
-        out.update(m_kg=declared * m_fit / m_prior, m_kg_ci95=[declared * m_lo / m_prior, declared * m_hi / m_prior])
-    return out
-
-
-def _at_bound_param(param, value) -> bool:
-    margin = AT_BOUND_FRACTION * (param.upper - param.lower)
-    return value <= param.lower + margin or value >= param.upper - margin

@@ -70,14 +70,9 @@ def format_diagnosis(result: dict) -> str:
         fits = result["vehicle_fits_prior"]
         verdict = "vehicle fits the prior" if fits["ok"] else "VEHICLE DOES NOT FIT THE PRIOR"
         lines.append(f"  {verdict}: {fits['message']}")
+    lines += _excitation_lines(result)
     if result.get("thrust_map_fit"):
-        t = result["thrust_map_fit"]
-        lines.append(f"  thrust against the prior's map, gain and battery exponent fitted together: gain "
-                     f"{t['gain']:.4g} "
-                     f"[{t['gain_ci95'][0]:.4g}, {t['gain_ci95'][1]:.4g}], gamma {t['gamma']:.3g} "
-                     f"[{t['gamma_ci95'][0]:.3g}, {t['gamma_ci95'][1]:.3g}] (prior {t['gamma_prior']:.3g})"
-                     + ("; at a bound: " + ", ".join(k for k, b in t["at_bound"].items() if b)
-                        if any(t["at_bound"].values()) else ""))
+        lines += _thrust_map_lines(result["thrust_map_fit"])
     if result.get("simulated_truth"):
         lines.append(f"  (simulated; truth hidden from the diagnosis: {result['simulated_truth']})")
     if not result["effects"]:
@@ -87,6 +82,8 @@ def format_diagnosis(result: dict) -> str:
         lines += _effect_lines(e)
     for c in result["confounded"]:
         lines.append(f"  {confounded_label(c)}: {c['note']}")
+    for tie in result.get("ties", []):
+        lines.append(f"  tie, neither claimed: {tie.get('words') or tie['effects']}")
     if result.get("repair"):
         r = result["repair"]
         does = "improves" if r["improves"] else "does not improve"
@@ -136,7 +133,7 @@ def _effect_lines(e: dict) -> list[str]:
                     for k, (lo, hi) in e["ci95"].items())
     shaky = [k for k, ok in e.get("determined", {}).items() if not ok]
     lines.append(f"  {e['equation']}  ({e['channel']}; explains {100 * e['explained_fraction']:.1f} % of the "
-                 f"residual; 95 % CI {cis})")
+                 f"residual; " + (f"95 % CI {cis})" if cis else "no interval: not determined)"))
     if "nominal" in e:
         lines.append("    prior's value: " + ", ".join(f"{k} = {v:.4g} {_unit(units.get(k))}".rstrip()
                                                       for k, v in e["nominal"].items()))
@@ -145,10 +142,12 @@ def _effect_lines(e: dict) -> list[str]:
     at_bound = [k for k, b in e.get("at_bound", {}).items() if b]
     if at_bound:
         lines.append(f"    at a physical bound, so not identified: {', '.join(at_bound)}")
+    for name, why in e.get("undetermined", {}).items():
+        lines.append(f"    {name} not claimed, no interval: {why}")
     for key in ("note", "held_out"):
         if e.get(key):
             lines.append(f"    {e[key]}")
-    shaky = [k for k in shaky if k not in e.get("held_nominal", {})]
+    shaky = [k for k in shaky if k not in e.get("held_nominal", {}) and k not in e.get("undetermined", {})]
     if shaky:
         lines.append(f"    not pinned down by this data: {', '.join(shaky)}")
     unclaimed = [k for k, claimed in e.get("claimed", {}).items() if not claimed and k in e["ci95"]]
@@ -159,3 +158,35 @@ def _effect_lines(e: dict) -> list[str]:
         lines.append(f"    alternative: {alt['id']} with {values} {how_much(alt['fraction_of_chosen'])} "
                      f"(ΔBIC_eff {alt['delta_bic']:+g})")
     return lines
+
+
+def _excitation_lines(result: dict) -> list[str]:
+    """What the fitting flights' signals span (`models.crazyflie.excitation`), and the parameters they leave
+    undetermined with why."""
+    x = result.get("excitation")
+    if not x:
+        return []
+    lines = [f"  fitting flights span: battery {x['vbat_v']['mean']:.2f} ± {x['vbat_v']['std']:.3f} V "
+             f"({x['vbat_v']['min']:.2f}–{x['vbat_v']['max']:.2f} V), {x['thrust_input_name']} "
+             f"{x['thrust_input']['mean']:.4g} ± {x['thrust_input']['std']:.3g} {x['thrust_input_unit']} "
+             f"({100 * x['thrust_beyond_vbat']:.0f} % of its variance beyond the battery's), speed "
+             f"{x['speed_m_s']['min']:.2f}–{x['speed_m_s']['max']:.2f} m/s, height "
+             f"{x['height_m']['min']:.2f}–{x['height_m']['max']:.2f} m"]
+    lines += [f"  undetermined by these flights, never claimed: {name}: {why}"
+              for name, why in (result.get("undetermined") or {}).items()]
+    return lines
+
+
+def _thrust_map_lines(t: dict) -> list[str]:
+    """The thrust against the prior's map: the gain, and the battery exponent only where it is determined."""
+    bound = ("; at a bound: " + ", ".join(k for k, b in t["at_bound"].items() if b)) if any(t["at_bound"].values()) \
+        else ""
+    gain = f"gain {t['gain']:.4g} [{t['gain_ci95'][0]:.4g}, {t['gain_ci95'][1]:.4g}]"
+    if t.get("gamma") is None:
+        return [f"  thrust against the prior's map: {gain} (gamma held at the prior's {t['gamma_prior']:.3g}, not "
+                f"determined by these flights){bound}"]
+    shape = (f", map curvature q_pwm2 {t['q_pwm2']:.3g} [{t['q_pwm2_ci95'][0]:.3g}, {t['q_pwm2_ci95'][1]:.3g}] "
+             f"(prior {t['q_pwm2_prior']:.3g})") if t.get("map_shape") == "refitted" else ""
+    return [f"  thrust against the prior's map, gain, battery exponent and map shape fitted together: {gain}, gamma "
+            f"{t['gamma']:.3g} [{t['gamma_ci95'][0]:.3g}, {t['gamma_ci95'][1]:.3g}] (prior {t['gamma_prior']:.3g})"
+            f"{shape}{bound}"]

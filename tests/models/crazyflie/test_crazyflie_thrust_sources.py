@@ -198,16 +198,19 @@ def test_a_repair_that_does_not_help_held_out_flights_is_not_registered(tmp_path
 
 
 @pytest.mark.data
-def test_nanobench_gives_the_thrust_gain_and_battery_exponent_with_intervals():
+def test_nanobench_gives_the_thrust_gain_with_an_interval_and_the_battery_exponent_only_if_determined():
     flights = read_flights(sorted(str(p) for p in NANOBENCH.glob("B2_circle_fast_rep*.csv")))
     report = diagnose_crazyflie(flights, methods=())
     _contract(report)
     fit = report["thrust_map_fit"]
-    # the prior was identified on this vehicle: its map holds to a few %, with an interval around the values
+    # the prior was identified on this vehicle: its map holds to a few %, with an interval around the value
     assert fit["gain_ci95"][0] <= fit["gain"] <= fit["gain_ci95"][1] and abs(fit["gain"] - 1) < 0.1
-    assert fit["gamma_ci95"][0] <= fit["gamma"] <= fit["gamma_ci95"][1]
-    assert cf.BOUNDS["gamma"][0] < fit["gamma"] < cf.BOUNDS["gamma"][1] and not any(fit["at_bound"].values())
-    assert report["vehicle_fits_prior"]["ok"]
+    assert not any(fit["at_bound"].values()) and report["vehicle_fits_prior"]["ok"]
+    if fit["gamma_identified"]:     # with the map's shape refitted beside it
+        assert fit["gamma_ci95"][0] <= fit["gamma"] <= fit["gamma_ci95"][1]
+        assert cf.BOUNDS["gamma"][0] < fit["gamma"] < cf.BOUNDS["gamma"][1]
+    else:                           # on circles the PWM follows the battery: the map's shape can stand in for gamma
+        assert fit["gamma"] is None and fit["gamma_ci95"] is None and fit["gamma_reason"]
 
 
 @pytest.mark.data
