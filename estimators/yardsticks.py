@@ -41,9 +41,10 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from learnest.errors import InvalidInput
-from learnest.models.presets import GAP_EVERY_S, GAP_S, GAP_START_S, MAX_GAPS, ONBOARD, check_gap_plan
+from learnest.models.presets import GAP_EVERY_S, GAP_S, GAP_START_S, ONBOARD
 
 from .evaluate import evaluate_sequence
+from .gap_plan import GapPlan  # noqa: F401  (re-exported: where the gaps are)
 from .headline import MEASURES, NOTHING_LEARNED, Headline, headline, learned_note  # noqa: F401  (re-exported)
 from .metrics import gain_pct, rms_norm, unit_gain_interval, unit_interval_method
 from .mocap_gaps import POSITION_ROWS, PositionGapModel, gap_mask, masked_measurements
@@ -56,64 +57,6 @@ FAST_ACCELERATION_WINDOW_S = 0.15
 FAST_ORDER = 2
 VELOCITY_COLS, ACCELERATION_COLS = slice(3, 6), slice(6, 9)
 BASES = ("ukf", "mhe")
-
-@dataclass(frozen=True)
-class GapPlan:
-    """Where the mocap is hidden.
-
-    Attributes
-    ----------
-    gap_s : float
-        Length of each gap, s (0 turns the gap yardstick off).
-    every_s : float
-        Time from one gap's start to the next's, s; longer than ``gap_s``, so the estimator sees mocap
-        between gaps.  Gaps, and the mocap between them, last `MIN_GAP_S` at least, and one sample of the
-        flight they are laid on (`windows`), at most `MAX_GAPS` per flight: InvalidInput otherwise.
-    start_s : float
-        No gap starts before this, s from the kept flight's start.
-    """
-
-    gap_s: float = GAP_S
-    every_s: float = GAP_EVERY_S
-    start_s: float = GAP_START_S
-
-    def __post_init__(self) -> None:
-        # bounded before any window is laid: a 1e-300-s spacing would never reach the flight's end
-        check_gap_plan(self.gap_s, self.every_s, self.start_s)
-
-    def windows(self, n_samples: int, dt: float) -> list[tuple[int, int]]:
-        """[(first, stop), ...] sample indices of each gap (stop exclusive) that fits wholly in the record.
-
-        Raises
-        ------
-        InvalidInput
-            A gap, or the mocap between two gaps, shorter than one sample ``dt``, or more than `MAX_GAPS` gaps
-            on the record (`learnest.models.presets.check_gap_plan`).
-        """
-        if self.gap_s <= 0:
-            return []
-        if not (np.isfinite(dt) and dt > 0):
-            raise InvalidInput(f"the sample period must be a positive number of seconds, got {dt!r}")
-        check_gap_plan(self.gap_s, self.every_s, self.start_s, dt=dt, n_samples=n_samples)
-        length = max(1, int(round(self.gap_s / dt)))
-        out: list[tuple[int, int]] = []
-        start_s = self.start_s
-        for _ in range(MAX_GAPS + 1):   # checked above: never more gaps than this
-            first = int(round(start_s / dt))
-            if first + length > n_samples:
-                break
-            out.append((first, first + length))
-            start_s += self.every_s
-        return out
-
-    def too_short(self, n_samples: int, dt: float) -> str | None:
-        """Why a record of ``n_samples`` gets no gap, or None when at least one fits."""
-        if self.gap_s <= 0:
-            return "the gap yardstick was turned off (gap length 0 s)"
-        if self.windows(n_samples, dt):
-            return None
-        return (f"the kept flight is {n_samples * dt:.1f} s long, too short for one mocap gap (the first "
-                f"{self.gap_s:g}-s gap starts after {self.start_s:g} s)")
 
 
 def run_with_gaps(methods: Sequence[str], prior_model: StateSpaceModel, knode_model: StateSpaceModel,

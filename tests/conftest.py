@@ -5,11 +5,35 @@ The folders mirror the packages (tests/ingest, tests/models, tests/estimators, t
 cross-cutting checks stay here).  They have no `__init__.py`: pytest then imports each test module under its
 file name alone, so test file names must stay unique across folders, and no test folder can shadow
 `learnest` or the repository's top-level source folders as an importable package."""
+import time
 from pathlib import Path
 
 import pytest
 
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+# what the README says of the whole suite: printed first, so a run that shows only dots for minutes is expected
+SUITE_DURATION = "about 10 min on 2 idle cores, up to 25 under load"
+_collecting_since = [time.monotonic()]
+
+
+def _say(config, line: str) -> None:
+    """One line on pytest's terminal, written out at once (also with -q, and when piped to a file)."""
+    reporter = config.pluginmanager.get_plugin("terminalreporter")
+    if reporter is not None:
+        reporter.write_line(line)
+        reporter.flush()
+
+
+def pytest_sessionstart(session):
+    """Say up front how long the suite takes: collection alone imports the stack (20 s under load)."""
+    _collecting_since[0] = time.monotonic()
+    _say(session.config, f"learnest's whole test suite takes {SUITE_DURATION}; collecting the tests ...")
+
+
+def pytest_collection_finish(session):
+    """Say how many tests run, then pytest's own progress (a dot per passed test, % at each line's end)."""
+    _say(session.config, f"collected {len(session.items)} tests in {time.monotonic() - _collecting_since[0]:.0f} s; "
+                         "running them")
 
 
 def pytest_collection_modifyitems(config, items):

@@ -141,7 +141,8 @@ def cli_reference() -> str:
     parser = _build_parser()
     lines = ["# CLI reference", "",
              "Generated from the `learnest` command's own parser each time this site is built. "
-             "`learnest COMMAND --help` prints the same in a terminal.", ""]
+             "`learnest COMMAND --help` prints the same in a terminal; `learnest --version` prints the "
+             "installed version.", ""]
     for name, summary, sub in _subcommands(parser):
         _render(sub, f"learnest {name}", summary, 2, lines)
     return "\n".join(lines) + "\n"

@@ -133,7 +133,7 @@ def _export_format(path: str) -> str:
 def _gap_plan(args):
     """The gaps --gap-s and --gap-every-s ask for, checked before any flight is read (InvalidInput when the
     gaps would leave no mocap between them)."""
-    from learnest.estimators.yardsticks import GapPlan
+    from learnest.estimators.gap_plan import GapPlan
 
     return GapPlan(args.gap_s, args.gap_every_s)
 

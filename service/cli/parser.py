@@ -4,12 +4,14 @@ from __future__ import annotations
 import argparse
 from typing import NoReturn
 
+from learnest import __version__
 from learnest.models.presets import (
     CRAZYFLIE_TRAINING,
     DIAGNOSIS_SPLIT_RULE,
     EVALUATION_METHODS,
     METHODS,
     MHE_HORIZON,
+    PAPER_OBSERVER,
     PRODUCTION_ALIAS,
     SG_WINDOW,
 )
@@ -45,8 +47,40 @@ from .commands import (
 )
 
 
+class _Formatter(argparse.HelpFormatter):
+    """Help that states every default: an option's text gets "(default: X)" unless it already names X (flags,
+    whose default is only "not given", and options without a default get nothing)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        if default_text(action) is None or text == argparse.SUPPRESS or states_default(action):
+            return action.help
+        return text + (" " if text else "") + "(default: %(default)s)"
+
+
+def default_text(action: argparse.Action) -> str | None:
+    """How the help names ``action``'s default, or None when it has none to state (no default, a flag)."""
+    default = action.default
+    if default is None or default is False or default == argparse.SUPPRESS or action.nargs == 0:
+        return None
+    if isinstance(default, float):
+        return f"{default:g}"
+    return str(default)
+
+
+def states_default(action: argparse.Action) -> bool:
+    """Whether ``action``'s own help text already names its default (`default_text`)."""
+    text, default = (action.help or "").replace("%%", "%"), default_text(action)
+    return "%(default)" in text or (default is not None and default in text) or str(action.default) in text
+
+
 class _Parser(argparse.ArgumentParser):
-    """argparse with one-line errors, like every other learnest error (the usage is one --help away)."""
+    """argparse with one-line errors, like every other learnest error (the usage is one --help away), and help
+    that states every default (`_Formatter`)."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("formatter_class", _Formatter)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
@@ -55,8 +89,11 @@ class _Parser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every `learnest` subcommand; each sets `func`, the function that runs it."""
     parser = _Parser(prog="learnest", description="Learning-enhanced state estimation "
-                                     "for Crazyflie flight logs (LEARNEST).")
-    sub = parser.add_subparsers(dest="command", required=True)
+                                     "for Crazyflie flight logs (LEARNEST).",
+                     epilog="`learnest COMMAND --help` says what each command does and takes.")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}",
+                        help="print the installed learnest's version and exit")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_reproduce(sub)
     _add_ingest(sub)
     _add_train(sub)
@@ -84,13 +121,16 @@ def _add_reproduce(sub: argparse._SubParsersAction) -> None:
     rep.add_argument("--epochs", type=_positive_int, default=None, help="training epochs (default: the paper's)")
     rep.add_argument("--horizon", type=_positive_int, default=MHE_HORIZON,
                      help=f"MHE horizon N (default {MHE_HORIZON})")
-    rep.add_argument("--workers", type=_positive_int, default=1, help="processes to spread the seeds over")
+    rep.add_argument("--workers", type=_positive_int, default=1, help="processes to spread the seeds over "
+                     "(more than one per core does not help)")
     rep.add_argument("--observer-rounds", type=int, choices=range(0, 11), default=None, metavar="K",
-                     help="observer -> train rounds of the KNODE rows, 0-10 (default: the task's, "
-                          "models/presets.py PAPER_OBSERVER; 0 is the paper's Algorithm 1)")
+                     help="rounds of re-estimating the KNODE rows' training states with the learned model and "
+                          "training again, 0-10 (default: the task's, "
+                          f"{_observers(lambda kind, rounds: str(rounds))}; 0 is the paper's Algorithm 1)")
     rep.add_argument("--observer", choices=("filter", "smoother", "joint"), default=None,
-                     help="pre-training observer of the KNODE rows (default: the task's, PAPER_OBSERVER); 'joint' "
-                          "fits the record's states and the residual together (estimators/joint_training.py)")
+                     help="how the KNODE rows estimate the unmeasured states they train on: filter (the prior's "
+                          "UKF), smoother (the UKF, then a backward smoothing pass) or joint (the states and the "
+                          f"residual fitted together) (default: the task's, {_observers(lambda kind, rounds: kind)})")
     rep.set_defaults(func=_reproduce)
 
 
@@ -152,13 +192,13 @@ def _add_evaluate(sub: argparse._SubParsersAction) -> None:
                     help="a registered model: NAME (its latest ready version), NAME:VERSION or NAME@ALIAS "
                          "(required unless --new)")
     ev.add_argument("--methods", default=",".join(EVALUATION_METHODS),
-                    help=f"any of {', '.join(EVALUATION_METHODS)} (default: all; onboard is the vehicle's own "
-                         "estimate, scored where the log carries it)")
+                    help=f"comma-separated estimators to run, any of {', '.join(EVALUATION_METHODS)} (onboard is "
+                         "the vehicle's own estimate, scored where the log carries it)")
     ev.add_argument("--json", action="store_true")
     ev.add_argument("--plot", metavar="PNG", type=_new_file,
                     help="write the per-flight MSE figure (prior vs KNODE, one line per flight; box plots from "
                          "10 flights on)")
-    ev.add_argument("--horizon", type=_positive_int, default=MHE_HORIZON, help="MHE horizon N")
+    ev.add_argument("--horizon", type=_positive_int, default=MHE_HORIZON, help="MHE horizon N, samples")
     ev.add_argument("--sg-window", type=_sg_window, default=SG_WINDOW, metavar="SAMPLES",
                     help=f"Savitzky-Golay window of the reference states, samples (default {SG_WINDOW}, the "
                          "paper's, about 1.5 s at 100 Hz; it clips the velocity peaks of fast manoeuvres: "
@@ -266,7 +306,8 @@ def _add_diagnose(sub: argparse._SubParsersAction) -> None:
                           "on the fitting flight)")
     dia.add_argument("--register", metavar="NAME", help="register the repaired model (flight files only) as the "
                      "next version of NAME, with --model's version as its parent")
-    dia.add_argument("--methods", default="ukf,knode-ukf", help="estimators scored before and after")
+    dia.add_argument("--methods", default="ukf,knode-ukf",
+                     help=f"comma-separated estimators scored before and after, any of {', '.join(METHODS)}")
     dia.add_argument("--epochs", type=_positive_int, default=None)
     dia.add_argument("--json", action="store_true")
     dia.add_argument("--plot", metavar="PNG", type=_new_file,
@@ -298,7 +339,7 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
     demo = sub.add_parser("demo", help="ingest, train on one flight and evaluate the others, for a folder")
     demo.add_argument("folder")
     demo.add_argument("--train", help="name of the training flight (default: the first clean one)")
-    demo.add_argument("--name", default="demo", help="registered model name (each run adds a version)")
+    demo.add_argument("--name", default="demo", help="registered model name (each run adds a version of it)")
     demo.add_argument("--methods", default=",".join(EVALUATION_METHODS))
     demo.add_argument("--plot", metavar="PNG", type=_new_file, default=None)
     demo.add_argument("--horizon", type=_positive_int, default=MHE_HORIZON)
@@ -315,10 +356,9 @@ JSON_HELP = "print the result as JSON instead of text"
 
 
 HELP = {
-    ("reproduce", "--task"): "the simulated system of Table I: cartpole or robot",
+    ("reproduce", "--task"): "the simulated system of Table I",
     ("reproduce", "--seeds"): "how many seeds (random systems and noise) to average over (default 15, the paper's)",
     ("evaluate", "files"): "flight log files or folders to score the model on (not with --new)",
-    ("evaluate", "--methods"): f"comma-separated estimators to run (default {','.join(METHODS)})",
     ("evaluate", "--rate"): "grid rate in Hz (default 100; the registry keeps 100, other rates need --no-store)",
     ("export", "evaluation_id"): "the stored evaluation (its id, as `learnest evaluate` prints it)",
     ("export", "--output"): "the file to write; its suffix picks the format unless --format is given",
@@ -335,7 +375,7 @@ HELP = {
                               f"(default {CRAZYFLIE_TRAINING.epochs})",
     ("diagnose", "--rate"): "grid rate in Hz (default 100; --register needs 100)",
     ("demo", "folder"): "a folder of flight logs (e.g. sample_logs)",
-    ("demo", "--methods"): f"comma-separated estimators to run (default {','.join(METHODS)})",
+    ("demo", "--methods"): f"comma-separated estimators to run, any of {', '.join(EVALUATION_METHODS)}",
     ("demo", "--plot"): "also write the per-flight MSE figure (prior vs KNODE) to this PNG",
     ("demo", "--horizon"): f"MHE horizon N (default {MHE_HORIZON})",
     ("demo", "--rate"): "grid rate in Hz (the registry keeps 100)",
@@ -351,8 +391,14 @@ def subcommands(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()):
                 yield from subcommands(child, (*path, name))
 
 
+def _observers(which) -> str:
+    """The pre-training observer setting ``which(kind, rounds)`` of each task, e.g. "cartpole joint, ..."."""
+    return ", ".join(f"{task} {which(kind, rounds)}" for task, (kind, rounds) in PAPER_OBSERVER.items())
+
+
 def _fill_help(parser: argparse.ArgumentParser) -> None:
-    """Give the arguments defined without help their text from `HELP` (a --json flag: `JSON_HELP`)."""
+    """Give the arguments defined without help their text from `HELP` (a --json flag: `JSON_HELP`), and each
+    subcommand's page its one-line summary as its description (what `learnest X --help` opens with)."""
     for path, sub in subcommands(parser):
         for action in sub._actions:
             if action.help:
@@ -362,3 +408,15 @@ def _fill_help(parser: argparse.ArgumentParser) -> None:
                 action.help = JSON_HELP
             else:
                 action.help = HELP.get((" ".join(path), name), action.help)
+        for action in sub._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for summary in action._choices_actions:
+                    child = action.choices[summary.dest]
+                    child.description = child.description or _sentence(summary.help)
+
+
+def _sentence(summary: str | None) -> str | None:
+    """A command's summary as the description of its page: capitalised, with a full stop."""
+    if not summary:
+        return summary
+    return summary[0].upper() + summary[1:] + ("" if summary.endswith(".") else ".")

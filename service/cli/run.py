@@ -11,6 +11,7 @@ from .arguments import gap_options_problem
 from .commands import _alias_set, _export, _flights_list, _ingest, _models_list, _models_show, _serve
 from .commands.common import _command_started
 from .parser import build_parser
+from .usage import check_usage, first_line
 
 # commands that only read or move registry rows: no torch, no worker set-up
 REGISTRY_COMMANDS = (_flights_list, _models_list, _models_show, _alias_set)
@@ -53,6 +54,13 @@ def main(argv=None) -> int:
     if missing and (len(missing) == len(given) or getattr(args, "strict", False)):
         print(f"learnest {args.command}: error: no such file or folder: {', '.join(missing)}", file=sys.stderr)
         return 2
+    try:   # what the arguments alone show is wrong, said before the estimators load (seconds)
+        check_usage(args)
+    except InvalidInput as err:
+        print(f"learnest: error: {err}", file=sys.stderr)
+        return 2
+    if (line := first_line(args)) is not None:
+        print(line, flush=True)
     if args.func not in (_ingest, _serve, _export) + REGISTRY_COMMANDS:  # the rest run the networks here
         from ..jobs.executors import init_worker
 

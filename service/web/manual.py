@@ -1,8 +1,10 @@
 """The user manual at /manual, beside the API's own /docs: the MkDocs site of docs/, built on this machine.
 
-Built on first request, not at install: the wheel then carries only the manual's sources (the package
-`learnest.manual`, the repository's docs/ folder), and installing learnest needs no MkDocs. The first visitor
-waits a few seconds for the build (one at a time, in a separate process); the site is kept under
+Built on this machine, not at install: the wheel then carries only the manual's sources (the package
+`learnest.manual`, the repository's docs/ folder), and installing learnest needs no MkDocs. `learnest serve`
+starts the build as soon as the service is up (`build_in_background`); a visitor who comes while it runs gets
+a page that says so and reloads itself, at once. Without a build under way, the first visitor waits for it
+(one at a time, in a separate process). The site is kept under
 ``LEARNEST_HOME/manual/<key>``, where the key hashes the sources and the installed version, so an upgrade or an
 edited page is rebuilt and nothing stale is served. Without the ``docs`` extra the page says how to get it
 (503), instead of failing. The site is plain files that load nothing from the internet (mkdocs.yml: no web
@@ -13,6 +15,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import importlib.util
+import logging
 import os
 import shutil
 import subprocess
@@ -26,8 +29,10 @@ from fastapi import APIRouter, Request
 from fastapi.responses import FileResponse, HTMLResponse, RedirectResponse, Response
 
 router = APIRouter(include_in_schema=False)
+log = logging.getLogger("learnest.manual")
 
 BUILD_TIMEOUT_S = 300
+BACKGROUND_NICENESS = 10   # `nice -n` of a build nobody waits for (`build_in_background`)
 _build_lock = threading.Lock()
 
 
@@ -60,8 +65,9 @@ class ManualUnavailable(Exception):
     """The manual cannot be built here; the message says why and what to do."""
 
 
-def built_manual(home: Path) -> Path:
-    """The folder of the built site for these sources, building it first if needed.
+def built_manual(home: Path, niceness: int = 0) -> Path:
+    """The folder of the built site for these sources, building it first if needed (its MkDocs process at
+    ``niceness``, where the ``nice`` command exists: a background build yields the cores to the service).
 
     Raises
     ------
@@ -87,9 +93,10 @@ def built_manual(home: Path) -> Path:
             config = work / "mkdocs.yml"
             config.write_text(f"INHERIT: {sources / 'mkdocs.yml'}\ndocs_dir: {sources}\n"
                               f"hooks:\n  - {sources / '_hooks' / 'reference.py'}\n", encoding="utf-8")
-            run = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--quiet", "--config-file", str(config),
-                                  "--site-dir", str(work / "site")], cwd=work, capture_output=True, text=True,
-                                 timeout=BUILD_TIMEOUT_S, env={**os.environ, "NO_MKDOCS_2_WARNING": "1"})
+            nice = ["nice", "-n", str(niceness)] if niceness and shutil.which("nice") else []
+            run = subprocess.run([*nice, sys.executable, "-m", "mkdocs", "build", "--quiet", "--config-file",
+                                  str(config), "--site-dir", str(work / "site")], cwd=work, capture_output=True,
+                                 text=True, timeout=BUILD_TIMEOUT_S, env={**os.environ, "NO_MKDOCS_2_WARNING": "1"})
             if run.returncode != 0 or not (work / "site" / "index.html").is_file():
                 tail = "\n".join((run.stdout + run.stderr).strip().splitlines()[-15:])
                 raise ManualUnavailable(f"building the manual failed:\n{tail}")
@@ -101,6 +108,35 @@ def built_manual(home: Path) -> Path:
         finally:
             shutil.rmtree(work, ignore_errors=True)
     return site
+
+
+def build_in_background(home: Path) -> threading.Thread | None:
+    """Start building the manual for ``home`` in a thread (None when it is built already or cannot be: the
+    first request then says why), at a low CPU priority: requests, jobs and a benchmark beside it come first.
+    A build that fails is logged; the next visitor's request then builds it, or shows why not."""
+    sources = manual_sources()
+    if sources is None or importlib.util.find_spec("mkdocs") is None:
+        return None
+    if (home / "manual" / _key(sources) / "index.html").is_file():
+        return None
+
+    def build() -> None:
+        try:
+            built_manual(home, niceness=BACKGROUND_NICENESS)
+        except (ManualUnavailable, OSError) as error:
+            log.warning("the manual was not built: %s", error)
+
+    thread = threading.Thread(target=build, name="learnest-manual-build", daemon=True)
+    thread.start()
+    return thread
+
+
+def _building() -> HTMLResponse:
+    """The answer while a build runs: at once, and the page reloads itself until the manual is there."""
+    body = ("<!doctype html><title>learnest manual</title><meta http-equiv='refresh' content='2'>"
+            "<h1>The manual is being built</h1><p>It is built once on this machine, in about half a minute; "
+            "this page reloads itself. The API reference is at <a href=\"/docs\">/docs</a> meanwhile.</p>")
+    return HTMLResponse(body, status_code=503, headers={"Retry-After": "2", "Cache-Control": "no-store"})
 
 
 def _unavailable(reason: str) -> HTMLResponse:
@@ -117,7 +153,9 @@ def manual_root() -> Response:
 
 @router.get("/manual/{path:path}")
 def manual_page(path: str, request: Request) -> Response:
-    """A file of the built manual (built on the first request)."""
+    """A file of the built manual (built on the first request; while a build runs, a page that says so)."""
+    if _build_lock.locked():   # a build under way (the server's own, or another visitor's): no queueing behind it
+        return _building()
     try:
         site = built_manual(Path(request.app.state.services.settings.home))
     except ManualUnavailable as error:

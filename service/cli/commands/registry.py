@@ -100,6 +100,8 @@ def _serve(args) -> int:
         print("learnest: serving every interface: set LEARNEST_ALLOWED_HOSTS to the names clients use "
               "(requests for other host names get 400)", file=sys.stderr)
     settings = Settings()  # validated here: a bad value stops the start with its name
-    uvicorn.run("learnest.service.api.app:create_app", factory=True, host=args.host, port=args.port,
+    # the starting app listens at once and loads the service behind it (seconds of imports and migrations):
+    # /health and / answer from the first moment (service.api.starting)
+    uvicorn.run("learnest.service.api.starting:create_app", factory=True, host=args.host, port=args.port,
                 workers=args.workers, **uvicorn_options(settings))
     return 0

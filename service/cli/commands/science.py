@@ -3,6 +3,7 @@ diagnose, thrust-map, reproduce, demo."""
 from __future__ import annotations
 
 import json
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -10,9 +11,9 @@ from pathlib import Path
 from learnest.errors import InvalidInput
 from learnest.models.presets import CRAZYFLIE_TRAINING, EVALUATION_METHODS
 
-from ..arguments import _export_format, _gap_plan, _topics
+from ..arguments import _export_format, _topics
 from ..formatting import _gap_lines, diagnosis_lead, format_report, format_trained
-from .common import _batch_status, _command_started, _home, _read_batch, _registry_grid
+from .common import _batch_status, _command_started, _home, _read_batch
 
 
 def _ingest(args) -> int:
@@ -57,8 +58,7 @@ def _train(args) -> int:
     from ...local import UnreadableFile, train
     from ..progress import StageProgress
 
-    _registry_grid(args.rate)
-    try:
+    try:   # the arguments were checked before this import (cli.usage)
         with StageProgress(f"training {args.name}") as bar:
             out = train(args.files, args.name, epochs=args.epochs, include_bad=args.include_bad,
                         progress=bar.progress, system=args.system, on_stage=bar.on_stage, **_topics(args),
@@ -84,12 +84,7 @@ def _evaluate(args) -> int:
 
     if args.new:
         return _evaluate_new(args)
-    if not args.model or not args.files:
-        raise InvalidInput("evaluate needs --model REF and FILE..., or --new [--alias ALIAS]")
-    methods = parse_methods(args.methods, EVALUATION_METHODS)
-    _gap_plan(args)
-    if args.store:
-        _registry_grid(args.rate, "pass --no-store to evaluate on another grid without storing")
+    methods = parse_methods(args.methods, EVALUATION_METHODS)   # checked, with the rest, by cli.usage
     model = load_model(args.model)
     if args.system and args.system != model.system.name:
         raise InvalidInput(f"{args.model} was trained with the {model.system.name!r} prior, not {args.system!r}")
@@ -169,7 +164,6 @@ def _evaluate_new(args) -> int:
     from ...jobs.result_cache import EstimatorSettings
     from ...jobs.scheduler import evaluate_new_once
 
-    _gap_plan(args)
     settings = EstimatorSettings(tuple(parse_methods(args.methods, EVALUATION_METHODS)), args.horizon,
                                  args.include_bad, gap_s=args.gap_s, gap_every_s=args.gap_every_s, noise=args.noise)
     rounds = evaluate_new_once(args.alias, settings)
@@ -191,25 +185,15 @@ def _diagnose(args) -> int:
     from ...experiments.diagnosis import diagnose_flights, diagnose_simulated, format_diagnosis
     from ...web.figures import residual_before_after, save_figure
 
-    methods = parse_methods(args.methods)
+    methods = parse_methods(args.methods)   # the arguments were checked by cli.usage
     if args.simulate is not None or args.system in ("cartpole", "robot"):
-        if args.files:
-            raise InvalidInput("give flight files or --simulate, not both")
-        if args.register:
-            raise InvalidInput("--register registers a repaired Crazyflie model: give flight files, not --simulate")
         result = diagnose_simulated(args.system, args.simulate or "", seed=args.seed, methods=methods,
                                     epochs=args.epochs)
     else:
-        if not args.files:
-            raise InvalidInput("diagnose needs flight files (or --system cartpole|robot --simulate ...)")
         model = None
         if args.model:
             from ...local import load_model
             model = load_model(args.model)
-        if args.register:
-            from ...storage.references import check_name
-            _registry_grid(args.rate)
-            check_name(args.register)  # before the work
         from ..progress import StageProgress
 
         with StageProgress("diagnosing") as bar:
@@ -278,15 +262,10 @@ def _thrust_map(args) -> int:
         thrust_map_report,
     )
 
-    if args.bench:
-        if args.fit or args.score:
-            raise InvalidInput("thrust-map: give --bench CSV, or --fit and --score flights, not both")
+    if args.bench:   # --bench or --fit and --score: checked by cli.usage
         report = bench_thrust_map_report(args.bench, args.mass_kg)
         print(json.dumps(report, indent=2) if args.json else format_bench_map(report))
         return 0
-    if not args.fit or not args.score:
-        raise InvalidInput("thrust-map needs --fit and --score flight logs (or --bench CSV, a bench calibration)")
-
     sets: dict[str, list] = {}
     errors: list[dict] = []
     for role, given in (("fit", args.fit), ("score", args.score)):
@@ -341,10 +320,7 @@ def _demo(args) -> int:
     from ...web.figures import evaluation_summary, save_figure
     from ..progress import StageProgress
 
-    _registry_grid(args.rate)
-    folder = Path(args.folder)
-    if not folder.is_dir():
-        raise InvalidInput(f"{folder}: not a folder")
+    folder = Path(args.folder)   # a folder, on the registry's grid, with known methods: checked by cli.usage
     logs = []
     documents = {".md", ".txt", ".yaml", ".yml"}  # READMEs and sidecar metadata, not logs
     for path in sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() not in documents):
@@ -379,7 +355,11 @@ def _demo(args) -> int:
     with StageProgress(f"training on {chosen[0].name}") as bar:
         trained = train([source["path"] for source in chosen[0].meta["sources"]], args.name, progress=bar.progress,
                         on_stage=bar.on_stage, system=system)
-    print(f"registered {trained['ref']} in {trained['home']}")
+    home = Path(trained["home"]).resolve()
+    earlier = trained["version"] - 1
+    print(f"registered {trained['ref']} in {home}" + (
+        f": another version of {args.name} ({earlier} from earlier runs kept; `learnest models show {args.name}` "
+        "lists them, --name picks another model)" if earlier else ""))
     with StageProgress("evaluating") as bar:
         done = [0]
 
@@ -394,6 +374,7 @@ def _demo(args) -> int:
     if args.plot:
         save_figure(evaluation_summary(report), args.plot, dpi=120)
         print(f"gain per flight and MSE per flight (prior vs KNODE): {args.plot}")
-    print(f"\nnext: `learnest serve`, then open http://127.0.0.1:8000/ui/models/{args.name} to see the model, "
-          f"evaluate it on other flights and diagnose it from the browser")
+    # the home spelled out: a server started from another folder, or with another LEARNEST_HOME, finds the model
+    print(f"\nnext: LEARNEST_HOME={shlex.quote(str(home))} learnest serve, then open "
+          f"http://127.0.0.1:8000/ui/models/{args.name} (the model, its evaluations, more from the browser)")
     return _batch_status(batch.errors)
