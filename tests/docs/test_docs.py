@@ -18,7 +18,7 @@ OFFLINE = {"HTTP_PROXY": "http://127.0.0.1:9", "HTTPS_PROXY": "http://127.0.0.1:
 
 
 def _env(**extra: str) -> dict[str, str]:
-    from learnest.service.web.manual import MKDOCS_ENV   # the theme's banner off, as in every build of the docs
+    from learnest.service.web.manual import MKDOCS_ENV  # the theme's banner off, as in every build of the docs
 
     env = {**os.environ, **OFFLINE, **MKDOCS_ENV, **extra}
     env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"  # this venv's learnest

@@ -1,7 +1,8 @@
 """Run a documentation page's code as a newcomer does: its shell blocks in one shell and its python blocks in one
 Python process (like a notebook), each in the order given, in a scratch working folder laid out like a clone
-(the venv the set-up made, ``sample_logs/``, ``constraints.txt``, ``../shared`` when present) with a fresh
-LEARNEST_HOME, and each block's stdout recorded for the output blocks (docs/_hooks/outputs.py).
+(links to the repository's files, the venv the set-up made, ``../shared`` when present) with a fresh
+LEARNEST_HOME, and each block's stdout recorded for the output blocks (docs/_hooks/outputs.py).  The shell and
+the Python process share only the folder and LEARNEST_HOME; the language the page shows first runs first.
 
 What is not run literally, and why:
 
@@ -97,8 +98,9 @@ def scratch_folder(root: Path, tmp: Path) -> Path:
     interpreter's venv; ``../shared`` links to the one beside ``root`` when there is one."""
     work = tmp / "learnest"
     work.mkdir()
-    for name in ("sample_logs", "constraints.txt"):
-        (work / name).symlink_to(root / name)
+    for entry in root.iterdir():   # a notebook in a clone's root imports its learnest/ folder first: so here
+        if not entry.name.startswith(".") and entry.name not in ("build", "site") and "egg-info" not in entry.name:
+            (work / entry.name).symlink_to(entry)
     (work / ".venv").symlink_to(sys.prefix, target_is_directory=True)
     shared = root.parent / "shared"
     if shared.is_dir():
@@ -132,7 +134,7 @@ def run_page(page: Path, name: str, pairs: list, work: Path, env: dict[str, str]
     """Run the page's ``pairs`` (docs/_hooks/outputs.code_blocks) in ``work``: python blocks in one process,
     shell blocks in one shell (``set -euo pipefail``), each block's stdout kept."""
     result = PageRun(name, [None] * len(pairs))
-    for language in ("python", "bash"):
+    for language in dict.fromkeys(code.info for code, _ in pairs):   # the language the page starts with first
         chosen = [(k, code.text) for k, (code, _) in enumerate(pairs) if code.info == language]
         if not chosen:
             continue
