@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -89,7 +90,7 @@ class Headline:
         return asdict(self)
 
 
-class ReportHeadline(dict):
+class ReportHeadline(dict[str, Any]):
     """A report's ``headline`` as `le.evaluate` returns it: the same JSON-able dict (`Headline.to_dict`), which
     prints as its sentence (`headline_sentence`) and whose repr names its type and the gains, not 15-digit
     floats."""
