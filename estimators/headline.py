@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -87,6 +88,53 @@ class Headline:
     def to_dict(self) -> dict:
         """JSON-able dict (the report's ``headline``)."""
         return asdict(self)
+
+
+class ReportHeadline(dict[str, Any]):
+    """A report's ``headline`` as `le.evaluate` returns it: the same JSON-able dict (`Headline.to_dict`), which
+    prints as its sentence (`headline_sentence`) and whose repr names its type and the gains, not 15-digit
+    floats."""
+
+    def __str__(self) -> str:
+        return headline_sentence(self)
+
+    def __repr__(self) -> str:
+        gains = {k: None if v is None else round(v, 2) for k, v in (self.get("median_gain_pct") or {}).items()}
+        return (f"ReportHeadline(yardstick={self.get('yardstick')!r}, median_gain_pct={gains}, "
+                f"flights_better={self.get('flights_better')}, flights_worse_beyond_interval="
+                f"{self.get('flights_worse_beyond_interval')}, flights_scored={self.get('flights_scored')}, "
+                f"flights_with_gaps={self.get('flights_with_gaps')})")
+
+
+def _count(n: int | None) -> str:
+    return str(n) if n else "none"
+
+
+def headline_sentence(head: Mapping) -> str:
+    """The headline (`Headline.to_dict`) in words: per KNODE and its prior, the median gain in the mocap gaps,
+    on how many flights it was better, and how each scored flight's 95 % interval falls."""
+    scored, with_gaps = int(head.get("flights_scored") or 0), int(head.get("flights_with_gaps") or 0)
+    if not scored:
+        return "No flight was scored."
+    if not with_gaps:
+        return (f"No flight had a mocap gap to score: the KNODE's gain is undecided on all {scored} flight"
+                f"{'s' if scored != 1 else ''} scored ({'; '.join(head.get('flights_without_gaps') or [])}).")
+    sentences = []
+    # the UKF pair first, as every surface orders them
+    for key, gain in sorted((head.get("median_gain_pct") or {}).items(), key=lambda item: "mhe" in item[0]):
+        if gain is None:
+            continue
+        knode, prior = (part.upper() for part in key.split("_vs_"))
+        n = with_gaps
+        sentences.append(
+            f"{knode} carried the estimate through mocap gaps {abs(gain):.1f} % {'better' if gain >= 0 else 'worse'} "
+            f"than its prior {prior} (median of {n} flight{'s' if n != 1 else ''} with gaps): better on "
+            f"{head['flights_better'].get(key, 0)} of {n}; of {scored} flight{'s' if scored != 1 else ''} scored, "
+            f"worse beyond its 95 % interval on {_count(head['flights_worse_beyond_interval'].get(key))}, better "
+            f"beyond it on {_count(head['flights_better_beyond_interval'].get(key))}, within it on "
+            f"{_count(head['flights_within_interval'].get(key))}, undecided (no interval) on "
+            f"{_count(head['flights_undecided'].get(key))}.")
+    return " ".join(sentences) or "No KNODE ran beside its prior: there is no gain to report."
 
 
 def _pair_keys(flights: Sequence[dict]) -> list[str]:

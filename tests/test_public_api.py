@@ -1,7 +1,6 @@
 """The notebook API (`import learnest as le`) and the installed package, as a user meets them."""
 import importlib.metadata
 import json
-import re
 import subprocess
 import sys
 from pathlib import Path
@@ -155,19 +154,6 @@ def test_notebook_workflow_on_sample_flights():
         le.evaluate(knode.model_, flights, methods=("ukf", "kalman"))
     with pytest.raises(le.InvalidInput, match="choose one of"):
         le.KNODE(system="cartpole").fit(flights[0])
-
-
-def test_readme_example_runs(tmp_path):
-    """The README's notebook example, run as written from the repository root."""
-    text = (REPO / "README.md").read_text()
-    [example] = re.findall(r"```python\n(.*?)```", text, re.S)
-    assert "import learnest as le" in example
-    assert "epochs=150" in example
-    # from the repository root, as a user's notebook there: the checkout comes first on sys.path
-    run = subprocess.run([sys.executable, "-c", example.replace("epochs=150", "epochs=3")], cwd=REPO,
-                         capture_output=True, text=True, timeout=600)
-    assert run.returncode == 0, run.stderr
-    assert "(9,)" not in run.stdout and "knode-ukf_vs_ukf" in run.stdout
 
 
 def test_a_repaired_model_sees_its_measurement_effects_in_ukf_and_mhe():

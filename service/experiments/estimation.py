@@ -14,6 +14,7 @@ import numpy as np
 from learnest.errors import InvalidInput, NumericalWarning
 from learnest.estimators.covariance import linearized_covariances
 from learnest.estimators.estimates import FlightEstimates
+from learnest.estimators.headline import ReportHeadline
 from learnest.estimators.mhe import MHE
 from learnest.estimators.prepared import FLIGHT_SYSTEMS, prepare
 from learnest.estimators.results import FilterResult
@@ -191,7 +192,8 @@ def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[st
         meta name, None for an unregistered model).  Per flight ``yardsticks``: ``mocap_gaps`` (``rmse_m``
         {method: m}, ``gain_pct``, ``gain_interval_pct``, ``gap_s``, ``every_s``, ``gaps``), ``fast_reference``
         (``velocity_rmse_m_s`` {method: m/s}, ``window_s``) and ``paper_sg`` (``mse``); ``headline``: the
-        KNODE's median gap gain, the flights it is better on and worse beyond their interval on.
+        KNODE's median gap gain, the flights it is better on and worse beyond their interval on (a
+        `ReportHeadline`: the dict, printed as a sentence).
 
     Raises
     ------
@@ -208,6 +210,9 @@ def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[st
     1
     """
     methods = parse_methods(methods if isinstance(methods, str) else ",".join(methods), EVALUATION_METHODS)
-    return evaluate_flights(model, list(flights), methods, include_bad=include_bad, horizon=horizon,
-                            progress=progress, on_estimates=on_estimates, gap_s=gap_s, gap_every_s=gap_every_s,
-                            noise=noise)
+    report = evaluate_flights(model, list(flights), methods, include_bad=include_bad, horizon=horizon,
+                              progress=progress, on_estimates=on_estimates, gap_s=gap_s, gap_every_s=gap_every_s,
+                              noise=noise)
+    if report.get("headline") is not None:   # prints as its sentence; still the same dict
+        report["headline"] = ReportHeadline(report["headline"])
+    return report

@@ -1,5 +1,6 @@
 """The documentation site as tests: it builds offline with warnings as errors, its generated references
-cover the real parser and the public API, and every tutorial runs as written on sample_logs/."""
+cover the real parser and the public API, and its printed outputs are those of a run (the pages' code runs in
+test_commands.py)."""
 import html
 import os
 import re
@@ -12,27 +13,31 @@ import pytest
 import learnest
 
 ROOT = next(p for p in Path(__file__).resolve().parents if (p / "mkdocs.yml").is_file())  # the repository
-TUTORIALS = sorted(p for p in (ROOT / "docs" / "tutorials").glob("*.md") if p.name != "index.md")
 # no network: a build or a tutorial that reaches for the internet fails instead of passing on a lucky day
-OFFLINE = {"HTTP_PROXY": "http://127.0.0.1:9", "HTTPS_PROXY": "http://127.0.0.1:9", "NO_PROXY": "127.0.0.1,localhost",
-           "NO_MKDOCS_2_WARNING": "1"}
+OFFLINE = {"HTTP_PROXY": "http://127.0.0.1:9", "HTTPS_PROXY": "http://127.0.0.1:9", "NO_PROXY": "127.0.0.1,localhost"}
 
 
 def _env(**extra: str) -> dict[str, str]:
-    env = {**os.environ, **OFFLINE, **extra}
+    from learnest.service.web.manual import MKDOCS_ENV  # the theme's banner off, as in every build of the docs
+
+    env = {**os.environ, **OFFLINE, **MKDOCS_ENV, **extra}
     env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"  # this venv's learnest
     return env
 
 
 @pytest.fixture(scope="module")
-def site(tmp_path_factory) -> Path:
-    """One `mkdocs build --strict` of the repository's docs, shared by the checks below."""
+def site(tmp_path_factory, documented_runs) -> Path:
+    """One `mkdocs build --strict` of the repository's docs, shared by the checks below.  It checks every
+    documented output against the session's run of the pages (docs/_hooks/outputs.py: ``LEARNEST_DOCS_RUN``),
+    so a changed number fails the build; it prints no warning, the theme's advisory banner included."""
     pytest.importorskip("mkdocs", reason="the docs extra is not installed (pip install '.[docs]')")
+    records, _ = documented_runs
     out = tmp_path_factory.mktemp("site")
     run = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--config-file",
                           str(ROOT / "mkdocs.yml"), "--site-dir", str(out)], cwd=tmp_path_factory.mktemp("cwd"),
-                         env=_env(), capture_output=True, text=True, timeout=600)
+                         env=_env(LEARNEST_DOCS_RUN=str(records)), capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stdout + run.stderr
+    assert "WARNING" not in run.stderr and "Warning" not in run.stderr and "end of life" not in run.stderr, run.stderr
     return out
 
 
@@ -81,33 +86,6 @@ def test_the_api_reference_covers_the_public_api(site):
         if doc:  # the docstring's first words, compared without markup or spacing
             first = re.sub(r"[^\w.]", "", "".join(doc[0].split()[:4]))
             assert first in re.sub(r"[^\w.]", "", text), (name, first)
-
-
-def _blocks(page: Path, language: str) -> str:
-    return "\n".join(re.findall(rf"^```{language}\n(.*?)^```", page.read_text(encoding="utf-8"), re.S | re.M))
-
-
-# Getting started's shell blocks set up a whole environment (the README's commands, run by CI itself): only its
-# notebook example runs here
-PAGES = [*TUTORIALS, ROOT / "docs" / "getting-started.md"]
-
-
-@pytest.mark.parametrize("page", PAGES, ids=[p.stem for p in PAGES])
-def test_the_tutorial_runs_as_written(page, tmp_path):
-    """The page's python blocks in one fresh process, in order (like a notebook), then its bash blocks in
-    one shell, from the repository root with a scratch registry: a tutorial cannot drift from the code."""
-    python = _blocks(page, "python")
-    shell = _blocks(page, "bash") if page.parent.name == "tutorials" else ""
-    assert python or shell, f"{page.name} has no code to run"
-    env = _env(LEARNEST_HOME=str(tmp_path / "home"), MPLBACKEND="Agg")
-    if python:
-        run = subprocess.run([sys.executable, "-c", python], cwd=ROOT, env=env, capture_output=True, text=True,
-                             timeout=600)
-        assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
-    if shell:
-        run = subprocess.run(["bash", "-euo", "pipefail", "-c", shell], cwd=ROOT, env=env, capture_output=True,
-                             text=True, timeout=600)
-        assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
 
 
 # -- /manual: the same site, served by `learnest serve` ---------------------------------------------------------

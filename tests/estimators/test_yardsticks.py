@@ -330,3 +330,28 @@ def test_the_command_line_refuses_a_gap_plan_that_never_ends_within_a_second(cap
         assert main(["evaluate", "--model", "nothing:1", junk, "--no-store", *options]) == 2
         assert time.perf_counter() - started < 1.0
         assert named in capsys.readouterr().err
+
+
+def test_the_headline_prints_as_a_sentence_and_stays_its_json_dict():
+    """`le.evaluate`'s headline: print() gives the sentence (UKF pair first), repr the type and rounded gains,
+    and it is still the dict the service stores (json, keys)."""
+    from learnest.estimators.headline import Headline, ReportHeadline
+
+    pairs = ("knode-mhe_vs_mhe", "knode-ukf_vs_ukf")
+    head = ReportHeadline(Headline(
+        median_gain_pct={"knode-mhe_vs_mhe": -2.94123456789, "knode-ukf_vs_ukf": 9.8912345678},
+        flights_better=dict.fromkeys(pairs, 1), flights_worse_beyond_interval=dict.fromkeys(pairs, 0),
+        flights_better_beyond_interval=dict.fromkeys(pairs, 0), flights_within_interval=dict.fromkeys(pairs, 2),
+        flights_undecided=dict.fromkeys(pairs, 1), flights_scored=3, flights_with_gaps=2).to_dict())
+    assert str(head) == (
+        "KNODE-UKF carried the estimate through mocap gaps 9.9 % better than its prior UKF (median of 2 flights "
+        "with gaps): better on 1 of 2; of 3 flights scored, worse beyond its 95 % interval on none, better beyond "
+        "it on none, within it on 2, undecided (no interval) on 1. KNODE-MHE carried the estimate through mocap "
+        "gaps 2.9 % worse than its prior MHE (median of 2 flights with gaps): better on 1 of 2; of 3 flights "
+        "scored, worse beyond its 95 % interval on none, better beyond it on none, within it on 2, undecided (no "
+        "interval) on 1.")
+    assert repr(head).startswith("ReportHeadline(yardstick='mocap_gaps', median_gain_pct={'knode-mhe_vs_mhe': "
+                                 "-2.94, 'knode-ukf_vs_ukf': 9.89}")
+    assert json.loads(json.dumps(head))["median_gain_pct"]["knode-ukf_vs_ukf"] == 9.8912345678
+    assert str(ReportHeadline(Headline(flights_scored=1, flights_without_gaps=["a: too short"]).to_dict())) == (
+        "No flight had a mocap gap to score: the KNODE's gain is undecided on all 1 flight scored (a: too short).")

@@ -310,6 +310,18 @@ def _reproduce(args) -> int:
     return 0
 
 
+def _this_command() -> str:
+    """`learnest` as the user can type it again: the path they ran (`.venv/bin/learnest`) when a bare
+    `learnest` would not find this one (the venv not activated)."""
+    import shutil
+
+    ran = Path(sys.argv[0])
+    if ran.name != "learnest" or not ran.is_file():
+        return "learnest"
+    found = shutil.which("learnest")
+    return "learnest" if found and Path(found).resolve() == ran.resolve() else shlex.quote(sys.argv[0])
+
+
 def _demo(args) -> int:
     """ingest -> train on one flight -> evaluate on every other flight of a folder."""
     from learnest.ingest import IngestError, detect
@@ -375,6 +387,6 @@ def _demo(args) -> int:
         save_figure(evaluation_summary(report), args.plot, dpi=120)
         print(f"gain per flight and MSE per flight (prior vs KNODE): {args.plot}")
     # the home spelled out: a server started from another folder, or with another LEARNEST_HOME, finds the model
-    print(f"\nnext: LEARNEST_HOME={shlex.quote(str(home))} learnest serve, then open "
+    print(f"\nnext: LEARNEST_HOME={shlex.quote(str(home))} {_this_command()} serve, then open "
           f"http://127.0.0.1:8000/ui/models/{args.name} (the model, its evaluations, more from the browser)")
     return _batch_status(batch.errors)
