@@ -131,6 +131,9 @@ def _add_reproduce(sub: argparse._SubParsersAction) -> None:
                      help="how the KNODE rows estimate the unmeasured states they train on: filter (the prior's "
                           "UKF), smoother (the UKF, then a backward smoothing pass) or joint (the states and the "
                           f"residual fitted together) (default: the task's, {_observers(lambda kind, rounds: kind)})")
+    rep.add_argument("--noise", choices=("paper", "identified"), default="paper",
+                     help="every filter with the system's fixed noise (paper: Table I) or each model's process noise "
+                          "identified on its training run (identified) (default paper)")
     rep.set_defaults(func=_reproduce)
 
 

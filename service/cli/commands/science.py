@@ -291,7 +291,7 @@ def _reproduce(args) -> int:
     from ...experiments.table1 import ReproduceSettings, format_table, reproduce
 
     settings = ReproduceSettings(task=args.task, eval_samples=args.samples, epochs=args.epochs, horizon=args.horizon,
-                                 observer_rounds=args.observer_rounds, observer=args.observer)
+                                 observer_rounds=args.observer_rounds, observer=args.observer, noise=args.noise)
     from ..progress import StageProgress
 
     with StageProgress(f"Table I {args.task}") as bar:
