@@ -67,8 +67,8 @@ def main() -> None:
              "| residual | counter-clockwise | clockwise | largest difference (points) |", "|---|---|---|---|"]
     for row in rows:
         ccw, cw = row["counter-clockwise"], row["clockwise"]
-        lines.append(f"| {row['residual']} | {', '.join(f'{g:+.1f}' for g in ccw)} | {', '.join(f'{g:+.1f}' for g in cw)}"
-                     f" | {max(abs(a - b) for a, b in zip(ccw, cw)):.1f} |")
+        cells = [", ".join(f"{g:+.1f}" for g in gains) for gains in (ccw, cw)]
+        lines.append(f"| {row['residual']} | {cells[0]} | {cells[1]} | {max(abs(a - b) for a, b in zip(ccw, cw)):.1f} |")
     (args.out / "residual_symmetry.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
