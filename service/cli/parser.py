@@ -182,6 +182,9 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
                     help="paper (default): the system's fixed noise; identified: identify the model's and its prior's "
                          "noise (Q and R per block) on the training flights by the UKF's innovation likelihood and "
                          "store it with the version (every evaluation then runs each model with its own)")
+    tr.add_argument("--ensemble", type=_positive_int, default=1, metavar="K",
+                    help="several flights: train K residuals from different seeds; their mean is the model and their "
+                         "disagreement on a flight joins its process noise (default 1)")
     _add_topic_arguments(tr)
     _add_cut_argument(tr)
     tr.set_defaults(func=_train)

@@ -63,7 +63,7 @@ def _train(args) -> int:
             out = train(args.files, args.name, epochs=args.epochs, include_bad=args.include_bad,
                         progress=bar.progress, system=args.system, on_stage=bar.on_stage, **_topics(args),
                         cut=args.cut, validate=args.validate, strict=args.strict,
-                        group_by=args.group_by, noise=args.noise)
+                        group_by=args.group_by, noise=args.noise, ensemble=args.ensemble)
     except UnreadableFile as err:   # --strict: the first unreadable file stops the command, nothing trained
         print(f"learnest: {err}; nothing was trained (--strict)", file=sys.stderr)
         return 1
