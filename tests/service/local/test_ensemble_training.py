@@ -42,3 +42,6 @@ def test_train_with_an_ensemble_stores_its_members_and_their_spread_joins_the_kn
     knode_q = np.diag(prepare(model, scored).model.system.Q)
     assert np.all(knode_q[6:] > np.square(model.system.process_noise_std[6:]))   # the spread added, acceleration rows
     assert np.array_equal(knode_q[:6], np.square(model.system.process_noise_std[:6]))
+    assert main(["models", "show", "ens:1"]) == 0
+    shown = capsys.readouterr().out
+    assert "residual: body frame" in shown and "mean of an ensemble of 3" in shown, shown
