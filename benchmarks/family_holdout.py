@@ -21,7 +21,7 @@ gaps).
 Run from the repository root (needs ../shared/data; ~30 min on 2 cores):
     .venv/bin/python benchmarks/family_holdout.py [--families circle,figure8,helix,ramp]
         [--trainings pooled,one] [--systems crazyflie,quadrotor] [--attitude blind|seen] [--battery blind|seen]
-        [--scale chosen|full]
+        [--scale chosen|full] [--frame system|body|state] [--noise paper|identified]
         [--out benchmarks/results/family_holdout]
 """
 from __future__ import annotations
@@ -30,12 +30,14 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from learnest.estimators.group_training import train_with_scale_choice
 from learnest.ingest import read_flights
+from learnest.models.presets import CRAZYFLIE_TRAINING
 from learnest.service.experiments.flights import evaluate_flights, train_on_flights
 
 DATA = (Path("../shared/data/nanobench"), Path("../shared/data/nanobench-more"))
@@ -177,8 +179,15 @@ def main(argv=None) -> int:
     parser.add_argument("--scale", choices=("chosen", "full"), default="chosen",
                         help="pooled residual scaled by the scale chosen on held-out training families "
                              "(estimators.group_training), or the full residual")
+    parser.add_argument("--frame", choices=("system", "body", "state"), default="system",
+                        help="what the residual reads and where it acts (models.residual_frame); system: the "
+                             "prior's own (body for the Crazyflie, state for the quadrotor)")
+    parser.add_argument("--noise", choices=("paper", "identified"), default="paper",
+                        help="the filters' noise: the system's fixed (paper) noise, or each model's and its prior's "
+                             "identified on the training flights")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/family_holdout"))
     args = parser.parse_args(argv)
+    config = replace(CRAZYFLIE_TRAINING, residual_frame="" if args.frame == "system" else args.frame)
     started = time.perf_counter()
     paths = sorted(p for folder in DATA for p in folder.glob("B*.csv"))
     if not paths:
@@ -202,11 +211,11 @@ def main(argv=None) -> int:
                     groups: dict = {}
                     for f in train:
                         groups.setdefault(family_of(f.name), []).append(f)
-                    trained = train_with_scale_choice(groups, system=system, **blind)
+                    trained = train_with_scale_choice(groups, system=system, config=config, noise=args.noise, **blind)
                 else:
-                    trained = train_on_flights(train, system=system, group_by="none", **blind)
+                    trained = train_on_flights(train, config, system=system, group_by="none", noise=args.noise, **blind)
                 meta = trained.model.meta
-                report = evaluate_flights(trained.model, test, methods)
+                report = evaluate_flights(trained.model, test, methods, noise=args.noise)
                 rows = per_flight(report)
                 runs.append({"family": family, "training": training, "system": system, "flights": rows,
                              "summary": summary(rows), "headline": report.get("headline"),

@@ -22,7 +22,7 @@ Two ways to make those estimates better (measured in benchmarks/results/table1_o
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -30,7 +30,9 @@ from numpy.typing import ArrayLike
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 from learnest.ingest.profile import flight_profile
+from learnest.models.ensemble import mean_residual
 from learnest.models.inputs import training_meta
+from learnest.models.knode import HybridModel
 from learnest.models.presets import TrainingConfig
 from learnest.models.systems import System
 from learnest.models.training import TrainingRecord, TrainingResult, attitude_blind, train_knode, train_knode_pooled
@@ -237,7 +239,7 @@ class Algorithm1:
             records = [TrainingRecord(f.name, self.observe(p, f.measurements(), u, p.dt), u, p.dt)
                        for f, (p, u, _) in zip(flights, inputs)]
             prior = attitude_blind(systems[trained[0]], blind_battery) if blind_attitude else systems[trained[0]]
-            result = train_knode_pooled(prior, records, held, self.config, progress=progress)
+            result = train_ensemble(prior, records, held, self.config, progress)
             result.model.meta["residual_blind"] = list(prior.residual_blind)
             result.model.meta["observer"] = {"kind": self.kind, "rounds": 0, "kept_round": 0, "misfit": []}
             profile, validation = pooled_profile([flights[i] for i in trained]), "held-out flights"
@@ -270,3 +272,27 @@ def _held_out(flights: list[Flight], validate: Sequence[str] | None) -> tuple[li
     if all(held):
         raise InvalidInput(f"every flight is held out for validation ({', '.join(names)}): keep one to train on")
     return names, held
+
+
+def train_ensemble(prior, records: list[TrainingRecord], held: list[bool], config: TrainingConfig,
+                   progress: Callable[[int, float], None] | None) -> TrainingResult:
+    """`models.training.train_knode_pooled`, ``config.ensemble`` times from seeds ``seed, seed + 1, ...``; with
+    more than one, the model's residual is their mean carrying the members (`models.ensemble.mean_residual`) and its
+    meta's ``ensemble`` says how many were trained and each one's kept epoch."""
+    if config.ensemble < 1:
+        raise InvalidInput(f"an ensemble needs at least one member, got {config.ensemble}")
+    results = [train_knode_pooled(prior, records, held, replace(config, seed=config.seed + k), progress=progress)
+               for k in range(config.ensemble)]
+    first = results[0]
+    if len(results) == 1:
+        return first
+    model = first.model
+    residual = mean_residual([r.model.residual for r in results])
+    meta = {**model.meta, "ensemble": {"members": len(results), "seeds": [config.seed + k for k in range(len(results))],
+                                       "best_epochs": [r.model.meta.get("best_epoch") for r in results]},
+            "learned": any(r.learned for r in results), "seconds": sum(r.seconds for r in results)}
+    if meta["learned"]:
+        meta.pop("learned_note", None)
+    return TrainingResult(HybridModel(model.system, model.kind, residual, meta), first.losses,
+                          sum(r.seconds for r in results), first.validation_losses)
+

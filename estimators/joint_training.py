@@ -36,6 +36,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from learnest.errors import InvalidInput
+from learnest.models import residual_frame
 from learnest.models.backend import rk4_step
 from learnest.models.envelope import training_envelope
 from learnest.models.knode import HybridModel
@@ -111,7 +112,7 @@ def train_jointly(system: System, y: ArrayLike, u: ArrayLike, dt: float, zeta: A
     started = time.perf_counter()
     with torch_threads(TRAINING_THREADS):
         torch.manual_seed(config.seed)
-        mlp = new_residual(system, zeta, u, config.hidden)
+        mlp = new_residual(system, zeta, u, config.hidden, config.residual_frame)
         with torch.no_grad():   # weights of inputs Δθ is blind to never act: start them at 0, not in the prior
             mlp.hidden_layer.weight *= mlp.input_mask
         problem = _JointProblem(system, y, u, dt, mlp, weight_prior)
@@ -148,8 +149,9 @@ class _JointProblem:
         self.h = system.h
 
         def field(x, u_k, theta):
-            return system.f_prior(x, u_k) + functional_call(mlp, {**self._unflatten(theta), **buffers},
-                                                            (torch.cat([x, u_k], -1),))
+            z = residual_frame.features(mlp.frame, x, u_k)
+            return system.f_prior(x, u_k) + residual_frame.to_state_rates(
+                mlp.frame, x, u_k, functional_call(mlp, {**self._unflatten(theta), **buffers}, (z,)))
 
         def step(x, u_k, theta):
             return rk4_step(lambda s, v: field(s, v, theta), x, u_k, dt)

@@ -19,6 +19,7 @@ import numpy as np
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
 from learnest.models.effects import correct_acc_body, world_from_body
+from learnest.models.ensemble import spread_variance
 from learnest.models.inputs import calibrates_thrust_gain, system_inputs
 from learnest.models.knode import HybridModel
 from learnest.models.noise import IDENTIFIED, NOISE_SOURCES, PAPER, NoiseModel
@@ -54,6 +55,13 @@ def initial_state(flight: Flight) -> np.ndarray:
     k = min(5, len(flight.t) - 1)
     velocity = (flight.p[k] - flight.p[0]) / (k * flight.dt)
     return np.concatenate([flight.p[0], velocity, flight.a_meas[0]])
+
+
+def rough_states(flight: Flight) -> np.ndarray:
+    """States (T, 9) read off the measurements alone: mocap position (m), its central difference (m/s), the
+    measured acceleration (m/s²).  Where an ensemble's members are asked how much they disagree on a flight: no
+    filter of either model decides where they are asked."""
+    return np.hstack([flight.p, np.gradient(flight.p, flight.dt, axis=0), flight.a_meas])
 
 
 def corrected_flight(flight: Flight, values: dict) -> Flight:
@@ -163,6 +171,8 @@ def prepare(model: HybridModel, flight: Flight, thrust_gain: bool | None = None,
     if thrust_gain is None:
         thrust_gain = calibrates_thrust_gain(model.meta, model.kind)
     u = system_inputs(flight, system, thrust_gain=thrust_gain)
+    if model.residual is not None and model.residual.members:   # the ensemble's doubt on this flight
+        own = own.with_model_spread(spread_variance(model.residual, rough_states(measured), u, flight.dt))
     own_system = own.apply(system)
     return PreparedFlight(flight, measured, own_system,
                           HybridModel(own.apply(replace(model.system, dt=flight.dt)), model.kind, model.residual,

@@ -16,7 +16,8 @@ import numpy as np
 
 from learnest.errors import InvalidInput
 
-from .backend import Array, CasadiOps, ops_for, rk4_step
+from . import residual_frame
+from .backend import Array, ops_for, rk4_step
 from .metadata import with_input_format
 from .noise import NoiseModel
 from .systems import System, make_system
@@ -24,21 +25,30 @@ from .systems import System, make_system
 
 @dataclass
 class Residual:
-    """A tanh MLP Δθ([x, u]); `layers` is a list of (weight (out, in), bias (out,)) float64 arrays.
+    """A tanh MLP Δθ; `layers` is a list of (weight (out, in), bias (out,)) float64 arrays.
 
     Input standardisation is folded into the first layer, so the exported network is exactly the
-    trained one and has nothing else to carry around.
+    trained one and has nothing else to carry around.  `frame` says what the network reads and where its
+    output acts (`models.residual_frame`): ``"state"`` Δθ([x, u]) on every row of ẋ, ``"body"`` body-frame
+    features and a body-frame force rate rotated into ȧ.
     """
 
     layers: list
+    frame: str = "state"
+    # an ensemble's mean carries its members (`models.ensemble`): their spread is the model's uncertainty
+    members: list | None = None
 
     def __call__(self, x, u):
-        """Δθ([x, u]) in the namespace of ``x``: numpy (B, n) -> (B, n), torch likewise, CasADi (n, 1).
+        """Δθ(x, u) as a correction of ẋ, in the namespace of ``x``: numpy (B, n) -> (B, n), torch likewise,
+        CasADi (n, 1).
 
-        ``u`` is left out when it is None or has width 0.
+        ``u`` is left out of a state-frame residual when it is None or has width 0.
         """
-        ops = ops_for(x)
-        z = ops.concat([x, u]) if u is not None and _width(u) else x
+        return residual_frame.to_state_rates(self.frame, x, u, self.network(residual_frame.features(self.frame, x, u)))
+
+    def network(self, z):
+        """The bare MLP on features ``z`` (`models.residual_frame.features`), in the namespace of ``z``."""
+        ops = ops_for(z)
         for i, (weight, bias) in enumerate(self.layers):
             z = ops.linear(z, weight, bias)
             if i < len(self.layers) - 1:
@@ -64,20 +74,30 @@ class Residual:
         for m in matrices:
             symbols.append(ca.SX(m.sparsity(), theta[offset:offset + m.nnz()]))
             offset += m.nnz()
-        return Residual(list(zip(symbols[::2], symbols[1::2]))), theta, values
+        return Residual(list(zip(symbols[::2], symbols[1::2])), self.frame), theta, values
 
     def to_dict(self) -> dict:
-        """``{"layers": [[weight, bias], ...]}`` as nested lists (JSON)."""
-        return {"layers": [[w.tolist(), b.tolist()] for w, b in self.layers]}
+        """``{"layers": [[weight, bias], ...], "frame": ...}`` as nested lists (JSON); a state-frame residual
+        leaves ``frame`` out, as files written before frames existed do."""
+        data: dict = {"layers": [[w.tolist(), b.tolist()] for w, b in self.layers]}
+        if self.frame != "state":
+            data["frame"] = self.frame
+        if self.members:
+            data["members"] = [m.to_dict() for m in self.members]
+        return data
 
     @classmethod
     def from_dict(cls, data: dict) -> Residual:
-        """Inverse of `to_dict` (arrays as float64)."""
-        return cls([(np.asarray(w, dtype=float), np.asarray(b, dtype=float)) for w, b in data["layers"]])
+        """Inverse of `to_dict` (arrays as float64).
 
-
-def _width(u) -> int:
-    return int(u.shape[0] if ops_for(u) is CasadiOps else u.shape[-1])
+        Raises
+        ------
+        InvalidInput
+            For an unknown frame.
+        """
+        members = [cls.from_dict(m) for m in data["members"]] if data.get("members") else None
+        return cls([(np.asarray(w, dtype=float), np.asarray(b, dtype=float)) for w, b in data["layers"]],
+                   residual_frame.check_frame(data.get("frame", "state")), members)
 
 
 class HybridModel:

@@ -129,6 +129,16 @@ class NoiseModel:
                 "measurement": table(self.meas_std, system.meas_names),
                 "initial": table(self.initial_std, system.state_names)}
 
+    def with_model_spread(self, variance: np.ndarray) -> NoiseModel:
+        """This noise with ``variance`` (n,) added to the process noise per step: what an ensemble's spread along a
+        flight stands for (`models.ensemble.spread_variance`); ``detail["ensemble_spread_std"]`` keeps it."""
+        variance = np.asarray(variance, dtype=float)
+        if variance.shape != (len(self.process_std),) or not np.all(np.isfinite(variance)) or np.any(variance < 0):
+            raise InvalidInput(f"an ensemble's spread must be {len(self.process_std)} finite non-negative variances")
+        std = np.sqrt(np.square(self.process_std) + variance)
+        return replace(self, process_std=tuple(std), detail={**self.detail,
+                                                             "ensemble_spread_std": np.sqrt(variance).tolist()})
+
     def to_dict(self) -> dict:
         """JSON form (lists of floats)."""
         return {"process_std": list(self.process_std), "meas_std": list(self.meas_std),

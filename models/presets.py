@@ -151,6 +151,12 @@ class TrainingConfig:
         held-out loss are kept.  Ignored (nothing held out) for fewer than 10 pairs.
     validation_layout : {"spread", "tail"}
         Two blocks at about 30-40 % and 80-90 % of the record, or the last part.
+    residual_frame : {"", "state", "body"}
+        What the residual reads and where it acts (`models.residual_frame`); "" the system's own
+        (`System.residual_frame`).
+    ensemble : int
+        Residuals trained alike from different seeds on several flights (`models.ensemble`): their mean is the
+        model's residual and their spread its process noise; 1 trains one.  One flight always trains one.
     """
 
     hidden: int = 8            # neurons between the two layers (paper: 8 cartpole/robot, 16 quadrotor)
@@ -166,6 +172,8 @@ class TrainingConfig:
     # (the last part). Spread is the default: one block covers one stretch of the motion (a flight's final
     # hover, one part of a lap), and artefacts learned there pass its test (docs/results/table1.md, robot)
     validation_layout: str = "spread"
+    residual_frame: str = ""
+    ensemble: int = 1
 
     def as_dict(self) -> dict:
         """The fields as a plain dict (stored in a trained model's meta)."""

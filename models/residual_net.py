@@ -11,6 +11,7 @@ from contextlib import contextmanager
 import numpy as np
 import torch
 
+from . import residual_frame
 from .knode import Residual
 
 # Δθ is a one-hidden-layer MLP on a few thousand rows: each operation is microseconds of work, and on
@@ -75,8 +76,9 @@ class ResidualNet(torch.nn.Module):
     output_mask: torch.Tensor
 
     def __init__(self, n_in: int, n_out: int, hidden: int, mean: np.ndarray, std: np.ndarray,
-                 input_mask: np.ndarray | None = None, output_mask: np.ndarray | None = None):
+                 input_mask: np.ndarray | None = None, output_mask: np.ndarray | None = None, frame: str = "state"):
         super().__init__()
+        self.frame = frame   # what the network reads and where it acts (`models.residual_frame`)
         self.hidden_layer = torch.nn.Linear(n_in, hidden, dtype=torch.float64)
         self.output_layer = torch.nn.Linear(hidden, n_out, dtype=torch.float64)
         torch.nn.init.zeros_(self.output_layer.weight)  # start at the prior: Δθ ≡ 0
@@ -104,6 +106,10 @@ class ResidualNet(torch.nn.Module):
         hidden = torch.tanh(self.hidden_layer(self.input_mask * (z - self.mean) / self.std))
         return self.output_mask * self.output_layer(hidden)
 
+    def rates(self, x, u):
+        """Δθ(x, u) as a correction of ẋ (B, n): the network on the frame's features, mapped back to ẋ."""
+        return residual_frame.to_state_rates(self.frame, x, u, self(residual_frame.features(self.frame, x, u)))
+
     def export(self) -> Residual:
         """Fold the standardisation and the masks into the weights: W(m_in(z-μ)/s) + b = (W m_in/s) z +
         (b - (W m_in/s) μ); masked outputs become zero rows.  The exported network is the trained one."""
@@ -112,4 +118,4 @@ class ResidualNet(torch.nn.Module):
         out = self.output_mask.numpy()
         return Residual([(w1.copy(), b1.copy()),
                          (self.output_layer.weight.detach().numpy() * out[:, None],
-                          self.output_layer.bias.detach().numpy() * out)])
+                          self.output_layer.bias.detach().numpy() * out)], self.frame)

@@ -49,7 +49,8 @@ def scaled_residual(residual: Residual, scale: float) -> Residual:
     layers = [(np.array(w, dtype=float), np.array(b, dtype=float)) for w, b in residual.layers]
     weight, bias = layers[-1]
     layers[-1] = (weight * scale, bias * scale)
-    return Residual(layers)
+    members = [scaled_residual(m, scale) for m in residual.members] if residual.members else None
+    return Residual(layers, residual.frame, members)
 
 
 def scaled_model(model: HybridModel, scale: float, choice: dict | None = None) -> HybridModel:

@@ -60,6 +60,9 @@ class System:
     # is) only lets the network tell training flights apart from others.
     residual_states: tuple | None = None
     residual_blind: tuple = ()
+    # what a newly trained residual reads and where it acts (`models.residual_frame`): the masks above
+    # apply to the "state" frame, the paper's
+    residual_frame: str = "state"
 
     # parameters `dynamics` needs as numbers (it branches on them): they stay constants of compiled code
     NUMERIC_PARAMS: ClassVar[tuple[str, ...]] = ()
@@ -418,6 +421,11 @@ class Crazyflie(System):
     # height (ground effect), velocity (rotor drag), attitude, motors and battery (thrust).
     residual_states: tuple | None = ("ax", "ay", "az")
     residual_blind: tuple = ("px", "py", "ax", "ay", "az")
+    # The state-frame residual above still saw the world velocity and the attitude, so it could learn the
+    # sense of a turn and the heading: trained on counter-clockwise circles, it lost on helices.  The body
+    # frame reads height, body velocity, the collective thrust and the battery, and adds a body-frame force
+    # rate rotated into ȧ (`models.residual_frame`): what it learns turns with the vehicle.
+    residual_frame: str = "body"
 
     # a lag below this is treated as this (ȧ would be stiff for RK4 at 100 Hz: dt/τ must stay < ~2.8)
     MIN_TAU_S = 0.005

@@ -25,6 +25,7 @@ from numpy.typing import ArrayLike
 
 from learnest.errors import InvalidInput
 
+from . import residual_frame
 from .checks import check_dt, check_sequence
 from .envelope import training_envelope
 from .knode import HybridModel
@@ -101,15 +102,20 @@ def _split_rows(pairs: int, fraction: float, layout: str):
     return torch.as_tensor(np.flatnonzero(~held)), torch.as_tensor(np.flatnonzero(held))
 
 
-def new_residual(system: System, zeta: np.ndarray, u: np.ndarray, hidden: int):
-    """A `models.residual_net.ResidualNet` at Δθ ≡ 0 whose inputs [ζ, u] (T, n + p) are standardised by the
-    training record's own mean and spread (constant columns left unscaled), with the system's masks."""
+def new_residual(system: System, zeta: np.ndarray, u: np.ndarray, hidden: int, frame: str = ""):
+    """A `models.residual_net.ResidualNet` at Δθ ≡ 0 in ``frame`` ("": the system's `residual_frame`).
+
+    Its input features (state frame: [ζ, u] (T, n + p), with the system's masks) are standardised by the
+    training records' own mean and spread (constant columns left unscaled)."""
     from .residual_net import ResidualNet
 
-    features = np.concatenate([zeta, u], axis=1)
+    frame = residual_frame.check_frame(frame or system.residual_frame, system.n, system.n_inputs)
+    features = residual_frame.features(frame, np.asarray(zeta, dtype=float), np.asarray(u, dtype=float))
     std = features.std(axis=0)
-    return ResidualNet(features.shape[1], system.n, hidden, features.mean(axis=0), np.where(std > 1e-9, std, 1.0),
-                       *system.residual_masks())
+    n_in, n_out = residual_frame.feature_count(frame, system.n, system.n_inputs)
+    masks = system.residual_masks() if frame == "state" else \
+        (np.array(residual_frame.body_input_mask(system.residual_blind)), None)
+    return ResidualNet(n_in, n_out, hidden, features.mean(axis=0), np.where(std > 1e-9, std, 1.0), *masks, frame=frame)
 
 
 def train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, config: TrainingConfig | None = None,
@@ -156,7 +162,7 @@ def _train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, confi
 
     zeta, u, dt = _checked_record(system, zeta, u, dt, config)
     torch.manual_seed(config.seed)
-    mlp = new_residual(system, zeta, u, config.hidden)
+    mlp = new_residual(system, zeta, u, config.hidden, config.residual_frame)
 
     pairs = len(zeta) - 1
     fit_rows, val_rows = _split_rows(pairs, config.validation_fraction if pairs >= 10 else 0.0,
@@ -175,7 +181,7 @@ def _train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, confi
         x0, u0, target = data
 
         def vector_field(_t, x):
-            return system.f_prior(x, u0) + mlp(torch.cat([x, u0], dim=-1))
+            return system.f_prior(x, u0) + mlp.rates(x, u0)
 
         prediction = odeint(vector_field, x0, t_span, method="rk4")[-1]           # eq. (7)
         return ((prediction - target) ** 2).sum(dim=-1).mean()                   # eq. (8)
@@ -407,12 +413,12 @@ def _train_knode_pooled(system: System, records: list[TrainingRecord], held_out:
     train_zeta = np.concatenate([z for (z, _, _), held in zip(checked, held_out) if not held])
     train_u = np.concatenate([u for (_, u, _), held in zip(checked, held_out) if not held])
     torch.manual_seed(config.seed)
-    mlp = new_residual(system, train_zeta, train_u, config.hidden)
+    mlp = new_residual(system, train_zeta, train_u, config.hidden, config.residual_frame)
     fit_data, val_data = _pooled_pairs(checked, held_out, False), _pooled_pairs(checked, held_out, True)
     n_fit = len(fit_data[0])
 
     def vector_field(x, u0):
-        return system.f_prior(x, u0) + mlp(torch.cat([x, u0], dim=-1))
+        return system.f_prior(x, u0) + mlp.rates(x, u0)
 
     def squared_errors(data):
         x0, u0, target, step = data

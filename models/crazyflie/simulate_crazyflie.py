@@ -74,6 +74,9 @@ class SimulatedFlight:
         Accelerometer offset, body frame, m/s² (`models.effects.predict_acc_body`'s ``bias_x..z``).
     accel_tilt_rad : tuple of float
         (roll, pitch) of the IMU against the mocap body frame, rad (``roll_rad``, ``pitch_rad``).
+    turn : {1, -1}
+        Sense of the circles seen from above: 1 counter-clockwise, -1 clockwise.  With one seed, the two are
+        mirror images of each other (the same radius, speeds, climbs; the heading's sway mirrored too).
     """
 
     truth: dict = field(default_factory=lambda: dict(cf.IDENTIFIED))
@@ -90,6 +93,7 @@ class SimulatedFlight:
     thrust_source: str = "pwm"
     accel_bias: tuple = (0.0, 0.0, 0.0)
     accel_tilt_rad: tuple = (0.0, 0.0)
+    turn: int = 1
 
 
 def reference_path(settings: SimulatedFlight, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
@@ -106,14 +110,17 @@ def reference_path(settings: SimulatedFlight, rng: np.random.Generator) -> tuple
     cruise = np.clip(t - hover - climb, 0, None)
     cruise_s = max(settings.duration_s - 2 * (hover + climb), 1.0)
     speed = speeds[np.minimum((cruise / cruise_s * len(speeds)).astype(int), len(speeds) - 1)]
-    phase = rng.uniform(0, 2 * np.pi) + np.cumsum(speed * airborne) * dt / radius
+    if settings.turn not in (1, -1):
+        raise InvalidInput(f"a simulated flight's turn must be 1 (counter-clockwise) or -1 (clockwise), "
+                           f"not {settings.turn!r}")
+    phase = settings.turn * (rng.uniform(0, 2 * np.pi) + np.cumsum(speed * airborne) * dt / radius)
     height = 1.0 + rng.uniform(0.2, 0.4) * np.sin(2 * np.pi * t / rng.uniform(3.0, 5.0))
     p = np.column_stack([radius * np.cos(phase) * airborne, radius * np.sin(phase) * airborne,
                          settings.hover_height_m + (height - settings.hover_height_m) * airborne])
     p = lowpass(p, dt, 1.0)
     v = np.gradient(p, dt, axis=0)
     a = np.gradient(v, dt, axis=0)
-    yaw = 0.4 * np.sin(2 * np.pi * t / rng.uniform(8.0, 12.0))
+    yaw = settings.turn * 0.4 * np.sin(2 * np.pi * t / rng.uniform(8.0, 12.0))
     return t, p, v, a, yaw
 
 

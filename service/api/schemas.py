@@ -108,6 +108,8 @@ class TrainRequest(Strict):
         "paper", description="'paper': the system's fixed noise; 'identified': the model's and its prior's noise "
                              "(Q and R per block) identified on the training flights by the UKF's innovation "
                              "likelihood, stored with the version, and used by every evaluation of it")
+    ensemble: int = Field(1, ge=1, le=10, description="several flights: residuals trained from different seeds; their "
+                          "mean is the model and their disagreement on a flight joins its process noise")
     parent: str | None = Field(None, description='"name:version" or "name@alias" this version derives from')
     include_bad: bool = Field(False, description="train even if the flight failed the quality checks")
 

@@ -274,6 +274,15 @@ def format_model(out: dict) -> str:
     return "\n".join(lines)
 
 
+def residual_line(residual: dict) -> str:
+    """`models show`'s line on what the residual reads and how many members its ensemble has."""
+    frame = {"body": "body frame (height, body velocity, collective thrust, battery; its force turns with the "
+                     "vehicle)", "state": "state frame ([x, u], the paper's)"}.get(residual["frame"], residual["frame"])
+    members = residual.get("members", 1)
+    return f"residual: {frame}" + (f"; mean of an ensemble of {members}, whose spread joins its process noise"
+                                   if members > 1 else "")
+
+
 def noise_lines(noise: dict) -> list[str]:
     """`models show`'s lines on the noise each of the version's filters runs with
     (`service.jobs.tasks.noise_summary`)."""
@@ -309,6 +318,8 @@ def _trained_on_lines(lineage: dict, flight: dict, metrics: dict) -> list[str]:
                  f"  validated on {len(held)} held-out flight(s): {listed(held) or 'none'}"]
     if metrics.get("residual_scale_note"):
         lines.append("  " + residual_scale_line(metrics))
+    if metrics.get("residual"):
+        lines.append("  " + residual_line(metrics["residual"]))
     lines += noise_lines(metrics.get("noise") or {})
     if lineage.get("learned") is False:
         lines.append(f"  NOT LEARNED: {lineage.get('learned_note')}")

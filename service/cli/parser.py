@@ -131,6 +131,9 @@ def _add_reproduce(sub: argparse._SubParsersAction) -> None:
                      help="how the KNODE rows estimate the unmeasured states they train on: filter (the prior's "
                           "UKF), smoother (the UKF, then a backward smoothing pass) or joint (the states and the "
                           f"residual fitted together) (default: the task's, {_observers(lambda kind, rounds: kind)})")
+    rep.add_argument("--noise", choices=("paper", "identified"), default="paper",
+                     help="every filter with the system's fixed noise (paper: Table I) or each model's process noise "
+                          "identified on its training run (identified) (default paper)")
     rep.set_defaults(func=_reproduce)
 
 
@@ -179,6 +182,9 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
                     help="paper (default): the system's fixed noise; identified: identify the model's and its prior's "
                          "noise (Q and R per block) on the training flights by the UKF's innovation likelihood and "
                          "store it with the version (every evaluation then runs each model with its own)")
+    tr.add_argument("--ensemble", type=_positive_int, default=1, metavar="K",
+                    help="several flights: train K residuals from different seeds; their mean is the model and their "
+                         "disagreement on a flight joins its process noise (default 1)")
     _add_topic_arguments(tr)
     _add_cut_argument(tr)
     tr.set_defaults(func=_train)

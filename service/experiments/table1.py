@@ -16,12 +16,15 @@ from learnest.errors import InvalidInput
 from learnest.estimators import metrics
 from learnest.estimators.algorithm1 import Algorithm1
 from learnest.estimators.mhe import MHE
+from learnest.estimators.noise_identification import NoiseRecord, identify_noise
 from learnest.estimators.observers import full_state_observer, pretraining_observer
 from learnest.estimators.ukf import run_ukf
 from learnest.models.envelope import envelope_report
 from learnest.models.knode import HybridModel
+from learnest.models.noise import IDENTIFIED, NOISE_SOURCES, NoiseModel, blocks
+from learnest.models.noise import PAPER as PAPER_NOISE
 from learnest.models.presets import MHE_HORIZON, PAPER_OBSERVER, PAPER_TRAINING, TrainingConfig
-from learnest.models.systems import make_system
+from learnest.models.systems import SimulatedRun, make_system
 from learnest.models.training import train_knode
 
 ROWS = ["MHE", "KNODE-MHE", "KNODE-MHE (full state)", "MHE (true dynamics)",
@@ -57,6 +60,9 @@ class ReproduceSettings:
         default in `PAPER_OBSERVER`.
     observer : {"filter", "smoother", "joint"}, optional
         The partial-state KNODE's pre-training observer; None: the task's in `PAPER_OBSERVER`.
+    noise : {"paper", "identified"}
+        Every row's filter with the system's fixed noise (the paper's, Table I), or each model's process noise
+        identified on the training run (`identified_noise`).
     """
 
     task: str
@@ -66,6 +72,7 @@ class ReproduceSettings:
     horizon: int = MHE_HORIZON              # MHE window N
     observer_rounds: int | None = None      # None: PAPER_OBSERVER's
     observer: str | None = None             # None: PAPER_OBSERVER's
+    noise: str = PAPER_NOISE
 
 
 def run_seed(settings: ReproduceSettings, seed: int) -> dict:
@@ -74,7 +81,8 @@ def run_seed(settings: ReproduceSettings, seed: int) -> dict:
     Trains on a simulated run with seed 10000 + ``seed`` and scores on one with seed 20000 + ``seed``;
     the MSE is over all states against the true states.  Returns ``{"seed", "mse": {row: MSE},
     "seconds": {row: wall time of the estimator run, s (the MHE's construction included)}, "envelope":
-    how much of the evaluation run lies outside the KNODE's training data (`models.envelope`)}``.
+    how much of the evaluation run lies outside the KNODE's training data (`models.envelope`), "noise": None
+    with the paper's noise, else {model: each process block's factor on the paper's standard deviation}}``.
     """
     system = make_system(settings.task)
     train = system.simulate(10_000 + seed)
@@ -99,21 +107,40 @@ def run_seed(settings: ReproduceSettings, seed: int) -> dict:
     # box holds the jointly fitted states, which lie close to the filter's)
     envelope = envelope_report(models["KNODE-"].meta["envelope"],
                                pretraining_observer(system, test.y, test.u, system.dt), test.u)
+    if settings.noise not in NOISE_SOURCES:
+        raise InvalidInput(f"noise must be one of {', '.join(NOISE_SOURCES)}, not {settings.noise!r}")
+    paper = NoiseModel.paper(system)
+    noises = {label: identified_noise(model, train) if settings.noise == IDENTIFIED else paper
+              for label, model in models.items()}
     x0 = test.x_noisy[0]
     mse, seconds = {}, {}
     for label, model in models.items():
+        Q, R, P0 = noises[label].Q, noises[label].R, noises[label].P0
         prefix, suffix = label.split("-")[0] + "-" if label.startswith("KNODE") else "", label.replace("KNODE-", "")
         for estimator in ("MHE", "UKF"):
             row = f"{prefix}{estimator}{suffix}"
             started = time.perf_counter()
             if estimator == "UKF":
-                xh = run_ukf(model, test.y, test.u, dt=system.dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0).means
+                xh = run_ukf(model, test.y, test.u, dt=system.dt, Q=Q, R=R, x0=x0, P0=P0).means
             else:
-                xh = MHE(model, system.dt, system.Q, system.R, system.P0, horizon=settings.horizon).run(
-                    test.y, test.u, x0)
+                xh = MHE(model, system.dt, Q, R, P0, horizon=settings.horizon).run(test.y, test.u, x0)
             mse[row] = metrics.mse(xh, test.x)
             seconds[row] = time.perf_counter() - started
-    return {"seed": seed, "mse": mse, "seconds": seconds, "envelope": envelope}
+    names = {"": "prior", "KNODE-": "KNODE", "KNODE- (full state)": "KNODE (full state)",
+             " (true dynamics)": "true dynamics"}
+    noise = {names[label]: n.detail.get("factors", {}) for label, n in noises.items()} \
+        if settings.noise == IDENTIFIED else None
+    return {"seed": seed, "mse": mse, "seconds": seconds, "envelope": envelope, "noise": noise}
+
+
+def identified_noise(model: HybridModel, run: SimulatedRun) -> NoiseModel:
+    """``model``'s process noise, every state block searched, identified on the simulated ``run`` by maximum
+    innovation likelihood (`estimators.noise_identification.identify_noise`); the measurement noise stays the
+    system's, which is the simulator's own."""
+    system = model.system
+    record = NoiseRecord("training run", model, run.y, run.u, run.x_noisy[0], run.dt)
+    return identify_noise([record], NoiseModel.paper(system), process_blocks=tuple(blocks(system.state_names)),
+                          measurement_blocks=())
 
 
 def reproduce(settings: ReproduceSettings, seeds: int, workers: int = 1,

@@ -205,7 +205,9 @@ def noise_summary(model: HybridModel) -> dict:
 
 def training_metrics(model: HybridModel) -> dict:
     """What the registry keeps of a training run besides its weights and losses."""
-    return {"noise": noise_summary(model),
+    residual = None if model.residual is None else \
+        {"frame": model.residual.frame, "members": len(model.residual.members or ()) or 1}
+    return {"noise": noise_summary(model), "residual": residual,
             **{key: model.meta.get(key) for key in ("final_loss", "best_epoch", "best_validation_loss", "envelope",
                                                     "training_profile")},
             **{key: model.meta[key] for key in ("prior_validation_loss", "learned", "learned_note", "validation",

@@ -118,7 +118,8 @@ def _charge(services: Services, flights: Sequence[FlightRecord], config: dict) -
 
     groups = len(set(group_names([(row.name, row.meta or {}) for row in flights], config["group_by"])))
     quotas.check_training(services.settings, epochs=config["epochs"], hidden=config["hidden"],
-                          samples=sum(row.samples for row in flights), trainings=1 + groups if groups >= 2 else 1)
+                          samples=sum(row.samples for row in flights),
+                          trainings=(1 + groups if groups >= 2 else 1) * int(config.get("ensemble", 1)))
 
 
 def run_training(services: Services, ctx: JobContext, version_id: int) -> None:

@@ -23,6 +23,7 @@ from learnest.models import crazyflie as cf
 from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.models.knode import HybridModel
 from learnest.models.presets import CRAZYFLIE_TRAINING
+from learnest.models.residual_frame import BODY_FEATURES
 from learnest.models.systems import make_system
 from learnest.models.training import (
     ATTITUDE_INPUTS,
@@ -286,26 +287,39 @@ def test_a_model_trained_with_nothing_held_out_says_it_was_not_checked():
         assert result.model.meta["best_validation_loss"] is None
 
 
-def test_a_pooled_residual_is_blind_to_the_attitude_and_still_learns_the_drag(drag_flights):
-    """The pooled default (`models.training.attitude_blind`): the attitude columns of the residual's first layer are
-    exact zeros, so turning the attitude changes nothing it adds, and the 3-fold rotor drag (a function of the
-    velocity) is still learned: the unseen flight is predicted better than by the prior.  Seeing the attitude
-    (``blind_attitude=False``) the same training reads it."""
+def _yawed(zeta: np.ndarray, u: np.ndarray, yaw: float) -> tuple[np.ndarray, np.ndarray]:
+    """The same states and inputs seen from a frame turned by ``yaw`` about the vertical: positions, velocities and
+    accelerations rotated, the attitude quaternion (scalar last) premultiplied by the yaw's."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    zeta = zeta.copy()
+    for block in (slice(0, 3), slice(3, 6), slice(6, 9)):
+        zeta[:, block] = zeta[:, block] @ turn.T
+    qx, qy, qz, qw = u[:, :4].T
+    hz, hw = np.sin(yaw / 2), np.cos(yaw / 2)       # q_yaw = (0, 0, sin ψ/2, cos ψ/2)
+    u = u.copy()
+    u[:, :4] = np.stack([hw * qx - hz * qy, hw * qy + hz * qx, hw * qz + hz * qw, hw * qw - hz * qz], axis=1)
+    return zeta, u
+
+
+def test_a_pooled_body_frame_residual_turns_with_the_vehicle_and_still_learns_the_drag(drag_flights):
+    """The Crazyflie's residual reads the body frame (`models.residual_frame`): seen from a frame turned about the
+    vertical, the correction it adds to ȧ turns with it exactly, and it adds nothing to ṗ and v̇.  Pooled, it is
+    blind to the battery (its first layer's battery column is exact zeros), and the 3-fold rotor drag (a function of
+    the body velocity) is still learned: the unseen flight is predicted better than by the prior."""
     test = drag_flights[5]
     blind = train_on_flights(drag_flights[:5], CRAZYFLIE_TRAINING, system="crazyflie")
-    seen = train_on_flights(drag_flights[:5], CRAZYFLIE_TRAINING, system="crazyflie", blind_attitude=False)
-    system = system_for(test, "crazyflie")
-    names = [*system.state_names, *system.input_names]
-    columns = [names.index(k) for k in ATTITUDE_INPUTS]
-    assert np.all(blind.model.residual.layers[0][0][:, columns] == 0.0)
-    assert np.all(blind.model.residual.layers[0][0][:, [names.index(k) for k in BATTERY_INPUTS]] == 0.0)
-    assert np.any(seen.model.residual.layers[0][0][:, columns] != 0.0)
+    residual = blind.model.residual
+    assert residual.frame == "body"
+    assert np.all(residual.layers[0][0][:, list(BODY_FEATURES).index("vbat")] == 0.0)
     assert set(ATTITUDE_INPUTS) <= set(blind.model.meta["residual_blind"])
     _, zeta, u, _ = Algorithm1().observe_flight(test, "crazyflie")
-    turned = u.copy()
-    turned[:, [system.input_names.index(k) for k in ATTITUDE_INPUTS]] = [0.0, np.sin(0.2), 0.0, np.cos(0.2)]
-    np.testing.assert_array_equal(blind.model.residual(zeta, u), blind.model.residual(zeta, turned))
-    assert np.abs(seen.model.residual(zeta, u) - seen.model.residual(zeta, turned)).max() > 0
+    added = residual(zeta, u)
+    assert np.all(added[:, :6] == 0.0) and np.abs(added[:, 6:]).max() > 0
+    yaw = 2.1
+    turned = residual(*_yawed(zeta, u, yaw))
+    np.testing.assert_allclose(turned[:, 6:], _yawed(added, u, yaw)[0][:, 6:], atol=1e-12)
+    system = system_for(test, "crazyflie")
     prior = HybridModel(system, "prior")
     assert _one_step_error(blind.model, test) < _one_step_error(prior, test)
 

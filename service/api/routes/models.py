@@ -56,7 +56,8 @@ def train_model(body: TrainRequest, response: Response, services: Services = Dep
     now and usable once ready.  Flights of different vehicles fail the job with a message naming them."""
     job, version = start_training(services, body.name, body.flights(),
                                   {"epochs": body.epochs, "hidden": body.hidden, "lr": body.lr,
-                                   "system": body.system, "group_by": body.group_by, "noise": body.noise},
+                                   "system": body.system, "group_by": body.group_by, "noise": body.noise,
+                                   "ensemble": body.ensemble},
                                   parent=body.parent, include_bad=body.include_bad,
                                   validation_ids=body.validation_ids)
     response.headers["Location"] = f"/jobs/{job.id}"

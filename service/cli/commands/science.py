@@ -63,7 +63,7 @@ def _train(args) -> int:
             out = train(args.files, args.name, epochs=args.epochs, include_bad=args.include_bad,
                         progress=bar.progress, system=args.system, on_stage=bar.on_stage, **_topics(args),
                         cut=args.cut, validate=args.validate, strict=args.strict,
-                        group_by=args.group_by, noise=args.noise)
+                        group_by=args.group_by, noise=args.noise, ensemble=args.ensemble)
     except UnreadableFile as err:   # --strict: the first unreadable file stops the command, nothing trained
         print(f"learnest: {err}; nothing was trained (--strict)", file=sys.stderr)
         return 1
@@ -291,7 +291,7 @@ def _reproduce(args) -> int:
     from ...experiments.table1 import ReproduceSettings, format_table, reproduce
 
     settings = ReproduceSettings(task=args.task, eval_samples=args.samples, epochs=args.epochs, horizon=args.horizon,
-                                 observer_rounds=args.observer_rounds, observer=args.observer)
+                                 observer_rounds=args.observer_rounds, observer=args.observer, noise=args.noise)
     from ..progress import StageProgress
 
     with StageProgress(f"Table I {args.task}") as bar:
