@@ -228,4 +228,5 @@ def summarize(flight_reports: list[dict]) -> dict:
     return {"median": median, "improvement_pct": improvement, "flights_scored": len(scored),
             "outside_training_envelope": outside, "knode_predicts_worse": worse,
             "knode_clearly_worse": clearly_worse, "recommended": _recommended_summary(scored, median),
-            "headline": headline(scored).to_dict(), "yardstick_definitions": dict(MEASURES), "noise": noise}
+            "headline": {**headline(scored).to_dict(), "noise": dict(noise)}, "yardstick_definitions": dict(MEASURES),
+            "noise": noise}

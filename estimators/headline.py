@@ -65,6 +65,8 @@ class Headline:
         The gap plan of the flights (`GapPlan`), s; None when no flight was scored.
     measures : str
         What the yardstick measures, one sentence.
+    noise : dict
+        {method: "identified" | "paper"}: the noise each method ran with (the report's ``noise``).
     """
 
     yardstick: str = "mocap_gaps"
@@ -84,6 +86,7 @@ class Headline:
     every_s: float | None = None
     start_s: float | None = None
     measures: str = MEASURES["mocap_gaps"]
+    noise: dict[str, str] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         """JSON-able dict (the report's ``headline``)."""
@@ -133,8 +136,22 @@ def headline_sentence(head: Mapping) -> str:
             f"worse beyond its 95 % interval on {_count(head['flights_worse_beyond_interval'].get(key))}, better "
             f"beyond it on {_count(head['flights_better_beyond_interval'].get(key))}, within it on "
             f"{_count(head['flights_within_interval'].get(key))}, undecided (no interval) on "
-            f"{_count(head['flights_undecided'].get(key))}.")
+            f"{_count(head['flights_undecided'].get(key))}."
+            + noise_clause(head.get("noise") or {}, knode.lower(), prior.lower()))
     return " ".join(sentences) or "No KNODE ran beside its prior: there is no gain to report."
+
+
+def noise_clause(noise: Mapping, knode: str, prior: str) -> str:
+    """What noise the two sides of a comparison ran with ({method: "identified" | "paper"}), as a sentence
+    starting with a space; "" when ``noise`` does not say."""
+    if knode not in noise or prior not in noise:
+        return ""
+    if noise[knode] == noise[prior] == "identified":
+        return " Each ran with its own noise, identified on the training flights."
+    if noise[knode] == noise[prior] == "paper":
+        return " Both ran with the system's fixed noise (the paper's)."
+    return (f" Noise: {knode.upper()} {noise[knode]}, {prior.upper()} {noise[prior]}: not tuned the same way, "
+            "so not like with like.")
 
 
 def _pair_keys(flights: Sequence[dict]) -> list[str]:

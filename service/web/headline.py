@@ -18,6 +18,7 @@ import math
 from statistics import median
 from typing import Any
 
+from learnest.estimators.headline import noise_clause
 from learnest.estimators.metrics import VERDICTS, gain_pct, interval_verdict
 
 PAIRS = (("knode-ukf", "ukf"), ("knode-mhe", "mhe"))   # (KNODE, its prior-only method)
@@ -142,19 +143,6 @@ def evaluation_headline(report: dict) -> dict:
     if report.get("learned") is False:
         sentence += " The residual did not improve held-out prediction in training: this version equals its prior."
     return {"yardstick": yardstick, "measures": YARDSTICK_TEXT[yardstick], "sentence": sentence, "pairs": pairs}
-
-
-def noise_clause(noise: dict, knode: str, prior: str) -> str:
-    """What noise the two sides of a comparison ran with (the report's ``noise`` {method: "identified" |
-    "paper"}), as a sentence starting with a space; "" for a report that does not say."""
-    if knode not in noise or prior not in noise:
-        return ""
-    if noise[knode] == noise[prior] == "identified":
-        return " Each ran with its own noise, identified on the training flights."
-    if noise[knode] == noise[prior] == "paper":
-        return " Both ran with the system's fixed noise (the paper's)."
-    return (f" Noise: {knode.upper()} {noise[knode]}, {prior.upper()} {noise[prior]}: not tuned the same way, "
-            "so not like with like.")
 
 
 def gap_methods(report: dict) -> list[str]:
