@@ -14,8 +14,9 @@ def _tokens_create(args) -> int:
         print(json.dumps({**row, "token": token}, indent=2))
         return 0
     print(token)
-    print(f"learnest: {'an' if row['scope'] == 'admin' else 'a'} {row['scope']} token for {row['name']} (id {row['id']}); it is printed this once, the "
-          "registry keeps only its SHA-256. Send it as 'Authorization: Bearer TOKEN' or 'X-API-Key: TOKEN', or "
+    article = "an" if row["scope"] == "admin" else "a"
+    print(f"learnest: {article} {row['scope']} token for {row['name']} (id {row['id']}); it is printed this once, "
+          "the registry keeps only its SHA-256. Send it as 'Authorization: Bearer TOKEN' or 'X-API-Key: TOKEN', or "
           "sign in with it at /ui/signin.", file=sys.stderr)
     return 0
 
