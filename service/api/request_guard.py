@@ -114,21 +114,23 @@ class RequestGuard:
     async def _admitted(self, scope: Scope, headers: Headers, send: Send, identity: Identity, needed: str) -> bool:
         """Whether ``identity`` may make this request; if not, the refusal is sent."""
         principal = identity.principal
-        if principal is not None and not identity.failed:
-            if principal.allows(needed):
-                return True
+        if principal is not None and principal.allows(needed):
+            return True
+        if principal is not None and principal.signed_in:
             await self._forbidden(scope, send, principal, needed)
             return False
-        if principal is None and not identity.failed and _wants_page(scope, headers):
+        # no token (public reads let it read, not this), or a wrong one
+        if not identity.failed and _wants_page(scope, headers):
             await _to_sign_in(scope, send, identity.stale_session)   # a person without a session: no guess
             return False
-        address = client_address(scope)
-        # only failures are throttled: a right token passes, so no one can lock its owner out
-        wait = self.throttle.retry_after(address) if self.throttle else None
-        if wait is not None and self.throttle is not None:
-            await _refuse(send, 429, self.throttle.message(wait), [(b"retry-after", str(wait).encode()), CLOSE])
-            return False
-        if self.throttle:
+        # only wrong tokens are throttled (a request without one guesses nothing), and a right token passes, so
+        # no one can lock its owner out
+        if identity.failed and self.throttle is not None:
+            address = client_address(scope)
+            wait = self.throttle.retry_after(address)
+            if wait is not None:
+                await _refuse(send, 429, self.throttle.message(wait), [(b"retry-after", str(wait).encode()), CLOSE])
+                return False
             self.throttle.failed(address)
         problem = ("the token is not valid (unknown or revoked)" if identity.failed
                    else "this server needs a token")
@@ -141,11 +143,8 @@ class RequestGuard:
         return False
 
     async def _forbidden(self, scope: Scope, send: Send, principal: Principal, needed: str) -> None:
-        what = f"{scope['method']} {scope['path']} needs a {needed} token"
-        if not principal.signed_in:
-            detail = f"{what}: reads are open on this server (LEARNEST_PUBLIC_READS), nothing else"
-        else:
-            detail = f"{what}; {principal.name!r} has scope {principal.scope}"
+        detail = f"{scope['method']} {scope['path']} needs a token of scope {needed}; {principal.name!r} has scope " \
+                 f"{principal.scope}"
         if scope["path"].startswith(FORM_PREFIX) or scope["path"] == "/":
             await _refuse_page(send, 403, detail)
         else:
