@@ -1,17 +1,15 @@
 """The web pages (service/web/) end to end in a real browser, plus quick checks of escaping and the API key.
 
 The browser test starts `learnest serve` (python -m service.cli serve) on a free loopback port with its own
-LEARNEST_HOME and an API key, and drives Debian's headless Chromium through chromedriver with selenium:
-sign in with the key, upload two sample logs with the upload form, train a model from the flight page (3
-epochs), wait for the job page, evaluate from the model page, wait, and read the report (per-flight paired dots and error-over-time
-plots drawn by plotly.js, per-flight table).  A second one evaluates, diagnoses and registers through the
-forms only, on two simulated Crazyflie flights with motor PWM and battery and the Crazyflie prior (trained on
-both from the flight list's train form), and reads each page's answer off its first line
-(LEARNEST_SCREENSHOTS=FOLDER saves the flight, report, diagnosis and model pages as PNGs).
-Both are skipped, with the reason, when selenium, /usr/bin/chromium or /usr/bin/chromedriver is
-missing (CI installs them: see .ci/run).  Selenium is given the driver's path and Selenium Manager is
-disabled, so nothing is ever downloaded.
-"""
+LEARNEST_HOME and an API key, and drives Debian's headless Chromium through chromedriver with selenium: sign
+in with the key, upload two sample logs with the upload form, train a model from the flight page (3 epochs),
+wait for the job page, evaluate from the model page, wait, and read the report (per-flight paired dots and
+error-over-time plots drawn by plotly.js, per-flight table). A second one evaluates, diagnoses and registers
+through the forms only, on two simulated Crazyflie flights with motor PWM and battery and the Crazyflie prior
+(trained on both from the flight list's train form), and reads each page's answer off its first line
+(LEARNEST_SCREENSHOTS=FOLDER saves the flight, report, diagnosis and model pages as PNGs). Both are skipped,
+with the reason, when selenium, /usr/bin/chromium or /usr/bin/chromedriver is missing (CI installs them: see
+.ci/run). Selenium is given the driver's path and Selenium Manager is disabled, so nothing is ever downloaded."""
 from __future__ import annotations
 
 import os
