@@ -16,6 +16,7 @@ from contextvars import ContextVar
 from dataclasses import dataclass
 
 from starlette.datastructures import Headers
+from starlette.types import Scope
 
 from ..storage import tokens
 from ..storage.database import Database
@@ -64,7 +65,7 @@ class Authenticator:
     """
 
     def __init__(self, api_key: str | None, public_reads: bool,
-                 database: Callable[[dict], Database | None]) -> None:
+                 database: Callable[[Scope], Database | None]) -> None:
         self.api_key, self.public_reads, self.database = api_key, public_reads, database
         self._tokens_seen = False
 
@@ -75,7 +76,7 @@ class Authenticator:
         self._tokens_seen = db is not None and tokens.tokens_exist(db)
         return self._tokens_seen
 
-    def identify(self, scope: dict, token: str | None, session_id: str | None) -> Identity:
+    def identify(self, scope: Scope, token: str | None, session_id: str | None) -> Identity:
         """Who the request is (blocking: it reads the database; run it off the event loop)."""
         db = self.database(scope)
         if not self.protected(db):

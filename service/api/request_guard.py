@@ -43,7 +43,7 @@ SIGN_IN = "/ui/signin"
 CLOSE = (b"connection", b"close")
 
 
-def app_database(scope: dict) -> Database | None:
+def app_database(scope: Scope) -> Database | None:
     """The registry of the app serving ``scope`` (its started Services), or None before it has one."""
     services = getattr(getattr(scope.get("app"), "state", None), "services", None)
     return getattr(services, "db", None)
@@ -72,7 +72,7 @@ class RequestGuard:
 
     def __init__(self, app: ASGIApp, allowed_hosts: tuple[str, ...], api_key: str | None = None,
                  throttle: KeyThrottle | None = None, public_reads: bool = False,
-                 database: Callable[[dict], Database | None] = app_database):
+                 database: Callable[[Scope], Database | None] = app_database):
         self.app = app
         self.allowed = frozenset(name.lower() for name in allowed_hosts)
         self.auth = Authenticator(api_key, public_reads, database)

@@ -31,12 +31,9 @@ def training_config(overrides: dict) -> dict:
 
 
 def start_training(services: Services, name: str, flight_id: int | Sequence[int], overrides: dict,
-                   parent: str | None = None, include_bad: bool = False,
-                   validation_ids: Sequence[int] | None = None, created_by: str | None = None
-                   ) -> tuple[Job, ModelVersion]:
-    """Reserve name's next version, create the job and launch it.  -> (job, version)
-
-    ``created_by``: the name of the token that asks for it, kept on the version (None without a token).
+                   parent: str | None = None, include_bad: bool = False, validation_ids: Sequence[int] | None = None,
+                   created_by: str | None = None) -> tuple[Job, ModelVersion]:
+    """Reserve name's next version (its ``created_by``: the asking token's name), create the job, launch it.
 
     ``flight_id`` is one stored flight (the paper's protocol: time blocks of it validate) or several, trained
     on as one vehicle (`service.experiments.flights.train_on_flights`); ``validation_ids`` are held out whole
