@@ -3,7 +3,11 @@
 
     LEARNEST_HOME               folder of the SQLite database and the blobs (default ./.learnest)
     LEARNEST_DATABASE_URL       PostgreSQL (or any SQLAlchemy URL) instead of the SQLite file
-    LEARNEST_API_KEY            when set, every write needs the header X-API-Key
+    LEARNEST_API_KEY            an admin token kept outside the registry (the tokens of people:
+                                `learnest tokens create`); once it or any token exists, every route but
+                                /health needs a token (service.api.access)
+    LEARNEST_PUBLIC_READS       1: reads need no token, on purpose (writes and deletes still do)
+    LEARNEST_SESSION_HOURS      a web sign-in lasts this long (default 12)
     LEARNEST_ALLOWED_HOSTS      host names the server answers to, comma-separated (default the loopback
                                 names; add the machine's name or address to serve a network; * = any)
     LEARNEST_MAX_UPLOAD_MB      upload size limit (default 200)
@@ -71,7 +75,9 @@ class Settings(BaseSettings):
     home: Path = Path(".learnest")
     database_url: str | None = None          # None: SQLite file home/learnest.db
     max_upload_mb: float = Field(200.0, gt=0)
-    api_key: str | None = None               # None: writes need no key
+    api_key: str | None = None               # an admin token (None: only the registry's tokens)
+    public_reads: bool = False               # reads open to anyone on the allowed hosts, on purpose
+    session_hours: float = Field(12.0, gt=0)  # a web sign-in's life
     allowed_hosts: str = "localhost,127.0.0.1,::1"   # Host header names served (DNS rebinding): comma list
     schedule_seconds: float = Field(0.0, ge=0)   # 0: scheduler off
     schedule_alias: str = PRODUCTION_ALIAS

@@ -9,7 +9,7 @@ from __future__ import annotations
 import importlib.metadata
 from contextlib import asynccontextmanager
 
-from fastapi import FastAPI, HTTPException, Request
+from fastapi import Depends, FastAPI, HTTPException, Request
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
@@ -19,11 +19,12 @@ from ..jobs.decoding import DecodePool
 from ..jobs.executors import Executor
 from ..jobs.scheduler import Scheduler
 from ..jobs.services import open_services, sweep_orphan_blobs
-from ..web import manual, pages, registry_pages
+from ..web import access_pages, manual, pages, registry_pages
+from .deps import documented_token
 from .docs import install_docs
 from .errors import install_error_handlers
 from .request_guard import RequestGuard
-from .routes import diagnoses, evaluations, flights, jobs, models
+from .routes import diagnoses, evaluations, flights, jobs, models, tokens
 from .server import FORM_FIELD_BYTES, FORM_FIELDS, BodyDeadline
 from .throttle import KeyThrottle
 
@@ -55,23 +56,27 @@ def create_app(settings: Settings | None = None, *, executor: Executor | None = 
     app = FastAPI(title="learnest", version=_version(), lifespan=lifespan, docs_url=None, redoc_url=None,
                   form_limits={"max_fields": FORM_FIELDS, "max_part_size": FORM_FIELD_BYTES},
                   description="Upload Crazyflie flight logs, train KNODE models into a registry, and batch-"
-                              "evaluate KNODE-UKF / KNODE-MHE against Savitzky-Golay references. Writes need "
-                              "the X-API-Key header when the server has LEARNEST_API_KEY set.")
+                              "evaluate KNODE-UKF / KNODE-MHE against Savitzky-Golay references. Once the "
+                              "server has LEARNEST_API_KEY or any token (`learnest tokens create`), every route "
+                              "but /health needs a token, as `Authorization: Bearer TOKEN` or `X-API-Key: "
+                              "TOKEN`: read for GET, write for uploads, training, evaluation and diagnosis, "
+                              "admin for deletes, tokens and the audit log.")
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
     app.add_middleware(BodyDeadline, timeout_s=settings.body_timeout_s, min_rate=settings.body_min_rate,
                        max_s=settings.body_max_s)
-    # failed keys per client address: the guard (JSON API) and the web forms count into the same throttle
+    # failed tokens per client network: the guard and the sign-in page count into the same throttle
     app.state.key_throttle = KeyThrottle(settings.key_failures, settings.key_failure_window_s)
-    # outermost: runs first (host, cross-site and API key checks before any body is read)
+    # outermost: runs first (host, cross-site and token checks before any body is read; scopes: api.access)
     app.add_middleware(RequestGuard, allowed_hosts=settings.allowed_host_names, api_key=settings.api_key,
-                       throttle=app.state.key_throttle, peek_timeout_s=settings.body_timeout_s)
+                       throttle=app.state.key_throttle, public_reads=settings.public_reads)
     app.add_middleware(SecurityHeaders)   # on every answer, the guard's refusals too
     install_error_handlers(app)
     for router in (flights.router, models.router, models.compare_router, jobs.router, evaluations.router,
-                   diagnoses.router):
-        app.include_router(router)
+                   diagnoses.router, tokens.router):
+        app.include_router(router, dependencies=[Depends(documented_token)])
     app.include_router(pages.router)  # the HTML pages for people (/, /ui/..., report.html): service/web/
     app.include_router(registry_pages.router)  # evaluations list, version pages, compare, delete pages
+    app.include_router(access_pages.router)  # sign in, sign out, the admin page (tokens, audit log)
     app.include_router(manual.router)  # the user manual (docs/, built with MkDocs) at /manual
     # follow_symlink: a strict editable install (the development setup) links these files into its package
     # folder; a wheel has no links, so this changes nothing there

@@ -1,18 +1,20 @@
-"""Dependencies injected into the routes and pages (FastAPI `Depends`): the services of the running app and
-the API-key check for writes; and the 202 answer every job-backed resource (evaluations, diagnoses) shares."""
+"""Dependencies injected into the routes and pages (FastAPI `Depends`): the services of the running app, who
+the request is (the request guard found out, service.api.request_guard); and the 202 answer every job-backed
+resource (evaluations, diagnoses) shares."""
 from __future__ import annotations
 
-import hmac
 from typing import Annotated
 
-from fastapi import Depends, Header, HTTPException, Path, Query, Request
+from fastapi import Depends, Path, Query, Request, Security
 from fastapi.responses import JSONResponse
+from fastapi.security import APIKeyHeader, HTTPAuthorizationCredentials, HTTPBearer
 
 from ..config import Settings
 from ..jobs.services import Services
 from ..storage.blobs import BlobStore
 from ..storage.database import Database
 from ..storage.tables import Job
+from ..storage.tokens import ANONYMOUS, Principal
 from .schemas import MAX_ROW_ID
 
 # Ids and offsets are SQL BIGINTs: a larger number names nothing, and SQLite raises OverflowError on it (a
@@ -41,20 +43,32 @@ def get_settings(services: Services = Depends(get_services)) -> Settings:
     return services.settings
 
 
-def require_api_key(x_api_key: str | None = Header(None, description="required for writes when the server "
-                                                                       "has LEARNEST_API_KEY set"),
-                    settings: Settings = Depends(get_settings)) -> None:
-    """Let a write through when the server needs no API key or X-API-Key holds it; otherwise 401."""
-    if not key_matches(settings, x_api_key):
-        raise HTTPException(401, "missing or wrong API key: send it in the X-API-Key header",
-                            headers={"WWW-Authenticate": "X-API-Key"})
+def principal(request: Request) -> Principal | None:
+    """Who the request is (None where the guard needed nobody: public routes)."""
+    return getattr(request.state, "principal", None)
 
 
-def key_matches(settings: Settings, key: str | None) -> bool:
-    """True when the server needs no API key, or `key` is it (compared in constant time)."""
-    if settings.api_key is None:
-        return True
-    return bool(key) and hmac.compare_digest(str(key).encode(), settings.api_key.encode())
+def creator(request: Request) -> str | None:
+    """The name a row made by this request records as its maker: the token's (None without one)."""
+    who = principal(request)
+    return who.name if who is not None and who.signed_in else None
+
+
+def actor(request: Request) -> str:
+    """Who the audit log names for this request's change: the token's name, or anonymous."""
+    who = principal(request)
+    return who.name if who is not None else ANONYMOUS
+
+
+# Only for the OpenAPI page: both ways of sending a token, so /docs offers them ("Authorize").  The request
+# guard has checked the token before any route runs.
+_bearer = HTTPBearer(auto_error=False, description="a learnest token: `learnest tokens create NAME --scope ...`")
+_key_header = APIKeyHeader(name="X-API-Key", auto_error=False, description="the same token, in this header")
+
+
+def documented_token(bearer: HTTPAuthorizationCredentials | None = Security(_bearer),
+                     key: str | None = Security(_key_header)) -> None:
+    """Declares the token schemes in the OpenAPI schema; checks nothing (the guard does)."""
 
 
 def pending(what: str, row, job: Job) -> JSONResponse:

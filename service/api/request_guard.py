@@ -1,52 +1,59 @@
-"""Requests for other host names, and writes a browser sends from another site, are refused before any
-route runs.
+"""Requests for other host names, writes a browser sends from another site, and requests without the token
+their route needs are refused before any route runs.
 
 DNS rebinding: a page on evil.example whose name re-resolves to 127.0.0.1 reaches a server on localhost
 with ``Host: evil.example``.  Only the names in ``LEARNEST_ALLOWED_HOSTS`` are served (default: the
 loopback names; ``*`` serves any, for deployments behind a proxy that checks names itself).
 
-Cross-site writes (CSRF): with no API key (the default), a page on any site could make the user's browser
-POST to ``/ui/...`` and start jobs.  Browsers label such requests: ``Origin`` on every cross-origin POST
-(or ``Sec-Fetch-Site: cross-site``, or at least a ``Referer``).  A write whose origin is not this server
-is refused.  Clients that are not browsers (curl, scripts) send none of these headers and are not
-affected; the API key guards them when it is set.
+Cross-site writes (CSRF): a page on any site could make the user's browser POST to ``/ui/...`` and start
+jobs.  Browsers label such requests: ``Origin`` on every cross-origin POST (or ``Sec-Fetch-Site:
+cross-site``, or at least a ``Referer``).  A write whose origin is not this server is refused, and the web
+session's cookie is SameSite=Strict, so another site's form never carries it.  Clients that are not browsers
+(curl, scripts) send none of these headers and are not affected; their token guards them.
 
-The API key of every write is checked here too, before the route reads its body: FastAPI parses a multipart
-body - spooling every file to a temp folder - before it runs the route's dependencies, so an unauthenticated
-158 MB upload would be written in full before its 401.  The JSON API's writes carry the key in the X-API-Key
-header.  The web forms (/ui/...) carry it in the ``learnest_api_key`` cookie or a form field:
-for the field, only the start of the body is read (at most FORM_PEEK_BYTES, within the body deadline), and in
-a multipart form the field must come before the files (the upload form puts it first), so no file byte is
-read before the key is known good.  A network that sent too many wrong keys gets 429 for its next wrong ones
-(service.api.throttle); the right key always passes.
+Tokens (service.api.access has the scope of every route, service.api.auth tells who a request is): checked
+here, before the route reads the body - FastAPI parses a multipart body, spooling every file to a temp folder,
+before it runs the route's dependencies, so an unauthenticated 158 MB upload would be written in full before
+its 401.  The JSON API takes the token in ``Authorization: Bearer`` or ``X-API-Key``; the web session's cookie
+counts for reads everywhere and for the forms' posts (/ui/...), never for the JSON API's writes.  A network
+that sent too many wrong tokens gets 429 for its next wrong ones (service.api.throttle); a right token always
+passes.  A browser asking for a page without a token is sent to the sign-in page.
 """
 from __future__ import annotations
 
-import asyncio
-import hmac
+import html
 import json
-import re
-import time
-from urllib.parse import parse_qsl, urlsplit
+from collections.abc import Callable
+from urllib.parse import quote, urlsplit
 
+import anyio.to_thread
 from starlette.datastructures import Headers
 from starlette.requests import cookie_parser
-from starlette.types import ASGIApp, Message, Receive, Scope, Send
+from starlette.types import ASGIApp, Receive, Scope, Send
 
+from ..storage.database import Database
+from ..storage.tokens import Principal
+from .access import PUBLIC, required_scope
+from .auth import SESSION_COOKIE, Authenticator, Identity, current_principal, presented_token
 from .throttle import KeyThrottle, client_address
 
 SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
-FORM_PREFIX = "/ui/"   # web form posts: the key comes in the form or the cookie (service.web.forms)
-KEY_HEADER = "x-api-key"
-KEY_COOKIE = "learnest_api_key"   # the web forms' cookie (service.web.forms keeps a typed key in it)
-KEY_FIELD = "api_key"             # the forms' field
-FORM_PEEK_BYTES = 1 << 20         # of a form's body read to find its key field (a form without files: ~1 kB)
-MULTIPART_PEEK_BYTES = 64 << 10   # of a multipart form's body read to find the key field before the files
+FORM_PREFIX = "/ui/"   # the web forms: their posts may carry the session cookie
+SIGN_IN = "/ui/signin"
+CLOSE = (b"connection", b"close")
+
+
+def app_database(scope: Scope) -> Database | None:
+    """The registry of the app serving ``scope`` (its started Services), or None before it has one."""
+    services = getattr(getattr(scope.get("app"), "state", None), "services", None)
+    return getattr(services, "db", None)
 
 
 class RequestGuard:
-    """ASGI middleware: 400 for a Host not in ``allowed_hosts``, 403 for a cross-site unsafe request, 401 for
-    a write to the JSON API without the API key (before its body is read).
+    """ASGI middleware: 400 for a Host not in ``allowed_hosts``, 403 for a cross-site unsafe request, 401 (or,
+    for a browser's page, a redirect to sign in) for a request without the token its route needs, 403 for a
+    token whose scope is too narrow - all before the request's body is read.  The request's `Principal` is
+    left in ``scope["state"]["principal"]`` for the routes.
 
     Parameters
     ----------
@@ -54,18 +61,22 @@ class RequestGuard:
     allowed_hosts : tuple of str
         Host names served (no port); ``"*"`` serves any.
     api_key : str, optional
-        The key writes need in X-API-Key (None: writes need none).
+        LEARNEST_API_KEY, an admin token (None: only the registry's tokens).
     throttle : KeyThrottle, optional
-        Counts wrong keys per client network; past its limit a wrong key gets 429 with Retry-After.
+        Counts wrong tokens per client network; past its limit a wrong token gets 429 with Retry-After.
+    public_reads : bool
+        LEARNEST_PUBLIC_READS: reads need no token.
+    database : callable, optional
+        ``database(scope)`` -> the registry (default: the serving app's, `app_database`).
     """
 
     def __init__(self, app: ASGIApp, allowed_hosts: tuple[str, ...], api_key: str | None = None,
-                 throttle: KeyThrottle | None = None, peek_timeout_s: float = 30.0):
+                 throttle: KeyThrottle | None = None, public_reads: bool = False,
+                 database: Callable[[Scope], Database | None] = app_database):
         self.app = app
         self.allowed = frozenset(name.lower() for name in allowed_hosts)
-        self.api_key = api_key
+        self.auth = Authenticator(api_key, public_reads, database)
         self.throttle = throttle
-        self.peek_timeout_s = peek_timeout_s   # for the start of a form's body (the body deadline's)
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
@@ -78,111 +89,83 @@ class RequestGuard:
             await _refuse(send, 400, f"host {name!r} is not served here (served: {', '.join(sorted(self.allowed))}); "
                                      "set LEARNEST_ALLOWED_HOSTS to serve it")
             return
-        if scope["method"] not in SAFE_METHODS:
+        safe = scope["method"] in SAFE_METHODS
+        if not safe:
             problem = cross_site_problem(headers, host)
             if problem:
                 await _refuse(send, 403, problem)
                 return
-            if self.api_key is not None:
-                address = client_address(scope)
-                form = scope["path"].startswith(FORM_PREFIX)
-                if form:   # the forms' key: the cookie, else the form's field (service.web.forms)
-                    matches = self._key_matches(cookie_parser(headers.get("cookie", "")).get(KEY_COOKIE))
-                    if not matches:
-                        try:
-                            key, receive = await self._form_key(headers, receive)
-                        except TimeoutError:
-                            await _refuse(send, 408, "request body too slow (LEARNEST_BODY_TIMEOUT_S)",
-                                          [(b"connection", b"close")])
-                            return
-                        matches = self._key_matches(key)
-                else:
-                    matches = self._key_matches(headers.get(KEY_HEADER))
-                if not matches:
-                    # only wrong keys are throttled: the right one passes, so no one can lock its owner out
-                    wait = self.throttle.retry_after(address) if self.throttle else None
-                    if wait is not None and self.throttle is not None:
-                        await _refuse(send, 429, self.throttle.message(wait),
-                                      [(b"retry-after", str(wait).encode()), (b"connection", b"close")])
-                        return
-                    if self.throttle:
-                        self.throttle.failed(address)
-                    if form:
-                        await _refuse_page(send, 401, "missing or wrong API key: type it into the form's API key "
-                                                      "field")
-                    else:
-                        await _refuse(send, 401, "missing or wrong API key: send it in the X-API-Key header",
-                                      [(b"www-authenticate", b"X-API-Key"), (b"connection", b"close")])
-                    return
+        needed = required_scope(scope["method"], scope["path"])
+        if needed != PUBLIC:
+            cookie = cookie_parser(headers.get("cookie", "")).get(SESSION_COOKIE)
+            session = cookie if safe or scope["path"].startswith(FORM_PREFIX) else None
+            identity = await anyio.to_thread.run_sync(self.auth.identify, scope, presented_token(headers), session)
+            if not await self._admitted(scope, headers, send, identity, needed):
+                return
+            scope.setdefault("state", {})["principal"] = identity.principal
+            reset = current_principal.set(identity.principal)
+            try:
+                await self.app(scope, receive, send)
+            finally:
+                current_principal.reset(reset)
+            return
         await self.app(scope, receive, send)
 
-    def _key_matches(self, key: str | None) -> bool:
-        if self.api_key is None:
+    async def _admitted(self, scope: Scope, headers: Headers, send: Send, identity: Identity, needed: str) -> bool:
+        """Whether ``identity`` may make this request; if not, the refusal is sent."""
+        principal = identity.principal
+        if principal is not None and principal.allows(needed):
             return True
-        return bool(key) and hmac.compare_digest(str(key).encode(), self.api_key.encode())
-
-    async def _form_key(self, headers: Headers, receive: Receive) -> tuple[str | None, Receive]:
-        """(the form's key field or None, a receive that gives the app the whole body again).  Reads only the
-        start of the body: a url-encoded form up to FORM_PEEK_BYTES, a multipart one until its key field, a
-        file part, or MULTIPART_PEEK_BYTES; TimeoutError past the body deadline."""
-        kind = headers.get("content-type", "").split(";", 1)[0].strip().lower()
-        boundary = _boundary(headers.get("content-type", "")) if kind == "multipart/form-data" else None
-        limit = MULTIPART_PEEK_BYTES if boundary else FORM_PEEK_BYTES
-        messages: list[Message] = []
-        body, more, key = b"", True, None
-        deadline = time.monotonic() + self.peek_timeout_s
-        while more and len(body) <= limit:
-            message = await asyncio.wait_for(receive(), timeout=max(deadline - time.monotonic(), 0.0))
-            messages.append(message)
-            if message["type"] != "http.request":
-                break
-            body += message.get("body", b"")
-            more = bool(message.get("more_body", False))
-            if boundary is not None:
-                found, decided = _multipart_key(body, boundary, complete=not more)
-                if decided:
-                    key = found
-                    break
+        if principal is not None and principal.signed_in:
+            await self._forbidden(scope, send, principal, needed)
+            return False
+        # no token (public reads let it read, not this), or a wrong one
+        if not identity.failed and _wants_page(scope, headers):
+            await _to_sign_in(scope, send, identity.stale_session)   # a person without a session: no guess
+            return False
+        # only wrong tokens are throttled (a request without one guesses nothing), and a right token passes, so
+        # no one can lock its owner out
+        if identity.failed and self.throttle is not None:
+            address = client_address(scope)
+            wait = self.throttle.retry_after(address)
+            if wait is not None:
+                await _refuse(send, 429, self.throttle.message(wait), [(b"retry-after", str(wait).encode()), CLOSE])
+                return False
+            self.throttle.failed(address)
+        problem = ("the token is not valid (unknown or revoked)" if identity.failed
+                   else "this server needs a token")
+        if scope["path"].startswith(FORM_PREFIX):
+            await _refuse_page(send, 401, problem)
         else:
-            if kind == "application/x-www-form-urlencoded" and not more:
-                key = dict(parse_qsl(body.decode("latin-1"), keep_blank_values=True)).get(KEY_FIELD)
+            await _refuse(send, 401, f"{problem}: send it as 'Authorization: Bearer TOKEN' or in the X-API-Key "
+                                     "header (`learnest tokens create NAME --scope read|write|admin` makes one)",
+                          [(b"www-authenticate", b'Bearer realm="learnest"'), CLOSE])
+        return False
 
-        async def replay() -> Message:
-            if messages:
-                return messages.pop(0)
-            return await receive()
-
-        return key, replay
-
-
-def _boundary(content_type: str) -> bytes | None:
-    match = re.search(r'boundary="?([^";]+)"?', content_type)
-    return match[1].encode("latin-1") if match else None
+    async def _forbidden(self, scope: Scope, send: Send, principal: Principal, needed: str) -> None:
+        detail = f"{scope['method']} {scope['path']} needs a token of scope {needed}; {principal.name!r} has scope " \
+                 f"{principal.scope}"
+        if scope["path"].startswith(FORM_PREFIX) or scope["path"] == "/":
+            await _refuse_page(send, 403, detail)
+        else:
+            await _refuse(send, 403, detail, [CLOSE])
 
 
-def _multipart_key(body: bytes, boundary: bytes, complete: bool) -> tuple[str | None, bool]:
-    """(the key field's value, whether that is decided) from the start of a multipart body: decided when the
-    key field is complete, when a file part begins before it (no key before the files), or at the end of the
-    body; not yet when the part under way may still be it."""
-    delimiter = b"--" + boundary
-    position = body.find(delimiter)
-    while position >= 0:
-        head_start = position + len(delimiter)
-        if body[head_start:head_start + 2] == b"--":   # the closing delimiter
-            return None, True
-        head_end = body.find(b"\r\n\r\n", head_start)
-        if head_end < 0:
-            return None, complete
-        head = body[head_start:head_end].decode("latin-1").lower()
-        if "filename=" in head:
-            return None, True
-        content_end = body.find(b"\r\n" + delimiter, head_end + 4)
-        if content_end < 0:
-            return None, complete
-        if re.search(r'name="?' + KEY_FIELD + r'"?(;|\s|$)', head):
-            return body[head_end + 4:content_end].decode("utf-8", "replace"), True
-        position = content_end + 2
-    return None, complete
+def _wants_page(scope: Scope, headers: Headers) -> bool:
+    """A browser navigating to a page (a GET that accepts HTML): sent to sign in rather than given a 401."""
+    return scope["method"] in ("GET", "HEAD") and "text/html" in headers.get("accept", "")
+
+
+async def _to_sign_in(scope: Scope, send: Send, clear_cookie: bool) -> None:
+    """303 to the sign-in page, which comes back here after (``next``: this path and query, local only)."""
+    query = scope.get("query_string", b"").decode("latin-1")
+    here = scope["path"] + (f"?{query}" if query else "")
+    location = f"{SIGN_IN}?next={quote(here, safe='')}"
+    extra = [(b"set-cookie", f"{SESSION_COOKIE}=; Max-Age=0; Path=/; HttpOnly; SameSite=Strict".encode())
+             ] if clear_cookie else []
+    await send({"type": "http.response.start", "status": 303,
+                "headers": [(b"location", location.encode("latin-1")), (b"content-length", b"0"), *extra]})
+    await send({"type": "http.response.body", "body": b""})
 
 
 def host_name(host: str) -> str:
@@ -210,12 +193,14 @@ def cross_site_problem(headers: Headers, host: str) -> str | None:
 
 
 async def _refuse_page(send: Send, status: int, detail: str) -> None:
-    """A form's refusal, as a page a browser shows (the body is not read: Connection: close)."""
+    """A form's or page's refusal, as a page a browser shows, with the way to sign in (the body is not read:
+    Connection: close).  ``detail`` is escaped: it may hold the request's path."""
     body = (f"<!doctype html><html><head><meta charset='utf-8'><title>{status}</title></head><body>"
-            f"<h1>{status}</h1><p>{detail}</p><p><a href='/'>learnest</a></p></body></html>").encode()
+            f"<h1>{status}</h1><p>{html.escape(detail)}</p><p><a href='{SIGN_IN}'>sign in</a> with a token that "
+            f"may do this &middot; <a href='/'>learnest</a></p></body></html>").encode()
     await send({"type": "http.response.start", "status": status,
                 "headers": [(b"content-type", b"text/html; charset=utf-8"),
-                            (b"content-length", str(len(body)).encode()), (b"connection", b"close")]})
+                            (b"content-length", str(len(body)).encode()), CLOSE]})
     await send({"type": "http.response.body", "body": body})
 
 

@@ -68,6 +68,7 @@ class FlightOut(BaseModel):
     sha256: str = Field(description="sha256 over the sorted sha256s of the raw files: the dedupe key")
     sources: list[SourceFile]
     created_at: datetime
+    created_by: str | None = Field(None, description="the name of the token that made it (None: no token)")
 
 
 class FlightDetail(FlightOut):
@@ -167,6 +168,7 @@ class VersionSummary(BaseModel):
     error: str | None
     aliases: list[str]
     created_at: datetime
+    created_by: str | None = Field(None, description="the name of the token that made it (None: no token)")
     ready_at: datetime | None
 
 
@@ -357,6 +359,7 @@ class EvaluationItem(BaseModel):
     improvement_pct: dict[str, float] = Field(description='"knode-ukf_vs_ukf": 100 (1 - KNODE/prior), positive '
                                                           "is better")
     created_at: datetime
+    created_by: str | None = Field(None, description="the name of the token that made it (None: no token)")
     links: dict[str, str]
 
 

@@ -32,6 +32,7 @@ from .arguments import (
 )
 from .commands import (
     _alias_set,
+    _audit,
     _demo,
     _diagnose,
     _evaluate,
@@ -43,6 +44,9 @@ from .commands import (
     _reproduce,
     _serve,
     _thrust_map,
+    _tokens_create,
+    _tokens_list,
+    _tokens_revoke,
     _train,
 )
 
@@ -100,6 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_evaluate(sub)
     _add_export(sub)
     _add_registry(sub)
+    _add_access(sub)
     _add_serve(sub)
     _add_diagnose(sub)
     _add_thrust_map(sub)
@@ -276,6 +281,30 @@ def _add_registry(sub: argparse._SubParsersAction) -> None:
     al_set.set_defaults(func=_alias_set)
 
 
+def _add_access(sub: argparse._SubParsersAction) -> None:
+    """tokens create/list/revoke, audit: who may use the server, and what they deleted."""
+    tok = sub.add_parser("tokens", help="API tokens of people and machines, with scopes (read, write, admin)")
+    tok_sub = tok.add_subparsers(dest="action", required=True)
+    create = tok_sub.add_parser("create", help="make a token NAME and print it, this once (only its hash is kept)")
+    create.add_argument("name", metavar="NAME", help="who holds it, e.g. alice or ci-runner")
+    create.add_argument("--scope", required=True, choices=["read", "write", "admin"],
+                        help="read: every GET; write: also uploads, training, evaluation, diagnosis, aliases, "
+                             "cancelling; admin: also deletes, tokens and the audit log")
+    create.add_argument("--json", action="store_true")
+    create.set_defaults(func=_tokens_create)
+    listing = tok_sub.add_parser("list", help="every token made, revoked ones too (never the tokens themselves)")
+    listing.add_argument("--json", action="store_true")
+    listing.set_defaults(func=_tokens_list)
+    revoke = tok_sub.add_parser("revoke", help="revoke a token: it fails at once on every server worker")
+    revoke.add_argument("token", metavar="NAME|ID", help="the token's id, or the name of a token not revoked")
+    revoke.add_argument("--json", action="store_true")
+    revoke.set_defaults(func=_tokens_revoke)
+    aud = sub.add_parser("audit", help="the audit log: deletions, alias moves and token changes, who and when")
+    aud.add_argument("--limit", type=_positive_int, default=50, help="the newest this many entries")
+    aud.add_argument("--json", action="store_true")
+    aud.set_defaults(func=_audit)
+
+
 def _add_serve(sub: argparse._SubParsersAction) -> None:
     """serve: the HTTP service and its connection limits."""
     srv = sub.add_parser("serve", help="run the HTTP service (uvicorn; OpenAPI docs at /docs)")
@@ -284,6 +313,9 @@ def _add_serve(sub: argparse._SubParsersAction) -> None:
     srv.add_argument("--workers", type=_positive_int, default=1, help="uvicorn worker processes")
     srv.add_argument("--dask", metavar="URL", help="run jobs on a Dask scheduler (tcp://host:port, or 'local' "
                      "for a LocalCluster) instead of the local process pool")
+    srv.add_argument("--insecure", action="store_true",
+                     help="serve an address other than this machine's loopback although the server has no token and "
+                          "no LEARNEST_API_KEY (anyone who reaches it may read, upload and delete everything)")
     for option, (kind, text) in SERVE_LIMITS.items():
         srv.add_argument("--" + option.replace("_", "-"), type=kind, default=None,
                          help=f"{text}; env LEARNEST_{option.upper()}")

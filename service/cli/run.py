@@ -8,13 +8,26 @@ from pathlib import Path
 from learnest.errors import InvalidInput, LearnestError
 
 from .arguments import gap_options_problem
-from .commands import _alias_set, _export, _flights_list, _ingest, _models_list, _models_show, _serve
+from .commands import (
+    _alias_set,
+    _audit,
+    _export,
+    _flights_list,
+    _ingest,
+    _models_list,
+    _models_show,
+    _serve,
+    _tokens_create,
+    _tokens_list,
+    _tokens_revoke,
+)
 from .commands.common import _command_started
 from .parser import build_parser
 from .usage import check_usage, first_line
 
 # commands that only read or move registry rows: no torch, no worker set-up
-REGISTRY_COMMANDS = (_flights_list, _models_list, _models_show, _alias_set)
+REGISTRY_COMMANDS = (_flights_list, _models_list, _models_show, _alias_set, _tokens_create, _tokens_list,
+                     _tokens_revoke, _audit)
 
 
 def _given_paths(args) -> list[str]:

@@ -17,8 +17,10 @@ from .training import training_config
 
 
 def start_diagnosis(services: Services, flight_ids: list[int], model_ref: str | None, register: str | None,
-                    methods: list[str], epochs: int, system: str = "quadrotor", force: bool = False) -> tuple[int, int]:
-    """Create the diagnosis and its job and launch it.  -> (job id, diagnosis id)
+                    methods: list[str], epochs: int, system: str = "quadrotor", force: bool = False,
+                    created_by: str | None = None) -> tuple[int, int]:
+    """Create the diagnosis and its job and launch it.  -> (job id, diagnosis id).  ``created_by``: the name of
+    the token that asks for it, kept on the diagnosis and on the version it registers (None without a token).
 
     ``register``: registered only if the repair improves the held-out flights (the report's ``repair``
     verdict), unless ``force`` (then with a warning stored in the version's metrics).
@@ -52,7 +54,7 @@ def start_diagnosis(services: Services, flight_ids: list[int], model_ref: str | 
         job = services.runner.create(session, "diagnosis", {"flights": ids, "model": model_ref,
                                                             "register": register, **settings})
         diagnosis = Diagnosis(job_id=job.id, flight_ids=ids, model_ref=model_ref, register_as=register,
-                              settings=settings, created_at=utcnow())
+                              settings=settings, created_at=utcnow(), created_by=created_by)
         session.add(diagnosis)
         session.flush()
         job_id, diagnosis_id = job.id, diagnosis.id
@@ -82,6 +84,7 @@ def run_diagnosis(services: Services, ctx: JobContext, diagnosis_id: int) -> Non
         if diagnosis.model_ref is not None:
             weights = registry.weights_of(registry.resolve(session, diagnosis.model_ref))
         settings, model_ref, register = dict(diagnosis.settings), diagnosis.model_ref, diagnosis.register_as
+        created_by = diagnosis.created_by
         first_flight_id = diagnosis.flight_ids[0]
     ctx.progress(0.01, f"reading {len(blobs)} flight(s)")
     out = ctx.wait(services.executor,
@@ -111,7 +114,7 @@ def run_diagnosis(services: Services, ctx: JobContext, diagnosis_id: int) -> Non
         row = registry.register_model(services.db, services.blobs, register, model, flight=fitting,
                                       hyperparameters=training_config({"epochs": settings["epochs"],
                                                                        "system": model.system.name}),
-                                      parent=model_ref, job_id=ctx.job_id,
+                                      parent=model_ref, job_id=ctx.job_id, created_by=created_by,
                                       metrics={**diagnosis_metrics(model, out["report"]),
                                                **({"warning": warning} if warning else {})})
         registered = {"name": row.name, "version": row.version, "parent": row.parent,

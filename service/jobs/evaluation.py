@@ -26,9 +26,11 @@ log = logging.getLogger("learnest.jobs")
 
 
 def start_evaluation(services: Services, model_ref: str, flights: Iterable[int] | str, settings: EstimatorSettings,
-                     wait: bool = False, on_progress: Callable[[], object] | None = None) -> tuple[int, int, str]:
+                     wait: bool = False, on_progress: Callable[[], object] | None = None,
+                     created_by: str | None = None) -> tuple[int, int, str]:
     """Create the evaluation and its job; answer from the cache at once when every flight has a result,
     otherwise run it (in the background, or here when wait=True).  -> (job id, evaluation id, state)
+    ``created_by``: the name of the token that asks for it (None without a token).
 
     ``flights`` is a list of flight ids or ``"all-other"`` (every stored flight but the training one).
     """
@@ -39,7 +41,7 @@ def start_evaluation(services: Services, model_ref: str, flights: Iterable[int] 
                                                              "settings": settings.as_dict()})
         evaluation = Evaluation(job_id=job.id, model_ref=f"{version.name}:{version.version}",
                                 model_version_id=version.id, flight_ids=flight_ids,
-                                settings=settings.as_dict(), created_at=utcnow())
+                                settings=settings.as_dict(), created_at=utcnow(), created_by=created_by)
         session.add(evaluation)
         session.flush()
         by_id = flights_by_id(session, flight_ids)

@@ -31,9 +31,9 @@ def training_config(overrides: dict) -> dict:
 
 
 def start_training(services: Services, name: str, flight_id: int | Sequence[int], overrides: dict,
-                   parent: str | None = None, include_bad: bool = False,
-                   validation_ids: Sequence[int] | None = None) -> tuple[Job, ModelVersion]:
-    """Reserve name's next version, create the job and launch it.  -> (job, version)
+                   parent: str | None = None, include_bad: bool = False, validation_ids: Sequence[int] | None = None,
+                   created_by: str | None = None) -> tuple[Job, ModelVersion]:
+    """Reserve name's next version (its ``created_by``: the asking token's name), create the job, launch it.
 
     ``flight_id`` is one stored flight (the paper's protocol: time blocks of it validate) or several, trained
     on as one vehicle (`service.experiments.flights.train_on_flights`); ``validation_ids`` are held out whole
@@ -100,6 +100,7 @@ def start_training(services: Services, name: str, flight_id: int | Sequence[int]
                                                    hyperparameters=config, parent=parent,
                                                    training_flights=[flights[i] for i in trained],
                                                    validation_flights=[flights[i] for i in held])
+                version.created_by = created_by
             break
         except IntegrityError:
             if attempt == 19:

@@ -9,7 +9,7 @@ from learnest.models.knode import HybridModel
 
 from ..config import Settings
 from ..operations import catalog
-from ..storage import registry
+from ..storage import audit, registry
 from ..storage.database import Database
 from ..storage.tables import RegisteredModel
 from .services import registry_database
@@ -108,5 +108,6 @@ def set_alias(name: str, version: int, alias: str, settings: Settings | None = N
         with db.transaction() as session:
             before = registry.aliases_of(session, name).get(alias)
             registry.set_alias(session, name, alias, version)
+            audit.record(session, None, "alias.set", f"alias {name}@{alias}", {"version": version})
     return {"name": name, "alias": alias, "version": version, "previous_version": before}
 

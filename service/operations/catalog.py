@@ -15,7 +15,7 @@ from sqlalchemy import ColumnElement, func, select
 
 from learnest.errors import Conflict, NotFound
 
-from ..storage import registry
+from ..storage import audit, registry
 from ..storage.database import Database, flights_by_id
 from ..storage.tables import Diagnosis, Evaluation, FlightRecord, Job, ModelVersion, RegisteredModel
 
@@ -115,10 +115,20 @@ def get_version_by_id(db: Database, version_id: int) -> ModelVersion:
     return _get(db, ModelVersion, version_id, "model version")
 
 
-def set_alias(db: Database, name: str, alias: str, version: int) -> None:
-    """Point `name@alias` at `version` (registry.set_alias in a transaction of its own)."""
+def set_alias(db: Database, name: str, alias: str, version: int, actor: str | None = None) -> None:
+    """Point `name@alias` at `version` (registry.set_alias in a transaction of its own), in the audit log as
+    ``actor``'s (None: the command line's, `audit.local_actor`)."""
     with db.transaction() as session:
         registry.set_alias(session, name, alias, version)
+        audit.record(session, actor, "alias.set", f"alias {name}@{alias}", {"version": version})
+
+
+def delete_alias(db: Database, name: str, alias: str, actor: str | None = None) -> None:
+    """Remove `name@alias`, in the audit log as ``actor``'s; NotFound when there is no such alias."""
+    with db.transaction() as session:
+        version = registry.aliases_of(session, name).get(alias)
+        registry.delete_alias(session, name, alias)
+        audit.record(session, actor, "alias.delete", f"alias {name}@{alias}", {"version": version})
 
 
 # -- jobs and the results they make ------------------------------------------------------------------------

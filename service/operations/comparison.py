@@ -43,7 +43,7 @@ def evaluation_summary(evaluation: Evaluation, job: Job | None) -> dict:
             "flight_ids": list(evaluation.flight_ids), "flights_scored": report.get("flights_scored"),
             "methods": list(evaluation.settings.get("methods", [])),
             "median_mse": report.get("median") or {}, "improvement_pct": report.get("improvement_pct") or {},
-            "created_at": evaluation.created_at,
+            "created_at": evaluation.created_at, "created_by": evaluation.created_by,
             "links": {"report": f"/evaluations/{evaluation.id}/report.html", "json": f"/evaluations/{evaluation.id}",
                       "model_version": f"/models/{name}/versions/{version}", "job": f"/jobs/{evaluation.job_id}"}}
 

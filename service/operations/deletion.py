@@ -27,7 +27,7 @@ from sqlalchemy.orm import Session
 from learnest.errors import Conflict, NotFound
 
 from ..jobs.runner import ACTIVE
-from ..storage import registry
+from ..storage import audit, registry
 from ..storage.blobs import BlobStore
 from ..storage.database import Database, blob_is_referenced
 from ..storage.export_cache import forget_exports
@@ -105,9 +105,10 @@ def _flight(session: Session, flight_id: int, for_update: bool = False) -> Fligh
     return row
 
 
-def delete_flight(db: Database, blobs: BlobStore, flight_id: int) -> dict:
+def delete_flight(db: Database, blobs: BlobStore, flight_id: int, actor: str | None = None) -> dict:
     """Delete the flight and its cached results; versions, evaluations and diagnoses keep its id and name.
-    Returns what was listed as its dependents.  NotFound when there is none."""
+    Returns what was listed as its dependents.  NotFound when there is none.  The audit log records it as
+    ``actor``'s (a token's name; None: the command line's)."""
     with db.transaction() as session:
         # locked first: an evaluation storing this flight's result waits, or has stored it (deleted below)
         row = _flight(session, flight_id, for_update=True)
@@ -117,6 +118,8 @@ def delete_flight(db: Database, blobs: BlobStore, flight_id: int) -> dict:
                                                       .where(Result.flight_sha256 == row.sha256)) if sha]
         session.execute(delete(Result).where(Result.flight_sha256 == row.sha256))
         session.delete(row)
+        audit.record(session, actor, "flight.delete", f"flight {flight_id} ({row.name})",
+                     {"sha256": row.sha256, "created_by": row.created_by})
     blobs.collect(candidates, lambda sha: blob_is_referenced(db, sha))  # after the commit: never half-deleted
     # the exports of the evaluations that scored it showed it (an evaluation's whole export too)
     forget_exports(blobs, [d["id"] for d in dependents["keeps_a_record"] if d["kind"] == "evaluation"])
@@ -165,7 +168,8 @@ def version_dependents(db: Database, name: str, version: int) -> dict:
         return _version_dependents(session, registry.get_version(session, name, version))
 
 
-def delete_version(db: Database, blobs: BlobStore, name: str, version: int, force: bool = False) -> dict:
+def delete_version(db: Database, blobs: BlobStore, name: str, version: int, force: bool = False,
+                   actor: str | None = None) -> dict:
     """Delete ``name:version`` with its evaluations (and their report figures), the aliases on it and its
     cached results; the weights and stored estimates blobs go after the commit.  The registered model stays
     (its version numbers are never reused), and so does lineage text naming the version.
@@ -177,6 +181,8 @@ def delete_version(db: Database, blobs: BlobStore, name: str, version: int, forc
     Conflict
         The version is still training or one of its evaluations still runs (whatever ``force``), or it has
         evaluations or aliases and ``force`` is False (the message lists them).
+
+    The audit log records it as ``actor``'s (a token's name; None: the command line's).
     """
     with db.transaction() as session:
         row = registry.get_version(session, name, version)
@@ -192,6 +198,8 @@ def delete_version(db: Database, blobs: BlobStore, name: str, version: int, forc
         session.execute(delete(Result).where(Result.model_version_id == row.id))
         session.execute(delete(ModelAlias).where(ModelAlias.name == name, ModelAlias.version == version))
         session.delete(row)
+        audit.record(session, actor, "version.delete", f"model version {name}:{version}",
+                     {"evaluations": evaluation_ids, "created_by": row.created_by, "force": force})
     blobs.collect(candidates, lambda sha: blob_is_referenced(db, sha))
     forget_exports(blobs, evaluation_ids)
     return dependents
@@ -234,7 +242,7 @@ def evaluation_dependents(db: Database, evaluation_id: int) -> dict:
         return _evaluation_dependents(session, _evaluation(session, evaluation_id))
 
 
-def delete_evaluation(db: Database, blobs: BlobStore, evaluation_id: int) -> dict:
+def delete_evaluation(db: Database, blobs: BlobStore, evaluation_id: int, actor: str | None = None) -> dict:
     """Delete the evaluation, its report figures and its kept estimate exports; its job stays in the job list,
     and the cached per-flight results stay too (shared by every evaluation of the same version and settings;
     they go with their version or flight).  Conflict while its job is queued or running."""
@@ -244,6 +252,8 @@ def delete_evaluation(db: Database, blobs: BlobStore, evaluation_id: int) -> dic
         _refuse(dependents, force=False)
         session.execute(delete(ReportFigure).where(ReportFigure.evaluation_id == row.id))
         session.delete(row)
+        audit.record(session, actor, "evaluation.delete", f"evaluation {evaluation_id} ({row.model_ref})",
+                     {"created_by": row.created_by})
     forget_exports(blobs, [evaluation_id])   # after the commit, as the blobs
     return dependents
 

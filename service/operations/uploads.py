@@ -65,8 +65,8 @@ class LocalFile:
 
 def add_flight(db: Database, blobs: BlobStore, uploads: Sequence[Upload], vehicle: str | None = None,
                notes: str | None = None, *, pose_topic: str | None = None, imu_topic: str | None = None,
-               cut: str | None = None, decode: Callable[..., CanonicalFlight] | None = None
-               ) -> tuple[FlightRecord, bool]:
+               cut: str | None = None, decode: Callable[..., CanonicalFlight] | None = None,
+               created_by: str | None = None) -> tuple[FlightRecord, bool]:
     """Store the log file(s) of one flight, unless the same content is stored already.
 
     Parameters
@@ -86,6 +86,8 @@ def add_flight(db: Database, blobs: BlobStore, uploads: Sequence[Upload], vehicl
     decode
         ``decode(staged, pose_topic=..., imu_topic=...)`` -> the flight: the server passes its decoder pool's
         (service.jobs.decoding: worker processes, a time limit); default `read_uploaded_flight`, here.
+    created_by
+        The name of the token that uploads it (kept on a new row; None without a token).
 
     Returns
     -------
@@ -110,11 +112,12 @@ def add_flight(db: Database, blobs: BlobStore, uploads: Sequence[Upload], vehicl
         if row is not None:
             return row, False
         flight = (decode or read_uploaded_flight)(staged, **topics, cut=window)
-        return store_flight(db, blobs, staged, flight, sha, vehicle, notes)
+        return store_flight(db, blobs, staged, flight, sha, vehicle, notes, created_by)
 
 
 def recut_flight(db: Database, blobs: BlobStore, row: FlightRecord, cut: str | None, *,
-                 decode: Callable[..., CanonicalFlight] | None = None) -> tuple[FlightRecord, bool]:
+                 decode: Callable[..., CanonicalFlight] | None = None,
+                 created_by: str | None = None) -> tuple[FlightRecord, bool]:
     """Another stretch of a stored flight: its raw file(s), read again with ``cut`` and stored as an upload of
     those files with that cut would be (`add_flight`, with the topics the flight was read with).
 
@@ -141,7 +144,7 @@ def recut_flight(db: Database, blobs: BlobStore, row: FlightRecord, cut: str | N
         uploads = [LocalFile(f.original_name, stack.enter_context(blobs.path(f.sha256).open("rb")))
                    for f in sorted(row.files, key=lambda f: f.position)]
         return add_flight(db, blobs, uploads, row.vehicle, row.notes, pose_topic=choice.get("pose_topic"),
-                          imu_topic=choice.get("imu_topic"), cut=cut, decode=decode)
+                          imu_topic=choice.get("imu_topic"), cut=cut, decode=decode, created_by=created_by)
 
 
 # -- staging uploads ----------------------------------------------------------------------------------
@@ -236,7 +239,7 @@ def _topic_or_none(topic: str | None, what: str) -> str | None:
 
 # -- storing ------------------------------------------------------------------------------------------
 def store_flight(db: Database, blobs: BlobStore, staged: list[StagedFile], flight: CanonicalFlight, sha: str,
-                 vehicle: str | None, notes: str | None) -> tuple[FlightRecord, bool]:
+                 vehicle: str | None, notes: str | None, created_by: str | None = None) -> tuple[FlightRecord, bool]:
     """Blobs first (fsync + rename), then the row; -> (row, created).  A concurrent upload of the same
     content makes our insert fail on the unique sha256: we answer with its row.  Names are unique (the
     evaluation matches a model's training flight by name): a taken name gets the content hash appended.
@@ -256,6 +259,7 @@ def store_flight(db: Database, blobs: BlobStore, staged: list[StagedFile], fligh
                 written += [blobs.put_file(f.path, f.sha256, keep=True) for f in staged]
                 with db.transaction() as session:
                     row = _flight_row(flight, sha, written[0], staged, vehicle, notes)
+                    row.created_by = created_by
                     session.add(row)
                 return row, True
         except IntegrityError:
@@ -423,7 +427,8 @@ def group_uploads(uploads: Sequence[Upload], directory: Path) -> tuple[list[list
 
 def add_flights(db: Database, blobs: BlobStore, uploads: Sequence[Upload], vehicle: str | None = None,
                 notes: str | None = None, *, pose_topic: str | None = None, imu_topic: str | None = None,
-                cut: str | None = None, decode: Callable[..., CanonicalFlight] | None = None) -> list[FileOutcome]:
+                cut: str | None = None, decode: Callable[..., CanonicalFlight] | None = None,
+                created_by: str | None = None) -> list[FileOutcome]:
     """Store the flights among several files (several flights, or a folder's worth): each flight as `add_flight`
     stores one, each file answered on its own; one bad file or flight does not stop the others.
 
@@ -432,7 +437,7 @@ def add_flights(db: Database, blobs: BlobStore, uploads: Sequence[Upload], vehic
     uploads
         Log files of any number of flights, with their sidecars (grouped by `group_uploads`), at most
         MAX_BATCH_FILES.
-    vehicle, notes, pose_topic, imu_topic, cut
+    vehicle, notes, pose_topic, imu_topic, cut, created_by
         As for `add_flight`, for every flight of the batch (a topic chosen for a log without topics refuses that
         flight).
 
@@ -462,7 +467,7 @@ def add_flights(db: Database, blobs: BlobStore, uploads: Sequence[Upload], vehic
     for members in groups:
         try:
             row, created = add_flight(db, blobs, [uploads[i] for i in members], vehicle, notes, pose_topic=pose_topic,
-                                      imu_topic=imu_topic, cut=cut, decode=decode)
+                                      imu_topic=imu_topic, cut=cut, decode=decode, created_by=created_by)
         except LearnestError as err:
             log.info("batch upload: %s refused: %s", ", ".join(names[i] for i in members), err)
             for i in members:

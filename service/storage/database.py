@@ -127,6 +127,17 @@ class Database:
                 raise database_full(err) from err
             raise
 
+    @contextmanager
+    def reading(self) -> Iterator[Session]:
+        """A session for reads only: on SQLite a deferred transaction, which takes no write lock (WAL: it
+        never waits for a writer), for the look-ups every request makes (its token).  Rolled back on exit."""
+        connection = self.engine.connect().execution_options(learnest_reading=True)
+        try:
+            with Session(bind=connection) as session:
+                yield session
+        finally:
+            connection.close()
+
     def migrate(self) -> None:
         """Alembic `upgrade head`, serialized across processes (several uvicorn workers start at once)."""
         from alembic import command
@@ -208,8 +219,9 @@ def _sqlite_pragmas(engine) -> None:
     @event.listens_for(engine, "begin")
     def _on_begin(connection):
         # IMMEDIATE: take the write lock now (waiting up to the busy timeout) instead of failing with
-        # "database is locked" when a read transaction later tries to write
-        connection.exec_driver_sql("BEGIN IMMEDIATE")
+        # "database is locked" when a read transaction later tries to write; `Database.reading` only reads
+        reading = connection.get_execution_options().get("learnest_reading", False)
+        connection.exec_driver_sql("BEGIN" if reading else "BEGIN IMMEDIATE")
 
 
 # -- typed helpers ----------------------------------------------------------------------------------------

@@ -121,10 +121,11 @@ def reserve_version(session: Session, name: str, *, job_id: int | None, flight: 
 
 def register_model(db: Database, blobs: BlobStore, name: str, model: HybridModel, *, flight: FlightRecord,
                    hyperparameters: dict, parent: str | None = None, job_id: int | None = None,
-                   metrics: dict | None = None) -> ModelVersion:
+                   metrics: dict | None = None, created_by: str | None = None) -> ModelVersion:
     """Store a model made outside a training job (a diagnosis' repaired model) as the next ready version of
     `name`: weights, prior (its prior params plus the measurement effects and effect ids in its meta),
-    training flight, hyperparameters, parent ("name:version" it was derived from) and provenance."""
+    training flight, hyperparameters, parent ("name:version" it was derived from), provenance and the name
+    of the token that asked for it (``created_by``)."""
     check_name(name)
     model_json = model_to_json(model)
     prior = {**prior_of(model_json), "measurement_effects": model.meta.get("measurement_effects") or {},
@@ -142,7 +143,7 @@ def register_model(db: Database, blobs: BlobStore, name: str, model: HybridModel
                         row = reserve_version(session, name, job_id=job_id, flight=flight,
                                               hyperparameters=hyperparameters, parent=parent)
                         row.status, row.weights_blob, row.ready_at, row.prior = "ready", weights, utcnow(), prior
-                        row.metrics = metrics
+                        row.metrics, row.created_by = metrics, created_by
                         row.code_version, row.library_versions = code_version(), library_versions()
                     return row
                 except IntegrityError:

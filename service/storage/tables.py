@@ -1,5 +1,6 @@
 """The service's tables (SQLAlchemy ORM): flights and their raw files, the model registry (names, versions,
-aliases), jobs, evaluations, diagnoses, the per-flight result cache, and leases.
+aliases), jobs, evaluations, diagnoses, the per-flight result cache, leases, and who may do what (API tokens,
+web sessions, the audit log).
 
 Alembic migrations (`storage/migrations`) create them; every timestamp is naive UTC (`utcnow`).
 """
@@ -7,7 +8,20 @@ from __future__ import annotations
 
 from datetime import UTC, datetime
 
-from sqlalchemy import JSON, BigInteger, Boolean, DateTime, Float, ForeignKey, Integer, String, Text, UniqueConstraint
+from sqlalchemy import (
+    JSON,
+    BigInteger,
+    Boolean,
+    DateTime,
+    Float,
+    ForeignKey,
+    Index,
+    Integer,
+    String,
+    Text,
+    UniqueConstraint,
+    text,
+)
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
 
@@ -45,6 +59,7 @@ class FlightRecord(Base):
     flight_blob: Mapped[str] = mapped_column(String(64))          # Flight.to_bytes of the normalized flight
     meta: Mapped[dict] = mapped_column(JSON)
     created_at: Mapped[datetime] = mapped_column(DateTime, index=True, default=utcnow)
+    created_by: Mapped[str | None] = mapped_column(String(100))   # the token's name (None: no token, the CLI)
     files: Mapped[list[FlightFile]] = relationship(order_by="FlightFile.position", cascade="all, delete-orphan",
                                                      lazy="selectin")
 
@@ -105,6 +120,7 @@ class ModelVersion(Base):
     weights_blob: Mapped[str | None] = mapped_column(String(64))
     error: Mapped[str | None] = mapped_column(Text)
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+    created_by: Mapped[str | None] = mapped_column(String(100))   # the token's name (None: no token, the CLI)
     ready_at: Mapped[datetime | None] = mapped_column(DateTime)
 
 
@@ -157,6 +173,7 @@ class Evaluation(Base):
     settings: Mapped[dict] = mapped_column(JSON)
     report: Mapped[dict | None] = mapped_column(JSON)
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+    created_by: Mapped[str | None] = mapped_column(String(100))   # the token's name (None: no token, the CLI)
 
 
 class Diagnosis(Base):
@@ -174,6 +191,7 @@ class Diagnosis(Base):
     report: Mapped[dict | None] = mapped_column(JSON)
     registered: Mapped[dict | None] = mapped_column(JSON)        # {"name", "version", "parent"}
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+    created_by: Mapped[str | None] = mapped_column(String(100))   # the token's name (None: no token, the CLI)
 
 
 class Result(Base):
@@ -219,3 +237,53 @@ class Lease(Base):
     name: Mapped[str] = mapped_column(String(200), primary_key=True)
     owner: Mapped[str] = mapped_column(String(200))
     expires_at: Mapped[float] = mapped_column(Float)              # unix time
+
+
+ACTIVE_TOKEN = text("revoked_at IS NULL")
+
+
+class ApiToken(Base):
+    """A person's API token: only its SHA-256 is kept (the token itself is shown once, when it is made).
+    ``scope`` is read, write or admin; a revoked token keeps its row (the audit log names it), and its name
+    may be given to a new token.  Rows are never deleted, so "tokens exist" never turns false again."""
+
+    __tablename__ = "api_tokens"
+    __table_args__ = (Index("uq_api_tokens_active_name", "name", unique=True, sqlite_where=ACTIVE_TOKEN,
+                            postgresql_where=ACTIVE_TOKEN), {"sqlite_autoincrement": True})
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    name: Mapped[str] = mapped_column(String(64))
+    scope: Mapped[str] = mapped_column(String(10))
+    token_hash: Mapped[str] = mapped_column(String(64), unique=True)   # sha256 hex of the token
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+    created_by: Mapped[str | None] = mapped_column(String(100))
+    revoked_at: Mapped[datetime | None] = mapped_column(DateTime)
+    revoked_by: Mapped[str | None] = mapped_column(String(100))
+
+
+class WebSession(Base):
+    """A web sign-in: the browser holds a random session id in an HttpOnly cookie, this row its SHA-256 and
+    the hash of the token it signed in with, which is looked up again on every request (a revoked token ends
+    its sessions at once)."""
+
+    __tablename__ = "web_sessions"
+
+    id_hash: Mapped[str] = mapped_column(String(64), primary_key=True)
+    token_hash: Mapped[str] = mapped_column(String(64), index=True)
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+    expires_at: Mapped[datetime] = mapped_column(DateTime, index=True)
+
+
+class AuditEntry(Base):
+    """One deletion or access change: who (``actor``, a token's name), what (``action``), on what
+    (``target``), when.  No foreign key: an entry outlives whatever it names."""
+
+    __tablename__ = "audit_log"
+    __table_args__ = {"sqlite_autoincrement": True}
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    at: Mapped[datetime] = mapped_column(DateTime, index=True, default=utcnow)
+    actor: Mapped[str] = mapped_column(String(100))
+    action: Mapped[str] = mapped_column(String(40))
+    target: Mapped[str] = mapped_column(String(300))
+    detail: Mapped[dict | None] = mapped_column(JSON)

@@ -1,15 +1,13 @@
-"""Form posts: fields -> the JSON API's request models, and the API key of form writes.
+"""Form posts: fields -> the JSON API's request models, and what a form says about the token it needs.
 
 A form sends every field as text and an empty field for "not given"; the parsers here turn that into the
 same pydantic request models the JSON routes take, so a form and a JSON body are checked by the same rules
 and fail with the same messages (a pydantic ValidationError, which the pages show as a 422 page).  Only the
 types are read leniently (``strict=False``: "5" is 5 in a form, where a JSON body must send a number).
 
-API key: with LEARNEST_API_KEY set, a form write needs the key, typed into the form's "API key" field or held
-in the cookie; the request guard (service.api.request_guard) checks it, with the JSON API's throttle, before
-any route reads the body.  The answer then stores a typed key in an HttpOnly, SameSite=Strict cookie
-(`learnest_api_key`, for the browser session), so later forms need not ask again.  SameSite=Strict keeps
-other sites' forms from using that cookie.  Pages themselves (GET) need no key, as in the JSON API.
+Tokens: a form post needs the scope of the JSON route it stands for (service.api.access); the request guard
+checks the web session's cookie before any route reads the body, and a form says beforehand whether the
+browser's sign-in may use it (`form_access`).
 """
 from __future__ import annotations
 
@@ -22,30 +20,31 @@ from pydantic import ValidationError
 
 from learnest.errors import InvalidInput
 
-from ..api.deps import key_matches
-from ..api.request_guard import KEY_COOKIE as COOKIE
+from ..api.deps import principal
 from ..api.schemas import AliasIn, DiagnosisRequest, EvaluationRequest, TrainRequest
-from ..config import Settings
 
 MAX_VEHICLE, MAX_NOTES = 200, 10_000   # the JSON upload's Form(max_length=...) limits
 
 
-# -- API key ---------------------------------------------------------------------------------------------
-def key_state(request: Request, settings: Settings) -> Literal["open", "remembered", "ask"]:
-    """What a form shows for the key: nothing ("open": no key configured), a note that the browser's cookie
-    holds it ("remembered"), or a field to type it into ("ask")."""
-    if settings.api_key is None:
+# -- tokens ----------------------------------------------------------------------------------------------
+FormAccess = Literal["open", "allowed", "signin", "denied"]
+
+
+def form_access(request: Request, needs: str = "write") -> FormAccess:
+    """What a form needing ``needs`` (write or admin) says about the token: nothing ("open": a server without
+    tokens), who may use it ("allowed"), a link to sign in ("signin": nobody is signed in) or that the
+    signed-in token's scope is too narrow ("denied")."""
+    who = principal(request)
+    if who is None or (not who.signed_in and who.allows("admin")):
         return "open"
-    return "remembered" if key_matches(settings, request.cookies.get(COOKIE)) else "ask"
+    if not who.signed_in:
+        return "signin"
+    return "allowed" if who.allows(needs) else "denied"
 
 
-def redirect(url: str, settings: Settings, form_key: str) -> RedirectResponse:
-    """303 to the page of what a form made (a reload then never posts twice); a key typed into the form is
-    kept in the cookie from now on."""
-    response = RedirectResponse(url, status_code=303)
-    if settings.api_key is not None and form_key:
-        response.set_cookie(COOKIE, form_key, httponly=True, samesite="strict", path="/")
-    return response
+def redirect(url: str) -> RedirectResponse:
+    """303 to the page of what a form made (a reload then never posts twice)."""
+    return RedirectResponse(url, status_code=303)
 
 
 # -- fields -> request models ------------------------------------------------------------------------------

@@ -33,7 +33,7 @@ from learnest.models.presets import (
     MHE_HORIZON,
 )
 
-from ..api.deps import Offset, RowId, get_services
+from ..api.deps import Offset, RowId, actor, creator, get_services
 from ..jobs.diagnosis import start_diagnosis
 from ..jobs.evaluation import start_evaluation
 from ..jobs.result_cache import EstimatorSettings
@@ -65,14 +65,14 @@ def flights_page(request: Request, offset: Offset = 0, q: str = Query("", max_le
     total, rows = catalog.list_flights(services.db, *catalog.name_contains(q.strip()), limit=PAGE_SIZE,
                                        offset=offset, newest_first=True)
     return page("flights.html", "Flights", flights=rows, total=total, offset=offset, q=q,
-                key=forms.key_state(request, services.settings))
+                key=forms.form_access(request))
 
 
 @pages.post("/ui/flights")
 @html_errors
-def upload_flight_form(files: list[UploadFile | str] = File(default=[]),
+def upload_flight_form(request: Request, files: list[UploadFile | str] = File(default=[]),
                        vehicle: str = Form(""), notes: str = Form(""), pose_topic: str = Form(""),
-                       imu_topic: str = Form(""), cut: str = Form(""), api_key: str = Form(""),
+                       imu_topic: str = Form(""), cut: str = Form(""),
                        services: Services = Depends(get_services)):
     """Upload form: store the flights among the chosen files (as POST /flights/batch does).  One flight read:
     303 to its page; one flight refused: the error page; otherwise a page that says per file what was stored,
@@ -80,11 +80,11 @@ def upload_flight_form(files: list[UploadFile | str] = File(default=[]),
     chosen = forms.chosen_files(files)
     outcomes = add_flights(services.db, services.blobs, chosen, *forms.upload_text(vehicle, notes),
                            pose_topic=pose_topic, imu_topic=imu_topic, cut=cut.strip() or None,
-                           decode=services.decoder.decode)
+                           decode=services.decoder.decode, created_by=creator(request))
     rows = {o.flight.id: o.flight for o in outcomes if o.flight is not None}
     refused = [o for o in outcomes if o.status == "refused"]
     if len(rows) == 1 and not refused:
-        return forms.redirect(f"/ui/flights/{next(iter(rows))}", services.settings, api_key)
+        return forms.redirect(f"/ui/flights/{next(iter(rows))}")
     if not rows and len({o.message for o in refused}) == 1:   # one flight (its file(s)), refused
         return error_page(refused[0].http_status or 422, refused[0].message or "refused")
     statuses = [o.status for o in outcomes]
@@ -97,14 +97,14 @@ def upload_flight_form(files: list[UploadFile | str] = File(default=[]),
 
 @pages.post("/ui/flights/{flight_id}/cut")
 @html_errors
-def cut_flight_form(flight_id: RowId, cut: str = Form(""), api_key: str = Form(""),
+def cut_flight_form(request: Request, flight_id: RowId, cut: str = Form(""),
                     services: Services = Depends(get_services)):
     """Cut form: read the flight's raw file(s) again with the cut asked for (as POST /flights/{id}/cut does),
     then 303 to the flight holding that stretch."""
     row = catalog.get_flight(services.db, flight_id)
     new, _created = recut_flight(services.db, services.blobs, row, cut.strip() or None,
-                                 decode=services.decoder.decode)
-    return forms.redirect(f"/ui/flights/{new.id}", services.settings, api_key)
+                                 decode=services.decoder.decode, created_by=creator(request))
+    return forms.redirect(f"/ui/flights/{new.id}")
 
 
 @pages.get("/ui/flights/{flight_id}", response_class=HTMLResponse)
@@ -114,7 +114,7 @@ def flight_page(request: Request, flight_id: RowId, services: Services = Depends
     row = catalog.get_flight(services.db, flight_id)
     return page("flight.html", f"Flight {row.id}: {row.name}", flight=row,
                 trained=catalog.versions_trained_on(services.db, flight_id),
-                trajectory=_trajectory(services, row), key=forms.key_state(request, services.settings),
+                trajectory=_trajectory(services, row), key=forms.form_access(request),
                 metadata=json.dumps(row.meta, indent=1))
 
 
@@ -138,8 +138,8 @@ def _draw_trajectory(services: Services, row: FlightRecord) -> dict:
 # -- models ----------------------------------------------------------------------------------------------
 @pages.post("/ui/models")
 @html_errors
-def train_model_form(name: str = Form(""), flight_id: str = Form(""), epochs: str = Form(""),
-                     include_bad: str | None = Form(None), api_key: str = Form(""),
+def train_model_form(request: Request, name: str = Form(""), flight_id: str = Form(""), epochs: str = Form(""),
+                     include_bad: str | None = Form(None),
                      flight_ids: list[str] = Form(default=[]), system: str = Form(""), group_by: str = Form(""),
                      services: Services = Depends(get_services)):
     """Train form (a flight's page: that flight; the flight list: the checked flights, several making one
@@ -148,8 +148,8 @@ def train_model_form(name: str = Form(""), flight_id: str = Form(""), epochs: st
     job, _version = start_training(services, body.name, body.flights(), {"epochs": body.epochs,
                                                                           "system": body.system,
                                                                           "group_by": body.group_by},
-                                   include_bad=body.include_bad)
-    return forms.redirect(f"/ui/jobs/{job.id}", services.settings, api_key)
+                                   include_bad=body.include_bad, created_by=creator(request))
+    return forms.redirect(f"/ui/jobs/{job.id}")
 
 
 @pages.get("/ui/models", response_class=HTMLResponse)
@@ -177,7 +177,7 @@ def model_page(request: Request, name: str, services: Services = Depends(get_ser
                                         "validation_losses": v.validation_losses} for v in ready]),
                 no_losses=[v.version for v in ready if not v.losses],
                 still_falling=[v.version for v in ready if still_falling(v.losses)],
-                key=forms.key_state(request, services.settings))
+                key=forms.form_access(request))
 
 
 STILL_FALLING_SHARE = 0.02   # the last tenth of the epochs lowered the loss by more than this share
@@ -195,38 +195,38 @@ def still_falling(losses: list | None) -> bool:
 
 @pages.post("/ui/models/{name}/aliases")
 @html_errors
-def alias_form_post(name: str, alias: str = Form(""), version: str = Form(""),
-                    api_key: str = Form(""), services: Services = Depends(get_services)):
+def alias_form_post(request: Request, name: str, alias: str = Form(""), version: str = Form(""),
+                    services: Services = Depends(get_services)):
     """Alias form: point name@alias at a version, then 303 to the model's page."""
-    catalog.set_alias(services.db, name, alias.strip(), forms.alias_version(version))
-    return forms.redirect(f"/ui/models/{name}", services.settings, api_key)
+    catalog.set_alias(services.db, name, alias.strip(), forms.alias_version(version), actor=actor(request))
+    return forms.redirect(f"/ui/models/{name}")
 
 
 @pages.post("/ui/evaluations")
 @html_errors
-def evaluate_form_post(model: str = Form(""), flights: list[str] = Form(default=[]),
+def evaluate_form_post(request: Request, model: str = Form(""), flights: list[str] = Form(default=[]),
                        methods: list[str] = Form(default=[]), horizon: str = Form(str(MHE_HORIZON)),
-                       include_bad: str | None = Form(None), sg_window: str = Form(""), api_key: str = Form(""),
+                       include_bad: str | None = Form(None), sg_window: str = Form(""),
                        services: Services = Depends(get_services)):
     """Evaluate form: start an evaluation job (as POST /evaluations does), then 303 to the job's page."""
     body = forms.evaluation_request(model, flights, methods, horizon, include_bad, sg_window)
     settings = EstimatorSettings(tuple(body.methods), body.horizon, body.include_bad, body.sg_window)
-    job_id, _evaluation_id, _state = start_evaluation(services, body.model, body.flights, settings)
-    return forms.redirect(f"/ui/jobs/{job_id}", services.settings, api_key)
+    job_id, _evaluation_id, _state = start_evaluation(services, body.model, body.flights, settings,
+                                                      created_by=creator(request))
+    return forms.redirect(f"/ui/jobs/{job_id}")
 
 
 @pages.post("/ui/diagnoses")
 @html_errors
-def diagnose_form_post(flights: list[str] = Form(default=[]), model: str = Form(""),
+def diagnose_form_post(request: Request, flights: list[str] = Form(default=[]), model: str = Form(""),
                        system: str = Form("quadrotor"), methods: list[str] = Form(default=[]), epochs: str = Form(""),
                        register_checked: str | None = Form(None, alias="register"), register_as: str = Form(""),
-                       api_key: str = Form(""),
                        services: Services = Depends(get_services)):
     """Diagnose form: start a diagnosis job (as POST /diagnoses does), then 303 to the job's page."""
     body = forms.diagnosis_request(flights, model, system, methods, epochs, register_checked, register_as)
     job_id, _diagnosis_id = start_diagnosis(services, body.flights, body.model, body.register_as, body.methods,
-                                            body.epochs, body.system)
-    return forms.redirect(f"/ui/jobs/{job_id}", services.settings, api_key)
+                                            body.epochs, body.system, created_by=creator(request))
+    return forms.redirect(f"/ui/jobs/{job_id}")
 
 
 # -- jobs ------------------------------------------------------------------------------------------------
@@ -247,14 +247,13 @@ def job_page(request: Request, job_id: RowId, services: Services = Depends(get_s
     job = catalog.get_job(services.db, job_id)
     evaluation = catalog.evaluation_of_job(services.db, job_id)
     diagnosis = catalog.diagnosis_of_job(services.db, job_id) if job.kind == "diagnosis" else None
-    active, key = job.state in ACTIVE, forms.key_state(request, services.settings)
-    # no reload while the cancel form asks for the key: a reload every second would wipe it mid-typing
+    active, key = job.state in ACTIVE, forms.form_access(request)
     answer = None   # a finished evaluation's or diagnosis' answer, as its report page says it first
     if job.state == "succeeded" and evaluation is not None and evaluation.report:
         answer = evaluation_headline(evaluation.report)["sentence"]
     elif job.state == "succeeded" and diagnosis is not None and diagnosis.report:
         answer = diagnosis_headline(diagnosis.report)
-    return page("job.html", f"Job {job.id}", refresh_s=1 if active and key != "ask" else None, job=job, answer=answer,
+    return page("job.html", f"Job {job.id}", refresh_s=1 if active else None, job=job, answer=answer,
                 eta_s=seconds_left(job),
                 active=active, subject=job_subject(job), evaluation=evaluation, key=key, diagnosis=diagnosis,
                 model_name=evaluation.model_ref.split(":", 1)[0] if evaluation else None,
@@ -263,11 +262,11 @@ def job_page(request: Request, job_id: RowId, services: Services = Depends(get_s
 
 @pages.post("/ui/jobs/{job_id}/cancel")
 @html_errors
-def cancel_job_form(job_id: RowId, api_key: str = Form(""),
+def cancel_job_form(job_id: RowId,
                     services: Services = Depends(get_services)):
     """Cancel button: cancel the job (as POST /jobs/{id}/cancel does), then 303 back to its page."""
     services.runner.cancel(job_id)
-    return forms.redirect(f"/ui/jobs/{job_id}", services.settings, api_key)
+    return forms.redirect(f"/ui/jobs/{job_id}")
 
 
 def job_subject(job: Job) -> str:

@@ -14,10 +14,10 @@ Pages   /ui/evaluations                     evaluations, newest first: MSE per m
 """
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Form, Query, Request
+from fastapi import APIRouter, Depends, Query, Request
 from fastapi.responses import HTMLResponse
 
-from ..api.deps import Offset, RowId, get_services
+from ..api.deps import Offset, RowId, actor, get_services
 from ..jobs.services import Services
 from ..operations import catalog, comparison, deletion
 from ..storage import registry
@@ -74,7 +74,7 @@ def compare_page(refs: list[str] = Query(default=[]), services: Services = Depen
 # -- delete confirmations ----------------------------------------------------------------------------------
 def _confirm(dependents: dict, action: str, request: Request, services: Services) -> HTMLResponse:
     return page("confirm_delete.html", f"Delete {dependents['target']['label']}?", d=dependents, action=action,
-                key=forms.key_state(request, services.settings))
+                key=forms.form_access(request, "admin"))
 
 
 @router.get("/ui/flights/{flight_id}/delete", response_class=HTMLResponse)
@@ -87,11 +87,11 @@ def confirm_flight_delete(request: Request, flight_id: RowId, services: Services
 
 @router.post("/ui/flights/{flight_id}/delete")
 @html_errors
-def delete_flight_form(flight_id: RowId, api_key: str = Form(""),
+def delete_flight_form(request: Request, flight_id: RowId,
                        services: Services = Depends(get_services)):
     """Delete the flight (as DELETE /flights/{id}), then 303 to the flights."""
-    deletion.delete_flight(services.db, services.blobs, flight_id)
-    return forms.redirect("/", services.settings, api_key)
+    deletion.delete_flight(services.db, services.blobs, flight_id, actor=actor(request))
+    return forms.redirect("/")
 
 
 @router.get("/ui/models/{name}/versions/{version}/delete", response_class=HTMLResponse)
@@ -104,11 +104,11 @@ def confirm_version_delete(request: Request, name: str, version: RowId, services
 
 @router.post("/ui/models/{name}/versions/{version}/delete")
 @html_errors
-def delete_version_form(name: str, version: RowId, api_key: str = Form(""),
+def delete_version_form(request: Request, name: str, version: RowId,
                         services: Services = Depends(get_services)):
     """Delete the version with what the confirmation page listed (force), then 303 to the model's page."""
-    deletion.delete_version(services.db, services.blobs, name, version, force=True)
-    return forms.redirect(f"/ui/models/{name}", services.settings, api_key)
+    deletion.delete_version(services.db, services.blobs, name, version, force=True, actor=actor(request))
+    return forms.redirect(f"/ui/models/{name}")
 
 
 @router.get("/ui/evaluations/{evaluation_id}/delete", response_class=HTMLResponse)
@@ -121,8 +121,8 @@ def confirm_evaluation_delete(request: Request, evaluation_id: RowId, services: 
 
 @router.post("/ui/evaluations/{evaluation_id}/delete")
 @html_errors
-def delete_evaluation_form(evaluation_id: RowId, api_key: str = Form(""),
+def delete_evaluation_form(request: Request, evaluation_id: RowId,
                            services: Services = Depends(get_services)):
     """Delete the evaluation, then 303 to the evaluations list."""
-    deletion.delete_evaluation(services.db, services.blobs, evaluation_id)
-    return forms.redirect("/ui/evaluations", services.settings, api_key)
+    deletion.delete_evaluation(services.db, services.blobs, evaluation_id, actor=actor(request))
+    return forms.redirect("/ui/evaluations")

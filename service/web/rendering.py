@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
+from html import escape
 
 from fastapi.responses import HTMLResponse
 from jinja2 import Environment, PackageLoader, StrictUndefined, select_autoescape
@@ -22,6 +23,7 @@ from learnest.models.presets import (
     SG_WINDOW_RANGE,
 )
 
+from ..api.auth import current_principal
 from ..storage import references
 from . import figures, flight_plots, forms, zoomable
 
@@ -59,7 +61,8 @@ TEMPLATES.globals.update(NAME_PATTERN=references.NAME, METHODS=METHODS, MHE_HORI
                          VELOCITY_SG_S=flight_plots.VELOCITY_SG_S)
 
 
-def page(template: str, title: str, status: int = 200, refresh_s: float | None = None, **context) -> HTMLResponse:
+def page(template: str, title: str, status: int = 200, refresh_s: float | None = None, identify: bool = True,
+         **context) -> HTMLResponse:
     """Render templates/`template` (which extends base.html) as a response.
 
     Parameters
@@ -72,11 +75,33 @@ def page(template: str, title: str, status: int = 200, refresh_s: float | None =
         HTTP status of the answer.
     refresh_s : float, optional
         Reload the page after this many seconds (pages of running jobs).
+    identify : bool
+        Name who is signed in in the header (`with_identity`); False leaves the mark for a page that is cached
+        and named per answer.
     **context
         The template's variables.
     """
     html = TEMPLATES.get_template(template).render(title=title, refresh_s=refresh_s, **context)
-    return HTMLResponse(html, status_code=status)
+    return HTMLResponse(with_identity(html) if identify else html, status_code=status)
+
+
+WHO_MARK = "<!--learnest:who-->"   # in base.html's header: who is signed in goes there, per request
+
+
+def with_identity(html: str) -> str:
+    """``html`` with the header's mark replaced by who the request is and the sign-in or sign-out button.
+    Done per answer, after any page cache: a cached page never shows another person's name."""
+    who = current_principal.get()
+    if who is None or (not who.signed_in and who.allows("admin")):   # an open server: nobody to name
+        return html.replace(WHO_MARK, "", 1)
+    if not who.signed_in:
+        text = "<span class='muted'>reads are public</span> <a href='/ui/signin'>sign in</a>"
+    else:
+        admin = " <a href='/ui/admin'>admin</a>" if who.allows("admin") else ""
+        text = (f"<span id='who'>signed in as <b>{escape(who.name)}</b> ({who.scope})</span>{admin} "
+                "<form method='post' action='/ui/signout' style='display:inline'>"
+                "<button type='submit' id='sign-out'>sign out</button></form>")
+    return html.replace(WHO_MARK, text, 1)
 
 
 def error_page(status: int, message: str) -> HTMLResponse:

@@ -27,7 +27,7 @@ from ..operations.exports import evaluation_estimates
 from ..storage.tables import Diagnosis, Evaluation, FlightRecord, ReportFigure, Result
 from . import evaluation_plots, figures, page_cache, zoomable
 from .headline import diagnosis_headline, diagnosis_split, evaluation_headline, gap_methods
-from .rendering import page
+from .rendering import page, with_identity
 from .report_figures import velocity_figure
 
 # -- the evaluation report ---------------------------------------------------------------------------------
@@ -61,7 +61,7 @@ def evaluation_report_page(evaluation_id: RowId,
     key = ("evaluation-report", evaluation.id, flight, group, _report_inputs(services, evaluation))
     body = page_cache.pages.get(key, lambda: _report_page(services, evaluation, flight, group),
                                 keep=lambda drawn: drawn[1])
-    return HTMLResponse(body[0])
+    return HTMLResponse(with_identity(body[0].decode("utf-8")))
 
 
 def _report_inputs(services: Services, evaluation: Evaluation) -> tuple:
@@ -95,7 +95,8 @@ def _report_page(services: Services, evaluation: Evaluation, flight: int | None,
     velocity = _velocity(services, evaluation, chosen) if chosen is not None and "figure" not in series else {}
     waiting = velocity.get("pending") or velocity.get("busy")
     paired = evaluation_plots.paired_figure(report)
-    response = page("report.html", title, refresh_s=2 if waiting else None, evaluation=evaluation, report=report,
+    response = page("report.html", title, refresh_s=2 if waiting else None, identify=False, evaluation=evaluation,
+                report=report,
                 head=head, gain_png=figures.png_data_uri(gain, dpi=100) if gain else None,
                 gap_methods=gap_methods(report),
                 gap_settings=_gap_settings(report),

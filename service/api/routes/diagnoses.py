@@ -2,7 +2,7 @@
 JSON, plus "registered" when the repaired model was registered as a new version."""
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Response
+from fastapi import APIRouter, Depends, Request, Response
 from fastapi.responses import JSONResponse
 
 from ...experiments.reports import DiagnosisReport
@@ -11,19 +11,20 @@ from ...jobs.services import Services
 from ...operations.catalog import row_and_job
 from ...storage.database import Database
 from ...storage.tables import Diagnosis
-from ..deps import RowId, get_db, get_services, pending, require_api_key
+from ..deps import RowId, creator, get_db, get_services, pending
 from ..report_models import DiagnosisReportOut
 from ..schemas import DiagnosisAccepted, DiagnosisPending, DiagnosisRequest
 
 router = APIRouter(prefix="/diagnoses", tags=["diagnoses"])
 
 
-@router.post("", status_code=202, response_model=DiagnosisAccepted, dependencies=[Depends(require_api_key)])
-def create_diagnosis(body: DiagnosisRequest, response: Response, services: Services = Depends(get_services)):
+@router.post("", status_code=202, response_model=DiagnosisAccepted)
+def create_diagnosis(body: DiagnosisRequest, request: Request, response: Response,
+                     services: Services = Depends(get_services)):
     """Trace the residual to named effects, add them, retrain the KNODE on top and score before/after; with
     `register`, the repaired model becomes the next version of that name (parent: `model`)."""
     job_id, diagnosis_id = start_diagnosis(services, body.flights, body.model, body.register_as, body.methods,
-                                           body.epochs, body.system, force=body.force)
+                                           body.epochs, body.system, force=body.force, created_by=creator(request))
     response.headers["Location"] = f"/diagnoses/{diagnosis_id}"
     return {"job_id": job_id, "diagnosis_id": diagnosis_id}
 

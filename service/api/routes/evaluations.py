@@ -7,7 +7,7 @@ import os
 from collections.abc import Iterator
 from typing import BinaryIO
 
-from fastapi import APIRouter, Depends, HTTPException, Query, Response
+from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response
 from fastapi.responses import StreamingResponse
 
 from learnest.estimators.export import FORMATS, MEDIA_TYPES
@@ -22,7 +22,18 @@ from ...operations.exports import cached_export, export_filename
 from ...storage.blobs import CHUNK, BlobStore
 from ...storage.database import Database
 from ...storage.tables import Evaluation
-from ..deps import MAX_ROW_ID, Offset, RowId, get_blobs, get_db, get_services, get_settings, pending, require_api_key
+from ..deps import (
+    MAX_ROW_ID,
+    Offset,
+    RowId,
+    actor,
+    creator,
+    get_blobs,
+    get_db,
+    get_services,
+    get_settings,
+    pending,
+)
 from ..report_models import EvaluationReportOut
 from ..schemas import (
     Dependents,
@@ -35,13 +46,15 @@ from ..schemas import (
 router = APIRouter(prefix="/evaluations", tags=["evaluations"])
 
 
-@router.post("", status_code=202, response_model=EvaluationAccepted, dependencies=[Depends(require_api_key)])
-def create_evaluation(body: EvaluationRequest, response: Response, services: Services = Depends(get_services)):
+@router.post("", status_code=202, response_model=EvaluationAccepted)
+def create_evaluation(body: EvaluationRequest, request: Request, response: Response,
+                      services: Services = Depends(get_services)):
     """Flights already evaluated with this model version and these settings come from the results cache;
     when all of them do, the job is already "succeeded" in this answer."""
     settings = EstimatorSettings(tuple(body.methods), body.horizon, body.include_bad, body.sg_window, body.gap_s,
                                  body.gap_every_s, body.noise)
-    job_id, evaluation_id, state = start_evaluation(services, body.model, body.flights, settings)
+    job_id, evaluation_id, state = start_evaluation(services, body.model, body.flights, settings,
+                                                    created_by=creator(request))
     response.headers["Location"] = f"/evaluations/{evaluation_id}"
     return {"job_id": job_id, "evaluation_id": evaluation_id, "state": state}
 
@@ -63,14 +76,15 @@ def evaluation_dependents(evaluation_id: RowId, db: Database = Depends(get_db)):
     return deletion.evaluation_dependents(db, evaluation_id)
 
 
-@router.delete("/{evaluation_id}", status_code=204, dependencies=[Depends(require_api_key)],
+@router.delete("/{evaluation_id}", status_code=204,
                responses={404: {"description": "no such evaluation"},
                           409: {"description": "its job is still queued or running: cancel it first"}})
-def delete_evaluation(evaluation_id: RowId, db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
+def delete_evaluation(evaluation_id: RowId, request: Request, db: Database = Depends(get_db),
+                      blobs: BlobStore = Depends(get_blobs)):
     """Delete an evaluation and its report figures.  The per-flight results it used stay cached (they are
     shared by every evaluation of that version with those settings, and go with the version or the flight);
     its job stays in the job list."""
-    deletion.delete_evaluation(db, blobs, evaluation_id)
+    deletion.delete_evaluation(db, blobs, evaluation_id, actor=actor(request))
     return Response(status_code=204)
 
 

@@ -32,7 +32,7 @@ from ...operations.uploads import MAX_BATCH_FILES, FileOutcome, add_flight, add_
 from ...storage.blobs import CHUNK, BlobStore, temp_prefix
 from ...storage.database import Database
 from ...storage.tables import FlightRecord
-from ..deps import Offset, RowId, get_blobs, get_db, get_services, require_api_key
+from ..deps import Offset, RowId, actor, creator, get_blobs, get_db, get_services
 from ..schemas import Dependents, FlightDetail, FlightOut, FlightPage
 from ..server import FORM_FIELD_BYTES
 
@@ -49,20 +49,20 @@ def flight_out(row: FlightRecord, detail: bool = False) -> dict:
            "quality": row.quality, "clock_offset_s": row.clock_offset_s, "sha256": row.sha256,
            "sources": [{"name": f.original_name, "sha256": f.sha256, "size_bytes": f.size_bytes, "role": f.role}
                        for f in row.files],
-           "created_at": row.created_at}
+           "created_at": row.created_at, "created_by": row.created_by}
     if detail:
         out["meta"] = row.meta
     return out
 
 
 # -- routes -------------------------------------------------------------------------------------------
-@router.post("", status_code=201, response_model=FlightOut, dependencies=[Depends(require_api_key)],
+@router.post("", status_code=201, response_model=FlightOut,
              responses={200: {"model": FlightOut, "description": "identical content was already uploaded"},
                         413: {"description": "upload larger than LEARNEST_MAX_UPLOAD_MB"},
                         422: {"description": "a file cannot be read, or its decode passed the time limit "
                                               "(the message names it)"},
                         503: {"description": "too many uploads being decoded: retry later"}})
-def upload_flight(response: Response,
+def upload_flight(request: Request, response: Response,
                   files: list[UploadFile] = File(..., description="the log file(s) of one flight"),
                   vehicle: str | None = Form(None, max_length=200), notes: str | None = Form(None, max_length=10_000),
                   pose_topic: str | None = Form(None, max_length=300, description=(
@@ -78,7 +78,8 @@ def upload_flight(response: Response,
     already holds identical content (and the same topic choice).  The file(s) are decoded in a worker process
     within LEARNEST_DECODE_TIMEOUT_S (service.jobs.decoding); the answer comes when the flight is stored."""
     row, created = add_flight(services.db, services.blobs, files, vehicle, notes, pose_topic=pose_topic,
-                              imu_topic=imu_topic, cut=cut, decode=services.decoder.decode)
+                              imu_topic=imu_topic, cut=cut, decode=services.decoder.decode,
+                              created_by=creator(request))
     response.status_code = 201 if created else 200
     response.headers["Location"] = f"/flights/{row.id}"
     return flight_out(row)
@@ -101,7 +102,7 @@ def file_outcome(outcome: FileOutcome) -> dict:
             "http_status": outcome.http_status}
 
 
-@router.post("/batch", status_code=201, dependencies=[Depends(require_api_key)],
+@router.post("/batch", status_code=201,
              openapi_extra={"requestBody": BATCH_BODY},
              responses={200: {"description": "every flight read was stored already"},
                         201: {"description": "at least one new flight stored; `files` says per file what was stored"},
@@ -114,7 +115,7 @@ async def upload_flights(request: Request):
     groups them (a Vicon export with its cfclient log, a CSV with its *_metadata.yaml, ...), each stored as
     POST /flights stores one (service.operations.uploads.add_flights).  The answer says per file ``status`` "stored"
     (a new flight), "existing" (identical content stored before) or "refused" with its ``message``; one bad
-    file does not stop the others.  The API key is checked before the body is read (api.request_guard), the
+    file does not stop the others.  The token is checked before the body is read (api.request_guard), the
     body's size and time are limited as every upload's, and the multipart parser stops past MAX_BATCH_FILES
     files."""
     services: Services = request.app.state.services
@@ -131,7 +132,7 @@ async def upload_flights(request: Request):
         outcomes = await run_in_threadpool(add_flights, services.db, services.blobs, files, fields["vehicle"],
                                            fields["notes"], pose_topic=fields["pose_topic"],
                                            imu_topic=fields["imu_topic"], cut=fields["cut"],
-                                           decode=services.decoder.decode)
+                                           decode=services.decoder.decode, created_by=creator(request))
     return JSONResponse(jsonable_encoder(batch_answer(outcomes)), status_code=batch_status(outcomes))
 
 
@@ -153,10 +154,10 @@ def batch_status(outcomes: list[FileOutcome]) -> int:
     return 201 if "stored" in statuses else 200 if "existing" in statuses else 422
 
 
-@router.post("/{flight_id}/cut", status_code=201, response_model=FlightOut, dependencies=[Depends(require_api_key)],
+@router.post("/{flight_id}/cut", status_code=201, response_model=FlightOut,
              responses={200: {"model": FlightOut, "description": "that stretch of these files is stored already"},
                         422: {"description": "a malformed cut, or one that leaves no flight"}})
-def cut_flight(flight_id: RowId, response: Response,
+def cut_flight(flight_id: RowId, request: Request, response: Response,
                cut: str = Form(..., max_length=60, description=(
                    "the stretch to keep: auto (the flying part), none (the whole recording) or START:STOP in "
                    "seconds from the recording's start, e.g. 2.5:14")),
@@ -164,7 +165,8 @@ def cut_flight(flight_id: RowId, response: Response,
     """Read a stored flight's raw file(s) again with another cut (service.operations.uploads.recut_flight): 201 and the
     flight holding that stretch, or 200 when it is stored already."""
     row = catalog.get_flight(services.db, flight_id)
-    new, created = recut_flight(services.db, services.blobs, row, cut, decode=services.decoder.decode)
+    new, created = recut_flight(services.db, services.blobs, row, cut, decode=services.decoder.decode,
+                                created_by=creator(request))
     response.status_code = 201 if created else 200
     response.headers["Location"] = f"/flights/{new.id}"
     return flight_out(new)
@@ -275,10 +277,11 @@ def flight_dependents(flight_id: RowId, db: Database = Depends(get_db)):
     return deletion.flight_dependents(db, flight_id)
 
 
-@router.delete("/{flight_id}", status_code=204, dependencies=[Depends(require_api_key)])
-def delete_flight(flight_id: RowId, db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
+@router.delete("/{flight_id}", status_code=204)
+def delete_flight(flight_id: RowId, request: Request, db: Database = Depends(get_db),
+                  blobs: BlobStore = Depends(get_blobs)):
     """Removes the flight, its cached results (with their stored estimates) and its blobs (unless another row
     still uses them), never refused: model versions trained on it keep its id and sha256, evaluations and
     diagnoses their reports (lineage; see GET .../dependents)."""
-    deletion.delete_flight(db, blobs, flight_id)
+    deletion.delete_flight(db, blobs, flight_id, actor=actor(request))
     return Response(status_code=204)

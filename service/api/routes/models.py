@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from fastapi import APIRouter, Depends, Query, Response
+from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.responses import JSONResponse
 
 from learnest.models.metadata import ModelMetadata
@@ -16,7 +16,7 @@ from ...storage import registry
 from ...storage.blobs import BlobStore
 from ...storage.database import Database
 from ...storage.tables import ModelVersion
-from ..deps import RowId, get_blobs, get_db, get_services, require_api_key
+from ..deps import RowId, actor, creator, get_blobs, get_db, get_services
 from ..report_models import ModelMetadataOut, VersionLineage
 from ..schemas import AliasIn, AliasOut, Dependents, ModelOut, ModelPage, TrainAccepted, TrainRequest, VersionOut
 
@@ -39,7 +39,7 @@ def version_out(row: ModelVersion, aliases: dict[str, int], full: bool = True) -
            "noise": (row.metrics or {}).get("noise") or {"model": None, "prior": None},
            "parent": row.parent, "hyperparameters": row.hyperparameters, "metrics": row.metrics,
            "error": row.error, "aliases": sorted(a for a, v in aliases.items() if v == row.version),
-           "created_at": row.created_at, "ready_at": row.ready_at}
+           "created_at": row.created_at, "created_by": row.created_by, "ready_at": row.ready_at}
     if full:
         out.update({"prior": row.prior, "losses": row.losses, "validation_losses": row.validation_losses,
                     "training_seconds": row.training_seconds,
@@ -48,8 +48,9 @@ def version_out(row: ModelVersion, aliases: dict[str, int], full: bool = True) -
     return out
 
 
-@router.post("", status_code=202, response_model=TrainAccepted, dependencies=[Depends(require_api_key)])
-def train_model(body: TrainRequest, response: Response, services: Services = Depends(get_services)):
+@router.post("", status_code=202, response_model=TrainAccepted)
+def train_model(body: TrainRequest, request: Request, response: Response,
+                services: Services = Depends(get_services)):
     """Train a KNODE on one stored flight (Algorithm 1, the Crazyflie settings of Sec. V-C unless
     overridden) or on several flights of one vehicle (`flight_ids`: one pooled loss, whole flights held out
     for validation, `validation_ids` or one in five) as a job; the next version number of `name` is reserved
@@ -59,7 +60,7 @@ def train_model(body: TrainRequest, response: Response, services: Services = Dep
                                    "system": body.system, "group_by": body.group_by, "noise": body.noise,
                                    "ensemble": body.ensemble},
                                   parent=body.parent, include_bad=body.include_bad,
-                                  validation_ids=body.validation_ids)
+                                  validation_ids=body.validation_ids, created_by=creator(request))
     response.headers["Location"] = f"/jobs/{job.id}"
     return {"job_id": job.id, "name": version.name, "version": version.version, "status": version.status}
 
@@ -122,17 +123,17 @@ def version_dependents(name: str, version: RowId, db: Database = Depends(get_db)
     return deletion.version_dependents(db, name, version)
 
 
-@router.delete("/{name}/versions/{version}", status_code=204, dependencies=[Depends(require_api_key)],
+@router.delete("/{name}/versions/{version}", status_code=204,
                responses={404: {"description": "no such version"},
                           409: {"description": "still training or evaluated right now, or it has evaluations or "
                                                "aliases and force is not set (the message lists them)"}})
-def delete_version(name: str, version: RowId,
+def delete_version(name: str, version: RowId, request: Request,
                    force: bool = Query(False, description="also delete its evaluations and the aliases on it"),
                    db: Database = Depends(get_db), blobs: BlobStore = Depends(get_blobs)):
     """Delete a version (see GET .../dependents first): its cached results go with it, its evaluations and
     aliases only with force=true; children and diagnoses keep its "name:version" as lineage text.  Its
     number is never handed out again; the weights blob is removed after the commit."""
-    deletion.delete_version(db, blobs, name, version, force=force)
+    deletion.delete_version(db, blobs, name, version, force=force, actor=actor(request))
     return Response(status_code=204)
 
 
@@ -155,20 +156,19 @@ def alias_detail(name: str, alias: str, db: Database = Depends(get_db)):
         return version_out(row, registry.aliases_of(session, name))
 
 
-@router.put("/{name}/aliases/{alias}", response_model=AliasOut, dependencies=[Depends(require_api_key)])
-def put_alias(name: str, alias: str, body: AliasIn, db: Database = Depends(get_db)):
+@router.put("/{name}/aliases/{alias}", response_model=AliasOut)
+def put_alias(name: str, alias: str, body: AliasIn, request: Request, db: Database = Depends(get_db)):
     """Point name@alias at a version (creating or moving it); 404 for an unknown model or version, 409 when that
     version is not ready, 422 for a bad alias name.
     """
-    catalog.set_alias(db, name, alias, body.version)
+    catalog.set_alias(db, name, alias, body.version, actor=actor(request))
     return {"name": name, "alias": alias, "version": body.version}
 
 
-@router.delete("/{name}/aliases/{alias}", status_code=204, dependencies=[Depends(require_api_key)])
-def delete_alias(name: str, alias: str, db: Database = Depends(get_db)):
+@router.delete("/{name}/aliases/{alias}", status_code=204)
+def delete_alias(name: str, alias: str, request: Request, db: Database = Depends(get_db)):
     """Remove an alias; 204, or 404 when the model or the alias does not exist."""
-    with db.transaction() as session:
-        registry.delete_alias(session, name, alias)
+    catalog.delete_alias(db, name, alias, actor=actor(request))
     return Response(status_code=204)
 
 

@@ -100,8 +100,43 @@ def _serve(args) -> int:
         print("learnest: serving every interface: set LEARNEST_ALLOWED_HOSTS to the names clients use "
               "(requests for other host names get 400)", file=sys.stderr)
     settings = Settings()  # validated here: a bad value stops the start with its name
+    if not _may_serve(args, settings):
+        return 2
     # the starting app listens at once and loads the service behind it (seconds of imports and migrations):
     # /health and / answer from the first moment (service.api.starting)
     uvicorn.run("learnest.service.api.starting:create_app", factory=True, host=args.host, port=args.port,
                 workers=args.workers, **uvicorn_options(settings))
     return 0
+
+
+def _may_serve(args, settings) -> bool:
+    """False (said why) for a server open to everyone on an address other than this machine's loopback: no
+    LEARNEST_API_KEY, no token in the registry, and no ``--insecure``."""
+    from ...local.access import any_access_token
+
+    if _loopback(args.host) or settings.api_key is not None or any_access_token(settings):
+        if args.insecure:
+            print("learnest: --insecure changes nothing here: the server is on loopback or has tokens",
+                  file=sys.stderr)
+        return True
+    if args.insecure:
+        print(f"learnest: serving {args.host} with no token (--insecure): anyone who reaches it may read, upload and "
+              "delete everything", file=sys.stderr)
+        return True
+    print(f"learnest serve: error: refusing to serve {args.host} with no token: anyone who reaches it could read, "
+          "upload and delete everything. Make an admin token first (`learnest tokens create NAME --scope admin`) or "
+          "set LEARNEST_API_KEY; or serve 127.0.0.1 (this machine only); --insecure serves it open anyway",
+          file=sys.stderr)
+    return False
+
+
+def _loopback(host: str) -> bool:
+    """Whether ``host`` (an address or name to listen on) is this machine's loopback only."""
+    import ipaddress
+
+    if host.strip("[]").lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False

@@ -143,9 +143,9 @@ def test_an_address_that_fails_the_key_too_often_gets_429_with_retry_after(tmp_p
         refused = client.post("/models", json={}, headers={"X-API-Key": "guess"})
         assert refused.status_code == 429 and 1 <= int(refused.headers["Retry-After"]) <= 60
         assert "LEARNEST_KEY_FAILURES" in refused.json()["detail"]
-        form = client.post("/ui/models", data={"name": "m", "api_key": "guess"})  # the forms count along
-        assert form.status_code == 429
-        assert client.get("/health").status_code == 200   # reads are not throttled
+        signin = client.post("/ui/signin", data={"token": "guess"})   # the web sign-in counts along
+        assert signin.status_code == 429
+        assert client.get("/health").status_code == 200   # needs no token: never throttled
 
 
 def test_a_500_says_connection_close(tmp_path):

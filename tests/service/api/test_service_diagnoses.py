@@ -137,7 +137,8 @@ def test_post_diagnoses_registers_the_repaired_model(tmp_path, biased_logs):
         assert client.post("/diagnoses", json={**body, "flights": []}, headers=key).status_code == 422
         assert client.post("/diagnoses", json={**body, "flights": [999]}, headers=key).status_code == 404
         assert client.post("/diagnoses", json={**body, "model": "nope:1"}, headers=key).status_code == 404
-        assert client.get("/diagnoses/999").status_code == 404
+        assert client.get("/diagnoses/999").status_code == 401                   # reads need the key too
+        assert client.get("/diagnoses/999", headers=key).status_code == 404
 
         client.headers.update(key)
         accepted = client.post("/diagnoses", json=body)
@@ -156,6 +157,7 @@ def test_post_diagnoses_registers_the_repaired_model(tmp_path, biased_logs):
 
         version = client.get("/models/cf/versions/1").json()
         assert version["status"] == "ready" and version["training_flight"]["id"] == ids[0]
+        assert version["created_by"] == "api-key"       # the diagnosis' token, on the version it registered
         assert version["hyperparameters"]["epochs"] == EPOCHS and version["code_version"]["package"] == "learnest"
         assert version["prior"]["measurement_effects"]["bias_x"] == pytest.approx(BIAS[0], rel=0.2)
         assert "accel_bias" in version["prior"]["effects"]

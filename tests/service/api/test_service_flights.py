@@ -197,7 +197,8 @@ def test_api_key_guards_every_write(tmp_path, data_dir):
         assert client.delete("/models/m/aliases/production").status_code == 401
         created = upload(client, path, headers={"X-API-Key": "s3cret"})
         assert created.status_code == 201
-        assert client.get("/flights").json()["total"] == 1   # reads need no key
+        assert client.get("/flights").status_code == 401                    # reads need it too
+        assert client.get("/flights", headers={"X-API-Key": "s3cret"}).json()["total"] == 1
         assert client.delete(f"/flights/{created.json()['id']}", headers={"X-API-Key": "s3cret"}).status_code == 204
 
 

@@ -272,9 +272,9 @@ def test_the_largest_id_is_a_plain_404(app_with_a_model):
     assert response.status_code == 404, response.text
 
 
-# -- the API key of a form upload is checked before its body is read -----------------------------------------
+# -- the token of a form upload is checked before its body is read -------------------------------------------
 def _upload_form(key: str | None, key_first: bool = True, size: int = 8 << 20) -> list[bytes]:
-    """A multipart upload of one ``size``-byte file in 64-kB chunks, the api_key field before or after it."""
+    """A multipart upload of one ``size``-byte file in 64-kB chunks, an api_key field before or after it."""
     field = (b'--xyz\r\nContent-Disposition: form-data; name="api_key"\r\n\r\n' + key.encode() + b"\r\n"
              if key else b"")
     head = (b'--xyz\r\nContent-Disposition: form-data; name="files"; filename="big.csv"\r\n'
@@ -285,9 +285,15 @@ def _upload_form(key: str | None, key_first: bool = True, size: int = 8 << 20) -
     return chunks + [b"--xyz--\r\n"]
 
 
+def _session_cookie(app, token: str) -> list[tuple[bytes, bytes]]:
+    """The cookie header of a web session signed in with ``token`` (as POST /ui/signin makes it)."""
+    from learnest.service.storage import tokens
+
+    session_id = tokens.start_session(app.state.services.db, tokens.hash_token(token), 1.0)
+    return [(b"cookie", f"learnest_session={session_id}".encode())]
 
 
-def test_a_form_upload_without_the_key_is_refused_before_its_body_is_read(tmp_path):
+def test_a_form_upload_without_a_session_is_refused_before_its_body_is_read(tmp_path):
     from fastapi.testclient import TestClient
     from utils.service import settings_for, shared_decoder, shared_pool
 
@@ -295,23 +301,22 @@ def test_a_form_upload_without_the_key_is_refused_before_its_body_is_read(tmp_pa
 
     app = create_app(settings_for(tmp_path, api_key="sesame", key_failures=0), executor=shared_pool(),
                      decoder=shared_decoder(), scheduler=False)
-    chunks = _upload_form(None)
     with TestClient(app):
-        status, pulled, answer = raw_post(app, "/ui/flights", chunks, [MULTIPART_XYZ])
-        assert (status, pulled) == (401, 1) and b"API key" in answer          # the file's head only
-        status, pulled, _ = raw_post(app, "/ui/flights", _upload_form("wrong"), [MULTIPART_XYZ])
-        assert (status, pulled) == (401, 2)                   # the key field and the head of the file part
-        status, pulled, _ = raw_post(app, "/ui/flights", _upload_form("sesame", key_first=False), [MULTIPART_XYZ])
-        assert (status, pulled) == (401, 1)        # a key after the files is not waited for
-        # the right key (field first, as the upload form sends it; or the cookie): the body is read
-        cookie = [(b"cookie", b"learnest_api_key=sesame")]
-        for chunks, extra in ((_upload_form("sesame"), []), (_upload_form(None), cookie)):
-            status, pulled, answer = raw_post(app, "/ui/flights", chunks, [MULTIPART_XYZ, *extra])
-            assert status == 422 and pulled == len(chunks), (status, answer[:200])   # read, and no flight
+        status, pulled, answer = raw_post(app, "/ui/flights", _upload_form(None), [MULTIPART_XYZ])
+        assert (status, pulled) == (401, 0) and b"sign in" in answer        # not a byte of the body
+        # a key typed into a form field is no way in any more: only the session's cookie (or a token header)
+        status, pulled, _ = raw_post(app, "/ui/flights", _upload_form("sesame"), [MULTIPART_XYZ])
+        assert (status, pulled) == (401, 0)
+        stale = [(b"cookie", b"learnest_session=not-a-session")]
+        assert raw_post(app, "/ui/flights", _upload_form(None), [MULTIPART_XYZ, *stale])[:2] == (401, 0)
+        # signed in: the body is read
+        chunks = _upload_form(None)
+        status, pulled, answer = raw_post(app, "/ui/flights", chunks, [MULTIPART_XYZ, *_session_cookie(app, "sesame")])
+        assert status == 422 and pulled == len(chunks), (status, answer[:200])   # read, and no flight
 
 
 def test_a_throttled_address_gets_429_before_its_form_files_are_read(tmp_path):
-    """Its wrong keys get 429 once the key field is read, before any file byte; the right key still passes."""
+    """Its wrong tokens get 429 before any byte of the body; a right session still passes."""
     from fastapi.testclient import TestClient
     from utils.service import settings_for, shared_decoder, shared_pool
 
@@ -319,21 +324,24 @@ def test_a_throttled_address_gets_429_before_its_form_files_are_read(tmp_path):
 
     app = create_app(settings_for(tmp_path, api_key="sesame", key_failures=2), executor=shared_pool(),
                      decoder=shared_decoder(), scheduler=False)
+    wrong = [(b"authorization", b"Bearer guess")]
     with TestClient(app):
         for _ in range(2):
-            assert raw_post(app, "/ui/flights", _upload_form("guess"), [MULTIPART_XYZ])[0] == 401
-        status, pulled, _ = raw_post(app, "/ui/flights", _upload_form("guess"), [MULTIPART_XYZ])
-        assert (status, pulled) == (429, 2)   # the key field and the file part's head: no file byte
-        status, pulled, _ = raw_post(app, "/ui/flights", _upload_form("sesame", size=1 << 16), [MULTIPART_XYZ])
-        assert status != 429 and pulled == 5   # the whole form read: past the guard
+            assert raw_post(app, "/ui/flights", _upload_form(None), [MULTIPART_XYZ, *wrong])[0] == 401
+        status, pulled, _ = raw_post(app, "/ui/flights", _upload_form(None), [MULTIPART_XYZ, *wrong])
+        assert (status, pulled) == (429, 0)
+        chunks = _upload_form(None, size=1 << 16)
+        status, pulled, _ = raw_post(app, "/ui/flights", chunks, [MULTIPART_XYZ, *_session_cookie(app, "sesame")])
+        assert status != 429 and pulled == len(chunks)   # the whole form read: past the guard
 
 
-def test_the_upload_page_asks_for_the_key_before_the_files(tmp_path):
+def test_the_upload_form_carries_no_key_field_the_session_is_the_key(tmp_path):
     from utils.service import running_app
 
     with running_app(tmp_path, api_key="sesame") as client:
+        assert client.post("/ui/signin", data={"token": "sesame"}).status_code == 200   # 303 to /, followed
         page = client.get("/").text
-        assert page.index("name='api_key'") < page.index("type='file'")
+        assert "type='file'" in page and "name='api_key'" not in page and "signed in as <b>api-key</b>" in page
 
 
 # -- proxy headers are believed only from configured proxies ---------------------------------------------------

@@ -1,17 +1,15 @@
 """The web pages (service/web/) end to end in a real browser, plus quick checks of escaping and the API key.
 
 The browser test starts `learnest serve` (python -m service.cli serve) on a free loopback port with its own
-LEARNEST_HOME and an API key, and drives Debian's headless Chromium through chromedriver with selenium:
-upload two sample logs with the upload form, train a model from the flight page (3 epochs), wait for the
-job page, evaluate from the model page, wait, and read the report (per-flight paired dots and error-over-time
-plots drawn by plotly.js, per-flight table).  A second one evaluates, diagnoses and registers through the
-forms only, on two simulated Crazyflie flights with motor PWM and battery and the Crazyflie prior (trained on
-both from the flight list's train form), and reads each page's answer off its first line
-(LEARNEST_SCREENSHOTS=FOLDER saves the flight, report, diagnosis and model pages as PNGs).
-Both are skipped, with the reason, when selenium, /usr/bin/chromium or /usr/bin/chromedriver is
-missing (CI installs them: see .ci/run).  Selenium is given the driver's path and Selenium Manager is
-disabled, so nothing is ever downloaded.
-"""
+LEARNEST_HOME and an API key, and drives Debian's headless Chromium through chromedriver with selenium: sign
+in with the key, upload two sample logs with the upload form, train a model from the flight page (3 epochs),
+wait for the job page, evaluate from the model page, wait, and read the report (per-flight paired dots and
+error-over-time plots drawn by plotly.js, per-flight table). A second one evaluates, diagnoses and registers
+through the forms only, on two simulated Crazyflie flights with motor PWM and battery and the Crazyflie prior
+(trained on both from the flight list's train form), and reads each page's answer off its first line
+(LEARNEST_SCREENSHOTS=FOLDER saves the flight, report, diagnosis and model pages as PNGs). Both are skipped,
+with the reason, when selenium, /usr/bin/chromium or /usr/bin/chromedriver is missing (CI installs them: see
+.ci/run). Selenium is given the driver's path and Selenium Manager is disabled, so nothing is ever downloaded."""
 from __future__ import annotations
 
 import os
@@ -130,13 +128,21 @@ def wait_for_url(driver, pattern: str, timeout: float = 60.0) -> None:
         and d.execute_script("return document.readyState") == "complete")
 
 
+def sign_in(driver, base: str, token: str, then: str = "/") -> None:
+    """Sign in on /ui/signin (every page needs a token once the server has one) and land on ``then``."""
+    from urllib.parse import quote
+
+    driver.get(f"{base}/ui/signin?next={quote(then, safe='')}")
+    form = by_css(driver, "#signin-form")
+    form.find_element("name", "token").send_keys(token)
+    form.find_element("css selector", "button[type=submit]").click()
+    wait_for_url(driver, re.escape(base + then) + "$")
+
+
 def upload_in_browser(driver, base: str, path: Path) -> None:
     driver.get(base + "/")
     form = by_css(driver, "#upload-form")
     form.find_element("name", "files").send_keys(str(path))
-    keys = form.find_elements("name", "api_key")
-    if keys:  # only until the first accepted write: the key is then remembered in a cookie
-        keys[0].send_keys(API_KEY)
     form.find_element("css selector", "button[type=submit]").click()
     wait_for_url(driver, r"/ui/flights/\d+$")
 
@@ -155,7 +161,8 @@ def wait_for_job_page(driver, timeout: float = 120.0) -> str:
 
 
 def test_upload_train_evaluate_and_report_in_chromium(server, browser):
-    # upload two flights through the form (the first one with the API key)
+    sign_in(browser, server, API_KEY)   # LEARNEST_API_KEY is an admin token
+    # upload two flights through the form
     upload_in_browser(browser, server, SAMPLES / "circle_rep1.csv")
     assert "circle_rep1" in by_css(browser, "h1").text and image_loaded(browser, "#trajectory")
     assert "ok" in by_css(browser, "#flight-facts").text
@@ -234,17 +241,20 @@ def test_user_text_is_escaped_everywhere(tmp_path):
         assert bad.status_code == 422 and "<b>x</b>" not in bad.text and "name:" in bad.text
 
 
-def test_form_writes_need_the_api_key_pages_do_not(tmp_path):
+def test_pages_and_form_writes_need_a_signed_in_session(tmp_path):
     with running_app(tmp_path / "home", api_key="s3cret") as client:
-        assert client.get("/").status_code == 200 and "name='api_key'" in client.get("/").text
+        away = client.get("/", headers={"Accept": "text/html"}, follow_redirects=False)
+        assert away.status_code == 303 and away.headers["location"] == "/ui/signin?next=%2F"
         for key in (None, "wrong"):
             refused = post_upload(client, "a.csv", {"api_key": key} if key else {})
-            assert refused.status_code == 401 and "API key" in refused.text
-        accepted = post_upload(client, "a.csv", {"api_key": "s3cret"})
+            assert refused.status_code == 401 and "sign in" in refused.text
+        signed = client.post("/ui/signin", data={"token": "s3cret", "next": "/"}, follow_redirects=False)
+        assert signed.status_code == 303 and signed.headers["location"] == "/"
+        cookie = signed.headers["set-cookie"].lower()
+        assert "learnest_session=" in cookie and "httponly" in cookie and "samesite=strict" in cookie
+        assert "s3cret" not in cookie                     # the cookie holds a session id, never the token
+        accepted = post_upload(client, "a.csv", {})
         assert accepted.status_code == 303
-        cookie = accepted.headers["set-cookie"].lower()
-        assert "learnest_api_key=s3cret" in cookie and "httponly" in cookie and "samesite=strict" in cookie
-        # the browser (here: the test client's cookie jar) sends the key from now on
         assert "name='api_key'" not in client.get("/").text
         assert "name='group_by'" in client.get("/").text   # the train form's grouping, refused when unread
         bad_group = client.post("/ui/models", data={"name": "q", "flight_id": "1", "epochs": "1", "group_by": "name:("})
@@ -253,9 +263,10 @@ def test_form_writes_need_the_api_key_pages_do_not(tmp_path):
         assert train.status_code == 303 and train.headers["location"].startswith("/ui/jobs/")
         job_id = int(train.headers["location"].rsplit("/", 1)[1])
         assert wait_for_job(client, job_id)["state"] == "succeeded"
+        assert client.post("/ui/signout", follow_redirects=False).status_code == 303
         client.cookies.clear()
         assert client.post("/ui/models/q/aliases", data={"alias": "production", "version": "1"}).status_code == 401
-        # the JSON API still takes the header
+        # the JSON API takes the header
         assert client.put("/models/q/aliases/production", json={"version": 1},
                           headers={"X-API-Key": "s3cret"}).status_code == 200
 
@@ -288,9 +299,6 @@ def screenshot(driver, name: str) -> None:
 
 
 def submit(form) -> None:
-    keys = form.find_elements("name", "api_key")
-    if keys:
-        keys[0].send_keys(API_KEY)
     form.find_element("css selector", "button[type=submit]").click()
 
 
@@ -333,6 +341,7 @@ def test_evaluate_diagnose_and_register_through_the_forms_reading_each_answer(se
     from selenium.webdriver.support.ui import Select, WebDriverWait
 
     logs = crazyflie_logs(tmp_path)
+    sign_in(browser, server, API_KEY)
     names = [path.stem for path in logs]
     for path in logs:
         upload_flight_file(browser, server, path)
