@@ -287,7 +287,7 @@ def train_ensemble(prior, records: list[TrainingRecord], held: list[bool], confi
     if len(results) == 1:
         return first
     model = first.model
-    residual = mean_residual([r.model.residual for r in results])
+    residual = mean_residual([r.model.residual for r in results if r.model.residual is not None])
     meta = {**model.meta, "ensemble": {"members": len(results), "seeds": [config.seed + k for k in range(len(results))],
                                        "best_epochs": [r.model.meta.get("best_epoch") for r in results]},
             "learned": any(r.learned for r in results), "seconds": sum(r.seconds for r in results)}

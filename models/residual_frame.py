@@ -86,6 +86,8 @@ def features(frame: str, x: Array, u: Array | None) -> Array:
     ops = ops_for(x)
     if frame != "body":
         return ops.concat([x, _batched(ops, x, u)]) if u is not None and _width(ops, u) else x
+    if u is None:
+        raise InvalidInput("a body-frame residual needs the inputs: the attitude, the thrust columns and the battery")
     s, inputs = ops.unstack(x), ops.unstack(u)
     R = _rotation(ops, u)
     v = s[3:6]

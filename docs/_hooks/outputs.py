@@ -49,7 +49,10 @@ class Block:
 
 def blocks(markdown: str) -> list[Block]:
     """Every fenced block of a Markdown page, in order (fences at the start of a line)."""
-    found, info, start, body = [], None, 0, []
+    found: list[Block] = []
+    info: str | None = None
+    start = 0
+    body: list[str] = []
     for number, line in enumerate(markdown.splitlines(), start=1):
         fence = _FENCE.match(line)
         if info is None and fence:

@@ -17,14 +17,17 @@ from utils.service import running_app
 
 
 # -- a server with tokens, and Chromium ----------------------------------------------------------------------
-@pytest.fixture
-def served(tmp_path):
-    """`learnest serve` on a registry holding an admin, a write and a read token (made with `learnest tokens
-    create`, as an administrator would); -> (url, {scope: token}, environment)."""
+@pytest.fixture(params=["sqlite", "postgresql"])
+def served(tmp_path, request):
+    """`learnest serve` on a registry (the embedded SQLite, or a throwaway PostgreSQL server) holding an admin, a
+    write and a read token (made with `learnest tokens create`, as an administrator would); -> (url, {scope:
+    token}, environment)."""
     env = {**os.environ, "LEARNEST_HOME": str(tmp_path / "home"), "LEARNEST_POOL_WORKERS": "1",
            "NO_PROXY": "127.0.0.1,localhost"}
     for name in ("LEARNEST_DATABASE_URL", "LEARNEST_DASK", "LEARNEST_SCHEDULE_SECONDS", "LEARNEST_API_KEY"):
         env.pop(name, None)
+    if request.param == "postgresql":
+        env["LEARNEST_DATABASE_URL"] = request.getfixturevalue("postgres_url")
     made = {}
     for name, scope in (("ada", "admin"), ("wes", "write"), ("rui", "read")):
         out = subprocess.run([sys.executable, "-m", "learnest.service.cli", "tokens", "create", name, "--scope",
