@@ -77,7 +77,8 @@ def _trajectory_text(trajectory: Trajectory) -> str:
 
 # The real flights copied next to the simulated ones (not written by `make_sample_logs`): NanoBench CSVs with
 # their metadata sidecars; BSD-3-Clause asks for the licence and the citation beside them.
-REAL_FLIGHTS = ("B2_circle_fast_rep1", "B3_figure8_medium_rep1")
+REAL_FLIGHTS = ("B2_circle_fast_rep1", "B2_circle_medium_rep1", "B3_figure8_medium_rep1", "B3_figure8_slow_rep1",
+                "B6_linear_ramp_rep1")
 REAL_FLIGHTS_README = """# Sample logs
 
 ## Real flights (NanoBench)
@@ -86,11 +87,12 @@ REAL_FLIGHTS_README = """# Sample logs
 |---|---|---|---|
 {rows}
 
-Two unmodified flights of a Crazyflie 2.1 (CF_01) under Vicon at 100 Hz with its onboard IMU, motors, battery,
+Five unmodified flights of a Crazyflie 2.1 (CF_01) under Vicon at 100 Hz with its onboard IMU, motors, battery,
 setpoints and onboard estimates, from the public NanoBench dataset (repository syediu/nanobench-iros2026,
-commit 0ae7d689). `learnest demo sample_logs` reads the folder in name order, so it trains on the real circle
-and shows the real figure-eight first. Both pass the quality checks; the onboard streams came over the radio
-and have the dataset's 20-ms gaps (the flight page shades longer ones).
+commit 0ae7d689): two circles, two figure-eights and a low linear ramp. `learnest demo sample_logs` reads the
+folder in name order, so it trains on the fast circle and scores the four other real flights, each with the
+95 % interval of the KNODE's gain. All pass the quality checks; the onboard streams came over the radio and
+have the dataset's 20-ms gaps (the flight page shades longer ones).
 
 License: BSD-3-Clause, `LICENSE-nanobench.txt` (the dataset's LICENSE, unchanged). Cite:
 S. I. Ullah and J. Baca, "NanoBench: A Multi-Task Benchmark Dataset for Nano-Quadrotor System
@@ -99,8 +101,14 @@ Identification, Control, and State Estimation", arXiv:2603.09908, 2026.
 """.format(rows="\n".join([
     "| `B2_circle_fast_rep1.csv` + `B2_circle_fast_rep1_metadata.yaml` | nanobench | circle r 1 m, 1 m/s, z 1 m "
     "| 26.8 s recorded, 18.2 s kept after the take-off/landing cut |",
+    "| `B2_circle_medium_rep1.csv` + `B2_circle_medium_rep1_metadata.yaml` | nanobench | circle r 1 m, 0.75 m/s, "
+    "z 1 m | 28 s recorded, 18.2 s kept |",
     "| `B3_figure8_medium_rep1.csv` + `B3_figure8_medium_rep1_metadata.yaml` | nanobench | figure-eight 1 m, "
-    "0.7 m/s, z 1 m | 24.8 s recorded, 15.3 s kept |"]))
+    "0.7 m/s, z 1 m | 24.8 s recorded, 15.3 s kept |",
+    "| `B3_figure8_slow_rep1.csv` + `B3_figure8_slow_rep1_metadata.yaml` | nanobench | figure-eight 1 m, "
+    "0.5 m/s, z 1 m | 26 s recorded, 17.5 s kept |",
+    "| `B6_linear_ramp_rep1.csv` + `B6_linear_ramp_rep1_metadata.yaml` | nanobench | linear ramp 1 m at 0.25, "
+    "0.5 and 1 m/s, z 1 m | 32 s recorded, 17.7 s kept |"]))
 
 
 def _readme(rows) -> str:
