@@ -115,8 +115,8 @@ def new_residual(system: System, zeta: np.ndarray, u: np.ndarray, hidden: int, f
     n_in, n_out = residual_frame.feature_count(frame, system.n, system.n_inputs)
     input_mask, output_mask = system.residual_masks() if frame == "state" else \
         (np.array(residual_frame.body_input_mask(system.residual_blind)), None)
-    return ResidualNet(n_in, n_out, hidden, features.mean(axis=0), np.where(std > 1e-9, std, 1.0), input_mask, output_mask,
-                       frame=frame)
+    return ResidualNet(n_in, n_out, hidden, features.mean(axis=0), np.where(std > 1e-9, std, 1.0), input_mask,
+                       output_mask, frame=frame)
 
 
 def train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, config: TrainingConfig | None = None,
