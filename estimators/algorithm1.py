@@ -274,7 +274,7 @@ def _held_out(flights: list[Flight], validate: Sequence[str] | None) -> tuple[li
     return names, held
 
 
-def train_ensemble(prior, records: list[TrainingRecord], held: list[bool], config: TrainingConfig,
+def train_ensemble(prior: System, records: list[TrainingRecord], held: list[bool], config: TrainingConfig,
                    progress: Callable[[int, float], None] | None) -> TrainingResult:
     """`models.training.train_knode_pooled`, ``config.ensemble`` times from seeds ``seed, seed + 1, ...``; with
     more than one, the model's residual is their mean carrying the members (`models.ensemble.mean_residual`) and its
