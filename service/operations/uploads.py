@@ -270,6 +270,11 @@ def store_flight(db: Database, blobs: BlobStore, staged: list[StagedFile], fligh
         except BaseException:
             discard_blobs(db, blobs, written)
             raise
+    # both names taken: by other content, or one of them by a concurrent upload of these very bytes, which
+    # committed before our look at the free names (then it is the answer, as on the IntegrityError above)
+    existing = find_by_sha(db, sha)
+    if existing is not None:
+        return existing, False
     raise Conflict(f"a flight named {base!r} already exists and so does {base}-{sha[:8]}")
 
 

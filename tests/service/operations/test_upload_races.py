@@ -121,3 +121,36 @@ def test_same_name_uploads_through_the_api_each_get_their_own_raw_file(tmp_path)
         for content, answer in zip(contents, answers):
             raw = client.get(f"/flights/{answer.json()['id']}/raw")
             assert raw.status_code == 200 and raw.content == content
+
+
+def test_a_twin_that_takes_the_last_free_name_first_is_the_answer(tmp_path, template):
+    """The interleaving a race can produce, made deterministic: another content holds ``log``; between this
+    upload's look for its content (absent) and its choice of name, an upload of the very same bytes stores them
+    as ``log-<sha8>``.  Both names are then taken, and the answer is the twin's flight, not a name conflict."""
+    import io
+
+    from learnest.service.operations.uploads import LocalFile, add_flight
+
+    db, blobs = _stores(tmp_path)
+
+    def decode(staged, **_choice):
+        flight = copy.deepcopy(template)
+        flight.meta["name"] = staged[0].original_name.rsplit(".", 1)[0]
+        return flight
+
+    twin: list = []
+
+    def decode_after_the_twin(staged, **choice):
+        twin.append(add_flight(db, blobs, [LocalFile("log.csv", io.BytesIO(b"drone x\n"))], decode=decode))
+        return decode(staged, **choice)
+
+    try:
+        other, _ = add_flight(db, blobs, [LocalFile("log.csv", io.BytesIO(b"drone y\n"))], decode=decode)
+        row, created = add_flight(db, blobs, [LocalFile("log.csv", io.BytesIO(b"drone x\n"))],
+                                  decode=decode_after_the_twin)
+        [(twin_row, twin_created)] = twin
+        assert other.name == "log" and twin_created and twin_row.name.startswith("log-")
+        assert (row.id, created) == (twin_row.id, False)
+        _assert_every_answer_holds_its_files(blobs, [b"drone x\n"], [(row, created)])
+    finally:
+        db.dispose()
