@@ -282,11 +282,9 @@ def test_a_gap_plan_that_would_never_end_is_refused_before_any_window():
     """1e-300-s gaps every 2e-300 s never reach the flight's end (5.0 + 2e-300 == 5.0): refused at once, by
     the plan itself, naming the field; so are gaps shorter than one sample and more than MAX_GAPS gaps."""
     import dataclasses
-    import time
 
     from learnest.models.presets import MAX_GAPS
 
-    started = time.perf_counter()
     with pytest.raises(InvalidInput, match="^gap_s must be 0 .no gaps. or at least 0.001 s, got 1e-300"):
         GapPlan(gap_s=1e-300, every_s=2e-300)
     with pytest.raises(InvalidInput, match="^gap_every_s must be longer than the gap"):
@@ -311,14 +309,12 @@ def test_a_gap_plan_that_would_never_end_is_refused_before_any_window():
     with pytest.raises(InvalidInput, match="sample period"):
         GapPlan().windows(1_000, 0.0)
     assert dataclasses.replace(GapPlan(), gap_s=0.0).windows(1_000, 1e-300) == []   # off: nothing to lay
-    assert time.perf_counter() - started < 1.0
 
 
-def test_the_command_line_refuses_a_gap_plan_that_never_ends_within_a_second(capsys, tmp_path):
+def test_the_command_line_refuses_a_gap_plan_that_never_ends(capsys, tmp_path):
     """`learnest evaluate --gap-s 1e-300 --gap-every-s 2e-300` (a MemoryError after minutes, before): a usage
-    error naming the option, exit 2, in well under a second; also a spacing shorter than one --rate sample."""
-    import time
-
+    error naming the option, exit 2 (how fast: benchmarks/bench_service_hostile.py); also a spacing shorter
+    than one --rate sample."""
     from learnest.service.cli import main
 
     junk = str(_junk(tmp_path))
@@ -326,9 +322,7 @@ def test_the_command_line_refuses_a_gap_plan_that_never_ends_within_a_second(cap
                            (["--gap-s", "0.5", "--gap-every-s", "0.505"], "argument --gap-every-s: must be longer"),
                            (["--gap-s", "0.004", "--gap-every-s", "1", "--rate", "100"],
                             "argument --gap-s: must be 0 (no gaps) or at least one sample (0.01 s)")):
-        started = time.perf_counter()
         assert main(["evaluate", "--model", "nothing:1", junk, "--no-store", *options]) == 2
-        assert time.perf_counter() - started < 1.0
         assert named in capsys.readouterr().err
 
 

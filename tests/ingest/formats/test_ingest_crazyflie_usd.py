@@ -1,5 +1,4 @@
 """uSD-card binary logs: real files, write -> decode round trips, damaged files, fuzzing."""
-import time
 import warnings
 import zlib
 from pathlib import Path
@@ -286,15 +285,14 @@ def test_rpy_to_quat_matches_the_z_y_x_convention():
                                atol=1e-12)
 
 
-def test_decoding_a_minute_at_500_hz_is_fast(tmp_path):
+def test_decoding_a_minute_at_500_hz_keeps_every_record(tmp_path):
+    """A minute at 500 Hz with a 100-Hz mocap stream decodes whole (how fast: benchmarks/bench_ingest.py)."""
     t, t_mocap = np.arange(0, 60, 1 / 500), np.arange(0.001, 60, 1 / 100)
     fixed = {f"group.v{i}": ("f", np.sin(t + i)) for i in range(40)}
     mocap = {name: ("f", np.full(len(t_mocap), 0.5)) for name in usd_reader.POSE}
     usd_writer.write(tmp_path / "log", {"fixedFrequency": {"t": t, "vars": fixed},
                                         "mocap": {"t": t_mocap, "vars": mocap}})
-    start = time.perf_counter()
     log = usd_decoder.decode(tmp_path / "log")
-    assert time.perf_counter() - start < 1.0
     assert len(log.events["fixedFrequency"]["t"]) == 30000 and len(log.events["mocap"]["t"]) == 6000
 
 
