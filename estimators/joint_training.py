@@ -149,9 +149,9 @@ class _JointProblem:
         self.h = system.h
 
         def field(x, u_k, theta):
-            z = residual_frame.features(mlp.frame, x, u_k)
-            return system.f_prior(x, u_k) + residual_frame.to_state_rates(
-                mlp.frame, x, u_k, functional_call(mlp, {**self._unflatten(theta), **buffers}, (z,)))
+            weights = {**self._unflatten(theta), **buffers}
+            return system.f_prior(x, u_k) + residual_frame.field(
+                mlp.frame, lambda z: functional_call(mlp, weights, (z,)), x, u_k)
 
         def step(x, u_k, theta):
             return rk4_step(lambda s, v: field(s, v, theta), x, u_k, dt)

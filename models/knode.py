@@ -44,7 +44,7 @@ class Residual:
 
         ``u`` is left out of a state-frame residual when it is None or has width 0.
         """
-        return residual_frame.to_state_rates(self.frame, x, u, self.network(residual_frame.features(self.frame, x, u)))
+        return residual_frame.field(self.frame, self.network, x, u)
 
     def network(self, z):
         """The bare MLP on features ``z`` (`models.residual_frame.features`), in the namespace of ``z``."""

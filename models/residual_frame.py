@@ -18,9 +18,12 @@ its inputs, and the force it adds turns with the vehicle.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from learnest.errors import InvalidInput
 
 from .backend import Array, ops_for
+from .crazyflie.prior import rotation_columns
 
 FRAMES = ("state", "body")
 
@@ -61,14 +64,6 @@ def body_input_mask(blind: tuple) -> list[float]:
     return [0.0 if all(k in blind for k in made_of[name]) else 1.0 for name in BODY_FEATURES]
 
 
-def _rotation(ops, u: Array):
-    """Rows of R(q) (body -> world) from the inputs' quaternion; any namespace."""
-    qx, qy, qz, qw = ops.unstack(u)[:4]
-    return ((1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)),
-            (2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)),
-            (2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)))
-
-
 def features(frame: str, x: Array, u: Array | None) -> Array:
     """The network's input for states ``x`` and inputs ``u`` in ``frame``.
 
@@ -83,43 +78,45 @@ def features(frame: str, x: Array, u: Array | None) -> Array:
     Same kind: ``"state"`` [x, u] (..., n + p); ``"body"`` (..., 6) in `BODY_FEATURES` order (m, m/s, the
     thrust columns' unit, V).
     """
-    ops = ops_for(x)
-    if frame != "body":
-        return ops.concat([x, _batched(ops, x, u)]) if u is not None and _width(ops, u) else x
-    if u is None:
-        raise InvalidInput("a body-frame residual needs the inputs: the attitude, the thrust columns and the battery")
-    s, inputs = ops.unstack(x), ops.unstack(u)
-    R = _rotation(ops, u)
-    v = s[3:6]
-    body_v = [R[0][j] * v[0] + R[1][j] * v[1] + R[2][j] * v[2] for j in range(3)]   # Rᵀ v
-    thrust_mean = (inputs[4] + inputs[5] + inputs[6] + inputs[7]) * 0.25
-    return ops.stack([s[2] + ops.zeros_like_first(x), *body_v, thrust_mean + ops.zeros_like_first(x),
-                      inputs[8] + ops.zeros_like_first(x)])
+    return _features(frame, x, u, _rotation(frame, x, u))
 
 
-def to_state_rates(frame: str, x: Array, u: Array | None, y: Array) -> Array:
-    """The network's output ``y`` as a correction of ẋ (shape of ``x``): as is in the state frame; in the
-    body frame the rotated force rate R(q)·y in the acceleration rows, zero elsewhere."""
+def field(frame: str, network: Callable[[Array], Array], x: Array, u: Array | None) -> Array:
+    """Δθ(x, u) as a correction of ẋ (shape of ``x``): ``network`` on the frame's features, its output as is in
+    the state frame, and in the body frame the rotated force rate R(q)·y in the acceleration rows, zero elsewhere
+    (R computed once for both)."""
+    R = _rotation(frame, x, u)
+    y = network(_features(frame, x, u, R))
     if frame != "body":
         return y
     ops = ops_for(x)
-    R = _rotation(ops, u)
     f = ops.unstack(y)
     zero = ops.zeros_like_first(x)
     world = [R[i][0] * f[0] + R[i][1] * f[1] + R[i][2] * f[2] for i in range(3)]
     return ops.stack([zero] * 6 + world)
 
 
+def _rotation(frame: str, x: Array, u: Array | None):
+    """Rows of R(q) (body -> world) from the inputs' quaternion for the body frame; None for the state frame."""
+    if frame != "body":
+        return None
+    if u is None:
+        raise InvalidInput("a body-frame residual needs the inputs: the attitude, the thrust columns and the battery")
+    return rotation_columns(*ops_for(x).unstack(u)[:4])
+
+
+def _features(frame: str, x: Array, u: Array | None, R) -> Array:
+    ops = ops_for(x)
+    if frame != "body":
+        return ops.concat([x, u]) if u is not None and _width(ops, u) else x
+    assert u is not None     # `_rotation` refused a body frame without inputs
+    s, inputs = ops.unstack(x), ops.unstack(u)
+    v = s[3:6]
+    body_v = [R[0][j] * v[0] + R[1][j] * v[1] + R[2][j] * v[2] for j in range(3)]   # Rᵀ v
+    thrust_mean = (inputs[4] + inputs[5] + inputs[6] + inputs[7]) * 0.25
+    zero = ops.zeros_like_first(x)
+    return ops.stack([s[2] + zero, *body_v, thrust_mean + zero, inputs[8] + zero])
+
+
 def _width(ops, u) -> int:
     return int(u.shape[0] if ops.name == "casadi" else u.shape[-1])
-
-
-def _batched(ops, x, u):
-    """``u`` broadcast to the batch of ``x`` (numpy/torch: a single input row held for every sigma point)."""
-    if ops.name == "casadi" or u.ndim == x.ndim:
-        return u
-    if ops.name == "numpy":
-        import numpy as np
-
-        return np.broadcast_to(u, x.shape[:-1] + u.shape[-1:])
-    return u.expand(*x.shape[:-1], u.shape[-1])

@@ -108,7 +108,7 @@ class ResidualNet(torch.nn.Module):
 
     def rates(self, x, u):
         """Δθ(x, u) as a correction of ẋ (B, n): the network on the frame's features, mapped back to ẋ."""
-        return residual_frame.to_state_rates(self.frame, x, u, self(residual_frame.features(self.frame, x, u)))
+        return residual_frame.field(self.frame, self, x, u)
 
     def export(self) -> Residual:
         """Fold the standardisation and the masks into the weights: W(m_in(z-μ)/s) + b = (W m_in/s) z +
