@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from learnest.estimators.metrics import worse_beyond_interval
 from learnest.models.presets import METHODS
 from learnest.ingest import read_flights
 from learnest.service.experiments.flights import evaluate_flights, train_on_flight
@@ -87,7 +88,7 @@ def markdown(result: dict) -> str:
             for entry in run["report"]["flights"]:
                 if entry["excluded"]:
                     continue
-                g, check = run["gains"][entry["flight"]], entry.get("prediction_check") or {}
+                g, check = run["gains"][entry["flight"]], one_step_check(entry)
                 intervals = " / ".join(f"[{lo:+.1f}, {hi:+.1f}]" for lo, hi in
                                        (entry.get("gain_interval_pct") or {}).values()) or "–"
                 lines.append(f"| {entry['flight']} | {g.get('ukf', float('nan')):+.1f} % | {g.get('mhe', float('nan')):+.1f} % | "
@@ -106,6 +107,13 @@ def markdown(result: dict) -> str:
     return "\n".join(lines)
 
 
+def one_step_check(entry: dict) -> dict:
+    """The one-step prediction check of a report's flight entry (`estimators.evaluate.prediction_check`'s keys),
+    {} for a flight without the ratio."""
+    ratio = entry.get("one_step_innovation_ratio")
+    return {} if ratio is None else {"innovation_ratio": ratio, "knode_predicts_worse": bool(ratio > 1.0 + 1e-9)}
+
+
 def recommended_gains(run: dict) -> dict:
     """Per scored flight: the recommended estimate's gain over the prior-only estimator (%): the KNODE's gain,
     or 0 where the prediction check recommends the prior's estimate."""
@@ -113,7 +121,7 @@ def recommended_gains(run: dict) -> dict:
     for entry in run["report"]["flights"]:
         if entry["excluded"]:
             continue
-        use_prior = (entry.get("prediction_check") or {}).get("knode_predicts_worse")
+        use_prior = (one_step_check(entry)).get("knode_predicts_worse")
         out[entry["flight"]] = {b: 0.0 if use_prior else g for b, g in run["gains"][entry["flight"]].items()}
     return out
 
@@ -133,7 +141,8 @@ def pooled(result: dict) -> list[str]:
             per = [g for run in runs for g in per_run(run).values()]
             worse = " / ".join(str(sum(1 for g in per if g.get(b, 0) < 0)) for b in ("ukf", "mhe"))
             median = " / ".join(f"{np.median([g[b] for g in per if b in g]):+.1f} %" for b in ("ukf", "mhe"))
-            clearly = " / ".join(str(sum(len(run["report"].get("knode_clearly_worse", {}).get(b, [])) for run in runs))
+            clearly = " / ".join(str(sum(sum(worse_beyond_interval((e.get("gain_interval_pct") or {}).get(f"knode-{b}_vs_{b}"))
+                                                     for e in run["report"]["flights"] if not e["excluded"]) for run in runs))
                                  for b in ("ukf", "mhe")) if label == "KNODE" else "–"
             lines.append(f"| {system} | {label} | {worse} | {clearly} | {median} |")
     return lines + [""]
@@ -146,7 +155,7 @@ def unflagged_losses(run: dict) -> dict:
     for entry in run["report"]["flights"]:
         if entry["excluded"]:
             continue
-        flagged = (entry.get("prediction_check") or {}).get("knode_predicts_worse") or \
+        flagged = (one_step_check(entry)).get("knode_predicts_worse") or \
             (entry.get("envelope") or {}).get("outside_training_envelope")
         for base, gain in run["gains"][entry["flight"]].items():
             if gain < 0 and not flagged:

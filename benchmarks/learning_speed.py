@@ -1,6 +1,10 @@
 """How long the learning steps take on the shared real flights: noise identification, pooled training (one residual
 and an ensemble of five, side by side), and one flight scored by four estimators with every yardstick.
 
+Noise identification is timed as training runs it (`with_identified_noise`: the process noise only, the
+sensors' noise held): the prior alone, then the prior and the KNODE together, as `learnest train` identifies
+both for a KNODE.
+
 Flights: the NanoBench circles and figure-eights that pass the quality checks (`../shared/data/nanobench`, 16),
 Crazyflie prior; the scored flight is a helix (`nanobench-more`).  Wall time of one run each (the steps take
 minutes, so a repeat would not fit a session); the machine's load at the start and end is written beside them.
@@ -17,7 +21,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import learnest as le
-from learnest.estimators.noise_identification import identify_noise, noise_records
+from learnest.estimators import noise_identification as identification
 from learnest.estimators.prepared import system_for
 from learnest.models.knode import HybridModel
 from learnest.models.noise import NoiseModel
@@ -44,9 +48,14 @@ def main() -> None:
     helix = le.read_flights([sorted((DATA / "nanobench-more").glob("B5_helix*.csv"))[0]])[0]
     results: dict = {"flights": len(flights), "load_before": os.getloadavg()[0]}
     prior = HybridModel(system_for(flights[0], "crazyflie"), "prior")
-    timed(lambda: identify_noise(noise_records(prior, flights, "prior"), NoiseModel.paper(prior.system)), results,
-          "noise identification, prior, s")
-    timed(lambda: train_on_flights(flights, system="crazyflie", group_by="none"), results, "pooled training, one, s")
+    timed(lambda: identification.identify_noise(identification.noise_records(prior, flights, "prior"),
+                                                NoiseModel.paper(prior.system),
+                                                measurement_blocks=identification.FLIGHT_MEASUREMENT_BLOCKS),
+          results, "noise identification, prior, s")
+    one = timed(lambda: train_on_flights(flights, system="crazyflie", group_by="none").model, results,
+                "pooled training, one, s")
+    timed(lambda: identification.with_identified_noise(one, flights), results,
+          "noise identification, prior and KNODE, s")
     model = timed(lambda: train_on_flights(flights, replace(CRAZYFLIE_TRAINING, ensemble=5), system="crazyflie",
                                            group_by="none").model, results, "pooled training, ensemble of 5, s")
     evaluate_flights(model, [helix], METHODS)     # compiles the estimators once, as a service's first job does

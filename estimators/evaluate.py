@@ -14,8 +14,8 @@ from numpy.typing import ArrayLike
 
 from learnest.models.presets import MHE_HORIZON
 
-from .headline import MEASURES, headline
-from .metrics import gain_interval_over_time, gain_pct, group_scores, squared_errors, worse_beyond_interval
+from .headline import MEASURES, flight_verdict, flight_verdicts, headline
+from .metrics import VERDICTS, gain_interval_over_time, gain_pct, group_scores, squared_errors
 from .mhe import MHE
 from .protocols import StateSpaceModel
 from .ukf import compiled_sigma_functions, run_ukf
@@ -155,58 +155,62 @@ def prediction_check(prior_ms: ArrayLike, knode_ms: ArrayLike, channels: Sequenc
             "knode_predicts_worse": bool(ratio > 1.0 + 1e-9)}
 
 
-def recommended_model(flight_report: dict) -> str | None:
-    """The model whose estimates learnest recommends for one scored flight: "knode", or "prior" where the
-    flight's ``prediction_check`` says the KNODE predicts it worse than its prior; None without a check.
+def recommended_model(flight_report: dict, base: str) -> str | None:
+    """The estimate learnest recommends on one scored flight for the base estimator ``base`` ("ukf", "mhe"):
+    "prior" where the flight's verdict on KNODE-``base`` is "worse" (`estimators.headline.flight_verdict`: its
+    gain in the mocap gaps is below 0 beyond its 95 % interval), else "knode"; None when the two did not both run.
 
-    A choice between the two models by their one-step predictive fit on the flight itself (prequential
-    model selection): it uses the flight's measurements only, never the references, so it is available
-    on every flight a user evaluates, and it is decided before any score is looked at.
+    The same measure as the headline's, so the two agree by construction: the prior's estimate is recommended
+    on exactly the flights the headline counts as worse beyond their interval.  The KNODE stays recommended
+    where the flight cannot tell the two apart: its ensemble's doubt already pulls it towards the prior there.
     """
-    check = flight_report.get("prediction_check")
-    if not check:
+    key = f"knode-{base}_vs_{base}"
+    if not {base, f"knode-{base}"} <= set(flight_report.get("mse") or {}):
         return None
-    return "prior" if check["knode_predicts_worse"] else "knode"
+    return "prior" if flight_verdict(flight_report, key) == "worse" else "knode"
 
 
-def _recommended_summary(scored: list[dict], median: dict[str, float]) -> dict | None:
-    """Median MSE of the recommended estimate (`recommended_model` per flight) for each base estimator, its
-    improvement on the prior's median, and the flights where the prior's estimate was recommended."""
-    summary: dict = {"median": {}, "improvement_pct": {}, "flights_worse_than_prior": {}}
+RECOMMENDATION_RULE = ("per flight, the KNODE's estimate, or its prior's where the KNODE is worse in the mocap gaps "
+                       "beyond the flight's 95 % interval")
+
+
+def _recommended_summary(scored: list[dict]) -> dict | None:
+    """Per base estimator: the flights where the KNODE's and where the prior's estimate is recommended
+    (`recommended_model`), the median gap RMSE of the recommended estimate (m) and of the prior alone."""
+    summary: dict = {"rule": RECOMMENDATION_RULE, "knode_on": {}, "prior_on": {}, "median_gap_rmse_m": {},
+                     "prior_median_gap_rmse_m": {}}
     for base in ("ukf", "mhe"):
-        chosen = [(f, recommended_model(f)) for f in scored if base in f["mse"] and f"knode-{base}" in f["mse"]]
+        chosen = [(f, recommended_model(f, base)) for f in scored]
         chosen = [(f, model) for f, model in chosen if model is not None]
         if not chosen:
             continue
-        mse = [f["mse"][f"knode-{base}" if model == "knode" else base] for f, model in chosen]
-        summary["median"][base] = float(np.median(mse))
-        summary["improvement_pct"][base] = gain_pct(median[base], summary["median"][base])
-        summary["flights_worse_than_prior"][base] = [f["flight"] for (f, _), value in zip(chosen, mse)
-                                                     if value > f["mse"][base]]
-    if not summary["median"]:
-        return None
-    summary["prior_on"] = [f["flight"] for f in scored if recommended_model(f) == "prior"]
-    return summary
+        summary["knode_on"][base] = [f["flight"] for f, model in chosen if model == "knode"]
+        summary["prior_on"][base] = [f["flight"] for f, model in chosen if model == "prior"]
+        rmse = [(f["yardsticks"]["mocap_gaps"]["rmse_m"], model) for f, model in chosen
+                if (f.get("yardsticks") or {}).get("mocap_gaps", {}).get("rmse_m", {}).get(base) is not None]
+        if rmse:
+            summary["median_gap_rmse_m"][base] = float(np.median(
+                [r[f"knode-{base}" if model == "knode" else base] for r, model in rmse]))
+            summary["prior_median_gap_rmse_m"][base] = float(np.median([r[base] for r, _ in rmse]))
+    return summary if summary["knode_on"] else None
 
 
 def summarize(flight_reports: list[dict]) -> dict:
-    """Median MSE over the scored flights and the KNODE improvements on those medians.
+    """Median MSE over the scored flights, the KNODE improvements on those medians, and one verdict per flight.
 
     Returns
     -------
     dict
         ``median`` {method: MSE}, ``improvement_pct`` {"knode-ukf_vs_ukf": 100 (1 - knode/base), ...},
         ``flights_scored``, ``outside_training_envelope`` (names of the scored flights whose
-        ``envelope`` entry flags them: their scores judge the model outside what it was trained on),
-        ``knode_predicts_worse`` (names of the scored flights whose ``prediction_check`` flags them),
-        ``knode_clearly_worse`` {"ukf": [names], ...} (the flights whose ``gain_interval_pct`` of the KNODE
-        variant lies wholly below 0: worse beyond the flight's own variability) and
-        ``recommended`` (None without prediction checks): the estimate learnest recommends per flight
-        (`recommended_model`: the KNODE's, or its prior's where the check flags the flight), scored as one
-        estimator per base method: ``median`` {"ukf": MSE, "mhe": MSE}, ``improvement_pct`` {"ukf": %
-        on the prior's median, ...}, ``flights_worse_than_prior`` {"ukf": [names], ...} and ``prior_on``
-        (names of the flights where the prior's estimate is recommended); ``headline``
-        (`estimators.yardsticks.headline`: the KNODE's gain on the mocap-gap yardstick over the flights) and
+        ``envelope`` entry flags them: their scores judge the model outside what it was trained on);
+        ``verdicts`` {"knode-ukf_vs_ukf": {"better": [names], "worse": [...], "within": [...],
+        "undecided": [...]}, ...}: each scored flight once per comparison, by `estimators.headline.flight_verdict`
+        (the 95 % interval of its gain in the mocap gaps); ``headline`` (`estimators.headline.headline`: the
+        same verdicts counted, with the median gain); ``recommended`` (None when no KNODE ran beside its prior):
+        the estimate learnest recommends per flight by the same verdicts (`recommended_model`): ``rule``,
+        ``knode_on`` and ``prior_on`` {"ukf": [names], ...}, ``median_gap_rmse_m`` {"ukf": m, ...} of the
+        recommended estimate and ``prior_median_gap_rmse_m`` of the prior's on the same flights;
         ``yardstick_definitions`` {yardstick: what it measures, one sentence}; ``noise`` {method: "identified" |
         "paper"}, the noise each method ran with (the flights' ``noise`` entries).
     """
@@ -221,12 +225,13 @@ def summarize(flight_reports: list[dict]) -> dict:
         if base in median and f"knode-{base}" in median:
             improvement[f"knode-{base}_vs_{base}"] = gain_pct(median[base], median[f"knode-{base}"])
     outside = [f["flight"] for f in scored if (f.get("envelope") or {}).get("outside_training_envelope")]
-    worse = [f["flight"] for f in scored if (f.get("prediction_check") or {}).get("knode_predicts_worse")]
-    clearly_worse = {base: [f["flight"] for f in scored
-                            if worse_beyond_interval((f.get("gain_interval_pct") or {}).get(f"knode-{base}_vs_{base}"))]
-                     for base in ("ukf", "mhe") if f"knode-{base}_vs_{base}" in improvement}
+    with_yardsticks = [f for f in scored if f.get("yardsticks")]
+    verdicts: dict[str, dict[str, list[str]]] = {}
+    for entry in with_yardsticks:
+        for key, verdict in flight_verdicts(entry).items():
+            verdicts.setdefault(key, {v: [] for v in VERDICTS})[verdict].append(entry["flight"])
     return {"median": median, "improvement_pct": improvement, "flights_scored": len(scored),
-            "outside_training_envelope": outside, "knode_predicts_worse": worse,
-            "knode_clearly_worse": clearly_worse, "recommended": _recommended_summary(scored, median),
+            "outside_training_envelope": outside, "verdicts": verdicts,
+            "recommended": _recommended_summary(with_yardsticks),
             "headline": {**headline(scored).to_dict(), "noise": dict(noise)}, "yardstick_definitions": dict(MEASURES),
             "noise": noise}

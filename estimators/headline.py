@@ -174,6 +174,24 @@ def _undecided_reason(gaps: Mapping, key: str) -> str:
     return "no interval could be told"
 
 
+def flight_verdict(flight_report: Mapping, key: str) -> str:
+    """The verdict on one scored flight for one comparison ``key`` ("knode-ukf_vs_ukf", ...), one of
+    `estimators.metrics.VERDICTS`: where the 95 % interval of the KNODE's gain in the mocap gaps lies
+    (`estimators.metrics.interval_verdict`); "undecided" without a gap score or an interval.
+
+    The one measure every surface states per flight: the headline counts these verdicts, and the recommended
+    estimate (`estimators.evaluate.recommended_model`) follows them, so the three cannot disagree.
+    """
+    gaps = (flight_report.get("yardsticks") or {}).get("mocap_gaps") or {}
+    decided = bool(gaps) and not gaps.get("skipped") and (gaps.get("gain_pct") or {}).get(key) is not None
+    return interval_verdict((gaps.get("gain_interval_pct") or {}).get(key) if decided else None)
+
+
+def flight_verdicts(flight_report: dict) -> dict[str, str]:
+    """{comparison: `flight_verdict`} for every KNODE that ran beside its prior on one scored flight."""
+    return {key: flight_verdict(flight_report, key) for key in _pair_keys([flight_report])}
+
+
 def headline(flight_reports: Sequence[dict]) -> Headline:
     """The `Headline` of per-flight report entries (their ``yardsticks.mocap_gaps``); excluded flights and
     entries without yardsticks are left out.  Every other flight is counted once per comparison: better
@@ -191,12 +209,7 @@ def headline(flight_reports: Sequence[dict]) -> Headline:
         values = [g["gain_pct"][key] for _, g in gaps if g["gain_pct"].get(key) is not None]
         median_gain[key] = float(np.median(values)) if values else None
         better[key] = int(sum(bool(v > 0) for v in values))
-        verdicts = []
-        for f in scored:
-            g = f["yardsticks"]["mocap_gaps"]
-            interval = (g.get("gain_interval_pct") or {}).get(key)
-            decided = not g.get("skipped") and (g.get("gain_pct") or {}).get(key) is not None
-            verdicts.append((f["flight"], interval_verdict(interval if decided else None), g))
+        verdicts = [(f["flight"], flight_verdict(f, key), f["yardsticks"]["mocap_gaps"]) for f in scored]
         for verdict in VERDICTS:
             counts[verdict][key] = sum(v == verdict for _, v, _ in verdicts)
         worse_names[key] = [name for name, v, _ in verdicts if v == "worse"]

@@ -9,14 +9,18 @@ what makes comparing a KNODE with its prior fair.
 
 Noise is searched as one scale per block (`models.noise.blocks`: position, velocity, acceleration states;
 mocap and accelerometer measurements) on the log scale, by Nelder–Mead from the paper's noise, each
-evaluation one compiled UKF run over every flight.  The position block of Q stays fixed: ṗ = v is a
+evaluation one compiled UKF run over every flight.  The flights of one evaluation run on threads, one per
+core: the compiled filter loop (`ukf.c`, called through ctypes) releases the interpreter's lock, and each
+flight's model has its own compiled functions and scratch memory.  The position block of Q stays fixed: ṗ = v is a
 definition, and its noise trades off against the mocap's R with almost no effect on the likelihood.
 """
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -99,6 +103,12 @@ class _Likelihood:
             key = (id(record.model), record.dt)
             if key not in self.functions:
                 self.functions[key] = compiled_sigma_functions(record.model, record.dt)
+        # records sharing compiled functions (and so their scratch memory) run on one thread, one after another
+        by_functions: dict[tuple[int, float], list[NoiseRecord]] = {}
+        for record in records:
+            by_functions.setdefault((id(record.model), record.dt), []).append(record)
+        self.groups = list(by_functions.values())
+        self.pool = ThreadPoolExecutor(max_workers=max(1, min(len(self.groups), os.cpu_count() or 1)))
         self.steps = sum(max(0, len(r.y) - round(WARMUP_S / r.dt)) for r in records)
         if self.steps == 0:
             raise InvalidInput(f"every flight is shorter than the filter's {WARMUP_S:g}-s warm-up: no noise to "
@@ -114,9 +124,11 @@ class _Likelihood:
             r[idx] = np.clip(base_r[idx] * math.exp(value), *STD_BOUNDS)
         return NoiseModel(tuple(q), tuple(r), self.start.initial_std, IDENTIFIED)
 
-    def __call__(self, theta: np.ndarray) -> float:
-        noise, total = self.noise_at(theta), 0.0
-        for record in self.records:
+    def _log_likelihood(self, records: Sequence[NoiseRecord], noise: NoiseModel) -> float:
+        """Σ log-likelihood after the warm-up over ``records`` (which share no compiled functions with any other
+        thread's), -inf where a filter fails."""
+        total = 0.0
+        for record in records:
             try:
                 result = run_ukf(record.model, record.y, record.u, dt=record.dt, Q=noise.Q, R=noise.R,
                                  x0=record.x0, P0=noise.P0,
@@ -127,8 +139,13 @@ class _Likelihood:
             if ll is None or not np.all(np.isfinite(ll[round(WARMUP_S / record.dt):])):
                 return -math.inf
             total += float(np.sum(ll[round(WARMUP_S / record.dt):]))
+        return total
+
+    def __call__(self, theta: np.ndarray) -> float:
+        noise = self.noise_at(theta)
+        totals = list(self.pool.map(lambda group: self._log_likelihood(group, noise), self.groups))
         self.evaluations += 1
-        value = total / self.steps
+        value = sum(totals) / self.steps
         if self.on_evaluation:
             self.on_evaluation(self.evaluations, value)
         return value
@@ -177,12 +194,14 @@ def identify_noise(records: Sequence[NoiseRecord], start: NoiseModel, *,
     started = time.perf_counter()
     bound = math.log(MAX_FACTOR)
     x0 = np.zeros(len(names))
-    before = mean_log_likelihood(x0)
-    # a simplex a factor of 3 wide: the paper's noise may be off by decades, Nelder–Mead expands as needed
-    simplex = np.vstack([x0] + [x0 + math.log(3.0) * e for e in np.eye(len(names))])
-    fit = minimize(lambda th: -mean_log_likelihood(th), x0, method="Nelder-Mead", bounds=[(-bound, bound)] * len(names),
-                   options={"maxfev": max_evaluations, "xatol": TOLERANCE_LOG, "fatol": 1e-5,
-                            "initial_simplex": simplex})
+    with objective.pool:
+        before = mean_log_likelihood(x0)
+        # a simplex a factor of 3 wide: the paper's noise may be off by decades, Nelder–Mead expands as needed
+        simplex = np.vstack([x0] + [x0 + math.log(3.0) * e for e in np.eye(len(names))])
+        fit = minimize(lambda th: -mean_log_likelihood(th), x0, method="Nelder-Mead",
+                       bounds=[(-bound, bound)] * len(names),
+                       options={"maxfev": max_evaluations, "xatol": TOLERANCE_LOG, "fatol": 1e-5,
+                                "initial_simplex": simplex})
     theta = fit.x if -fit.fun >= before else x0
     factors = {name: float(math.exp(v)) for name, v in zip(names, theta)}
     noise = noise_at(theta)

@@ -7,10 +7,10 @@ from learnest.models.presets import EVALUATION_METHODS, GAP_START_S
 
 def format_report(report: dict) -> str:
     """An evaluation report (evaluate_flights' JSON) as a text table: per-flight and median MSE (x 1e-3) per method
-    and the share of the flight outside the model's training envelope, then the improvements in %, the prediction
-    check of each flight (KNODE vs prior one-step innovations), the thrust-axis calibration of each flight
-    (Crazyflie prior), then a warning per flight that differs from the training
-    flight (vehicle, sensor rates, attitude source).
+    and the share of the flight outside the model's training envelope, then the improvements in %, the thrust-axis
+    calibration of each flight (Crazyflie prior), then a warning per flight that differs from the training
+    flight (vehicle, sensor rates, attitude source).  The verdict per flight and the recommended estimate come
+    first, with the headline (`headline_lines`).
     """
     methods = list(report["median"])
     prior = f" ({report['system']} prior)" if report.get("system") else ""
@@ -32,28 +32,6 @@ def format_report(report: dict) -> str:
     outside = report.get("outside_training_envelope")
     if outside:
         lines.append(f"outside what this model saw in training: {', '.join(outside)}")
-    checks = {f["flight"]: f["prediction_check"] for f in report["flights"] if f.get("prediction_check")}
-    if checks:   # estimators.evaluate.prediction_check: no ground truth, only the flight's own measurements
-        lines.append("one-step position innovations, KNODE / prior (above 1: the KNODE predicts the flight worse): "
-                     + ", ".join(f"{name} {c['innovation_ratio']:.3f}" for name, c in checks.items()))
-    worse = report.get("knode_predicts_worse")
-    if worse:   # three digits: a flagged ratio of 1.003 must not print as 1.00
-        flagged = ", ".join(f"{name} ({checks[name]['innovation_ratio']:.3f})" if name in checks else name
-                            for name in worse)
-        lines.append(f"do not trust the KNODE on: {flagged}: the prediction check (one-step innovations, no ground "
-                     "truth) finds it predicts these flights worse than its prior, so the recommended estimate "
-                     "uses the prior's there")
-    for base, names in (report.get("knode_clearly_worse") or {}).items():
-        # estimators.metrics.gain_interval: the gain's 95 % block-bootstrap interval lies below 0
-        lines.append(f"KNODE-{base.upper()} worse than {base.upper()} beyond the flight's own variability (95 % "
-                     f"interval of the gain below 0) on: {', '.join(names) or 'no flight'}")
-    recommended = report.get("recommended")
-    if recommended:   # estimators.evaluate.recommended_model per flight, scored as one estimator
-        scores = ", ".join(f"{base.upper()} {value * 1e3:.3f} ({recommended['improvement_pct'][base]:+.1f} % vs prior)"
-                           for base, value in recommended["median"].items())
-        prior_on = ", ".join(recommended["prior_on"]) or "none"
-        lines.append(f"recommended estimate (the KNODE's; the prior's where the check flags the flight): median "
-                     f"{scores}; prior's used on: {prior_on}")
     axes = {f["flight"]: f["thrust_axis_offset_deg"] for f in report["flights"] if f.get("thrust_axis_offset_deg")}
     if axes:   # the calibration the prior's attitude input got (models.crazyflie.thrust_axis)
         lines.append("thrust axis vs mocap frame (deg, x/y): "
@@ -92,7 +70,26 @@ def headline_lines(report: dict) -> list[str]:
         if pair["undecided_names"]:
             lines.append(f"  undecided on {pair['undecided']} of {pair['scored']} flights scored: "
                          + "; ".join(pair["undecided_names"]))
-    return lines + [""]
+    return lines + recommended_lines(report) + [""]
+
+
+def recommended_lines(report: dict) -> list[str]:
+    """The estimate learnest recommends (`estimators.evaluate.recommended_model`), by the verdicts just printed:
+    per base estimator, on how many flights the KNODE's, and where the prior's, with the median gap RMSE."""
+    recommended = report.get("recommended")
+    if not recommended:
+        return []
+    lines = [f"Recommended estimate: {recommended['rule']}."]
+    for base, knode_on in recommended["knode_on"].items():
+        prior_on = recommended["prior_on"].get(base) or []
+        flights = len(knode_on) + len(prior_on)
+        text = (f"  {base.upper()}: the KNODE's on {len(knode_on)} of {flights} flight{'s' if flights != 1 else ''}"
+                + (f", the prior's on {', '.join(prior_on)}" if prior_on else ""))
+        rmse, prior_rmse = recommended["median_gap_rmse_m"].get(base), recommended["prior_median_gap_rmse_m"].get(base)
+        if rmse is not None and prior_rmse is not None:
+            text += f"; median gap RMSE {rmse * 1e3:.1f} mm (the prior alone: {prior_rmse * 1e3:.1f} mm)"
+        lines.append(text)
+    return lines
 
 
 def _yardstick_lines(report: dict, prior: str) -> list[str]:

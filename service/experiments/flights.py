@@ -16,7 +16,7 @@ from learnest.estimators.evaluate import (
     summarize,
 )
 from learnest.estimators.group_training import GROUP_BY, StageCallback, train_flights
-from learnest.estimators.headline import learned_note
+from learnest.estimators.headline import flight_verdicts, learned_note
 from learnest.estimators.mhe import MHE
 from learnest.estimators.observers import pretraining_observer
 from learnest.estimators.prepared import PreparedFlight, prepare
@@ -201,12 +201,11 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
     Flights that fail the quality checks (unless ``include_bad``) and the model's own training flight are
     listed as excluded, with the reason, and not scored.  Each scored flight's ``envelope`` says how much
     of it lies outside what the model saw in training (`flight_envelope`); such flights are still scored,
-    and listed in ``outside_training_envelope``.  Each scored flight's ``prediction_check`` says whether the
-    KNODE predicts its mocap position one step ahead worse than the prior does (no ground truth needed: a
-    flight where the learned model should not be trusted); such flights are listed in ``knode_predicts_worse``.
-    Each scored flight's ``gain_interval_pct`` {"knode-ukf_vs_ukf": [low, high], ...} is the 95 % interval of
-    the KNODE's gain over its prior (`estimators.metrics.gain_interval`; None for a flight too short to tell);
-    flights whose interval lies below 0 are listed in ``knode_clearly_worse``.
+    and listed in ``outside_training_envelope``.  Each scored flight's ``verdict``
+    (`estimators.headline.flight_verdict`) is the one measure the headline counts and the recommended estimate
+    follows; ``one_step_innovation_ratio``
+    (`estimators.evaluate.prediction_check`) a diagnostic beside it; ``gain_interval_pct`` the 95 % intervals
+    of the KNODE's gains on the paper's score (`estimators.metrics.gain_interval`).
     Each scored flight's ``warnings`` say how it differs from
     the training flight in vehicle, sensor rates, attitude source, mass or controller
     (`ingest.profile.profile_mismatches`; none for a model that recorded no ``training_profile``).
@@ -251,8 +250,10 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
             entry["gain_interval_pct"] = {f"{m}_vs_{m.removeprefix('knode-')}": r["gain_interval_pct"]
                                           for m, r in results.items() if "gain_interval_pct" in r}
             entry["envelope"] = flight_envelope(prepared)
-            entry["prediction_check"] = out["prediction_check"]
+            if out["prediction_check"] is not None:   # a diagnostic number; the verdict is the gaps' (below)
+                entry["one_step_innovation_ratio"] = out["prediction_check"]["innovation_ratio"]
             entry["yardsticks"] = out["yardsticks"].to_dict()
+            entry["verdict"] = flight_verdicts(entry)
             if knode.system.name in THRUST_THROUGH_ATTITUDE:   # the calibration the prior's attitude input got
                 entry["thrust_axis_offset_deg"] = [round(float(np.degrees(d)), 3) for d in flight_thrust_axis(flight)]
                 # and what its prior's thrust carried: the motors' heating, the flight's thrust gain

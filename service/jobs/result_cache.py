@@ -26,8 +26,9 @@ log = logging.getLogger("learnest.jobs")
 # Crazyflie prior scales its thrust by the flight's thrust gain (entries carry `thrust_gain`).  4: and
 # by the motors' heating before it (`heating_thrust_loss_pct`).  5: entries carry the KNODE's
 # `gain_interval_pct`.  6: entries carry the `yardsticks` (mocap gaps, fast reference, the paper's SG score).
-# 7: entries carry the `noise` each method ran with.
-ENTRY_FORMAT = 7
+# 7: entries carry the `noise` each method ran with.  8: entries carry their `verdict` (mocap gaps), and the
+# one-step `one_step_innovation_ratio` in place of the `prediction_check`.
+ENTRY_FORMAT = 8
 
 
 @dataclass(frozen=True)

@@ -61,16 +61,18 @@ def assert_same_numbers(report: dict, expected: dict) -> None:
     assert report["flights_scored"] == expected["flights_scored"]
     for got, want in zip(report["flights"], expected["flights"]):
         assert got.get("envelope") == want.get("envelope")
-        assert got.get("prediction_check") == want.get("prediction_check")
+        assert got.get("one_step_innovation_ratio") == pytest.approx(want.get("one_step_innovation_ratio"), rel=1e-9)
+        assert got.get("verdict") == want.get("verdict")
     assert report["outside_training_envelope"] == expected["outside_training_envelope"]
-    assert report["knode_predicts_worse"] == expected["knode_predicts_worse"]
-    assert report["knode_clearly_worse"] == expected["knode_clearly_worse"]
+    assert report["verdicts"] == expected["verdicts"]
     for got, want in zip(report["flights"], expected["flights"]):
         assert got.get("gain_interval_pct") == want.get("gain_interval_pct")
     assert (report["recommended"] is None) == (expected["recommended"] is None)
     if expected["recommended"] is not None:
         assert report["recommended"]["prior_on"] == expected["recommended"]["prior_on"]
-        assert report["recommended"]["median"] == pytest.approx(expected["recommended"]["median"], rel=1e-9)
+        assert report["recommended"]["knode_on"] == expected["recommended"]["knode_on"]
+        assert report["recommended"]["median_gap_rmse_m"] == pytest.approx(
+            expected["recommended"]["median_gap_rmse_m"], rel=1e-9)
 
 
 def test_report_equals_evaluate_flights_and_is_cached(registry_home):
@@ -105,10 +107,9 @@ def test_report_equals_evaluate_flights_and_is_cached(registry_home):
         assert html.status_code == 200 and html.headers["content-type"].startswith("text/html")
         assert "data:image/png;base64," in html.text and report["flights"][0]["flight"] in html.text
         assert "outside what this model saw" in html.text      # the training-envelope column
-        ratio = report["flights"][1]["prediction_check"]["innovation_ratio"]
-        assert "id='prediction-check'" in html.text and f"{ratio:.2f}" in html.text
-        recommended_ukf = report["recommended"]["median"]["ukf"]
-        assert "id='recommended'" in html.text and f"UKF {recommended_ukf * 1e3:.3f}" in html.text
+        assert "prediction-check" not in html.text and "Do not trust" not in html.text   # one verdict, the gaps'
+        recommended_ukf = report["recommended"]["median_gap_rmse_m"]["ukf"]
+        assert "id='recommended'" in html.text and f"median gap RMSE {recommended_ukf * 1e3:.1f} mm" in html.text
         low, high = report["flights"][1]["gain_interval_pct"]["knode-ukf_vs_ukf"]
         assert low <= high and "id='gain-intervals'" in html.text and f"[{low:+.1f}, {high:+.1f}] %" in html.text
         assert report["flights"][0]["envelope"]["threshold"] > 0
