@@ -45,10 +45,10 @@ class KNODE:
         Several flights: the groups held out in turn to choose how much of the residual to keep
         (`estimators.group_training`): ``"family"`` (the trajectory family the logs declare; the default),
         ``"name:REGEX"`` (one capture group of the flight's name) or ``"none"`` (the whole residual).
-    noise : {"paper", "identified"}
-        Keep the system's fixed noise (the paper's protocol, the default), or identify the noise of the model
-        and of its prior on the training flights (stored with ``model_``: `learnest.ukf`, `learnest.mhe` and
-        `learnest.evaluate` run each model with its own).
+    noise : {"identified", "paper"}
+        Identify the process noise of the model and of its prior on the training flights (the default; stored
+        with ``model_``: `learnest.ukf`, `learnest.mhe` and `learnest.evaluate` run each model with its own), or
+        keep the system's fixed noise (the paper's protocol).
 
     Attributes
     ----------
@@ -86,7 +86,7 @@ class KNODE:
     def __init__(self, system: str | None = None, hidden: int = CRAZYFLIE_TRAINING.hidden,
                  epochs: int = CRAZYFLIE_TRAINING.epochs, lr: float = CRAZYFLIE_TRAINING.lr,
                  validation_fraction: float = CRAZYFLIE_TRAINING.validation_fraction, seed: int = 0,
-                 group_by: str = GROUP_BY, noise: str = "paper") -> None:
+                 group_by: str = GROUP_BY, noise: str = "identified") -> None:
         self.system, self.hidden, self.epochs, self.lr = system, hidden, epochs, lr
         self.validation_fraction, self.seed, self.group_by = validation_fraction, seed, group_by
         self.noise = noise

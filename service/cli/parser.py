@@ -183,10 +183,10 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
     tr.add_argument("--system", default="quadrotor", choices=["quadrotor", "crazyflie"],
                     help="the prior: the paper's kinematic chain (default) or the Crazyflie driven by its motors "
                          "and battery (needs motor PWM and battery voltage in the log)")
-    tr.add_argument("--noise", default="paper", choices=["paper", "identified"],
-                    help="paper (default): the system's fixed noise; identified: identify the model's and its prior's "
-                         "noise (Q and R per block) on the training flights by the UKF's innovation likelihood and "
-                         "store it with the version (every evaluation then runs each model with its own)")
+    tr.add_argument("--noise", default="identified", choices=["identified", "paper"],
+                    help="identified (default): identify the model's and its prior's process noise on the training "
+                         "flights by the UKF's innovation likelihood and store it with the version (every evaluation "
+                         "then runs each model with its own); paper: the system's fixed noise")
     tr.add_argument("--ensemble", type=_positive_int, default=1, metavar="K",
                     help="several flights: train K residuals from different seeds; their mean is the model and their "
                          "disagreement on a flight joins its process noise (default 1)")

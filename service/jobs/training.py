@@ -24,9 +24,9 @@ def training_config(overrides: dict) -> dict:
     prior the KNODE is built on (estimators.prepared.FLIGHT_SYSTEMS) and "group_by" the groups of the
     training flights held out to choose the residual's scale (`learnest.estimators.group_training`: "family",
     "none", "name:REGEX"), kept with the training hyperparameters so the registry shows them and a retraining
-    reuses them; "noise" is "paper" (the system's fixed noise) or "identified" (the model's and its prior's noise
-    identified on the training flights, `learnest.estimators.noise_identification`)."""
-    return {**CRAZYFLIE_TRAINING.as_dict(), "system": "quadrotor", "group_by": "family", "noise": "paper",
+    reuses them; "noise" is "identified" (the default: the model's and its prior's noise identified on the
+    training flights, `learnest.estimators.noise_identification`) or "paper" (the system's fixed noise)."""
+    return {**CRAZYFLIE_TRAINING.as_dict(), "system": "quadrotor", "group_by": "family", "noise": "identified",
             **{k: v for k, v in overrides.items() if v is not None}}
 
 

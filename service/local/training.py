@@ -27,7 +27,7 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
           progress: Callable[[float], None] | None = None, settings: Settings | None = None,
           system: str = "quadrotor", pose_topic: str | None = None, imu_topic: str | None = None,
           cut: str | None = None, on_stage: Callable[[str, float | None], None] | None = None,
-          validate=None, strict: bool = False, group_by: str | None = None, noise: str = "paper",
+          validate=None, strict: bool = False, group_by: str | None = None, noise: str = "identified",
           ensemble: int = 1) -> dict:
     """Store the flights, train the next version of `name` on them and wait; `progress(fraction)` while it
     trains, `on_stage(stage, seconds_left)` as the job's stage changes ("ingest", "observer ...", "epoch 12/150").
@@ -41,8 +41,9 @@ def train(paths, name: str, *, epochs: int | None = None, include_bad: bool = Fa
     (``skipped_flights``) unless ``include_bad``; one such flight alone is refused.
     ``cut``: the stretch of the log to keep (`learnest.ingest.align.parse_cut`).  ``group_by``: the groups of
     several flights held out in turn to choose the residual's scale (`learnest.estimators.group_training`;
-    default "family", "none" keeps the whole residual).  ``noise``: "identified" identifies the model's and its
-    prior's noise on the training flights and stores it with the version; "paper" keeps the system's fixed noise.
+    default "family", "none" keeps the whole residual).  ``noise``: "identified" (the default) identifies the model's
+    and its prior's noise on the training flights and stores it with the version; "paper" keeps the system's
+    fixed noise.
     ``ensemble``: residuals trained from seeds on several flights (`learnest.models.ensemble`; 1 trains one).
     Returns what `learnest train --json` prints: ``seconds`` is the epochs' time, ``total_seconds`` the
     job's (observer, epochs, storing), ``training_flights`` and ``validation_flights`` the names, ``learned``
