@@ -1,4 +1,4 @@
-# learnest image: CPU-only torch, the learnest CLI and its HTTP service (uvicorn, learnest.service.api.app).
+# learnest image: CPU-only torch, the learnest CLI and its HTTP service (uvicorn, learnest.service.app.factory).
 # Build: docker build -t learnest .   Serve: docker run --rm -p 8000:8000 -v learnest-data:/data learnest
 # One-off command: docker run --rm -v learnest-data:/data learnest reproduce --task cartpole --seeds 2
 FROM python:3.11-slim
@@ -11,6 +11,7 @@ COPY learnest ./learnest
 COPY ingest ./ingest
 COPY models ./models
 COPY estimators ./estimators
+COPY workflows ./workflows
 COPY service ./service
 COPY docs ./docs
 # docs: MkDocs, which builds the manual that `learnest serve` shows at /manual

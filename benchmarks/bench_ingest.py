@@ -23,7 +23,7 @@ import torch
 from learnest.ingest import read_flights
 from learnest.ingest.formats.crazyflie_usd.writer import write as write_usd
 from learnest.models.presets import TrainingConfig
-from learnest.service.experiments.flights import evaluate_flight, train_on_flight
+from learnest.workflows.flights import evaluate_flight, train_on_flight
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 OUT = Path(__file__).parent / "results"

@@ -45,7 +45,7 @@ from learnest.ingest import read_flights  # noqa: E402
 from learnest.models.knode import HybridModel  # noqa: E402
 from learnest.models.systems import make_system  # noqa: E402
 from learnest.models.training import TrainingConfig  # noqa: E402
-from learnest.service.experiments.flights import evaluate_flight, train_on_flight  # noqa: E402
+from learnest.workflows.flights import evaluate_flight, train_on_flight  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "nanobench"
 OUT = Path(__file__).parent / "results"

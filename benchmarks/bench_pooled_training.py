@@ -6,7 +6,7 @@ gaps at each candidate scale, then the final training).  The target is under 2 m
 
 Two measurements, each in a fresh process so one-time imports count:
 
-  library   `learnest.read_flights` of the folder, then `service.experiments.flights.train_on_flights` (the
+  library   `learnest.read_flights` of the folder, then `workflows.flights.train_on_flights` (the
             pre-training observer on each flight, the thrust gains, the vehicle check, the epochs, the scale
             choice)
   cli       `learnest train ../shared/data/nanobench --system crazyflie --name bench --json` into an empty
@@ -39,7 +39,7 @@ import json, sys, time
 started = time.perf_counter()
 from learnest.ingest import read_flights
 from learnest.models.presets import CRAZYFLIE_TRAINING
-from learnest.service.experiments.flights import train_on_flights
+from learnest.workflows.flights import train_on_flights
 from pathlib import Path
 flights = [f for f in read_flights(sorted(Path(sys.argv[1]).glob("*.csv"))) if f.quality["ok"]]
 read = time.perf_counter()

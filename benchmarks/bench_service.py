@@ -132,7 +132,7 @@ def bench_uploads(root: Path, paths: list[Path]) -> dict:
 # -- batch evaluation ------------------------------------------------------------------------------------
 def warm_up() -> int:
     """Import what an evaluation needs, and stay busy a moment so that each worker gets one of these."""
-    import learnest.service.experiments.flights  # noqa: F401  (torch, filterpy, CasADi)
+    import learnest.workflows.flights  # noqa: F401  (torch, filterpy, CasADi)
 
     time.sleep(1.0)
     return os.getpid()

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from learnest.ingest import read_flights
 from learnest.models import crazyflie as cf
-from learnest.service.experiments.diagnosis import diagnose_crazyflie
+from learnest.workflows.diagnosis import diagnose_crazyflie
 
 DATA = Path("../shared/data/nanobench")
 FLIGHTS = ("B2_circle_slow_rep1", "B2_circle_medium_rep1", "B2_circle_fast_rep1",

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from learnest.ingest import read_flights
 from learnest.models import crazyflie as cf
-from learnest.service.experiments.diagnosis import diagnose_crazyflie, format_diagnosis
+from learnest.workflows.diagnosis import diagnose_crazyflie, format_diagnosis
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 OUT = Path(__file__).parent / "results" / "crazyflie_diagnosis_real"

@@ -28,7 +28,7 @@ from learnest.ingest.sim import write_canonical_flight
 from learnest.ingest.sim.export import CFCLIENT_CLOCK_OFFSET_S
 from learnest.models import crazyflie as cf
 from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
-from learnest.service.experiments.diagnosis import diagnose_crazyflie
+from learnest.workflows.diagnosis import diagnose_crazyflie
 
 OUT = Path(__file__).parent / "results" / "crazyflie_diagnosis_sources"
 PRIOR = dict(cf.IDENTIFIED)
@@ -110,7 +110,7 @@ def _ukf_against_truth(report, flight, truth, controller, source, seed) -> tuple
 
     from learnest.estimators.prepared import system_for
     from learnest.models.knode import HybridModel
-    from learnest.service.experiments.flights import evaluate_flight
+    from learnest.workflows.flights import evaluate_flight
 
     twin = simulate_crazyflie(SimulatedFlight(truth=truth, controller=controller, duration_s=DURATION_S,
                                               thrust_source=source, accel_noise=0.0, mocap_noise=0.0,

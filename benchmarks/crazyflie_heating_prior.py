@@ -39,7 +39,7 @@ from learnest.models.crazyflie.motor_heating import thermal_state
 from learnest.models.crazyflie.thrust_axis import EDGE_S, LOWPASS_HZ
 from learnest.models.inputs import system_inputs
 from learnest.models.knode import HybridModel
-from learnest.service.experiments.flights import evaluate_flight
+from learnest.workflows.flights import evaluate_flight
 
 DATA = Path("../shared/data/nanobench")
 HEATING = {name: cf.IDENTIFIED[name] for name in ("tau_th_s", "kappa_th")}   # the package's values

@@ -27,7 +27,7 @@ from learnest.ingest import read_flights
 from learnest.models import crazyflie as cf
 from learnest.models.knode import HybridModel
 from learnest.models.systems import Crazyflie
-from learnest.service.experiments.estimation import evaluate
+from learnest.workflows.estimation import evaluate
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 OUT = Path(__file__).parent / "results" / "crazyflie_lag_axes"

@@ -4,7 +4,7 @@ state among its inputs, trained on one circle (or one figure-eight) of the real 
 into one (a wider network whose output is their mean), to tell a seed's luck from what the inputs allow; then,
 on seed 0, the screen that located the cause (longer training; blind to other inputs instead).
 
-Same training flights and settings as benchmarks/crazyflie_transfer.py (service.experiments.flights.
+Same training flights and settings as benchmarks/crazyflie_transfer.py (workflows.flights.
 train_on_flight with the Crazyflie prior, CRAZYFLIE_TRAINING); only the residual's blind inputs differ.
 
 Run from the repository root (needs ../shared/data):
@@ -25,7 +25,7 @@ from learnest.ingest import read_flights
 from learnest.models import systems
 from learnest.models.knode import HybridModel, Residual
 from learnest.models.presets import CRAZYFLIE_TRAINING
-from learnest.service.experiments.flights import evaluate_flights, train_on_flight
+from learnest.workflows.flights import evaluate_flights, train_on_flight
 
 DATA = Path("../shared/data/nanobench")
 TRAIN = {"circle": "B2_circle_medium_rep2", "figure8": "B3_figure8_medium_rep2"}

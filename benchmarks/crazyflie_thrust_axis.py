@@ -21,12 +21,12 @@ from pathlib import Path
 import numpy as np
 
 from learnest.estimators.evaluate import evaluate_sequence
+from learnest.estimators.prepared import initial_state, system_for
 from learnest.ingest import read_flights
 from learnest.ingest.baseline import references
 from learnest.models.inputs import flight_thrust_axis, system_inputs
 from learnest.models.knode import HybridModel
 from learnest.models.presets import SG_WINDOW
-from learnest.estimators.prepared import initial_state, system_for
 
 DATA = Path("../shared/data/nanobench")
 METHODS = ("ukf", "mhe")

@@ -3,7 +3,7 @@ one circle (or one figure-eight) with the paper's kinematic prior and with the C
 battery), each scored with UKF / MHE / KNODE-UKF / KNODE-MHE on every flight of the *other* family.
 
 Same training flights as benchmarks/run_crazyflie.sh (medium speed, repetition 2) and the same settings
-(service.experiment.CRAZYFLIE_TRAINING, MHE horizon 20, Savitzky–Golay references of window 150).
+(models.presets.CRAZYFLIE_TRAINING, MHE horizon 20, Savitzky–Golay references of window 150).
 
 Run from the repository root (needs ../shared/data):
     .venv/bin/python benchmarks/crazyflie_transfer.py [--systems crazyflie] [--out benchmarks/results/crazyflie_transfer]
@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from learnest.estimators.metrics import worse_beyond_interval
-from learnest.models.presets import METHODS
 from learnest.ingest import read_flights
-from learnest.service.experiments.flights import evaluate_flights, train_on_flight
+from learnest.models.presets import METHODS
+from learnest.workflows.flights import evaluate_flights, train_on_flight
 
 DATA = Path("../shared/data/nanobench")
 TRAIN = {"circle": "B2_circle_medium_rep2", "figure8": "B3_figure8_medium_rep2"}

@@ -38,7 +38,7 @@ import numpy as np
 from learnest.estimators.group_training import train_with_scale_choice
 from learnest.ingest import read_flights
 from learnest.models.presets import CRAZYFLIE_TRAINING
-from learnest.service.experiments.flights import evaluate_flights, train_on_flights
+from learnest.workflows.flights import evaluate_flights, train_on_flights
 
 DATA = (Path("../shared/data/nanobench"), Path("../shared/data/nanobench-more"))
 FAMILIES = {"circle": "B2_circle", "figure8": "B3_figure8", "helix": "B5_helix", "ramp": "B6_linear_ramp"}

@@ -29,7 +29,7 @@ from family_holdout import DATA, family_of  # noqa: E402
 from learnest.estimators.algorithm1 import Algorithm1  # noqa: E402
 from learnest.ingest import read_flights  # noqa: E402
 from learnest.models.knode import HybridModel  # noqa: E402
-from learnest.service.experiments.flights import train_on_flights  # noqa: E402
+from learnest.workflows.flights import train_on_flights  # noqa: E402
 
 HORIZON_S = 0.5
 EVERY = 10

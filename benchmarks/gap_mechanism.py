@@ -39,7 +39,7 @@ from learnest.ingest import read_flights  # noqa: E402
 from learnest.models.inputs import system_inputs  # noqa: E402
 from learnest.models.knode import HybridModel  # noqa: E402
 from learnest.models.residual_scale import scaled_model  # noqa: E402
-from learnest.service.experiments.flights import train_on_flights  # noqa: E402
+from learnest.workflows.flights import train_on_flights  # noqa: E402
 
 ALL_ROWS = (0, 1, 2, 3, 4, 5)
 

@@ -26,7 +26,7 @@ from learnest.estimators.prepared import system_for
 from learnest.models.knode import HybridModel
 from learnest.models.noise import NoiseModel
 from learnest.models.presets import CRAZYFLIE_TRAINING
-from learnest.service.experiments.flights import evaluate_flights, train_on_flights
+from learnest.workflows.flights import evaluate_flights, train_on_flights
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 METHODS = ("ukf", "knode-ukf", "mhe", "knode-mhe")

@@ -24,7 +24,7 @@ from learnest.estimators.prepared import prepare, system_for
 from learnest.estimators.yardsticks import GapPlan
 from learnest.models.knode import HybridModel
 from learnest.models.noise import NoiseModel
-from learnest.service.experiments.flights import evaluate_prepared
+from learnest.workflows.flights import evaluate_prepared
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 METHODS = ("ukf", "knode-ukf", "mhe", "knode-mhe")   # knode-* rows: the same prior, with the identified noise

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from learnest.models import crazyflie as cf
 from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
-from learnest.service.experiments.flights import evaluate_flights, train_on_flight
+from learnest.workflows.flights import evaluate_flights, train_on_flight
 
 NOMINAL = cf.IDENTIFIED
 REGIMES = {"nominal": NOMINAL, "payload +20 %": {**NOMINAL, "m_kg": 1.2 * NOMINAL["m_kg"]},

@@ -25,7 +25,7 @@ from learnest.models import crazyflie as cf
 from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.models.knode import HybridModel
 from learnest.models.presets import CRAZYFLIE_TRAINING
-from learnest.service.experiments.flights import train_on_flights
+from learnest.workflows.flights import train_on_flights
 
 DRAG_TRUTH = {**cf.IDENTIFIED, "k_xy": 3 * cf.IDENTIFIED["k_xy"]}
 RESIDUALS = (("body frame", "body", True), ("state frame, attitude-blind", "state", True),

@@ -15,7 +15,7 @@ import numpy as np
 from learnest.estimators.prepared import system_for
 from learnest.ingest import read_flights
 from learnest.models.inputs import flight_thrust_gain, system_inputs
-from learnest.service.experiments.flights import log_start_ns
+from learnest.workflows.flights import log_start_ns
 
 DATA = Path("../shared/data/nanobench")
 BREAK_MIN = 5.0          # a gap this long since the previous log ended: the motors have cooled (τ_th 45-75 s)

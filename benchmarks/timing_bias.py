@@ -3,7 +3,7 @@ offsets, recovered stage by stage, to find where a time shift enters.
 
 For each injected delay the simulator (rotor drag on, the accelerometer's 30 Hz first-order low-pass on)
 flies one flight; its accelerometer delay is recovered by the diagnosis's own fit of the ``accel_delay``
-effect alone (`service.experiments.diagnosis.accelerometer_problem` + `models.diagnosis.fit`):
+effect alone (`workflows.diagnosis.accelerometer_problem` + `models.diagnosis.fit`):
 
   memory      the simulated arrays handed to ingest.align.build_flight directly (no file)
   <format>    written by ingest.sim.write_flight and read back by ingest.read_flights
@@ -29,7 +29,7 @@ from learnest.ingest.sim import RandomWaypoints, SensorModel, simulate, write_fl
 from learnest.ingest.sim.export import CFCLIENT_CLOCK_OFFSET_S
 from learnest.models.diagnosis import fit
 from learnest.models.effects import LIBRARY
-from learnest.service.experiments.diagnosis import accelerometer_problem
+from learnest.workflows.diagnosis import accelerometer_problem
 
 DELAYS_S = (0.0, 0.02, 0.04, 0.06)
 FORMATS = ("nanobench", "usd-v1", "usd", "vicon+cfclient", "mcap-ros2")

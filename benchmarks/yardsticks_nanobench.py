@@ -22,7 +22,7 @@ import numpy as np
 from learnest.estimators.prepared import system_for
 from learnest.ingest import read_flights
 from learnest.models.knode import HybridModel
-from learnest.service.experiments.flights import evaluate_flights, train_on_flight
+from learnest.workflows.flights import evaluate_flights, train_on_flight
 
 DATA = Path("../shared/data/nanobench")
 METHODS_PRIOR = ["ukf", "mhe", "onboard"]

@@ -2,7 +2,7 @@
 
 A flight model ("quadrotor" or "crazyflie") sees a flight through its own prior parameters (a diagnosis may
 have extended them), with the measurement effects it carries corrected, and with inputs whose thrust carries
-the flight's thrust gain where the model was trained on it.  The evaluation (`service.experiments.flights`),
+the flight's thrust gain where the model was trained on it.  The evaluation (`workflows.flights`),
 its envelope and prediction checks, the yardsticks and the notebook's `ukf`/`mhe` all start from this one
 `PreparedFlight`, so they cannot disagree about what the model saw.
 

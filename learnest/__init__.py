@@ -44,12 +44,12 @@ _LAZY = {
     "make_system": "learnest.models.systems",
     "FilterResult": "learnest.estimators.results",
     "KNODE": "learnest.estimators.knode_estimator",
-    "MHEResult": "learnest.service.experiments.estimation",
-    "ukf": "learnest.service.experiments.estimation",
-    "mhe": "learnest.service.experiments.estimation",
-    "evaluate": "learnest.service.experiments.estimation",
-    "diagnose": "learnest.service.experiments.diagnosis",
-    "thrust_map": "learnest.service.experiments.thrust_map",
+    "MHEResult": "learnest.workflows.estimation",
+    "ukf": "learnest.workflows.estimation",
+    "mhe": "learnest.workflows.estimation",
+    "evaluate": "learnest.workflows.estimation",
+    "diagnose": "learnest.workflows.diagnosis",
+    "thrust_map": "learnest.workflows.thrust_map",
 }
 
 __all__ = ["KNODE", "Conflict", "FilterResult", "Flight", "HybridModel", "IngestError", "InvalidInput",
@@ -76,6 +76,6 @@ if TYPE_CHECKING:  # what type checkers and IDEs see
     from .ingest.flight import Flight, IngestError
     from .models.knode import HybridModel
     from .models.systems import make_system
-    from .service.experiments.diagnosis import diagnose
-    from .service.experiments.estimation import MHEResult, evaluate, mhe, ukf
-    from .service.experiments.thrust_map import thrust_map
+    from .workflows.diagnosis import diagnose
+    from .workflows.estimation import MHEResult, evaluate, mhe, ukf
+    from .workflows.thrust_map import thrust_map

@@ -19,7 +19,7 @@ real NanoBench flights the box alone flagged 15 of 16 cross-family flights with 
 flight flies at its own battery voltage), while clipping the network's inputs to the box changed the
 KNODE-UKF's MSE by less than 1 % on 13 of them (measured by hand); the residual-aware check flags two,
 one of them a flight where the KNODE loses (benchmarks/results/crazyflie_transfer).  Table I's check
-(`service.experiments.table1`) stays the box, the rule its robot target was measured with.
+(`workflows.table1`) stays the box, the rule its robot target was measured with.
 """
 from __future__ import annotations
 

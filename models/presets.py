@@ -216,7 +216,7 @@ PAPER_OBSERVER = {"cartpole": ("joint", 0), "robot": ("smoother", 0)}
 CRAZYFLIE_TRAINING = TrainingConfig(hidden=16, epochs=150, lr=1e-3, validation_fraction=0.2,
                                     validation_layout="spread")
 
-# How a diagnosis splits its flights into fitting and scored ones (service.experiments.diagnosis), in the
+# How a diagnosis splits its flights into fitting and scored ones (workflows.diagnosis), in the
 # words every surface uses: the API schema, `learnest diagnose --help`, the report page.
 DIAGNOSIS_SPLIT_RULE = ("the kinematic prior (quadrotor) fits its effects on the first flight and scores them on the "
                         "others; the Crazyflie prior fits on the first half of the flights (rounded up) and scores "

@@ -1,10 +1,10 @@
 """Shared fixtures.  Tests import the installed `learnest` package, as a user would: no sys.path edits;
 helpers live in `tests/utils` (importable as `utils` because pytest puts this folder on sys.path).
 
-The folders mirror the packages (tests/ingest, tests/models, tests/estimators, tests/service, tests/docs; the
-cross-cutting checks stay here).  They have no `__init__.py`: pytest then imports each test module under its
-file name alone, so test file names must stay unique across folders, and no test folder can shadow
-`learnest` or the repository's top-level source folders as an importable package."""
+The folders mirror the packages (tests/ingest, tests/models, tests/estimators, tests/workflows, tests/service,
+tests/docs; the cross-cutting checks stay here).  They have no `__init__.py`: pytest then imports each test
+module under its file name alone, so test file names must stay unique across folders, and no test folder can
+shadow `learnest` or the repository's top-level source folders as an importable package."""
 import time
 from pathlib import Path
 

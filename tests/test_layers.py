@@ -1,5 +1,6 @@
 """The architecture as tests: one-way imports (import-linter's contracts in pyproject.toml) and no cycles."""
 import sys
+from copy import deepcopy
 from pathlib import Path
 
 import grimp
@@ -12,7 +13,7 @@ PYPROJECT = Path(__file__).resolve().parents[1] / "pyproject.toml"
 
 
 def test_import_contracts_hold(tmp_path, monkeypatch):
-    """Layers ingest -> models -> estimators -> service; the science imports no web/SQL/jobs code."""
+    """Layers ingest -> models -> estimators -> workflows -> service; the science imports no web/SQL/jobs code."""
     # import-linter puts the working directory first on sys.path: from the repository root that would be the
     # checkout's learnest/ folder, not the installed package the contracts are about
     monkeypatch.chdir(tmp_path)
@@ -37,17 +38,23 @@ def test_the_contracts_catch_a_violation(graph):
     graph.add_import(importer="learnest.estimators.ukf", imported="learnest.service.jobs", line_number=1,
                      line_contents="from learnest.service import jobs")
     illegal = graph.find_illegal_dependencies_for_layers(
-        layers=["learnest.service", "learnest.estimators", "learnest.models", "learnest.ingest"])
+        layers=["learnest.service", "learnest.workflows", "learnest.estimators", "learnest.models", "learnest.ingest"])
     assert {(d.importer, d.imported) for d in illegal} == {("learnest.estimators", "learnest.service")}
+
+
+def _contract(name_start: str) -> dict:
+    """The one contract of pyproject.toml whose name starts so."""
+    import tomllib
+
+    contracts = tomllib.loads(PYPROJECT.read_text())["tool"]["importlinter"]["contracts"]
+    [contract] = [c for c in contracts if c["name"].startswith(name_start)]
+    return contract
 
 
 def _rooms_layers() -> list:
     """The service rooms contract of pyproject.toml as grimp layers ("a : b" is one layer of siblings that may
     import each other)."""
-    import tomllib
-
-    contracts = tomllib.loads(PYPROJECT.read_text())["tool"]["importlinter"]["contracts"]
-    [rooms] = [c for c in contracts if c["name"].startswith("service rooms")]
+    rooms = _contract("service rooms")
     return [grimp.Layer(*(name.strip() for name in layer.split(":")), independent=False) for layer in rooms["layers"]]
 
 
@@ -63,3 +70,27 @@ def test_the_service_rooms_contract_is_live(graph):
                            line_number=1, line_contents="from ..operations import catalog")
     illegal = reaching_up.find_illegal_dependencies_for_layers(layers=layers)
     assert {(d.importer, d.imported) for d in illegal} == {("learnest.service.storage", "learnest.service.operations")}
+
+
+def _cli_imports_broken(graph) -> set:
+    """(importer, forbidden) packages the CLI contract of pyproject.toml finds on ``graph``, as import-linter checks
+    it (on a copy: the check removes the contract's ignored imports from the graph it is given)."""
+    from importlinter.contracts.forbidden import ForbiddenContract
+
+    options = {k: v for k, v in _contract("the CLI imports").items() if k not in ("name", "type")}
+    contract = ForbiddenContract(name="cli", session_options={"root_packages": ["learnest"]}, contract_options=options)
+    check = contract.check(deepcopy(graph), verbose=False)
+    return {(c["downstream_module"], c["upstream_module"]) for c in check.metadata["invalid_chains"]}
+
+
+@pytest.mark.parametrize("imported, forbidden", [("learnest.models.presets", "learnest.models"),
+                                                 ("learnest.service.storage.references", "learnest.service.storage")])
+def test_the_cli_contract_is_live(graph, imported, forbidden):
+    """The CLI reaches the science only through learnest.workflows and the service only through
+    learnest.service.local: the contract holds on the package as it is (the facade's own imports of the models
+    and the storage are no violation), and a command importing past them, as the CLI once did, would be found."""
+    assert _cli_imports_broken(graph) == set()
+    reaching_past = deepcopy(graph)
+    reaching_past.add_import(importer="learnest.service.cli.arguments", imported=imported, line_number=1,
+                             line_contents=f"import {imported}")
+    assert _cli_imports_broken(reaching_past) == {("learnest.service.cli", forbidden)}

@@ -44,8 +44,8 @@ def test_import_learnest_is_light():
 
 
 def test_science_layers_import_without_the_service_stack():
-    code = ("import sys; import learnest.service.experiments.estimation, learnest.service.experiments.diagnosis, "
-            "learnest.service.experiments.table1, learnest.estimators.knode_estimator; "
+    code = ("import sys; import learnest.workflows.estimation, learnest.workflows.diagnosis, "
+            "learnest.workflows.table1, learnest.estimators.knode_estimator; "
             "print(','.join(m for m in ('fastapi', 'sqlalchemy', 'starlette', 'alembic') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd="/")
     assert out.stdout.strip() == ""
@@ -55,7 +55,7 @@ def test_the_workflows_load_torch_and_filterpy_only_when_they_run():
     """Importing the training, estimation and experiment modules (what every test module and job worker
     does) loads neither torch (3 s) nor filterpy (2 s of scipy.stats): the suite's collection stays fast."""
     code = ("import sys; import learnest.models.training, learnest.estimators.ukf, learnest.estimators.kf, "
-            "learnest.service.experiments.flights, learnest.service.experiments.estimation; "
+            "learnest.workflows.flights, learnest.workflows.estimation; "
             "print(','.join(m for m in ('torch', 'filterpy', 'torchdiffeq') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd="/")
     assert out.stdout.strip() == ""

@@ -16,8 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, create_model
 
 from learnest.models.metadata import ModelMetadata
 from learnest.records import BOOKKEEPING, Record
-
-from ..experiments.reports import DiagnosisReport, EvaluationReport
+from learnest.workflows.reports import DiagnosisReport, EvaluationReport
 
 _BUILT: dict[type, type[BaseModel]] = {}
 

@@ -6,8 +6,15 @@ import argparse
 import math
 from pathlib import Path
 
-from learnest.errors import InvalidInput
-from learnest.models.presets import GAP_EVERY_S, GAP_S, MIN_GAP_S, SG_WINDOW_RANGE, gap_plan_problem
+from learnest.workflows.vocabulary import (
+    GAP_EVERY_S,
+    GAP_S,
+    MIN_GAP_S,
+    SG_WINDOW_RANGE,
+    GapPlan,
+    InvalidInput,
+    gap_plan_problem,
+)
 
 
 # -- argument types: refuse bad values before any import or ingest (one-line error, exit 2) -----------
@@ -65,7 +72,7 @@ def _sg_window(text: str) -> int:
 
 def _model_ref(text: str) -> str:
     """A registry reference, checked for its form only (whether it exists needs the registry)."""
-    from ..storage.references import parse_ref
+    from ..local import parse_ref
 
     try:
         return str(parse_ref(text))
@@ -75,7 +82,7 @@ def _model_ref(text: str) -> str:
 
 def _name(text: str) -> str:
     """A registered model or alias name (references.NAME), checked before any import of the service."""
-    from ..storage.references import check_name
+    from ..local import check_name
 
     try:
         return check_name(text)
@@ -85,7 +92,7 @@ def _name(text: str) -> str:
 
 def _topic(text: str) -> str:
     """A ROS topic name, optionally with ":BODY" (one body of a TFMessage / NamedPoseArray topic)."""
-    from ..storage.references import check_topic
+    from ..local import check_topic
 
     try:
         return check_topic(text)
@@ -95,7 +102,7 @@ def _topic(text: str) -> str:
 
 def _cut(text: str) -> str:
     """The take-off/landing cut, checked for its form before any work (`learnest.ingest.align.parse_cut`)."""
-    from learnest.ingest.align import cut_text, parse_cut
+    from learnest.workflows.files import cut_text, parse_cut
 
     try:
         return cut_text(parse_cut(text))
@@ -115,7 +122,7 @@ def _new_file(text: str) -> str:
 
 def _export_path(text: str) -> str:
     """An output file whose folder exists and whose suffix names an export format (.csv, .parquet, .mcap)."""
-    from learnest.estimators.export import format_of
+    from learnest.workflows.files import format_of
 
     try:
         format_of(text)
@@ -125,7 +132,7 @@ def _export_path(text: str) -> str:
 
 
 def _export_format(path: str) -> str:
-    from learnest.estimators.export import format_of
+    from learnest.workflows.files import format_of
 
     return format_of(path)
 
@@ -133,8 +140,6 @@ def _export_format(path: str) -> str:
 def _gap_plan(args):
     """The gaps --gap-s and --gap-every-s ask for, checked before any flight is read (InvalidInput when the
     gaps would leave no mocap between them)."""
-    from learnest.estimators.gap_plan import GapPlan
-
     return GapPlan(args.gap_s, args.gap_every_s)
 
 

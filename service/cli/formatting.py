@@ -1,8 +1,7 @@
 """The text the `learnest` subcommands print: reports, trained and registered models, diagnoses."""
 from __future__ import annotations
 
-from learnest.estimators.metrics import gain_pct, worse_beyond_interval
-from learnest.models.presets import EVALUATION_METHODS, GAP_START_S
+from learnest.workflows.vocabulary import EVALUATION_METHODS, GAP_START_S, gain_pct, worse_beyond_interval
 
 
 def format_report(report: dict) -> str:
@@ -194,7 +193,7 @@ def _envelope_text(envelope: dict | None) -> str:
 def format_trained(out: dict) -> str:
     """`learnest train`'s text: what was registered, on which flights, and whether the residual learned
     anything that held-out data confirm."""
-    from learnest.models.training import NOT_LEARNED
+    from learnest.workflows.learning import NOT_LEARNED
 
     if len(out["training_flights"]) == 1 and not out["validation_flights"]:
         on = f"trained on {out['training_flight']} (flight {out['flight_id']})"

@@ -4,8 +4,7 @@ from __future__ import annotations
 import argparse
 from typing import NoReturn
 
-from learnest import __version__
-from learnest.models.presets import (
+from learnest.workflows.vocabulary import (
     CRAZYFLIE_TRAINING,
     DIAGNOSIS_SPLIT_RULE,
     EVALUATION_METHODS,
@@ -14,6 +13,7 @@ from learnest.models.presets import (
     PAPER_OBSERVER,
     PRODUCTION_ALIAS,
     SG_WINDOW,
+    __version__,
 )
 
 from .arguments import (

@@ -5,7 +5,7 @@ import sys
 import time
 from pathlib import Path
 
-from learnest.errors import InvalidInput, LearnestError
+from learnest.workflows.vocabulary import InvalidInput, LearnestError
 
 from .arguments import gap_options_problem
 from .commands import (
@@ -49,7 +49,7 @@ def main(argv=None) -> int:
     except SystemExit as stop:  # a bad argument (argparse printed usage and why) or --help
         return int(stop.code or 0)
     if args.func is _export and not args.format:  # the format is checked before any work, like the other arguments
-        from learnest.estimators.export import format_of
+        from learnest.workflows.files import format_of
 
         try:
             format_of(args.output)
@@ -75,7 +75,7 @@ def main(argv=None) -> int:
     if (line := first_line(args)) is not None:
         print(line, flush=True)
     if args.func not in (_ingest, _serve, _export) + REGISTRY_COMMANDS:  # the rest run the networks here
-        from ..jobs.executors import init_worker
+        from ..local import init_worker
 
         init_worker()  # the networks are tiny: extra threads only add contention
     try:

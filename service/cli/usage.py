@@ -10,8 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from learnest.errors import InvalidInput
-from learnest.models.presets import EVALUATION_METHODS, parse_methods
+from learnest.workflows.vocabulary import EVALUATION_METHODS, InvalidInput, parse_methods
 
 from .arguments import _gap_plan
 from .commands import _demo, _diagnose, _evaluate, _thrust_map, _train
@@ -57,7 +56,7 @@ def _check_diagnose(args) -> None:
     if not args.files:
         raise InvalidInput("diagnose needs flight files (or --system cartpole|robot --simulate ...)")
     if args.register:
-        from ..storage.references import check_name
+        from ..local import check_name
 
         _registry_grid(args.rate)
         check_name(args.register)

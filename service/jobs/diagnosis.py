@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from learnest.errors import InvalidInput
 from learnest.models.presets import diagnosis_fitting_count
+from learnest.workflows.reports import DiagnosisReport
 
-from ..experiments.reports import DiagnosisReport
 from ..storage import registry
 from ..storage.database import flights_by_id, flights_not_found, get_row
 from ..storage.tables import Diagnosis, utcnow
@@ -63,7 +63,7 @@ def start_diagnosis(services: Services, flight_ids: list[int], model_ref: str | 
 
 
 def fitting_samples(rows, system: str) -> int:
-    """Samples of the flights a diagnosis fits its KNODE on, chosen as `experiments.diagnosis` chooses them:
+    """Samples of the flights a diagnosis fits its KNODE on, chosen as `workflows.diagnosis` chooses them:
     the flights that pass the quality checks (all, if none does), then the first of them (kinematic prior) or
     the first half, rounded up (input-driven Crazyflie prior).  The quota is charged on these, not on the
     first flight named: a short bad flight named first is dropped, and the big one after it is fitted."""

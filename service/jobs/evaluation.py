@@ -1,5 +1,5 @@
 """Evaluation jobs: score a model version on stored flights, one executor task per flight without a cached
-result (`result_cache`), then the report (the shape of service.experiments.flights.evaluate_flights)."""
+result (`result_cache`), then the report (the shape of workflows.flights.evaluate_flights)."""
 from __future__ import annotations
 
 import json
@@ -12,8 +12,8 @@ from sqlalchemy.orm import Session
 
 from learnest.errors import InvalidInput
 from learnest.models.presets import gap_plan_problem
+from learnest.workflows.reports import EvaluationReport
 
-from ..experiments.reports import EvaluationReport
 from ..storage import registry
 from ..storage.database import discard_blobs, flights_by_id, flights_not_found, get_row
 from ..storage.tables import Evaluation, FlightRecord, ModelVersion, utcnow
@@ -146,7 +146,7 @@ def _missing_entry(flight_id: int) -> dict:
 
 def assemble_report(model_ref: str, entries: list[dict], flight_ids: Sequence[int],
                     shas: Sequence[str | None], model_meta: dict | None = None) -> dict:
-    """The same shape and numbers as service.experiments.flights.evaluate_flights; each flight's entry also
+    """The same shape and numbers as workflows.flights.evaluate_flights; each flight's entry also
     names the stored flight (``flight_id``, ``sha256``: its content key), and ``units`` says what the
     numbers are in; ``learned`` and ``learned_note`` come from the model's ``model_meta``."""
     from learnest.estimators.evaluate import MSE_UNITS, summarize

@@ -54,7 +54,7 @@ def report_progress(target: tuple[str, int] | None, fraction: float | None, stag
 def train_task(flight_bytes: bytes | list[bytes], config: dict, progress_target: tuple[str, int] | None = None,
                meta: dict | None = None, validate: list[str] | None = None) -> dict:
     """Algorithm 1 on one flight, or on several of one vehicle with the flights ``validate`` names held out
-    whole (service.experiments.flights.train_on_flights: the residual's scale chosen on held-out groups of the
+    whole (workflows.flights.train_on_flights: the residual's scale chosen on held-out groups of the
     flights by ``config["group_by"]``; a version stored before it, without the key, keeps the whole residual);
     the model comes back as JSON.
 
@@ -67,8 +67,7 @@ def train_task(flight_bytes: bytes | list[bytes], config: dict, progress_target:
     stops running (checked with each progress report, about every PROGRESS_EVERY_S).
     """
     from learnest.models.training import TrainingConfig
-
-    from ..experiments.flights import train_on_flights
+    from learnest.workflows.flights import train_on_flights
 
     started = time.perf_counter()
     init_worker()
@@ -126,14 +125,14 @@ def flight_from_bytes(data: bytes) -> Flight:
 
 def evaluate_task(model_json: bytes, flight_bytes: bytes, settings: dict,
                   progress_target: tuple[str, int] | None = None, label: str = "") -> dict:
-    """One flight's entry of service.experiments.flights.evaluate_flights' report and its estimates.
+    """One flight's entry of workflows.flights.evaluate_flights' report and its estimates.
 
     ``settings`` is `EstimatorSettings.as_dict()`.  Returns ``entry`` and ``estimates``: the per-step
     estimates as `FlightEstimates.to_bytes` (None when the flight was not scored).  With ``progress_target``
     the job's stage says which method runs on which flight ("knode-ukf on flight3 (2/4)", ``label`` being
     "flight3 (2/4)") and when an MHE is being built.
     """
-    from ..experiments.flights import evaluate_flights
+    from learnest.workflows.flights import evaluate_flights
 
     init_worker()
     model = registry.model_from_json(model_json)
@@ -154,12 +153,12 @@ def evaluate_task(model_json: bytes, flight_bytes: bytes, settings: dict,
 
 def diagnose_task(flights_bytes: list[bytes], model_json: bytes | None, methods: list[str], epochs: int,
                   system: str = "quadrotor", progress_target: tuple[str, int] | None = None) -> dict:
-    """service.experiments.diagnosis.diagnose_flights on stored flights; the report as plain JSON, the
+    """workflows.diagnosis.diagnose_flights on stored flights; the report as plain JSON, the
     repaired model as HybridModel JSON, and the name of the flight it was fitted on.  With
     ``progress_target`` the job's stage and progress follow the diagnosis' named stages (`diagnosis_stages`):
     the diagnosis' fraction f is written as DIAGNOSIS_SPAN[0] + f · (DIAGNOSIS_SPAN[1] - DIAGNOSIS_SPAN[0]);
     `TaskCancelled` when the job stops running."""
-    from ..experiments.diagnosis import diagnose_flights
+    from learnest.workflows.diagnosis import diagnose_flights
 
     init_worker()
     report_progress(progress_target, DIAGNOSIS_SPAN[0], f"reading {len(flights_bytes)} flight(s)")
@@ -178,7 +177,7 @@ DIAGNOSIS_SPAN = (0.02, 0.94)
 def _stage_writer(target: tuple[str, int]):
     """``on_stage(name, fraction)`` writing a diagnosis' stages to its job: every new kind of stage at once,
     the ticks within one (epochs, effects tried) at most every PROGRESS_EVERY_S / 2."""
-    from ..experiments.diagnosis_stages import stage_kind
+    from learnest.workflows.diagnosis_stages import stage_kind
 
     last: dict[str, Any] = {"kind": None, "at": 0.0}
 

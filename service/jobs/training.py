@@ -36,7 +36,7 @@ def start_training(services: Services, name: str, flight_id: int | Sequence[int]
     """Reserve name's next version (its ``created_by``: the asking token's name), create the job, launch it.
 
     ``flight_id`` is one stored flight (the paper's protocol: time blocks of it validate) or several, trained
-    on as one vehicle (`service.experiments.flights.train_on_flights`); ``validation_ids`` are held out whole
+    on as one vehicle (`workflows.flights.train_on_flights`); ``validation_ids`` are held out whole
     (also when not among ``flight_id``), by default one flight in five of several (`default_validation`).
     The version's lineage records every training and validation flight.
 
@@ -176,7 +176,7 @@ def requested_order(rows: list[FlightRecord], flight_ids: Sequence[int] | None) 
     """The training's flight rows in the order it was requested (``flight_ids`` of its job: the given flights,
     then the held-out ones not among them), or as given when the job does not list exactly these flights.
 
-    Why: the order is part of the training's input, as in `service.experiments.flights.train_on_flights`: it
+    Why: the order is part of the training's input, as in `workflows.flights.train_on_flights`: it
     orders the groups held out in turn and each group's scored flights (`estimators.group_training`), so the
     job trains on the flights in the order a notebook given the same list would.
     """

@@ -21,14 +21,63 @@ upload would), `training`, `evaluation`, `browsing` (reading the registry); thei
 - `load_model`: "NAME" (its latest ready version), "NAME:VERSION" or "NAME@ALIAS" -> HybridModel, through
   service.storage.registry.load_model_ref; a reference that names nothing usable is a NotFound or Conflict listing the
   known models.
-"""
-from .browsing import known_models, list_flights, list_models, load_model, set_alias, show_model
-from .evaluation import evaluate, export
-from .flights import UnreadableFile, add_flight, flight_files
-from .services import cli_settings, local_services, registry_database, wait_for_job, watching_stages
-from .training import TrainingFailed, abandon_training, register_repaired, train
 
-__all__ = ["TrainingFailed", "UnreadableFile", "abandon_training", "add_flight", "cli_settings", "evaluate", "export",
-           "flight_files", "known_models", "list_flights", "list_models", "load_model", "local_services",
+The CLI states its requests in a few of the service's own names, given here beside the facade's functions: the
+`Settings` (LEARNEST_*), an evaluation's `EstimatorSettings`, one scheduler round (`evaluate_new_once`), this
+process set up to run the networks (`init_worker`), and the grammar of model names, references and topics
+(`check_name`, `parse_ref`, `check_topic`, from `service.storage.references`).
+
+Every name is imported on first use: checking a reference's form loads no database stack, and the CLI's usage
+errors come before anything heavy.
+"""
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+# public name -> module that defines it (relative to this package)
+_LAZY = {
+    **dict.fromkeys(["known_models", "list_flights", "list_models", "load_model", "set_alias", "show_model"],
+                    ".browsing"),
+    **dict.fromkeys(["evaluate", "export"], ".evaluation"),
+    **dict.fromkeys(["UnreadableFile", "add_flight", "flight_files"], ".flights"),
+    **dict.fromkeys(["cli_settings", "local_services", "registry_database", "wait_for_job", "watching_stages"],
+                    ".services"),
+    **dict.fromkeys(["TrainingFailed", "abandon_training", "register_repaired", "train"], ".training"),
+    "Settings": "..config",
+    "EstimatorSettings": "..jobs.result_cache",
+    "evaluate_new_once": "..jobs.scheduler",
+    "init_worker": "..jobs.executors",
+    **dict.fromkeys(["check_name", "check_topic", "parse_ref"], "..storage.references"),
+}
+
+__all__ = ["EstimatorSettings", "Settings", "TrainingFailed", "UnreadableFile", "abandon_training", "add_flight",
+           "check_name", "check_topic", "cli_settings", "evaluate", "evaluate_new_once", "export", "flight_files",
+           "init_worker", "known_models", "list_flights", "list_models", "load_model", "local_services", "parse_ref",
            "register_repaired", "registry_database", "set_alias", "show_model", "train", "wait_for_job",
            "watching_stages"]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+        globals()[name] = value  # later lookups skip this function
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)
+
+
+if TYPE_CHECKING:  # what type checkers and IDEs see
+    from ..config import Settings
+    from ..jobs.executors import init_worker
+    from ..jobs.result_cache import EstimatorSettings
+    from ..jobs.scheduler import evaluate_new_once
+    from ..storage.references import check_name, check_topic, parse_ref
+    from .browsing import known_models, list_flights, list_models, load_model, set_alias, show_model
+    from .evaluation import evaluate, export
+    from .flights import UnreadableFile, add_flight, flight_files
+    from .services import cli_settings, local_services, registry_database, wait_for_job, watching_stages
+    from .training import TrainingFailed, abandon_training, register_repaired, train

@@ -103,8 +103,8 @@ def velocity(t: np.ndarray, reference: np.ndarray, estimates: dict[str, np.ndarr
 def velocity_png(model_json: bytes, flight_bytes: bytes, title: str) -> str:
     """The velocity figure of a model on a flight, as a data URI: an executor task (it runs the UKF and
     KNODE-UKF on the flight, about a second); service.web.report_figures keeps its answer."""
-    from learnest.service.experiments.flights import evaluate_flight  # torch: only in the worker
     from learnest.service.storage.registry import model_from_json
+    from learnest.workflows.flights import evaluate_flight  # torch: only in the worker
 
     model = model_from_json(model_json)
     flight = CanonicalFlight.from_bytes(flight_bytes)

@@ -155,7 +155,7 @@ diagnosis_reports = APIRouter(tags=["diagnoses"])
 def diagnosis_report_page(diagnosis_id: RowId, services: Services = Depends(get_services)):
     """The diagnosis report for people: effects with units, 95 % intervals and alternatives, the residual over
     time before and after, and the held-out error before and after (linear axes)."""
-    from learnest.service.experiments.diagnosis import (  # numpy only; kept off app start
+    from learnest.workflows.diagnosis import (  # numpy only; kept off app start
         confounded_label,
         how_much,
         unchanged_prior_note,

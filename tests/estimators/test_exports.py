@@ -144,7 +144,7 @@ def test_evaluation_keeps_the_estimates_an_independent_ukf_run_gives(tmp_path):
     """The estimates handed out equal le.ukf on the same flight, the reference the SG baseline, the
     measurement y = [p, a_meas]; t = 0 sits where the flight's grid starts on the log's clock."""
     from learnest.ingest.baseline import references
-    from learnest.service.experiments.flights import evaluate_flights
+    from learnest.workflows.flights import evaluate_flights
 
     [flight] = le.read_flights([flight_csv(tmp_path, seed=3)])
     prior = le.HybridModel(le.make_system("quadrotor"))

@@ -22,7 +22,7 @@ from learnest.estimators.prepared import corrected_flight, initial_state, prepar
 from learnest.ingest import read_flights
 from learnest.models.knode import HybridModel
 from learnest.models.training import NOT_CHECKED, NOT_LEARNED, learned_meta
-from learnest.service.experiments.flights import evaluate_flight, evaluate_prepared, flight_envelope
+from learnest.workflows.flights import evaluate_flight, evaluate_prepared, flight_envelope
 
 SAMPLES = Path(__file__).resolve().parents[2] / "sample_logs"
 

@@ -13,7 +13,7 @@ from learnest.ingest.sim import Circle, simulate, write_flight
 from learnest.models.knode import HybridModel, Residual
 from learnest.models.systems import make_system
 from learnest.service.cli import format_report
-from learnest.service.experiments.flights import evaluate_flights
+from learnest.workflows.flights import evaluate_flights
 
 RADIUS, SPEED = 0.5, 1.0          # m, m/s: ω = 2 rad/s, a centripetal jerk of ω³ r = 4 m/s³
 

@@ -27,7 +27,7 @@ from learnest.ingest.sim import Circle, simulate, write_flight
 from learnest.models.knode import HybridModel, Residual
 from learnest.models.systems import make_system
 from learnest.service.cli import format_report
-from learnest.service.experiments.flights import evaluate_flights
+from learnest.workflows.flights import evaluate_flights
 
 RADIUS, SPEED = 0.5, 1.0          # m, m/s: ω = 2 rad/s, the circle's centripetal jerk ω² v is what the prior lacks
 SAMPLE = "sample_logs/B2_circle_fast_rep1.csv"   # a real NanoBench flight with the onboard EKF's estimate

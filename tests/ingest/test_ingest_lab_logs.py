@@ -301,7 +301,7 @@ def test_models_record_the_vehicle_and_warn_on_another(circle, tmp_path):
     from learnest.models.knode import HybridModel
     from learnest.models.presets import TrainingConfig
     from learnest.service.cli import format_report
-    from learnest.service.experiments.flights import evaluate_flights, train_on_flight
+    from learnest.workflows.flights import evaluate_flights, train_on_flight
 
     twin = simulate(Circle(radius=0.5, speed=0.8, duration_s=6.0), seed=5, name="twin")
     trained, = read_flights([write_nanobench(circle, tmp_path / "train.csv", vehicle="CF_01")])

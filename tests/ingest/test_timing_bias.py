@@ -17,7 +17,7 @@ from learnest.ingest.sim import RandomWaypoints, SensorModel, simulate, write_fl
 from learnest.ingest.sim.export import CFCLIENT_CLOCK_OFFSET_S
 from learnest.models.diagnosis import fit
 from learnest.models.effects import LIBRARY
-from learnest.service.experiments.diagnosis import accelerometer_problem
+from learnest.workflows.diagnosis import accelerometer_problem
 
 DELAYS_S = (0.02, 0.04, 0.06)
 LOWPASS_HZ = 30.0

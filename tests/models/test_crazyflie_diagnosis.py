@@ -22,7 +22,7 @@ from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simula
 from learnest.models.effects import LIBRARY, effects_for
 from learnest.models.inputs import MissingInputs
 from learnest.service.cli import main
-from learnest.service.experiments.diagnosis import diagnose_crazyflie, format_diagnosis
+from learnest.workflows.diagnosis import diagnose_crazyflie, format_diagnosis
 
 PRIOR = cf.IDENTIFIED
 
@@ -290,9 +290,9 @@ def test_a_repair_that_changes_nothing_is_never_judged_an_improvement():
     so even with an effect claimed the verdict is no improvement."""
     from learnest.estimators.prepared import system_for
     from learnest.models.knode import HybridModel
-    from learnest.service.experiments.diagnosis import repair_scores, repair_verdict
-    from learnest.service.experiments.diagnosis_problems import REPAIR_GAPS
-    from learnest.service.experiments.flights import evaluate_flight
+    from learnest.workflows.diagnosis import repair_scores, repair_verdict
+    from learnest.workflows.diagnosis_problems import REPAIR_GAPS
+    from learnest.workflows.flights import evaluate_flight
 
     prior, flights = _lag_case()
     per_flight = []
@@ -335,7 +335,7 @@ def test_a_held_out_flight_too_short_for_a_gap_is_judged_on_the_sg_yardstick_and
 def test_the_repair_verdict_counts_flights_by_their_gap_gain_intervals(intervals, improves):
     """The verdict's counting, on gap scores with known intervals: held-out gap RMSE 10 → 7 mm on the
     second flight, 7.2 → 7.4 mm on the first (worse by its error)."""
-    from learnest.service.experiments.diagnosis import repair_verdict
+    from learnest.workflows.diagnosis import repair_verdict
 
     errors = [(0.0072, 0.0074), (0.010, 0.007)]
     per_flight = [{"flight": f"f{k}", "before": {"ukf": 0.07}, "after": {"ukf": 0.07},

@@ -13,7 +13,7 @@ from learnest.ingest import read_flights
 from learnest.ingest.sim import write_canonical_flight
 from learnest.models import crazyflie as cf
 from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
-from learnest.service.experiments.diagnosis import diagnose_crazyflie, format_diagnosis
+from learnest.workflows.diagnosis import diagnose_crazyflie, format_diagnosis
 
 PRIOR = cf.IDENTIFIED
 RESULTS = Path(__file__).resolve().parents[2] / "benchmarks" / "results"

@@ -11,7 +11,7 @@ from learnest.ingest.sim import Circle, Figure8, RandomWaypoints, SensorModel, s
 from learnest.models.diagnosis import fit, select_effects
 from learnest.models.effects import LIBRARY
 from learnest.service.cli import main
-from learnest.service.experiments.diagnosis import (
+from learnest.workflows.diagnosis import (
     accelerometer_problem,
     diagnose_flights,
     diagnose_simulated,
@@ -182,7 +182,7 @@ def _robot_drag_selection(truth: str, throttle_mean: float, throttle_weave: tupl
 
     from learnest.estimators.observers import pretraining_observer
     from learnest.models.systems import make_system
-    from learnest.service.experiments.diagnosis import dynamics_problem, effects_for, parse_simulate
+    from learnest.workflows.diagnosis import dynamics_problem, effects_for, parse_simulate
 
     robot = replace(make_system("robot"), throttle_mean=throttle_mean, throttle_weave=throttle_weave)
     robot = robot.with_true_params(**parse_simulate("robot", truth))
@@ -258,7 +258,7 @@ def test_a_rival_admitted_by_its_share_alone_is_a_close_rival_the_data_rank_lowe
     and said to be ranked lower by the data, not "cannot be told apart"; a share above 1 reads as a multiple."""
     from learnest.models.diagnosis import ResidualProblem, confounded_pairs
     from learnest.models.effects import Effect, Param
-    from learnest.service.experiments.diagnosis import confounded_label, how_much
+    from learnest.workflows.diagnosis import confounded_label, how_much
 
     rng = np.random.default_rng(1)
     u, w = rng.normal(size=(2, 200))
@@ -295,7 +295,7 @@ def test_select_effects_names_each_candidate_it_fits_and_its_fraction_only_grows
 
 
 def test_diagnosis_stages_map_each_part_into_its_share_and_never_go_back():
-    from learnest.service.experiments.diagnosis_stages import DiagnosisStages, stage_kind
+    from learnest.workflows.diagnosis_stages import DiagnosisStages, stage_kind
 
     seen: list[tuple[str, float]] = []
     stages = DiagnosisStages(lambda name, fraction: seen.append((name, fraction)),

@@ -18,7 +18,7 @@ from learnest.models.knode import HybridModel, Residual
 from learnest.models.presets import CRAZYFLIE_TRAINING
 from learnest.models.residual_scale import scaled_residual
 from learnest.models.systems import make_system
-from learnest.service.experiments.flights import train_on_flights
+from learnest.workflows.flights import train_on_flights
 
 
 def _member(seed: int) -> Residual:

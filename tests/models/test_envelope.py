@@ -12,7 +12,7 @@ from learnest.models.envelope import MARGIN, THRESHOLD, envelope_report, trainin
 from learnest.models.knode import HybridModel
 from learnest.models.presets import TrainingConfig
 from learnest.service.cli import format_report
-from learnest.service.experiments.flights import evaluate_flights, train_on_flight
+from learnest.workflows.flights import evaluate_flights, train_on_flight
 
 
 def test_box_fraction_outside_is_the_analytic_share():

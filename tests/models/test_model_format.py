@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from learnest.models import crazyflie as cf
+from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.models.inputs import calibrates_attitude, calibrates_thrust_gain, training_meta
 from learnest.models.knode import HybridModel, Residual
 from learnest.models.metadata import (
@@ -21,9 +22,8 @@ from learnest.models.metadata import (
     ModelMetadata,
     input_format,
 )
-from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.models.systems import make_system
-from learnest.service.experiments.flights import evaluate_flights
+from learnest.workflows.flights import evaluate_flights
 
 PRIOR = {**cf.IDENTIFIED, "m_kg": 0.016}
 

@@ -34,7 +34,7 @@ from learnest.models.training import (
     train_knode,
     train_knode_pooled,
 )
-from learnest.service.experiments.flights import train_on_flights
+from learnest.workflows.flights import train_on_flights
 
 DRAG_TRUTH = {**cf.IDENTIFIED, "k_xy": 3 * cf.IDENTIFIED["k_xy"]}   # rotor drag the prior underestimates 3-fold
 

@@ -18,7 +18,7 @@ from learnest.models.knode import HybridModel, Residual
 from learnest.models.presets import CRAZYFLIE_TRAINING
 from learnest.models.residual_frame import BODY_FEATURES, check_frame, features
 from learnest.models.systems import make_system
-from learnest.service.experiments.flights import train_on_flights
+from learnest.workflows.flights import train_on_flights
 
 DRAG_TRUTH = {**cf.IDENTIFIED, "k_xy": 3 * cf.IDENTIFIED["k_xy"]}   # rotor drag the prior underestimates 3-fold
 

@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 
 from learnest.errors import InvalidInput
+from learnest.estimators.group_training import gap_gains_by_scale, group_summary, train_with_scale_choice
 from learnest.models import crazyflie as cf
 from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.models.inputs import training_meta
 from learnest.models.knode import HybridModel, Residual
 from learnest.models.residual_scale import choose_scale, scaled_model, scaled_residual
 from learnest.models.systems import make_system
-from learnest.estimators.group_training import gap_gains_by_scale, group_summary, train_with_scale_choice
 
 
 def _random_residual(rng, n_in=18, hidden=16, n_out=9):

@@ -39,8 +39,8 @@ def test_the_library_and_the_cli_train_the_same_model(tmp_path, monkeypatch):
     from learnest.ingest import read_flights
     from learnest.models.presets import CRAZYFLIE_TRAINING
     from learnest.service.cli import main
-    from learnest.service.experiments.flights import train_on_flights
     from learnest.service.storage.registry import load_model_ref
+    from learnest.workflows.flights import train_on_flights
 
     paths = write_flights(tmp_path)
     flights = read_flights(paths)

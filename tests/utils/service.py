@@ -93,7 +93,7 @@ def running_app(home: Path, executor=None, **changes):
     """The real app (lifespan included: migrations, job runner) on a SQLite file under `home`."""
     from fastapi.testclient import TestClient
 
-    from learnest.service.api.app import create_app
+    from learnest.service.app.factory import create_app
     from learnest.service.jobs.executors import init_worker
 
     init_worker()  # this process trains too (CLI paths): one torch thread, as in the workers
@@ -191,8 +191,8 @@ def live_server(home, **changes):
     """The app under uvicorn (in a thread, with `learnest serve`'s options) on 127.0.0.1:<free port>."""
     import uvicorn
 
-    from learnest.service.api.app import create_app
     from learnest.service.api.server import DeadlineH11Protocol, uvicorn_options
+    from learnest.service.app.factory import create_app
 
     settings = settings_for(home, header_timeout_s=TIMEOUT_S, body_timeout_s=TIMEOUT_S, body_min_rate=1000,
                             keep_alive_s=TIMEOUT_S, **changes)

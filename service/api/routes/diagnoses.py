@@ -5,7 +5,8 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, Request, Response
 from fastapi.responses import JSONResponse
 
-from ...experiments.reports import DiagnosisReport
+from learnest.workflows.reports import DiagnosisReport
+
 from ...jobs.diagnosis import start_diagnosis
 from ...jobs.services import Services
 from ...operations.catalog import row_and_job

@@ -1,5 +1,5 @@
 """/evaluations: batch KNODE-UKF / KNODE-MHE (and their priors) over stored flights as a job; the report
-is service.experiments.flights.evaluate_flights' JSON.  Its HTML page, /evaluations/{id}/report.html, is one
+is workflows.flights.evaluate_flights' JSON.  Its HTML page, /evaluations/{id}/report.html, is one
 of the web pages (service.web.report_pages)."""
 from __future__ import annotations
 

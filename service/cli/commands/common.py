@@ -5,13 +5,13 @@ from __future__ import annotations
 import sys
 import time
 
-from learnest.errors import InvalidInput
+from learnest.workflows.vocabulary import InvalidInput
 
 _command_started = [time.perf_counter()]   # reset by main(): the command's whole time, imports included
 
 
 def _read(paths, rate_hz, topics: dict | None = None, cut: str | None = None):
-    from learnest.ingest import read_flights
+    from learnest.workflows.files import read_flights
 
     return read_flights(paths, rate_hz=rate_hz, **(topics or {}), cut=cut)
 
@@ -21,7 +21,7 @@ def _read_batch(paths, rate_hz, topics: dict | None = None, cut: str | None = No
     each of those is named on stderr with its reason, and the batch goes on (the command then exits with
     status 1, `_batch_status`).  InvalidInput (status 2) when fewer than ``need`` flights were read: nothing
     to go on with."""
-    from learnest.ingest.batch import format_errors, read_batch
+    from learnest.workflows.files import format_errors, read_batch
 
     batch = read_batch(paths, rate_hz=rate_hz, **(topics or {}), cut=cut)
     for note in batch.notes:
@@ -49,6 +49,6 @@ def _registry_grid(rate: float, hint: str = "") -> None:
 
 
 def _home() -> str:
-    from ...config import Settings
+    from ...local import Settings
 
     return str(Settings().home)

@@ -79,13 +79,11 @@ def _export(args) -> int:
 
 
 def _serve(args) -> int:
-    """The HTTP service (FastAPI app factory service.api.app:create_app under uvicorn); docs at /docs."""
+    """The HTTP service (FastAPI app factory service.app.factory:create_app under uvicorn); docs at /docs."""
     import os
 
-    import uvicorn
-
-    from ...api.server import uvicorn_options
-    from ...config import Settings
+    from ...app.serving import serve
+    from ...local import Settings
 
     if args.dask:  # the app reads its settings from the environment, in every worker process
         os.environ["LEARNEST_DASK"] = args.dask
@@ -103,9 +101,8 @@ def _serve(args) -> int:
     if not _may_serve(args, settings):
         return 2
     # the starting app listens at once and loads the service behind it (seconds of imports and migrations):
-    # /health and / answer from the first moment (service.api.starting)
-    uvicorn.run("learnest.service.api.starting:create_app", factory=True, host=args.host, port=args.port,
-                workers=args.workers, **uvicorn_options(settings))
+    # /health and / answer from the first moment (service.app.starting)
+    serve(settings, args.host, args.port, args.workers)
     return 0
 
 

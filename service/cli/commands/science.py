@@ -8,8 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from learnest.errors import InvalidInput
-from learnest.models.presets import CRAZYFLIE_TRAINING, EVALUATION_METHODS
+from learnest.workflows.vocabulary import CRAZYFLIE_TRAINING, EVALUATION_METHODS, InvalidInput, parse_methods
 
 from ..arguments import _export_format, _topics
 from ..formatting import _gap_lines, diagnosis_lead, format_report, format_trained
@@ -17,7 +16,7 @@ from .common import _batch_status, _command_started, _home, _read_batch
 
 
 def _ingest(args) -> int:
-    from learnest.ingest import summary
+    from learnest.workflows.files import summary
 
     # a folder stands for its logs; sidecars are read with their logs; an unreadable file is named, not fatal
     batch = _read_batch(args.files, args.rate, _topics(args), args.cut)
@@ -53,7 +52,7 @@ def _ingest(args) -> int:
 
 def _train(args) -> int:
     """Store the flights and register the next version of NAME in the registry (service.local)."""
-    from learnest.ingest.batch import format_errors
+    from learnest.workflows.files import format_errors
 
     from ...local import UnreadableFile, train
     from ..progress import StageProgress
@@ -77,8 +76,6 @@ def _train(args) -> int:
 def _evaluate(args) -> int:
     """Evaluate a registered model on flight files: stored in the registry (flights and evaluation, as the
     web UI's), or with --no-store only computed here."""
-    from learnest.models.presets import parse_methods
-
     from ...local import load_model
     from ...web.figures import evaluation_summary, save_figure
 
@@ -110,10 +107,9 @@ def _evaluate(args) -> int:
 
 def _evaluate_stored(args, model, ref: str, methods: list[str]) -> dict:
     """Store the flights and the evaluation in the registry (service.local.evaluate)."""
-    from learnest.ingest.batch import format_errors
+    from learnest.workflows.files import format_errors
 
-    from ...jobs.result_cache import EstimatorSettings
-    from ...local import evaluate, export
+    from ...local import EstimatorSettings, evaluate, export
 
     settings = EstimatorSettings(tuple(methods), args.horizon, args.include_bad, args.sg_window, args.gap_s,
                                  args.gap_every_s, args.noise)
@@ -131,9 +127,9 @@ def _evaluate_stored(args, model, ref: str, methods: list[str]) -> dict:
 
 def _evaluate_here(args, model, ref: str, methods: list[str]) -> dict:
     """Evaluate in this process and store nothing (--no-store); --export writes the estimates kept on the way."""
-    from learnest.estimators.export import write_estimates
+    from learnest.workflows.files import write_estimates
+    from learnest.workflows.flights import evaluate_flights
 
-    from ...experiments.flights import evaluate_flights
     from ..progress import StageProgress
 
     batch = _read_batch(args.files, args.rate, _topics(args), args.cut)
@@ -159,10 +155,7 @@ def _evaluate_here(args, model, ref: str, methods: list[str]) -> dict:
 
 def _evaluate_new(args) -> int:
     """One scheduler round (for cron): evaluate every stored flight without a result for name@alias."""
-    from learnest.models.presets import parse_methods
-
-    from ...jobs.result_cache import EstimatorSettings
-    from ...jobs.scheduler import evaluate_new_once
+    from ...local import EstimatorSettings, evaluate_new_once
 
     settings = EstimatorSettings(tuple(parse_methods(args.methods, EVALUATION_METHODS)), args.horizon,
                                  args.include_bad, gap_s=args.gap_s, gap_every_s=args.gap_every_s, noise=args.noise)
@@ -180,9 +173,8 @@ def _evaluate_new(args) -> int:
 
 
 def _diagnose(args) -> int:
-    from learnest.models.presets import parse_methods
+    from learnest.workflows.diagnosis import diagnose_flights, diagnose_simulated, format_diagnosis
 
-    from ...experiments.diagnosis import diagnose_flights, diagnose_simulated, format_diagnosis
     from ...web.figures import residual_before_after, save_figure
 
     methods = parse_methods(args.methods)   # the arguments were checked by cli.usage
@@ -224,7 +216,7 @@ def _diagnosis_stages(bar):
     """``on_stage(name, fraction)`` for `diagnose_flights` drawing on ``bar`` (a `StageProgress`): a bar shows
     every tick ("... (epoch 3/20)"); a plain log one line per kind of stage (`diagnosis_stages.stage_kind`).
     Reading the files took the first 5 %."""
-    from ...experiments.diagnosis_stages import stage_kind
+    from learnest.workflows.diagnosis_stages import stage_kind
 
     def on_stage(name: str, fraction: float | None) -> None:
         bar.update(None if fraction is None else 0.05 + 0.95 * fraction,
@@ -255,7 +247,7 @@ def _register_diagnosed(args, result: dict, repaired, flights, model) -> None:
 
 
 def _thrust_map(args) -> int:
-    from ...experiments.thrust_map import (
+    from learnest.workflows.thrust_map import (
         bench_thrust_map_report,
         format_bench_map,
         format_thrust_map,
@@ -288,7 +280,7 @@ def _thrust_map(args) -> int:
 
 
 def _reproduce(args) -> int:
-    from ...experiments.table1 import ReproduceSettings, format_table, reproduce
+    from learnest.workflows.table1 import ReproduceSettings, format_table, reproduce
 
     settings = ReproduceSettings(task=args.task, eval_samples=args.samples, epochs=args.epochs, horizon=args.horizon,
                                  observer_rounds=args.observer_rounds, observer=args.observer, noise=args.noise)
@@ -324,10 +316,9 @@ def _this_command() -> str:
 
 def _demo(args) -> int:
     """ingest -> train on one flight -> evaluate on every other flight of a folder."""
-    from learnest.ingest import IngestError, detect
-    from learnest.models.presets import parse_methods
+    from learnest.workflows.files import IngestError, detect
+    from learnest.workflows.flights import evaluate_flights
 
-    from ...experiments.flights import evaluate_flights
     from ...local import load_model, train
     from ...web.figures import evaluation_summary, save_figure
     from ..progress import StageProgress
@@ -347,7 +338,7 @@ def _demo(args) -> int:
     clean = [f for f in flights if f.quality["ok"]]
     if len(clean) < 2:
         raise InvalidInput(f"{folder}: need at least two flights that pass the quality checks, found {len(clean)}")
-    from learnest.models.inputs import driven_flights, prior_for_flights
+    from learnest.workflows.learning import driven_flights, prior_for_flights
 
     # the Crazyflie prior (motors and battery) where two flights or more carry its inputs, as le.KNODE() picks it
     system = args.system or prior_for_flights(clean, least=2)

@@ -22,8 +22,8 @@ from learnest.models.crazyflie.thrust_map import fit_bench_map
 from learnest.models.knode import HybridModel
 from learnest.models.systems import make_system
 from learnest.service.cli import main
-from learnest.service.experiments.diagnosis import diagnose_crazyflie, format_diagnosis
-from learnest.service.experiments.thrust_map import bench_thrust_map_report
+from learnest.workflows.diagnosis import diagnose_crazyflie, format_diagnosis
+from learnest.workflows.thrust_map import bench_thrust_map_report
 
 M0 = 0.016
 BASE = {**cf.IDENTIFIED, "m_kg": M0, "kappa_th": 0.0}
@@ -238,7 +238,7 @@ def test_dimensionless_parameters_print_without_a_unit():
     """gamma and kappa_th are dimensionless (unit "1"): "gamma = 1.155", never "gamma = 1.155 1"; a
     parameter with a unit keeps it."""
     from learnest.models.effects import crazyflie_effects
-    from learnest.service.experiments.diagnosis_format import _unit
+    from learnest.workflows.diagnosis_format import _unit
 
     battery = next(e for e in crazyflie_effects() if e.id == "battery_thrust")
     assert battery.equation({"gamma": 1.155}) == "battery_thrust: gamma = 1.155"

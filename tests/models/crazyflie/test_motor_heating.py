@@ -29,7 +29,7 @@ from learnest.models.inputs import (
 from learnest.models.knode import HybridModel, Residual
 from learnest.models.systems import make_system
 from learnest.service.cli import format_report
-from learnest.service.experiments.flights import evaluate_flights
+from learnest.workflows.flights import evaluate_flights
 
 # a fast-warming vehicle (6 % of thrust lost in 30 s) without motor lag: the static map is the whole truth
 WARM = {**cf.IDENTIFIED, "m_kg": 0.016, "tau_s": 0.0, "tau_th_s": 20.0, "kappa_th": 0.08}

@@ -124,7 +124,7 @@ def test_a_crazyflie_knode_trained_before_the_calibration_is_scored_with_a_warni
     from learnest.models.knode import HybridModel, Residual
     from learnest.models.systems import make_system
     from learnest.service.cli import format_report
-    from learnest.service.experiments.flights import evaluate_flights
+    from learnest.workflows.flights import evaluate_flights
 
     system = make_system("crazyflie")
     zero_net = Residual([(np.zeros((4, system.n + system.n_inputs)), np.zeros(4)), (np.zeros((9, 4)), np.zeros(9))])
@@ -145,7 +145,7 @@ def test_the_model_a_crazyflie_diagnosis_repairs_records_its_calibrated_attitude
     """The repaired model a diagnosis registers was trained on `system_inputs`: its meta must say so, or every
     evaluation of it would carry the warning for models trained on the raw attitude."""
     from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
-    from learnest.service.experiments.diagnosis import diagnose_flights
+    from learnest.workflows.diagnosis import diagnose_flights
 
     flights = [simulate_crazyflie(SimulatedFlight(duration_s=8), seed=seed) for seed in (0, 1)]
     _, repaired = diagnose_flights(flights, methods=("ukf",), epochs=1, return_model=True, system="crazyflie")

@@ -20,7 +20,7 @@ from learnest.models.inputs import (
 from learnest.models.knode import HybridModel, Residual
 from learnest.models.systems import make_system
 from learnest.service.cli import format_report
-from learnest.service.experiments.flights import evaluate_flights
+from learnest.workflows.flights import evaluate_flights
 
 # a lighter vehicle than NanoBench's (hover PWM 56000 of 65535 at 3.4 V), so the loaded one can still climb
 PRIOR = {**cf.IDENTIFIED, "m_kg": 0.016}

@@ -38,7 +38,7 @@ def _routes(app) -> set[tuple[str, str]]:
 
 @pytest.fixture(scope="module")
 def app(tmp_path_factory):
-    from learnest.service.api.app import create_app
+    from learnest.service.app.factory import create_app
     from learnest.service.config import Settings
 
     return create_app(Settings(home=tmp_path_factory.mktemp("home")))

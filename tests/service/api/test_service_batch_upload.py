@@ -141,7 +141,7 @@ def test_the_batch_key_is_checked_before_its_body_is_read(tmp_path):
     from fastapi.testclient import TestClient
     from utils.service import shared_pool
 
-    from learnest.service.api.app import create_app
+    from learnest.service.app.factory import create_app
 
     app = create_app(settings_for(tmp_path, api_key="sesame"), executor=shared_pool(), scheduler=False)
     head = (b'--xyz\r\nContent-Disposition: form-data; name="files"; filename="big.csv"\r\n'

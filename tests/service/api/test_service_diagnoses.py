@@ -111,7 +111,7 @@ def stages_while(client, job_id: int, timeout: float = 120.0) -> tuple[list[tupl
 def assert_honest_stages(seen: list[tuple[str, float]], job: dict) -> None:
     """A diagnosis job names more than one kind of stage as it runs (effects fitted, KNODEs trained, flights
     scored), and its progress only grows, within 0..1."""
-    from learnest.service.experiments.diagnosis_stages import stage_kind
+    from learnest.workflows.diagnosis_stages import stage_kind
 
     kinds = list(dict.fromkeys(stage_kind(stage) for stage, _ in seen))
     assert len(kinds) > 1, seen
@@ -122,8 +122,8 @@ def assert_honest_stages(seen: list[tuple[str, float]], job: dict) -> None:
 
 
 def test_post_diagnoses_registers_the_repaired_model(tmp_path, biased_logs):
-    from learnest.service.experiments.flights import evaluate_flight
     from learnest.service.storage.registry import load_model_ref
+    from learnest.workflows.flights import evaluate_flight
 
     home = tmp_path / "home"
     with running_app(home, api_key="secret") as client:

@@ -1,4 +1,4 @@
-"""HTTP service, /evaluations: batch evaluation as a job equals service.experiment.evaluate_flights, the
+"""HTTP service, /evaluations: batch evaluation as a job equals workflows.flights.evaluate_flights, the
 results cache, the HTML report, the scheduler (and `learnest evaluate --new`), and the Dask executor."""
 import dataclasses
 import json
@@ -76,8 +76,8 @@ def assert_same_numbers(report: dict, expected: dict) -> None:
 
 
 def test_report_equals_evaluate_flights_and_is_cached(registry_home):
-    from learnest.service.experiments.flights import evaluate_flights
     from learnest.service.storage.registry import load_model_ref
+    from learnest.workflows.flights import evaluate_flights
 
     home, ids = registry_home["home"], registry_home["ids"]
     with running_app(home) as client:
@@ -119,8 +119,8 @@ def test_report_equals_evaluate_flights_and_is_cached(registry_home):
 
 
 def test_mhe_numbers_equal_evaluate_flights(registry_home):
-    from learnest.service.experiments.flights import evaluate_flights
     from learnest.service.storage.registry import load_model_ref
+    from learnest.workflows.flights import evaluate_flights
 
     home, flight_id = registry_home["home"], registry_home["ids"][1]
     methods = ["mhe", "knode-mhe"]
@@ -465,8 +465,8 @@ def test_a_crazyflie_report_page_shows_the_thrust_calibration_and_the_gain_inter
 def test_the_report_carries_the_yardsticks_and_the_gap_settings_asked_for(registry_home):
     """GET /evaluations/{id} through its typed response: per flight the three yardsticks (the gaps as asked),
     the headline first; the same numbers as evaluate_flights; gaps that leave no mocap between them are a 422."""
-    from learnest.service.experiments.flights import evaluate_flights
     from learnest.service.storage.registry import load_model_ref
+    from learnest.workflows.flights import evaluate_flights
 
     home = registry_home["home"]
     ids = registry_home["ids"][:2]   # a test above deletes the third flight of this module's registry

@@ -246,7 +246,7 @@ def test_unexpected_errors_show_no_traceback(tmp_path, data_dir, monkeypatch):
     from fastapi.testclient import TestClient  # the app stack loads when a test runs, not at collection
 
     import learnest.service.operations.uploads as uploads
-    from learnest.service.api.app import create_app
+    from learnest.service.app.factory import create_app
 
     def explode(*_args):
         raise RuntimeError("secret internals /srv/path")

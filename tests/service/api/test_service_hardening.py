@@ -102,7 +102,7 @@ def test_an_upload_without_the_key_is_refused_before_its_body_is_read(tmp_path):
     from fastapi.testclient import TestClient
     from utils.service import shared_pool
 
-    from learnest.service.api.app import create_app
+    from learnest.service.app.factory import create_app
 
     app = create_app(settings_for(tmp_path, api_key="sesame"), executor=shared_pool(), scheduler=False)
     chunks = _multipart(b"xyz", 8 << 20)

@@ -297,7 +297,7 @@ def test_a_form_upload_without_a_session_is_refused_before_its_body_is_read(tmp_
     from fastapi.testclient import TestClient
     from utils.service import settings_for, shared_decoder, shared_pool
 
-    from learnest.service.api.app import create_app
+    from learnest.service.app.factory import create_app
 
     app = create_app(settings_for(tmp_path, api_key="sesame", key_failures=0), executor=shared_pool(),
                      decoder=shared_decoder(), scheduler=False)
@@ -320,7 +320,7 @@ def test_a_throttled_address_gets_429_before_its_form_files_are_read(tmp_path):
     from fastapi.testclient import TestClient
     from utils.service import settings_for, shared_decoder, shared_pool
 
-    from learnest.service.api.app import create_app
+    from learnest.service.app.factory import create_app
 
     app = create_app(settings_for(tmp_path, api_key="sesame", key_failures=2), executor=shared_pool(),
                      decoder=shared_decoder(), scheduler=False)

@@ -83,7 +83,7 @@ def test_the_demo_speaks_first_says_what_it_registered_and_ends_with_a_command_t
 
     from fastapi.testclient import TestClient
 
-    from learnest.service.api.app import create_app
+    from learnest.service.app.factory import create_app
 
     with TestClient(create_app(settings_for(home), scheduler=False)) as client:   # what that server shows
         page = client.get("/ui/models/demo")

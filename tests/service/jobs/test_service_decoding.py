@@ -24,7 +24,7 @@ def sleepy_pool():
 def test_a_decode_past_the_time_limit_is_refused_naming_it_and_stores_nothing(tmp_path, data_dir, sleepy_pool):
     from fastapi.testclient import TestClient
 
-    from learnest.service.api.app import create_app
+    from learnest.service.app.factory import create_app
 
     app = create_app(settings_for(tmp_path / "home"), executor=shared_pool(), decoder=sleepy_pool, scheduler=False)
     with TestClient(app) as client:

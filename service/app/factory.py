@@ -1,5 +1,7 @@
 """The learnest HTTP service (FastAPI).  `create_app()` is the factory uvicorn runs
-(`learnest serve`, or `uvicorn --factory learnest.service.api.app:create_app`); OpenAPI docs at /docs.
+(`learnest serve`, or `uvicorn --factory learnest.service.app.factory:create_app`); OpenAPI docs at /docs.
+It puts together the JSON routes (service.api) and the web pages (service.web), which know nothing of each
+other's assembly.
 
 Start-up: Alembic `upgrade head`, blob folder, executor (local process pool or Dask), job runner (fails the
 jobs a crashed server left running), scheduler when LEARNEST_SCHEDULE_SECONDS > 0.
@@ -14,19 +16,19 @@ from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from ..api.deps import documented_token
+from ..api.docs import install_docs
+from ..api.errors import install_error_handlers
+from ..api.request_guard import RequestGuard
+from ..api.routes import diagnoses, evaluations, flights, jobs, models, tokens
+from ..api.server import FORM_FIELD_BYTES, FORM_FIELDS, BodyDeadline
+from ..api.throttle import KeyThrottle
 from ..config import Settings
 from ..jobs.decoding import DecodePool
 from ..jobs.executors import Executor
 from ..jobs.scheduler import Scheduler
 from ..jobs.services import open_services, sweep_orphan_blobs
 from ..web import access_pages, manual, pages, registry_pages
-from .deps import documented_token
-from .docs import install_docs
-from .errors import install_error_handlers
-from .request_guard import RequestGuard
-from .routes import diagnoses, evaluations, flights, jobs, models, tokens
-from .server import FORM_FIELD_BYTES, FORM_FIELDS, BodyDeadline
-from .throttle import KeyThrottle
 
 
 def create_app(settings: Settings | None = None, *, executor: Executor | None = None,

@@ -1,7 +1,7 @@
 """Quick Table I (2 seeds, short trajectories): the paper's finding must hold on both tasks."""
 import pytest
 
-from learnest.service.experiments.table1 import ReproduceSettings, reproduce
+from learnest.workflows.table1 import ReproduceSettings, reproduce
 
 
 @pytest.mark.slow
@@ -30,7 +30,7 @@ def test_quick_reproduction_shows_the_papers_ordering(task, samples, epochs):
 
 def test_table_ratios_against_the_truth_and_the_prior_by_seed_and_inside_the_envelope():
     """Known answers on three made-up seeds: ratio of means, per-seed median, and the unflagged seeds alone."""
-    from learnest.service.experiments.table1 import seed_ratios
+    from learnest.workflows.table1 import seed_ratios
 
     def seed(knode, true, flagged):
         return {"mse": {"KNODE-MHE": knode, "MHE (true dynamics)": true},
@@ -54,7 +54,7 @@ def test_a_fresh_draw_of_seeds_scores_the_runs_of_those_seeds():
     from learnest.estimators.ukf import run_ukf
     from learnest.models.knode import HybridModel
     from learnest.models.systems import make_system
-    from learnest.service.experiments.table1 import format_table
+    from learnest.workflows.table1 import format_table
 
     settings = ReproduceSettings("cartpole", eval_samples=60, epochs=1, observer_rounds=0, observer="filter")
     report = reproduce(settings, seeds=1, first_seed=7)
@@ -74,7 +74,7 @@ def test_identified_noise_lifts_the_prior_filters_and_the_paper_noise_gives_the_
     """One cartpole seed, short runs: with each model's process noise identified on its training run, the prior's
     UKF and MHE are several times better than with the paper's fixed noise (which leaves the prior's error to the
     filter's gain alone), and the KNODE rows still beat them; the default (paper noise) reports no noise factors."""
-    from learnest.service.experiments.table1 import run_seed
+    from learnest.workflows.table1 import run_seed
 
     settings = ReproduceSettings("cartpole", eval_samples=1000, epochs=20, observer="filter", observer_rounds=0)
     paper = run_seed(settings, 0)

@@ -15,9 +15,9 @@ from learnest.models.inputs import training_meta
 from learnest.models.knode import HybridModel, Residual
 from learnest.models.metadata import THRUST_GAIN_FORMAT, ModelMetadata
 from learnest.models.systems import make_system
-from learnest.service.experiments.diagnosis import diagnose_crazyflie
-from learnest.service.experiments.flights import evaluate_flights
-from learnest.service.experiments.reports import DiagnosisReport, EvaluationReport
+from learnest.workflows.diagnosis import diagnose_crazyflie
+from learnest.workflows.flights import evaluate_flights
+from learnest.workflows.reports import DiagnosisReport, EvaluationReport
 
 M0 = 0.016
 BASE = {**cf.IDENTIFIED, "m_kg": M0, "kappa_th": 0.0}
@@ -78,7 +78,7 @@ def test_the_evaluation_schema_is_the_typed_report():
     """The API's evaluation schema (service.api.report_models) is built from the typed report: the same fields,
     each with the typed report's description, and the nested flights' schema from `FlightScore`."""
     from learnest.service.api.report_models import EvaluationReportOut, schema_of
-    from learnest.service.experiments.reports import FlightScore
+    from learnest.workflows.reports import FlightScore
 
     assert list(EvaluationReportOut.model_fields) == EvaluationReport.typed_fields()
     assert list(schema_of(FlightScore).model_fields) == FlightScore.typed_fields()

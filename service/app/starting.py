@@ -3,7 +3,7 @@
 Importing the service (the estimators, torch, CasADi, SQLAlchemy) and opening its database take seconds; uvicorn
 listens only once its app is imported and started, so a client saw nothing at all until then (12 s to the first
 `/health` on a loaded machine). `create_app` here imports nothing heavy: its lifespan starts a thread that
-imports `learnest.service.api.app`, builds that app and runs its start-up (migrations, executor, job runner),
+imports `learnest.service.app.factory`, builds that app and runs its start-up (migrations, executor, job runner),
 then starts building the manual in the background (the slowest first answer: half a minute on a loaded machine;
 started after the service, not beside it, which would slow the service's start by as much). While it loads:
 
@@ -30,7 +30,7 @@ import threading
 import time
 from typing import Any
 
-SERVICE_APP = "learnest.service.api.app:create_app"
+SERVICE_APP = "learnest.service.app.factory:create_app"
 WAIT_S = 120.0   # how long a request waits for the service to load before it gets 503
 RELOAD_S = 2     # the start page reloads itself this often, s
 
@@ -165,5 +165,5 @@ def _version() -> str:
 
 
 def create_app() -> StartingApp:
-    """The factory `learnest serve` gives uvicorn (``learnest.service.api.starting:create_app``)."""
+    """The factory `learnest serve` gives uvicorn (``learnest.service.app.starting:create_app``)."""
     return StartingApp()

@@ -1,4 +1,4 @@
-"""`learnest serve`'s starting app (service.api.starting): /health and / answer while the service loads, every
+"""`learnest serve`'s starting app (service.app.starting): /health and / answer while the service loads, every
 other request waits for it and is answered by it, a service that cannot start is said so; the manual is built
 in the background, and a visitor meanwhile gets a page that says so at once."""
 from __future__ import annotations
@@ -10,7 +10,7 @@ import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
-from learnest.service.api.starting import StartingApp
+from learnest.service.app.starting import StartingApp
 
 GATE = threading.Event()     # the fake service's import and start-up "take" until the test opens this
 STARTED, STOPPED = [], []
