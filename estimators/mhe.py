@@ -194,7 +194,7 @@ class MHE:
             lam = np.asarray(sol["lam_g"]).ravel()
             estimates[k] = X[:, -1]
             guess_X, guess_W, guess_lam, x_bar, P_arrival = self._shift(X, W, lam, u, k, start, x_bar,
-                                                                        P_arrival, y)
+                                                                        P_arrival, y, estimates)
             if progress:
                 progress(k)
         return estimates
@@ -212,9 +212,15 @@ class MHE:
         return z[: self.n * L].reshape(L, self.n), bool(win.solver.stats().get("success", True))
 
     def _shift(self, X: np.ndarray, W: np.ndarray, lam: np.ndarray, u: np.ndarray, k: int, start: int,
-               x_bar: np.ndarray, P_arrival: np.ndarray,
-               y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Next window's warm start and arrival cost (x̄_{k-N|k} <- x̂*_{k-N|k-1})."""
+               x_bar: np.ndarray, P_arrival: np.ndarray, y: np.ndarray,
+               estimates: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Next window's warm start and arrival cost: the filtering update x̄_{k-N+1} <- x̂_{k-N+1|k-N+1}.
+
+        The arrival mean is the estimate the MHE gave when k-N+1 was its window's end, the filtered estimate
+        the EKF covariance P describes.  The smoothed X*[:, 1] of this window already holds the measurements
+        k-N+1..k, which the next window counts again: with the mocap hidden, that double-counted the
+        accelerometer's hold on the velocity (through the rotor drag) up to N times and the estimate drifted
+        (a helix, velocity noise identified for the UKF: 39.7 mm smoothed, 9.7 mm filtered, 9.6 mm UKF)."""
         x_next = np.asarray(self.step_fn(X[:, -1], u[k])).ravel()
         slides = k + 1 - self.horizon > start  # the window start moves forward at the next step
         if not slides:
@@ -224,7 +230,7 @@ class MHE:
             P_arrival = self._ekf_arrival(X[:, 0], u[start], y[start], P_arrival)
         lam_next = np.concatenate([lam[self.n:], np.zeros(self.n)]) if lam.size else lam
         return (np.column_stack([X[:, 1:], x_next]), np.column_stack([W[:, 1:], np.zeros(self.n)]),
-                lam_next, X[:, 1].copy(), P_arrival)
+                lam_next, estimates[start + 1].copy(), P_arrival)
 
     def _ekf_arrival(self, x: np.ndarray, u: np.ndarray, y: np.ndarray, P: np.ndarray) -> np.ndarray:
         H = np.asarray(self.jac_h(x, u))
