@@ -22,6 +22,7 @@ from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
 from learnest.estimators.mhe import MHE
 from learnest.estimators.observers import pretraining_observer
+from learnest.estimators.params import EstimatorParams
 from learnest.estimators.ukf import run_ukf
 from learnest.models.systems import make_system
 from learnest.models.training import TrainingConfig, train_knode
@@ -30,7 +31,7 @@ OUT = Path(__file__).parent / "results"
 
 
 def ukf_means(model, y, u, dt, Q, R, x0, P0):
-    return run_ukf(model, y, u, dt=dt, Q=Q, R=R, x0=x0, P0=P0).means
+    return run_ukf(EstimatorParams(model, dt, Q, R, P0, x0), y, u).means
 
 
 def timed(fn, repeats):
@@ -118,10 +119,10 @@ def main():
 
     steps = 200
     mhe_args = (test.y[:steps], test.u[:steps], test.x_noisy[0])
-    build_s, estimator = timed(lambda: MHE(model, system.dt, system.Q, system.R, system.P0, horizon=20,
-                                           arrival="fixed"), 1)
+    params = EstimatorParams(model, system.dt, system.Q, system.R, system.P0, test.x_noisy[0])
+    build_s, estimator = timed(lambda: MHE(params, horizon=20, arrival="fixed"), 1)
     estimator.run(*mhe_args)  # build every growing-horizon window once, as a long run does
-    mhe_s, mhe_est = timed(lambda: estimator.run(*mhe_args), 3)
+    mhe_s, mhe_est = timed(lambda: estimator.run(*mhe_args).means, 3)
     plain_mhe_s, plain_est = timed(lambda: plain_mhe(model, *mhe_args[:2], system.dt, system.Q, system.R,
                                                      system.P0, mhe_args[2], 20), 1)
     report = {

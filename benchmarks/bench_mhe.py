@@ -39,7 +39,7 @@ from bench_core import timed_side_by_side  # noqa: E402  (the script folder is o
 
 import learnest.estimators.native.codegen as codegen  # noqa: E402
 from learnest.estimators.mhe import MHE  # noqa: E402
-from learnest.estimators.prepared import initial_state, system_for  # noqa: E402
+from learnest.estimators.prepared import initial_state, model_params, system_for  # noqa: E402
 from learnest.estimators.ukf import run_ukf  # noqa: E402
 from learnest.ingest import read_flights  # noqa: E402
 from learnest.models.knode import HybridModel  # noqa: E402
@@ -51,15 +51,15 @@ DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "nanoben
 OUT = Path(__file__).parent / "results"
 
 
-def compare(label, model, dt, Q, R, P0, y, u, x0, repeats):
+def compare(label, params, y, u, repeats):
     build = time.perf_counter()
-    gn = MHE(model, dt, Q, R, P0, horizon=20)
+    gn = MHE(params, horizon=20)
     build_gn = time.perf_counter() - build
     build = time.perf_counter()
-    ipopt = MHE(model, dt, Q, R, P0, horizon=20, solver="ipopt").prepare()
+    ipopt = MHE(params, horizon=20, solver="ipopt").prepare()
     build_ipopt = time.perf_counter() - build
     T = len(y)
-    gn_s, ip_s, ours, ref = timed_side_by_side(lambda: gn.run(y, u, x0), lambda: ipopt.run(y, u, x0), repeats)
+    gn_s, ip_s, ours, ref = timed_side_by_side(lambda: gn.run(y, u).means, lambda: ipopt.run(y, u).means, repeats)
     runs = gn.stats["solves"] / T
     row = {"case": label, "steps": T, "gn_ms_per_step": 1e3 * gn_s / T, "ipopt_ms_per_step": 1e3 * ip_s / T,
            "speedup": ip_s / gn_s, "max_abs_difference": float(np.abs(ours - ref).max()),
@@ -89,19 +89,21 @@ def main():
     prior = HybridModel(system, "prior")
     T = min(args.steps, len(flight.t))
     y, u, x0 = flight.measurements()[:T], np.zeros((T, 0)), initial_state(flight)
-    quad = (flight.dt, system.Q, system.R, system.P0, y, u, x0, args.repeats)
-    rows = [compare("quadrotor prior MHE (real flight)", prior, *quad)[0]]
-    knode_row, converged = compare("quadrotor KNODE-MHE (real flight, 16 hidden)", knode, *quad)
+    # both models with the flight system's fixed noise, as the kinematic prior's defaults
+    prior_params = model_params(prior, x0, flight.dt)
+    knode_params = replace(prior_params, model=knode)
+    rows = [compare("quadrotor prior MHE (real flight)", prior_params, y, u, args.repeats)[0]]
+    knode_row, converged = compare("quadrotor KNODE-MHE (real flight, 16 hidden)", knode_params, y, u, args.repeats)
     rows.append(knode_row)
     for name, seed in (("cartpole", 3), ("robot", 3)):
         sim = make_system(name)
         run = sim.simulate(seed, n_samples=500)
-        rows.append(compare(f"{name} MHE (prior model, simulated)", HybridModel(sim, "prior"), sim.dt, sim.Q, sim.R,
-                            sim.P0, run.y, run.u, run.x_noisy[0], args.repeats)[0])
+        rows.append(compare(f"{name} MHE (prior model, simulated)", model_params(HybridModel(sim, "prior"),
+                            run.x_noisy[0]), run.y, run.u, args.repeats)[0])
 
-    rti = MHE(knode, flight.dt, system.Q, system.R, system.P0, horizon=20, max_iter=1)
-    rti_s = statistics.median(_time(lambda: rti.run(y, u, x0), args.repeats))
-    rti_est = rti.run(y, u, x0)
+    rti = MHE(knode_params, horizon=20, max_iter=1)
+    rti_s = statistics.median(_time(lambda: rti.run(y, u), args.repeats))
+    rti_est = rti.run(y, u).means
     rti_row = {"steps": T, "ms_per_step": 1e3 * rti_s / T,
                "max_abs_error_vs_converged": float(np.abs(rti_est - converged).max()),
                "rms_error_vs_converged_by_group": {g: float(np.sqrt(np.mean((rti_est - converged)[:, s] ** 2)))
@@ -110,7 +112,7 @@ def main():
     print(rti_row, flush=True)
 
     ukf_cases = (("quadrotor prior UKF (compiled)", prior), ("quadrotor KNODE-UKF (compiled)", knode))
-    ukf_rows = [_ukf_speed(label, model, flight.dt, system, y, u, x0, args.repeats) for label, model in ukf_cases]
+    ukf_rows = [_ukf_speed(label, replace(prior_params, model=model), y, u, args.repeats) for label, model in ukf_cases]
     end_to_end = _end_to_end(knode, other, args.repeats)
     report = {"machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
                           "cpus": os.cpu_count(), "load_average_at_end": os.getloadavg()},
@@ -165,10 +167,10 @@ def _time(fn, repeats):
     return times
 
 
-def _ukf_speed(label, model, dt, system, y, u, x0, repeats):
+def _ukf_speed(label, params, y, u, repeats):
     """Compiled UKF ms/step (median of `repeats` runs, after one run that compiles or loads the functions)."""
     def run():
-        return run_ukf(model, y, u, dt=dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0, compiled=True)
+        return run_ukf(params, y, u, compiled=True)
 
     run()
     row = {"case": label, "steps": len(y), "ms_per_step": 1e3 * statistics.median(_time(run, repeats)) / len(y)}

@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from learnest.estimators.observers import pretraining_observer
+from learnest.estimators.prepared import model_params
 from learnest.estimators.ukf import run_ukf
 from learnest.models.presets import PAPER_TRAINING as TRAINING
 from learnest.models.systems import make_system
@@ -31,7 +32,7 @@ def score(layout: str, seed: int) -> dict:
     config = TrainingConfig(**{**TRAINING["robot"].as_dict(), "seed": seed, "validation_layout": layout})
     started = time.perf_counter()
     model = train_knode(system, zeta, train.u, system.dt, config).model
-    xh = run_ukf(model, test.y, test.u, dt=system.dt, Q=system.Q, R=system.R, x0=test.x_noisy[0], P0=system.P0).means
+    xh = run_ukf(model_params(model, test.x_noisy[0]), test.y, test.u).means
     learned = model.residual(test.x, test.u)
     true = system.f_true(test.x, test.u) - system.f_prior(test.x, test.u)
     return {"variant": layout, "seed": seed, "knode_ukf_mse_e3": round(1e3 * float(np.mean((xh - test.x) ** 2)), 3),

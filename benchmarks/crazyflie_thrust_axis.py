@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from learnest.estimators.evaluate import evaluate_sequence
-from learnest.estimators.prepared import initial_state, system_for
+from learnest.estimators.prepared import initial_state, model_params, system_for
 from learnest.ingest import read_flights
 from learnest.ingest.baseline import references
 from learnest.models.inputs import flight_thrust_axis, system_inputs
@@ -43,9 +43,8 @@ def score_flight(flight, cache: dict) -> dict:
         if prior == "crazyflie, attitude as logged":
             u = u.copy()
             u[:, :4] = flight.quat
-        model = HybridModel(system, "prior")
-        results = evaluate_sequence(METHODS, model, model, y, u, flight.dt, x0, reference,
-                                    mhe_cache=cache.setdefault(prior, {}))
+        params = model_params(HybridModel(system, "prior"), x0, flight.dt)
+        results = evaluate_sequence(METHODS, params, params, y, u, reference, mhe_cache=cache.setdefault(prior, {}))
         out["mse"][prior] = {m: results[m]["mse"] for m in METHODS}
     return out
 

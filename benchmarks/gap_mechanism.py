@@ -32,6 +32,7 @@ from family_holdout import DATA, family_of  # noqa: E402
 
 from learnest.estimators.evaluate import gain_interval  # noqa: E402
 from learnest.estimators.mocap_gaps import PositionGapModel, gap_mask, masked_measurements  # noqa: E402
+from learnest.estimators.params import EstimatorParams  # noqa: E402
 from learnest.estimators.prepared import initial_state, model_system  # noqa: E402
 from learnest.estimators.ukf import compiled_sigma_functions, run_ukf  # noqa: E402
 from learnest.estimators.yardsticks import GapPlan  # noqa: E402
@@ -88,8 +89,8 @@ def flight_variants(knode: HybridModel, flight, cache: dict) -> tuple[dict, list
             if key not in cache:   # the model is kept with its functions: a freed model's id could be reused
                 cache[key] = (model, compiled_sigma_functions(gapped, flight.dt))
             functions = cache[key][1]
-        est = run_ukf(gapped, yg, ug, dt=flight.dt, Q=system.Q if Q is None else Q, R=system.R, x0=x0,
-                      P0=system.P0, sigma_functions=functions).means
+        params = EstimatorParams(gapped, flight.dt, system.Q if Q is None else Q, system.R, system.P0, x0)
+        est = run_ukf(params, yg, ug, sigma_functions=functions).means
         return np.sum((est[inside][:, :3] - flight.p[inside]) ** 2, axis=1)
 
     base = gap_error(prior)

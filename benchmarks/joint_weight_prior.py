@@ -21,6 +21,7 @@ import numpy as np
 from learnest.estimators.joint_training import train_jointly
 from learnest.estimators.mhe import MHE
 from learnest.estimators.observers import pretraining_observer
+from learnest.estimators.params import EstimatorParams
 from learnest.estimators.ukf import run_ukf
 from learnest.models.knode import HybridModel
 from learnest.models.presets import MHE_HORIZON, PAPER_TRAINING, TrainingConfig
@@ -30,11 +31,11 @@ RESULTS = Path(__file__).parent / "results"
 
 
 def _mse(system, model, test, estimator: str) -> float:
-    x0 = test.x_noisy[0]
+    params = EstimatorParams(model, system.dt, system.Q, system.R, system.P0, test.x_noisy[0])
     if estimator == "UKF":
-        xh = run_ukf(model, test.y, test.u, dt=system.dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0).means
+        xh = run_ukf(params, test.y, test.u).means
     else:
-        xh = MHE(model, system.dt, system.Q, system.R, system.P0, horizon=MHE_HORIZON).run(test.y, test.u, x0)
+        xh = MHE(params, horizon=MHE_HORIZON).run(test.y, test.u).means
     return float(np.mean((xh - test.x) ** 2))
 
 

@@ -21,6 +21,7 @@ import numpy as np
 
 from learnest.estimators.algorithm1 import Algorithm1, first_observation
 from learnest.estimators.mhe import MHE
+from learnest.estimators.params import EstimatorParams
 from learnest.estimators.ukf import run_ukf
 from learnest.models.knode import HybridModel
 from learnest.models.presets import MHE_HORIZON, PAPER_TRAINING, TrainingConfig
@@ -31,10 +32,10 @@ VARIANTS = {"filter": ("filter", 0), "smoother": ("smoother", 0), "filter+iterat
 
 
 def _scores(model, system, test) -> dict:
-    x0 = test.x_noisy[0]
+    params = EstimatorParams(model, system.dt, system.Q, system.R, system.P0, test.x_noisy[0])
     started = time.perf_counter()
-    ukf = run_ukf(model, test.y, test.u, dt=system.dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0).means
-    mhe = MHE(model, system.dt, system.Q, system.R, system.P0, horizon=MHE_HORIZON).run(test.y, test.u, x0)
+    ukf = run_ukf(params, test.y, test.u).means
+    mhe = MHE(params, horizon=MHE_HORIZON).run(test.y, test.u).means
     return {"ukf": float(np.mean((ukf - test.x) ** 2)), "mhe": float(np.mean((mhe - test.x) ** 2)),
             "estimators_s": time.perf_counter() - started}
 

@@ -12,7 +12,7 @@ Two ways to make those estimates better (measured in benchmarks/results/table1_o
 * ``observer="smoother"``: a fixed-interval smoother instead of a filter where the paper's observer is a
   filter (the robot's precursory UKF gets its unscented RTS pass; the cartpole's observer is an unscented
   RTS smoother with the prior instead of the model-free kinematic KF + RTS);
-* ``rounds > 0``: after training, smooth the record again with the learned model (`model_smoother`) and
+* ``rounds > 0``: after training, smooth the record again with the learned model (`smoother.run_urts`) and
   train on those estimates; stop when the learned model explains the measurements no better than the
   previous round's (mean squared forward innovation, whitened by R: it needs no ground truth);
 * ``observer="joint"``: the filter's estimates only start a joint fit of the record's states and Δθ
@@ -38,7 +38,9 @@ from learnest.models.systems import System
 from learnest.models.training import TrainingRecord, TrainingResult, attitude_blind, train_knode, train_knode_pooled
 
 from .flight_training import check_one_vehicle, default_validation, flight_inputs, flight_lineage, pooled_profile
-from .observers import Observer, model_smoother, observe_robot, pretraining_observer
+from .observers import Observer, observe_robot, pretraining_observer
+from .prepared import model_params
+from .smoother import run_urts
 
 OBSERVER_KINDS = ("filter", "smoother", "joint")
 
@@ -62,7 +64,7 @@ def first_observation(system: System, y: np.ndarray, u: np.ndarray, dt: float, o
     from learnest.models.knode import HybridModel
 
     kinematic = pretraining_observer(system, y, u, dt)  # its first state starts the model's smoother
-    return model_smoother(HybridModel(system, "prior"), y, u, dt, kinematic[0]).means
+    return run_urts(model_params(HybridModel(system, "prior"), kinematic[0], dt), y, u).means
 
 
 def _misfit(innovations: np.ndarray, R: np.ndarray) -> float:
@@ -163,8 +165,9 @@ class Algorithm1:
         misfits: list[float] = []
         for round_ in range(rounds + 1 if rounds else 0):
             # score the model of round `round_` by how well its smoother explains y; its estimates train the next
-            smoothed = model_smoother(results[round_].model, y, u, dt, zeta[0])
-            misfits.append(_misfit(smoothed.innovations, system.R))
+            params = model_params(results[round_].model, zeta[0], dt)
+            smoothed = run_urts(params, y, u)
+            misfits.append(_misfit(smoothed.innovations, params.R))
             if (round_ and misfits[-1] >= misfits[-2]) or round_ == rounds:
                 break                                       # no better than the round before it, or the last
             results.append(train_knode(system, smoothed.means, u, dt, config, progress=progress))

@@ -11,40 +11,37 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
-from learnest.models.checks import check_covariance, check_dt, check_inputs, check_sequence
+from learnest.models.checks import check_inputs, check_sequence
 
-from .protocols import StateSpaceModel
+from .params import EstimatorParams
 
 
-def linearized_covariances(model: StateSpaceModel, means: ArrayLike, u: ArrayLike | None = None, *, dt: float,
-                           Q: ArrayLike, R: ArrayLike, P0: ArrayLike) -> np.ndarray:
+def linearized_covariances(params: EstimatorParams, means: ArrayLike, u: ArrayLike | None = None) -> np.ndarray:
     """P_{k|k} of an EKF linearised along ``means`` (predict with u[k-1], update at y[k]).
 
     Parameters
     ----------
-    model : HybridModel
-        Discrete model with CasADi-traceable ``step(x, u, dt)`` and ``h(x, u)``.
+    params : EstimatorParams
+        The model (CasADi-traceable ``step(x, u, dt)`` and ``h(x, u)``), dt (s), the process noise per step
+        Q (n, n), the measurement noise R (m, m) and the first state's prior covariance P0 (n, n); x0 is
+        not used (the trajectory is given).
     means : array_like, shape (T, n)
         The state trajectory to linearise along (e.g. MHE estimates x̂_{k|k}).
     u : array_like, shape (T, p), optional
         Inputs; None for a model without inputs.
-    dt : float
-        Sample time, s.
-    Q, R, P0 : array_like, shapes (n, n), (m, m), (n, n)
-        Process noise per step, measurement noise and the first state's prior covariance.
 
     Returns
     -------
     ndarray, shape (T, n, n)
         Filtered covariances, symmetric.
     """
-    dt, n = check_dt(dt), model.n
+    model = params.model
+    n = model.n
     means = check_sequence("means", means, cols=n)
     T = len(means)
     u = check_inputs(u, T, model.n_inputs)
-    Q = check_covariance("Q", Q, n, allow_singular=True)
-    R = check_covariance("R", R, model.n_meas)
-    P = check_covariance("P0", P0, n).copy()
+    params = params.checked()
+    dt, Q, R, P = params.dt, params.Q, params.R, params.P0.copy()
     x, v = ca.SX.sym("x", n), ca.SX.sym("u", model.n_inputs)
     jac_f = ca.Function("F", [x, v], [ca.jacobian(model.step(x, v, dt), x)])
     jac_h = ca.Function("H", [x, v], [ca.jacobian(model.h(x, v), x)])

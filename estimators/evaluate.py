@@ -17,7 +17,7 @@ from learnest.models.presets import MHE_HORIZON
 from .headline import MEASURES, flight_verdict, flight_verdicts, headline
 from .metrics import VERDICTS, gain_interval_over_time, gain_pct, group_scores, squared_errors
 from .mhe import MHE
-from .protocols import StateSpaceModel
+from .params import EstimatorParams
 from .ukf import compiled_sigma_functions, run_ukf
 
 # the units of an evaluation report's numbers (the report's "units"); the overall MSE averages the squared
@@ -36,12 +36,13 @@ def _model_key(model, dt, cache: dict) -> tuple:
             tuple(sorted(system.true_params.items())), float(dt))
 
 
-def _mhe_for(cache: dict, model, dt, Q, R, P0, horizon: int) -> MHE:
+def _mhe_for(cache: dict, params: EstimatorParams, horizon: int) -> MHE:
     """One MHE per model and tuning, built before any timing: a batch of flights reuses it (compiling the
-    Gauss–Newton functions or building the IPOPT problems costs seconds)."""
-    key = ("mhe", *_model_key(model, dt, cache), horizon, Q.tobytes(), R.tobytes(), P0.tobytes())
+    Gauss–Newton functions or building the IPOPT problems costs seconds); each flight runs it from its own x0."""
+    key = ("mhe", *_model_key(params.model, params.dt, cache), horizon, params.Q.tobytes(), params.R.tobytes(),
+           params.P0.tobytes())
     if key not in cache:
-        cache[key] = MHE(model, dt, Q, R, P0, horizon=horizon).prepare()
+        cache[key] = MHE(params, horizon=horizon).prepare()
     return cache[key]
 
 
@@ -55,26 +56,18 @@ def _ukf_functions_for(cache: dict, model, dt) -> tuple | None:
     return cache[key]
 
 
-def noise_matrices(model: StateSpaceModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(Q (n, n), R (m, m), P0 (n, n)) a model's filters run with: its system's noise settings, which
-    `estimators.prepared.prepare` sets to the model's own (identified or fixed) noise."""
-    system = model.system  # type: ignore[attr-defined]
-    return system.Q, system.R, system.P0
-
-
-def evaluate_sequence(methods: Sequence[str], prior_model: StateSpaceModel, knode_model: StateSpaceModel,
-                      y: np.ndarray, u: np.ndarray, dt: float, x0: np.ndarray,
-                      reference: np.ndarray, horizon: int = MHE_HORIZON,
+def evaluate_sequence(methods: Sequence[str], prior: EstimatorParams, knode: EstimatorParams,
+                      y: np.ndarray, u: np.ndarray, reference: np.ndarray, horizon: int = MHE_HORIZON,
                       keep_estimates: bool = False, mhe_cache: dict | None = None,
                       on_stage: Callable[[str], object] | None = None) -> dict:
-    """{method: {"mse", "groups", "ms_per_step"[, "innovation_ms"][, "estimates"]}} for one flight; pass one `mhe_cache`
-    dict for all flights of a batch so each MHE (and each UKF's compiled model) is built once, untimed.
+    """{method: {"mse", "groups", "ms_per_step"[, "innovation_ms"][, "estimates"]}} for one record; pass one `mhe_cache`
+    dict for all records of a batch so each MHE (and each UKF's compiled model) is built once, untimed.
     ``on_stage`` is told each method before it runs ("knode-ukf") and an MHE build before it starts
     ("MHE build (knode-mhe)").
 
-    ``knode-*`` methods run ``knode_model``, the others ``prior_model``, each with its own noise
-    (`noise_matrices`: like against like).  y (T, m), u (T, p), x0 (n,), reference (T, n); dt in s;
-    ``ms_per_step`` is wall time per sample, ms;
+    ``knode-*`` methods run with the bundle ``knode``, the others with ``prior`` (each model with its own
+    noise, like against like; the two share dt and x0, `estimators.prepared.PreparedFlight.params`).
+    y (T, m), u (T, p), reference (T, n); ``ms_per_step`` is wall time per sample, ms;
     ``innovation_ms`` (UKF methods) is the mean square of the one-step innovations per measurement channel,
     (m,) in the measurements' squared units (`prediction_check`); ``gain_interval_pct`` (a ``knode-*`` method
     run beside its base) is `estimators.metrics.gain_interval` of its gain over the base method, %, or None for a
@@ -83,21 +76,20 @@ def evaluate_sequence(methods: Sequence[str], prior_model: StateSpaceModel, knod
     mhe_cache = {} if mhe_cache is None else mhe_cache
     results, step_errors = {}, {}
     for method in methods:
-        model = knode_model if method.startswith("knode-") else prior_model
-        Q, R, P0 = noise_matrices(model)
+        params = knode if method.startswith("knode-") else prior
         if on_stage and not method.endswith("ukf"):
             on_stage(f"MHE build ({method})")
-        mhe = None if method.endswith("ukf") else _mhe_for(mhe_cache, model, dt, Q, R, P0, horizon)
+        mhe = None if method.endswith("ukf") else _mhe_for(mhe_cache, params, horizon)
         # compiled sigma-point model: an evaluation runs thousands of steps on one model (see make_ukf)
-        functions = _ukf_functions_for(mhe_cache, model, dt) if mhe is None else None
+        functions = _ukf_functions_for(mhe_cache, params.model, params.dt) if mhe is None else None
         if on_stage:
             on_stage(method)
         started = time.perf_counter()
         if mhe is None:
-            filtered = run_ukf(model, y, u, dt=dt, Q=Q, R=R, x0=x0, P0=P0, sigma_functions=functions)
+            filtered = run_ukf(params, y, u, sigma_functions=functions)
             estimates = filtered.means
         else:
-            filtered, estimates = None, mhe.run(y, u, x0)
+            filtered, estimates = None, mhe.run(y, u, params.x0).means
         elapsed = time.perf_counter() - started
         err2 = squared_errors(estimates, reference)
         step_errors[method] = err2.mean(axis=1)          # per step, for the gain's interval below
@@ -109,18 +101,18 @@ def evaluate_sequence(methods: Sequence[str], prior_model: StateSpaceModel, knod
     for method in results:
         base = method.removeprefix("knode-")
         if method != base and base in step_errors:
-            results[method]["gain_interval_pct"] = gain_interval_over_time(step_errors[base], step_errors[method], dt)
+            results[method]["gain_interval_pct"] = gain_interval_over_time(step_errors[base], step_errors[method],
+                                                                           prior.dt)
     return results
 
 
-def one_step_innovation_ms(model: StateSpaceModel, y: np.ndarray, u: np.ndarray, dt: float, x0: np.ndarray,
+def one_step_innovation_ms(params: EstimatorParams, y: np.ndarray, u: np.ndarray,
                            cache: dict | None = None) -> np.ndarray:
     """Mean square of the UKF's one-step innovations y_k − h(f(x̂_{k−1})) per measurement channel, (m,): how
-    well ``model`` predicts the next measurement of this record, with its own noise (`noise_matrices`).
+    well ``params.model`` predicts the next measurement of this record, with the bundle's noise.
     ``cache`` as `evaluate_sequence`'s."""
-    functions = _ukf_functions_for({} if cache is None else cache, model, dt)
-    Q, R, P0 = noise_matrices(model)
-    filtered = run_ukf(model, y, u, dt=dt, Q=Q, R=R, x0=x0, P0=P0, sigma_functions=functions)
+    functions = _ukf_functions_for({} if cache is None else cache, params.model, params.dt)
+    filtered = run_ukf(params, y, u, sigma_functions=functions)
     return np.mean(filtered.innovations**2, axis=0)
 
 

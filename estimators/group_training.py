@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
 
 import numpy as np
 import regex
@@ -197,13 +198,14 @@ def gap_gains_by_scale(knode: HybridModel, flights: Sequence[Flight], scales: Se
         if not flight.quality["ok"] or not windows:
             continue
         prepared = prepare(knode, flight)
-        y, u, x0 = prepared.y, prepared.u, prepared.x0
+        y, u, prior = prepared.y, prepared.u, prepared.prior_params
         inside = gap_mask(len(flight.t), windows)
-        base = run_with_gaps(["ukf"], prepared.prior, prepared.prior, y, u, flight.dt, x0, inside, MHE_HORIZON,
-                             cache)["ukf"]["estimates"]
+        base = run_with_gaps(["ukf"], prior, prior, y, u, inside, MHE_HORIZON, cache)["ukf"]["estimates"]
         for scale, model in models.items():
-            model = HybridModel(prepared.model.system, model.kind, model.residual, model.meta)
-            est = run_with_gaps(["knode-ukf"], prepared.prior, model, y, u, flight.dt, x0, inside, MHE_HORIZON,
+            # the scaled residual runs with the trained KNODE's noise on this flight
+            scaled = replace(prepared.params,
+                             model=HybridModel(prepared.model.system, model.kind, model.residual, model.meta))
+            est = run_with_gaps(["knode-ukf"], prior, scaled, y, u, inside, MHE_HORIZON,
                                 cache)["knode-ukf"]["estimates"]
             gaps = gap_scores(flight.p, {"ukf": base, "knode-ukf": est}, windows, plan)
             out[scale].append({"flight": flight.name, "gain_pct": gaps.gain_pct[PAIR],

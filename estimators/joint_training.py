@@ -45,6 +45,8 @@ from learnest.models.systems import System
 from learnest.models.training import TrainingResult, new_residual
 
 from .native.block_tridiagonal import BlockTridiagonal
+from .params import EstimatorParams
+from .prepared import model_params
 
 ITERATIONS = 40        # Levenberg–Marquardt iterations at most: part of the regularisation (module docstring)
 # λ of the weight prior λ‖θ‖², in the units of J's whitened squared residuals: a Gaussian prior θ ~ N(0, I/λ) on the
@@ -115,7 +117,9 @@ def train_jointly(system: System, y: ArrayLike, u: ArrayLike, dt: float, zeta: A
         mlp = new_residual(system, zeta, u, config.hidden, config.residual_frame)
         with torch.no_grad():   # weights of inputs Δθ is blind to never act: start them at 0, not in the prior
             mlp.hidden_layer.weight *= mlp.input_mask
-        problem = _JointProblem(system, y, u, dt, mlp, weight_prior)
+        # J is whitened by the prior estimators' own tuning: the full-record MHE's weights
+        tuning = model_params(HybridModel(system, "prior"), zeta[0], dt)
+        problem = _JointProblem(system, y, u, tuning, mlp, weight_prior)
         states, theta, losses = _levenberg_marquardt(problem, zeta, problem.theta0(), iterations, progress)
         steps_taken, losses = len(losses), losses or [problem.cost(states, theta)]
         problem.load(theta)
@@ -133,9 +137,10 @@ def train_jointly(system: System, y: ArrayLike, u: ArrayLike, dt: float, zeta: A
 class _JointProblem:
     """J's residuals and their Jacobian blocks, whitened (W = diag(1/σ_Q)): measurement rows r_m (T, m), process
     rows r_q (T-1, n), and per step ∂r_m/∂x_k = -h_k, ∂r_q/∂x_k = -a_k = -W A_k, ∂r_q/∂x_{k+1} = W,
-    ∂r_q/∂θ = -b_k = -W B_k."""
+    ∂r_q/∂θ = -b_k = -W B_k.  ``tuning`` is the prior's estimator bundle: its dt (s) and the Q, R that whiten."""
 
-    def __init__(self, system: System, y: np.ndarray, u: np.ndarray, dt: float, mlp, weight_prior: float):
+    def __init__(self, system: System, y: np.ndarray, u: np.ndarray, tuning: EstimatorParams, mlp,
+                 weight_prior: float):
         import torch
         from torch.func import functional_call, jacrev, vmap
 
@@ -144,8 +149,9 @@ class _JointProblem:
         self.shapes = [p.shape for _, p in mlp.named_parameters()]
         buffers = dict(mlp.named_buffers())
         self.y, self.u = torch.as_tensor(y), torch.as_tensor(u)
-        self.inv_sigma_r = torch.as_tensor(1.0 / np.sqrt(np.diag(system.R)))
-        self.inv_sigma_q = 1.0 / np.sqrt(np.diag(system.Q))
+        self.inv_sigma_r = torch.as_tensor(1.0 / np.sqrt(np.diag(tuning.R)))
+        self.inv_sigma_q = 1.0 / np.sqrt(np.diag(tuning.Q))
+        dt = tuning.dt
         self.h = system.h
 
         def field(x, u_k, theta):

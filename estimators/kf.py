@@ -6,14 +6,17 @@ spurious residual.
 """
 from __future__ import annotations
 
+from typing import Literal, overload
+
 import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
-from learnest.models.checks import check_covariance, check_dt, check_sequence, check_vector
+from learnest.models.checks import check_dt, check_sequence
 
+from .params import EstimatorParams
 from .protocols import StateSpaceModel
-from .results import FilterResult
+from .results import FilterResult, SmootherResult
 
 
 def linearize(model: StateSpaceModel, dt: float, x_op: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -50,45 +53,51 @@ def _filter(F, H, Q, R, x0, P0, y, smooth: bool):
     return means, covs, innovations
 
 
-def run_kf(model: StateSpaceModel, y: ArrayLike, u: None = None, *, dt: float, Q: ArrayLike, R: ArrayLike,
-           x0: ArrayLike, P0: ArrayLike, smooth: bool = False) -> FilterResult:
+@overload
+def run_kf(params: EstimatorParams, y: ArrayLike, u: None = None, *, smooth: Literal[False] = False) -> FilterResult:
+    ...
+
+
+@overload
+def run_kf(params: EstimatorParams, y: ArrayLike, u: None = None, *, smooth: Literal[True]) -> SmootherResult:
+    ...
+
+
+def run_kf(params: EstimatorParams, y: ArrayLike, u: None = None, *,
+           smooth: bool = False) -> FilterResult | SmootherResult:
     """Kalman filter (or RTS smoother) of a whole sequence with the linear model's exact discretisation.
 
     Parameters
     ----------
-    model : HybridModel
-        A model that is linear in x (its Jacobians at 0 are used), without inputs.
+    params : EstimatorParams
+        The model, linear in x (its Jacobians at 0 are used) and without inputs; dt (s); the process noise
+        per step Q (n, n), the measurement noise R (m, m), the first state's guess x0 (n,) and its
+        covariance P0 (n, n).
     y : array_like, shape (T, m)
         Measurements.
     u : None
         Unused (the linear models here have no inputs); accepted for the estimators' common signature.
-    dt : float
-        Sample time, s.
-    Q, R, x0, P0
-        Process noise per step (n, n), measurement noise (m, m), first state's mean (n,) and
-        covariance (n, n).
     smooth : bool
         Return the fixed-interval (RTS) smoothed estimates x̂_{k|T} instead of x̂_{k|k}.
 
     Returns
     -------
-    FilterResult
-        ``t = k * dt``, means (T, n), covariances (T, n, n) (smoothed when ``smooth``), innovations
-        (T, m) of the forward pass.
+    FilterResult or SmootherResult
+        A `FilterResult` of x̂_{k|k}, or with ``smooth`` a `SmootherResult` of x̂_{k|T}: ``t = k * dt``,
+        means (T, n), covariances (T, n, n), innovations (T, m) of the forward pass.
 
     Raises
     ------
     InvalidInput
         On wrong shapes, non-finite values, a bad ``dt`` or a covariance that is not positive definite.
     """
-    dt = check_dt(dt)
-    n = model.n
+    model = params.model
     y = check_sequence("y", y, cols=model.n_meas)
-    Q, R = check_covariance("Q", Q, n, allow_singular=True), check_covariance("R", R, y.shape[1])
-    x0, P0 = check_vector("x0", x0, n), check_covariance("P0", P0, n)
-    F, H = linearize(model, dt)
-    means, covariances, innovations = _filter(F, H, Q, R, x0, P0, y, smooth)
-    return FilterResult(dt * np.arange(len(y)), means, covariances, innovations)
+    params = params.checked()
+    F, H = linearize(model, params.dt)
+    means, covariances, innovations = _filter(F, H, params.Q, params.R, params.x0, params.P0, y, smooth)
+    kind = SmootherResult if smooth else FilterResult
+    return kind(params.dt * np.arange(len(y)), means, covariances, innovations)
 
 
 def kinematic_smoother(positions: ArrayLike, dt: float, meas_std: ArrayLike, accel_std: float = 1.0,

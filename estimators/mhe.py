@@ -25,11 +25,13 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
-from learnest.models.checks import check_covariance, check_dt, check_sequence, check_vector
+from learnest.models.checks import check_sequence, check_vector
 from learnest.models.presets import MHE_SOLVERS, check_mhe_options
 
+from .covariance import linearized_covariances
 from .mhe_gn import GaussNewtonWindowSolver
-from .protocols import StateSpaceModel
+from .params import EstimatorParams
+from .results import MHEResult
 
 # The values an IPOPT / nlpsol option takes (the Hessian callback is a CasADi Function).
 SolverOption = bool | int | float | str | ca.Function
@@ -56,12 +58,11 @@ class MHE:
 
     Parameters
     ----------
-    model : HybridModel
-        Discrete dynamics `step(x, u, dt)` and measurement `h(x, u)`, n states, p inputs, m outputs.
-    dt : float
-        Sample time (s).
-    Q, R, P0 : ndarray, shapes (n, n), (m, m), (n, n)
-        Process noise, measurement noise and initial arrival covariances.
+    params : EstimatorParams
+        The model (discrete dynamics `step(x, u, dt)` and measurement `h(x, u)`, n states, p inputs, m
+        outputs, CasADi-traceable), dt (s), the process noise Q (n, n, definite: it is inverted), the
+        measurement noise R (m, m), the initial arrival covariance P0 (n, n) and the first arrival state x0
+        (n,), which `run` may replace per record.
     horizon : int
         N: a window holds N + 1 states (fewer while the record is shorter: growing horizon).
     arrival : {"ekf", "fixed"}
@@ -78,18 +79,17 @@ class MHE:
         ("auto" or None for CasADi's interpreter).
     """
 
-    def __init__(self, model: StateSpaceModel, dt: float, Q: ArrayLike, R: ArrayLike, P0: ArrayLike,
-                 horizon: int = 20, arrival: str = "ekf", warm_start: bool = True, hessian: str = "cost",
-                 ipopt_options: dict[str, SolverOption] | None = None, solver: str = "gauss-newton", tol: float = 1e-9,
-                 max_iter: int | None = None, codegen_dir: str | Path | None = None,
-                 compiler: str | None = "auto") -> None:
+    def __init__(self, params: EstimatorParams, horizon: int = 20, arrival: str = "ekf", warm_start: bool = True,
+                 hessian: str = "cost", ipopt_options: dict[str, SolverOption] | None = None,
+                 solver: str = "gauss-newton", tol: float = 1e-9, max_iter: int | None = None,
+                 codegen_dir: str | Path | None = None, compiler: str | None = "auto") -> None:
         check_mhe_options(horizon, solver, arrival, hessian, max_iter)   # InvalidInput naming the choices
+        self.params = params.checked(singular_q=False)
         self.hessian, self.solver = hessian, solver
-        self.model, self.dt, self.horizon = model, check_dt(dt), int(horizon)
+        model = self.params.model
+        self.model, self.dt, self.horizon = model, self.params.dt, int(horizon)
         self.n, self.p, self.m = model.n, model.n_inputs, model.n_meas
-        self.Q = check_covariance("Q", Q, self.n)
-        self.R = check_covariance("R", R, self.m)
-        self.P0 = check_covariance("P0", P0, self.n)
+        self.Q, self.R, self.P0 = self.params.Q, self.params.R, self.params.P0
         self.arrival, self.warm_start = arrival, warm_start
         self.options = {**IPOPT_OPTIONS, **(ipopt_options or {})}
         if not warm_start:
@@ -163,15 +163,44 @@ class MHE:
                            ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
 
     # -- estimation ---------------------------------------------------------------------------------
-    def run(self, y: ArrayLike, u: ArrayLike, x0: ArrayLike,
-            progress: Callable[[int], object] | None = None) -> np.ndarray:
-        """Estimate x̂_{k|k} for every k; x0 is the prior guess of the first state (arrival x̄ at k=0)."""
+    def run(self, y: ArrayLike, u: ArrayLike, x0: ArrayLike | None = None,
+            progress: Callable[[int], object] | None = None, *, covariances: bool = False) -> MHEResult:
+        """Estimate x̂_{k|k} for every k of a record.
+
+        Parameters
+        ----------
+        y : array_like, shape (T, m)
+            Measurements.
+        u : array_like, shape (T, p)
+            Inputs held over [t_k, t_k+1) (width 0 for a model without inputs).
+        x0 : array_like, shape (n,), optional
+            The prior guess of this record's first state (arrival x̄ at k=0); default the bundle's.  An MHE
+            is built once per model and tuning (building costs seconds) and run on records of other first states.
+        progress : callable, optional
+            Called with each k as its window is solved.
+        covariances : bool
+            Also linearise an EKF along the estimates for their covariances (`estimators.covariance`); off by
+            default: it costs several times the Gauss–Newton run, and an evaluation uses the means only.
+
+        Returns
+        -------
+        MHEResult
+            ``t = k * dt`` (s), means (T, n), covariances (T, n, n) or None, and the windows whose solver failed.
+        """
         y = check_sequence("y", y, cols=self.m)
         T = len(y)
         u = check_sequence("u", np.asarray(u, dtype=float).reshape(T, -1), rows=T, cols=self.p)
-        x_bar = check_vector("x0", x0, self.n)
-        if self._gn is not None:
-            return self._gn.run(y, u, x_bar, progress)
+        x_bar = self.params.x0 if x0 is None else check_vector("x0", x0, self.n)
+        failures = int(self.stats.get("failures", 0))
+        means = self._gn.run(y, u, x_bar, progress) if self._gn is not None else self._run_ipopt(y, u, x_bar, progress)
+        return MHEResult(self.dt * np.arange(T), means,
+                         linearized_covariances(self.params, means, u) if covariances else None,
+                         int(self.stats.get("failures", 0)) - failures)
+
+    def _run_ipopt(self, y: np.ndarray, u: np.ndarray, x_bar: np.ndarray,
+                   progress: Callable[[int], object] | None) -> np.ndarray:
+        """`run`'s means with IPOPT solving every window."""
+        T = len(y)
         P_arrival = self.P0.copy()
         estimates = np.empty((T, self.n))
         guess_X = np.tile(x_bar[:, None], (1, 1))

@@ -44,6 +44,7 @@ from learnest.models.noise import IDENTIFIED, PAPER, STD_BOUNDS, NoiseModel, blo
 
 from .mocap_gaps import POSITION_ROWS as ROWS
 from .mocap_gaps import PositionGapModel, gap_mask, masked_measurements
+from .params import EstimatorParams
 from .prepared import prepare
 from .ukf import SigmaFunctions, compiled_sigma_functions, run_ukf
 from .yardsticks import GapPlan
@@ -150,8 +151,8 @@ class _Likelihood:
         innovations = hidden = 0.0
         for record in records:
             try:
-                result = run_ukf(record.model, record.y, record.u, dt=record.dt, Q=noise.Q, R=noise.R,
-                                 x0=record.x0, P0=noise.P0,
+                params = EstimatorParams.from_noise(record.model, record.dt, noise, record.x0)
+                result = run_ukf(params, record.y, record.u,
                                  sigma_functions=self.functions[(id(record.model), record.dt)])
             except (np.linalg.LinAlgError, InvalidInput, FloatingPointError):
                 return -math.inf, -math.inf

@@ -2,8 +2,8 @@
 
 As in Sec. V: a KF for the cartpole and the quadrotor, a precursory UKF followed by a linear KF for the
 ground robot.  They run offline, so each ends with a Rauch-Tung-Striebel backward pass (no lag to learn).
-`model_smoother` is the model-based alternative: an unscented RTS smoother with a given model (the prior,
-or a KNODE learned in an earlier round, `estimators.algorithm1`).
+The model-based alternative is the unscented RTS smoother (`smoother.run_urts`) with a given model's bundle
+(the prior, or a KNODE learned in an earlier round, `estimators.algorithm1`).
 """
 from __future__ import annotations
 
@@ -14,11 +14,13 @@ from numpy.typing import ArrayLike
 
 from learnest.models.checks import check_dt, check_sequence
 from learnest.models.knode import HybridModel
+from learnest.models.noise import NoiseModel
 from learnest.models.systems import GroundRobot, System, make_system
 
 from .batch import batch_smoother
 from .kf import kinematic_smoother, linearize
-from .results import FilterResult
+from .params import EstimatorParams
+from .prepared import model_params
 from .smoother import run_urts
 from .ukf import run_ukf
 
@@ -62,8 +64,9 @@ def observe_robot(system: System, y: np.ndarray, u: np.ndarray, dt: float, smoot
     x0 = _trilaterate(system, y[0])
     Q = np.diag([1e-6, 1e-6, 4e-4, 4e-4, 1e-4])
     P0 = np.diag([1.0, 1.0, 4.0, 4.0, 0.1])
-    run = run_urts if smooth else run_ukf
-    forward = run(kinematics, y, dt=dt, Q=Q, R=system.R, x0=x0, P0=P0).means
+    # the robot's sensors with their fixed (the paper's) noise; Q and P0 are the observer's own, for its kinematics
+    params = EstimatorParams(kinematics, dt, Q, NoiseModel.paper(system).R, P0, x0)
+    forward = (run_urts(params, y) if smooth else run_ukf(params, y)).means
     planar = np.column_stack([forward[:, 0], forward[:, 1], forward[:, 4]])
     pos, vel, _ = kinematic_smoother(planar, dt, meas_std=[0.03, 0.03, np.deg2rad(0.5)], jerk_std=5.0)
     speed = np.hypot(vel[:, 0], vel[:, 1])
@@ -87,10 +90,11 @@ def observe_quadrotor(system: System, y: np.ndarray, u: np.ndarray, dt: float) -
 
     y (T, 6) = [p (m), a (m/s²)] -> ζ (T, 9) = [p, v (m/s), a]; the first velocity guess is 0; ``u`` is unused.
     """
-    model = HybridModel(system, "prior")
     x0 = np.concatenate([y[0, :3], np.zeros(3), y[0, 3:]])
-    F, H = linearize(model, check_dt(dt))
-    return batch_smoother(F, H, system.Q, system.R, x0, system.P0, check_sequence("y", y, cols=system.n_meas))
+    params = model_params(HybridModel(system, "prior"), x0, check_dt(dt))
+    F, H = linearize(params.model, params.dt)
+    return batch_smoother(F, H, params.Q, params.R, params.x0, params.P0,
+                          check_sequence("y", y, cols=system.n_meas))
 
 
 def observe_crazyflie(system: System, y: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
@@ -116,17 +120,6 @@ def pretraining_observer(system: System, y: ArrayLike, u: ArrayLike, dt: float) 
         If ``system.name`` has no observer (cartpole, robot and quadrotor have one).
     """
     return OBSERVERS[system.name](system, np.asarray(y, float), np.asarray(u, float), dt)
-
-
-def model_smoother(model: HybridModel, y: ArrayLike, u: ArrayLike, dt: float, x0: ArrayLike) -> FilterResult:
-    """Unscented RTS smoother of the record with ``model`` (a prior or a learned KNODE): y (T, m), u (T, p).
-
-    Q, R and P0 are the estimators' settings of ``model.system``; ``x0`` (n,) is the first state's guess
-    (e.g. another observer's first estimate).  Returns the smoothed means (T, n), covariances and the
-    forward innovations (T, m), whose size says how well the model explains the measurements.
-    """
-    system = model.system
-    return run_urts(model, y, u, dt=dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0)
 
 
 def full_state_observer(system: System, x_measured: ArrayLike, dt: float) -> np.ndarray:

@@ -4,7 +4,8 @@ A flight model ("quadrotor" or "crazyflie") sees a flight through its own prior 
 have extended them), with the measurement effects it carries corrected, and with inputs whose thrust carries
 the flight's thrust gain where the model was trained on it.  The evaluation (`workflows.flights`),
 its envelope and prediction checks, the yardsticks and the notebook's `ukf`/`mhe` all start from this one
-`PreparedFlight`, so they cannot disagree about what the model saw.
+`PreparedFlight`, so they cannot disagree about what the model saw.  What each estimator run of the flight
+is given, it gets from here as one bundle (`PreparedFlight.params`, `PreparedFlight.prior_params`).
 
 Each of the two models runs with its own noise (`models.noise`): the KNODE with the noise identified for it,
 the prior-only filters with the noise identified for the prior on the same flights, or both with the system's
@@ -24,6 +25,8 @@ from learnest.models.inputs import calibrates_thrust_gain, system_inputs
 from learnest.models.knode import HybridModel
 from learnest.models.noise import IDENTIFIED, NOISE_SOURCES, PAPER, NoiseModel
 from learnest.models.systems import System, make_system
+
+from .params import EstimatorParams
 
 # Systems a model of a real flight may use: the paper's kinematic chain, or the Crazyflie prior driven by
 # the motors and the battery (needs those channels in the flight).
@@ -47,6 +50,14 @@ def model_system(model: HybridModel, flight: Flight) -> System:
     """``model``'s system on this flight's grid with the model's own prior parameters: a diagnosis may have
     extended them, and a model trained before the motors' heating has none (`models.crazyflie.motor_heating`)."""
     return replace(system_for(flight, model.system.name), prior_params=dict(model.system.prior_params))
+
+
+def model_params(model: HybridModel, x0: np.ndarray, dt: float | None = None) -> EstimatorParams:
+    """The estimator bundle of ``model`` with the noise its system carries (Q, R, P0: the model's own noise once
+    `prepare` applied it, else its system's fixed settings), from the first state ``x0`` (n,), on a grid of
+    ``dt`` s (default the system's): the one place a model's noise is read for an estimator run."""
+    system = model.system
+    return EstimatorParams(model, system.dt if dt is None else dt, system.Q, system.R, system.P0, x0)
 
 
 def initial_state(flight: Flight) -> np.ndarray:
@@ -88,7 +99,7 @@ class PreparedFlight:
     model : HybridModel
         The model with its system's dt set to the flight's and its noise applied.
     prior : HybridModel
-        The prior-only model of ``system``, with the prior's own noise (its ``system.Q`` ...).
+        The prior-only model of ``system``, its system carrying the prior's own noise (Q, R, P0).
     u : ndarray, shape (T, p)
         Inputs (`models.inputs.system_inputs`), the thrust scaled by the flight's gain when ``thrust_gain``.
     y : ndarray, shape (T, m)
@@ -116,6 +127,17 @@ class PreparedFlight:
     def dt(self) -> float:
         """Sample period of the flight, s."""
         return self.flight.dt
+
+    @property
+    def params(self) -> EstimatorParams:
+        """What every estimator run of ``model`` on this flight is given (`model_params`): the model, dt, its
+        own noise and ``x0``."""
+        return model_params(self.model, self.x0, self.dt)
+
+    @property
+    def prior_params(self) -> EstimatorParams:
+        """The same of ``prior``, with the prior's own noise: the prior-only rows of an evaluation."""
+        return model_params(self.prior, self.x0, self.dt)
 
 
 def noise_models(model: HybridModel, system: System, noise: str = IDENTIFIED) -> tuple[NoiseModel, NoiseModel]:

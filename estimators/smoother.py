@@ -11,11 +11,11 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from learnest.models.checks import check_covariance, check_dt, check_inputs, check_sequence, check_vector
+from learnest.models.checks import check_covariance, check_dt, check_inputs, check_sequence
 
 from .covariance_factor import repairs_warned, spd_factor
-from .protocols import StateSpaceModel
-from .results import FilterResult
+from .params import EstimatorParams
+from .results import FilterResult, SmootherResult
 from .ukf import run_ukf
 
 
@@ -29,22 +29,19 @@ def _merwe_weights(n: int, alpha: float, beta: float = 2.0, kappa: float = 0.0):
     return wm, wc, np.sqrt(n + lam)
 
 
-def urts_backward(model: StateSpaceModel, filtered: FilterResult, u: ArrayLike | None = None, *, dt: float,
-                  Q: ArrayLike, alpha: float = 1.0) -> FilterResult:
+def urts_backward(params: EstimatorParams, filtered: FilterResult, u: ArrayLike | None = None, *,
+                  alpha: float = 1.0) -> SmootherResult:
     """Backward pass of the unscented RTS smoother over a forward UKF's output.
 
     Parameters
     ----------
-    model : StateSpaceModel
-        The discrete model the forward filter used (``step`` batched over rows).
+    params : EstimatorParams
+        What the forward filter ran with; the model (``step`` batched over rows), dt (s) and the process
+        noise per step Q (n, n) are used.
     filtered : FilterResult
         Forward estimates: means (T, n) x̂_{k|k}, covariances (T, n, n) P_{k|k}.
     u : array_like, shape (T, p), optional
         Inputs held over [t_k, t_k+1); None for a model without inputs.
-    dt : float
-        Sample time, s.
-    Q : array_like, shape (n, n)
-        Process noise per step, as in the forward pass.
     alpha : float
         Sigma-point spread of the backward pass.  1 (points at ±sqrt(n)·σ) rather than the forward
         filter's 1e-3: the cross-covariance is then a secant over the state's spread, and the central
@@ -52,15 +49,16 @@ def urts_backward(model: StateSpaceModel, filtered: FilterResult, u: ArrayLike |
 
     Returns
     -------
-    FilterResult
-        Smoothed means (T, n) x̂_{k|T} and covariances (T, n, n) P_{k|T}; ``t`` and the (forward)
-        innovations are the filter's.
+    SmootherResult
+        Smoothed means (T, n) x̂_{k|T} and covariances (T, n, n) P_{k|T}; ``t``, the innovations and the
+        log-likelihoods are the forward filter's.
     """
-    dt = check_dt(dt)
+    model = params.model
+    dt = check_dt(params.dt)
     means, covs = filtered.means, filtered.covariances
     T, n = means.shape
     u = check_inputs(u, T, model.n_inputs)
-    Q = check_covariance("Q", Q, n, allow_singular=True)
+    Q = check_covariance("Q", params.Q, n, allow_singular=True)
     wm, wc, scale = _merwe_weights(n, alpha)
     out_m, out_P = means.copy(), covs.copy()
     with repairs_warned("URTS smoother"):   # a repaired covariance warns once per pass
@@ -75,30 +73,26 @@ def urts_backward(model: StateSpaceModel, filtered: FilterResult, u: ArrayLike |
             gain = np.linalg.solve(P_pred.T, cross.T).T                    # G = C P_pred⁻¹ (P_pred symmetric)
             out_m[k] = means[k] + gain @ (out_m[k + 1] - m_pred)
             out_P[k] = spd_factor(covs[k] + gain @ (out_P[k + 1] - P_pred) @ gain.T)[0]
-    return FilterResult(filtered.t, out_m, out_P, filtered.innovations)
+    return SmootherResult(filtered.t, out_m, out_P, filtered.innovations, filtered.log_likelihoods)
 
 
-def run_urts(model: StateSpaceModel, y: ArrayLike, u: ArrayLike | None = None, *, dt: float, Q: ArrayLike,
-             R: ArrayLike, x0: ArrayLike, P0: ArrayLike) -> FilterResult:
+def run_urts(params: EstimatorParams, y: ArrayLike, u: ArrayLike | None = None) -> SmootherResult:
     """Fixed-interval smoothing of a whole sequence: `run_ukf` forward, then `urts_backward`.
 
     Parameters
     ----------
-    model : StateSpaceModel
-        Discrete model (``n``, ``n_inputs``, ``n_meas``, batched ``step`` and ``h``).
+    params : EstimatorParams
+        The model (``n``, ``n_inputs``, ``n_meas``, batched ``step`` and ``h``), dt (s), the process noise
+        per step Q (n, n), the measurement noise R (m, m), the first state's guess x0 (n,) and its
+        covariance P0 (n, n), as for `run_ukf`.
     y : array_like, shape (T, m)
         Measurements.
     u : array_like, shape (T, p), optional
         Inputs held over [t_k, t_k+1); None for a model without inputs.
-    dt : float
-        Sample time, s.
-    Q, R, x0, P0 : array_like
-        Process noise per step (n, n), measurement noise (m, m), first state's mean (n,) and
-        covariance (n, n), as for `run_ukf`.
 
     Returns
     -------
-    FilterResult
+    SmootherResult
         Smoothed means (T, n) and covariances (T, n, n); innovations (T, m) of the forward pass.
 
     Raises
@@ -106,7 +100,7 @@ def run_urts(model: StateSpaceModel, y: ArrayLike, u: ArrayLike | None = None, *
     InvalidInput
         On wrong shapes, non-finite values, a bad ``dt`` or a covariance that is not positive definite.
     """
-    y = check_sequence("y", y, cols=model.n_meas)
-    x0 = check_vector("x0", x0, model.n)
-    filtered = run_ukf(model, y, u, dt=dt, Q=Q, R=R, x0=x0, P0=P0)
-    return urts_backward(model, filtered, u, dt=dt, Q=Q)
+    y = check_sequence("y", y, cols=params.model.n_meas)
+    params = params.checked()
+    filtered = run_ukf(params, y, u)
+    return urts_backward(params, filtered, u)

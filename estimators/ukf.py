@@ -21,9 +21,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike
 
-from learnest.models.checks import check_covariance, check_dt, check_inputs, check_sequence, check_vector
+from learnest.models.checks import check_inputs, check_sequence
 
 from .covariance_factor import repairs_warned, spd_factor
+from .params import EstimatorParams
 from .protocols import StateSpaceModel
 from .results import FilterResult
 
@@ -100,21 +101,22 @@ def compiled_sigma_functions(model: StateSpaceModel, dt: float,
     return SigmaFunctions(fx, hx, native)
 
 
-def make_ukf(model: StateSpaceModel, dt: float, Q: np.ndarray, R: np.ndarray, x0: np.ndarray, P0: np.ndarray,
-             alpha: float = 1e-3, beta: float = 2.0, kappa: float = 0.0, compiled: bool = False,
-             codegen_dir: str | Path | None = None, sigma_functions: tuple | None = None) -> BatchedUKF:
-    """A `BatchedUKF` for ``model`` with Merwe points (alpha, beta, kappa), x = x0 (n,), P = P0 (n, n).
+def make_ukf(params: EstimatorParams, alpha: float = 1e-3, beta: float = 2.0, kappa: float = 0.0,
+             compiled: bool = False, codegen_dir: str | Path | None = None,
+             sigma_functions: tuple | None = None) -> BatchedUKF:
+    """A `BatchedUKF` for ``params.model`` with Merwe points (alpha, beta, kappa), x = x0 (n,), P = P0 (n, n).
 
-    Q (n, n) and R (m, m) are used as given (no validation here; `run_ukf` validates).  ``predict`` and
-    ``update`` take the input as the keyword ``u``, shape (p,).  ``compiled``: evaluate the model on the
-    sigma points as compiled C (the model must accept CasADi symbols, as `HybridModel` does); the first
-    filter of a model architecture compiles it (~1-5 s, cached in ``codegen_dir`` like the MHE's
+    ``params``' Q (n, n) and R (m, m) are used as given (no validation here; `run_ukf` validates).
+    ``predict`` and ``update`` take the input as the keyword ``u``, shape (p,).  ``compiled``: evaluate the
+    model on the sigma points as compiled C (the model must accept CasADi symbols, as `HybridModel` does);
+    the first filter of a model architecture compiles it (~1-5 s, cached in ``codegen_dir`` like the MHE's
     functions; default ``~/.cache/learnest/codegen``).  ``sigma_functions``: the (fx, hx) pair of
     `compiled_sigma_functions`, built once and reused for many filters of one model (then ``compiled`` is
     not consulted); filters sharing a pair must run one after the other (it writes into shared buffers).
     """
     from .ukf_filterpy import BatchedUKF, VectorizedMerwePoints  # filterpy on first use (module docstring)
 
+    model, dt = params.model, params.dt
     n = model.n
     points = VectorizedMerwePoints(n, alpha=alpha, beta=beta, kappa=kappa)
     functions = sigma_functions
@@ -123,35 +125,26 @@ def make_ukf(model: StateSpaceModel, dt: float, Q: np.ndarray, R: np.ndarray, x0
     if functions is None:
         functions = (lambda sigmas, dt, u: model.step(sigmas, _rows(u, len(sigmas)), dt),
                      lambda sigmas, u: model.h(sigmas, _rows(u, len(sigmas))))
-    ukf = BatchedUKF(dim_x=n, dim_z=R.shape[0], dt=dt, points=points, fx=functions[0], hx=functions[1])
-    ukf.x, ukf.Q, ukf.R = x0.copy(), Q, R
-    ukf._set_covariance(P0)
+    ukf = BatchedUKF(dim_x=n, dim_z=params.R.shape[0], dt=dt, points=points, fx=functions[0], hx=functions[1])
+    ukf.x, ukf.Q, ukf.R = params.x0.copy(), params.Q, params.R
+    ukf._set_covariance(params.P0)
     return ukf
 
 
-def run_ukf(model: StateSpaceModel, y: ArrayLike, u: ArrayLike | None = None, *, dt: float, Q: ArrayLike,
-            R: ArrayLike, x0: ArrayLike, P0: ArrayLike, alpha: float = 1e-3, compiled: bool = False,
-            codegen_dir: str | Path | None = None, sigma_functions: tuple | None = None) -> FilterResult:
+def run_ukf(params: EstimatorParams, y: ArrayLike, u: ArrayLike | None = None, *, alpha: float = 1e-3,
+            compiled: bool = False, codegen_dir: str | Path | None = None,
+            sigma_functions: tuple | None = None) -> FilterResult:
     """Filter a whole sequence: update with y[0] at x0, then predict with u[k-1] and update with y[k].
 
     Parameters
     ----------
-    model : StateSpaceModel
-        Discrete model (`StateSpaceModel`: ``n``, ``n_inputs``, ``n_meas``, ``step``, ``h``).
+    params : EstimatorParams
+        The model (`StateSpaceModel`: ``n``, ``n_inputs``, ``n_meas``, ``step``, ``h``), dt (s), Q (n, n) per
+        step (may be singular), R (m, m), and the first state's guess x0 (n,) with its covariance P0 (n, n).
     y : array_like, shape (T, m)
         Measurements.
     u : array_like, shape (T, p), optional
         Inputs held over [t_k, t_k+1); None for a model without inputs.
-    dt : float
-        Sample time, s.
-    Q : array_like, shape (n, n)
-        Process noise covariance per step (may be singular).
-    R : array_like, shape (m, m)
-        Measurement noise covariance.
-    x0 : array_like, shape (n,)
-        Prior mean of the first state.
-    P0 : array_like, shape (n, n)
-        Its covariance.
     alpha : float
         Merwe sigma-point spread.
     compiled : bool
@@ -180,24 +173,23 @@ def run_ukf(model: StateSpaceModel, y: ArrayLike, u: ArrayLike | None = None, *,
         Once per run, with the number of steps, when the filter's covariance lost positive definiteness and
         was repaired (`estimators.covariance_factor.spd_factor`).
     """
-    dt, n = check_dt(dt), model.n
+    model = params.model
     y = check_sequence("y", y, cols=model.n_meas)
     u = check_inputs(u, len(y), model.n_inputs)
-    Q, R = check_covariance("Q", Q, n, allow_singular=True), check_covariance("R", R, y.shape[1])
-    x0, P0 = check_vector("x0", x0, n), check_covariance("P0", P0, n)
+    params = params.checked()
     if sigma_functions is None and compiled:
-        sigma_functions = compiled_sigma_functions(model, dt, codegen_dir)
+        sigma_functions = compiled_sigma_functions(model, params.dt, codegen_dir)
     with repairs_warned("UKF"):   # a repaired covariance warns once per run
-        return _filter(model, sigma_functions, y, u, dt, Q, R, x0, P0, alpha)
+        return _filter(params, sigma_functions, y, u, alpha)
 
 
-def _filter(model, sigma_functions, y, u, dt, Q, R, x0, P0, alpha) -> FilterResult:
+def _filter(params: EstimatorParams, sigma_functions, y, u, alpha) -> FilterResult:
     """`run_ukf` on checked arguments: in C when the sigma functions carry the loop, else in Python."""
-    n = model.n
+    n, dt = params.model.n, params.dt
     native = getattr(sigma_functions, "native", None)
     if native is not None:   # the same loop in C (module docstring)
-        return native.run(y, u, dt, Q, R, x0, P0, alpha)
-    ukf = make_ukf(model, dt, Q, R, x0, P0, alpha=alpha, sigma_functions=sigma_functions)
+        return native.run(y, u, dt, params.Q, params.R, params.x0, params.P0, alpha)
+    ukf = make_ukf(params, alpha=alpha, sigma_functions=sigma_functions)
     ukf.sigmas_f = ukf._sigmas()
     means, innovations = np.empty((len(y), n)), np.empty(y.shape)
     covariances, log_likelihoods = np.empty((len(y), n, n)), np.empty(len(y))

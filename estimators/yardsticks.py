@@ -36,7 +36,7 @@ flights they add about what the unmasked runs cost (benchmarks/results/yardstick
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -48,7 +48,7 @@ from .gap_plan import GapPlan  # noqa: F401  (re-exported: where the gaps are)
 from .headline import MEASURES, NOTHING_LEARNED, Headline, headline, learned_note  # noqa: F401  (re-exported)
 from .metrics import gain_pct, rms_norm, unit_gain_interval, unit_interval_method
 from .mocap_gaps import POSITION_ROWS, PositionGapModel, gap_mask, masked_measurements
-from .protocols import StateSpaceModel
+from .params import EstimatorParams
 
 # The fast reference's Savitzky–Golay windows, s: 5 samples at 100 Hz for the velocity (its noise from 1 mm
 # of mocap noise ~0.03 m/s), 15 for the acceleration (a second derivative needs more samples: ~0.15 m/s²).
@@ -59,22 +59,20 @@ VELOCITY_COLS, ACCELERATION_COLS = slice(3, 6), slice(6, 9)
 BASES = ("ukf", "mhe")
 
 
-def run_with_gaps(methods: Sequence[str], prior_model: StateSpaceModel, knode_model: StateSpaceModel,
-                  y: np.ndarray, u: np.ndarray, dt: float, x0: np.ndarray, inside: np.ndarray, horizon: int,
-                  mhe_cache: dict | None = None,
+def run_with_gaps(methods: Sequence[str], prior: EstimatorParams, knode: EstimatorParams, y: np.ndarray,
+                  u: np.ndarray, inside: np.ndarray, horizon: int, mhe_cache: dict | None = None,
                   on_stage: Callable[[str], object] | None = None) -> dict[str, dict]:
     """Each method run with the position measurements hidden where ``inside`` (T,) is True.
 
-    Same estimators, tuning and caches as `evaluate_sequence` (it runs them), on `PositionGapModel` of each
-    model.  Returns ``{method: {"estimates": (T, n), "ms_per_step": float}}``.
+    Same estimators, tuning and caches as `evaluate_sequence` (it runs them), each bundle's model wrapped in
+    `PositionGapModel`.  Returns ``{method: {"estimates": (T, n), "ms_per_step": float}}``.
     """
     y_gap, u_gap = masked_measurements(y, u, inside)
-    prior_gap, knode_gap = PositionGapModel(prior_model), PositionGapModel(knode_model)
+    prior_gap, knode_gap = (replace(p, model=PositionGapModel(p.model)) for p in (prior, knode))
     stage = None if on_stage is None else (lambda name: on_stage(f"{name} with mocap gaps"))
     # the reference only feeds evaluate_sequence's SG scores, unused here: the state itself keeps shapes valid
-    results = evaluate_sequence(methods, prior_gap, knode_gap, y_gap, u_gap, dt, x0,
-                                np.zeros((len(y), len(x0))), horizon=horizon, keep_estimates=True,
-                                mhe_cache=mhe_cache, on_stage=stage)
+    results = evaluate_sequence(methods, prior_gap, knode_gap, y_gap, u_gap, np.zeros((len(y), len(prior.x0))),
+                                horizon=horizon, keep_estimates=True, mhe_cache=mhe_cache, on_stage=stage)
     return {m: {"estimates": r["estimates"], "ms_per_step": r["ms_per_step"]} for m, r in results.items()}
 
 
@@ -275,9 +273,8 @@ def fast_reference_scores(p_mocap: np.ndarray, dt: float, estimates: Mapping[str
                          round(fast["acceleration_window_s"], 6), int(np.count_nonzero(outside)))
 
 
-def flight_yardsticks(methods: Sequence[str], prior_model: StateSpaceModel, knode_model: StateSpaceModel,
-                      y: np.ndarray, u: np.ndarray, dt: float, x0: np.ndarray, p_mocap: np.ndarray,
-                      estimates: Mapping[str, np.ndarray],
+def flight_yardsticks(methods: Sequence[str], prior: EstimatorParams, knode: EstimatorParams,
+                      y: np.ndarray, u: np.ndarray, p_mocap: np.ndarray, estimates: Mapping[str, np.ndarray],
                       paper_mse: Mapping[str, float], plan: GapPlan, horizon: int,
                       onboard: Mapping[str, np.ndarray] | None = None, sg_window_s: float | None = None,
                       mhe_cache: dict | None = None,
@@ -288,8 +285,9 @@ def flight_yardsticks(methods: Sequence[str], prior_model: StateSpaceModel, knod
     ----------
     methods : sequence of str
         Estimators to run with gaps (``ukf``, ``mhe``, ``knode-ukf``, ``knode-mhe``).
-    prior_model, knode_model, y, u, dt, x0, horizon, mhe_cache, on_stage
-        As `evaluate_sequence` (each model with its own noise) (y (T, m) = [p, a_meas], u (T, p)).
+    prior, knode, y, u, horizon, mhe_cache, on_stage
+        As `evaluate_sequence` (each model's bundle with its own noise; the grid is theirs)
+        (y (T, m) = [p, a_meas], u (T, p)).
     p_mocap : ndarray, shape (T, 3)
         The mocap position, m: hidden inside the gaps, the reference there; its derivatives are the fast
         reference.
@@ -309,12 +307,12 @@ def flight_yardsticks(methods: Sequence[str], prior_model: StateSpaceModel, knod
     (FlightYardsticks, dict)
         The yardsticks, and {method: (T, n)} estimates of the gap-masked runs (empty without gaps).
     """
-    p_mocap = np.asarray(p_mocap, dtype=float)
+    p_mocap, dt = np.asarray(p_mocap, dtype=float), prior.dt
     windows = plan.windows(len(p_mocap), dt)
     inside = gap_mask(len(p_mocap), windows)
     gapped: dict = {}
     if windows and methods:
-        runs = run_with_gaps(methods, prior_model, knode_model, y, u, dt, x0, inside, horizon, mhe_cache, on_stage)
+        runs = run_with_gaps(methods, prior, knode, y, u, inside, horizon, mhe_cache, on_stage)
         gapped = {m: r["estimates"] for m, r in runs.items()}
         gaps = gap_scores(p_mocap, gapped, windows, plan, {m: r["ms_per_step"] for m, r in runs.items()})
     else:

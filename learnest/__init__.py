@@ -44,7 +44,7 @@ _LAZY = {
     "make_system": "learnest.models.systems",
     "FilterResult": "learnest.estimators.results",
     "KNODE": "learnest.estimators.knode_estimator",
-    "MHEResult": "learnest.workflows.estimation",
+    "MHEResult": "learnest.estimators.results",
     "ukf": "learnest.workflows.estimation",
     "mhe": "learnest.workflows.estimation",
     "evaluate": "learnest.workflows.estimation",
@@ -71,11 +71,11 @@ def __dir__() -> list[str]:
 
 if TYPE_CHECKING:  # what type checkers and IDEs see
     from .estimators.knode_estimator import KNODE
-    from .estimators.results import FilterResult
+    from .estimators.results import FilterResult, MHEResult
     from .ingest import read_flights
     from .ingest.flight import Flight, IngestError
     from .models.knode import HybridModel
     from .models.systems import make_system
     from .workflows.diagnosis import diagnose
-    from .workflows.estimation import MHEResult, evaluate, mhe, ukf
+    from .workflows.estimation import evaluate, mhe, ukf
     from .workflows.thrust_map import thrust_map

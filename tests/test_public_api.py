@@ -11,6 +11,7 @@ import pytest
 import learnest as le
 from learnest.estimators.covariance import linearized_covariances
 from learnest.estimators.kf import run_kf
+from learnest.estimators.params import EstimatorParams
 from learnest.estimators.ukf import run_ukf
 from learnest.models.knode import HybridModel
 from learnest.models.systems import make_system
@@ -105,9 +106,9 @@ def linear_case():
 def test_ukf_result_has_covariances_equal_to_the_kalman_filter(linear_case):
     """On a linear-Gaussian model the UKF is the KF: means and covariances, step for step."""
     system, model, run = linear_case
-    kw = dict(dt=system.dt, Q=system.Q, R=system.R, x0=run.x_noisy[0], P0=system.P0)
-    kf = run_kf(model, run.y, **kw)
-    ukf = run_ukf(model, run.y, alpha=1.0, **kw)       # u=None: a model without inputs
+    params = EstimatorParams(model, system.dt, system.Q, system.R, system.P0, run.x_noisy[0])
+    kf = run_kf(params, run.y)
+    ukf = run_ukf(params, run.y, alpha=1.0)       # u=None: a model without inputs
     assert ukf.covariances.shape == (200, 9, 9) and ukf.innovations.shape == (200, 6)
     np.testing.assert_allclose(ukf.covariances, kf.covariances, rtol=1e-8, atol=1e-14)
     np.testing.assert_allclose(ukf.innovations, kf.innovations, atol=1e-9)
@@ -116,9 +117,9 @@ def test_ukf_result_has_covariances_equal_to_the_kalman_filter(linear_case):
 
 def test_linearized_covariances_equal_the_kalman_filter_on_a_linear_model(linear_case):
     system, model, run = linear_case
-    kw = dict(dt=system.dt, Q=system.Q, R=system.R, P0=system.P0)
-    kf = run_kf(model, run.y, x0=run.x_noisy[0], **kw)
-    covariances = linearized_covariances(model, kf.means, **kw)
+    params = EstimatorParams(model, system.dt, system.Q, system.R, system.P0, run.x_noisy[0])
+    kf = run_kf(params, run.y)
+    covariances = linearized_covariances(params, kf.means)
     np.testing.assert_allclose(covariances, kf.covariances, rtol=1e-9, atol=1e-15)
 
 
@@ -126,8 +127,8 @@ def test_inputs_required_by_a_model_are_asked_for():
     system = make_system("cartpole")
     run = system.simulate(1, n_samples=20)
     with pytest.raises(le.InvalidInput, match="u is required"):
-        run_ukf(HybridModel(system, "true"), run.y, None, dt=system.dt, Q=system.Q, R=system.R,
-                x0=run.x[0], P0=system.P0)
+        run_ukf(EstimatorParams(HybridModel(system, "true"), system.dt, system.Q, system.R, system.P0, run.x[0]),
+                run.y, None)
 
 
 def test_notebook_workflow_on_sample_flights():

@@ -20,7 +20,7 @@ import numpy as np
 from learnest.errors import InvalidInput, LearnestError
 from learnest.estimators.evaluate import evaluate_sequence
 from learnest.estimators.observers import pretraining_observer
-from learnest.estimators.prepared import corrected_flight, system_for
+from learnest.estimators.prepared import corrected_flight, model_params, system_for
 from learnest.ingest.flight import Flight
 from learnest.ingest.profile import flight_profile
 from learnest.models.diagnosis import select_effects
@@ -139,7 +139,9 @@ def diagnose_simulated(system_name: str, simulate: str = "", seed: int = 0,
 def _score_simulated(system, zeta, train, test, methods, config):
     knode = train_knode(system, zeta, train.u, system.dt, config).model
     prior = HybridModel(system, "prior")
-    results = evaluate_sequence(methods, prior, knode, test.y, test.u, system.dt, test.x_noisy[0], test.x)
+    x0 = test.x_noisy[0]
+    results = evaluate_sequence(methods, model_params(prior, x0, system.dt), model_params(knode, x0, system.dt),
+                                test.y, test.u, test.x)
     return {m: r["mse"] for m, r in results.items()}
 
 

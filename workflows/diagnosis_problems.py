@@ -11,7 +11,7 @@ import numpy as np
 from learnest.estimators.headline import MEASURES
 from learnest.estimators.metrics import better_beyond_interval, gain_interval_over_time, worse_beyond_interval
 from learnest.estimators.observers import pretraining_observer
-from learnest.estimators.prepared import initial_state
+from learnest.estimators.prepared import initial_state, model_params
 from learnest.estimators.ukf import run_ukf
 from learnest.estimators.yardsticks import GapPlan, gap_gain, gap_squared_errors
 from learnest.ingest.baseline import sg_references
@@ -303,8 +303,8 @@ def _residual_summary(fitting, fixed_fitting, accel, dynamics, knode):
     learned = knode.residual(zeta, np.zeros((len(zeta), 0))) if knode.residual else np.zeros_like(zeta)
     out = {"knode_residual_rms": dict(zip(system.state_names, np.sqrt((learned**2).mean(0)).round(5).tolist()))}
     for label, f in (("before", flight), ("after", fixed)):
-        innovations = run_ukf(HybridModel(system, "prior"), f.measurements(), dt=f.dt, Q=system.Q, R=system.R,
-                              x0=initial_state(f), P0=system.P0).innovations
+        params = model_params(HybridModel(system, "prior"), initial_state(f), f.dt)
+        innovations = run_ukf(params, f.measurements()).innovations
         a_ref = sg_references(f.p, f.dt, window=DIAGNOSIS_SG_WINDOW, order=DIAGNOSIS_SG_ORDER)["a"]
         rms = np.sqrt((innovations**2).mean(0)).round(5).tolist()
         out[f"innovation_rms_{label}"] = dict(zip(system.meas_names, rms))

@@ -1,23 +1,22 @@
 """Estimators and evaluation on Flights: what `learnest.ukf`, `learnest.mhe` and `learnest.evaluate` run.
 
 The estimators themselves (`learnest.estimators`) work on arrays; this layer supplies what a Flight
-implies: its measurements y = [p, a_meas], its grid, the system's noise settings and the first state.
+implies: its measurements y = [p, a_meas] and the estimators' bundle (`estimators.prepared.prepare`: the
+model on the flight's grid, its noise and the first state).
 """
 from __future__ import annotations
 
 import warnings
 from collections.abc import Callable, Sequence
-from typing import NamedTuple
 
 import numpy as np
 
 from learnest.errors import InvalidInput, NumericalWarning
-from learnest.estimators.covariance import linearized_covariances
 from learnest.estimators.estimates import FlightEstimates
 from learnest.estimators.headline import ReportHeadline
 from learnest.estimators.mhe import MHE
-from learnest.estimators.prepared import FLIGHT_SYSTEMS, prepare
-from learnest.estimators.results import FilterResult
+from learnest.estimators.prepared import FLIGHT_SYSTEMS, PreparedFlight, prepare
+from learnest.estimators.results import FilterResult, MHEResult
 from learnest.estimators.ukf import run_ukf
 from learnest.ingest.flight import Flight
 from learnest.models.knode import HybridModel
@@ -26,36 +25,13 @@ from learnest.models.presets import EVALUATION_METHODS, GAP_EVERY_S, GAP_S, MHE_
 from .flights import evaluate_flights
 
 
-class MHEResult(NamedTuple):
-    """A moving-horizon estimate of a whole flight.
-
-    Attributes
-    ----------
-    t : ndarray, shape (T,)
-        Time of each estimate, s from the flight's start.
-    means : ndarray, shape (T, n)
-        x̂_{k|k}, the last node of each window.
-    covariances : ndarray, shape (T, n, n)
-        Their covariances, from the EKF recursion linearised along the estimates (exact for a linear
-        model, where MHE with the Kalman arrival cost equals the Kalman filter).
-    solver_failures : int
-        Windows whose NLP solver reported failure (also raised as a `NumericalWarning`).
-    """
-
-    t: np.ndarray
-    means: np.ndarray
-    covariances: np.ndarray
-    solver_failures: int
-
-
-def _checked(model: HybridModel, flight: Flight, noise: str):
+def _checked(model: HybridModel, flight: Flight, noise: str) -> PreparedFlight:
     if not isinstance(flight, Flight):
         raise InvalidInput(f"expected a Flight (learnest.read_flights), got {type(flight).__name__}")
     if model.system.name not in FLIGHT_SYSTEMS:
         raise InvalidInput(f"a {model.system.name!r} model cannot run on a flight; flights need one of "
                            f"{', '.join(FLIGHT_SYSTEMS)}")
-    prepared = prepare(model, flight, noise=noise)   # a model a diagnosis repaired sees the flight as evaluate does
-    return prepared.system, prepared.y, prepared.u, prepared.x0
+    return prepare(model, flight, noise=noise)   # a model a diagnosis repaired sees the flight as evaluate does
 
 
 def ukf(model: HybridModel, flight: Flight, alpha: float = 1e-3, noise: str = "identified") -> FilterResult:
@@ -94,8 +70,8 @@ def ukf(model: HybridModel, flight: Flight, alpha: float = 1e-3, noise: str = "i
     >>> post.means.shape == (len(flights[1].t), 9)
     True
     """
-    system, y, u, x0 = _checked(model, flight, noise)
-    result = run_ukf(model, y, u, dt=flight.dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0, alpha=alpha)
+    prepared = _checked(model, flight, noise)
+    result = run_ukf(prepared.params, prepared.y, prepared.u, alpha=alpha)
     return result._replace(t=np.asarray(flight.t, dtype=float))
 
 
@@ -138,15 +114,14 @@ def mhe(model: HybridModel, flight: Flight, horizon: int = MHE_HORIZON, noise: s
     >>> result.covariances.shape[1:]
     (9, 9)
     """
-    system, y, u, x0 = _checked(model, flight, noise)
-    estimator = MHE(model, flight.dt, system.Q, system.R, system.P0, horizon=horizon)
-    means = estimator.run(y, u, x0)
-    failures = int(estimator.stats.get("failures", 0))
-    if failures:
-        warnings.warn(f"{flight.name}: the MHE solver failed on {failures} of {estimator.stats['solves']} windows; "
-                      "those estimates are the solver's last iterate", NumericalWarning, stacklevel=2)
-    covariances = linearized_covariances(model, means, u, dt=flight.dt, Q=system.Q, R=system.R, P0=system.P0)
-    return MHEResult(np.asarray(flight.t, dtype=float), means, covariances, failures)
+    prepared = _checked(model, flight, noise)
+    estimator = MHE(prepared.params, horizon=horizon)
+    result = estimator.run(prepared.y, prepared.u, covariances=True)
+    if result.solver_failures:
+        warnings.warn(f"{flight.name}: the MHE solver failed on {result.solver_failures} of "
+                      f"{estimator.stats['solves']} windows; those estimates are the solver's last iterate",
+                      NumericalWarning, stacklevel=2)
+    return result._replace(t=np.asarray(flight.t, dtype=float))
 
 
 def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[str] = EVALUATION_METHODS,

@@ -106,18 +106,18 @@ def evaluate_prepared(prepared: PreparedFlight, methods: Sequence[str], horizon:
         estimate there.  ``gap_estimates`` {method: (T, n)} of the gap-masked runs when ``gaps`` and
         ``keep_estimates`` (empty when no gap fits), else None: what compares two models on the same gaps.
     """
-    flight, knode, prior = prepared.flight, prepared.model, prepared.prior
-    y, u, x0 = prepared.y, prepared.u, prepared.x0
+    flight, knode, prior = prepared.flight, prepared.params, prepared.prior_params
+    y, u = prepared.y, prepared.u
     reference = references(flight, window=sg_window)
     mhe_cache = {} if mhe_cache is None else mhe_cache
     run = [m for m in methods if m != ONBOARD]   # the onboard estimate is read from the log, not run
-    results = evaluate_sequence(run, prior, knode, y, u, flight.dt, x0, reference,
+    results = evaluate_sequence(run, prior, knode, y, u, reference,
                                 horizon=horizon, keep_estimates=keep_estimates or gaps is not None,
                                 mhe_cache=mhe_cache, on_stage=on_stage)
     yardsticks, gapped = None, None
     if gaps is not None:
         onboard = onboard_estimate(flight.channels) if ONBOARD in methods else None
-        yardsticks, gapped = flight_yardsticks(run, prior, knode, y, u, flight.dt, x0, flight.p,
+        yardsticks, gapped = flight_yardsticks(run, prior, knode, y, u, flight.p,
                                                {m: r["estimates"] for m, r in results.items()},
                                                {m: r["mse"] for m, r in results.items()}, gaps, horizon,
                                                onboard=onboard, sg_window_s=centred_window(sg_window) * flight.dt,
@@ -125,8 +125,8 @@ def evaluate_prepared(prepared: PreparedFlight, methods: Sequence[str], horizon:
         if not keep_estimates:
             for entry in results.values():
                 entry.pop("estimates", None)
-    check = flight_prediction_check(prepared, results, mhe_cache) if check_prediction and knode.kind == "knode" \
-        else None
+    check = flight_prediction_check(prepared, results, mhe_cache) \
+        if check_prediction and prepared.model.kind == "knode" else None
     if not keep_estimates:
         return {"results": results, "reference": None, "estimates": None, "prediction_check": check,
                 "yardsticks": yardsticks, "gap_estimates": None}
@@ -140,12 +140,11 @@ def flight_prediction_check(prepared: PreparedFlight, results: dict, cache: dict
     """`estimators.evaluate.prediction_check` of a KNODE on the mocap position (`PREDICTION_CHANNELS`) of one
     prepared flight: reuses the UKF rows' innovations in ``results`` (`evaluate_sequence`'s) and runs the
     (untimed) UKF of a model whose row was not asked for."""
-    system, y, u, x0 = prepared.system, prepared.y, prepared.u, prepared.x0
     ms = {}
-    for method, model in (("ukf", prepared.prior), ("knode-ukf", prepared.model)):
+    for method, params in (("ukf", prepared.prior_params), ("knode-ukf", prepared.params)):
         ms[method] = results[method]["innovation_ms"] if method in results else \
-            one_step_innovation_ms(model, y, u, prepared.dt, x0, cache=cache)
-    names = list(system.meas_names)
+            one_step_innovation_ms(params, prepared.y, prepared.u, cache=cache)
+    names = list(prepared.system.meas_names)
     return prediction_check(ms["ukf"], ms["knode-ukf"], [names.index(c) for c in PREDICTION_CHANNELS], names)
 
 

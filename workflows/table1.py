@@ -18,6 +18,7 @@ from learnest.estimators.algorithm1 import Algorithm1
 from learnest.estimators.mhe import MHE
 from learnest.estimators.noise_identification import NoiseRecord, identify_noise
 from learnest.estimators.observers import full_state_observer, pretraining_observer
+from learnest.estimators.params import EstimatorParams
 from learnest.estimators.ukf import run_ukf
 from learnest.models.envelope import envelope_report
 from learnest.models.knode import HybridModel
@@ -115,15 +116,15 @@ def run_seed(settings: ReproduceSettings, seed: int) -> dict:
     x0 = test.x_noisy[0]
     mse, seconds = {}, {}
     for label, model in models.items():
-        Q, R, P0 = noises[label].Q, noises[label].R, noises[label].P0
+        params = EstimatorParams.from_noise(model, system.dt, noises[label], x0)
         prefix, suffix = label.split("-")[0] + "-" if label.startswith("KNODE") else "", label.replace("KNODE-", "")
         for estimator in ("MHE", "UKF"):
             row = f"{prefix}{estimator}{suffix}"
             started = time.perf_counter()
             if estimator == "UKF":
-                xh = run_ukf(model, test.y, test.u, dt=system.dt, Q=Q, R=R, x0=x0, P0=P0).means
+                xh = run_ukf(params, test.y, test.u).means
             else:
-                xh = MHE(model, system.dt, Q, R, P0, horizon=settings.horizon).run(test.y, test.u, x0)
+                xh = MHE(params, horizon=settings.horizon).run(test.y, test.u).means
             mse[row] = metrics.mse(xh, test.x)
             seconds[row] = time.perf_counter() - started
     names = {"": "prior", "KNODE-": "KNODE", "KNODE- (full state)": "KNODE (full state)",

@@ -3,12 +3,14 @@ covariance the UKF had to repair is reported once per run with `NumericalWarning
 from __future__ import annotations
 
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from learnest.errors import InvalidInput, NumericalWarning
 from learnest.estimators.mhe import MHE
+from learnest.estimators.params import EstimatorParams
 from learnest.estimators.ukf import run_ukf
 from learnest.models.knode import HybridModel
 from learnest.models.systems import make_system
@@ -22,7 +24,8 @@ from learnest.models.systems import make_system
 def test_bad_mhe_options_are_invalid_input_naming_the_choices(options, named):
     system = make_system("quadrotor")
     with pytest.raises(InvalidInput, match=named):
-        MHE(HybridModel(system, "prior"), system.dt, system.Q, system.R, system.P0, **options)
+        MHE(EstimatorParams(HybridModel(system, "prior"), system.dt, system.Q, system.R, system.P0, np.zeros(9)),
+            **options)
 
 
 def test_a_repaired_covariance_warns_once_per_run():
@@ -31,14 +34,14 @@ def test_a_repaired_covariance_warns_once_per_run():
     system = make_system("quadrotor")
     model = HybridModel(system, "prior")
     y = np.random.default_rng(0).normal(size=(200, model.n_meas)) * 0.01
-    kwargs = {"dt": system.dt, "Q": system.Q, "x0": np.zeros(model.n), "P0": system.P0}
+    params = EstimatorParams(model, system.dt, system.Q, system.R, system.P0, np.zeros(model.n))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        run_ukf(model, y, None, R=np.eye(model.n_meas) * 1e-24, **kwargs)
+        run_ukf(replace(params, R=np.eye(model.n_meas) * 1e-24), y, None)
     repaired = [w for w in caught if issubclass(w.category, NumericalWarning)]
     assert len(repaired) == 1 and "repaired" in str(repaired[0].message)
     assert int(str(repaired[0].message).split(" at ")[1].split()[0]) > 1   # many steps, one warning
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        run_ukf(model, y, None, R=system.R, **kwargs)   # a well-posed run repairs nothing and says nothing
+        run_ukf(params, y, None)   # a well-posed run repairs nothing and says nothing
     assert not [w for w in caught if issubclass(w.category, NumericalWarning)]

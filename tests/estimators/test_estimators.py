@@ -5,6 +5,7 @@ import pytest
 from learnest.errors import InvalidInput
 from learnest.estimators.kf import linearize, run_kf
 from learnest.estimators.mhe import MHE
+from learnest.estimators.params import EstimatorParams
 from learnest.estimators.ukf import make_ukf, run_ukf, spd_factor
 from learnest.models.knode import HybridModel, Residual
 from learnest.models.systems import make_system
@@ -21,12 +22,12 @@ def linear_case():
 
 def test_ukf_equals_kf_on_a_linear_gaussian_system(linear_case):
     system, model, run = linear_case
-    x0 = run.x_noisy[0]
-    kf = run_kf(model, run.y, run.u, dt=system.dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0).means
-    ukf = run_ukf(model, run.y, run.u, dt=system.dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0).means
+    params = EstimatorParams(model, system.dt, system.Q, system.R, system.P0, run.x_noisy[0])
+    kf = run_kf(params, run.y, run.u).means
+    ukf = run_ukf(params, run.y, run.u).means
     # alpha = 1e-3 puts weights of order 1e6 on the sigma points: ~1e-7 relative is the floor there
     np.testing.assert_allclose(ukf, kf, rtol=0, atol=1e-7)
-    wide = run_ukf(model, run.y, run.u, dt=system.dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0, alpha=1.0).means
+    wide = run_ukf(params, run.y, run.u, alpha=1.0).means
     np.testing.assert_allclose(wide, kf, rtol=0, atol=1e-10)
 
 
@@ -36,8 +37,9 @@ def test_mhe_with_a_long_horizon_is_the_full_information_estimate(linear_case):
     system, model, run = linear_case
     T = 40
     y, u, x0 = run.y[:T], run.u[:T], run.x_noisy[0]
-    kf = run_kf(model, y, u, dt=system.dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0).means
-    mhe = MHE(model, system.dt, system.Q, system.R, system.P0, horizon=T + 5).run(y, u, x0)
+    params = EstimatorParams(model, system.dt, system.Q, system.R, system.P0, x0)
+    kf = run_kf(params, y, u).means
+    mhe = MHE(params, horizon=T + 5).run(y, u).means
     np.testing.assert_allclose(mhe, kf, rtol=0, atol=1e-6 * np.abs(kf).max())
     # and the last node equals an independent dense batch least-squares solution
     F, H = linearize(model, system.dt)
@@ -60,18 +62,19 @@ def test_mhe_with_a_long_horizon_is_the_full_information_estimate(linear_case):
 
 def test_mhe_warm_start_and_arrival_options_give_the_same_estimates_on_a_linear_system(linear_case):
     system, model, run = linear_case
-    y, u, x0 = run.y[:60], run.u[:60], run.x_noisy[0]
+    y, u = run.y[:60], run.u[:60]
+    params = EstimatorParams(model, system.dt, system.Q, system.R, system.P0, run.x_noisy[0])
     # warm starting is an IPOPT option (the Gauss-Newton solver always starts from the shifted window)
     ipopt = dict(horizon=10, solver="ipopt")
-    warm = MHE(model, system.dt, system.Q, system.R, system.P0, **ipopt).run(y, u, x0)
-    cold = MHE(model, system.dt, system.Q, system.R, system.P0, warm_start=False, **ipopt).run(y, u, x0)
+    warm = MHE(params, **ipopt).run(y, u).means
+    cold = MHE(params, warm_start=False, **ipopt).run(y, u).means
     np.testing.assert_allclose(warm, cold, atol=1e-7)
-    fixed = MHE(model, system.dt, system.Q, system.R, system.P0, horizon=10, arrival="fixed").run(y, u, x0)
+    fixed = MHE(params, horizon=10, arrival="fixed").run(y, u).means
     # a propagated P_k summarises the data that left the window better than a constant P0 does; the KF
     # (optimal here) bounds both from below
     mse = {name: np.mean((est - run.x[:60]) ** 2) for name, est in
            [("ekf", warm), ("fixed", fixed),
-            ("kf", run_kf(model, y, u, dt=system.dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0).means)]}
+            ("kf", run_kf(params, y, u).means)]}
     assert mse["kf"] <= mse["ekf"] < mse["fixed"]
 
 
@@ -80,7 +83,7 @@ def test_batched_ukf_matches_filterpy_step_for_step_on_a_nonlinear_system():
     likelihoods agree on the cartpole (sin/cos dynamics), with the factor reuse and batching in place."""
     system = make_system("cartpole")
     model, run = HybridModel(system, "prior"), system.simulate(2, n_samples=200)
-    ours = make_ukf(model, system.dt, system.Q, system.R, run.x_noisy[0], system.P0)
+    ours = make_ukf(EstimatorParams(model, system.dt, system.Q, system.R, system.P0, run.x_noisy[0]))
     from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter  # slow import: only here
 
     points = MerweScaledSigmaPoints(4, alpha=1e-3, beta=2.0, kappa=0.0)
@@ -107,9 +110,9 @@ def test_the_compiled_sigma_point_model_gives_the_numpy_filter_s_estimates():
     residual = Residual([(rng.normal(0, 0.5, (8, 5)), rng.normal(0, 0.1, 8)),
                          (rng.normal(0, 0.2, (4, 8)), np.zeros(4))])
     model, run = HybridModel(system, "knode", residual), system.simulate(2, n_samples=200)
-    args = dict(dt=system.dt, Q=system.Q, R=system.R, x0=run.x_noisy[0], P0=system.P0)
-    plain = run_ukf(model, run.y, run.u, **args).means
-    fast = run_ukf(model, run.y, run.u, compiled=True, **args).means
+    params = EstimatorParams(model, system.dt, system.Q, system.R, system.P0, run.x_noisy[0])
+    plain = run_ukf(params, run.y, run.u).means
+    fast = run_ukf(params, run.y, run.u, compiled=True).means
     np.testing.assert_allclose(fast, plain, rtol=0, atol=1e-7)
 
 
@@ -131,7 +134,8 @@ def test_the_c_filter_loop_equals_the_python_filter_step_for_step():
     x0, P0 = run.x_noisy[0], system.P0
     for Q, repaired in ((system.Q, False), (system.Q - np.diag([0, 0, 0, 1e-2]), True)):
         ours = functions.native.run(run.y, run.u, system.dt, Q, system.R, x0, P0, alpha=1e-3)
-        ukf = make_ukf(model, system.dt, Q, system.R, x0, P0, sigma_functions=tuple(functions))  # Python loop
+        ukf = make_ukf(EstimatorParams(model, system.dt, Q, system.R, P0, x0),
+                       sigma_functions=tuple(functions))  # Python loop
         ukf.sigmas_f = ukf._sigmas()
         for k in range(len(run.y)):
             if k:
@@ -146,8 +150,8 @@ def test_the_c_filter_loop_equals_the_python_filter_step_for_step():
     robot = make_system("robot")
     T = len(run.y)
     with pytest.raises(InvalidInput, match=r"built for a model with n=4, m=2, p=1: got y \(150, 5\) \(expected"):
-        run_ukf(HybridModel(robot, "prior"), np.zeros((T, 5)), np.zeros((T, 2)), dt=system.dt, Q=robot.Q, R=robot.R,
-                x0=np.zeros(4), P0=robot.P0, sigma_functions=functions)
+        run_ukf(EstimatorParams(HybridModel(robot, "prior"), system.dt, robot.Q, robot.R, robot.P0, np.zeros(4)),
+                np.zeros((T, 5)), np.zeros((T, 2)), sigma_functions=functions)
 
 
 def test_spd_factor_repairs_an_indefinite_covariance_and_the_kept_covariance_is_read_only():
@@ -156,7 +160,7 @@ def test_spd_factor_repairs_an_indefinite_covariance_and_the_kept_covariance_is_
     np.testing.assert_allclose(L @ L.T, repaired, atol=1e-12)
     assert np.linalg.eigvalsh(repaired).min() > 0
     model = HybridModel(make_system("quadrotor"), "prior")
-    ukf = make_ukf(model, 0.01, np.eye(9), np.eye(6), np.zeros(9), np.eye(9))
+    ukf = make_ukf(EstimatorParams(model, 0.01, np.eye(9), np.eye(6), np.eye(9), np.zeros(9)))
     with pytest.raises(ValueError, match="read-only"):
         ukf.P *= 2  # would outdate the kept factor silently; assigning a new array is the way
     ukf.P = 4 * np.eye(9)
@@ -171,8 +175,8 @@ def test_ukf_survives_ten_thousand_steps_with_a_singular_process_noise():
     system = make_system("robot")
     run = system.simulate(1, n_samples=10_000)
     model = HybridModel(system, "true")
-    estimates = run_ukf(model, run.y, run.u, dt=system.dt, Q=np.zeros((4, 4)), R=system.R * 1e-6,
-                        x0=run.x[0], P0=system.P0 * 1e-6).means
+    params = EstimatorParams(model, system.dt, np.zeros((4, 4)), system.R * 1e-6, system.P0 * 1e-6, run.x[0])
+    estimates = run_ukf(params, run.y, run.u).means
     assert np.all(np.isfinite(estimates))
     assert np.sqrt(np.mean((estimates - run.x) ** 2)) < 0.05
 
@@ -193,20 +197,22 @@ def test_bad_arguments_raise_clear_value_errors(linear_case, estimator, change, 
                 x0=np.zeros(9), P0=system.P0)
     args.update(change)
     with pytest.raises(ValueError, match=match):
+        params = EstimatorParams(model, args["dt"], args["Q"], args["R"], args["P0"], args["x0"])
         if estimator == "kf":
-            run_kf(model, **args)
+            run_kf(params, args["y"], args["u"])
         elif estimator == "ukf":
-            run_ukf(model, **args)
+            run_ukf(params, args["y"], args["u"])
         else:
-            MHE(model, args["dt"], args["Q"], args["R"], args["P0"], horizon=5).run(args["y"], args["u"], args["x0"])
+            MHE(params, horizon=5).run(args["y"], args["u"])
 
 
 def test_mhe_rejects_bad_options(linear_case):
     system, model, _ = linear_case
+    params = EstimatorParams(model, 0.01, system.Q, system.R, system.P0, np.zeros(9))
     with pytest.raises(ValueError, match="horizon"):
-        MHE(model, 0.01, system.Q, system.R, system.P0, horizon=0)
+        MHE(params, horizon=0)
     with pytest.raises(ValueError, match="arrival"):
-        MHE(model, 0.01, system.Q, system.R, system.P0, arrival="magic")
+        MHE(params, arrival="magic")
 
 
 def test_an_evaluation_builds_each_models_compiled_ukf_once_and_scores_like_numpy():
@@ -217,7 +223,8 @@ def test_an_evaluation_builds_each_models_compiled_ukf_once_and_scores_like_nump
     system = make_system("cartpole")
     prior, true = HybridModel(system, "prior"), HybridModel(system, "true")
     run = system.simulate(0, n_samples=200)
-    args = dict(y=run.y, u=run.u, dt=system.dt, x0=run.x[0], reference=run.x)
+    prior, true = (EstimatorParams(m, system.dt, system.Q, system.R, system.P0, run.x[0]) for m in (prior, true))
+    args = dict(y=run.y, u=run.u, reference=run.x)
     cache: dict = {}
     first = evaluate_sequence(["ukf", "knode-ukf"], prior, true, mhe_cache=cache, **args)
     built = {key: value for key, value in cache.items() if key[0] == "ukf"}
@@ -225,6 +232,5 @@ def test_an_evaluation_builds_each_models_compiled_ukf_once_and_scores_like_nump
     second = evaluate_sequence(["ukf", "knode-ukf"], prior, true, mhe_cache=cache, **args)
     assert {key: value for key, value in cache.items() if key[0] == "ukf"} == built   # the same objects
     assert second["knode-ukf"]["mse"] == first["knode-ukf"]["mse"]
-    numpy_mse = np.mean((run_ukf(true, run.y, run.u, dt=system.dt, Q=system.Q, R=system.R, x0=run.x[0],
-                                 P0=system.P0).means - run.x) ** 2)
+    numpy_mse = np.mean((run_ukf(true, run.y, run.u).means - run.x) ** 2)
     assert first["knode-ukf"]["mse"] == pytest.approx(numpy_mse, rel=1e-6)

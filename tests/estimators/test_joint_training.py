@@ -105,6 +105,7 @@ def test_the_normal_equations_are_the_autograd_jacobians():
     import torch
 
     from learnest.estimators.joint_training import _JointProblem, normal_equations
+    from learnest.estimators.params import EstimatorParams
     from learnest.models.training import new_residual
 
     system = make_system("cartpole")
@@ -112,7 +113,8 @@ def test_the_normal_equations_are_the_autograd_jacobians():
     rng = np.random.default_rng(0)
     states, u, y = rng.normal(size=(T, system.n)) * 0.3, rng.normal(size=(T, 1)), rng.normal(size=(T, 2)) * 0.3
     torch.manual_seed(0)
-    problem = _JointProblem(system, y, u, system.dt, new_residual(system, states, u, 4), prior)
+    tuning = EstimatorParams(HybridModel(system, "prior"), system.dt, system.Q, system.R, system.P0, states[0])
+    problem = _JointProblem(system, y, u, tuning, new_residual(system, states, u, 4), prior)
     theta = problem.theta0() + rng.normal(size=problem.theta0().size) * 0.1
     assembled = normal_equations(problem, states, theta)
 

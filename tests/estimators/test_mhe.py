@@ -5,16 +5,17 @@ import pytest
 from learnest.estimators.kf import run_kf
 from learnest.estimators.mhe import MHE
 from learnest.estimators.native.codegen import compiled
+from learnest.estimators.params import EstimatorParams
 from learnest.models.knode import HybridModel, Residual
 from learnest.models.systems import make_system
 
 
 def both(model, system, run, T, **options):
-    y, u, x0 = run.y[:T], run.u[:T], run.x_noisy[0]
-    args = (model, system.dt, system.Q, system.R, system.P0)
-    gn = MHE(*args, solver="gauss-newton", **options)
-    ipopt = MHE(*args, solver="ipopt", **options)
-    return gn, gn.run(y, u, x0), ipopt.run(y, u, x0)
+    y, u = run.y[:T], run.u[:T]
+    params = EstimatorParams(model, system.dt, system.Q, system.R, system.P0, run.x_noisy[0])
+    gn = MHE(params, solver="gauss-newton", **options)
+    ipopt = MHE(params, solver="ipopt", **options)
+    return gn, gn.run(y, u).means, ipopt.run(y, u).means
 
 
 def test_gauss_newton_equals_ipopt_and_the_kalman_filter_on_a_linear_system():
@@ -26,10 +27,9 @@ def test_gauss_newton_equals_ipopt_and_the_kalman_filter_on_a_linear_system():
     gn, ours, ipopt = both(model, system, run, 80, horizon=10)
     np.testing.assert_allclose(ours, ipopt, rtol=0, atol=1e-6)
     assert gn.stats["iterations"] == gn.stats["solves"] == 80  # linear: one step each
-    long = MHE(model, system.dt, system.Q, system.R, system.P0, horizon=50).run(run.y[:40], run.u[:40],
-                                                                              run.x_noisy[0])
-    kf = run_kf(model, run.y[:40], run.u[:40], dt=system.dt, Q=system.Q, R=system.R, x0=run.x_noisy[0],
-                P0=system.P0).means
+    params = EstimatorParams(model, system.dt, system.Q, system.R, system.P0, run.x_noisy[0])
+    long = MHE(params, horizon=50).run(run.y[:40], run.u[:40]).means
+    kf = run_kf(params, run.y[:40], run.u[:40]).means
     np.testing.assert_allclose(long, kf, rtol=0, atol=1e-6 * np.abs(kf).max())
 
 
@@ -57,9 +57,9 @@ def test_fixed_arrival_and_the_interpreter_fallback_give_the_same_estimates():
     model = HybridModel(system, "true")
     gn, ours, ipopt = both(model, system, run, 60, horizon=8, arrival="fixed")
     np.testing.assert_allclose(ours, ipopt, rtol=0, atol=1e-6)
-    interpreted = MHE(model, system.dt, system.Q, system.R, system.P0, horizon=8, arrival="fixed", compiler=None)
+    interpreted = MHE(gn.params, horizon=8, arrival="fixed", compiler=None)
     assert interpreted._gn.backend == "casadi" and gn._gn.backend in ("c", "casadi")
-    np.testing.assert_allclose(interpreted.run(run.y[:60], run.u[:60], run.x_noisy[0]), ours, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(interpreted.run(run.y[:60], run.u[:60]).means, ours, rtol=0, atol=1e-9)
 
 
 def test_a_real_time_iteration_is_close_but_not_equal():
@@ -67,9 +67,9 @@ def test_a_real_time_iteration_is_close_but_not_equal():
     system = make_system("cartpole")
     run = system.simulate(3, n_samples=150)
     model = HybridModel(system, "true")
-    rti = MHE(model, system.dt, system.Q, system.R, system.P0, max_iter=1).run(run.y[:150], run.u[:150],
-                                                                               run.x_noisy[0])
-    exact = MHE(model, system.dt, system.Q, system.R, system.P0).run(run.y[:150], run.u[:150], run.x_noisy[0])
+    params = EstimatorParams(model, system.dt, system.Q, system.R, system.P0, run.x_noisy[0])
+    rti = MHE(params, max_iter=1).run(run.y[:150], run.u[:150]).means
+    exact = MHE(params).run(run.y[:150], run.u[:150]).means
     gap = np.abs(rti - exact).max()
     assert 0 < gap < 0.05 * np.abs(exact).max()
 
@@ -130,9 +130,9 @@ def test_a_second_model_of_an_architecture_skips_code_generation_in_this_process
         if functions is None:
             pytest.skip("no C compiler here")
         counts.append(len(generated) - before)
-        args = dict(dt=system.dt, Q=system.Q, R=system.R, x0=run.x_noisy[0], P0=system.P0)
-        np.testing.assert_allclose(run_ukf(model, run.y, run.u, sigma_functions=functions, **args).means,
-                                   run_ukf(model, run.y, run.u, **args).means, rtol=0, atol=1e-7)
+        params = EstimatorParams(model, system.dt, system.Q, system.R, system.P0, run.x_noisy[0])
+        np.testing.assert_allclose(run_ukf(params, run.y, run.u, sigma_functions=functions).means,
+                                   run_ukf(params, run.y, run.u).means, rtol=0, atol=1e-7)
     assert counts == [2, 0, 2]
 
 
@@ -154,16 +154,16 @@ def test_models_of_one_architecture_share_one_compiled_library(tmp_path):
     libraries, estimates = [], []
     for model, dt in zip(models, (0.002, 0.0025)):
         system = model.system
-        y, u, x0 = run.y, run.u, run.x_noisy[0]
-        gn = MHE(model, dt, system.Q, system.R, system.P0, horizon=8, codegen_dir=tmp_path)
+        y, u = run.y, run.u
+        params = EstimatorParams(model, dt, system.Q, system.R, system.P0, run.x_noisy[0])
+        gn = MHE(params, horizon=8, codegen_dir=tmp_path)
         if gn._gn.backend != "c":
             pytest.skip("no C compiler here")
-        ours = gn.run(y, u, x0)
-        ipopt = MHE(model, dt, system.Q, system.R, system.P0, horizon=8, solver="ipopt").run(y, u, x0)
+        ours = gn.run(y, u).means
+        ipopt = MHE(params, horizon=8, solver="ipopt").run(y, u).means
         np.testing.assert_allclose(ours, ipopt, rtol=0, atol=1e-6)
-        args = dict(dt=dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0)
-        fast = run_ukf(model, y, u, compiled=True, codegen_dir=tmp_path, **args).means
-        np.testing.assert_allclose(fast, run_ukf(model, y, u, **args).means, rtol=0, atol=1e-7)
+        fast = run_ukf(params, y, u, compiled=True, codegen_dir=tmp_path).means
+        np.testing.assert_allclose(fast, run_ukf(params, y, u).means, rtol=0, atol=1e-7)
         libraries.append(sorted(path.name for path in tmp_path.glob("*.so")))
         estimates.append(ours)
     # the MHE's model functions, its linear algebra (btd.c/gn.c), the UKF's and its loop (ukf.c): built
@@ -183,10 +183,11 @@ def test_models_of_one_architecture_share_one_compiled_library(tmp_path):
 def test_mhe_rejects_an_unknown_solver():
     system = make_system("quadrotor")
     model = HybridModel(system, "prior")
+    params = EstimatorParams(model, 0.01, system.Q, system.R, system.P0, np.zeros(9))
     with pytest.raises(ValueError, match="solver must be one of gauss-newton, ipopt"):
-        MHE(model, 0.01, system.Q, system.R, system.P0, solver="newton")
+        MHE(params, solver="newton")
     with pytest.raises(ValueError, match="max_iter"):
-        MHE(model, 0.01, system.Q, system.R, system.P0, max_iter=0)
+        MHE(params, max_iter=0)
 
 
 def test_the_quadrotor_observer_batch_solve_equals_the_kalman_rts_smoother():
@@ -197,7 +198,7 @@ def test_the_quadrotor_observer_batch_solve_equals_the_kalman_rts_smoother():
     run = system.simulate(2, n_samples=400)
     model = HybridModel(system, "prior")
     x0 = np.concatenate([run.y[0, :3], np.zeros(3), run.y[0, 3:]])
-    rts = run_kf(model, run.y, dt=system.dt, Q=system.Q, R=system.R, x0=x0, P0=system.P0, smooth=True).means
+    rts = run_kf(EstimatorParams(model, system.dt, system.Q, system.R, system.P0, x0), run.y, smooth=True).means
     ours = observe_quadrotor(system, run.y, run.u, system.dt)
     np.testing.assert_allclose(ours, rts, rtol=0, atol=1e-9 * np.abs(rts).max())
     assert np.abs(ours - run.x).mean() < np.abs(run.y[:, 3:] - run.x[:, 6:]).mean()  # it does smooth
@@ -215,12 +216,12 @@ def test_a_window_gauss_newton_cannot_solve_is_solved_by_ipopt():
     if gn._gn._native is not None:
         gn._gn._native.problem.limit = 0   # no Gauss–Newton iteration: every window unconverged
         steps = []
-        np.testing.assert_allclose(gn.run(*args, progress=steps.append), ipopt, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(gn.run(*args, progress=steps.append).means, ipopt, rtol=0, atol=1e-6)
         assert gn.stats["ipopt_fallbacks"] == 40 and steps == list(range(40))
-        gn = MHE(model, system.dt, system.Q, system.R, system.P0, horizon=6)
+        gn = MHE(gn.params, horizon=6)
         gn._gn._native = None               # the Python loop
     gn._gn._solve = lambda X, *args: (X, False)   # Gauss–Newton "fails" on every window
-    fallback = gn.run(*args)
+    fallback = gn.run(*args).means
     np.testing.assert_allclose(fallback, ipopt, rtol=0, atol=1e-6)
     assert gn.stats["ipopt_fallbacks"] == 40
 
@@ -230,7 +231,8 @@ def test_the_compiled_arrival_update_equals_the_numpy_recursion():
     from learnest.estimators.mhe_gn import _ekf_update
 
     system = make_system("robot")
-    gn = MHE(HybridModel(system, "true"), system.dt, system.Q, system.R, system.P0)._gn
+    gn = MHE(EstimatorParams(HybridModel(system, "true"), system.dt, system.Q, system.R, system.P0,
+                             np.zeros(system.n)))._gn
     if gn._native is None:
         pytest.skip("no C compiler")
     rng = np.random.default_rng(1)

@@ -8,6 +8,7 @@ from learnest.errors import InvalidInput
 from learnest.estimators.gap_plan import GapPlan
 from learnest.estimators.mocap_gaps import PositionGapModel, gap_mask, masked_measurements
 from learnest.estimators.noise_identification import NoiseRecord, identify_noise
+from learnest.estimators.params import EstimatorParams
 from learnest.estimators.ukf import compiled_sigma_functions, run_ukf
 from learnest.models.knode import HybridModel
 from learnest.models.noise import IDENTIFIED, PAPER, NoiseModel, blocks
@@ -59,9 +60,9 @@ def test_the_ukf_log_likelihood_of_a_linear_model_is_the_kalman_filters():
             kf.predict()
         kf.update(y[k])
         expected.append(kf.log_likelihood)
-    args = dict(dt=system.dt, Q=noise.Q, R=noise.R, x0=x0, P0=noise.P0)
-    python = run_ukf(model, y, None, **args).log_likelihoods
-    native = run_ukf(model, y, None, sigma_functions=compiled_sigma_functions(model, system.dt), **args).log_likelihoods
+    params = EstimatorParams.from_noise(model, system.dt, noise, x0)
+    python = run_ukf(params, y, None).log_likelihoods
+    native = run_ukf(params, y, None, sigma_functions=compiled_sigma_functions(model, system.dt)).log_likelihoods
     np.testing.assert_allclose(python, expected, rtol=1e-6, atol=1e-6)
     np.testing.assert_allclose(native, expected, rtol=1e-6, atol=1e-6)
 

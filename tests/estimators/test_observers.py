@@ -6,6 +6,7 @@ import pytest
 from learnest.errors import InvalidInput
 from learnest.estimators.algorithm1 import Algorithm1
 from learnest.estimators.observers import observe_robot
+from learnest.estimators.params import EstimatorParams
 from learnest.estimators.smoother import run_urts
 from learnest.estimators.ukf import run_ukf
 from learnest.models.knode import HybridModel
@@ -27,9 +28,9 @@ def _mse(estimate, truth):
 def test_urts_state_error_is_lower_than_the_filters(cartpole_run, kind):
     system, run = cartpole_run
     model = HybridModel(system, kind)
-    settings = dict(dt=system.dt, Q=system.Q, R=system.R, x0=run.x_noisy[0], P0=system.P0)
-    filtered = run_ukf(model, run.y, run.u, **settings)
-    smoothed = run_urts(model, run.y, run.u, **settings)
+    params = EstimatorParams(model, system.dt, system.Q, system.R, system.P0, run.x_noisy[0])
+    filtered = run_ukf(params, run.y, run.u)
+    smoothed = run_urts(params, run.y, run.u)
     f, s = _mse(filtered.means, run.x), _mse(smoothed.means, run.x)
     # every state, the unmeasured rates most: the smoother uses the measurements after each sample too
     assert np.all(s < f), (kind, s, f)

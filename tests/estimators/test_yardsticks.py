@@ -3,6 +3,7 @@ estimate, and the paper's SG score, against known answers."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -11,6 +12,7 @@ import pytest
 from learnest.errors import InvalidInput
 from learnest.estimators.kf import linearize
 from learnest.estimators.mhe import MHE
+from learnest.estimators.params import EstimatorParams
 from learnest.estimators.yardsticks import (
     NOTHING_LEARNED,
     GapPlan,
@@ -97,10 +99,11 @@ def test_inside_a_gap_the_ukf_and_the_mhe_skip_the_position_update_exactly(circl
     assert windows == [(60, 110), (160, 210)]
     inside = gap_mask(steps, windows)
     expected = _masked_kalman_filter(prior, y, flight.dt, system.Q, system.R, x0, system.P0, inside)
-    ukf = run_with_gaps(["ukf"], prior, prior, y, u, flight.dt, x0, inside, 20)
+    params = EstimatorParams(prior, flight.dt, system.Q, system.R, system.P0, x0)
+    ukf = run_with_gaps(["ukf"], params, params, y, u, inside, 20)
     np.testing.assert_allclose(ukf["ukf"]["estimates"], expected, atol=1e-6)
     y_gap, u_gap = masked_measurements(y, u, inside)
-    mhe = MHE(PositionGapModel(prior), flight.dt, system.Q, system.R, system.P0, horizon=steps).run(y_gap, u_gap, x0)
+    mhe = MHE(replace(params, model=PositionGapModel(prior)), horizon=steps).run(y_gap, u_gap).means
     np.testing.assert_allclose(mhe, expected, atol=1e-6)
     # and the gap matters: without it the filter would have used the mocap there
     unmasked = _masked_kalman_filter(prior, y, flight.dt, system.Q, system.R, x0, system.P0, np.zeros(steps, bool))

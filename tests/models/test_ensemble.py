@@ -83,8 +83,6 @@ def test_on_a_flight_unlike_its_training_flights_the_spread_widens_the_knode_cov
     widths = []
     for candidate in (model, bare):
         prepared = prepare(candidate, fast)
-        system = prepared.model.system
-        run = run_ukf(prepared.model, prepared.y, prepared.u, dt=fast.dt, Q=system.Q, R=system.R, x0=prepared.x0,
-                      P0=system.P0)
+        run = run_ukf(prepared.params, prepared.y, prepared.u)
         widths.append(float(np.median(run.covariances[:, 6, 6] + run.covariances[:, 7, 7] + run.covariances[:, 8, 8])))
     assert widths[0] > 1.03 * widths[1], widths

@@ -51,6 +51,7 @@ def test_a_fresh_draw_of_seeds_scores_the_runs_of_those_seeds():
     import numpy as np
 
     from learnest.errors import InvalidInput
+    from learnest.estimators.params import EstimatorParams
     from learnest.estimators.ukf import run_ukf
     from learnest.models.knode import HybridModel
     from learnest.models.systems import make_system
@@ -61,8 +62,8 @@ def test_a_fresh_draw_of_seeds_scores_the_runs_of_those_seeds():
     assert report["first_seed"] == 7 and [s["seed"] for s in report["per_seed"]] == [7]
     system = make_system("cartpole")
     test = system.simulate(20_007, 60)
-    prior_ukf = run_ukf(HybridModel(system, "prior"), test.y, test.u, dt=system.dt, Q=system.Q, R=system.R,
-                        x0=test.x_noisy[0], P0=system.P0).means
+    params = EstimatorParams(HybridModel(system, "prior"), system.dt, system.Q, system.R, system.P0, test.x_noisy[0])
+    prior_ukf = run_ukf(params, test.y, test.u).means
     assert report["per_seed"][0]["mse"]["UKF"] == pytest.approx(np.mean((prior_ukf - test.x) ** 2), rel=1e-12)
     assert format_table(report).startswith("Table I — cartpole, seed 7 (MSE x 1e-3)")
     with pytest.raises(InvalidInput, match="first_seed"):

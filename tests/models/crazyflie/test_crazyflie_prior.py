@@ -9,6 +9,7 @@ import pytest
 
 from learnest.estimators.mhe import MHE
 from learnest.estimators.observers import pretraining_observer
+from learnest.estimators.params import EstimatorParams
 from learnest.estimators.ukf import run_ukf
 from learnest.ingest import units
 from learnest.ingest.flight import Flight
@@ -128,12 +129,12 @@ def test_ukf_and_mhe_with_the_crazyflie_prior_track_a_simulated_flight_better_th
     errors = {}
     for label, model, u in (("crazyflie", HybridModel(truth, "prior"), run.u),
                             ("quadrotor", HybridModel(kinematic, "prior"), np.zeros((len(run.t), 0)))):
-        est = run_ukf(model, run.y, u, dt=truth.dt, Q=truth.Q, R=truth.R, x0=x0, P0=truth.P0).means
+        est = run_ukf(EstimatorParams(model, truth.dt, truth.Q, truth.R, truth.P0, x0), run.y, u).means
         errors[label] = np.mean((est[:, 3:] - run.x[:, 3:]) ** 2)
     # same Q, R, P0 for both (the kinematic defaults): the gain comes from the model alone
     assert errors["crazyflie"] < 0.7 * errors["quadrotor"]
-    mhe = MHE(HybridModel(truth, "prior"), truth.dt, truth.Q, truth.R, truth.P0, horizon=8)
-    est = mhe.run(run.y[:80], run.u[:80], x0)
+    mhe = MHE(EstimatorParams(HybridModel(truth, "prior"), truth.dt, truth.Q, truth.R, truth.P0, x0), horizon=8)
+    est = mhe.run(run.y[:80], run.u[:80]).means
     assert np.mean((est[20:, 3:6] - run.x[20:80, 3:6]) ** 2) < 1e-3
 
 

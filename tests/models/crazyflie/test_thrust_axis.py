@@ -95,6 +95,7 @@ def test_on_the_real_flight_with_the_largest_offset_the_calibrated_crazyflie_pri
     """B3_figure8_medium_rep2: the specific force leans ~2.7° off the mocap z axis; the Crazyflie prior's UKF
     with the mocap attitude as logged scored 0.041 (the kinematic prior 0.024), calibrated 0.021
     (benchmarks/results/crazyflie_thrust_axis)."""
+    from learnest.estimators.params import EstimatorParams
     from learnest.estimators.prepared import initial_state, system_for
     from learnest.estimators.ukf import run_ukf
     from learnest.ingest import read_flights
@@ -113,8 +114,9 @@ def test_on_the_real_flight_with_the_largest_offset_the_calibrated_crazyflie_pri
     steps = 1200                    # the first 12 s of the 33 s flight: the offset acts throughout
     mse = {}
     for name, u in (("raw", raw), ("calibrated", calibrated)):
-        means = run_ukf(HybridModel(system, "prior"), flight.measurements()[:steps], u[:steps], dt=flight.dt,
-                        Q=system.Q, R=system.R, x0=initial_state(flight), P0=system.P0).means
+        params = EstimatorParams(HybridModel(system, "prior"), flight.dt, system.Q, system.R, system.P0,
+                                 initial_state(flight))
+        means = run_ukf(params, flight.measurements()[:steps], u[:steps]).means
         mse[name] = float(np.mean((means - reference[:steps]) ** 2))
     assert mse["calibrated"] < 0.7 * mse["raw"], mse
 
