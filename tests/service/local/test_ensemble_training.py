@@ -40,8 +40,10 @@ def test_train_with_an_ensemble_stores_its_members_and_their_spread_joins_the_kn
                                atol=1e-12)
     scored = read_flights([paths[0]])[0]
     knode_q = np.diag(prepare(model, scored).model.system.Q)
-    assert np.all(knode_q[6:] > np.square(model.system.process_noise_std[6:]))   # the spread added, acceleration rows
-    assert np.array_equal(knode_q[:6], np.square(model.system.process_noise_std[:6]))
+    own = np.square(np.asarray(model.noise.process_std))     # identified on the training flights, by default
+    assert model.noise.source == "identified"
+    assert np.all(knode_q[6:] > own[6:])   # the spread added, acceleration rows
+    assert np.array_equal(knode_q[:6], own[:6])
     assert main(["models", "show", "ens:1"]) == 0
     shown = capsys.readouterr().out
     assert "residual: body frame" in shown and "mean of an ensemble of 3" in shown, shown
