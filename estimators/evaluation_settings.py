@@ -94,7 +94,11 @@ class EvaluationSettings:
             raise InvalidInput(f"noise must be one of {', '.join(NOISE_CHOICES)}, got {self.noise!r}")
         # frozen: the normalised values are set once, here, as every constructor of the type passes through
         set_ = object.__setattr__
-        set_(self, "methods", tuple(parse_methods(",".join(given), EVALUATION_METHODS)))
+        try:
+            methods = parse_methods(",".join(given), EVALUATION_METHODS)
+        except InvalidInput as err:   # named, as every other setting's error is
+            raise InvalidInput(f"methods: {err}") from None
+        set_(self, "methods", tuple(methods))
         set_(self, "horizon", int(self.horizon))
         set_(self, "sg_window", int(self.sg_window))
         plan = GapPlan(_seconds(self.gap_s), _seconds(self.gap_every_s))   # the gap plan's one check
