@@ -7,14 +7,17 @@ improvement of each KNODE estimator over its prior-only counterpart (the paper: 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from learnest.models.presets import MHE_HORIZON
+from learnest.records import ReportView
 
-from .headline import MEASURES, flight_verdict, flight_verdicts, headline
+from .evaluation_report import EvaluationReport, FlightScore
+from .headline import MEASURES, flight_verdict, flight_verdicts, headline, learned_note
 from .metrics import VERDICTS, gain_interval_over_time, gain_pct, group_scores, squared_errors
 from .mhe import MHE
 from .params import EstimatorParams
@@ -147,7 +150,7 @@ def prediction_check(prior_ms: ArrayLike, knode_ms: ArrayLike, channels: Sequenc
             "knode_predicts_worse": bool(ratio > 1.0 + 1e-9)}
 
 
-def recommended_model(flight_report: dict, base: str) -> str | None:
+def recommended_model(flight_report: ReportView, base: str) -> str | None:
     """The estimate learnest recommends on one scored flight for the base estimator ``base`` ("ukf", "mhe"):
     "prior" where the flight's verdict on KNODE-``base`` is "worse" (`estimators.headline.flight_verdict`: its
     gain in the mocap gaps is below 0 beyond its 95 % interval), else "knode"; None when the two did not both run.
@@ -166,7 +169,7 @@ RECOMMENDATION_RULE = ("per flight, the KNODE's estimate, or its prior's where t
                        "beyond the flight's 95 % interval")
 
 
-def _recommended_summary(scored: list[dict]) -> dict | None:
+def _recommended_summary(scored: Sequence[ReportView]) -> dict | None:
     """Per base estimator: the flights where the KNODE's and where the prior's estimate is recommended
     (`recommended_model`), the median gap RMSE of the recommended estimate (m) and of the prior alone."""
     summary: dict = {"rule": RECOMMENDATION_RULE, "knode_on": {}, "prior_on": {}, "median_gap_rmse_m": {},
@@ -187,26 +190,40 @@ def _recommended_summary(scored: list[dict]) -> dict | None:
     return summary if summary["knode_on"] else None
 
 
-def summarize(flight_reports: list[dict]) -> dict:
-    """Median MSE over the scored flights, the KNODE improvements on those medians, and one verdict per flight.
+def summarize(flights: Sequence[FlightScore], model: str | None = None, model_meta: Mapping | None = None,
+              **extra: Any) -> EvaluationReport:
+    """The evaluation's report over its flights: median MSE over the scored flights, the KNODE improvements on
+    those medians, and one verdict per flight.
+
+    Parameters
+    ----------
+    flights : sequence of FlightScore
+        Every flight's score, excluded ones too, in the report's order.
+    model : str, optional
+        The model evaluated, as the report names it.
+    model_meta : mapping, optional
+        The model's meta: whether it learned anything (`estimators.headline.learned_note`).
+    **extra
+        Further keys of the report (e.g. ``system``).
 
     Returns
     -------
-    dict
-        ``median`` {method: MSE}, ``improvement_pct`` {"knode-ukf_vs_ukf": 100 (1 - knode/base), ...},
-        ``flights_scored``, ``outside_training_envelope`` (names of the scored flights whose
-        ``envelope`` entry flags them: their scores judge the model outside what it was trained on);
-        ``verdicts`` {"knode-ukf_vs_ukf": {"better": [names], "worse": [...], "within": [...],
-        "undecided": [...]}, ...}: each scored flight once per comparison, by `estimators.headline.flight_verdict`
-        (the 95 % interval of its gain in the mocap gaps); ``headline`` (`estimators.headline.headline`: the
-        same verdicts counted, with the median gain); ``recommended`` (None when no KNODE ran beside its prior):
-        the estimate learnest recommends per flight by the same verdicts (`recommended_model`): ``rule``,
-        ``knode_on`` and ``prior_on`` {"ukf": [names], ...}, ``median_gap_rmse_m`` {"ukf": m, ...} of the
-        recommended estimate and ``prior_median_gap_rmse_m`` of the prior's on the same flights;
-        ``yardstick_definitions`` {yardstick: what it measures, one sentence}; ``noise`` {method: "identified" |
-        "paper"}, the noise each method ran with (the flights' ``noise`` entries).
+    EvaluationReport
+        ``flights``, ``units`` (`MSE_UNITS`), ``learned`` and ``learned_note``; ``median`` {method: MSE},
+        ``improvement_pct`` {"knode-ukf_vs_ukf": 100 (1 - knode/base), ...}, ``flights_scored``,
+        ``outside_training_envelope`` (names of the scored flights whose ``envelope`` entry flags them: their
+        scores judge the model outside what it was trained on); ``verdicts`` {"knode-ukf_vs_ukf": {"better":
+        [names], "worse": [...], "within": [...], "undecided": [...]}, ...}: each scored flight once per
+        comparison, by `estimators.headline.flight_verdict` (the 95 % interval of its gain in the mocap gaps);
+        ``headline`` (`estimators.headline.headline`: the same verdicts counted, with the median gain);
+        ``recommended`` (None when no KNODE ran beside its prior): the estimate learnest recommends per flight
+        by the same verdicts (`recommended_model`): ``rule``, ``knode_on`` and ``prior_on`` {"ukf": [names],
+        ...}, ``median_gap_rmse_m`` {"ukf": m, ...} of the recommended estimate and ``prior_median_gap_rmse_m``
+        of the prior's on the same flights; ``yardstick_definitions`` {yardstick: what it measures, one
+        sentence}; ``noise`` {method: "identified" | "paper"}, the noise each method ran with (the flights'
+        ``noise`` entries).
     """
-    scored = [f for f in flight_reports if not f.get("excluded")]
+    scored = [f for f in flights if not f.get("excluded")]
     methods = sorted({m for f in scored for m in f["mse"]})
     noise: dict[str, str] = {}
     for entry in scored:   # one model, one choice: every scored flight says the same
@@ -222,8 +239,9 @@ def summarize(flight_reports: list[dict]) -> dict:
     for entry in with_yardsticks:
         for key, verdict in flight_verdicts(entry).items():
             verdicts.setdefault(key, {v: [] for v in VERDICTS})[verdict].append(entry["flight"])
-    return {"median": median, "improvement_pct": improvement, "flights_scored": len(scored),
-            "outside_training_envelope": outside, "verdicts": verdicts,
-            "recommended": _recommended_summary(with_yardsticks),
-            "headline": {**headline(scored).to_dict(), "noise": dict(noise)}, "yardstick_definitions": dict(MEASURES),
-            "noise": noise}
+    return EvaluationReport.of(
+        model=model, **extra, flights=list(flights), median=median, improvement_pct=improvement,
+        flights_scored=len(scored), outside_training_envelope=outside, verdicts=verdicts,
+        recommended=_recommended_summary(with_yardsticks),
+        headline={**headline(scored).to_dict(), "noise": dict(noise)}, yardstick_definitions=dict(MEASURES),
+        noise=noise, units=MSE_UNITS, **learned_note(model_meta or {}))

@@ -7,7 +7,7 @@ import math
 from dataclasses import dataclass
 
 from learnest.errors import InvalidInput
-from learnest.models.presets import GAP_EVERY_S, GAP_S, GAP_START_S, MAX_GAPS, check_gap_plan
+from learnest.models.presets import GAP_EVERY_S, GAP_S, GAP_START_S, MAX_GAPS, gap_plan_problem
 
 
 @dataclass(frozen=True)
@@ -32,7 +32,16 @@ class GapPlan:
 
     def __post_init__(self) -> None:
         # bounded before any window is laid: a 1e-300-s spacing would never reach the flight's end
-        check_gap_plan(self.gap_s, self.every_s, self.start_s)
+        problem = self.problem_on()
+        if problem is not None:
+            raise InvalidInput(problem)
+
+    def problem_on(self, dt: float | None = None, n_samples: int | None = None) -> str | None:
+        """Why the plan is out of bounds, naming the field ("gap_every_s must be longer than the gap ..."), or
+        None: on its own, or on a flight of ``n_samples`` samples ``dt`` s apart (a gap, and the mocap between
+        gaps, one sample at least; at most `MAX_GAPS` gaps) (`learnest.models.presets.gap_plan_problem`)."""
+        problem = gap_plan_problem(self.gap_s, self.every_s, self.start_s, dt=dt, n_samples=n_samples)
+        return None if problem is None else f"{problem[0]} {problem[1]}"
 
     def windows(self, n_samples: int, dt: float) -> list[tuple[int, int]]:
         """[(first, stop), ...] sample indices of each gap (stop exclusive) that fits wholly in the record.
@@ -41,13 +50,15 @@ class GapPlan:
         ------
         InvalidInput
             A gap, or the mocap between two gaps, shorter than one sample ``dt``, or more than `MAX_GAPS` gaps
-            on the record (`learnest.models.presets.check_gap_plan`).
+            on the record (`problem_on`).
         """
         if self.gap_s <= 0:
             return []
         if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
             raise InvalidInput(f"the sample period must be a positive number of seconds, got {dt!r}")
-        check_gap_plan(self.gap_s, self.every_s, self.start_s, dt=dt, n_samples=n_samples)
+        problem = self.problem_on(dt, n_samples)
+        if problem is not None:
+            raise InvalidInput(problem)
         length = max(1, int(round(self.gap_s / dt)))
         out: list[tuple[int, int]] = []
         start_s = self.start_s

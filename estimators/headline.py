@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from learnest.models.training import NOT_LEARNED
+from learnest.records import ReportView
 
 from .metrics import VERDICTS, interval_verdict
 
@@ -154,7 +155,7 @@ def noise_clause(noise: Mapping, knode: str, prior: str) -> str:
             "so not like with like.")
 
 
-def _pair_keys(flights: Sequence[dict]) -> list[str]:
+def _pair_keys(flights: Sequence[ReportView]) -> list[str]:
     """The comparisons "knode-ukf_vs_ukf", ... of the flights: those with a gap gain, and those whose KNODE
     and prior both ran (a flight without a gap score still ran them: it counts, undecided)."""
     keys = {k for f in flights for k in f["yardsticks"]["mocap_gaps"].get("gain_pct") or {}}
@@ -174,7 +175,7 @@ def _undecided_reason(gaps: Mapping, key: str) -> str:
     return "no interval could be told"
 
 
-def flight_verdict(flight_report: Mapping, key: str) -> str:
+def flight_verdict(flight_report: ReportView, key: str) -> str:
     """The verdict on one scored flight for one comparison ``key`` ("knode-ukf_vs_ukf", ...), one of
     `estimators.metrics.VERDICTS`: where the 95 % interval of the KNODE's gain in the mocap gaps lies
     (`estimators.metrics.interval_verdict`); "undecided" without a gap score or an interval.
@@ -187,12 +188,12 @@ def flight_verdict(flight_report: Mapping, key: str) -> str:
     return interval_verdict((gaps.get("gain_interval_pct") or {}).get(key) if decided else None)
 
 
-def flight_verdicts(flight_report: dict) -> dict[str, str]:
+def flight_verdicts(flight_report: ReportView) -> dict[str, str]:
     """{comparison: `flight_verdict`} for every KNODE that ran beside its prior on one scored flight."""
     return {key: flight_verdict(flight_report, key) for key in _pair_keys([flight_report])}
 
 
-def headline(flight_reports: Sequence[dict]) -> Headline:
+def headline(flight_reports: Sequence[ReportView]) -> Headline:
     """The `Headline` of per-flight report entries (their ``yardsticks.mocap_gaps``); excluded flights and
     entries without yardsticks are left out.  Every other flight is counted once per comparison: better
     beyond its interval, worse beyond it, within it, or undecided (`estimators.metrics.interval_verdict`)."""

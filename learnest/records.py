@@ -4,7 +4,11 @@ A report (a diagnosis, an evaluation, a model's meta) is stored as JSON and its 
 web pages, the CLI's ``--json``, stored rows of older versions and users' scripts read them.  A `Record` is
 a frozen dataclass whose typed fields name what every reader relies on (with units in their docs); keys it
 does not type are kept in ``extra``, and the typed keys the JSON carried in ``present``, so
-``Record.from_dict(d).to_dict() == d`` for every report, old or new.
+`to_dict` gives back, key for key, the JSON `from_dict` read, for every report, old or new (what the tests check;
+the package itself never reads a report only to write it back).  A producer builds its report as the type
+(`Record.of`: the keys it gives, typed or not, are the JSON's keys), and serialises it once, where it is stored or
+handed to a user as a dict.  A record reads like its JSON (``record["key"]``, ``record.get("key")``), so the
+functions that read stored reports read a record as well.
 
 Nested records are declared in the class's ``NESTED`` {field: (shape, Record class)}, shape one of "one",
 "list" or "dict" (a dict of records keyed by name); ``SCHEMA`` names the type a plain-JSON field documents.
@@ -12,7 +16,7 @@ Nested records are declared in the class's ``NESTED`` {field: (shape, Record cla
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from typing import Any, ClassVar
 
 BOOKKEEPING = ("extra", "present")
@@ -73,9 +77,48 @@ class Record:
         return cls(**values, extra={k: v for k, v in data.items() if k not in typed},
                    present=frozenset(values))
 
+    @classmethod
+    def of(cls, **values: Any):
+        """The record a producer builds from its values: the typed ones are its fields, the others its ``extra``,
+        and `to_dict` gives exactly the keys given (a typed field not given stays absent, as from a JSON that
+        never had the key)."""
+        typed = set(cls.typed_fields())
+        return cls(**{k: v for k, v in values.items() if k in typed},
+                   extra={k: v for k, v in values.items() if k not in typed},
+                   present=frozenset(k for k in values if k in typed))
+
+    def updated(self, **values: Any):
+        """This record with ``values`` set: typed ones as fields (present from then on), the others in ``extra``."""
+        typed = set(self.typed_fields())
+        present = None if self.present is None else self.present | {k for k in values if k in typed}
+        return replace(self, **{k: v for k, v in values.items() if k in typed},
+                       extra={**self.extra, **{k: v for k, v in values.items() if k not in typed}}, present=present)
+
+    def __contains__(self, key: object) -> bool:
+        if key not in self.typed_fields():
+            return key in self.extra
+        return self.present is None or key in self.present
+
+    def __getitem__(self, key: str) -> Any:
+        """The value of the JSON's ``key`` (a nested record as a record); KeyError when the JSON has no such key."""
+        if key not in self:
+            raise KeyError(key)
+        return getattr(self, key) if key in self.typed_fields() else self.extra[key]
+
+    # read by key, never iterated (Python would iterate by __getitem__(0), 1, ...): `to_dict` is the JSON to iterate
+    __iter__ = None
+
+    def get(self, key: str, default: Any = None) -> Any:
+        """``self[key]``, or ``default`` when the JSON has no such key."""
+        return self[key] if key in self else default
+
     def to_dict(self) -> dict[str, Any]:
         """The JSON it was read from (or that it stands for), key for key."""
         out = {name: _plain(getattr(self, name)) for name in self.typed_fields()
                if self.present is None or name in self.present}
         out.update(self.extra)
         return out
+
+
+# what a reader of a report entry takes: the stored JSON or the record it stands for (both read by key)
+ReportView = Mapping[str, Any] | Record

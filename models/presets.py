@@ -22,7 +22,7 @@ EVALUATION_METHODS = (*METHODS, ONBOARD)   # what an evaluation scores by defaul
 # the mocap-gap yardstick (estimators.yardsticks): the mocap position is hidden for GAP_S s every GAP_EVERY_S s,
 # none before GAP_START_S s of the kept flight (the estimators' start-up)
 GAP_S, GAP_EVERY_S, GAP_START_S = 0.5, 2.5, 5.0
-# the bounds of a gap plan (`check_gap_plan`): a gap, and the mocap between two gaps, last at least one sample of
+# the bounds of a gap plan (`gap_plan_problem`): a gap, and the mocap between two gaps, last at least one sample of
 # the flight's grid and never less than MIN_GAP_S (1 ms: one sample at 1 kHz, the Crazyflie's fastest loop, finer
 # than any grid a flight is read on); at most MAX_GAPS gaps per flight (a 30-min flight at the defaults has 720)
 MIN_GAP_S = 0.001
@@ -104,14 +104,6 @@ def gap_plan_problem(gap_s, gap_every_s, start_s=GAP_START_S, *, dt: float | Non
             return "gap_every_s", (f"{gap_every_s:g} s gives {count} gaps on this {n_samples * dt:.0f}-s flight: at "
                                    f"most {MAX_GAPS}; space them wider")
     return None
-
-
-def check_gap_plan(gap_s, gap_every_s, start_s=GAP_START_S, *, dt: float | None = None,
-                   n_samples: int | None = None) -> None:
-    """`gap_plan_problem` as an error: InvalidInput naming the field, when the plan is out of bounds."""
-    problem = gap_plan_problem(gap_s, gap_every_s, start_s, dt=dt, n_samples=n_samples)
-    if problem is not None:
-        raise InvalidInput(f"{problem[0]} {problem[1]}")
 
 
 def parse_methods(text: str, allowed: tuple[str, ...] = METHODS) -> list[str]:

@@ -30,7 +30,7 @@ from learnest.models.presets import CRAZYFLIE_TRAINING, PAPER_TRAINING, diagnosi
 from learnest.models.systems import make_system
 from learnest.models.training import train_knode
 
-from .diagnosis_crazyflie import crazyflie_prior_for, diagnose_crazyflie
+from .diagnosis_crazyflie import crazyflie_prior_for, crazyflie_report
 from .diagnosis_format import THRUST_SOURCE_TEXT, confounded_label, format_diagnosis, how_much, unchanged_prior_note
 from .diagnosis_identifiability import thrust_map_fit
 from .diagnosis_problems import (
@@ -54,13 +54,14 @@ from .diagnosis_problems import (
 )
 from .diagnosis_stages import DiagnosisStages, StageCallback
 from .flights import evaluate_flight, train_on_flight
+from .reports import DiagnosisEffect, DiagnosisFlight, DiagnosisReport, RepairVerdict
 
 # the names callers import from here (the notebook's `diagnose`, the CLI, the service, the tests)
 __all__ = ["DIAGNOSIS_LOWPASS_HZ", "DIAGNOSIS_SG_ORDER", "DIAGNOSIS_SG_WINDOW", "THRUST_SOURCE_TEXT",
-           "accelerometer_problem", "confounded_label", "crazyflie_prior_for", "diagnose", "diagnose_crazyflie",
-           "diagnose_flights", "diagnose_simulated", "dynamics_problem", "effects_for", "format_diagnosis",
-           "how_much", "parse_simulate", "repair_interval", "repair_scores", "repair_verdict", "residual_series",
-           "split_names", "thrust_map_fit", "unchanged_prior_note"]
+           "accelerometer_problem", "confounded_label", "crazyflie_prior_for", "crazyflie_report", "diagnose",
+           "diagnose_crazyflie", "diagnose_flights", "diagnose_simulated", "diagnosis_report", "dynamics_problem",
+           "effects_for", "format_diagnosis", "how_much", "parse_simulate", "repair_interval", "repair_scores",
+           "repair_verdict", "residual_series", "split_names", "thrust_map_fit", "unchanged_prior_note"]
 
 
 
@@ -149,33 +150,75 @@ def diagnose_flights(flights: list[Flight], knode: HybridModel | None = None,
                      methods: Sequence[str] = ("ukf", "knode-ukf"), epochs: int = CRAZYFLIE_TRAINING.epochs,
                      return_model: bool = False, system: str | None = None, prior: dict | None = None,
                      mass_kg: float | None = None, on_stage: StageCallback | None = None):
-    """The diagnosis report; with return_model, also the repaired model (prior + dynamics effects,
-    measurement effects in its meta, KNODE retrained on top) ready to be registered as a new version:
-    ``report`` or ``(report, model)``.
+    """`diagnosis_report` with the report as its JSON (the dict of `learnest diagnose --json`): ``report``, or
+    ``(report, model)`` with ``return_model``."""
+    report, model = diagnosis_report(flights, knode, methods, epochs, return_model=return_model, system=system,
+                                     prior=prior, mass_kg=mass_kg, on_stage=on_stage)
+    return (report.to_dict(), model) if return_model else report.to_dict()
 
-    Flights failing the quality checks are left out unless all fail.  ``system`` is the prior diagnosed:
-    "quadrotor" (kinematic) or "crazyflie" (input-driven, see `diagnose_crazyflie`; ``prior`` its
-    parameters; ``mass_kg`` a declared mass).  None: the given model's prior, else "quadrotor".  See
-    `diagnose` for the report.  ``on_stage(name, fraction)``, when given, is told each named stage as it
-    starts ("fitting effects on accelerometer (accel_bias, 2/5)", "training the KNODE on the repaired prior
-    (epoch 3/20)", "scoring before/after (flight3, 1/2)") with the fraction of the diagnosis done (0..1, never
-    lower than before; `diagnosis_stages.DiagnosisStages`).
+
+def diagnosis_report(flights: list[Flight], knode: HybridModel | None = None,
+                     methods: Sequence[str] = ("ukf", "knode-ukf"), epochs: int = CRAZYFLIE_TRAINING.epochs, *,
+                     return_model: bool = False, system: str | None = None, prior: dict | None = None,
+                     mass_kg: float | None = None,
+                     on_stage: StageCallback | None = None) -> tuple[DiagnosisReport, HybridModel | None]:
+    """The diagnosis as its report's type, and the repaired model (prior + dynamics effects, measurement effects
+    in its meta, KNODE retrained on top) ready to be registered as a new version.
+
+    Parameters
+    ----------
+    flights : list of Flight
+        Flights failing the quality checks are left out unless all fail; the rest are split into fitting and
+        scored ones (`split_names`).
+    knode : HybridModel, optional
+        The KNODE diagnosed; default: one trained on the fitting flight.
+    methods : sequence of str
+        Estimators scored before and after.
+    epochs : int
+        Training epochs of the KNODEs trained here.
+    return_model : bool
+        Also return the repaired model (the Crazyflie prior trains its KNODE only when asked or scored).
+    system : {"quadrotor", "crazyflie"}, optional
+        The prior diagnosed: "quadrotor" (kinematic) or "crazyflie" (input-driven, see `crazyflie_report`;
+        ``prior`` its parameters; ``mass_kg`` a declared mass).  None: the given model's prior, else "quadrotor".
+    prior : dict, optional
+        The Crazyflie prior's parameters.
+    mass_kg : float, optional
+        The vehicle's declared mass, kg.
+    on_stage : callable, optional
+        ``on_stage(name, fraction)`` is told each named stage as it starts ("fitting effects on accelerometer
+        (accel_bias, 2/5)", "training the KNODE on the repaired prior (epoch 3/20)", "scoring before/after
+        (flight3, 1/2)") with the fraction of the diagnosis done (0..1, never lower than before;
+        `diagnosis_stages.DiagnosisStages`).
+
+    Returns
+    -------
+    (DiagnosisReport, HybridModel or None)
+        The report (see `diagnose`) and the repaired model (None unless ``return_model``).
     """
     if system is None:
         system = knode.system.name if knode is not None else "quadrotor"
     if system == "crazyflie":
-        out = diagnose_crazyflie(flights, knode=knode, methods=methods, epochs=epochs, return_model=return_model,
-                                 prior=prior, mass_kg=mass_kg, on_stage=on_stage)
+        report, model = crazyflie_report(flights, knode=knode, methods=methods, epochs=epochs,
+                                         train_repaired=return_model, prior=prior, mass_kg=mass_kg, on_stage=on_stage)
     elif system != "quadrotor":
         raise InvalidInput(f"diagnosing flights needs system 'quadrotor' or 'crazyflie', not {system!r}")
     elif knode is not None and knode.system.name != "quadrotor":
         raise InvalidInput(f"model {knode.meta.get('name') or ''} has the {knode.system.name!r} prior: diagnose it "
                            f"with system {knode.system.name!r} (the default for a model is its own prior)")
     else:
-        out = _diagnose_quadrotor(flights, knode, methods, epochs, return_model, on_stage)
-    report = out[0] if return_model else out
-    report.update(split_names(flights, system))
-    return out
+        report, model = _diagnose_quadrotor(flights, knode, methods, epochs, on_stage)
+    return report.updated(**split_names(flights, system)), model if return_model else None
+
+
+def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, methods: Sequence[str] = ("ukf",),
+                       epochs: int = CRAZYFLIE_TRAINING.epochs, return_model: bool = False,
+                       prior: dict | None = None, mass_kg: float | None = None,
+                       on_stage: StageCallback | None = None):
+    """`crazyflie_report` with the report as its JSON: ``report``, or ``(report, model)`` with ``return_model``."""
+    report, model = crazyflie_report(flights, knode, methods, epochs, train_repaired=return_model, prior=prior,
+                                     mass_kg=mass_kg, on_stage=on_stage)
+    return (report.to_dict(), model) if return_model else report.to_dict()
 
 
 def split_names(flights: list[Flight], system: str) -> dict:
@@ -193,8 +236,9 @@ QUADROTOR_PLAN = {"accelerometer": 1.0, "observer": 0.3, "dynamics": 1.0, "befor
 
 
 def _diagnose_quadrotor(flights: list[Flight], knode: HybridModel | None, methods: Sequence[str], epochs: int,
-                        return_model: bool, on_stage: StageCallback | None = None):
-    """`diagnose_flights` with the kinematic prior: accelerometer channel, then translational dynamics."""
+                        on_stage: StageCallback | None = None) -> tuple[DiagnosisReport, HybridModel]:
+    """`diagnosis_report` with the kinematic prior: accelerometer channel, then translational dynamics; the report
+    and the repaired model."""
     flights = [f for f in flights if f.quality["ok"]] or flights
     fitting, scoring, split = _split_for_fitting(flights)
     stages = DiagnosisStages(on_stage, QUADROTOR_PLAN if knode is None else {**QUADROTOR_PLAN, "before": 0.0})
@@ -248,25 +292,26 @@ def _diagnose_quadrotor(flights: list[Flight], knode: HybridModel | None, method
             before[m].append(b[m]["mse"])
             after[m].append(a[m]["mse"])
     effects = sorted(_public_effects(accel) + _public_effects(dynamics), key=lambda e: -e["explained_fraction"])
-    report = {
-        "system": "quadrotor", "effects": effects, "confounded": accel["confounded"] + dynamics["confounded"],
-        "before": {m: float(np.median(v)) for m, v in before.items()},
-        "after": {m: float(np.median(v)) for m, v in after.items()},
-        "per_flight": per_flight, "split": split,
+    report = DiagnosisReport.of(
+        system="quadrotor", effects=[DiagnosisEffect.of(**e) for e in effects],
+        confounded=accel["confounded"] + dynamics["confounded"],
+        before={m: float(np.median(v)) for m, v in before.items()},
+        after={m: float(np.median(v)) for m, v in after.items()},
+        per_flight=[DiagnosisFlight.of(**p) for p in per_flight], split=split,
         # a median can hide an effect that does not transfer: count the flights it helped
-        "improved_flights": {m: f"{sum(p['after'][m] < p['before'][m] for p in per_flight)}/{len(per_flight)}"
-                             for m in methods},
-        "residuals": _residual_summary(fitting, fixed_fitting, accel, dynamics, knode_before),
-        "channels": {"accelerometer": _channel(accel), "translational dynamics": _channel(dynamics)},
+        improved_flights={m: f"{sum(p['after'][m] < p['before'][m] for p in per_flight)}/{len(per_flight)}"
+                          for m in methods},
+        residuals=_residual_summary(fitting, fixed_fitting, accel, dynamics, knode_before),
+        channels={"accelerometer": _channel(accel), "translational dynamics": _channel(dynamics)},
         # the accelerometer residual on the first held-out flight, before and after its effects
-        "residual_series": {"accelerometer": residual_series(accelerometer_problem(scoring[:1]),
-                                                             accel["values_identified"], scoring[0].name)}
-        if "acc_body" in scoring[0].channels else {}}
-    report["yardsticks"] = repair_yardsticks(per_flight, methods)
+        residual_series={"accelerometer": residual_series(accelerometer_problem(scoring[:1]),
+                                                          accel["values_identified"], scoring[0].name)}
+        if "acc_body" in scoring[0].channels else {},
+        yardsticks=repair_yardsticks(per_flight, methods))
     # the same gate as the Crazyflie prior's: registered only when the held-out flights improve
-    report["repair"] = repair_verdict(report, methods) if methods else {
+    verdict = repair_verdict(report, methods) if methods else {
         "improves": False, "method": None, "reason": "no estimator scored the held-out flights"}
-    return (report, knode_after) if return_model else report
+    return report.updated(repair=RepairVerdict.of(**verdict)), knode_after
 
 
 def diagnose(flights: list[Flight], model: HybridModel | None = None, methods: Sequence[str] = ("ukf", "knode-ukf"),

@@ -41,6 +41,7 @@ from .diagnosis_problems import (
 )
 from .diagnosis_stages import DiagnosisStages, StageCallback
 from .flights import evaluate_flight
+from .reports import DiagnosisEffect, DiagnosisFlight, DiagnosisReport, RepairVerdict
 
 
 # -- Crazyflie flights, input-driven prior -------------------------------------------------------------
@@ -245,10 +246,10 @@ def _command_scale_sentence(gain: float, m_ref: float, declared: float | None, w
 CRAZYFLIE_PLAN = {"effects": 1.5, "before": 3.0, "after": 3.0, "scoring": 2.0}
 
 
-def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, methods: Sequence[str] = ("ukf",),
-                       epochs: int = CRAZYFLIE_TRAINING.epochs, return_model: bool = False,
-                       prior: dict | None = None, mass_kg: float | None = None,
-                       on_stage: StageCallback | None = None):
+def crazyflie_report(flights: list[Flight], knode: HybridModel | None = None, methods: Sequence[str] = ("ukf",),
+                     epochs: int = CRAZYFLIE_TRAINING.epochs, train_repaired: bool = False,
+                     prior: dict | None = None, mass_kg: float | None = None,
+                     on_stage: StageCallback | None = None) -> tuple[DiagnosisReport, HybridModel]:
     """Trace what the input-driven Crazyflie prior lacks on real flights; score before and after on
     flights not used to fit.
 
@@ -262,18 +263,18 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
     flight, ``epochs`` epochs, on each prior).  Only identified parameters repair the prior
     (`models.diagnosis.select_effects`).  ``prior`` holds the prior's parameters; by default ``knode``'s
     own, else the thrust source's.  ``mass_kg`` is a declared mass (kg), else the flights' own.
-    ``on_stage(name, fraction)``: the named stages as they start (`diagnosis.diagnose_flights`).
+    ``on_stage(name, fraction)``: the named stages as they start (`diagnosis.diagnosis_report`).
 
     Returns
     -------
-    dict or (dict, HybridModel)
+    (DiagnosisReport, HybridModel)
         `diagnose`'s report with ``system`` "crazyflie", ``prior`` {``system``, ``params``}, ``prior_after``
         (the repaired prior, the same keys),
         ``thrust_source``, ``declared_mass_kg``, ``vehicle_fits_prior`` {``ok``, ``thrust_gain``,
         ``message``}, ``repair`` (`repair_verdict`), ``candidates`` (every candidate effect, fitted alone),
         ``lowpass_hz``, ``excitation``, ``undetermined`` and ``ties`` (`_determinable`), ``thrust_map_fit``
-        (PWM logs, `diagnosis_identifiability.thrust_map_fit`); with ``return_model`` also the repaired model
-        (a KNODE on the repaired prior, measurement effects in its meta).
+        (PWM logs, `diagnosis_identifiability.thrust_map_fit`); and the repaired model (a KNODE on the repaired
+        prior, measurement effects in its meta, trained when a KNODE method is scored or ``train_repaired``).
 
     Raises
     ------
@@ -295,7 +296,7 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
 
     config, learn = replace(CRAZYFLIE_TRAINING, epochs=epochs), any(m.startswith("knode") for m in methods)
     model_before = knode or _crazyflie_model(fitting[0], prior, learn, config, stages, "before")
-    model_after = _crazyflie_model(fitting[0], repaired, learn or return_model, config, stages, "after")
+    model_after = _crazyflie_model(fitting[0], repaired, learn or train_repaired, config, stages, "after")
     model_after.meta.update({"measurement_effects": measurement,
                              "effects": [e.id for e in chosen if any(p.name in values for p in e.params)],
                              "parent": model_before.meta.get("name"), "system": "crazyflie",
@@ -305,26 +306,25 @@ def diagnose_crazyflie(flights: list[Flight], knode: HybridModel | None = None, 
                                                       methods, model_before, model_after, knode, stages)
     effects, fits_prior = _name_thrust_scale([{**e, "channel": selection["channel"]} for e in selection["effects"]],
                                              selection["candidates"], prior, source, declared)
-    report = {
-        "system": "crazyflie", "prior": {"system": "crazyflie", "params": prior},
-        "prior_after": {"system": "crazyflie", "params": repaired},
-        "thrust_source": source, "declared_mass_kg": declared, "vehicle_fits_prior": fits_prior,
-        "effects": effects, "confounded": selection["confounded"], **_determinable(problem, selection, prior),
-        "candidates": [{**c, "channel": selection["channel"]} for c in selection["candidates"]],
-        "before": {k: float(np.median(v)) for k, v in before.items()},
-        "after": {k: float(np.median(v)) for k, v in after.items()},
-        "per_flight": per_flight, "split": split, "lowpass_hz": LOWPASS_HZ,
-        "improved_flights": {k: f"{sum(p['after'][k] < p['before'][k] for p in per_flight)}/{len(per_flight)}"
-                             for k in keys},
-        "residuals": {"specific_force_rmse_fitting_before": specific_force_rmse(problem),
-                      "specific_force_rmse_fitting_after": specific_force_rmse(problem, values)},
-        "channels": {selection["channel"]: _channel(selection)}, "residual_series": series}
-    if methods:   # the evaluation's headline yardstick beside the paper's (``before``/``after``)
-        report["yardsticks"] = repair_yardsticks(per_flight, methods)
-    report["repair"] = repair_verdict(report, methods)
-    if source == "pwm":
-        report["thrust_map_fit"] = thrust_map_fit(problem, prior, declared, shape)
-    return (report, model_after) if return_model else report
+    report = DiagnosisReport.of(
+        system="crazyflie", prior={"system": "crazyflie", "params": prior},
+        prior_after={"system": "crazyflie", "params": repaired},
+        thrust_source=source, declared_mass_kg=declared, vehicle_fits_prior=fits_prior,
+        effects=[DiagnosisEffect.of(**e) for e in effects], confounded=selection["confounded"],
+        **_determinable(problem, selection, prior),
+        candidates=[{**c, "channel": selection["channel"]} for c in selection["candidates"]],
+        before={k: float(np.median(v)) for k, v in before.items()},
+        after={k: float(np.median(v)) for k, v in after.items()},
+        per_flight=[DiagnosisFlight.of(**p) for p in per_flight], split=split, lowpass_hz=LOWPASS_HZ,
+        improved_flights={k: f"{sum(p['after'][k] < p['before'][k] for p in per_flight)}/{len(per_flight)}"
+                          for k in keys},
+        residuals={"specific_force_rmse_fitting_before": specific_force_rmse(problem),
+                   "specific_force_rmse_fitting_after": specific_force_rmse(problem, values)},
+        channels={selection["channel"]: _channel(selection)}, residual_series=series,
+        # the evaluation's headline yardstick beside the paper's (``before``/``after``)
+        **({"yardsticks": repair_yardsticks(per_flight, methods)} if methods else {}),
+        **({"thrust_map_fit": thrust_map_fit(problem, prior, declared, shape)} if source == "pwm" else {}))
+    return report.updated(repair=RepairVerdict.of(**repair_verdict(report, methods))), model_after
 
 
 def _determinable(problem, selection: dict, prior: dict) -> dict:

@@ -31,6 +31,7 @@ from learnest.models.knode import HybridModel
 from learnest.models.presets import diagnosis_fitting_count
 from learnest.models.residual_problem import ResidualProblem
 from learnest.models.systems import System
+from learnest.records import ReportView
 
 # The SG reference of the accelerometer channel: 0.41 s, order 4.  Its passband must stay flat over the
 # manoeuvres: the reference is rotated into the body frame with the *unsmoothed* mocap attitude, and an
@@ -223,7 +224,7 @@ def repair_yardsticks(per_flight: list[dict], methods: Sequence[str]) -> dict:
                                              "note": "the report's before, after and per-flight MSE"}}
 
 
-def repair_verdict(report: dict, methods: Sequence[str]) -> dict:
+def repair_verdict(report: ReportView, methods: Sequence[str]) -> dict:
     """Whether the repaired model is better on the held-out flights, by the evaluation's yardstick and rule.
 
     The yardstick is the evaluation's headline, the mocap gaps (`repair_scores`: position RMSE inside 0.5-s
@@ -263,7 +264,7 @@ def repair_verdict(report: dict, methods: Sequence[str]) -> dict:
     return {**verdict, "method": method, "yardstick": "mocap_gaps", "paper_sg": sg}
 
 
-def _interval_rule(per_flight: list[dict], method: str, what: str, scores: list, median_before: float,
+def _interval_rule(per_flight: Sequence[ReportView], method: str, what: str, scores: list, median_before: float,
                    median_after: float) -> dict:
     """{"improves", "reason"} by the evaluation's counting over flights (`estimators.headline`): ``scores``
     [(before, after, gain interval or None)] per flight of ``per_flight``; better when the median is lower

@@ -13,6 +13,7 @@ import numpy as np
 
 from learnest.errors import InvalidInput, NumericalWarning
 from learnest.estimators.estimates import FlightEstimates
+from learnest.estimators.evaluation_settings import EvaluationSettings, Noise
 from learnest.estimators.headline import ReportHeadline
 from learnest.estimators.mhe import MHE
 from learnest.estimators.prepared import FLIGHT_SYSTEMS, PreparedFlight, prepare
@@ -20,9 +21,9 @@ from learnest.estimators.results import FilterResult, MHEResult
 from learnest.estimators.ukf import run_ukf
 from learnest.ingest.flight import Flight
 from learnest.models.knode import HybridModel
-from learnest.models.presets import EVALUATION_METHODS, GAP_EVERY_S, GAP_S, MHE_HORIZON, parse_methods
+from learnest.models.presets import EVALUATION_METHODS, GAP_EVERY_S, GAP_S, MHE_HORIZON
 
-from .flights import evaluate_flights
+from .flights import score_flights
 
 
 def _checked(model: HybridModel, flight: Flight, noise: str) -> PreparedFlight:
@@ -128,7 +129,7 @@ def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[st
              horizon: int = MHE_HORIZON, include_bad: bool = False,
              progress: Callable[[dict], None] | None = None,
              on_estimates: Callable[[int, FlightEstimates], None] | None = None,
-             gap_s: float = GAP_S, gap_every_s: float = GAP_EVERY_S, noise: str = "identified") -> dict:
+             gap_s: float = GAP_S, gap_every_s: float = GAP_EVERY_S, noise: Noise = "identified") -> dict:
     """Score the estimators on flights against Savitzky–Golay references of their mocap position.
 
     Parameters
@@ -173,7 +174,7 @@ def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[st
     Raises
     ------
     InvalidInput
-        If a method name is unknown.
+        If a method name is unknown, or a setting is out of its bounds (`EvaluationSettings`).
 
     Examples
     --------
@@ -184,10 +185,11 @@ def evaluate(model: HybridModel, flights: Sequence[Flight], methods: Sequence[st
     >>> report["flights_scored"]      # flights[0] is the training flight: never scored
     1
     """
-    methods = parse_methods(methods if isinstance(methods, str) else ",".join(methods), EVALUATION_METHODS)
-    report = evaluate_flights(model, list(flights), methods, include_bad=include_bad, horizon=horizon,
-                              progress=progress, on_estimates=on_estimates, gap_s=gap_s, gap_every_s=gap_every_s,
-                              noise=noise)
+    # the settings' type parses a comma-separated string as it parses a list of names
+    settings = EvaluationSettings((methods,) if isinstance(methods, str) else tuple(methods), horizon, include_bad,
+                                  gap_s=gap_s, gap_every_s=gap_every_s, noise=noise)
+    told = None if progress is None else (lambda score: progress(score.to_dict()))
+    report = score_flights(model, list(flights), settings, progress=told, on_estimates=on_estimates).to_dict()
     if report.get("headline") is not None:   # prints as its sentence; still the same dict
         report["headline"] = ReportHeadline(report["headline"])
     return report

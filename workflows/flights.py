@@ -3,20 +3,22 @@ UKF / MHE / KNODE-UKF / KNODE-MHE on others, score against Savitzky–Golay refe
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from functools import partial
 
 import numpy as np
 
 from learnest.estimators.algorithm1 import Algorithm1
 from learnest.estimators.estimates import FlightEstimates
 from learnest.estimators.evaluate import (
-    MSE_UNITS,
     evaluate_sequence,
     one_step_innovation_ms,
     prediction_check,
     summarize,
 )
+from learnest.estimators.evaluation_report import EvaluationReport, FlightScore
+from learnest.estimators.evaluation_settings import EvaluationSettings, Noise
 from learnest.estimators.group_training import GROUP_BY, StageCallback, train_flights
-from learnest.estimators.headline import flight_verdicts, learned_note
+from learnest.estimators.headline import flight_verdicts
 from learnest.estimators.mhe import MHE
 from learnest.estimators.observers import pretraining_observer
 from learnest.estimators.prepared import PreparedFlight, prepare
@@ -33,7 +35,6 @@ from learnest.models.inputs import (
     thrust_calibration,
 )
 from learnest.models.knode import HybridModel
-from learnest.models.noise import IDENTIFIED
 from learnest.models.presets import (
     CRAZYFLIE_TRAINING,
     GAP_EVERY_S,
@@ -194,79 +195,120 @@ def evaluate_flights(knode: HybridModel, flights: list[Flight], methods: Sequenc
                      horizon: int = MHE_HORIZON, progress: Callable[[dict], None] | None = None,
                      on_estimates: Callable[[int, FlightEstimates], None] | None = None,
                      on_stage: Callable[[str], object] | None = None, sg_window: int = SG_WINDOW,
-                     gap_s: float = GAP_S, gap_every_s: float = GAP_EVERY_S, noise: str = IDENTIFIED) -> dict:
-    """The report of `learnest evaluate --json`: per flight, median, improvement %, ``units`` of the numbers.
+                     gap_s: float = GAP_S, gap_every_s: float = GAP_EVERY_S, noise: Noise = "identified") -> dict:
+    """`score_flights` with its settings given one by one (`EvaluationSettings`: checked before any flight runs),
+    the report as its JSON: the dict of `learnest evaluate --json`.  ``progress`` is called with each flight's
+    entry as a dict."""
+    settings = EvaluationSettings(tuple(methods), horizon, include_bad, sg_window, gap_s, gap_every_s, noise)
+    told = None if progress is None else (lambda score: progress(score.to_dict()))
+    return score_flights(knode, flights, settings, progress=told, on_estimates=on_estimates,
+                         on_stage=on_stage).to_dict()
 
-    Flights that fail the quality checks (unless ``include_bad``) and the model's own training flight are
-    listed as excluded, with the reason, and not scored.  Each scored flight's ``envelope`` says how much
+
+def score_flights(knode: HybridModel, flights: Sequence[Flight], settings: EvaluationSettings, *,
+                  progress: Callable[[FlightScore], None] | None = None,
+                  on_estimates: Callable[[int, FlightEstimates], None] | None = None,
+                  on_stage: Callable[[str], object] | None = None) -> EvaluationReport:
+    """The evaluation of ``knode`` on ``flights``: per flight, median, improvement %, ``units`` of the numbers.
+
+    Flights that fail the quality checks (unless ``settings.include_bad``) and the model's own training flight
+    are listed as excluded, with the reason, and not scored.  Each scored flight's ``envelope`` says how much
     of it lies outside what the model saw in training (`flight_envelope`); such flights are still scored,
     and listed in ``outside_training_envelope``.  Each scored flight's ``verdict``
     (`estimators.headline.flight_verdict`) is the one measure the headline counts and the recommended estimate
-    follows; ``one_step_innovation_ratio``
-    (`estimators.evaluate.prediction_check`) a diagnostic beside it; ``gain_interval_pct`` the 95 % intervals
-    of the KNODE's gains on the paper's score (`estimators.metrics.gain_interval`).
-    Each scored flight's ``warnings`` say how it differs from
-    the training flight in vehicle, sensor rates, attitude source, mass or controller
+    follows; ``one_step_innovation_ratio`` (`estimators.evaluate.prediction_check`) a diagnostic beside it;
+    ``gain_interval_pct`` the 95 % intervals of the KNODE's gains on the paper's score
+    (`estimators.metrics.gain_interval`).  Each scored flight's ``warnings`` say how it differs from the
+    training flight in vehicle, sensor rates, attitude source, mass or controller
     (`ingest.profile.profile_mismatches`; none for a model that recorded no ``training_profile``).
     A prior that turns thrust into acceleration through the attitude (the Crazyflie's) gets the mocap
     attitude calibrated onto each flight's thrust axis; ``thrust_axis_offset_deg`` [x, y] says by how much;
     its thrust map scaled by the motors' heating where its prior has it (the largest loss over the flight in
-    ``heating_thrust_loss_pct``, `models.crazyflie.motor_heating`) and, unless the model was trained before it, by the
-    flight's ``thrust_gain`` (`models.crazyflie.thrust_gain`).
-    ``progress`` is called with each flight's entry;
-    ``on_estimates(index, FlightEstimates)`` with the per-step estimates of each scored flight (index into
-    ``flights``), when given; ``on_stage`` with each method's name before it runs and "MHE build (...)"
-    before an MHE is built (`estimators.evaluate.evaluate_sequence`).  ``sg_window`` is the Savitzky–Golay
-    window of the references, samples.
-    Each scored flight's ``yardsticks`` (`estimators.yardsticks`) hold the mocap-gap score (the mocap hidden
-    ``gap_s`` s every ``gap_every_s`` s after the first 5 s; a flight too short for one gap says why), the
-    fast reference (``onboard`` beside the estimators where ``methods`` name it and the log carries it) and
-    the paper's SG score; the report's ``headline`` sums up the gap score over the flights, ``learned`` and
-    ``learned_note`` say whether the model learned anything (its ``learned`` flag; None when it has none).
-    ``noise`` ("identified" or "paper", `estimators.prepared.prepare`) chooses the noise of both models; each
-    scored flight's ``noise`` and the report's say which noise each method ran with.
+    ``heating_thrust_loss_pct``, `models.crazyflie.motor_heating`) and, unless the model was trained before it, by
+    the flight's ``thrust_gain`` (`models.crazyflie.thrust_gain`).
+
+    Parameters
+    ----------
+    knode : HybridModel
+        The model evaluated (its prior runs the "ukf"/"mhe" rows).
+    flights : sequence of Flight
+        Each gets an entry, in order.
+    settings : EvaluationSettings
+        The methods, MHE horizon, SG window of the references, the gaps (each scored flight's ``yardsticks``
+        hold the mocap-gap score, the mocap hidden ``gap_s`` s every ``gap_every_s`` s after the first 5 s, a
+        flight too short for one gap saying why; the fast reference, ``onboard`` beside the estimators where
+        the methods name it and the log carries it; the paper's SG score) and the noise of both models
+        (`estimators.prepared.prepare`; each scored flight's ``noise`` and the report's say which noise each
+        method ran with).
+    progress : callable, optional
+        Called with each flight's `FlightScore` as it is done.
+    on_estimates : callable, optional
+        ``on_estimates(index, FlightEstimates)`` with the per-step estimates of each scored flight (index into
+        ``flights``).
+    on_stage : callable, optional
+        Called with each method's name before it runs and "MHE build (...)" before an MHE is built
+        (`estimators.evaluate.evaluate_sequence`).
+
+    Returns
+    -------
+    EvaluationReport
+        Built by `estimators.evaluate.summarize`; its ``headline`` sums up the gap score over the flights,
+        ``learned`` and ``learned_note`` say whether the model learned anything (None when it does not say).
     """
-    plan = GapPlan(gap_s, gap_every_s)   # checked before any flight runs
-    reports: list[dict] = []
+    scores: list[FlightScore] = []
     mhe_cache: dict[tuple, MHE] = {}
     for index, flight in enumerate(flights):
-        entry = {"flight": flight.name, "excluded": False, "reason": None, "mse": {}, "groups": {}}
-        quality = flight.quality
-        if not quality["ok"] and not include_bad:
-            entry.update(excluded=True, reason="quality: " + "; ".join(quality["issues"]))
-        elif _is_training_flight(knode, flight):
-            entry.update(excluded=True, reason="training flight (never scored on its own training data)")
-        else:
-            prepared = prepare(knode, flight, noise=noise)
-            out = evaluate_prepared(prepared, methods, horizon, sg_window=sg_window,
-                                    keep_estimates=on_estimates is not None, mhe_cache=mhe_cache, on_stage=on_stage,
-                                    check_prediction=True, gaps=plan)
-            results = out["results"]
-            if on_estimates is not None:
-                on_estimates(index, out["estimates"])
-            entry.update({key: {m: r[key] for m, r in results.items()} for key in ("mse", "groups", "ms_per_step")})
-            entry["noise"] = {m: prepared.noise["knode" if m[:6] == "knode-" else "prior"] for m in results}
-            entry["gain_interval_pct"] = {f"{m}_vs_{m.removeprefix('knode-')}": r["gain_interval_pct"]
-                                          for m, r in results.items() if "gain_interval_pct" in r}
-            entry["envelope"] = flight_envelope(prepared)
-            if out["prediction_check"] is not None:   # a diagnostic number; the verdict is the gaps' (below)
-                entry["one_step_innovation_ratio"] = out["prediction_check"]["innovation_ratio"]
-            entry["yardsticks"] = out["yardsticks"].to_dict()
-            entry["verdict"] = flight_verdicts(entry)
-            if knode.system.name in THRUST_THROUGH_ATTITUDE:   # the calibration the prior's attitude input got
-                entry["thrust_axis_offset_deg"] = [round(float(np.degrees(d)), 3) for d in flight_thrust_axis(flight)]
-                # and what its prior's thrust carried: the motors' heating, the flight's thrust gain
-                thrust = thrust_calibration(flight, prepared.system, prepared.thrust_gain)
-                entry.update({name: round(value, 5) for name, value in thrust.items()})
-        # a flight from another vehicle, sensor rate or attitude source: scored, with a warning
-        warnings = profile_mismatches(knode.meta.get("training_profile"), flight_profile(flight))
-        if not entry["excluded"] and _trained_on_other_attitude(knode):
-            trained_on = knode.meta.get("attitude_input") or "the mocap attitude as logged"
-            warnings.append(f"the model was trained on another attitude input ({trained_on}) than evaluations now "
-                            f"use ({THRUST_GAIN_CALIBRATED}): retrain it for consistent inputs")
-        entry["warnings"] = warnings
-        reports.append(entry)
+        scores.append(_flight_score(knode, flight, settings, mhe_cache,
+                                    None if on_estimates is None else partial(on_estimates, index),
+                                    on_stage))
         if progress:
-            progress(entry)
-    return {"model": knode.meta.get("name"), "system": knode.system.name, "flights": reports, **summarize(reports),
-            "units": MSE_UNITS, **learned_note(knode.meta)}
+            progress(scores[-1])
+    return summarize(scores, model=knode.meta.get("name"), model_meta=knode.meta, system=knode.system.name)
+
+
+def _flight_score(knode: HybridModel, flight: Flight, settings: EvaluationSettings, mhe_cache: dict,
+                  on_estimates: Callable[[FlightEstimates], None] | None,
+                  on_stage: Callable[[str], object] | None) -> FlightScore:
+    """One flight's `FlightScore` (`score_flights`): excluded with the reason, or scored."""
+    values: dict = {"flight": flight.name, "excluded": False, "reason": None, "mse": {}, "groups": {}}
+    if not flight.quality["ok"] and not settings.include_bad:
+        values.update(excluded=True, reason="quality: " + "; ".join(flight.quality["issues"]))
+    elif _is_training_flight(knode, flight):
+        values.update(excluded=True, reason="training flight (never scored on its own training data)")
+    else:
+        values.update(_scored(knode, flight, settings, mhe_cache, on_estimates, on_stage))
+    # a flight from another vehicle, sensor rate or attitude source: scored, with a warning
+    warnings = profile_mismatches(knode.meta.get("training_profile"), flight_profile(flight))
+    if not values["excluded"] and _trained_on_other_attitude(knode):
+        trained_on = knode.meta.get("attitude_input") or "the mocap attitude as logged"
+        warnings.append(f"the model was trained on another attitude input ({trained_on}) than evaluations now "
+                        f"use ({THRUST_GAIN_CALIBRATED}): retrain it for consistent inputs")
+    return FlightScore.of(**values, warnings=warnings)
+
+
+def _scored(knode: HybridModel, flight: Flight, settings: EvaluationSettings, mhe_cache: dict,
+            on_estimates: Callable[[FlightEstimates], None] | None, on_stage: Callable[[str], object] | None) -> dict:
+    """The values of a scored flight's `FlightScore`: every method's scores, the yardsticks on the settings'
+    gaps, the verdicts and what the prior's inputs were calibrated by."""
+    prepared = prepare(knode, flight, noise=settings.noise)
+    out = evaluate_prepared(prepared, settings.methods, settings.horizon, sg_window=settings.sg_window,
+                            keep_estimates=on_estimates is not None, mhe_cache=mhe_cache, on_stage=on_stage,
+                            check_prediction=True, gaps=settings.gaps)
+    results = out["results"]
+    if on_estimates is not None:
+        on_estimates(out["estimates"])
+    values: dict = {key: {m: r[key] for m, r in results.items()} for key in ("mse", "groups", "ms_per_step")}
+    values["noise"] = {m: prepared.noise["knode" if m[:6] == "knode-" else "prior"] for m in results}
+    values["gain_interval_pct"] = {f"{m}_vs_{m.removeprefix('knode-')}": r["gain_interval_pct"]
+                                   for m, r in results.items() if "gain_interval_pct" in r}
+    values["envelope"] = flight_envelope(prepared)
+    if out["prediction_check"] is not None:   # a diagnostic number; the verdict is the gaps' (below)
+        values["one_step_innovation_ratio"] = out["prediction_check"]["innovation_ratio"]
+    values["yardsticks"] = out["yardsticks"].to_dict()
+    values["verdict"] = flight_verdicts(values)
+    if knode.system.name in THRUST_THROUGH_ATTITUDE:   # the calibration the prior's attitude input got
+        values["thrust_axis_offset_deg"] = [round(float(np.degrees(d)), 3) for d in flight_thrust_axis(flight)]
+        # and what its prior's thrust carried: the motors' heating, the flight's thrust gain
+        thrust = thrust_calibration(flight, prepared.system, prepared.thrust_gain)
+        values.update({name: round(value, 5) for name, value in thrust.items()})
+    return values

@@ -5,19 +5,14 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator, model_validator
 
+from learnest.estimators.evaluation_settings import EvaluationSettings, Noise
 from learnest.models.presets import (
     CRAZYFLIE_TRAINING,
     DIAGNOSIS_SPLIT_RULE,
     EVALUATION_METHODS,
-    GAP_EVERY_S,
-    GAP_S,
-    MHE_HORIZON,
-    MIN_GAP_S,
-    SG_WINDOW,
     SG_WINDOW_RANGE,
-    gap_plan_problem,
     parse_methods,
 )
 
@@ -232,49 +227,52 @@ class JobOut(BaseModel):
     finished_at: datetime | None
 
 
+# what an evaluation request leaves out: the settings' own defaults
+EVALUATION_DEFAULTS = EvaluationSettings()
+
+
 class EvaluationRequest(Strict):
+    """An evaluation to start.  The bounds below are what the schema documents; the settings are checked by
+    their type (`EvaluationSettings`), built once here and handed on as `settings`."""
+
     model: str = Field(description='"name:version" or "name@alias"')
     flights: list[RowIdValue] | Literal["all-other"] = Field(
         description='flight ids, or "all-other": every stored flight except the model\'s training flight')
-    methods: list[str] = Field(default_factory=lambda: list(EVALUATION_METHODS),
+    methods: list[str] = Field(default_factory=lambda: list(EVALUATION_DEFAULTS.methods),
                                description=f"any of {', '.join(EVALUATION_METHODS)} (onboard: the vehicle's own "
                                            "estimate, scored on the fast reference where the log carries it)")
-    horizon: int = Field(MHE_HORIZON, ge=1, le=500, description="MHE horizon N")
-    include_bad: bool = Field(False, description="also score flights that fail the quality checks")
-    sg_window: int = Field(SG_WINDOW, ge=SG_WINDOW_RANGE[0], le=SG_WINDOW_RANGE[1],
+    horizon: int = Field(EVALUATION_DEFAULTS.horizon, ge=1, le=500, description="MHE horizon N")
+    include_bad: bool = Field(EVALUATION_DEFAULTS.include_bad,
+                              description="also score flights that fail the quality checks")
+    sg_window: int = Field(EVALUATION_DEFAULTS.sg_window, ge=SG_WINDOW_RANGE[0], le=SG_WINDOW_RANGE[1],
                            description="Savitzky-Golay window of the reference states, samples (default: the "
                                        "paper's 150, about 1.5 s at 100 Hz; shorter follows fast manoeuvres, "
                                        "whose velocity peaks a 1.5-s window clips)")
-    gap_s: float = Field(GAP_S, ge=0.0, le=30.0, description="mocap-gap yardstick: how long the mocap position is "
-                                                             "hidden from the estimators in each gap, s (0: no gaps)")
-    gap_every_s: float = Field(GAP_EVERY_S, gt=0.0, le=300.0,
+    gap_s: float = Field(EVALUATION_DEFAULTS.gap_s, ge=0.0, le=30.0,
+                         description="mocap-gap yardstick: how long the mocap position is hidden from the estimators "
+                                     "in each gap, s (0: no gaps)")
+    gap_every_s: float = Field(EVALUATION_DEFAULTS.gap_every_s, gt=0.0, le=300.0,
                                description="mocap-gap yardstick: one gap every this many seconds, after the first "
                                            "5 s of the kept flight; longer than gap_s")
-    noise: Literal["identified", "paper"] = Field(
-        "identified", description="'identified': the KNODE and its prior each with its own noise identified on the "
-                                  "training flights (the system's fixed noise for a model trained without it); "
-                                  "'paper': both with the system's fixed noise")
-
-    @field_validator("methods")
-    @classmethod
-    def known_methods(cls, methods: list[str]) -> list[str]:
-        return parse_methods(",".join(methods), EVALUATION_METHODS)  # ValueError names the unknown ones
-
-    @field_validator("gap_s")
-    @classmethod
-    def gap_at_least_the_shortest(cls, gap_s: float) -> float:
-        if 0 < gap_s < MIN_GAP_S:
-            raise ValueError(f"gap_s must be 0 (no gaps) or at least {MIN_GAP_S:g} s, got {gap_s!r}")
-        return gap_s
+    noise: Noise = Field(
+        EVALUATION_DEFAULTS.noise,
+        description="'identified': the KNODE and its prior each with its own noise identified on the training "
+                    "flights (the system's fixed noise for a model trained without it); 'paper': both with the "
+                    "system's fixed noise")
+    _settings: EvaluationSettings = PrivateAttr(default=EVALUATION_DEFAULTS)
 
     @model_validator(mode="after")
-    def gaps_leave_mocap_between(self) -> EvaluationRequest:
-        # the physical bounds (MIN_GAP_S) here; one sample of each flight's grid and MAX_GAPS per flight when
-        # the job is created (service.jobs.evaluation), before anything runs
-        problem = gap_plan_problem(self.gap_s, self.gap_every_s)
-        if problem is not None:
-            raise ValueError(f"{problem[0]} {problem[1]}")
+    def settings_in_bounds(self) -> EvaluationRequest:
+        # the settings' one check (InvalidInput is a ValueError: a 422 naming the field); one sample of each
+        # flight's grid and MAX_GAPS per flight are checked when the job is created (service.jobs.evaluation)
+        self._settings = EvaluationSettings(tuple(self.methods), self.horizon, self.include_bad, self.sg_window,
+                                            self.gap_s, self.gap_every_s, self.noise)
         return self
+
+    @property
+    def settings(self) -> EvaluationSettings:
+        """The request's settings, as its validation built them."""
+        return self._settings
 
 
 class EvaluationAccepted(BaseModel):

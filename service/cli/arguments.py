@@ -7,13 +7,15 @@ import math
 from pathlib import Path
 
 from learnest.workflows.vocabulary import (
+    EVALUATION_METHODS,
     GAP_EVERY_S,
     GAP_S,
     MIN_GAP_S,
     SG_WINDOW_RANGE,
-    GapPlan,
+    EvaluationSettings,
     InvalidInput,
     gap_plan_problem,
+    parse_methods,
 )
 
 
@@ -40,14 +42,6 @@ def _seconds(text: str) -> float:
         raise argparse.ArgumentTypeError(f"must be a number of seconds, got {text!r}") from None
     if not (math.isfinite(value) and value >= 0):
         raise argparse.ArgumentTypeError(f"must be a non-negative number of seconds, got {text!r}")
-    return value
-
-
-def _gap_length(text: str) -> float:
-    """A gap length: 0 (no gaps) or at least MIN_GAP_S seconds."""
-    value = _seconds(text)
-    if 0 < value < MIN_GAP_S:
-        raise argparse.ArgumentTypeError(f"must be 0 (no gaps) or at least {MIN_GAP_S:g} s, got {text!r}")
     return value
 
 
@@ -137,10 +131,12 @@ def _export_format(path: str) -> str:
     return format_of(path)
 
 
-def _gap_plan(args):
-    """The gaps --gap-s and --gap-every-s ask for, checked before any flight is read (InvalidInput when the
-    gaps would leave no mocap between them)."""
-    return GapPlan(args.gap_s, args.gap_every_s)
+def evaluation_settings(args: argparse.Namespace) -> EvaluationSettings:
+    """The settings `learnest evaluate` is asked for (--methods, --horizon, --include-bad, --sg-window, --gap-s,
+    --gap-every-s, --noise) as their type, built before any flight is read: InvalidInput naming the setting when
+    one is out of bounds (`EvaluationSettings`)."""
+    return EvaluationSettings(tuple(parse_methods(args.methods, EVALUATION_METHODS)), args.horizon, args.include_bad,
+                              args.sg_window, args.gap_s, args.gap_every_s, args.noise)
 
 
 def gap_options_problem(args: argparse.Namespace) -> str | None:
@@ -156,7 +152,7 @@ def gap_options_problem(args: argparse.Namespace) -> str | None:
 
 def _add_gap_arguments(parser: argparse.ArgumentParser) -> None:
     """--gap-s and --gap-every-s: where the mocap-gap yardstick hides the mocap (estimators.yardsticks)."""
-    parser.add_argument("--gap-s", type=_gap_length, default=GAP_S, metavar="S",
+    parser.add_argument("--gap-s", type=_seconds, default=GAP_S, metavar="S",
                         help=f"mocap-gap yardstick: hide the mocap position from the estimators for S s per gap "
                              f"(default {GAP_S}; 0: no gaps; else at least {MIN_GAP_S:g} s and one sample)")
     parser.add_argument("--gap-every-s", type=_positive_float, default=GAP_EVERY_S, metavar="S",

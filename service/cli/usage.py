@@ -12,7 +12,7 @@ from pathlib import Path
 
 from learnest.workflows.vocabulary import EVALUATION_METHODS, InvalidInput, parse_methods
 
-from .arguments import _gap_plan
+from .arguments import evaluation_settings
 from .commands import _demo, _diagnose, _evaluate, _thrust_map, _train
 from .commands.common import _registry_grid
 
@@ -35,8 +35,7 @@ def first_line(args) -> str | None:
 
 
 def _check_evaluate(args) -> None:
-    parse_methods(args.methods, EVALUATION_METHODS)
-    _gap_plan(args)
+    evaluation_settings(args)
     if args.new:
         return
     if not args.model or not args.files:

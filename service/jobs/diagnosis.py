@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from learnest.errors import InvalidInput
 from learnest.models.presets import diagnosis_fitting_count
-from learnest.workflows.reports import DiagnosisReport
 
 from ..storage import registry
 from ..storage.database import flights_by_id, flights_not_found, get_row
@@ -121,7 +120,7 @@ def run_diagnosis(services: Services, ctx: JobContext, diagnosis_id: int) -> Non
                       **({"warning": warning} if warning else {})}
     with services.db.transaction() as session:
         diagnosis = get_row(session, Diagnosis, diagnosis_id, "diagnosis")
-        # read into its type where it is stored: the JSON kept is `to_dict`, the same keys as the diagnosis gave
-        diagnosis.report, diagnosis.registered = DiagnosisReport.from_dict(out["report"]).to_dict(), registered
+        # the report's JSON as the task serialised it (`DiagnosisReport.to_dict`), kept as it came
+        diagnosis.report, diagnosis.registered = out["report"], registered
         ctx.complete(session, {"diagnosis_id": diagnosis_id, "effects": [e["id"] for e in out["report"]["effects"]],
                                "registered": registered})

@@ -11,13 +11,13 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from learnest.errors import InvalidInput
-from learnest.models.presets import gap_plan_problem
-from learnest.workflows.reports import EvaluationReport
+from learnest.estimators.evaluation_settings import EvaluationSettings
+from learnest.workflows.reports import EvaluationReport, FlightScore
 
 from ..storage import registry
 from ..storage.database import discard_blobs, flights_by_id, flights_not_found, get_row
 from ..storage.tables import Evaluation, FlightRecord, ModelVersion, utcnow
-from .result_cache import EstimatorSettings, cached_entries, store_result
+from .result_cache import cached_entries, settings_key, store_result
 from .runner import JobContext, error_message
 from .services import Services
 from .tasks import evaluate_task
@@ -25,7 +25,7 @@ from .tasks import evaluate_task
 log = logging.getLogger("learnest.jobs")
 
 
-def start_evaluation(services: Services, model_ref: str, flights: Iterable[int] | str, settings: EstimatorSettings,
+def start_evaluation(services: Services, model_ref: str, flights: Iterable[int] | str, settings: EvaluationSettings,
                      wait: bool = False, on_progress: Callable[[], object] | None = None,
                      created_by: str | None = None) -> tuple[int, int, str]:
     """Create the evaluation and its job; answer from the cache at once when every flight has a result,
@@ -33,25 +33,28 @@ def start_evaluation(services: Services, model_ref: str, flights: Iterable[int] 
     ``created_by``: the name of the token that asks for it (None without a token).
 
     ``flights`` is a list of flight ids or ``"all-other"`` (every stored flight but the training one).
+    ``settings`` are stored as their JSON (the job's arguments, the evaluation's row), which the job reads back
+    into the type before anything runs.
     """
     with services.db.transaction() as session:
         version = registry.resolve(session, model_ref)
         flight_ids = _flight_ids(session, flights, version)
+        stored = settings.to_json()
         job = services.runner.create(session, "evaluation", {"model": model_ref, "flights": flight_ids,
-                                                             "settings": settings.as_dict()})
+                                                             "settings": stored})
         evaluation = Evaluation(job_id=job.id, model_ref=f"{version.name}:{version.version}",
                                 model_version_id=version.id, flight_ids=flight_ids,
-                                settings=settings.as_dict(), created_at=utcnow(), created_by=created_by)
+                                settings=stored, created_at=utcnow(), created_by=created_by)
         session.add(evaluation)
         session.flush()
         by_id = flights_by_id(session, flight_ids)
         _check_gaps(settings, [by_id[i] for i in flight_ids])   # before a job exists: the transaction rolls back
         shas = [by_id[i].sha256 for i in flight_ids]
-        entries = cached_entries(session, version.id, settings.key, shas)
+        entries = cached_entries(session, version.id, settings_key(settings), shas)
         if len(entries) == len(flight_ids):  # everything cached: no job to run
             evaluation.report = assemble_report(evaluation.model_ref, [entries[sha] for sha in shas], flight_ids,
                                                 shas, model_meta=_model_meta(services.blobs.read_bytes(
-                                                    registry.weights_of(version))))
+                                                    registry.weights_of(version)))).to_dict()
             job.state, job.progress, job.started_at, job.finished_at = "succeeded", 1.0, utcnow(), utcnow()
             job.result = {"evaluation_id": evaluation.id, "flights": len(flight_ids), "computed": 0}
             return job.id, evaluation.id, job.state
@@ -67,15 +70,14 @@ def start_evaluation(services: Services, model_ref: str, flights: Iterable[int] 
     return job_id, evaluation_id, "queued"
 
 
-def _check_gaps(settings: EstimatorSettings, flights: Sequence[FlightRecord]) -> None:
-    """InvalidInput naming the field and the flight when the gap plan does not fit a flight's grid: a gap or
-    the mocap between gaps shorter than one sample, or more than MAX_GAPS gaps (`check_gap_plan`)."""
+def _check_gaps(settings: EvaluationSettings, flights: Sequence[FlightRecord]) -> None:
+    """InvalidInput naming the field and the flight when the settings' gap plan does not fit a flight's grid: a
+    gap or the mocap between gaps shorter than one sample, or more than MAX_GAPS gaps (`GapPlan.problem_on`)."""
     for flight in flights:
         dt = 1.0 / flight.rate_hz if flight.rate_hz and flight.rate_hz > 0 else None
-        problem = gap_plan_problem(settings.gap_s, settings.gap_every_s, dt=dt, n_samples=flight.samples)
+        problem = settings.gaps.problem_on(dt, flight.samples)
         if problem is not None:
-            raise InvalidInput(f"{problem[0]} {problem[1]} (flight {flight.id}, {flight.name}, at "
-                               f"{flight.rate_hz:.4g} Hz)")
+            raise InvalidInput(f"{problem} (flight {flight.id}, {flight.name}, at {flight.rate_hz:.4g} Hz)")
 
 
 def run_evaluation(services: Services, ctx: JobContext, evaluation_id: int) -> None:
@@ -84,9 +86,10 @@ def run_evaluation(services: Services, ctx: JobContext, evaluation_id: int) -> N
     with services.db.transaction() as session:
         evaluation = get_row(session, Evaluation, evaluation_id, "evaluation")
         version = get_row(session, ModelVersion, evaluation.model_version_id, "model version")
-        settings = EstimatorSettings.from_dict(evaluation.settings)
+        settings = EvaluationSettings.from_json(evaluation.settings)   # stored JSON, read back at once
+        key = settings_key(settings)
         flights = flights_by_id(session, evaluation.flight_ids)
-        entries = cached_entries(session, version.id, settings.key, [f.sha256 for f in flights.values()])
+        entries = cached_entries(session, version.id, key, [f.sha256 for f in flights.values()])
         model_json = services.blobs.read_bytes(registry.weights_of(version))
         todo = {f.id: (f.name, f.sha256, f.flight_blob) for f in flights.values() if f.sha256 not in entries}
         order = [flights[i].sha256 if i in flights else None for i in evaluation.flight_ids]
@@ -101,7 +104,7 @@ def run_evaluation(services: Services, ctx: JobContext, evaluation_id: int) -> N
         except FileNotFoundError:  # deleted while this job was starting
             entries[sha], done = _missing_entry(flight_id), done + 1
             continue
-        futures[services.executor.submit(evaluate_task, model_json, flight_bytes, settings.as_dict(),
+        futures[services.executor.submit(evaluate_task, model_json, flight_bytes, settings,
                                          ctx.progress_target, f"{name} ({k}/{len(todo)})")] = (flight_id, name, sha)
     started, computed = time.monotonic(), 0
     for future in ctx.finished(services.executor, futures):  # JobAborted when cancelled: no report stored
@@ -110,7 +113,7 @@ def run_evaluation(services: Services, ctx: JobContext, evaluation_id: int) -> N
         failed += error is not None
         with services.blobs.writing():  # the estimates blob, then the row naming it
             kept = services.blobs.put_bytes(estimates) if estimates is not None else None
-            replaced = store_result(services.db, sha, version_id, settings.key, flight_id, entry, error, kept)
+            replaced = store_result(services.db, sha, version_id, key, flight_id, entry, error, kept)
         discard_blobs(services.db, services.blobs, [replaced] if replaced else [])
         entries[sha] = entry
         done, computed = done + 1, computed + 1
@@ -122,7 +125,7 @@ def run_evaluation(services: Services, ctx: JobContext, evaluation_id: int) -> N
                                          for i, sha in zip(flight_ids, order)], flight_ids, order,
                              model_meta=_model_meta(model_json))
     with services.db.transaction() as session:
-        get_row(session, Evaluation, evaluation_id, "evaluation").report = report
+        get_row(session, Evaluation, evaluation_id, "evaluation").report = report.to_dict()
         ctx.complete(session, {"evaluation_id": evaluation_id, "flights": total, "computed": len(todo),
                                "failed": failed})
 
@@ -145,18 +148,16 @@ def _missing_entry(flight_id: int) -> dict:
 
 
 def assemble_report(model_ref: str, entries: list[dict], flight_ids: Sequence[int],
-                    shas: Sequence[str | None], model_meta: dict | None = None) -> dict:
-    """The same shape and numbers as workflows.flights.evaluate_flights; each flight's entry also
-    names the stored flight (``flight_id``, ``sha256``: its content key), and ``units`` says what the
-    numbers are in; ``learned`` and ``learned_note`` come from the model's ``model_meta``."""
-    from learnest.estimators.evaluate import MSE_UNITS, summarize
-    from learnest.estimators.yardsticks import learned_note
+                    shas: Sequence[str | None], model_meta: dict | None = None) -> EvaluationReport:
+    """The evaluation's report from its flights' stored entries (the JSON of `FlightScore`s, each read back into
+    the type here), as workflows.flights.score_flights builds it; each flight's entry also names the stored
+    flight (``flight_id``, ``sha256``: its content key); ``learned`` and ``learned_note`` come from the model's
+    ``model_meta``.  Stored as its JSON (`EvaluationReport.to_dict`)."""
+    from learnest.estimators.evaluate import summarize
 
-    entries = [{**entry, "flight_id": flight_id, "sha256": sha} for entry, flight_id, sha in zip(entries, flight_ids,
-                                                                                                shas)]
-    report = {"model": model_ref, "flights": entries, **summarize(entries), "units": MSE_UNITS,
-              **learned_note(model_meta or {})}
-    return EvaluationReport.from_dict(report).to_dict()   # the typed report; its JSON is the dict, key for key
+    scores = [FlightScore.from_dict(entry).updated(flight_id=flight_id, sha256=sha)
+              for entry, flight_id, sha in zip(entries, flight_ids, shas)]
+    return summarize(scores, model=model_ref, model_meta=model_meta or {})
 
 
 def _model_meta(model_json: bytes) -> dict:

@@ -12,7 +12,8 @@ from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from learnest.models.presets import GAP_EVERY_S, GAP_S, METHODS, MHE_HORIZON, SG_WINDOW
+from learnest.estimators.evaluation_settings import EvaluationSettings
+from learnest.models.presets import GAP_EVERY_S, GAP_S, SG_WINDOW
 
 from ..storage.database import Database
 from ..storage.tables import FlightRecord, Result, utcnow
@@ -31,64 +32,30 @@ log = logging.getLogger("learnest.jobs")
 ENTRY_FORMAT = 8
 
 
+def settings_key(settings: EvaluationSettings) -> str:
+    """Cache key part: what changes a flight's entry besides the flight and the model.  The default SG window
+    and gaps are left out, so results cached before they could be chosen keep their key; the entry format
+    (`ENTRY_FORMAT`) is in it, so entries computed by older code are computed again."""
+    fields: dict = {"methods": sorted(settings.methods), "horizon": settings.horizon,
+                    "include_bad": settings.include_bad, "entry_format": ENTRY_FORMAT}
+    if settings.sg_window != SG_WINDOW:
+        fields["sg_window"] = settings.sg_window
+    if (settings.gap_s, settings.gap_every_s) != (GAP_S, GAP_EVERY_S):
+        fields["gaps"] = [float(settings.gap_s), float(settings.gap_every_s)]
+    if settings.noise != "identified":
+        fields["noise"] = settings.noise
+    return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()
+
+
 @dataclass(frozen=True)
-class EstimatorSettings:
-    """Settings of an evaluation that change a flight's result (part of the result cache key).
-
-    Attributes
-    ----------
-    methods : tuple of str
-        Estimators to run.
-    horizon : int
-        MHE window N, samples.
-    include_bad : bool
-        Also score flights that failed the quality checks.
-    sg_window : int
-        Savitzky–Golay window of the reference states, samples (an even one is used as the next odd
-        length, `ingest.baseline.centred_window`); the paper's 150 (≈ 1.5 s at 100 Hz) by default.  Shorter
-        windows follow fast manoeuvres (a 1.5-s window clips the velocity peaks of fast figure-eights).
-    gap_s, gap_every_s : float
-        The mocap-gap yardstick's gaps: length and spacing, s (`estimators.yardsticks.GapPlan`).
-    noise : {"identified", "paper"}
-        Each model with its own identified noise, or both with the system's fixed noise
-        (`estimators.prepared.prepare`).
-    """
-
-    methods: tuple[str, ...] = METHODS
-    horizon: int = MHE_HORIZON
-    include_bad: bool = False
-    sg_window: int = SG_WINDOW
-    gap_s: float = GAP_S
-    gap_every_s: float = GAP_EVERY_S
-    noise: str = "identified"
-
-    @classmethod
-    def from_dict(cls, settings: dict) -> EstimatorSettings:
-        """Inverse of `as_dict`; an evaluation stored before the window could be chosen used `SG_WINDOW`."""
-        return cls(tuple(settings["methods"]), settings["horizon"], settings["include_bad"],
-                   settings.get("sg_window", SG_WINDOW), settings.get("gap_s", GAP_S),
-                   settings.get("gap_every_s", GAP_EVERY_S), settings.get("noise", "identified"))
-
-    def as_dict(self) -> dict:
-        """The fields as JSON-able values."""
-        return {"methods": list(self.methods), "horizon": self.horizon, "include_bad": self.include_bad,
-                "sg_window": self.sg_window, "gap_s": self.gap_s, "gap_every_s": self.gap_every_s,
-                "noise": self.noise}
+class EstimatorSettings(EvaluationSettings):
+    """An evaluation's settings (`learnest.estimators.evaluation_settings.EvaluationSettings`, the fields and
+    checks all its own) under the name the service's callers know, with its result cache ``key``."""
 
     @property
     def key(self) -> str:
-        """Cache key part: what changes a flight's entry besides the flight and the model.  The default SG
-        window is left out, so results cached before the window could be chosen keep their key; the entry
-        format (`ENTRY_FORMAT`) is in it, so entries computed by older code are computed again."""
-        fields: dict = {"methods": sorted(self.methods), "horizon": self.horizon, "include_bad": self.include_bad,
-                        "entry_format": ENTRY_FORMAT}
-        if self.sg_window != SG_WINDOW:
-            fields["sg_window"] = self.sg_window
-        if (self.gap_s, self.gap_every_s) != (GAP_S, GAP_EVERY_S):
-            fields["gaps"] = [float(self.gap_s), float(self.gap_every_s)]
-        if self.noise != "identified":
-            fields["noise"] = self.noise
-        return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()
+        """`settings_key` of these settings."""
+        return settings_key(self)
 
 
 def cached_entries(session: Session, version_id: int, key: str, shas: Iterable[str],

@@ -16,6 +16,7 @@ from collections.abc import Callable
 
 from sqlalchemy import select
 
+from learnest.estimators.evaluation_settings import EvaluationSettings
 from learnest.models.presets import PRODUCTION_ALIAS, parse_methods
 
 from ..config import Settings
@@ -24,7 +25,7 @@ from ..storage.database import get_row
 from ..storage.leases import acquire_lease, release_lease
 from ..storage.tables import Job, ModelAlias
 from .evaluation import start_evaluation
-from .result_cache import EstimatorSettings, flights_without_results
+from .result_cache import flights_without_results, settings_key
 from .services import Services, open_services
 
 log = logging.getLogger("learnest.scheduler")
@@ -32,12 +33,12 @@ log = logging.getLogger("learnest.scheduler")
 LEASE_NAME = "scheduler"
 
 
-def schedule_settings(services: Services) -> EstimatorSettings:
+def schedule_settings(services: Services) -> EvaluationSettings:
     """The estimator settings of scheduled rounds: LEARNEST_SCHEDULE_METHODS, default horizon, good flights."""
-    return EstimatorSettings(tuple(parse_methods(services.settings.schedule_methods)))
+    return EvaluationSettings(tuple(parse_methods(services.settings.schedule_methods)))
 
 
-def evaluate_new(services: Services, alias: str = PRODUCTION_ALIAS, settings: EstimatorSettings | None = None,
+def evaluate_new(services: Services, alias: str = PRODUCTION_ALIAS, settings: EvaluationSettings | None = None,
                  on_progress: Callable[[], object] | None = None) -> list[dict]:
     """One round, in this thread: for every model with `alias`, evaluate the flights without a result.
     Returns [{"model", "evaluation_id", "job_id", "flights", "state", "failed", "error"}] (empty when
@@ -49,7 +50,7 @@ def evaluate_new(services: Services, alias: str = PRODUCTION_ALIAS, settings: Es
         todo = []
         for name, version in holders:
             row = registry.get_version(session, name, version)
-            flight_ids = flights_without_results(session, row.id, settings.key)
+            flight_ids = flights_without_results(session, row.id, settings_key(settings))
             if flight_ids:
                 todo.append((f"{name}:{version}", flight_ids))
     rounds = []
@@ -64,7 +65,7 @@ def evaluate_new(services: Services, alias: str = PRODUCTION_ALIAS, settings: Es
     return rounds
 
 
-def run_once(services: Services, alias: str = PRODUCTION_ALIAS, settings: EstimatorSettings | None = None,
+def run_once(services: Services, alias: str = PRODUCTION_ALIAS, settings: EvaluationSettings | None = None,
              lease_s: float = 600.0) -> list[dict] | None:
     """evaluate_new under the scheduler lease; None when another process holds it."""
     owner = services.runner.owner
@@ -77,7 +78,7 @@ def run_once(services: Services, alias: str = PRODUCTION_ALIAS, settings: Estima
         release_lease(services.db, LEASE_NAME, owner)
 
 
-def evaluate_new_once(alias: str = PRODUCTION_ALIAS, settings: EstimatorSettings | None = None,
+def evaluate_new_once(alias: str = PRODUCTION_ALIAS, settings: EvaluationSettings | None = None,
                       app_settings: Settings | None = None) -> list[dict] | None:
     """`learnest evaluate --new`: one round with the service's storage (LEARNEST_* environment)."""
     services = open_services(app_settings or Settings())
@@ -91,7 +92,7 @@ class Scheduler:
     """A daemon thread per server process; only the lease holder's ticks do anything."""
 
     def __init__(self, services: Services, interval_s: float, alias: str = PRODUCTION_ALIAS,
-                 settings: EstimatorSettings | None = None) -> None:
+                 settings: EvaluationSettings | None = None) -> None:
         self.services, self.interval_s, self.alias = services, interval_s, alias
         self.settings = settings or schedule_settings(services)
         self.lease_s = max(60.0, 3 * interval_s)

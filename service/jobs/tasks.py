@@ -1,8 +1,9 @@
 """The functions that run in executor processes (pool workers, Dask workers): training, one flight's
-evaluation, a diagnosis.  Each takes and returns bytes and JSON-able values (flight and model bytes travel
-with the task), so a remote worker needs no access to the blob folder; training writes its own progress
-(`report_progress`) when the worker can reach the database, and stops (`TaskCancelled`) as soon as it finds
-its job no longer running (cancelled): the worker is then free for the next task.
+evaluation, a diagnosis.  Each takes and returns bytes, JSON-able values and frozen types of plain values (an
+evaluation's settings); flight and model bytes travel with the task, so a remote worker needs no access to the
+blob folder; training writes its own progress (`report_progress`) when the worker can reach the database, and
+stops (`TaskCancelled`) as soon as it finds its job no longer running (cancelled): the worker is then free for
+the next task.
 """
 from __future__ import annotations
 
@@ -14,9 +15,9 @@ from typing import Any
 from sqlalchemy import update
 
 from learnest.errors import InvalidInput
+from learnest.estimators.evaluation_settings import EvaluationSettings
 from learnest.ingest.flight import Flight, json_compatible
 from learnest.models.knode import HybridModel
-from learnest.models.presets import GAP_EVERY_S, GAP_S, SG_WINDOW
 
 from ..storage import registry
 from ..storage.database import Database, dml_rowcount
@@ -123,16 +124,17 @@ def flight_from_bytes(data: bytes) -> Flight:
         raise InvalidInput(f"the stored normalized flight is unreadable ({type(err).__name__})") from None
 
 
-def evaluate_task(model_json: bytes, flight_bytes: bytes, settings: dict,
+def evaluate_task(model_json: bytes, flight_bytes: bytes, settings: EvaluationSettings,
                   progress_target: tuple[str, int] | None = None, label: str = "") -> dict:
-    """One flight's entry of workflows.flights.evaluate_flights' report and its estimates.
+    """One flight's entry of workflows.flights.score_flights' report and its estimates.
 
-    ``settings`` is `EstimatorSettings.as_dict()`.  Returns ``entry`` and ``estimates``: the per-step
-    estimates as `FlightEstimates.to_bytes` (None when the flight was not scored).  With ``progress_target``
-    the job's stage says which method runs on which flight ("knode-ukf on flight3 (2/4)", ``label`` being
-    "flight3 (2/4)") and when an MHE is being built.
+    ``settings`` travels as its type (pickled to a worker: a frozen dataclass of plain values), as the job read
+    it from its stored JSON.  Returns ``entry`` (the flight's `FlightScore` as its JSON, what the result cache
+    stores) and ``estimates``: the per-step estimates as `FlightEstimates.to_bytes` (None when the flight was
+    not scored).  With ``progress_target`` the job's stage says which method runs on which flight ("knode-ukf
+    on flight3 (2/4)", ``label`` being "flight3 (2/4)") and when an MHE is being built.
     """
-    from learnest.workflows.flights import evaluate_flights
+    from learnest.workflows.flights import score_flights
 
     init_worker()
     model = registry.model_from_json(model_json)
@@ -142,31 +144,28 @@ def evaluate_task(model_json: bytes, flight_bytes: bytes, settings: dict,
     def on_stage(stage: str) -> None:
         report_progress(progress_target, None, f"{stage} on {label or flight.name}")
 
-    report = evaluate_flights(model, [flight], list(settings["methods"]), include_bad=settings["include_bad"],
-                              horizon=settings["horizon"], sg_window=settings.get("sg_window", SG_WINDOW),
-                              gap_s=settings.get("gap_s", GAP_S), gap_every_s=settings.get("gap_every_s", GAP_EVERY_S),
-                              noise=settings.get("noise", "identified"),
-                              on_estimates=lambda _i, e: kept.append(e.to_bytes()),
-                              on_stage=on_stage if progress_target else None)
-    return {"entry": report["flights"][0], "estimates": kept[0] if kept else None}
+    report = score_flights(model, [flight], settings, on_estimates=lambda _i, e: kept.append(e.to_bytes()),
+                           on_stage=on_stage if progress_target else None)
+    return {"entry": report.flights[0].to_dict(), "estimates": kept[0] if kept else None}
 
 
 def diagnose_task(flights_bytes: list[bytes], model_json: bytes | None, methods: list[str], epochs: int,
                   system: str = "quadrotor", progress_target: tuple[str, int] | None = None) -> dict:
-    """workflows.diagnosis.diagnose_flights on stored flights; the report as plain JSON, the
-    repaired model as HybridModel JSON, and the name of the flight it was fitted on.  With
-    ``progress_target`` the job's stage and progress follow the diagnosis' named stages (`diagnosis_stages`):
+    """workflows.diagnosis.diagnosis_report on stored flights; the report as its JSON (serialised here, once: the
+    job stores it as it comes), the repaired model as HybridModel JSON, and the name of the flight it was fitted
+    on.  With ``progress_target`` the job's stage and progress follow the diagnosis' named stages (`diagnosis_stages`):
     the diagnosis' fraction f is written as DIAGNOSIS_SPAN[0] + f · (DIAGNOSIS_SPAN[1] - DIAGNOSIS_SPAN[0]);
     `TaskCancelled` when the job stops running."""
-    from learnest.workflows.diagnosis import diagnose_flights
+    from learnest.workflows.diagnosis import diagnosis_report
 
     init_worker()
     report_progress(progress_target, DIAGNOSIS_SPAN[0], f"reading {len(flights_bytes)} flight(s)")
     knode = registry.model_from_json(model_json) if model_json is not None else None
-    report, repaired = diagnose_flights([flight_from_bytes(b) for b in flights_bytes], knode=knode,
+    report, repaired = diagnosis_report([flight_from_bytes(b) for b in flights_bytes], knode=knode,
                                         methods=tuple(methods), epochs=epochs, return_model=True, system=system,
                                         on_stage=_stage_writer(progress_target) if progress_target else None)
-    return {"report": json_compatible(report), "model_json": registry.model_to_json(repaired),
+    assert repaired is not None   # return_model=True
+    return {"report": json_compatible(report.to_dict()), "model_json": registry.model_to_json(repaired),
             "fitting_flight": repaired.meta.get("training_flight")}
 
 

@@ -23,9 +23,10 @@ upload would), `training`, `evaluation`, `browsing` (reading the registry); thei
   known models.
 
 The CLI states its requests in a few of the service's own names, given here beside the facade's functions: the
-`Settings` (LEARNEST_*), an evaluation's `EstimatorSettings`, one scheduler round (`evaluate_new_once`), this
-process set up to run the networks (`init_worker`), and the grammar of model names, references and topics
-(`check_name`, `parse_ref`, `check_topic`, from `service.storage.references`).
+`Settings` (LEARNEST_*), one scheduler round (`evaluate_new_once`), this process set up to run the networks
+(`init_worker`), and the grammar of model names, references and topics (`check_name`, `parse_ref`, `check_topic`,
+from `service.storage.references`).  An evaluation's settings are `learnest.workflows.vocabulary.EvaluationSettings`;
+`EstimatorSettings` is the same type with its result-cache ``key``, under the name scripts know.
 
 Every name is imported on first use: checking a reference's form loads no database stack, and the CLI's usage
 errors come before anything heavy.

@@ -6,11 +6,11 @@ from collections.abc import Callable
 from pathlib import Path
 
 from learnest.errors import Conflict, InvalidInput
+from learnest.estimators.evaluation_settings import EvaluationSettings
 
 from ..config import Settings
 from ..jobs.evaluation import start_evaluation
 from ..jobs.executors import InlineExecutor
-from ..jobs.result_cache import EstimatorSettings
 from ..operations import catalog
 from ..storage.blobs import BlobStore
 from ..storage.tables import Evaluation
@@ -18,7 +18,7 @@ from .flights import add_flight, readable_groups
 from .services import cli_settings, local_services, registry_database, watching_stages
 
 
-def evaluate(paths, model_ref: str, estimator_settings: EstimatorSettings, *, pose_topic: str | None = None,
+def evaluate(paths, model_ref: str, estimator_settings: EvaluationSettings, *, pose_topic: str | None = None,
              imu_topic: str | None = None, progress: Callable[[float], None] | None = None,
              settings: Settings | None = None, on_stage: Callable[[str, float | None], None] | None = None,
              cut: str | None = None) -> dict:

@@ -18,9 +18,10 @@ from sqlalchemy import select
 from learnest import __version__
 from learnest.errors import Conflict, NotFound
 from learnest.estimators.estimates import FlightEstimates
+from learnest.estimators.evaluation_settings import EvaluationSettings
 from learnest.estimators.export import FORMATS, check_format, write_estimates
 
-from ..jobs.result_cache import EstimatorSettings
+from ..jobs.result_cache import settings_key
 from ..storage.blobs import BlobStore
 from ..storage.database import Database, flights_by_id
 from ..storage.export_cache import ExportCache
@@ -65,7 +66,7 @@ def estimates_sources(db: Database, evaluation_id: int,
         if pairs[0][1].get("excluded"):
             raise Conflict(f"flight {flight_id} was not scored in evaluation {evaluation_id}: {pairs[0][1]['reason']}")
     scored = [(i, entry) for i, entry in pairs if not entry.get("excluded")]
-    key = EstimatorSettings.from_dict(evaluation.settings).key
+    key = settings_key(EvaluationSettings.from_json(evaluation.settings))
     with db.transaction() as session:
         rows = flights_by_id(session, [i for i, _ in scored])
         shas = {i: row.sha256 for i, row in rows.items()}

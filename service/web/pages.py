@@ -36,7 +36,6 @@ from learnest.models.presets import (
 from ..api.deps import Offset, RowId, actor, creator, get_services
 from ..jobs.diagnosis import start_diagnosis
 from ..jobs.evaluation import start_evaluation
-from ..jobs.result_cache import EstimatorSettings
 from ..jobs.runner import ACTIVE, seconds_left
 from ..jobs.services import Services
 from ..jobs.training import start_training
@@ -210,8 +209,7 @@ def evaluate_form_post(request: Request, model: str = Form(""), flights: list[st
                        services: Services = Depends(get_services)):
     """Evaluate form: start an evaluation job (as POST /evaluations does), then 303 to the job's page."""
     body = forms.evaluation_request(model, flights, methods, horizon, include_bad, sg_window)
-    settings = EstimatorSettings(tuple(body.methods), body.horizon, body.include_bad, body.sg_window)
-    job_id, _evaluation_id, _state = start_evaluation(services, body.model, body.flights, settings,
+    job_id, _evaluation_id, _state = start_evaluation(services, body.model, body.flights, body.settings,
                                                       created_by=creator(request))
     return forms.redirect(f"/ui/jobs/{job_id}")
 

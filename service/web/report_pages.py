@@ -16,11 +16,12 @@ from fastapi.responses import HTMLResponse
 from sqlalchemy import func, select
 
 from learnest.errors import LearnestError
+from learnest.estimators.evaluation_settings import EvaluationSettings
 from learnest.ingest.baseline import centred_window
 from learnest.models.crazyflie import UNITS as CRAZYFLIE_UNITS
 
 from ..api.deps import MAX_ROW_ID, RowId, get_services
-from ..jobs.result_cache import EstimatorSettings
+from ..jobs.result_cache import settings_key
 from ..jobs.services import Services
 from ..operations import catalog
 from ..operations.exports import evaluation_estimates
@@ -67,7 +68,7 @@ def evaluation_report_page(evaluation_id: RowId,
 def _report_inputs(services: Services, evaluation: Evaluation) -> tuple:
     """What a finished evaluation's page is drawn from besides its report: the estimates blob of each of its
     flights (a deleted flight has none) and the stored report figures."""
-    key = EstimatorSettings.from_dict(evaluation.settings).key
+    key = settings_key(EvaluationSettings.from_json(evaluation.settings))
     with services.db.transaction() as session:
         shas = {row.id: row.sha256 for row in session.scalars(
             select(FlightRecord).where(FlightRecord.id.in_(list(evaluation.flight_ids))))}
@@ -86,7 +87,7 @@ def _report_page(services: Services, evaluation: Evaluation, flight: int | None,
     entries = dict(zip(evaluation.flight_ids, report["flights"], strict=True))
     scored = [(fid, entry["flight"]) for fid, entry in entries.items() if not entry.get("excluded")]
     chosen = flight if flight in {fid for fid, _ in scored} else (scored[0][0] if scored else None)
-    settings = EstimatorSettings.from_dict(evaluation.settings)
+    settings = EvaluationSettings.from_json(evaluation.settings)
     series = _stored_series(services, evaluation, chosen, group, centred_window(settings.sg_window),
                             entries.get(chosen))
     head = evaluation_headline(report)

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from learnest.estimators.evaluate import prediction_check, recommended_model, summarize
+from learnest.estimators.evaluation_report import FlightScore
 from learnest.ingest import read_flights
 from learnest.ingest.sim import Circle, simulate, write_flight
 from learnest.models.knode import HybridModel, Residual
@@ -97,7 +98,7 @@ def test_the_recommended_estimate_follows_the_verdict_per_base_method():
                {"flight": "bad", "excluded": True, "mse": {}}]
     assert [recommended_model(f, "ukf") for f in flights] == ["knode", "prior", "knode", None]
     assert [recommended_model(f, "mhe") for f in flights[:3]] == ["knode", "knode", "knode"]
-    report = summarize(flights)
+    report = summarize([FlightScore.from_dict(f) for f in flights])
     recommended = report["recommended"]
     assert recommended["prior_on"] == {"ukf": ["loses"], "mhe": []}
     assert recommended["knode_on"] == {"ukf": ["gains", "cannot_tell"], "mhe": ["gains", "loses", "cannot_tell"]}
@@ -114,7 +115,8 @@ def test_the_recommended_estimate_follows_the_verdict_per_base_method():
         assert head["flights_better_beyond_interval"][key] == len(verdicts["better"])
         assert head["flights_within_interval"][key] == len(verdicts["within"])
         assert head["flights_undecided"][key] == len(verdicts["undecided"])
-    assert summarize([{"flight": "x", "excluded": False, "mse": {"ukf": 1.0}}])["recommended"] is None
+    assert summarize([FlightScore.from_dict({"flight": "x", "excluded": False, "mse": {"ukf": 1.0}})])["recommended"] \
+        is None
 
 
 def test_the_one_step_ratio_is_computed_when_only_the_mhe_rows_are_asked_for(circle):

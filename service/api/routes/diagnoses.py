@@ -5,8 +5,6 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, Request, Response
 from fastapi.responses import JSONResponse
 
-from learnest.workflows.reports import DiagnosisReport
-
 from ...jobs.diagnosis import start_diagnosis
 from ...jobs.services import Services
 from ...operations.catalog import row_and_job
@@ -40,4 +38,4 @@ def diagnosis_report(diagnosis_id: RowId, db: Database = Depends(get_db)):
     if job.state != "succeeded":
         return pending("diagnosis", diagnosis, job)
     # the stored JSON as it is (its schema, DiagnosisReportOut, documents it; old reports keep their keys)
-    return JSONResponse(DiagnosisReport.from_dict({**diagnosis.report, "registered": diagnosis.registered}).to_dict())
+    return JSONResponse({**diagnosis.report, "registered": diagnosis.registered})

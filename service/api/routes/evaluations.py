@@ -14,7 +14,6 @@ from learnest.estimators.export import FORMATS, MEDIA_TYPES
 
 from ...config import Settings
 from ...jobs.evaluation import start_evaluation
-from ...jobs.result_cache import EstimatorSettings
 from ...jobs.services import Services
 from ...operations import comparison, deletion
 from ...operations.catalog import row_and_job
@@ -51,9 +50,7 @@ def create_evaluation(body: EvaluationRequest, request: Request, response: Respo
                       services: Services = Depends(get_services)):
     """Flights already evaluated with this model version and these settings come from the results cache;
     when all of them do, the job is already "succeeded" in this answer."""
-    settings = EstimatorSettings(tuple(body.methods), body.horizon, body.include_bad, body.sg_window, body.gap_s,
-                                 body.gap_every_s, body.noise)
-    job_id, evaluation_id, state = start_evaluation(services, body.model, body.flights, settings,
+    job_id, evaluation_id, state = start_evaluation(services, body.model, body.flights, body.settings,
                                                     created_by=creator(request))
     response.headers["Location"] = f"/evaluations/{evaluation_id}"
     return {"job_id": job_id, "evaluation_id": evaluation_id, "state": state}

@@ -8,9 +8,15 @@ import sys
 import time
 from pathlib import Path
 
-from learnest.workflows.vocabulary import CRAZYFLIE_TRAINING, EVALUATION_METHODS, InvalidInput, parse_methods
+from learnest.workflows.vocabulary import (
+    CRAZYFLIE_TRAINING,
+    EVALUATION_METHODS,
+    EvaluationSettings,
+    InvalidInput,
+    parse_methods,
+)
 
-from ..arguments import _export_format, _topics
+from ..arguments import _export_format, _topics, evaluation_settings
 from ..formatting import _gap_lines, diagnosis_lead, format_report, format_trained
 from .common import _batch_status, _command_started, _home, _read_batch
 
@@ -81,12 +87,12 @@ def _evaluate(args) -> int:
 
     if args.new:
         return _evaluate_new(args)
-    methods = parse_methods(args.methods, EVALUATION_METHODS)   # checked, with the rest, by cli.usage
+    settings = evaluation_settings(args)   # checked, with the rest, by cli.usage
     model = load_model(args.model)
     if args.system and args.system != model.system.name:
         raise InvalidInput(f"{args.model} was trained with the {model.system.name!r} prior, not {args.system!r}")
     ref = model.meta.get("ref", args.model)  # name:version, whatever form was asked for
-    report = (_evaluate_stored if args.store else _evaluate_here)(args, model, ref, methods)
+    report = (_evaluate_stored if args.store else _evaluate_here)(args, model, ref, settings)
     if args.plot:
         save_figure(evaluation_summary(report), args.plot, dpi=120)
     if args.json:
@@ -105,14 +111,11 @@ def _evaluate(args) -> int:
     return _batch_status(report.get("errors") or [])
 
 
-def _evaluate_stored(args, model, ref: str, methods: list[str]) -> dict:
+def _evaluate_stored(args, model, ref: str, settings: EvaluationSettings) -> dict:
     """Store the flights and the evaluation in the registry (service.local.evaluate)."""
     from learnest.workflows.files import format_errors
 
-    from ...local import EstimatorSettings, evaluate, export
-
-    settings = EstimatorSettings(tuple(methods), args.horizon, args.include_bad, args.sg_window, args.gap_s,
-                                 args.gap_every_s, args.noise)
+    from ...local import evaluate, export
     from ..progress import StageProgress
 
     with StageProgress("evaluating") as bar:
@@ -125,10 +128,10 @@ def _evaluate_stored(args, model, ref: str, methods: list[str]) -> dict:
     return report
 
 
-def _evaluate_here(args, model, ref: str, methods: list[str]) -> dict:
+def _evaluate_here(args, model, ref: str, settings: EvaluationSettings) -> dict:
     """Evaluate in this process and store nothing (--no-store); --export writes the estimates kept on the way."""
     from learnest.workflows.files import write_estimates
-    from learnest.workflows.flights import evaluate_flights
+    from learnest.workflows.flights import score_flights
 
     from ..progress import StageProgress
 
@@ -142,10 +145,8 @@ def _evaluate_here(args, model, ref: str, methods: list[str]) -> dict:
             done[0] += 1
             bar.update(done[0] / len(flights), f"{done[0]}/{len(flights)} flight(s) done")
 
-        report = evaluate_flights(model, flights, methods, include_bad=args.include_bad, horizon=args.horizon,
-                                  sg_window=args.sg_window, progress=flight_done,
-                                  gap_s=args.gap_s, gap_every_s=args.gap_every_s, noise=args.noise,
-                                  on_estimates=(lambda _i, e: kept.append(e)) if args.export else None)
+        report = score_flights(model, flights, settings, progress=flight_done,
+                               on_estimates=(lambda _i, e: kept.append(e)) if args.export else None).to_dict()
     report["model"] = ref
     report["errors"] = batch.errors
     if args.export and kept:
@@ -155,11 +156,9 @@ def _evaluate_here(args, model, ref: str, methods: list[str]) -> dict:
 
 def _evaluate_new(args) -> int:
     """One scheduler round (for cron): evaluate every stored flight without a result for name@alias."""
-    from ...local import EstimatorSettings, evaluate_new_once
+    from ...local import evaluate_new_once
 
-    settings = EstimatorSettings(tuple(parse_methods(args.methods, EVALUATION_METHODS)), args.horizon,
-                                 args.include_bad, gap_s=args.gap_s, gap_every_s=args.gap_every_s, noise=args.noise)
-    rounds = evaluate_new_once(args.alias, settings)
+    rounds = evaluate_new_once(args.alias, evaluation_settings(args))
     if args.json:
         print(json.dumps({"alias": args.alias, "busy": rounds is None, "evaluations": rounds or []}, indent=2))
     elif rounds is None:
