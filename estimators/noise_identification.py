@@ -130,7 +130,7 @@ class _Likelihood:
         self.groups = list(by_functions.values())
         self.pool = ThreadPoolExecutor(max_workers=max(1, min(len(self.groups), os.cpu_count() or 1)))
         self.steps = sum(max(0, len(r.y) - round(WARMUP_S / r.dt)) for r in records)
-        self.hidden_steps = sum(int(np.sum(r.inside)) for r in records if r.hidden is not None)
+        self.hidden_steps = sum(int(np.sum(r.inside)) for r in records if r.inside is not None)
         if self.steps == 0:
             raise InvalidInput(f"every flight is shorter than the filter's {WARMUP_S:g}-s warm-up: no noise to "
                                "identify")
@@ -160,7 +160,7 @@ class _Likelihood:
             if ll is None or not np.all(np.isfinite(ll[round(WARMUP_S / record.dt):])):
                 return -math.inf, -math.inf
             innovations += float(np.sum(ll[round(WARMUP_S / record.dt):]))
-            if record.hidden is not None:
+            if record.hidden is not None and record.inside is not None:
                 hidden += hidden_log_likelihood(result, record.hidden, record.inside, noise.R[np.ix_(ROWS, ROWS)])
         return innovations, hidden
 
