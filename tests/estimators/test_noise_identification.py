@@ -195,5 +195,6 @@ def test_a_training_asked_to_identify_noise_stores_the_models_and_its_priors(tmp
         assert noise.detail["log_likelihood_per_step"]["identified"] >= noise.detail["log_likelihood_per_step"]["start"]
     model.save(tmp_path / "knode.json")
     assert HybridModel.load(tmp_path / "knode.json").noise == model.noise
-    assert le.KNODE(epochs=3).fit(flight).model_.noise == model.noise   # identified by default
+    default = le.KNODE(epochs=3).fit(flight).model_.noise           # identified by default
+    assert default.source == IDENTIFIED and default.process_std == model.noise.process_std
     assert le.KNODE(epochs=3, noise="paper").fit(flight).model_.noise is None   # the paper's protocol on request
