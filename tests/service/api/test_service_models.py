@@ -159,8 +159,9 @@ def test_several_flights_by_name_groups_choose_the_residual_scale_and_the_versio
         assert wait_for_job(client, accepted.json()["job_id"])["state"] == "succeeded"
         version = client.get("/models/g/versions/1").json()
         assert version["hyperparameters"]["group_by"] == r"name:^flight(\d)"
-        # the paper's noise unless asked: the version says so
-        assert version["hyperparameters"]["noise"] == "paper" and version["noise"] == {"model": None, "prior": None}
+        # identified unless asked for the paper's: the version says so, for the model and its prior
+        assert version["hyperparameters"]["noise"] == "identified"
+        assert {version["noise"][who]["source"] for who in ("model", "prior")} == {"identified"}
         assert version["residual_scale_groups"] == ["0", "1", "2"]
         assert version["residual_scale"] in (0.0, 0.25, 0.5, 0.75, 1.0)
         assert version["residual_scale_note"].startswith("chosen with 0, 1, 2 held out in turn: ")
