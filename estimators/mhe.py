@@ -247,9 +247,8 @@ class MHE:
 
         The arrival mean is the estimate the MHE gave when k-N+1 was its window's end, the filtered estimate
         the EKF covariance P describes.  The smoothed X*[:, 1] of this window already holds the measurements
-        k-N+1..k, which the next window counts again: with the mocap hidden, that double-counted the
-        accelerometer's hold on the velocity (through the rotor drag) up to N times and the estimate drifted
-        (a helix, velocity noise identified for the UKF: 39.7 mm smoothed, 9.7 mm filtered, 9.6 mm UKF)."""
+        k-N+1..k, which the next window would count again: with the mocap hidden, the accelerometer's hold on
+        the velocity (through the rotor drag) would count up to N times, and the estimate would drift."""
         x_next = np.asarray(self.step_fn(X[:, -1], u[k])).ravel()
         slides = k + 1 - self.horizon > start  # the window start moves forward at the next step
         if not slides:

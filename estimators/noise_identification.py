@@ -13,17 +13,14 @@ gaps (`noise_records` with a `GapPlan`), and the objective adds, per step of eac
 of what the filter saw and the log-likelihood of each hidden mocap position under its prediction there,
 N(p; p̂, P_pp + R_p): a composite likelihood whose two parts the true noise of a right model maximises alike.
 The innovations pin the acceleration noise (the accelerometer measures it; the hidden mocap hardly does), the
-hidden mocap the velocity noise.  On the NanoBench circles and figure-eights the innovations alone chose
-velocity ×45 and acceleration ×6.9 on the paper's noise, worse than the paper's on the helices (UKF 17.9
-against 14.6 mm in the gaps); both parts chose ×55 and ×4.1: 11.6 mm on the helices, 16.4 against 33.1 mm
-on the ramps, and the MHE alike.
+hidden mocap the velocity noise.
 
 Noise is searched as one scale per block (`models.noise.blocks`: position, velocity, acceleration states;
 mocap and accelerometer measurements) on the log scale, by Nelder–Mead from the paper's noise, each
 evaluation one compiled UKF run over every flight.  The flights of one evaluation run on threads, one per
 core: the compiled filter loop (`ukf.c`, called through ctypes) releases the interpreter's lock, and each
-flight's model has its own compiled functions and scratch memory.  The position block of Q stays fixed: ṗ = v is a
-definition, and its noise trades off against the mocap's R with almost no effect on the likelihood.
+flight's model has its own compiled functions and scratch memory.  The position block of Q stays fixed:
+ṗ = v is a definition, and its noise trades off against the mocap's R with almost no effect on the likelihood.
 """
 from __future__ import annotations
 
