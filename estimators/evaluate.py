@@ -182,7 +182,7 @@ def _recommended_summary(scored: Sequence[ReportView]) -> dict | None:
         summary["knode_on"][base] = [f["flight"] for f, model in chosen if model == "knode"]
         summary["prior_on"][base] = [f["flight"] for f, model in chosen if model == "prior"]
         rmse = [(f["yardsticks"]["mocap_gaps"]["rmse_m"], model) for f, model in chosen
-                if (f.get("yardsticks") or {}).get("mocap_gaps", {}).get("rmse_m", {}).get(base) is not None]
+                if {base, f"knode-{base}"} <= set((f.get("yardsticks") or {}).get("mocap_gaps", {}).get("rmse_m", {}))]
         if rmse:
             summary["median_gap_rmse_m"][base] = float(np.median(
                 [r[f"knode-{base}" if model == "knode" else base] for r, model in rmse]))

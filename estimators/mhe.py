@@ -243,12 +243,14 @@ class MHE:
     def _shift(self, X: np.ndarray, W: np.ndarray, lam: np.ndarray, u: np.ndarray, k: int, start: int,
                x_bar: np.ndarray, P_arrival: np.ndarray, y: np.ndarray,
                estimates: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Next window's warm start and arrival cost: the filtering update x̄_{k-N+1} <- x̂_{k-N+1|k-N+1}.
+        """Next window's warm start and arrival cost: the filtering update x̄_{s+1} <- f(x̂_{s|s}), s = k-N.
 
-        The arrival mean is the estimate the MHE gave when k-N+1 was its window's end, the filtered estimate
-        the EKF covariance P describes.  The smoothed X*[:, 1] of this window already holds the measurements
-        k-N+1..k, which the next window would count again: with the mocap hidden, the accelerometer's hold on
-        the velocity (through the rotor drag) would count up to N times, and the estimate would drift."""
+        P is propagated by the EKF recursion from s to s+1: updated with y_s, then predicted, P_{s+1|s}.  The
+        mean it describes is the prediction from the estimate the MHE gave when s ended its window, x̂_{s|s}.
+        The smoothed X*[:, 1] of this window already holds the measurements s+1..k, which the next window
+        counts again: with the mocap hidden, the accelerometer's hold on the velocity (through the rotor drag)
+        would count up to N times, and the estimate would drift.  For a linear model the MHE then equals the
+        Kalman filter."""
         x_next = np.asarray(self.step_fn(X[:, -1], u[k])).ravel()
         slides = k + 1 - self.horizon > start  # the window start moves forward at the next step
         if not slides:
@@ -258,7 +260,7 @@ class MHE:
             P_arrival = self._ekf_arrival(X[:, 0], u[start], y[start], P_arrival)
         lam_next = np.concatenate([lam[self.n:], np.zeros(self.n)]) if lam.size else lam
         return (np.column_stack([X[:, 1:], x_next]), np.column_stack([W[:, 1:], np.zeros(self.n)]),
-                lam_next, estimates[start + 1].copy(), P_arrival)
+                lam_next, np.asarray(self.step_fn(estimates[start], u[start])).ravel(), P_arrival)
 
     def _ekf_arrival(self, x: np.ndarray, u: np.ndarray, y: np.ndarray, P: np.ndarray) -> np.ndarray:
         H = np.asarray(self.jac_h(x, u))

@@ -311,7 +311,7 @@ class GaussNewtonWindowSolver:
                 if mhe.arrival == "ekf":
                     P_arrival[...] = _ekf_update(Fs[0], Hs[0], P_arrival, mhe.Q, mhe.R)
                     P_inv[...] = np.linalg.inv(P_arrival)
-                x_bar = estimates[start + 1].copy()   # filtered, as P (see MHE._shift)
+                x_bar = np.asarray(mhe.step_fn(estimates[start], u[start])).ravel()   # f(x̂_{s|s}): MHE._shift
                 window[:L - 1] = window[1:L]   # numpy copies overlapping slices correctly
                 window[L - 1] = fs[1]
                 F[:L - 1], H[:L - 1] = F[1:L], H[1:L]

@@ -107,7 +107,8 @@ def _indices(names: tuple[str, ...], wanted: Sequence[str], what: str) -> dict[s
 
 
 class _Likelihood:
-    """The mean innovation log-likelihood per step over the records (after each one's warm-up), as a function of
+    """The mean log-likelihood per step over the records (innovations after each one's warm-up, plus the hidden
+    mocap's per hidden step where records hide it), as a function of
     the log-scales θ of the searched blocks (Q blocks first, then R blocks); -inf where a filter fails."""
 
     def __init__(self, records: Sequence[NoiseRecord], start: NoiseModel, q_idx: dict[str, list[int]],
@@ -125,7 +126,8 @@ class _Likelihood:
         for record in records:
             by_functions.setdefault((id(record.model), record.dt), []).append(record)
         self.groups = list(by_functions.values())
-        self.pool = ThreadPoolExecutor(max_workers=max(1, min(len(self.groups), os.cpu_count() or 1)))
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        self.pool = ThreadPoolExecutor(max_workers=max(1, min(len(self.groups), cores)))
         self.steps = sum(max(0, len(r.y) - round(WARMUP_S / r.dt)) for r in records)
         self.hidden_steps = sum(int(np.sum(r.inside)) for r in records if r.inside is not None)
         if self.steps == 0:
@@ -191,7 +193,7 @@ def hidden_log_likelihood(result, hidden: np.ndarray, inside: np.ndarray, R_p: n
         The mocap's noise covariance, m².
     """
     d = (hidden - result.means[:, list(ROWS)])[inside]
-    S = result.covariances[inside][:, :len(ROWS), :len(ROWS)] + R_p
+    S = result.covariances[inside][:, list(ROWS)][:, :, list(ROWS)] + R_p
     sign, logdet = np.linalg.slogdet(2 * np.pi * S)
     if not np.all(sign > 0):
         return -math.inf

@@ -319,9 +319,11 @@ int lrn_mhe_run(lrn_gn *p, lrn_mhe *r) {
         int slides = k + 1 - N > start, row = slides ? L - 1 : L;
         if (slides) {
             if (r->ekf && lrn_ekf_arrival(n, m, r->Fa, r->Ha, r->P, r->Q, r->R, p->Pinv, r->ekf_work)) return 2;
-            /* the arrival mean of the next window's first node: its filtered estimate (the window end at
-             * that step), which P describes; the smoothed X[1] would count the window's data twice */
-            memcpy(r->x_bar, r->estimates + (size_t)(start + 1) * n, sizeof(double) * n);
+            /* the arrival mean P_{s+1|s} describes: the prediction f(x_{s|s}) from the estimate at s = start
+             * (its window's end then); the smoothed X[1] would count the window's data twice (MHE._shift).
+             * Fa and Ha, used by the update above, take the Jacobians nobody reads. */
+            if (node_jacobian(p, r->estimates + (size_t)start * n, r->u + (size_t)start * np_, r->x_bar, r->Fa,
+                              r->Ha)) return -1;
             memmove(r->X, r->X + n, sizeof(double) * (L - 1) * n);
             memmove(r->F, r->F + n * n, sizeof(double) * (L - 1) * n * n);
             memmove(r->H, r->H + m * n, sizeof(double) * (L - 1) * m * n);

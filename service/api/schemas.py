@@ -102,8 +102,9 @@ class TrainRequest(Strict):
                                           "'none' (the whole residual)")
     noise: Literal["paper", "identified"] = Field(
         "identified", description="'identified' (the default): the model's and its prior's process noise identified "
-                                  "on the training flights by the UKF's innovation likelihood, stored with the "
-                                  "version, and used by every evaluation of it; 'paper': the system's fixed noise")
+                                  "on the training flights by the UKF's likelihood (innovations and hidden mocap), "
+                                  "stored with the version, and used by every evaluation of it; 'paper': the "
+                                  "system's fixed noise")
     ensemble: int = Field(1, ge=1, le=10, description="several flights: residuals trained from different seeds; their "
                           "mean is the model and their disagreement on a flight joins its process noise")
     parent: str | None = Field(None, description='"name:version" or "name@alias" this version derives from')

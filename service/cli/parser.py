@@ -185,8 +185,9 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
                          "and battery (needs motor PWM and battery voltage in the log)")
     tr.add_argument("--noise", default="identified", choices=["identified", "paper"],
                     help="identified (default): identify the model's and its prior's process noise on the training "
-                         "flights by the UKF's innovation likelihood and store it with the version (every evaluation "
-                         "then runs each model with its own); paper: the system's fixed noise")
+                         "flights by the UKF's likelihood (innovations and hidden mocap) and store it with the "
+                         "version (every evaluation then runs each model with its own); paper: the system's fixed "
+                         "noise")
     tr.add_argument("--ensemble", type=_positive_int, default=1, metavar="K",
                     help="several flights: train K residuals from different seeds; their mean is the model and their "
                          "disagreement on a flight joins its process noise (default 1)")
