@@ -121,12 +121,12 @@ def one_step_innovation_ms(params: EstimatorParams, y: np.ndarray, u: np.ndarray
 
 def prediction_check(prior_ms: ArrayLike, knode_ms: ArrayLike, channels: Sequence[int],
                      names: Sequence[str]) -> dict:
-    """Does the KNODE predict this record's measurements worse than its prior?  A check without ground truth.
+    """How the KNODE predicts this record's next measurements against its prior: a diagnostic, not a verdict.
 
     The ratio of the two filters' mean squared one-step innovations, summed over ``channels``: above 1, the
-    learned model predicts the flight's next measurement worse than the physics alone, so its estimates
-    should not be trusted there, whatever the cause (another regime, a wrong learned effect, extrapolation).
-    The threshold is 1 by construction (no tuning): "worse than the prior" is the question the user asks.
+    learned model predicts the next measurement (10 ms ahead on NanoBench) worse than the physics alone.  A
+    report carries it per flight as ``one_step_innovation_ratio``; its verdict is the mocap gaps'
+    (`estimators.headline.flight_verdict`), which judge the prediction across an occlusion.
 
     Parameters
     ----------
@@ -157,7 +157,19 @@ def recommended_model(flight_report: ReportView, base: str) -> str | None:
 
     The same measure as the headline's, so the two agree by construction: the prior's estimate is recommended
     on exactly the flights the headline counts as worse beyond their interval.  The KNODE stays recommended
-    where the flight cannot tell the two apart: its ensemble's doubt already pulls it towards the prior there.
+    where the flight cannot tell the two apart; an ensemble's doubt already pulls it towards the prior there.
+
+    Parameters
+    ----------
+    flight_report : dict
+        A scored flight's report entry (its ``mse`` names the methods that ran, its yardsticks the gaps).
+    base : {"ukf", "mhe"}
+        The base estimator.
+
+    Returns
+    -------
+    str or None
+        "knode" or "prior"; None when the KNODE and its prior did not both run.
     """
     key = f"knode-{base}_vs_{base}"
     if not {base, f"knode-{base}"} <= set(flight_report.get("mse") or {}):

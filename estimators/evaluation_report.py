@@ -69,6 +69,6 @@ class EvaluationReport(Record):
     median: dict[str, float] = field(default_factory=dict, metadata=doc("{method: median MSE over the scored "
                                                                         "flights, SI units squared}"))
     improvement_pct: dict[str, float] = field(default_factory=dict, metadata=doc(
-        "{base method: 100 (1 - KNODE / prior) of the medians, %; positive is better}"))
+        "{\"knode-ukf_vs_ukf\": 100 (1 - KNODE / prior) of the medians, %, ...; positive is better}"))
     units: dict[str, Any] | None = field(default=None, metadata=doc("the units of the numbers"))
     yardstick_definitions: dict[str, str] | None = field(default=None, metadata=doc("what each yardstick measures"))

@@ -114,6 +114,6 @@ class EvaluationSettings:
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any]):
-        """Stored settings (`to_json`) as the type again; a setting stored before it could be chosen is absent
-        and takes its default."""
+        """Stored settings (`to_json`) as the type again; a setting absent from the stored JSON takes its
+        default."""
         return cls(**{f.name: data[f.name] for f in fields(cls) if f.init and f.name in data})

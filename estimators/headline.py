@@ -182,6 +182,18 @@ def flight_verdict(flight_report: ReportView, key: str) -> str:
 
     The one measure every surface states per flight: the headline counts these verdicts, and the recommended
     estimate (`estimators.evaluate.recommended_model`) follows them, so the three cannot disagree.
+
+    Parameters
+    ----------
+    flight_report : mapping
+        A scored flight's report entry, with its ``yardsticks.mocap_gaps`` (``gain_pct``, ``gain_interval_pct``).
+    key : str
+        The comparison, ``"knode-<base>_vs_<base>"``.
+
+    Returns
+    -------
+    str
+        "better", "worse", "within" or "undecided".
     """
     gaps = (flight_report.get("yardsticks") or {}).get("mocap_gaps") or {}
     decided = bool(gaps) and not gaps.get("skipped") and (gaps.get("gain_pct") or {}).get(key) is not None
@@ -189,7 +201,8 @@ def flight_verdict(flight_report: ReportView, key: str) -> str:
 
 
 def flight_verdicts(flight_report: ReportView) -> dict[str, str]:
-    """{comparison: `flight_verdict`} for every KNODE that ran beside its prior on one scored flight."""
+    """{comparison: `flight_verdict`} for every KNODE that ran beside its prior on one scored flight (a report
+    entry with its yardsticks); {} for a prior-only evaluation."""
     return {key: flight_verdict(flight_report, key) for key in _pair_keys([flight_report])}
 
 

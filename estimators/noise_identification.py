@@ -191,6 +191,11 @@ def hidden_log_likelihood(result, hidden: np.ndarray, inside: np.ndarray, R_p: n
         Where it was hidden.
     R_p : ndarray, shape (3, 3)
         The mocap's noise covariance, m².
+
+    Returns
+    -------
+    float
+        The log-likelihood, nats; -inf where a predicted covariance is not positive definite.
     """
     d = (hidden - result.means[:, list(ROWS)])[inside]
     S = result.covariances[inside][:, list(ROWS)][:, :, list(ROWS)] + R_p

@@ -62,7 +62,7 @@ class NoiseModel:
     source : {"paper", "identified"}
         The system class's fixed settings, or identified on flights.
     detail : dict
-        How it was identified (empty for ``"paper"``): the flights, the mean innovation log-likelihood per
+        How it was identified (empty for ``"paper"``): the flights, the mean log-likelihood per
         step before and after (nats), the scale of each block relative to the paper's noise, the blocks that
         stayed fixed, evaluations and seconds (`estimators.noise_identification.identify_noise`).
     """

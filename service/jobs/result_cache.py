@@ -35,7 +35,7 @@ ENTRY_FORMAT = 8
 def settings_key(settings: EvaluationSettings) -> str:
     """Cache key part: what changes a flight's entry besides the flight and the model.  The default SG window
     and gaps are left out, so results cached before they could be chosen keep their key; the entry format
-    (`ENTRY_FORMAT`) is in it, so entries computed by older code are computed again."""
+    (`ENTRY_FORMAT`) is in it, so an entry of another format is computed again."""
     fields: dict = {"methods": sorted(settings.methods), "horizon": settings.horizon,
                     "include_bad": settings.include_bad, "entry_format": ENTRY_FORMAT}
     if settings.sg_window != SG_WINDOW:
