@@ -19,7 +19,6 @@ import numpy as np
 
 from learnest.errors import InvalidInput, LearnestError
 from learnest.estimators.evaluate import evaluate_sequence
-from learnest.estimators.noise_identification import with_identified_noise
 from learnest.estimators.observers import pretraining_observer
 from learnest.estimators.prepared import corrected_flight, model_params, system_for
 from learnest.ingest.flight import Flight
@@ -52,6 +51,7 @@ from .diagnosis_problems import (
     repair_verdict,
     repair_yardsticks,
     residual_series,
+    tuned_alike,
 )
 from .diagnosis_stages import DiagnosisStages, StageCallback
 from .flights import evaluate_flight, train_on_flight
@@ -275,8 +275,7 @@ def _diagnose_quadrotor(flights: list[Flight], knode: HybridModel | None, method
         "training_flight_sha256": [s["sha256"] for s in fitting[0].meta.get("sources", [])],
         "training_profile": flight_profile(fitting[0]),
         "parent": knode_before.meta.get("name")})
-    if knode_before.noise is not None:   # like with like: an identified-noise model against a repair tuned alike
-        knode_after = with_identified_noise(knode_after, fitting[:1])
+    knode_after = tuned_alike(knode_before, knode_after, fitting[:1])
     before: dict[str, list[float]] = {m: [] for m in methods}
     after: dict[str, list[float]] = {m: [] for m in methods}
     per_flight: list[dict] = []

@@ -9,7 +9,6 @@ from dataclasses import replace
 import numpy as np
 
 from learnest.errors import InvalidInput
-from learnest.estimators.noise_identification import with_identified_noise
 from learnest.estimators.observers import pretraining_observer
 from learnest.estimators.prepared import system_for
 from learnest.ingest.flight import Flight
@@ -39,6 +38,7 @@ from .diagnosis_problems import (
     repair_verdict,
     repair_yardsticks,
     residual_series,
+    tuned_alike,
 )
 from .diagnosis_stages import DiagnosisStages, StageCallback
 from .flights import evaluate_flight
@@ -302,9 +302,7 @@ def crazyflie_report(flights: list[Flight], knode: HybridModel | None = None, me
                              "effects": [e.id for e in chosen if any(p.name in values for p in e.params)],
                              "parent": model_before.meta.get("name"), "system": "crazyflie",
                              "thrust_source": source})
-    if model_before.noise is not None and model_after.kind != "prior":
-        # like with like: a model whose noise was identified is compared with a repair whose noise is too
-        model_after = with_identified_noise(model_after, fitting[:1])
+    model_after = tuned_alike(model_before, model_after, fitting[:1])
     keys = ["specific_force_rmse", *methods]
     before, after, per_flight, series = _score_repair(scoring, held_out_problems, selection["channel"], values,
                                                       methods, model_before, model_after, knode, stages)

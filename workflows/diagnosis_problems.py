@@ -10,6 +10,7 @@ import numpy as np
 
 from learnest.estimators.headline import MEASURES
 from learnest.estimators.metrics import better_beyond_interval, gain_interval_over_time, worse_beyond_interval
+from learnest.estimators.noise_identification import with_identified_noise
 from learnest.estimators.observers import pretraining_observer
 from learnest.estimators.prepared import initial_state, model_params
 from learnest.estimators.ukf import run_ukf
@@ -326,3 +327,12 @@ def _public_effects(selection):
 def _public(selection):
     return {"effects": _public_effects(selection), "confounded": selection["confounded"],
             "channels": {selection["channel"]: _channel(selection)}}
+
+
+def tuned_alike(before: HybridModel, after: HybridModel, fitting: Sequence[Flight]) -> HybridModel:
+    """The repaired model ``after`` with its noise identified on ``fitting`` when the analysed model ``before``
+    runs with identified noise: a repair is judged like with like (an identified-noise model against an untuned
+    repair would make every repair look worse); ``after`` as it is otherwise."""
+    if before.noise is None or after.kind == "prior":
+        return after
+    return with_identified_noise(after, fitting)
