@@ -16,7 +16,7 @@ def test_the_suite_says_how_long_it_takes_before_collecting_then_how_many_tests_
                          cwd=REPO, capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stdout[-2000:]
     first, second = run.stdout.splitlines()[:2]
-    assert first == ("learnest's whole test suite takes about 15 min on 2 idle cores, up to 25 under load; "
+    assert first == ("learnest's whole test suite takes about 18 min on 2 idle cores, up to 25 under load; "
                      "collecting the tests ...")
     assert second.startswith("collected 1 tests in ") and second.endswith(" s; running them")
 
@@ -25,7 +25,7 @@ def test_the_readme_gives_the_test_commands_duration_beside_it():
     readme = (REPO / "README.md").read_text(encoding="utf-8")
     command = readme.index(".venv/bin/pytest -q\n```")
     after = readme[command:command + 600]
-    assert "about 15 min on 2 idle cores" in after and "up to 25" in after
+    assert "about 18 min on 2 idle cores" in after and "up to 25" in after
 
 
 def test_the_test_client_warns_of_nothing():
