@@ -61,6 +61,10 @@ MAX_FACTOR = 1e3
 # 2 % is far below what changes an estimate.
 MAX_EVALUATIONS = 160
 TOLERANCE_LOG = 0.02
+# The first simplex's width (a factor per block): from the paper's noise, which may be off by decades, 3; from
+# a neighbour's identified noise (a KNODE's search starts from its prior's), 1.3: a residual changes what the
+# filter must absorb by tens of per cent, not by factors, and a narrow simplex needs a third of the evaluations.
+COLD_STEP, WARM_STEP = 3.0, 1.3
 
 
 @dataclass(frozen=True)
@@ -144,6 +148,16 @@ class _Likelihood:
             r[idx] = np.clip(base_r[idx] * math.exp(value), *STD_BOUNDS)
         return NoiseModel(tuple(q), tuple(r), self.start.initial_std, IDENTIFIED)
 
+    def theta_of(self, noise: NoiseModel) -> np.ndarray:
+        """The log-scales θ of ``noise`` on the start's noise, per searched block (its first row's ratio), within
+        the search's bounds."""
+        q0, r0 = np.asarray(self.start.process_std), np.asarray(self.start.meas_std)
+        q, r = np.asarray(noise.process_std), np.asarray(noise.meas_std)
+        theta = [math.log(q[idx[0]] / q0[idx[0]]) for idx in self.q_idx.values()] + \
+            [math.log(r[idx[0]] / r0[idx[0]]) for idx in self.r_idx.values()]
+        bound = math.log(MAX_FACTOR)
+        return np.clip(np.array(theta, dtype=float), -bound, bound)
+
     def _log_likelihood(self, records: Sequence[NoiseRecord], noise: NoiseModel) -> tuple[float, float]:
         """(Σ innovation log-likelihood after the warm-up, Σ log-likelihood of the hidden mocap) over ``records``
         (which share no compiled functions with any other thread's); -inf where a filter fails."""
@@ -210,7 +224,8 @@ def identify_noise(records: Sequence[NoiseRecord], start: NoiseModel, *,
                    process_blocks: Sequence[str] = PROCESS_BLOCKS,
                    measurement_blocks: Sequence[str] = MEASUREMENT_BLOCKS,
                    max_evaluations: int = MAX_EVALUATIONS,
-                   on_evaluation: Callable[[int, float], object] | None = None) -> NoiseModel:
+                   on_evaluation: Callable[[int, float], object] | None = None,
+                   initial: NoiseModel | None = None) -> NoiseModel:
     """The noise that maximises the UKF's likelihood over ``records``: of the innovations, plus that of the hidden
     mocap where records hide it (`NoiseRecord.hidden`; module docstring).
 
@@ -226,6 +241,9 @@ def identify_noise(records: Sequence[NoiseRecord], start: NoiseModel, *,
         Filter runs over all records at most.
     on_evaluation : callable, optional
         ``on_evaluation(count, mean_log_likelihood)`` after each evaluation (progress).
+    initial : NoiseModel, optional
+        Where the search begins, when not at ``start`` (a KNODE's from its prior's identified noise): a narrower
+        first simplex (`WARM_STEP`).  The result is kept only where it beats ``start`` too.
 
     Returns
     -------
@@ -250,11 +268,12 @@ def identify_noise(records: Sequence[NoiseRecord], start: NoiseModel, *,
     started = time.perf_counter()
     bound = math.log(MAX_FACTOR)
     x0 = np.zeros(len(names))
+    begin, step = (x0, COLD_STEP) if initial is None else (objective.theta_of(initial), WARM_STEP)
     with objective.pool:
         before = mean_log_likelihood(x0)
-        # a simplex a factor of 3 wide: the paper's noise may be off by decades, Nelder–Mead expands as needed
-        simplex = np.vstack([x0] + [x0 + math.log(3.0) * e for e in np.eye(len(names))])
-        fit = minimize(lambda th: -mean_log_likelihood(th), x0, method="Nelder-Mead",
+        # Nelder–Mead expands a simplex that is too narrow, as needed
+        simplex = np.vstack([begin] + [begin + math.log(step) * e for e in np.eye(len(names))])
+        fit = minimize(lambda th: -mean_log_likelihood(th), begin, method="Nelder-Mead",
                        bounds=[(-bound, bound)] * len(names),
                        options={"maxfev": max_evaluations, "xatol": TOLERANCE_LOG, "fatol": 1e-5,
                                 "initial_simplex": simplex})
@@ -304,7 +323,8 @@ def noise_records(model: HybridModel, flights: Sequence[Flight], which: str,
 def with_identified_noise(model: HybridModel, flights: Sequence[Flight],
                           on_stage: Callable[[str], object] | None = None) -> HybridModel:
     """``model`` with its noise and its prior's identified on ``flights`` (its training flights), each by
-    `identify_noise` from the system's fixed noise, the process noise only (`FLIGHT_MEASUREMENT_BLOCKS`), scored
+    `identify_noise` from the system's fixed noise (the model's search beginning at its prior's result), the
+    process noise only (`FLIGHT_MEASUREMENT_BLOCKS`), scored
     by the mocap hidden in the yardstick's gaps (`noise_records` with `GapPlan()`, module docstring): the two
     filters of every later comparison are tuned the same way on the same flights.
 
@@ -332,5 +352,5 @@ def with_identified_noise(model: HybridModel, flights: Sequence[Flight],
         if on_stage:
             on_stage(f"noise of the {model.kind.upper()}")
         own = identify_noise(noise_records(model, flights, "model", GapPlan()), start,
-                             measurement_blocks=FLIGHT_MEASUREMENT_BLOCKS)
+                             measurement_blocks=FLIGHT_MEASUREMENT_BLOCKS, initial=prior_noise)
     return HybridModel(model.system, model.kind, model.residual, model.meta, own, prior_noise)
