@@ -4,7 +4,7 @@
 `Algorithm1.fit` trains on one record with time blocks of it held out (the paper's protocol: the cartpole and
 robot of Table I, one flight); `Algorithm1.fit_flights` trains on real flights: one flight is the paper's
 protocol, several train one residual on one pooled loss with whole flights held out
-(`models.training.train_knode_pooled`, why there).
+(`models.pooled_training.train_knode_pooled`, why there).
 
 The network learns whatever the observer's estimates of the unmeasured states contain, artefacts included.
 Two ways to make those estimates better (measured in benchmarks/results/table1_observer_study.md):
@@ -22,7 +22,7 @@ Two ways to make those estimates better (measured in benchmarks/results/table1_o
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -33,9 +33,10 @@ from learnest.ingest.profile import flight_profile
 from learnest.models.ensemble import mean_residual
 from learnest.models.inputs import training_meta
 from learnest.models.knode import HybridModel
+from learnest.models.pooled_training import TrainingRecord, train_members_pooled
 from learnest.models.presets import TrainingConfig
 from learnest.models.systems import System
-from learnest.models.training import TrainingRecord, TrainingResult, attitude_blind, train_knode, train_knode_pooled
+from learnest.models.training import TrainingResult, attitude_blind, train_knode
 
 from .flight_training import check_one_vehicle, default_validation, flight_inputs, flight_lineage, pooled_profile
 from .observers import Observer, observe_robot, pretraining_observer
@@ -183,7 +184,7 @@ class Algorithm1:
         with its own thrust gain, battery and length), then one KNODE.
 
         One flight (and no ``validate``) is the paper's protocol exactly (`fit`: time blocks of the flight held
-        out).  Several train one pooled loss over every training flight (`models.training.train_knode_pooled`)
+        out).  Several train one pooled loss over every training flight (`models.pooled_training.train_knode_pooled`)
         with whole flights held out for validation; ``config.validation_fraction``/``validation_layout`` are
         unused then, and the observer must be a filter or smoother without rounds.
 
@@ -279,13 +280,11 @@ def _held_out(flights: list[Flight], validate: Sequence[str] | None) -> tuple[li
 
 def train_ensemble(prior: System, records: list[TrainingRecord], held: list[bool], config: TrainingConfig,
                    progress: Callable[[int, float], None] | None) -> TrainingResult:
-    """`models.training.train_knode_pooled`, ``config.ensemble`` times from seeds ``seed, seed + 1, ...``; with
-    more than one, the model's residual is their mean carrying the members (`models.ensemble.mean_residual`) and its
-    meta's ``ensemble`` says how many were trained and each one's kept epoch."""
-    if config.ensemble < 1:
-        raise InvalidInput(f"an ensemble needs at least one member, got {config.ensemble}")
-    results = [train_knode_pooled(prior, records, held, replace(config, seed=config.seed + k), progress=progress)
-               for k in range(config.ensemble)]
+    """`models.pooled_training.train_members_pooled` with ``config.ensemble`` members from seeds ``seed, seed + 1,
+    ...``; with more than one, the model's residual is their mean carrying the members
+    (`models.ensemble.mean_residual`) and its meta's ``ensemble`` says how many were trained and each one's kept
+    epoch."""
+    results = train_members_pooled(prior, records, held, config, config.ensemble, progress)
     first = results[0]
     if len(results) == 1:
         return first
@@ -293,9 +292,8 @@ def train_ensemble(prior: System, records: list[TrainingRecord], held: list[bool
     residual = mean_residual([r.model.residual for r in results if r.model.residual is not None])
     meta = {**model.meta, "ensemble": {"members": len(results), "seeds": [config.seed + k for k in range(len(results))],
                                        "best_epochs": [r.model.meta.get("best_epoch") for r in results]},
-            "learned": any(r.learned for r in results), "seconds": sum(r.seconds for r in results)}
+            "learned": any(r.learned for r in results), "seconds": first.seconds}
     if meta["learned"]:
         meta.pop("learned_note", None)
-    return TrainingResult(HybridModel(model.system, model.kind, residual, meta), first.losses,
-                          sum(r.seconds for r in results), first.validation_losses)
-
+    return TrainingResult(HybridModel(model.system, model.kind, residual, meta), first.losses, first.seconds,
+                          first.validation_losses)

@@ -119,3 +119,62 @@ class ResidualNet(torch.nn.Module):
         return Residual([(w1.copy(), b1.copy()),
                          (self.output_layer.weight.detach().numpy() * out[:, None],
                           self.output_layer.bias.detach().numpy() * out)], self.frame)
+
+
+class StackedResidualNet(torch.nn.Module):
+    """K `ResidualNet` s of one shape trained side by side as one module: each member's layers are a slice of
+    stacked weights, so one batched matrix product evaluates every member on its own rows.
+
+    Why: a residual of 16 hidden units on a mini-batch of a few thousand pairs costs microseconds per operation,
+    and training is bound by the number of operations, not their size; K members in one set of operations cost
+    little more than one.  The members' parameters are disjoint, so the gradient of the sum of their losses is
+    each member's own gradient, and Adam (elementwise) updates each as if it were trained alone.
+
+    Parameters
+    ----------
+    members : sequence of ResidualNet
+        Their initial weights (each from its own seed), one frame, one input standardisation and masks.
+    """
+
+    def __init__(self, members) -> None:
+        super().__init__()
+        members = list(members)
+        first = members[0]
+        self.frame, self.count = first.frame, len(members)
+        for name in ("mean", "std", "input_mask", "output_mask"):
+            self.register_buffer(name, getattr(first, name).clone())
+        self.hidden_weight = torch.nn.Parameter(torch.stack([m.hidden_layer.weight.detach() for m in members]))
+        self.hidden_bias = torch.nn.Parameter(torch.stack([m.hidden_layer.bias.detach() for m in members])[:, None])
+        self.output_weight = torch.nn.Parameter(torch.stack([m.output_layer.weight.detach() for m in members]))
+        self.output_bias = torch.nn.Parameter(torch.stack([m.output_layer.bias.detach() for m in members])[:, None])
+
+    def forward(self, z):
+        """Each member on its own block of rows.
+
+        Parameters
+        ----------
+        z : (K * B, n_in) float64 tensor
+            Member k's B rows at ``k * B : (k + 1) * B``.
+
+        Returns
+        -------
+        (K * B, n_out) float64 tensor
+        """
+        rows = z.shape[0] // self.count
+        scaled = (self.input_mask * (z - self.mean) / self.std).reshape(self.count, rows, -1)
+        hidden = torch.tanh(torch.baddbmm(self.hidden_bias, scaled, self.hidden_weight.transpose(1, 2)))
+        out = torch.baddbmm(self.output_bias, hidden, self.output_weight.transpose(1, 2))
+        return self.output_mask * out.reshape(self.count * rows, -1)
+
+    def rates(self, x, u):
+        """Δθ(x, u) of each member on its block of rows, as a correction of ẋ (K * B, n)."""
+        return residual_frame.field(self.frame, self, x, u)
+
+    def member_states(self) -> list[dict]:
+        """Each member's weights as a `ResidualNet` state dict (copies)."""
+        buffers = {name: getattr(self, name).clone() for name in ("mean", "std", "input_mask", "output_mask")}
+        return [{"hidden_layer.weight": self.hidden_weight[k].detach().clone(),
+                 "hidden_layer.bias": self.hidden_bias[k, 0].detach().clone(),
+                 "output_layer.weight": self.output_weight[k].detach().clone(),
+                 "output_layer.bias": self.output_bias[k, 0].detach().clone(), **buffers}
+                for k in range(self.count)]

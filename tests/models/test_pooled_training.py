@@ -1,4 +1,4 @@
-"""One KNODE trained on several flights of one vehicle (`train_on_flights`, `models.training.train_knode_pooled`):
+"""One KNODE trained on several flights of one vehicle (`train_on_flights`, `models.pooled_training.train_knode_pooled`):
 known answers on simulated flights.
 
 - Flights flown by a Crazyflie with three times the prior's rotor drag: the model pooled over four flights
@@ -25,15 +25,8 @@ from learnest.models.knode import HybridModel
 from learnest.models.presets import CRAZYFLIE_TRAINING
 from learnest.models.residual_frame import BODY_FEATURES, UNREAD_BODY_FEATURES
 from learnest.models.systems import make_system
-from learnest.models.training import (
-    ATTITUDE_INPUTS,
-    BATTERY_INPUTS,
-    NOT_LEARNED,
-    TrainingRecord,
-    attitude_blind,
-    train_knode,
-    train_knode_pooled,
-)
+from learnest.models.pooled_training import TrainingRecord, train_knode_pooled, train_members_pooled
+from learnest.models.training import ATTITUDE_INPUTS, BATTERY_INPUTS, NOT_LEARNED, attitude_blind, train_knode
 from learnest.workflows.flights import train_on_flights
 
 DRAG_TRUTH = {**cf.IDENTIFIED, "k_xy": 3 * cf.IDENTIFIED["k_xy"]}   # rotor drag the prior underestimates 3-fold
@@ -361,3 +354,30 @@ def test_attitude_blind_leaves_a_system_without_attitude_inputs_alone():
     inputs, _ = attitude_blind(crazyflie, battery=True).residual_masks()
     assert [k for k, m in zip(names, inputs) if m == 0.0] == [*crazyflie.residual_blind, *ATTITUDE_INPUTS,
                                                               *BATTERY_INPUTS]
+
+
+@pytest.mark.parametrize("frame", ["state", "body"])
+def test_members_trained_side_by_side_are_the_members_trained_alone(frame):
+    """An ensemble's members train as one stacked network (on one thread per core): member k must come out as
+    `train_knode_pooled` trains it alone from seed + k (its initial weights and its mini-batch order), in the state
+    frame of the kinematic prior and the body frame of the Crazyflie prior."""
+    if frame == "state":
+        system, records = make_system("quadrotor", dt=0.01), _records(3)
+    else:
+        records = []
+        for seed in range(3):
+            flight = simulate_crazyflie(SimulatedFlight(duration_s=4), seed=seed)
+            system, zeta, u, _ = Algorithm1().observe_flight(flight, "crazyflie")
+            records.append(TrainingRecord(flight.name, zeta, u, flight.dt))
+    config = replace(CRAZYFLIE_TRAINING, epochs=6, batch_size=128, seed=3, residual_frame=frame)
+    together = train_members_pooled(system, records, [False, False, True], config, members=3)
+    for k, member in enumerate(together):
+        alone = train_knode_pooled(system, records, [False, False, True], replace(config, seed=3 + k))
+        assert member.model.meta["training"]["seed"] == 3 + k
+        assert member.model.meta["best_epoch"] == alone.model.meta["best_epoch"]
+        np.testing.assert_allclose(member.losses, alone.losses, rtol=1e-9)
+        np.testing.assert_allclose(member.validation_losses, alone.validation_losses, rtol=1e-9)
+        for (w, b), (w_alone, b_alone) in zip(member.model.residual.layers, alone.model.residual.layers):
+            np.testing.assert_allclose(w, w_alone, rtol=1e-9, atol=1e-12)
+            np.testing.assert_allclose(b, b_alone, rtol=1e-9, atol=1e-12)
+    assert together[0].model.residual.layers[0][0].tolist() != together[1].model.residual.layers[0][0].tolist()

@@ -160,7 +160,7 @@ def _not_learned_model():
     from learnest.models.knode import HybridModel
     from learnest.models.presets import CRAZYFLIE_TRAINING
     from learnest.models.systems import make_system
-    from learnest.models.training import TrainingRecord, train_knode_pooled
+    from learnest.models.pooled_training import TrainingRecord, train_knode_pooled
     from learnest.service.jobs.tasks import training_metrics
 
     system = make_system("quadrotor", dt=0.01)
