@@ -5,8 +5,9 @@ jobs and web pages call these functions, the CLI calls them (its only door to th
 in-process facade `service.local` beside it), and so does a notebook (through `learnest`'s public API).
 
 Besides the workflows themselves (`flights`, `estimation`, `diagnosis*`, `thrust_map`, `table1`, `reports`),
-three modules give the CLI the science's names it states and reads: `vocabulary` (methods, presets, gap plans,
-errors, gains), `files` (flight logs read, estimates written) and `learning` (the prior a set of flights calls for).
+four modules give the CLI the science's names it states and reads: `vocabulary` (methods, presets, gap plans,
+errors, gains), `files` (flight logs read, estimates written), `learning` (the prior a set of flights calls for)
+and `headline` (a report's answer in one sentence, as the web pages say it too).
 
 Nothing is imported here, so a module of this package loads only what it needs.
 """

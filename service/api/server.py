@@ -1,6 +1,7 @@
 """How `learnest serve` runs uvicorn: timeouts for slow or idle clients and a concurrency limit.  Without them,
 idle, partial-header and 1-byte-per-5-s connections stay open for as long as the client likes, each holding a
-socket and, once its headers are in, a worker thread.
+socket and, once its headers are in, a worker thread.  `service.local.serving.uvicorn_options` gives uvicorn
+the protocol below by import path and the settings' limits.
 
 - Headers: uvicorn closes an idle keep-alive connection (``timeout_keep_alive``) but has no limit on how
   long a request's headers may take to arrive, nor on a new connection that never sends anything.
@@ -35,7 +36,6 @@ import time
 from collections import Counter
 from functools import lru_cache
 from http import HTTPStatus
-from typing import Any
 
 import h11
 from starlette.exceptions import HTTPException
@@ -314,15 +314,3 @@ class BodyDeadline:
 
         await self.app(scope, timed_receive, watched_send)
 
-
-def uvicorn_options(settings: Settings) -> dict[str, Any]:
-    """The keyword arguments of `uvicorn.run` / `uvicorn.Config` that the settings decide."""
-    proxies = settings.trusted_proxy_addresses
-    # uvicorn believes X-Forwarded-For from 127.0.0.1 unless told otherwise: on loopback anyone could then
-    # choose the address the key throttle counts.  Believed only from the configured proxies.
-    return {"proxy_headers": bool(proxies), "forwarded_allow_ips": ",".join(proxies) if proxies else "",
-            "http": "learnest.service.api.server:DeadlineH11Protocol",
-            "timeout_keep_alive": settings.keep_alive_s,
-            "limit_concurrency": settings.limit_concurrency or None,
-            "h11_max_incomplete_event_size": settings.max_header_bytes,
-            "timeout_graceful_shutdown": settings.graceful_shutdown_s}

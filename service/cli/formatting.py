@@ -50,10 +50,10 @@ def format_report(report: dict) -> str:
 
 
 def headline_lines(report: dict) -> list[str]:
-    """The answer first (service.web.headline, as the report page says it): the sentence of each KNODE
+    """The answer first (`learnest.workflows.headline`, as the report page says it): the sentence of each KNODE
     against its prior, what the yardstick measures, and per flight the gain with its 95 % interval; then a
     blank line before the tables and the details."""
-    from ..web.headline import evaluation_headline
+    from learnest.workflows.headline import evaluation_headline
 
     head = evaluation_headline(report)
     lines = [pair["sentence"] for pair in head["pairs"]] or [head["sentence"]]
@@ -328,8 +328,8 @@ def _trained_on_lines(lineage: dict, flight: dict, metrics: dict) -> list[str]:
 
 
 def diagnosis_lead(result: dict) -> list[str]:
-    """The diagnosis' answer and split first, as its page says them (service.web.headline)."""
-    from ..web.headline import diagnosis_headline, diagnosis_split
+    """The diagnosis' answer and split first, as its page says them (`learnest.workflows.headline`)."""
+    from learnest.workflows.headline import diagnosis_headline, diagnosis_split
 
     split = diagnosis_split(result)
     lines = [diagnosis_headline(result)]

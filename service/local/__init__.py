@@ -5,7 +5,9 @@ same service functions (service.operations) and jobs.
 It uses the same database and blob folder as `learnest serve` (LEARNEST_HOME, or LEARNEST_DATABASE_URL), so a
 model trained by `learnest train` is `name:version` for the API and the web pages too, and the reverse.
 Modules: `services` (settings, Services opened here, watching a job), `flights` (storing local files as an
-upload would), `training`, `evaluation`, `browsing` (reading the registry); their public names are here.
+upload would), `training`, `evaluation`, `browsing` (reading the registry), `serving` (`learnest serve`); their
+public names are here.  Below the web pages and the CLI, so both use them: `figures` (the matplotlib figures of
+reports and stored versions; the CLI's --plot files) and `palette` (one colour per estimator).
 
 - `add_flight`: store a flight's log file(s) as POST /flights does (service.operations.uploads.add_flight: raw files +
   normalized flight as blobs, one row, deduplicated by sha256).
@@ -21,6 +23,8 @@ upload would), `training`, `evaluation`, `browsing` (reading the registry); thei
 - `load_model`: "NAME" (its latest ready version), "NAME:VERSION" or "NAME@ALIAS" -> HybridModel, through
   service.storage.registry.load_model_ref; a reference that names nothing usable is a NotFound or Conflict listing the
   known models.
+- `serve`: run the HTTP app under uvicorn with the settings' timeouts and limits (`learnest serve`); the app is
+  named to uvicorn by import path, so this facade imports neither the app nor the API.
 
 The CLI states its requests in a few of the service's own names, given here beside the facade's functions: the
 `Settings` (LEARNEST_*), one scheduler round (`evaluate_new_once`), this process set up to run the networks
@@ -44,6 +48,7 @@ _LAZY = {
     **dict.fromkeys(["UnreadableFile", "add_flight", "flight_files"], ".flights"),
     **dict.fromkeys(["cli_settings", "local_services", "registry_database", "wait_for_job", "watching_stages"],
                     ".services"),
+    "serve": ".serving",
     **dict.fromkeys(["TrainingFailed", "abandon_training", "register_repaired", "train"], ".training"),
     "Settings": "..config",
     "EstimatorSettings": "..jobs.result_cache",
@@ -55,7 +60,7 @@ _LAZY = {
 __all__ = ["EstimatorSettings", "Settings", "TrainingFailed", "UnreadableFile", "abandon_training", "add_flight",
            "check_name", "check_topic", "cli_settings", "evaluate", "evaluate_new_once", "export", "flight_files",
            "init_worker", "known_models", "list_flights", "list_models", "load_model", "local_services", "parse_ref",
-           "register_repaired", "registry_database", "set_alias", "show_model", "train", "wait_for_job",
+           "register_repaired", "registry_database", "serve", "set_alias", "show_model", "train", "wait_for_job",
            "watching_stages"]
 
 
@@ -81,4 +86,5 @@ if TYPE_CHECKING:  # what type checkers and IDEs see
     from .evaluation import evaluate, export
     from .flights import UnreadableFile, add_flight, flight_files
     from .services import cli_settings, local_services, registry_database, wait_for_job, watching_stages
+    from .serving import serve
     from .training import TrainingFailed, abandon_training, register_repaired, train

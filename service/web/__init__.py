@@ -5,8 +5,9 @@
   `report_pages`: the evaluation and diagnosis reports; `registry_pages`: the registry across rows.
 - `rendering`: the Jinja2 environment, a page or an error page as a response.
 - `forms`: form fields -> the API's request models, and the API key of form writes.
-- `figures`: matplotlib figures as PNG (pages embed them, the CLI writes them to files).
 - `templates/`: Jinja2, autoescaped, every page extends `base.html`; `static/`: the one stylesheet.
 
-Nothing is imported here, so `figures` can be used (by the CLI) without loading FastAPI.
+The matplotlib figures the pages embed (`service.local.figures`, with the estimators' colours) and the
+reports' headline sentences (`learnest.workflows.headline`) live below this room: the CLI says and draws the
+same, and it imports nothing of the web.  Nothing is imported here.
 """

@@ -32,6 +32,7 @@ from learnest.ingest.flight import Flight as CanonicalFlight
 from learnest.models.presets import (
     MHE_HORIZON,
 )
+from learnest.workflows.headline import diagnosis_headline, evaluation_headline
 
 from ..api.deps import Offset, RowId, actor, creator, get_services
 from ..jobs.diagnosis import start_diagnosis
@@ -39,11 +40,11 @@ from ..jobs.evaluation import start_evaluation
 from ..jobs.runner import ACTIVE, seconds_left
 from ..jobs.services import Services
 from ..jobs.training import start_training
+from ..local import figures
 from ..operations import catalog
 from ..operations.uploads import add_flights, recut_flight
 from ..storage.tables import FlightRecord, Job
-from . import figures, flight_plots, forms, page_cache, zoomable
-from .headline import diagnosis_headline, evaluation_headline
+from . import flight_plots, forms, page_cache, zoomable
 from .registry_figures import loss_curves_of
 from .rendering import PAGE_SIZE, error_page, html_errors, page
 from .report_pages import diagnosis_reports, reports

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .figures import png_data_uri
+from ..local.figures import png_data_uri
 
 
 def _curve(values) -> np.ndarray:

@@ -24,8 +24,9 @@ from learnest.models.presets import (
 )
 
 from ..api.auth import current_principal
+from ..local import figures
 from ..storage import references
-from . import figures, flight_plots, forms, zoomable
+from . import flight_plots, forms, zoomable
 
 PAGE_SIZE = 100
 

@@ -17,10 +17,10 @@ from sqlalchemy.exc import IntegrityError
 
 from ..jobs.runner import error_message
 from ..jobs.services import Services
+from ..local.figures import velocity_png
 from ..operations import catalog
 from ..storage import registry
 from ..storage.tables import Evaluation, ReportFigure, utcnow
-from .figures import velocity_png
 
 log = logging.getLogger("learnest.web")
 

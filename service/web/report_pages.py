@@ -19,15 +19,16 @@ from learnest.errors import LearnestError
 from learnest.estimators.evaluation_settings import EvaluationSettings
 from learnest.ingest.baseline import centred_window
 from learnest.models.crazyflie import UNITS as CRAZYFLIE_UNITS
+from learnest.workflows.headline import diagnosis_headline, diagnosis_split, evaluation_headline, gap_methods
 
 from ..api.deps import MAX_ROW_ID, RowId, get_services
 from ..jobs.result_cache import settings_key
 from ..jobs.services import Services
+from ..local import figures
 from ..operations import catalog
 from ..operations.exports import evaluation_estimates
 from ..storage.tables import Diagnosis, Evaluation, FlightRecord, ReportFigure, Result
-from . import evaluation_plots, figures, page_cache, zoomable
-from .headline import diagnosis_headline, diagnosis_split, evaluation_headline, gap_methods
+from . import evaluation_plots, page_cache, zoomable
 from .rendering import page, with_identity
 from .report_figures import velocity_figure
 

@@ -23,7 +23,7 @@ from markupsafe import Markup
 
 # one colour per method throughout the pages and the CLI's PNGs; the priors are drawn wider and first, so the
 # KNODE line on top never hides them
-from .palette import METHOD_COLOURS, REFERENCE_COLOUR  # noqa: F401  (re-exported)
+from ..local.palette import METHOD_COLOURS, REFERENCE_COLOUR  # noqa: F401  (re-exported)
 
 PLOTLY_JS_ROUTE = "/vendor/plotly.min.js"
 SIGNIFICANT_DIGITS = 5          # of every number sent: far below what a screen shows, a third of the bytes

@@ -191,8 +191,9 @@ def live_server(home, **changes):
     """The app under uvicorn (in a thread, with `learnest serve`'s options) on 127.0.0.1:<free port>."""
     import uvicorn
 
-    from learnest.service.api.server import DeadlineH11Protocol, uvicorn_options
+    from learnest.service.api.server import DeadlineH11Protocol
     from learnest.service.app.factory import create_app
+    from learnest.service.local.serving import uvicorn_options
 
     settings = settings_for(home, header_timeout_s=TIMEOUT_S, body_timeout_s=TIMEOUT_S, body_min_rate=1000,
                             keep_alive_s=TIMEOUT_S, **changes)

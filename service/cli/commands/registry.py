@@ -82,8 +82,7 @@ def _serve(args) -> int:
     """The HTTP service (FastAPI app factory service.app.factory:create_app under uvicorn); docs at /docs."""
     import os
 
-    from ...app.serving import serve
-    from ...local import Settings
+    from ...local import Settings, serve
 
     if args.dask:  # the app reads its settings from the environment, in every worker process
         os.environ["LEARNEST_DASK"] = args.dask
@@ -101,7 +100,7 @@ def _serve(args) -> int:
     if not _may_serve(args, settings):
         return 2
     # the starting app listens at once and loads the service behind it (seconds of imports and migrations):
-    # /health and / answer from the first moment (service.app.starting)
+    # /health and / answer from the first moment (service.app.starting, named to uvicorn by import path)
     serve(settings, args.host, args.port, args.workers)
     return 0
 

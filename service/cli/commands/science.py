@@ -83,7 +83,7 @@ def _evaluate(args) -> int:
     """Evaluate a registered model on flight files: stored in the registry (flights and evaluation, as the
     web UI's), or with --no-store only computed here."""
     from ...local import load_model
-    from ...web.figures import evaluation_summary, save_figure
+    from ...local.figures import evaluation_summary, save_figure
 
     if args.new:
         return _evaluate_new(args)
@@ -174,7 +174,7 @@ def _evaluate_new(args) -> int:
 def _diagnose(args) -> int:
     from learnest.workflows.diagnosis import diagnose_flights, diagnose_simulated, format_diagnosis
 
-    from ...web.figures import residual_before_after, save_figure
+    from ...local.figures import residual_before_after, save_figure
 
     methods = parse_methods(args.methods)   # the arguments were checked by cli.usage
     if args.simulate is not None or args.system in ("cartpole", "robot"):
@@ -319,7 +319,7 @@ def _demo(args) -> int:
     from learnest.workflows.flights import evaluate_flights
 
     from ...local import load_model, train
-    from ...web.figures import evaluation_summary, save_figure
+    from ...local.figures import evaluation_summary, save_figure
     from ..progress import StageProgress
 
     folder = Path(args.folder)   # a folder, on the registry's grid, with known methods: checked by cli.usage

@@ -1,5 +1,5 @@
 """`learnest tokens create|list|revoke` and `learnest audit` on the registry the server uses, and `learnest serve`
-refusing an address other than loopback while the server has no token."""
+refusing an address other than loopback while the server has no token, and what it hands uvicorn."""
 from __future__ import annotations
 
 import json
@@ -66,3 +66,30 @@ def test_serve_refuses_a_non_loopback_address_without_a_token(home, capsys):
     assert _may_serve(Namespace(host="0.0.0.0", insecure=False), Settings(home=home, api_key="k"))
     assert main(["tokens", "create", "ada", "--scope", "admin"]) == 0
     assert _may_serve(Namespace(host="lab-server", insecure=False), settings)
+
+
+def test_serve_names_the_starting_app_and_the_protocol_to_uvicorn(home, monkeypatch):
+    """The CLI imports nothing of the app or the API: it names them to uvicorn by import path, and those paths
+    are the starting app's factory and the deadline protocol, with the settings' limits beside them."""
+    import importlib
+
+    import uvicorn
+
+    from learnest.service.api.server import DeadlineH11Protocol
+    from learnest.service.app.starting import create_app
+
+    runs = []
+    monkeypatch.setattr(uvicorn, "run", lambda app, **options: runs.append((app, options)))
+    for name in ("LEARNEST_LIMIT_CONCURRENCY", "LEARNEST_ALLOWED_HOSTS"):   # serve writes them: restored after
+        monkeypatch.setenv(name, "1" if name.endswith("CONCURRENCY") else "testserver")
+    assert main(["serve", "--port", "8765", "--limit-concurrency", "7"]) == 0
+    [(app, options)] = runs
+
+    def named(path):
+        module, name = path.split(":")
+        return getattr(importlib.import_module(module), name)
+
+    assert named(app) is create_app and options["factory"] is True
+    assert named(options["http"]) is DeadlineH11Protocol
+    assert (options["host"], options["port"], options["workers"]) == ("127.0.0.1", 8765, 1)
+    assert options["limit_concurrency"] == 7

@@ -108,7 +108,7 @@ def test_the_real_accelerometer_gap_of_circle_medium_rep3_is_drawn():
 
 
 def test_paired_mse_draws_a_line_per_flight_and_boxes_only_from_ten_flights():
-    from learnest.service.web.figures import BOX_MIN_FLIGHTS, paired_mse
+    from learnest.service.local.figures import BOX_MIN_FLIGHTS, paired_mse
 
     def report(n):
         flights = [{"flight": f"f{i}", "mse": {"ukf": 0.02 + 0.001 * i, "knode-ukf": 0.01 + 0.002 * i}}

@@ -10,8 +10,8 @@ import pytest
 
 from learnest.service.cli import format_report
 from learnest.service.web import evaluation_plots
-from learnest.service.web.headline import diagnosis_headline, diagnosis_split, evaluation_headline, gap_methods
 from learnest.service.web.rendering import page
+from learnest.workflows.headline import diagnosis_headline, diagnosis_split, evaluation_headline, gap_methods
 
 BLOCKS = {"p", "div", "tr", "li", "ul", "table", "h1", "h2", "section", "details", "summary", "br", "td", "th",
           "form", "fieldset", "legend", "nav", "option", "select", "label"}
@@ -180,8 +180,8 @@ def test_the_diagnose_form_checks_its_fields_as_the_api_does(tmp_path):
 def test_the_gain_figure_labels_each_flight_and_uses_the_method_colour():
     from matplotlib.colors import to_hex
 
-    from learnest.service.web.figures import evaluation_summary, gain_per_flight
-    from learnest.service.web.palette import METHOD_COLOURS
+    from learnest.service.local.figures import evaluation_summary, gain_per_flight
+    from learnest.service.local.palette import METHOD_COLOURS
 
     head = evaluation_headline(GAP_REPORT)
     [ax] = gain_per_flight(head).axes

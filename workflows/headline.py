@@ -9,8 +9,8 @@ gain of each KNODE over its own prior, on how many flights it was better, and ho
 95 % interval falls: worse beyond it, better beyond it, within it, or undecided (no interval could be told);
 those four counts add up to the flights scored.
 
-Everything here is plain dicts and strings (no figures, no templates): the CLI imports it without the web
-stack's weight.
+Everything here is plain dicts and strings (no figures, no templates) read from a report: the science's
+wording of its own answer, so it sits with the workflows, where the web pages and the CLI both import it.
 """
 from __future__ import annotations
 

@@ -3,7 +3,8 @@
 pyplot keeps one global "current figure" per process, which the server's request threads would share; a
 `Figure` made here belongs to the call that made it, so no lock is needed and nothing has to be closed.
 Each builder returns the Figure; `png_data_uri` embeds it in a page, `save_figure` writes it to a file (the
-CLI's --plot).
+CLI's --plot).  Here, below the web pages and the CLI, so both draw the same figures: it draws stored model
+versions (`training_losses`), which the workflows know nothing of, and loads no FastAPI or Jinja.
 """
 from __future__ import annotations
 
@@ -293,9 +294,9 @@ def draw_residual_series(fig, series: dict) -> None:
 # -- where the model helps ----------------------------------------------------------------------------------
 def gain_per_flight(headline: dict, title: str | None = None) -> Figure | None:
     """Each KNODE's gain over its prior per flight, with the flight's 95 % interval, one row per flight
-    labelled by its name (`service.web.headline.evaluation_headline`'s ``pairs``); a vertical line at 0
+    labelled by its name (`learnest.workflows.headline.evaluation_headline`'s ``pairs``); a vertical line at 0
     (right of it: the KNODE's error is lower) and each comparison's median dashed.  Marks in the KNODE's
-    colour (service.web.palette), a legend on the figure.  None when there is no comparison."""
+    colour (service.local.palette), a legend on the figure.  None when there is no comparison."""
     pairs = headline.get("pairs") or []
     if not pairs:
         return None
@@ -343,7 +344,7 @@ def evaluation_summary(report: dict) -> Figure:
     """The figure of `learnest evaluate --plot` and the demo's: the answer on top (each KNODE's gain over
     its prior per flight, labelled by flight, with 95 % intervals: `gain_per_flight`), the paired MSE dots
     (`paired_mse`) below.  Without a prior/KNODE pair, the paired dots alone."""
-    from learnest.service.web.headline import evaluation_headline
+    from learnest.workflows.headline import evaluation_headline
 
     head = evaluation_headline(report)
     if not head["pairs"]:
