@@ -1,4 +1,4 @@
-"""One KNODE trained on several flights of one vehicle (`train_on_flights`, `models.pooled_training.train_knode_pooled`):
+"""One KNODE trained on several flights of one vehicle (`train_on_flights`, `models.pooled_training`):
 known answers on simulated flights.
 
 - Flights flown by a Crazyflie with three times the prior's rotor drag: the model pooled over four flights
@@ -22,10 +22,10 @@ from learnest.estimators.prepared import system_for
 from learnest.models import crazyflie as cf
 from learnest.models.crazyflie.simulate_crazyflie import SimulatedFlight, simulate_crazyflie
 from learnest.models.knode import HybridModel
+from learnest.models.pooled_training import TrainingRecord, train_knode_pooled, train_members_pooled
 from learnest.models.presets import CRAZYFLIE_TRAINING
 from learnest.models.residual_frame import BODY_FEATURES, UNREAD_BODY_FEATURES
 from learnest.models.systems import make_system
-from learnest.models.pooled_training import TrainingRecord, train_knode_pooled, train_members_pooled
 from learnest.models.training import ATTITUDE_INPUTS, BATTERY_INPUTS, NOT_LEARNED, attitude_blind, train_knode
 from learnest.workflows.flights import train_on_flights
 
