@@ -68,6 +68,10 @@ class MHE:
     arrival : {"ekf", "fixed"}
         "fixed" keeps P_k = P0 for the arrival cost; "ekf" propagates P_k with an EKF recursion along the
         arrival states (the usual approximation of the arrival cost's curvature).
+    arrival_update : {"filtering", "smoothing"}
+        Where the arrival mean comes from as the window slides (`models.presets.MHE_ARRIVAL_UPDATES`):
+        "filtering" (default), the prediction f(x̂_{s|s}) that the EKF-propagated covariance describes;
+        "smoothing", the paper's eq. (2), the last window's estimate of the new first step.
     solver : {"gauss-newton", "ipopt"}
         "gauss-newton" (default) is the fast solver of `estimators.mhe_gn`; "ipopt" the reference.
     warm_start, hessian, ipopt_options
@@ -82,15 +86,16 @@ class MHE:
     def __init__(self, params: EstimatorParams, horizon: int = 20, arrival: str = "ekf", warm_start: bool = True,
                  hessian: str = "cost", ipopt_options: dict[str, SolverOption] | None = None,
                  solver: str = "gauss-newton", tol: float = 1e-9, max_iter: int | None = None,
-                 codegen_dir: str | Path | None = None, compiler: str | None = "auto") -> None:
-        check_mhe_options(horizon, solver, arrival, hessian, max_iter)   # InvalidInput naming the choices
+                 codegen_dir: str | Path | None = None, compiler: str | None = "auto",
+                 arrival_update: str = "filtering") -> None:
+        check_mhe_options(horizon, solver, arrival, hessian, max_iter, arrival_update)   # InvalidInput, naming them
         self.params = params.checked(singular_q=False)
         self.hessian, self.solver = hessian, solver
         model = self.params.model
         self.model, self.dt, self.horizon = model, self.params.dt, int(horizon)
         self.n, self.p, self.m = model.n, model.n_inputs, model.n_meas
         self.Q, self.R, self.P0 = self.params.Q, self.params.R, self.params.P0
-        self.arrival, self.warm_start = arrival, warm_start
+        self.arrival, self.arrival_update, self.warm_start = arrival, arrival_update, warm_start
         self.options = {**IPOPT_OPTIONS, **(ipopt_options or {})}
         if not warm_start:
             self.options["ipopt.warm_start_init_point"] = "no"
@@ -250,7 +255,7 @@ class MHE:
         The smoothed X*[:, 1] of this window already holds the measurements s+1..k, which the next window
         counts again: with the mocap hidden, the accelerometer's hold on the velocity (through the rotor drag)
         would count up to N times, and the estimate would drift.  For a linear model the MHE then equals the
-        Kalman filter."""
+        Kalman filter.  The paper's smoothing update (``arrival_update="smoothing"``) takes X*[:, 1] itself."""
         x_next = np.asarray(self.step_fn(X[:, -1], u[k])).ravel()
         slides = k + 1 - self.horizon > start  # the window start moves forward at the next step
         if not slides:
@@ -260,7 +265,14 @@ class MHE:
             P_arrival = self._ekf_arrival(X[:, 0], u[start], y[start], P_arrival)
         lam_next = np.concatenate([lam[self.n:], np.zeros(self.n)]) if lam.size else lam
         return (np.column_stack([X[:, 1:], x_next]), np.column_stack([W[:, 1:], np.zeros(self.n)]),
-                lam_next, np.asarray(self.step_fn(estimates[start], u[start])).ravel(), P_arrival)
+                lam_next, self.arrival_mean(X[:, 1], estimates[start], u[start]), P_arrival)
+
+    def arrival_mean(self, smoothed: np.ndarray, filtered: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """The next window's arrival mean (n,): ``smoothed`` (this window's estimate of the next first step) for
+        the smoothing update, else the prediction from ``filtered``, the estimate at this window's first step."""
+        if self.arrival_update == "smoothing":
+            return np.array(smoothed, dtype=float)
+        return np.asarray(self.step_fn(filtered, u)).ravel()
 
     def _ekf_arrival(self, x: np.ndarray, u: np.ndarray, y: np.ndarray, P: np.ndarray) -> np.ndarray:
         H = np.asarray(self.jac_h(x, u))

@@ -311,7 +311,7 @@ class GaussNewtonWindowSolver:
                 if mhe.arrival == "ekf":
                     P_arrival[...] = _ekf_update(Fs[0], Hs[0], P_arrival, mhe.Q, mhe.R)
                     P_inv[...] = np.linalg.inv(P_arrival)
-                x_bar = np.asarray(mhe.step_fn(estimates[start], u[start])).ravel()   # f(x̂_{s|s}): MHE._shift
+                x_bar = mhe.arrival_mean(window[1], estimates[start], u[start])   # MHE._shift
                 window[:L - 1] = window[1:L]   # numpy copies overlapping slices correctly
                 window[L - 1] = fs[1]
                 F[:L - 1], H[:L - 1] = F[1:L], H[1:L]
@@ -344,7 +344,7 @@ class _Problem(ctypes.Structure):
 class _Run(ctypes.Structure):
     """gn.c's lrn_mhe: one run of the recursion (sequence, window, arrival, scratch, resume point)."""
 
-    _fields_ = [*[(name, ctypes.c_int) for name in ("T", "N", "ekf", "k_end")],
+    _fields_ = [*[(name, ctypes.c_int) for name in ("T", "N", "ekf", "k_end", "smoothing")],
                 *[(name, ctypes.c_void_p) for name in ("y", "u", "estimates", "X", "x_bar", "F", "H", "P", "Q", "R",
                                                        "ekf_work", "fa", "Fa", "Ha", "fb", "Fb", "Hb")],
                 *[(name, ctypes.c_int) for name in ("k", "stage", "ok")],
@@ -398,7 +398,8 @@ class _NativeWindow:
         estimates = np.empty((T, n))
         arrays = {"y": y, "u": u, "estimates": estimates, "X": self.X, "x_bar": self.x_bar, "F": F, "H": H, "P": P,
                   "Q": self.Q, "R": self.R, "ekf_work": self.ekf_work, **self.scratch}
-        run = _Run(T=T, N=N, ekf=int(mhe.arrival == "ekf"), k=0, stage=0,
+        run = _Run(T=T, N=N, ekf=int(mhe.arrival == "ekf"), smoothing=int(mhe.arrival_update == "smoothing"), k=0,
+                   stage=0,
                    **{name: _address(a) for name, a in arrays.items()})
         problem.iterations = problem.relinearisations = problem.node_jacobians = 0
         try:

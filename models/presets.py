@@ -31,6 +31,12 @@ MAX_GAPS = 10_000
 MHE_HORIZON_RANGE = (1, 500)     # horizons a user may choose, samples (the API's bounds; the library needs >= 1)
 MHE_SOLVERS = ("gauss-newton", "ipopt")
 MHE_ARRIVALS = ("ekf", "fixed")
+# Where the arrival cost's mean comes from when the window slides (`estimators.mhe.MHE`): "filtering", the
+# prediction from the estimate at the window's first step, the mean the EKF-propagated covariance describes (a
+# linear MHE then equals the Kalman filter); "smoothing", the last window's estimate of the new first step, the
+# paper's eq. (2) (x̄_{k-N|k} <- x̂*_{k-N|k-1}, after Alessandri et al. 2008), which counts the window's
+# measurements again at each shift.
+MHE_ARRIVAL_UPDATES = ("filtering", "smoothing")
 MHE_HESSIANS = ("cost", "exact")
 
 
@@ -46,20 +52,22 @@ def _choice(name: str, value, choices: tuple[str, ...]) -> None:
 
 
 def check_mhe_options(horizon, solver: str = "gauss-newton", arrival: str = "ekf", hessian: str = "cost",
-                      max_iter=None) -> None:
+                      max_iter=None, arrival_update: str = "filtering") -> None:
     """The MHE's options, checked once where they enter (`estimators.mhe.MHE`, the API's request models).
 
     Raises
     ------
     InvalidInput
-        Naming the option, the valid choices (`MHE_SOLVERS`, `MHE_ARRIVALS`, `MHE_HESSIANS`) or range
-        (a horizon N >= 1 samples; the API allows up to ``MHE_HORIZON_RANGE[1]``), and the value given.
+        Naming the option, the valid choices (`MHE_SOLVERS`, `MHE_ARRIVALS`, `MHE_ARRIVAL_UPDATES`,
+        `MHE_HESSIANS`) or range (a horizon N >= 1 samples; the API allows up to ``MHE_HORIZON_RANGE[1]``), and the
+        value given.
     """
     if not _whole(horizon) or horizon < MHE_HORIZON_RANGE[0]:
         raise InvalidInput(f"horizon must be a whole number of samples, at least {MHE_HORIZON_RANGE[0]} (the service "
                            f"allows {MHE_HORIZON_RANGE[0]}-{MHE_HORIZON_RANGE[1]}), got {horizon!r}")
     _choice("solver", solver, MHE_SOLVERS)
     _choice("arrival", arrival, MHE_ARRIVALS)
+    _choice("arrival_update", arrival_update, MHE_ARRIVAL_UPDATES)
     _choice("hessian", hessian, MHE_HESSIANS)
     if max_iter is not None and (not _whole(max_iter) or max_iter < 1):
         raise InvalidInput(f"max_iter must be a positive integer or None, got {max_iter!r}")

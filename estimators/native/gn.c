@@ -250,7 +250,7 @@ int lrn_ekf_arrival(int n, int m, const double *F, const double *H, double *P, c
  * per step (two KNODE-MHE and MHE runs of a 3290-step flight: 0.55 s) on slicing, copies and ctypes
  * calls.  A window Gauss-Newton cannot solve goes back to Python (IPOPT), and the loop resumes. */
 typedef struct {
-    int T, N, ekf, k_end;
+    int T, N, ekf, k_end, smoothing;   /* smoothing: the arrival mean is the window's X[1] (MHE.arrival_mean) */
     const double *y, *u;        /* (T, m), (T, p) */
     double *estimates;          /* (T, n) */
     double *X, *x_bar;          /* window (Lmax, n), arrival mean (n) */
@@ -320,10 +320,11 @@ int lrn_mhe_run(lrn_gn *p, lrn_mhe *r) {
         if (slides) {
             if (r->ekf && lrn_ekf_arrival(n, m, r->Fa, r->Ha, r->P, r->Q, r->R, p->Pinv, r->ekf_work)) return 2;
             /* the arrival mean P_{s+1|s} describes: the prediction f(x_{s|s}) from the estimate at s = start
-             * (its window's end then); the smoothed X[1] would count the window's data twice (MHE._shift).
-             * Fa and Ha, used by the update above, take the Jacobians nobody reads. */
-            if (node_jacobian(p, r->estimates + (size_t)start * n, r->u + (size_t)start * np_, r->x_bar, r->Fa,
-                              r->Ha)) return -1;
+             * (its window's end then); the smoothed X[1], the paper's, counts the window's data twice
+             * (MHE._shift).  Fa and Ha, used by the update above, take the Jacobians nobody reads. */
+            if (r->smoothing) memcpy(r->x_bar, r->X + n, sizeof(double) * n);
+            else if (node_jacobian(p, r->estimates + (size_t)start * n, r->u + (size_t)start * np_, r->x_bar,
+                                   r->Fa, r->Ha)) return -1;
             memmove(r->X, r->X + n, sizeof(double) * (L - 1) * n);
             memmove(r->F, r->F + n * n, sizeof(double) * (L - 1) * n * n);
             memmove(r->H, r->H + m * n, sizeof(double) * (L - 1) * m * n);

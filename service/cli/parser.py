@@ -139,6 +139,10 @@ def _add_reproduce(sub: argparse._SubParsersAction) -> None:
     rep.add_argument("--noise", choices=("paper", "identified"), default="paper",
                      help="every filter with the system's fixed noise (paper: Table I) or each model's process noise "
                           "identified on its training run (identified) (default paper)")
+    rep.add_argument("--arrival-update", choices=("smoothing", "filtering"), default="smoothing",
+                     help="the MHE rows' arrival mean: smoothing, the last window's estimate (the paper's eq. 2: "
+                          "Table I), or filtering, the prediction its arrival covariance describes (as learnest "
+                          "evaluates flights)")
     rep.set_defaults(func=_reproduce)
 
 

@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 
+from learnest.errors import InvalidInput
 from learnest.estimators.kf import run_kf
 from learnest.estimators.mhe import MHE
 from learnest.estimators.native.codegen import compiled
@@ -64,6 +65,30 @@ def test_fixed_arrival_and_the_interpreter_fallback_give_the_same_estimates():
     interpreted = MHE(gn.params, horizon=8, arrival="fixed", compiler=None)
     assert interpreted._gn.backend == "casadi" and gn._gn.backend in ("c", "casadi")
     np.testing.assert_allclose(interpreted.run(run.y[:60], run.u[:60]).means, ours, rtol=0, atol=1e-9)
+
+
+def test_the_papers_smoothing_update_is_one_mhe_in_c_python_and_ipopt_and_counts_the_window_again():
+    """The paper's eq. (2) arrival mean (the last window's estimate of the new first step): the compiled
+    Gauss–Newton loop, its Python twin and IPOPT agree; on a linear system it differs from the Kalman filter that
+    the filtering update equals, because each shift counts the window's measurements again."""
+    system = make_system("cartpole")
+    run = system.simulate(4, n_samples=80)
+    gn, ours, ipopt = both(HybridModel(system, "true"), system, run, 80, horizon=10, arrival_update="smoothing")
+    np.testing.assert_allclose(ours, ipopt, rtol=0, atol=1e-6)
+    interpreted = MHE(gn.params, horizon=10, arrival_update="smoothing", compiler=None)
+    assert interpreted._gn.backend == "casadi"
+    np.testing.assert_allclose(interpreted.run(run.y[:80], run.u[:80]).means, ours, rtol=0, atol=1e-9)
+    linear = make_system("quadrotor")
+    run = linear.simulate(5, n_samples=80)
+    params = EstimatorParams(HybridModel(linear, "prior"), linear.dt, linear.Q, linear.R, linear.P0, run.x_noisy[0])
+    kf = run_kf(params, run.y[:80], run.u[:80]).means
+    smoothed = MHE(params, horizon=10, arrival_update="smoothing").run(run.y[:80], run.u[:80]).means
+    filtered = MHE(params, horizon=10).run(run.y[:80], run.u[:80]).means
+    np.testing.assert_allclose(filtered, kf, rtol=0, atol=1e-6 * np.abs(kf).max())
+    assert np.abs(smoothed - kf)[11:].max() > 1e-3 * np.abs(kf).max()   # from the first shift on
+    np.testing.assert_allclose(smoothed[:11], kf[:11], rtol=0, atol=1e-6 * np.abs(kf).max())   # growing window
+    with pytest.raises(InvalidInput, match="arrival_update"):
+        MHE(params, arrival_update="smoothed")
 
 
 def test_a_real_time_iteration_is_close_but_not_equal():

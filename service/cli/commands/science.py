@@ -282,7 +282,8 @@ def _reproduce(args) -> int:
     from learnest.workflows.table1 import ReproduceSettings, format_table, reproduce
 
     settings = ReproduceSettings(task=args.task, eval_samples=args.samples, epochs=args.epochs, horizon=args.horizon,
-                                 observer_rounds=args.observer_rounds, observer=args.observer, noise=args.noise)
+                                 observer_rounds=args.observer_rounds, observer=args.observer, noise=args.noise,
+                                 arrival_update=args.arrival_update)
     from ..progress import StageProgress
 
     with StageProgress(f"Table I {args.task}") as bar:
