@@ -157,7 +157,7 @@ def train_members_pooled(system: System, records: list[TrainingRecord], held_out
                          config: TrainingConfig | None = None, members: int = 1,
                          progress: Callable[[int, float], None] | None = None) -> list[TrainingResult]:
     """``members`` residuals trained as `train_knode_pooled` trains one, member k from seed ``config.seed + k``,
-    all in one stacked network (module docstring).
+    as stacked networks, one group of members per core, each group on its own thread (module docstring).
 
     Parameters
     ----------
@@ -166,7 +166,7 @@ def train_members_pooled(system: System, records: list[TrainingRecord], held_out
     members : int
         How many residuals (1 trains the plain network, exactly as `train_knode_pooled`).
     progress : callable, optional
-        ``progress(epoch, mean training loss over the members)`` after every epoch.
+        ``progress(epoch, mean training loss of the first group's members)`` after every epoch of that group.
 
     Returns
     -------
