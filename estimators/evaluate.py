@@ -2,7 +2,7 @@
 
 MSE is over the translational states x = [p, v, a] against references (Sec. VI: Savitzky–Golay of the
 mocap position), overall and per state group; `summarize` gives the median over flights and the
-improvement of each KNODE estimator over its prior-only counterpart (the paper: 26.6 % UKF, 11.9 % MHE).
+improvement of each KNODE estimator over its prior-only counterpart (the quantity the paper reports).
 """
 from __future__ import annotations
 

@@ -60,9 +60,10 @@ def compiled_sigma_functions(model: StateSpaceModel, dt: float,
     or None without a working compiler (CasADi's interpreter would be slower than numpy here).  With them
     comes the C filter loop `run_ukf` uses (`SigmaFunctions.native`).
 
-    Why: the numpy model costs one call per array operation, ~60 for a KNODE's RK4 step and ~40 for the
-    quadrotor prior's (unstack/stack per stage): 0.4-0.8 ms per step on a busy 2-core machine, against
-    ~0.05 ms for the same arithmetic compiled.  Same numbers to rounding.  The model's numbers (weights,
+    Why: the numpy model costs one interpreted call per array operation, dozens for a KNODE's or the
+    quadrotor prior's RK4 step (unstack/stack per stage), and that overhead, not the arithmetic, sets a
+    step's time; compiled, the same arithmetic runs in one call and gives the same numbers to rounding
+    (the timings are on the results page `docs/results/speed.md`).  The model's numbers (weights,
     physical parameters) and dt are an input (`estimators.parametric`): one library per architecture.
     """
     import casadi as ca
