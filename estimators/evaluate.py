@@ -51,7 +51,7 @@ def _mhe_for(cache: dict, params: EstimatorParams, horizon: int) -> MHE:
 
 def _ukf_functions_for(cache: dict, model, dt) -> tuple | None:
     """The UKF's compiled sigma-point functions of a model, built once per batch before any timing
-    (generating and loading the code costs ~0.1 s per flight, a first compile seconds: neither belongs in
+    (generating and loading the code, let alone a first compile, is not the filter's work: neither belongs in
     ms_per_step); None, so numpy, for a model that does not take CasADi symbols (no ``parametric``)."""
     key = ("ukf", *_model_key(model, dt, cache))
     if key not in cache:

@@ -16,7 +16,7 @@ widened box and the residual evaluated both ways: the record is flagged only whe
 than `SENSITIVITY` times the residual's training RMS on more than `THRESHOLD` of its samples.  Why: on real
 flights the box alone flags nearly every flight of another trajectory family (each flight flies at its own
 battery voltage), though clipping the network's inputs to the box barely changes most of their estimates; the
-residual-aware check flags the few where the answer moves, a flight where the KNODE loses among them (the
+residual-aware check flags a record only where the answer moves (its flags on the transfer flights are on the
 results page `docs/results/transfer.md`).  Table I's check (`workflows.table1`) is the box, the rule its robot
 target was measured with.
 """

@@ -1,11 +1,11 @@
 """CasADi functions compiled to C once, cached by content hash, and called through ctypes.
 
-Why not just call the CasADi `Function` from Python: on this project's machines a Python-level call
-costs 30-80 µs of argument conversion (numpy -> DM -> numpy) before any arithmetic, and the MHE makes
-a few calls per time step; the SX virtual machine also runs ~5x slower than the same code compiled.
+Why not just call the CasADi `Function` from Python: a Python-level call converts every argument (numpy
+-> DM -> numpy) before any arithmetic, which costs more than a small model's arithmetic, and the MHE makes a
+few calls per time step; the SX virtual machine also runs several times slower than the same code compiled.
 Here a `Function` is turned into C with CasADi's own code generator, compiled with the system C
 compiler (`cc -O1 -shared`), kept in a cache directory under the hash of its source, and called with
-pointers to preallocated numpy buffers: a call costs ~1-2 µs plus the arithmetic.
+pointers to preallocated numpy buffers: a call costs little beyond the arithmetic.
 
 What is compiled is the model's structure, not its numbers: the estimators pass a model's weights,
 physical parameters and dt (and the MHE's Q⁻¹, R⁻¹) as an input filled once (`estimators.parametric`),
@@ -135,7 +135,7 @@ def mapped(fn: ca.Function, name: str, count: int, shared: tuple[int, ...] = ())
 
 
 # libraries loaded in this process, by `compiled`'s key: generating the C code only to hash it for the
-# file cache cost ~0.3 s per MHE build of a KNODE (CodeGenerator.add), paid again for every flight
+# file cache is slow (CodeGenerator.add), and would be paid again for every flight
 _LOADED: dict[str, ctypes.CDLL] = {}
 
 
