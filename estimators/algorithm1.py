@@ -7,7 +7,8 @@ protocol, several train one residual on one pooled loss with whole flights held 
 (`models.pooled_training.train_knode_pooled`, why there).
 
 The network learns whatever the observer's estimates of the unmeasured states contain, artefacts included.
-Two ways to make those estimates better (measured in benchmarks/results/table1_observer_study.md):
+Ways to make those estimates better (the evidence for each is on the results page `docs/results/table1.md`,
+"How the KNODE is trained"):
 
 * ``observer="smoother"``: a fixed-interval smoother instead of a filter where the paper's observer is a
   filter (the robot's precursory UKF gets its unscented RTS pass; the cartpole's observer is an unscented

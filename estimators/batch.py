@@ -3,8 +3,8 @@
 The RTS smoother's means are the minimiser of the batch least-squares problem
     ‖x_0 - x̄_0‖²_{P0⁻¹} + Σ_k ‖y_k - H x_k‖²_{R⁻¹} + Σ_k ‖x_{k+1} - F x_k‖²_{Q⁻¹},
 whose normal equations are block tridiagonal.  The MHE's block Cholesky (`mhe_gn.BlockTridiagonal`,
-compiled C) solves them for a whole 40-s flight (3300 steps, 9 states) in milliseconds, where filterpy's
-predict/update/RTS loop takes seconds: this is what the quadrotor's pre-training observer runs.
+compiled C) solves them for a whole flight in one pass, where filterpy's predict/update/RTS loop pays Python's
+overhead at every step: this is what the quadrotor's pre-training observer runs.
 It needs Q invertible (the quadrotor's is diagonal); the kinematic smoother's rank-one Q is not.
 """
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 MSE is over the translational states x = [p, v, a] against references (Sec. VI: Savitzky–Golay of the
 mocap position), overall and per state group; `summarize` gives the median over flights and the
-improvement of each KNODE estimator over its prior-only counterpart (the paper: 26.6 % UKF, 11.9 % MHE).
+improvement of each KNODE estimator over its prior-only counterpart (the quantity the paper reports).
 """
 from __future__ import annotations
 
@@ -51,7 +51,7 @@ def _mhe_for(cache: dict, params: EstimatorParams, horizon: int) -> MHE:
 
 def _ukf_functions_for(cache: dict, model, dt) -> tuple | None:
     """The UKF's compiled sigma-point functions of a model, built once per batch before any timing
-    (generating and loading the code costs ~0.1 s per flight, a first compile seconds: neither belongs in
+    (generating and loading the code, let alone a first compile, is not the filter's work: neither belongs in
     ms_per_step); None, so numpy, for a model that does not take CasADi symbols (no ``parametric``)."""
     key = ("ukf", *_model_key(model, dt, cache))
     if key not in cache:

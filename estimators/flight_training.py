@@ -18,14 +18,14 @@ from learnest.models.systems import System
 from .prepared import system_for
 
 # Thrust gains (`models.crazyflie.thrust_gain`, against the prior's map with the battery voltage and the motors' heating
-# already in it) of one vehicle's flights lie within 0.987-1.048 on the 29 shared NanoBench flights of CF_01
-# (the high one flown by another controller): the battery and the warm motors are explained by the map.  A
-# training set whose gains spread more than twice that (max/min above 1 + GAIN_SPREAD) is not one thrust map:
-# another vehicle, motors or payload, which one residual cannot learn as one vehicle.
+# already in it) of one vehicle's flights lie within a few percent of each other: the map explains the battery and
+# the warm motors (CF_01's NanoBench flights, benchmarks/results/crazyflie_thrust_gain/).  A training set whose
+# gains spread more than twice that (max/min above 1 + GAIN_SPREAD) is not one thrust map: another vehicle,
+# motors or payload, which one residual cannot learn as one vehicle.
 GAIN_SPREAD = 0.12
 # A thrust command in N without the battery voltage (crazyswarm2's ctrlLee.thrustSI) leaves the battery in the
 # gain: from a full to a flat LiPo (4.2 -> 3.4 V) the thrust made at one command falls by up to ~20 % (thrust ∝ V
-# at one duty), so such flights spread up to that much more (crazyswarm2 log182 and log183: 0.59 and 0.67, 14 % apart).
+# at one duty), so such flights may spread up to that much more.
 GAIN_SPREAD_WITHOUT_BATTERY = 0.3
 # By default one flight in VALIDATION_EVERY is held out whole (at least one when there are two or more).
 VALIDATION_EVERY = 5

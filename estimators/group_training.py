@@ -1,13 +1,13 @@
 """Training on several flights with the residual's scale chosen on held-out groups of them: the one decision every
 surface (`learnest train`, ``POST /models``, the web form, ``le.KNODE().fit(flights)``) calls (`train_flights`).
 
-Why.  A residual pooled over several trajectory families of one vehicle learns the vehicle and, with it,
-regularities of the trajectories it saw; on the shared NanoBench flights the whole residual carried the estimate
-through the mocap gaps of a new family worse than its prior (helices −28 %), while a fraction of it carried well
-(`models.residual_scale`, docs/results/family-holdout.md).  So the flights are put in groups (by default the
-trajectory family the log declares), each group is held out in turn, a KNODE pooled over the other groups is
-scored in the held-out group's mocap gaps (KNODE-UKF against its prior UKF) at each candidate scale, and the
-final KNODE, pooled over every flight, gets the scale `models.residual_scale.choose_scale` picks.
+Why.  A residual pooled over several trajectory families of one vehicle learns the vehicle and, with it, regularities
+of the trajectories it saw: on the shared NanoBench flights the whole residual carries the estimate through the mocap
+gaps of a new family worse than its prior, while a fraction of it carries well (`models.residual_scale`; the results
+page `docs/results/family-holdout.md`).  So the flights are put in groups (by default the trajectory family the log
+declares), each group is held out in turn, a KNODE pooled over the other groups is scored in the held-out group's
+mocap gaps (KNODE-UKF against its prior UKF) at each candidate scale, and the final KNODE, pooled over every flight,
+gets the scale `models.residual_scale.choose_scale` picks.
 Why groups and not single flights: flights of one family share their trajectory, so a held-out flight of a
 trained family cannot show what the residual extrapolates to a new kind of flight (a held-out circle does not test
 a helix).  With fewer than two groups there is nothing to hold out: the whole residual is trained (scale 1), and

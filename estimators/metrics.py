@@ -21,24 +21,22 @@ from learnest.models.checks import check_sequence
 # The state groups of the 9-state flight models x = [p, v, a] (m, m/s, m/s²).
 STATE_GROUPS = {"p": slice(0, 3), "v": slice(3, 6), "a": slice(6, 9)}
 
-# Shortest block of the gain's bootstrap, s.  The per-step difference of two estimators' squared errors stays
-# correlated for 0.24-0.6 s on most NanoBench circles and 1.7 s on one (autocorrelation below 0.05 after 24-168
-# steps at 100 Hz): each record's blocks are 3x its own correlation length, and never shorter than this.
+# Shortest block of the gain's bootstrap, s: longer than the per-step difference of two estimators' squared
+# errors stays correlated on real flights (well under this on most NanoBench circles, close to it on a few);
+# each record's blocks are 3x its own correlation length, and never shorter than this.
 GAIN_BLOCK_S = 2.0
 GAIN_MIN_BLOCKS = 3          # a record of fewer blocks has no interval: its resamples would all be alike
 GAIN_REPLICATES = 1000
 # How `unit_gain_interval` tells the interval from n independent units (gaps), all on the per-unit log ratios
 # below GAIN_UNITS_BOOTSTRAP: the Student-t interval below GAIN_UNITS_SIGNED_RANK units (with 5 or fewer, no
 # exact distribution-free 95 % interval is finite), the exact signed-rank (Hodges-Lehmann) interval from there,
-# and the paired percentile bootstrap over units from GAIN_UNITS_BOOTSTRAP on.  Measured on simulated gap
-# errors with a known gain (400 flights each, tests/estimators/test_unit_gain_interval.py and the table in
-# docs/concepts/yardsticks.md): the chosen interval covers 92-98 % with 3 to 50 gaps; the percentile
-# bootstrap over gaps covers 69 % with 3 gaps, 84 % with 5, 89 % with 11 and 92 % with 20-30 (the block
-# bootstrap over time that this replaces had no interval on 2 of 3 three-gap flights and covered 79-88 % from
-# 5 to 30 gaps).  The t interval assumes normal log ratios: on 6 gaps that were all worse, by factors from
-# 1.4 to 210, it held 0; the signed-rank interval, exact for any symmetric spread, does not.  Both estimate the
-# typical gap's ratio, not the ratio of sums: where the KNODE's effect grows with how hard the gap is they drift
-# to 90 % coverage at 30 gaps, hence the bootstrap from there.
+# and the paired percentile bootstrap over units from GAIN_UNITS_BOOTSTRAP on.  Why: a bootstrap over few gaps
+# is too narrow (it cannot show more spread than the gaps have), while these keep the coverage near 95 % from 3
+# gaps on (the coverage table of docs/concepts/yardsticks.md, tests/estimators/test_unit_gain_interval.py).
+# The t interval assumes normal log ratios and can hold 0 when every gap is worse by widely spread factors; the
+# signed-rank interval, exact for any symmetric spread, does not.  Both estimate the typical gap's ratio, not
+# the ratio of sums: where the KNODE's effect grows with how hard the gap is, they lose coverage as the gaps
+# grow in number, hence the bootstrap from there.
 GAIN_UNITS_SIGNED_RANK = 6
 GAIN_UNITS_BOOTSTRAP = 30
 VERDICTS = ("better", "worse", "within", "undecided")
@@ -206,7 +204,7 @@ def unit_gain_interval(prior_units: ArrayLike, knode_units: ArrayLike, replicate
 
     - 2 to 5 units: the Student-t interval (n − 1 degrees of freedom) of their mean.  No exact
       distribution-free 95 % interval is finite from so few; a bootstrap over them is too narrow (it cannot
-      show more spread than the few units have: 69-84 % coverage from 3-5 gaps).
+      show more spread than the few units have, and covers the true gain far less often than 95 %).
     - `GAIN_UNITS_SIGNED_RANK` (6) to `GAIN_UNITS_BOOTSTRAP` − 1 units: the exact interval of the Wilcoxon
       signed-rank test (Hodges-Lehmann), valid for any symmetric spread of the log ratios; it does not take
       them for normal, which a few far-off gaps are not.

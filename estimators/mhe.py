@@ -2,7 +2,7 @@
 
 `solver="gauss-newton"` (default, `estimators.mhe_gn`) solves each window to convergence with an exact
 gradient and a banded Cholesky, compiled CasADi functions doing the model's arithmetic; it equals the
-IPOPT solution within 1e-6 (tests/estimators/test_mhe.py) at a fraction of the time (benchmarks/bench_mhe.py).
+IPOPT solution within 1e-6 (tests/estimators/test_mhe.py) at a fraction of the time (`docs/results/speed.md`).
 `solver="ipopt"` is the reference described below, kept unchanged.
 
 IPOPT: the NLP for horizon N is built once (dynamics as one CasADi Function mapped over the window, so a KNODE

@@ -10,39 +10,35 @@ only names w_i).  Its Gauss–Newton matrix is block tridiagonal (L blocks of n�
 positive definite (the arrival and Q terms alone make it so), so one step costs a block Cholesky of
 ~80k flops for L = 21, n = 9, not a sparse KKT solve.
 
-Where the time goes, and why this design (measured on the 9-state, 16-unit quadrotor KNODE, N = 20, on a
-2-core machine at load ~3; benchmarks/results/mhe_speed.md):
-- Calling a CasADi `Function` from Python costs 30-80 µs of conversions (numpy -> DM -> numpy), so the
-  model's arithmetic is CasADi-generated C, compiled once and called through ctypes
+Where the time goes, and why this design (the timings against IPOPT are on the results page
+`docs/results/speed.md`):
+- Calling a CasADi `Function` from Python converts every argument and result (numpy -> DM -> numpy), which
+  costs more than a small model's arithmetic, so the model's arithmetic is CasADi-generated C, compiled once
+  and called through ctypes
   (`estimators.native.codegen`, cached by content hash; CasADi's interpreter when there is no compiler).  The
   model's numbers (weights, physical parameters, dt) and Q⁻¹, R⁻¹ are inputs of that code, not constants
   in it, so it is compiled once per architecture, not once per trained model (`estimators.parametric`).
-  One window of IPOPT, warm-started, is 1.5 ms (prior) to 11 ms (KNODE).  CasADi's structure-
-  exploiting NLP solvers (sqpmethod + qrqp/hpipm, fatrop) would solve the same problem, but each call
+  CasADi's structure-exploiting NLP solvers (sqpmethod + qrqp/hpipm, fatrop) would solve the same problem, but each call
   pays the same conversions plus a generic QP setup; a problem this regular needs neither.
-- Even through ctypes, driving the iterations from Python cost as much as their arithmetic (~1 ms of
-  numpy/ctypes overhead per KNODE window), so a window's whole loop runs in C (`gn.c`, `_NativeWindow`),
-  calling the compiled CasADi functions through pointers; so does the EKF arrival update (~150 µs per
-  step in numpy for ~5k flops), and so does the recursion around the windows (the shift, the
-  two nodes' Jacobians: ~80 µs per step in Python, 0.55 s of a 3290-step flight's MHE and KNODE-MHE).
-  `_solve` and `_run` below are the same loops in Python, used with the interpreter.
-- The exact Jacobian of one RK4 step of the network costs ~23k CasADi instructions (8x the step), its
-  vector-Jacobian product ~5.5k.  So every iterate gets the exact gradient (reverse mode over the
-  window, one compiled call: "sweep"), and full Jacobians are taken only when they pay: once per window
+- Even through ctypes, driving the iterations from Python costs as much as their arithmetic (numpy and
+  ctypes overhead on every call), so a window's whole loop runs in C (`gn.c`, `_NativeWindow`), calling the
+  compiled CasADi functions through pointers; so does the EKF arrival update (a few thousand flops, which
+  numpy's per-call overhead would dominate), and so does the recursion around the windows (the shift, the
+  two nodes' Jacobians).  `_solve` and `_run` below are the same loops in Python, used with the interpreter.
+- The exact Jacobian of one RK4 step of the network costs several times the step itself, its
+  vector-Jacobian product a small multiple of it.  So every iterate gets the exact gradient (reverse mode
+  over the window, one compiled call: "sweep"), and full Jacobians are taken only when they pay: once per window
   after the first step, and again whenever the contraction is slow.  Between, each node keeps the
   Jacobian of its last linearisation (shifted with the window).  The fixed point is the exact
   stationary point whatever Jacobians the matrix uses; they only set the rate.  Right after a
-  re-linearisation the gradient comes from those Jacobians (F'λ, H'λ) instead of a sweep.  Per KNODE
-  window: 2 sweeps (~100 µs each), 21 node Jacobians (~10 µs each), 2 factorisations (~50-85 µs), 3
-  solves (~10 µs).
-- Tried and dropped: re-linearising only the nodes that moved.  After the first step every node moves
-  by 0.6-1.0 of the largest node step (the acceleration states shift along the whole window), and
-  re-linearising only the last 4-12 nodes raised the iterations from 3.05 to ~4 per window: slower.
-  -O2 instead of -O1 for the model's functions: within noise for the sweep (96 vs 89 µs), not faster for
-  the Jacobian, and 3x the compile time.
+  re-linearisation the gradient comes from those Jacobians (F'λ, H'λ) instead of a sweep.
+- Not done, and why: re-linearising only the nodes that moved.  After the first step every node moves
+  by a similar amount (the acceleration states shift along the whole window), so re-linearising only the
+  last nodes costs more iterations than it saves in Jacobians.  Nor -O2 for the model's functions: they
+  run no faster than with -O1 and take several times longer to compile (`estimators.native.codegen`).
 - The Gauss–Newton matrix is factored by a block Cholesky (Riccati-type) recursion in C (`btd.c`),
-  O(L n³); LAPACK's banded dpbtrf on the same matrix took 200 µs-3 ms here (blocking overhead and
-  threads for 9x9 blocks), it remains the fallback without a compiler.
+  O(L n³); LAPACK's banded dpbtrf on the same matrix is slower for 9×9 blocks (its blocking and threading
+  overhead outweighs the arithmetic), and it remains the fallback without a compiler.
 - A model linear in x (the quadrotor prior) has a quadratic cost: one step with exact Jacobians is the
   solution, and it stops there.
 - Gauss–Newton drops the dynamics' curvature weighted by the multipliers Q⁻¹w; with a very curved
@@ -68,7 +64,7 @@ from .native.codegen import compiled, mapped, model_key
 from .parametric import symbolic_model
 
 # The contraction estimate ρ = s_k/s_{k-1} predicts the remaining error only once both steps are small
-# (asymptotic regime); from a large first step it can promise too much (measured: 2e-6 off IPOPT).
+# (asymptotic regime); from a large first step it can promise too much and stop short of IPOPT's solution.
 RATE_REGIME = 1e-4
 
 
@@ -103,7 +99,7 @@ class GaussNewtonWindowSolver:
         symbolic = symbolic_model(mhe.model, mhe.dt)
         f, hx = symbolic.model.step(x, u, symbolic.dt), symbolic.model.h(x, u)
         # diagonal Q and R (the systems' own) enter as their diagonals: a dense n×n input would add n²
-        # multiplications per node where constants folded to n (measured: the sweep ~10 % slower)
+        # multiplications per node where constants folded to n, and slow every gradient sweep
         diagonal = not (np.count_nonzero(self.Qi - np.diag(np.diag(self.Qi)))
                         or np.count_nonzero(self.Ri - np.diag(np.diag(self.Ri))))
         if diagonal:
@@ -231,10 +227,9 @@ class GaussNewtonWindowSolver:
                     return X, True
             if it + 1 < limit and (last_step is None or step > 0.2 * last_step):
                 # after the first step (the new measurement moves the recent nodes by up to ~0.04 in
-                # acceleration), and whenever the contraction is slow, re-linearise at the iterate:
-                # measured on the KNODE, this gives 3.2 gradient sweeps per window against 4.4 when the
-                # reused Jacobians are kept until the contraction stalls, and 4.4 + 1.6 re-linearisations
-                # when re-linearising before the first step
+                # acceleration), and whenever the contraction is slow, re-linearise at the iterate: on the
+                # KNODE this takes fewer gradient sweeps per window than keeping the reused Jacobians until
+                # the contraction stalls, or than re-linearising before the first step too
                 self._relinearise(X, u_win, F, H)
                 factor = self.linalg.factor(L, F, H, P_inv)
             last_step = step
@@ -355,9 +350,9 @@ class _NativeWindow:
     """`GaussNewtonWindowSolver.run` in C (`gn.c`: lrn_mhe_run around lrn_gn_window, the same loop, the
     same stopping rule), back in Python only for a window IPOPT must solve.
 
-    Why: driving each window from Python cost as much as its arithmetic (~1 ms of numpy and ctypes
-    overhead per KNODE window, measured under load), and once the window loop was C, the recursion around
-    it still cost ~80 µs per step (0.55 s of a 3290-step flight's two MHE runs)."""
+    Why: driving each window from Python costs as much as its arithmetic (numpy and ctypes overhead on
+    every call), and the recursion around the windows, left in Python, would still be a sizeable share of a
+    flight's MHE run."""
 
     def __init__(self, gn: GaussNewtonWindowSolver):
         self.gn, mhe, linalg = gn, gn.mhe, gn.linalg

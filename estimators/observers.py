@@ -85,8 +85,8 @@ def _trilaterate(system: GroundRobot, ranges: np.ndarray) -> np.ndarray:
 
 def observe_quadrotor(system: System, y: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
     """The prior is linear (p, v, a kinematic chain), so the observer is a KF + RTS on that prior, computed
-    as the equal batch least-squares solve (`batch.batch_smoother`: 3e-11 from filterpy's KF + RTS on a
-    40-s flight, 15x faster).
+    as the equal batch least-squares solve (`batch.batch_smoother`: filterpy's KF + RTS estimates to rounding,
+    in one compiled block-tridiagonal solve instead of a Python loop over the samples).
 
     y (T, 6) = [p (m), a (m/s²)] -> ζ (T, 9) = [p, v (m/s), a]; the first velocity guess is 0; ``u`` is unused.
     """

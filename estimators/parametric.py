@@ -1,8 +1,9 @@
 """A model's numbers as one input of its compiled functions, so their C code depends on its architecture only.
 
-Why: `estimators.native.codegen` caches a library by the hash of its source.  A model whose trained weights,
-identified parameters and sample time were baked into the CasADi graph as constants made every trained
-model new source and a new compilation (~20 s for a KNODE's MHE and UKF functions).  Built from
+Why: `estimators.native.codegen` caches a library by the hash of its source.  With a model's trained weights,
+identified parameters and sample time baked into the CasADi graph as constants, every trained model would be
+new source and a new compilation, which takes far longer than running the estimators on a flight (the first use of
+an architecture on the results page `docs/results/speed.md`).  Built from
 `symbolic_model`, the functions take those numbers as an input vector filled once per estimator, and the
 second model of an architecture (system, hidden sizes, residual masks) loads the library the first built.
 """

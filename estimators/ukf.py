@@ -5,13 +5,12 @@ through the model in one batched call (filterpy calls fx once per point); the co
 symmetric positive definite so that long runs never die in a Cholesky factorisation; and each covariance
 is factorised once, with the factor kept for the next sigma points (filterpy factorises it twice more).
 
-Where the time goes (B2_circle_fast_rep2, 3290 steps, the 9-state prior and a 16-unit KNODE, one core,
-load ~1.2): with the model compiled (`compiled_sigma_functions`) but the loop in Python (`BatchedUKF`),
-the two filters took 2.7 s, of which 0.6 s in the compiled model and the rest numpy and ctypes overhead
-(update 1.3 s, an np.linalg.inv of S alone 0.4 s; predict 1.3 s).  So with a compiler the whole loop runs
-in C (`ukf.c` via `estimators.native.ukf_native`, the same algorithm; S is solved by Cholesky, not inverted):
-0.27 s for both, 0.015 ms/step (prior) and 0.09 ms/step (KNODE), nearly all of it the model.  `BatchedUKF`
-stays the reference and the path for models without a compiler (numpy model, ~0.4-0.8 ms/step).
+Where the time goes: with the model compiled (`compiled_sigma_functions`) but the loop in Python
+(`BatchedUKF`), most of a step is numpy and ctypes overhead around the model (the update, with its inverse of
+S, and the predict alike), not the model's arithmetic.  So with a compiler the whole loop runs in C (`ukf.c`
+via `estimators.native.ukf_native`, the same algorithm; S is solved by Cholesky, not inverted), and a step's
+time is nearly all the model's (the timings are on the results page `docs/results/speed.md`).  `BatchedUKF`
+is the reference and the path for models without a compiler (numpy model).
 """
 from __future__ import annotations
 
@@ -60,9 +59,10 @@ def compiled_sigma_functions(model: StateSpaceModel, dt: float,
     or None without a working compiler (CasADi's interpreter would be slower than numpy here).  With them
     comes the C filter loop `run_ukf` uses (`SigmaFunctions.native`).
 
-    Why: the numpy model costs one call per array operation, ~60 for a KNODE's RK4 step and ~40 for the
-    quadrotor prior's (unstack/stack per stage): 0.4-0.8 ms per step on a busy 2-core machine, against
-    ~0.05 ms for the same arithmetic compiled.  Same numbers to rounding.  The model's numbers (weights,
+    Why: the numpy model costs one interpreted call per array operation, dozens for a KNODE's or the
+    quadrotor prior's RK4 step (unstack/stack per stage), and that overhead, not the arithmetic, sets a
+    step's time; compiled, the same arithmetic runs in one call and gives the same numbers to rounding
+    (the timings are on the results page `docs/results/speed.md`).  The model's numbers (weights,
     physical parameters) and dt are an input (`estimators.parametric`): one library per architecture.
     """
     import casadi as ca

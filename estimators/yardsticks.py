@@ -1,8 +1,8 @@
 """Yardsticks that need no smoothed truth: mocap gaps and a fast reference, beside the paper's SG score.
 
-Why three.  The paper scores every estimator by its MSE against a Savitzky–Golay fit of the mocap position
-(window 1.5 s).  That reference is smoother than the motion (on NanoBench its velocity is 0.06-0.23 m/s RMS
-away from a plain derivative of the same mocap, its peaks 12-25 % low), so against it every method, the
+Why three.  The paper scores every estimator by its MSE against a Savitzky–Golay fit of the mocap position (window
+1.5 s).  That reference is smoother than the motion (a long window smooths fast motion away: its velocity peaks fall
+short of a plain derivative of the same mocap, `docs/concepts/yardsticks.md`), so against it every method, the
 vehicle's own onboard EKF included, scores alike.  Two yardsticks that need no smoothing tell them apart:
 
 - *Mocap gaps* (`MocapGaps`): the mocap position is hidden in windows (default 0.5 s long, one every 2.5 s,
@@ -30,8 +30,8 @@ Which runs.  The unmasked run (the paper's protocol) gives the SG score and the 
 gap-masked run is one more run per method and gives the gap score.  Making the masked run the only run
 would change the paper's score (its reference would be scored on estimates that just coasted through a
 gap, and Table I would no longer be the paper's), and would mix the re-convergence after each gap into the
-fast reference.  The masked runs reuse the batch's compiled functions (``mhe_cache``); on the NanoBench
-flights they add about what the unmasked runs cost (benchmarks/results/yardsticks.md).
+fast reference.  The masked runs reuse the batch's compiled functions (``mhe_cache``), so they cost about what
+the unmasked runs cost, nothing more (the results page `docs/results/yardsticks.md`).
 """
 from __future__ import annotations
 

@@ -21,8 +21,7 @@ summing the three axes' cross-correlations.  Why the body frame:
   * What times the clocks is what changes in the body: the thrust's size (the body z axis) and the body x and
     y components, which for a quadrotor are the rotor drag (−k Rᵀv/m, ~0.2 m/s² at 1 m/s) turning with the
     velocity, plus any IMU tilt.  On a constant-speed circle the thrust's size barely changes and the
-    magnitude alone cannot time it (simulated 0.5-m circle at 1.5 m/s without take-off: 39 ms off against the
-    vector's 8.5 ms, tests/ingest/test_clock_vector.py); the drag turning with the vehicle can.
+    magnitude alone cannot time it; the drag turning with the vehicle can (tests/ingest/test_clock_vector.py).
   * It assumes the mocap object's axes are the IMU's: their mean specific force (gravity's direction in the
     body) must agree within MAX_FRAME_TILT_DEG, or the magnitude stands in (``note`` says why).  The magnitude is
     also the fallback without an attitude: frame-free, it needs no convention at all.
@@ -34,7 +33,7 @@ summing the three axes' cross-correlations.  Why the body frame:
 
 The offset's uncertainty (``uncertainty_s``) is that of a block bootstrap (`clock_correlation.bootstrap_spread`:
 2-s blocks of the paired samples drawn with replacement, the peak found again in each draw; half the central
-68 % of the draws).  On simulated circles it tracks the spread of the error over noise draws to within ~30 %;
+68 % of the draws), which follows the spread of the offset's error over noise draws on simulated circles;
 `ClockAlignment.pins_one_sample` says whether it is within one mocap sample (1 sigma).
 
 Both signals pass through the same zero-phase low-pass, so any filter phase is common to both and cannot
@@ -49,11 +48,10 @@ manoeuvres' few Hz.  `align_mocap_and_accelerometer` adds the declared filter's 
 (`SensorLowPass.group_delay_s`, flat to 0.1 ms across the correlation's band) back to the peak, so the
 offset is the clocks' and the filter's delay stays what it is, a property of the sensor.
 
-Accuracy of the magnitude (simulated 8 s figure-eight with take-off and landing,
-tests/ingest/formats/test_ingest_vicon_cfclient.py): ~1-3 ms with 0.01 g accelerometer and 0.1 mm mocap noise
-(score 0.99); ~10-15 ms at 0.05 g / 0.5 mm (score 0.9); ~20-35 ms at 0.1 g / 1 mm (score 0.75); the vector
-does as well there (3 ms).  Both are limited by how fast the body-frame specific force changes: brisk
-manoeuvres and take-offs give sharper correlation peaks than slow, level motion.
+Accuracy: the offset's error grows with the accelerometer's and the mocap's noise, and the score falls with
+it, so a low score marks an offset to be trusted less (tests/ingest/formats/test_ingest_vicon_cfclient.py checks
+both on a simulated figure-eight).  Magnitude and vector alike are limited by how fast the body-frame specific
+force changes: brisk manoeuvres and take-offs give sharper correlation peaks than slow, level motion.
 """
 from __future__ import annotations
 
@@ -78,8 +76,7 @@ SG_WINDOW_S = 0.31
 SG_ORDER = 2
 # The vector's body x and y are small differences (rotor drag, ~0.2 m/s² at 1 m/s) of large terms (g tilted,
 # the manoeuvre): an order-2 derivative loses ~1 % of a 0.3-Hz manoeuvre, which leaks into x and y 90° out of
-# phase with the drag and moved a simulated circle's offset by 33 ms.  Order 4 over 0.51 s is flat to 0.01 %
-# there and no noisier.
+# phase with the drag and biases the offset.  Order 4 over 0.51 s is flat to 0.01 % there and no noisier.
 VECTOR_SG_WINDOW_S = 0.51
 VECTOR_SG_ORDER = 4
 # The mocap object's axes and the IMU's must agree for the vector: the mean specific force (gravity's

@@ -46,7 +46,7 @@ class Param:
     scan_step : float or None
         Grid step of a coarse scan over [lower, upper] that picks the fit's start (None: no scan).  For a
         time shift: the residual oscillates in the delay on the scale of the signal's period, so a local fit
-        from 0 stops in the nearest dip (a 60 ms delay came back as 35 ms).
+        from 0 stops in the nearest dip, short of the true delay.
     """
 
     name: str

@@ -1,25 +1,24 @@
 """Training envelope: the region of [state, input] space a KNODE's training data covered, and how much of an
 evaluation record lies outside it.
 
-A learned residual is only known where it was trained; outside, the network extrapolates and its
-estimates can be worse than the prior's (Table I, robot seed 7: an evaluation lap slower than any part of
-its training lap).  The envelope is a box per network input: the 0.5 and 99.5 percentiles of the
-observer's estimates and of the inputs over the training record.  Percentiles rather than min/max so that
-a few observer glitches do not stretch the box; a box rather than a joint density because it is compact
-(two numbers per dimension, stored in the model's meta), needs no tuning, and names the dimension that was
-left.  Its limit: it cannot see holes inside the box (a hover judged by a model trained on circles has
-velocities inside the circles' range) - it catches new speeds, accelerations and inputs, not new
-combinations of them.
+A learned residual is only known where it was trained; outside, the network extrapolates and its estimates can be
+worse than the prior's (an evaluation lap flown slower than any part of the training lap). The envelope is a box per
+network input: the 0.5 and 99.5 percentiles of the observer's estimates and of the inputs over the training record.
+Percentiles rather than min/max so that a few observer glitches do not stretch the box; a box rather than a joint
+density because it is compact (two numbers per dimension, stored in the model's meta), needs no tuning, and names the
+dimension that was left.  Its limit: it cannot see holes inside the box (a hover judged by a model trained on circles
+has velocities inside the circles' range) - it catches new speeds, accelerations and inputs, not new combinations of
+them.
 
 Leaving the box only matters where the network's answer depends on what it never saw.  With the trained
 residual at hand (`envelope_report(..., residual=...)`), each sample outside is clipped back onto the
 widened box and the residual evaluated both ways: the record is flagged only when the answer moves by more
-than `SENSITIVITY` times the residual's training RMS on more than `THRESHOLD` of its samples.  Why: on the
-real NanoBench flights the box alone flagged 15 of 16 cross-family flights with the Crazyflie prior (each
-flight flies at its own battery voltage), while clipping the network's inputs to the box changed the
-KNODE-UKF's MSE by less than 1 % on 13 of them (measured by hand); the residual-aware check flags two,
-one of them a flight where the KNODE loses (benchmarks/results/crazyflie_transfer).  Table I's check
-(`workflows.table1`) stays the box, the rule its robot target was measured with.
+than `SENSITIVITY` times the residual's training RMS on more than `THRESHOLD` of its samples.  Why: on real
+flights the box alone flags nearly every flight of another trajectory family (each flight flies at its own
+battery voltage), though clipping the network's inputs to the box barely changes most of their estimates; the
+residual-aware check flags a record only where the answer moves (its flags on the transfer flights are on the
+results page `docs/results/transfer.md`).  Table I's check (`workflows.table1`) is the box, the rule its robot
+target was measured with.
 """
 from __future__ import annotations
 
@@ -34,9 +33,9 @@ QUANTILES = (0.005, 0.995)
 # A tanh network extrapolates smoothly a little past its data: samples within 10 % of the box's width
 # beyond its edges count as inside.
 MARGIN = 0.10
-# Flag a record when more than 5 % of its samples lie outside the widened box in some (flagged) dimension.
-# On Table I's 15 seeds per task (benchmarks/results/envelope_check_robot.md) this flags the robot's seed 7,
-# whose KNODE-UKF is worse than the prior UKF, and few of the seeds where the KNODE is fine.
+# Flag a record when more than 5 % of its samples lie outside the widened box in some (flagged) dimension:
+# chosen on Table I's seeds to flag the one whose KNODE is worse than its prior and few where the KNODE is fine
+# (benchmarks/results/envelope_check_robot.md).
 THRESHOLD = 0.05
 # A sample extrapolates when clipping it onto the box moves ‖Δθ‖ by more than half the training RMS of ‖Δθ‖.
 SENSITIVITY = 0.5

@@ -1,11 +1,11 @@
 """A model's noise: what its filters assume of the process and the sensors (Q, R, P0), stored with the model.
 
-A filter's estimate depends on its noise as much as on its dynamics: on the NanoBench flights a prior-only
-UKF whose velocity and acceleration noise were raised beats every learned residual run with the fixed
-noise.  So a model carries its own `NoiseModel`, identified on its training flights
-(`estimators.noise_identification`), and a comparison of two models runs each with its own noise, tuned the
-same way on the same flights.  The fixed settings of the system classes (the paper's, Sec. V) stay one
-named choice: `NoiseModel.paper`.
+A filter's estimate depends on its noise as much as on its dynamics: on the NanoBench flights a prior-only UKF whose
+velocity and acceleration noise were raised beats every learned residual run with the fixed noise (the results page
+`docs/results/noise.md`).  So a model carries its own `NoiseModel`, identified on its training flights
+(`estimators.noise_identification`), and a comparison of two models runs each with its own noise, tuned the same way
+on the same flights.  The fixed settings of the system classes (the paper's, Sec. V) stay one named choice:
+`NoiseModel.paper`.
 
 Noise is diagonal and set per *block* of states or measurements that share a physical meaning and unit
 (`blocks`): on the flight systems the position, velocity and acceleration states, and the mocap position

@@ -57,9 +57,8 @@ _ONE_THIRD = 1 / 3
 # Pooled training with ``batch_size`` 0 takes Adam steps on shuffled mini-batches of this many one-step pairs
 # (about 40 s of flight at 100 Hz; every pair when there are fewer), not one full-batch step per epoch: one step
 # per epoch was the paper's setting for one flight of a few thousand pairs, and pooling many flights would keep
-# the number of steps and only slow each one down.  On the 16 shared NanoBench flights (Crazyflie prior, 13 trained,
-# 3 held out, 150 epochs) the held-out one-step loss falls 14.7 % below the prior's with these mini-batches, 10.2 %
-# with one full-batch step per epoch (still falling at the last epoch), and 14.9 % with 600 full-batch epochs.
+# the number of steps and only slow each one down: in the same epochs, mini-batches reach the held-out loss that
+# full-batch steps reach only in several times as many (benchmarks/results/pooled_training.md).
 POOLED_BATCH_PAIRS = 4096
 
 

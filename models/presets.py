@@ -183,33 +183,24 @@ class TrainingConfig:
 PAPER_TRAINING = {  # Sec. V: 2 layers x 8 tanh; 250 epochs (cartpole), 10000 epochs (robot)
     # 250 full-batch epochs cannot overfit the cartpole record, so it trains on all of it, as the paper;
     # 10000 epochs on the robot fit the range observer's artefacts unless a held-out block stops them.
-    # Two held-out blocks beat one tail block on fresh seeds 15-29 (KNODE-UKF median 0.98e-3 vs 1.71e-3; with Δθ
-    # blind to x, y, ψ, 0.35e-3 vs 0.73e-3):
+    # Two held-out blocks, not one tail block (chosen on fresh seeds 15-29, docs/results/table1.md):
     # one block covers one stretch of the lap, whose artefacts the network may share
     "cartpole": TrainingConfig(hidden=8, epochs=250, lr=2e-2, validation_fraction=0.0),
     "robot": TrainingConfig(hidden=8, epochs=10000, lr=5e-3, validation_fraction=0.2, validation_layout="spread"),
 }
 
 # Pre-training observer of Table I per task: (first observer, observer -> train rounds), see
-# estimators.algorithm1.  Measured on a few seeds (benchmarks/results/table1_observer_study.md,
-# KNODE-MHE / MHE (true dynamics), lower is better):
-# - cartpole: re-smoothing the record with the learned model and retraining (3 rounds) halves the ratio
-#   (median of seeds 0-3: 10.4 -> 4.8; UKF / KNODE-UKF 19.9 -> 45.4); a model-based smoother with the prior
-#   as the first observer is worse than the paper's model-free KF + RTS (seed 0: 42 vs 11), because the
-#   prior's wrong cart mass biases the rates the network learns from.
-#   Fitting the record's states and Δθ jointly from the filter's estimates ("joint",
-#   estimators.joint_training) beats the 3 rounds on all 15 seeds of Table I: KNODE-MHE / MHE (true
-#   dynamics) 4.0 -> 2.6 (ratio of means; per-seed median 3.9 -> 2.2), UKF / KNODE-UKF 40.6 -> 72.0.
-#   That fit takes 40 Levenberg–Marquardt steps under a prior on the weights rather than 3000 L-BFGS steps
-#   without one (docs/results/table1.md).  What takes the cartpole to its targets is not the observer: its
-#   Δθ corrects the accelerations only and is blind to the cart's position (`Cartpole`'s masks):
-#   2.53 -> 1.88 and 74.6 -> 107.8 over the 15 seeds, the joint fit's weight prior re-chosen with them
-#   (1.93 and 104.0 with the weight prior chosen for the paper's masks).
+# estimators.algorithm1; the evidence for each choice is on docs/results/table1.md ("How the KNODE is trained").
+# - cartpole: the record's states and Δθ fitted jointly from the filter's estimates ("joint",
+#   estimators.joint_training): the states the network learns from must also follow the learned model, which
+#   undoes more of the model-free KF's lag than re-smoothing the record with the learned model and retraining.
+#   A model-based smoother with the prior as the first observer is worse than the paper's model-free KF + RTS:
+#   the prior's wrong cart mass biases the rates the network learns from.  What takes the cartpole to its
+#   targets is not the observer: its Δθ corrects the accelerations only and is blind to the cart's position
+#   (`Cartpole`'s masks).
 # - robot: the unscented RTS pass on the precursory UKF (a smoother instead of the filter) helps more than
-#   the iteration (seed 0: 16.5 -> 7.5, 3 rounds 9.9; seed 1: 69 -> 56): kept, to be confirmed on
-#   15 seeds.  The joint fit was not measured on the robot.  What helped the robot most is not the observer:
-#   its Δθ is blind to x, y, ψ (`GroundRobot.residual_blind`): median KNODE-UKF over the 15 seeds of
-#   Table I 1.94e-3 with Δθ reading every state -> 0.30e-3 (docs/results/table1.md).
+#   re-smoothing rounds on the seeds it was tried on (not all 15), and the joint fit is worse there.  What helps
+#   the robot most is not the observer: its Δθ is blind to x, y, ψ (`GroundRobot.residual_blind`).
 PAPER_OBSERVER = {"cartpole": ("joint", 0), "robot": ("smoother", 0)}
 
 # Sec. V-C: 2 layers x 16 tanh, 150 epochs, KF pre-training observer

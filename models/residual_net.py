@@ -1,7 +1,7 @@
 """The torch side of training: Δθ as a torch module, the Adam update, and the thread setting.
 
 Kept apart from `models.training` so that importing the training API (or anything that imports it) does
-not import torch (3 s); `train_knode` imports this module when it runs.
+not import torch, which takes seconds; `train_knode` imports this module when it runs.
 """
 from __future__ import annotations
 
@@ -15,8 +15,8 @@ from . import residual_frame
 from .knode import Residual
 
 # Δθ is a one-hidden-layer MLP on a few thousand rows: each operation is microseconds of work, and on
-# these 2-core machines torch's intra-op threads cost more in hand-offs than they save (with the Adam
-# below, training on a 33-s flight went from 48.6 s to 6.6 s under load: benchmarks/results/training_speed.md).
+# these 2-core machines torch's intra-op threads cost more in hand-offs than they save, several times over
+# (benchmarks/results/training_speed.md).
 TRAINING_THREADS = 1
 
 
@@ -35,8 +35,8 @@ class Adam:
     """``torch.optim.Adam``'s default CPU update (single-tensor path, no weight decay, no amsgrad), the
     same operations in the same order, so the weights are bit-identical (tests/models/test_knode.py checks it).
 
-    Why not torch.optim: its first ``step()`` imports ``torch._dynamo`` (3-4 s on these machines), longer
-    than a whole 150-epoch training run; the update itself is five tensor operations.
+    Why not torch.optim: its first ``step()`` imports ``torch._dynamo``, which takes longer than a whole
+    150-epoch training run; the update itself is five tensor operations.
     """
 
     def __init__(self, params, lr: float = 1e-3, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8):

@@ -116,7 +116,7 @@ def common_bic(fit_: Fit, tau: float) -> float:
 
     Models compared with each other must share N_eff = N/τ: with each its own, the term N_eff·log(mean r²)
     (whose sign depends on the residual's units) rewards a whiter residual over a smaller one — on a real
-    flight an accelerometer delay that removed 7× less residual than a tilt won on its whiter residual.
+    flight it prefers an accelerometer delay that removes far less residual than a tilt, for its whiter residual.
     Differences at a common N_eff, N_eff·log(RSS₁/RSS₀) + Δk·log N_eff, do not depend on the units.
     """
     return bic_eff(fit_.residual, len(fit_.values), tau)[0]

@@ -214,10 +214,9 @@ class Cartpole(System):
     initial_std: tuple = (0.05, 0.5, 0.05, 0.5)
     invariant_states: tuple = ("p",)
     # Δθ corrects the accelerations only (the derivatives of p and α are ṗ and α̇ by definition) and does not see
-    # where the cart is (the track is level and uniform): the rule of `System`'s masks.  On Table I
-    # (docs/results/table1.md, cartpole_residual_error.py) the definition rows had learned up to 0.04 m/s, rad/s of
-    # artefact, and KNODE-MHE / MHE (true dynamics) went 2.53 -> 1.93 over the 15 seeds (1.88 with the weight
-    # prior re-chosen).  What these masks cannot learn: a force that depends on where the cart is (a spring at the
+    # where the cart is (the track is level and uniform): the rule of `System`'s masks.  A residual on the
+    # definition rows learns only the observer's artefacts there (docs/results/table1.md, "How the KNODE is
+    # trained").  What these masks cannot learn: a force that depends on where the cart is (a spring at the
     # end of the track).
     residual_states: tuple | None = ("p_dot", "alpha_dot")
     residual_blind: tuple = ("p",)
@@ -283,8 +282,7 @@ class GroundRobot(System):
     initial_std: tuple = (0.2, 0.2, 0.2, 0.05)
     invariant_states: tuple = ("x", "y", "psi")  # a lap turns ψ through 2π: a longer lap is no new physics
     # Δθ does not see them either: the physics does not depend on where the robot is or which way it points,
-    # but the range-only observer's errors do, and a residual that reads x, y, ψ learns them (Table I robot:
-    # median KNODE-UKF 1.94e-3 -> 0.30e-3; seeds 1, 3, 8 had learned 7-8e-3 of artefacts)
+    # but the range-only observer's errors do, and a residual that reads x, y, ψ learns them (docs/results/table1.md)
     residual_blind: tuple = ("x", "y", "psi")
     # throttle = mean + a random weave of two sines (0.07 and 0.19 Hz) of these amplitudes (m/s²): the
     # weave makes the speed vary (0.9-3.4 m/s), which is what tells linear from quadratic drag apart;
@@ -388,13 +386,12 @@ class Crazyflie(System):
     and the state layout (and the MSE over p, v, a) is the one of the paper's prior.
 
     Why two: a motor lags the thrust's size, while its direction turns with the attitude, which is an
-    input.  A vehicle whose logged attitude is its true one has tau_att_s ≈ 0 (the simulator's).  On the
-    real NanoBench flights the acceleration across the thrust axis is best predicted ~60-80 ms behind the
-    logged attitude (prior-only UKF mocap-gap RMSE, benchmarks/results/crazyflie_lag_axes): without that
-    lag the gap error is 40 % (circles, figure-eights) to 76 % (helices, ramps) larger.  What it stands for
-    there is not established; it is not a motor effect, so the diagnosis never moves it.  Without
-    tau_att_s (models stored before it) the whole acceleration relaxes with tau_s.  Parameters:
-    `models.crazyflie` (nominal = identified on NanoBench).
+    input.  A vehicle whose logged attitude is its true one has tau_att_s ≈ 0 (the simulator's).  On real
+    flights the acceleration across the thrust axis is best predicted some tens of milliseconds behind the
+    logged attitude, and without that lag the prior's error in the mocap gaps is markedly larger (the results
+    page `docs/results/lag-axes.md`).  What it stands for there is not established; it is not a motor effect,
+    so the diagnosis never moves it.  A model whose parameters lack tau_att_s relaxes the whole acceleration
+    with tau_s.  Parameters: `models.crazyflie` (nominal = identified on NanoBench).
     """
 
     name: str = "crazyflie"
@@ -411,18 +408,17 @@ class Crazyflie(System):
     initial_std: tuple = Quadrotor.initial_std
     invariant_states: tuple = ("px", "py")  # not pz: the ground effect depends on the height
     # ṗ = v and v̇ = a are definitions; the physics this prior may miss acts through ȧ (thrust, drag, lag).
-    # A residual on all rows learned a velocity offset on one figure-eight that broke the UKF on every
-    # circle (benchmarks/results/crazyflie_transfer); where the vehicle is in the room is not physics.
+    # A residual on all rows can learn a velocity offset of its training flight that breaks the UKF on other
+    # flights; where the vehicle is in the room is not physics.
     # Δθ is blind to the acceleration state too: a is the observer's filtered accelerometer, and a residual
-    # reading it learned how that estimate evolves along the training trajectory (its jerk), not the vehicle.
-    # Trained on a figure-eight and scored on the circles, blind to a: median KNODE-UKF gain +0.2 -> +2.8 %,
-    # flights worse than the prior 4 -> 1 of 8; the reverse +7.1 -> +8.7 %, 0 of 8 (seeds 0-4 alike:
-    # benchmarks/results/crazyflie_transfer/residual_inputs.md).  What physics acts through stays in view:
-    # height (ground effect), velocity (rotor drag), attitude, motors and battery (thrust).
+    # reading it learns how that estimate evolves along the training trajectory (its jerk), not the vehicle;
+    # blind to a, it transfers better between trajectory families both ways (docs/results/transfer.md).  What
+    # physics acts through stays in view: height (ground effect), velocity (rotor drag), attitude, motors and
+    # battery (thrust).
     residual_states: tuple | None = ("ax", "ay", "az")
     residual_blind: tuple = ("px", "py", "ax", "ay", "az")
-    # The state-frame residual above still saw the world velocity and the attitude, so it could learn the
-    # sense of a turn and the heading: trained on counter-clockwise circles, it lost on helices.  The body
+    # The state-frame residual above still sees the world velocity and the attitude, so it can learn the
+    # sense of a turn and the heading, which do not carry over to other trajectories.  The body
     # frame reads height, body velocity, the collective thrust and the battery, and adds a body-frame force
     # rate rotated into ȧ (`models.residual_frame`): what it learns turns with the vehicle.
     residual_frame: str = "body"

@@ -229,13 +229,11 @@ def _train_knode(system: System, zeta: ArrayLike, u: ArrayLike, dt: float, confi
 # The residual inputs a pooled model is blind to besides the system's own (`System.residual_blind`): the attitude.
 # Why: the mocap tilt of a quadrotor is its horizontal acceleration (tilt ≈ a_h / g), so a residual reading the
 # attitude reads the acceleration state the Crazyflie prior already hides from it, and learns how that state evolves
-# along the training trajectories rather than the vehicle.  Trained on the shared NanoBench circles, helices and ramps
-# (every circle and helix turns counter-clockwise), such a residual moved the acceleration it settles on (tau_s Δθ)
-# 0.01-0.18 m/s² inwards along the tilt there, and 0.20-0.30 m/s² on the figure-eights, whose tilt spreads wider
-# (10 % of their roll samples outside the training envelope): their open-loop 0.5-s position prediction got worse on
-# 8 of 8 flights (median MSE -139 %), and better on 7 of 8 (+6.8 %) blind to the attitude, though the training
-# families' own other flights preferred seeing it (+38 % against +32 %): flights of the trained families cannot show
-# this (benchmarks/gap_diagnosis.py; the gap yardstick per held-out family: benchmarks/results/family_holdout_*).
+# along the training trajectories rather than the vehicle.  Trained on circles, helices and ramps that all turn one
+# way, such a residual pulls the acceleration it settles on (tau_s Δθ) inwards along the tilt, and further on a
+# family whose tilt spreads wider (figure-eights), whose open-loop position prediction it makes worse where a residual
+# blind to the attitude makes it better.  Flights of the trained families cannot show this: they prefer seeing the
+# attitude (the results page `docs/results/family-holdout.md`, "Blind to the attitude").
 # The prior keeps the attitude's physics: it turns the thrust by R(q).
 ATTITUDE_INPUTS = ("qx", "qy", "qz", "qw")
 

@@ -36,14 +36,13 @@ from learnest.records import ReportView
 
 # The SG reference of the accelerometer channel: 0.41 s, order 4.  Its passband must stay flat over the
 # manoeuvres: the reference is rotated into the body frame with the *unsmoothed* mocap attitude, and an
-# attenuated acceleration leaves a tilt error in body x/y that a delay fit absorbs.  Order 3 over 0.31 s
-# moved a known 40 ms delay by +2 to +14 ms on noise-free simulated flights; order 4 over 0.41 s by
-# at most +2 ms (benchmarks/results/timing_bias.md).
+# attenuated acceleration leaves a tilt error in body x/y that a delay fit absorbs.  Order 4 over 0.41 s biases
+# a known delay far less than order 3 over 0.31 s on simulated flights (benchmarks/results/timing_bias.md).
 DIAGNOSIS_SG_WINDOW = 41
 DIAGNOSIS_SG_ORDER = 4
 # Both sides of the accelerometer residual pass this zero-phase low-pass (no relative shift): above it the
 # reference is double-differentiated mocap noise and the reading vibration, which only add scatter to
-# the delay (±10 ms on 15-s simulated flights without it, a few ms with it).
+# the delay.
 DIAGNOSIS_LOWPASS_HZ = 8.0
 EDGE_S = 0.5               # SG references are least reliable at the ends of a record
 # The residual time series kept in the report for its plot: bin means down to at most this many points

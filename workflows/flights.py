@@ -48,8 +48,8 @@ from learnest.models.training import TrainingResult
 
 # The measurements the prediction check compares (`estimators.evaluate.prediction_check`): the mocap position,
 # which a model must predict through its dynamics.  The accelerometer reads the state a almost directly and its
-# innovations are dominated by vibration: on the 16 NanoBench transfer flights (benchmarks/crazyflie_transfer.py)
-# the position-innovation ratio is above 1 on both flights the Crazyflie KNODE loses on, the accelerometer's on neither.
+# innovations are dominated by vibration, so they cannot show a model that predicts worse; the position's can
+# (docs/results/transfer.md, "The one-step check, as measured here").
 PREDICTION_CHANNELS = ("px", "py", "pz")
 
 

@@ -16,7 +16,7 @@ class BlockTridiagonal:
     Qi and Ri must be symmetric (btd.c uses F'Qi = (Qi F)').
 
     The compiled Riccati-type recursion of `btd.c` (block Cholesky, O(L n³)); without a compiler,
-    LAPACK's banded Cholesky on the same matrix (same numbers to rounding, ~10x slower for these tiny
+    LAPACK's banded Cholesky on the same matrix (same numbers to rounding, but slower for these tiny
     blocks: dpbtrf's blocking overhead dominates, and a threaded BLAS makes it worse on a busy machine).
     """
 

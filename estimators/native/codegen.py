@@ -1,11 +1,11 @@
 """CasADi functions compiled to C once, cached by content hash, and called through ctypes.
 
-Why not just call the CasADi `Function` from Python: on this project's machines a Python-level call
-costs 30-80 µs of argument conversion (numpy -> DM -> numpy) before any arithmetic, and the MHE makes
-a few calls per time step; the SX virtual machine also runs ~5x slower than the same code compiled.
+Why not just call the CasADi `Function` from Python: a Python-level call converts every argument (numpy
+-> DM -> numpy) before any arithmetic, which costs more than a small model's arithmetic, and the MHE makes a
+few calls per time step; the SX virtual machine also runs several times slower than the same code compiled.
 Here a `Function` is turned into C with CasADi's own code generator, compiled with the system C
 compiler (`cc -O1 -shared`), kept in a cache directory under the hash of its source, and called with
-pointers to preallocated numpy buffers: a call costs ~1-2 µs plus the arithmetic.
+pointers to preallocated numpy buffers: a call costs little beyond the arithmetic.
 
 What is compiled is the model's structure, not its numbers: the estimators pass a model's weights,
 physical parameters and dt (and the MHE's Q⁻¹, R⁻¹) as an input filled once (`estimators.parametric`),
@@ -31,14 +31,9 @@ import casadi as ca
 import numpy as np
 
 DEFAULT_CACHE = Path.home() / ".cache" / "learnest" / "codegen"
-# -O1: CasADi's long straight-line functions compile in a fraction of -O2's time (the KNODE's exact
-# Jacobian, 23k instructions: -O0 2.7 s, -O1 5 s, -O2 24 s) and run within ~1.6x of -O2's code
-# (21 Jacobians: 870 vs 550 µs on a busy machine); a new model must not wait half a minute.  Re-measured
-# one node's Jacobian -O1 vs -O2: 10 vs 18 µs, compile 4.8 vs 13.4 s; the gradient sweep
-# 96 vs 89 µs, 1.2 vs 2.1 s (noisy, load ~3): -O2 does not pay here.  Re-measured once compiling became
-# once per architecture (weights as an input): the 16-unit KNODE's MHE functions compile in 17 s (-O1) vs
-# 42 s (-O2), its UKF's in 1.2 vs 2.3 s; KNODE-MHE 1.11 vs 1.07 ms/step, KNODE-UKF 0.47 vs 0.50 ms/step
-# (800 steps, medians of 5, load ~1.7): within noise, still not worth 25 s on every new architecture.
+# -O1: CasADi's long straight-line functions (a KNODE's exact Jacobian runs to tens of thousands of
+# instructions) compile in a fraction of -O2's time, and the estimators run as fast with either within the
+# timing noise, so -O2 would only make every new architecture wait longer before its first use.
 # btd.c/gn.c, small and hand-written, use -O2 (mhe_gn.BlockTridiagonal)
 CFLAGS = ("-O1", "-fPIC", "-shared")
 
@@ -140,7 +135,7 @@ def mapped(fn: ca.Function, name: str, count: int, shared: tuple[int, ...] = ())
 
 
 # libraries loaded in this process, by `compiled`'s key: generating the C code only to hash it for the
-# file cache cost ~0.3 s per MHE build of a KNODE (CodeGenerator.add), paid again for every flight
+# file cache is slow (CodeGenerator.add), and would be paid again for every flight
 _LOADED: dict[str, ctypes.CDLL] = {}
 
 
@@ -188,8 +183,8 @@ def compiled(functions: list[ca.Function], cache_dir: str | Path | None = None,
 
 def model_key(model: ca.Function, *derivation) -> str:
     """`compiled`'s key for functions derived from ``model`` (its inputs and outputs the symbols they were
-    built from) by code whose every other choice is in ``derivation`` (sizes, flags): ~10 ms for a KNODE's
-    RK4 step, against ~0.3 s to generate its MHE's code.  CasADi's serialization is exact (every
+    built from) by code whose every other choice is in ``derivation`` (sizes, flags): serializing the model is
+    far cheaper than generating the code it keys.  CasADi's serialization is exact (every
     instruction and constant) and deterministic for the same graph."""
     return "\0".join([model.serialize(), *map(repr, derivation)])
 

@@ -1,11 +1,11 @@
 """The UKF's whole filter loop as one C call (`ukf.c`), over the compiled sigma-point functions.
 
 `ukf_filterpy.BatchedUKF` is the same algorithm in numpy and stays the reference (and the path for a
-model without a compiler).  Why C: once the model's sigma-point functions were compiled, numpy and ctypes
-overhead around them was ~80 % of a step (measured on a 3290-step flight, two UKFs: 2.7 s, of which
-0.6 s in the compiled model); `ukf.c` calls the compiled functions through pointers, as `gn.c` does for
-the MHE.  A covariance that Cholesky cannot factor is handed back to Python for `spd_factor` (its
-eigenvalue lift and eigen square root), and the loop resumes: the same repair as the Python filter's.
+model without a compiler).  Why C: with the model's sigma-point functions compiled, the numpy and ctypes
+overhead of a Python loop around them would take most of a step; `ukf.c` calls the compiled functions
+through pointers, as `gn.c` does for the MHE.  A covariance that Cholesky cannot factor is handed back to
+Python for `spd_factor` (its eigenvalue lift and eigen square root), and the loop resumes: the same repair as
+the Python filter's.
 """
 from __future__ import annotations
 

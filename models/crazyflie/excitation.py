@@ -3,11 +3,11 @@ input, speed and height over the rows a diagnosis fits, and which prior paramete
 undetermined (`undetermined_params`).
 
 The battery exponent gamma enters the thrust as (V / V_ref)^gamma.  Against a free thrust gain (a payload, other
-motors) only its variation along the data is seen: a change δγ moves the thrust by δγ·(ln V − mean ln V), whose
-rms is δγ·σ_V / V̄.  To tell gamma to ±0.3 (a tenth of its physical range [0, 3]) that variation must stand out
-from what the prior's thrust already misses along a flight, about 0.5 % on real logs (the held-out specific-force
-RMSE, ~0.05 m/s² of 9.81).  Hence σ_V / V̄ ≥ 0.005 / 0.3 ≈ 1.7 %: `MIN_VBAT_RELATIVE_SPREAD`.  A battery held at
-3.80 ± 0.01 V (0.3 %) makes gamma one more constant gain; a sag from 4.1 to 3.4 V (5 %) determines it.
+motors) only its variation along the data is seen: a change δγ moves the thrust by δγ·(ln V − mean ln V), whose rms is
+δγ·σ_V / V̄.  To tell gamma to ±0.3 (a tenth of its physical range [0, 3]) that variation must stand out from what the
+prior's thrust already misses along a flight, about 0.5 % on real logs (its held-out specific-force error,
+`docs/results/crazyflie-physics.md`).  Hence σ_V / V̄ ≥ 0.005 / 0.3 ≈ 1.7 %: `MIN_VBAT_RELATIVE_SPREAD`.  A battery
+held at 3.80 ± 0.01 V (0.3 %) makes gamma one more constant gain; a sag from 4.1 to 3.4 V (5 %) determines it.
 """
 from __future__ import annotations
 

@@ -21,12 +21,12 @@ V → V·(1 − kappa_th h)^(1/gamma), which multiplies the prior's thrust by (1
 the inputs' shape (stored models, generated code).  The per-flight thrust gain (`models.crazyflie.thrust_gain`) is
 calibrated after it, so the gain takes the flight's level and the heating the drift within it.
 
-Identified on the 16 NanoBench flights (`benchmarks/crazyflie_heating_prior.py`: the mocap's body-z specific
-force against the prior's, a free gain per flight, cold start at the flying window's start): tau_th_s = 75 s,
-kappa_th = 0.055 pooled.  The two trade off (for flights of 20-40 s only their ratio, the drift rate
-~4.4 % of thrust per minute of hover from cold, is well determined); held out by family both directions
-improve (docs/results/transfer.md, "Motor heating in the prior").  With the whole recordings in flying order
-(`benchmarks/motor_heating.py`), a state carried over between flights gave 4.6 % per unit h at 45 s.
+Identified on the NanoBench flights, pooled (the mocap's body-z specific force against the prior's, a free gain
+per flight, cold start at the flying window's start; the values are `models.crazyflie.IDENTIFIED`'s).  The two
+trade off: flights of 20-40 s determine only their ratio, the drift rate from cold, so the diagnosis moves
+kappa_th alone.  The held-out evidence is on the results page `docs/results/transfer.md` ("What the Crazyflie
+prior and residual are given"); a state carried over between flights in flying order is on
+`docs/results/thrust-maps.md` ("Motor heating").
 """
 from __future__ import annotations
 

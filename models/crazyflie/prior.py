@@ -2,8 +2,8 @@
 ground effect, motor lag.  Written once against the numpy/torch/CasADi namespace of `models.backend`.
 
 Every number has one home here: `PUBLIC` holds published values with their source, `IDENTIFIED` the
-values fitted on the real NanoBench flights by `benchmarks/crazyflie_physics.py` (committed results in
-`benchmarks/results/crazyflie_physics/`), `BOUNDS` the physically plausible range of each parameter.
+values fitted on the real NanoBench flights (the fit's intervals and held-out scores are on the results page
+`docs/results/crazyflie-physics.md`), `BOUNDS` the physically plausible range of each parameter.
 Parameter names follow the effect contract (`EFFECTS` below): `m_kg`, `gamma`, `k_xy`, `k_z`, `r_m`, `tau_s`.
 
 Thrust of one motor (N), PWM p in 0..65535, battery voltage V (V):
@@ -12,8 +12,8 @@ Thrust of one motor (N), PWM p in 0..65535, battery voltage V (V):
 
 with Förster's Crazyflie 2.0 coefficients a2, a1, a0 and q_pwm2 = 1 reproducing his map exactly.
 Why a voltage factor: the logged `motor.m1..m4` are the duty cycles *after* the firmware's battery
-compensation (checked on NanoBench: mean PWM = 65535·volts(cmd_thrust)/vbat to 1 %), so at a given PWM
-the motor sees a voltage proportional to the battery's.
+compensation (on NanoBench the logged duty is 65535·volts(cmd_thrust)/vbat), so at a given PWM the motor
+sees a voltage proportional to the battery's.
 
 Specific force in the body frame (what the accelerometer reads, m/s²), with v_b = Rᵀ v:
 
@@ -101,10 +101,10 @@ PUBLIC = {
     "tau_th_s": 75.0,
 }
 
-# Fitted on the 16 usable NanoBench flights of CF_01 (benchmarks/crazyflie_physics.py, all flights
-# pooled; intervals and the held-out scores are in benchmarks/results/crazyflie_physics/).  m_kg is an
-# *effective* mass relative to Förster's map: NanoBench's vehicle carries markers and maybe a deck, and
-# its motors/propellers are not Förster's, so mass and thrust gain are one number here.
+# Fitted on the 16 usable NanoBench flights of CF_01, all pooled (intervals and held-out scores:
+# docs/results/crazyflie-physics.md).  m_kg is an *effective* mass relative to Förster's map: NanoBench's vehicle
+# carries markers and maybe a deck, and its motors/propellers are not Förster's, so mass and thrust gain are one
+# number here.
 IDENTIFIED = {
     "m_kg": 0.0190,
     "gamma": 0.42,
@@ -114,11 +114,11 @@ IDENTIFIED = {
     "r_m": BITCRAZE_ROTOR_RADIUS_M,   # not identifiable at 1 m flying height: the public value is kept
     "tau_s": 0.061,
     # the acceleration across the thrust axis follows the logged attitude through this lag (`Crazyflie` system);
-    # equal to tau_s, the whole world acceleration relaxes as one (benchmarks/crazyflie_lag_axes.py)
+    # equal to tau_s, the whole world acceleration relaxes as one (docs/results/lag-axes.md)
     "tau_att_s": 0.061,
     "v_ref": V_REF,
     # motor heating (models.crazyflie.motor_heating), fitted after the rest with a free thrust gain per flight
-    # (benchmarks/crazyflie_heating_prior.py): thrust × (1 − kappa_th·h), τ_th ḣ = P − h
+    # (docs/results/transfer.md): thrust × (1 − kappa_th·h), τ_th ḣ = P − h
     "kappa_th": 0.055,
     "tau_th_s": 75.0,
 }

@@ -1,18 +1,17 @@
 """The thrust axis against the mocap body frame: one small constant rotation per flight, calibrated from the
 mocap pose alone.
 
-Why: the Crazyflie prior turns thrust into world acceleration through the mocap attitude, R(q)·[0, 0, T].
-A quadrotor's thrust acts along its motor axes, so the specific force R(q)ᵀ(p̈ + g e₃) points along the
-thrust axis whatever the vehicle does (rotor drag adds a few hundredths of g and averages out over a
-flight).  On the NanoBench flights its mean direction sits 0.4-3.0° off the mocap body z axis, different
-from flight to flight (`benchmarks/results/crazyflie_thrust_axis`): 2.7° is 0.46 m/s² of horizontal
-acceleration at hover, and the three flights with the largest offset are the three where the Crazyflie
-prior lost most to the kinematic one.  The mocap frame is where the markers are, not where the motors
-point; the offset is calibrated per flight, from mocap position and attitude only (no accelerometer, no
-estimate): two numbers per flight, reported with the evaluation.  The calibration is offline: it averages
-over the whole record, later samples included (two numbers from thousands of samples), so an estimator fed
-the calibrated attitude is not strictly causal; a record too short or too coarse to calibrate keeps its
-attitude as logged (zero offset).
+Why: the Crazyflie prior turns thrust into world acceleration through the mocap attitude, R(q)·[0, 0, T]. A
+quadrotor's thrust acts along its motor axes, so the specific force R(q)ᵀ(p̈ + g e₃) points along the thrust axis
+whatever the vehicle does (rotor drag adds a few hundredths of g and averages out over a flight).  On real flights its
+mean direction sits a few degrees off the mocap body z axis, different from flight to flight: each degree is about
+0.17 m/s² of horizontal acceleration at hover, and the flights with the largest offset are where the Crazyflie prior
+does worst against the kinematic one (the results page `docs/results/transfer.md`, "What the Crazyflie prior and
+residual are given").  The mocap frame is where the markers are, not where the motors point; the offset is calibrated
+per flight, from mocap position and attitude only (no accelerometer, no estimate): two numbers per flight, reported
+with the evaluation.  The calibration is offline: it averages over the whole record, later samples included (two
+numbers from thousands of samples), so an estimator fed the calibrated attitude is not strictly causal; a record too
+short or too coarse to calibrate keeps its attitude as logged (zero offset).
 """
 from __future__ import annotations
 
@@ -109,9 +108,9 @@ def heading_removed(quat: np.ndarray) -> np.ndarray:
     Why: the Crazyflie prior's world-frame acceleration depends on the attitude only through the body z axis
     (the thrust direction; its rotor drag is the same along body x and y, so R diag(k_xy, k_xy, k_z) Rᵀ
     depends on R e₃ alone), so the heading is no physics to it, as the position is none.  A KNODE residual
-    that reads the heading learns the training flight's: on the real flights, a figure-eight flown at another
-    heading than the training circle (all of its samples outside the training box in qw) lost 8.9 % with
-    KNODE-UKF, and gains 1.7 % on the heading-free input (`docs/results/transfer.md`, "The heading").
+    that reads the heading learns the training flight's, which misleads it on a flight flown at another
+    heading (all of that flight's samples outside the training box in qw); on the heading-free input the
+    residual cannot tell the two headings apart.
 
     Parameters
     ----------

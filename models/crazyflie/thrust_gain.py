@@ -1,14 +1,12 @@
 """The Crazyflie prior's thrust gain on one flight: one number, calibrated from the mocap pose and the inputs.
 
 Why: the prior's thrust map has one set of parameters for a vehicle, but the thrust per PWM and volt moves
-from flight to flight: the motors warm over a session (`benchmarks/motor_heating.py`: 2-3 % of thrust per
-flight), a battery sags differently, a payload changes what the thrust must carry.  On the NanoBench flights
-the mean body-z specific force the mocap sees is 0.98-1.01 of what the identified map predicts (0.99-1.02
-once the motors' heating is applied, `models.crazyflie.motor_heating`), and a 1 %
-error is 0.1 m/s² of vertical acceleration all flight long.  The KNODE residual learned its training flight's
-offset and carried it to the others, where it fits or not by chance (`docs/results/transfer.md`,
-"Per-flight thrust gain").  Calibrated per flight, the prior-only UKF's median MSE falls by 1 % on the figure-eights and
-11 % on the circles, and every estimator's median falls in both transfer directions.
+from flight to flight: the motors warm over a session, a battery sags differently, a payload changes what the
+thrust must carry.  Even with the motors' heating in the map (`models.crazyflie.motor_heating`), real flights
+differ from it by a percent or two, and a 1 % error is 0.1 m/s² of vertical acceleration all flight long.  A
+KNODE residual learns its training flight's offset and carries it to the others, where it fits or not by
+chance.  Calibrated per flight, the prior and every estimator built on it estimate better in both transfer
+directions (the results page `docs/results/transfer.md`, "What the Crazyflie prior and residual are given").
 
 The gain c is the ratio of the mocap's to the prior's body-z specific force, summed over the airborne samples:
 mocap R(q)ᵀ(p̈ + g e₃)·e₃ with p̈ from twice-differentiated position, low-passed at 2 Hz like the thrust axis
@@ -16,7 +14,7 @@ mocap R(q)ᵀ(p̈ + g e₃)·e₃ with p̈ from twice-differentiated position, l
 and inputs.  It is applied through the battery voltage the prior sees, V → V·c^(1/γ): the prior's thrust is
 ∝ (V/V_ref)^γ, so this multiplies it by c exactly and keeps the inputs' shape (stored models, generated code).
 With thrust in N (crazyswarm2's ``ctrlLee.thrustSI``) the thrust is the four columns themselves, scaled by c: a
-controller whose command over-promises the thrust made (×1.6 on crazyswarm2 log182-184) is then the vehicle's.
+controller whose command over-promises the thrust made (`docs/results/crazyflie-flights.md`) is then the vehicle's.
 
 Offline, like the thrust axis: one number from the whole record, later samples included.  It needs a
 flight: a record with less than `MIN_AIRBORNE_S` above the floor, or a prior whose |γ| is below `MIN_GAMMA`

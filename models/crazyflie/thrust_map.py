@@ -12,10 +12,10 @@ the training flights only.
 Why these terms (held-out evidence in `docs/results/thrust-maps.md`): the summed duty's
 quadratic map and the battery polynomial are the physics prior's thrust map made linear; the CW/CCW split
 carries thrust the collective does not (most likely the transients of the yaw loop); tilt and climb/descent
-are the airframe's inflow.  Why the battery filter: the logged voltage carries 0.01-0.03 V of fast
+are the airframe's inflow.  Why the battery filter: the logged voltage carries centivolts of fast
 fluctuation (the 10-Hz power stream resampled to 100 Hz, ADC noise, load sag) that the thrust does not follow;
-fed raw, it is noise in a regressor.  Filtered over ~1 s it is the battery's state, and the held-out error on
-the real flights falls by 9-13 %.  The voltage filter and the motor lag are causal; the 5 Hz low-pass is the
+fed raw, it is noise in a regressor.  Filtered over about a second it is the battery's state, and the held-out
+error on real flights falls.  The voltage filter and the motor lag are causal; the 5 Hz low-pass is the
 evaluation protocol's (zero phase, applied alike to every column and to the measured force), so the fitted
 coefficients also hold for the unfiltered, causal map.
 
@@ -39,9 +39,8 @@ __all__ = ["TERMS", "BenchMap", "ThrustMap", "columns", "design", "fit_bench_map
            "rmse_constant", "stacked"]
 
 TERMS = ("1", "Σp", "Σp^2", "split", "V", "V·Σp", "V^2", "tilt", "vz+", "vz-")
-# Motor lags a 7-mm brushed motor can have (tens of ms; the physics fit finds 61 ms).  A longer grid lets the
-# training fit walk to 0.15 s on the circles, where the lag absorbs the slow drift, and the held-out error on
-# the figure-eights rises from 0.117 to 0.121 m/s²: the lag stays a motor lag.
+# Motor lags a 7-mm brushed motor can have (tens of ms).  A longer grid lets the training fit absorb slow drift
+# into the lag on some flights, and the held-out error grows: the lag stays a motor lag.
 MOTOR_TAUS_S = (0.0, 0.02, 0.03, 0.04, 0.05, 0.06, 0.07, 0.08, 0.10)
 # 0 keeps the voltage as logged; the grid spans the fast part (0.25 s) to the battery's slow state (5 s)
 VBAT_TAUS_S = (0.0, 0.25, 0.5, 1.0, 2.0, 5.0)

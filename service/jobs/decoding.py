@@ -1,8 +1,9 @@
 """Uploads are decoded in worker processes of their own, bounded in number, waiting room and
 time.
 
-Decoding a log is CPU work in pure Python and NumPy; in the request threads, 40 concurrent uploads of
-small decompression bombs held the GIL so long that ``/health`` took 3 s (median) to 8 s.  Here:
+Decoding a log is CPU work in pure Python and NumPy; in the request threads it holds the GIL, and a burst of
+concurrent uploads (small decompression bombs) stalls every page and ``/health`` for seconds (the results page
+`docs/results/service.md`).  Here:
 
 - at most ``LEARNEST_DECODE_WORKERS`` uploads decode at once, each in its own spawned process (the
   server's threads keep the GIL: pages and /health answer while uploads are decoded);

@@ -1,8 +1,9 @@
 """The velocity figure of an evaluation report, computed once per (evaluation, flight) and kept.  It runs
 the UKF and KNODE-UKF on the flight (seconds), and the report page is an unauthenticated GET: computed in
-the request, with an lru_cache of 32, cycling through evaluation ids kept the server busy.
+the request, even behind a small cache, it would let anyone keep the server busy by cycling through
+evaluation ids.
 
-Now a page view reads the stored figure (table ``report_figures``); when there is none it starts one
+So a page view reads the stored figure (table ``report_figures``); when there is none it starts one
 executor task for it - at most `MAX_RUNNING` at a time in this server, never two for the same figure - and
 the page says so and reloads itself.  The task's answer (or its error) is stored when it finishes, so each
 figure is computed once however often and however many clients ask.

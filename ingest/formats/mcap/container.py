@@ -162,7 +162,7 @@ def _chunk_records(chunk: Chunk) -> list:
 
 def _records_of(chunk: Chunk) -> list:
     """`mcap.stream_reader.breakup_chunk`, but refusing opcode 0x00 (reserved as invalid by the MCAP
-    spec): zeros parse as ~10^6 empty records per 16 MiB in pure Python (8 s), and zeros are what a
+    spec): zeros parse as ~10^6 empty records per 16 MiB in pure Python (seconds of work), and zeros are what a
     bomb's chunk holds.  A record must also fit in its length field (the library's readers trust it only
     for messages, and a message shorter than its 22-byte header would swallow the rest of the chunk);
     bytes past the fields read are skipped (a later spec version's fields), as are unknown opcodes."""
