@@ -4,7 +4,9 @@
 `Algorithm1.fit` trains on one record with time blocks of it held out (the paper's protocol: the cartpole and
 robot of Table I, one flight); `Algorithm1.fit_flights` trains on real flights: one flight is the paper's
 protocol, several train one residual on one pooled loss with whole flights held out
-(`models.pooled_training.train_knode_pooled`, why there).
+(`models.pooled_training.train_knode_pooled`, why there); `Algorithm1.fit_states` is the training phase alone, on
+states already observed (every state measured, as in Table I's "full state" rows).  The workflows train only
+through this class (an import contract in pyproject.toml keeps them off the trainers).
 
 The network learns whatever the observer's estimates of the unmeasured states contain, artefacts included.
 Ways to make those estimates better (the evidence for each is on the results page `docs/results/table1.md`,
@@ -37,6 +39,7 @@ from learnest.models.knode import HybridModel
 from learnest.models.pooled_training import TrainingRecord, train_members_pooled
 from learnest.models.presets import TrainingConfig
 from learnest.models.systems import System
+from learnest.models.training import NOT_LEARNED as NOT_LEARNED  # re-exported: the workflows read training here
 from learnest.models.training import TrainingResult, attitude_blind, train_knode
 
 from .flight_training import check_one_vehicle, default_validation, flight_inputs, flight_lineage, pooled_profile
@@ -177,6 +180,42 @@ class Algorithm1:
         result = results[kept]
         result.model.meta["observer"] = {"kind": self.kind, "rounds": rounds, "kept_round": kept, "misfit": misfits}
         return result
+
+    def fit_states(self, system: System, zeta: ArrayLike, u: ArrayLike, dt: float,
+                   progress: Callable[[int, float], None] | None = None) -> TrainingResult:
+        """Algorithm 1's training phase alone, on states ζ already observed: the observer is skipped because the
+        states are given (every state measured, as in Table I's "full state" rows, or ζ of `observe` that a
+        caller also uses for something else, as the diagnosis does), validated on time blocks of the record.
+
+        Parameters
+        ----------
+        system : System
+            The prior.
+        zeta : array_like, shape (T, n)
+            State observations, in the system's state units.
+        u : array_like, shape (T, p)
+            Inputs (may have width 0).
+        dt : float
+            Sample period, s.
+        progress : callable, optional
+            ``progress(epoch, mean_training_loss)`` after every epoch.
+
+        Returns
+        -------
+        TrainingResult
+            `models.training.train_knode`'s on these states with ``config``; the model's meta records no
+            observer, since none ran.
+
+        Raises
+        ------
+        InvalidInput
+            With the joint observer or ``rounds > 0``, which need the measurements (use `fit`); whatever
+            `models.training.train_knode` rejects.
+        """
+        if self.observer == "joint" or self.rounds:
+            raise InvalidInput("fit_states trains once on given states; the joint fit and observer rounds need the "
+                               "measurements: use fit")
+        return train_knode(system, zeta, u, dt, self.config, progress=progress)
 
     def fit_flights(self, flights: Sequence[Flight], system: str = "quadrotor", validate: Sequence[str] | None = None,
                     blind_attitude: bool = True, blind_battery: bool = True,

@@ -4,6 +4,7 @@ trains on it)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 
@@ -92,14 +93,45 @@ def check_one_vehicle(flights: Sequence[Flight], systems: Sequence[System], gain
                                "per vehicle")
 
 
-def flight_inputs(flight: Flight, system: str) -> tuple[System, np.ndarray, float | None]:
-    """Algorithm 1's inputs of one flight with the named prior: (its system on the flight's grid, with the
-    Crazyflie prior of the thrust the flight carries (`models.inputs.system_for_flight_thrust`), u (T, p) =
-    `models.inputs.system_inputs(..., thrust_gain=True)`, the flight's thrust gain for a prior with a thrust map,
-    else None: split out for `check_one_vehicle` and the model's lineage)."""
-    prior = system_for_flight_thrust(system_for(flight, system), flight)
+def flight_inputs(flight: Flight, system: str, prior_params: dict | None = None,
+                  thrust_gain: bool = True) -> tuple[System, np.ndarray, float | None]:
+    """Algorithm 1's inputs of one flight with the named prior: the one place a training derives its system and
+    inputs from a flight.
+
+    Parameters
+    ----------
+    flight : Flight
+        The flight.
+    system : {"quadrotor", "crazyflie"}
+        The prior (`estimators.prepared.FLIGHT_SYSTEMS`).
+    prior_params : dict, optional
+        The prior's parameters (a diagnosis's, which already chose the thrust source); default the system's, the
+        Crazyflie prior's for the thrust the flight carries (`models.inputs.system_for_flight_thrust`).
+    thrust_gain : bool
+        Whether the thrust carries the flight's thrust gain (the default: training); a diagnosis trains without
+        it, since the gain would absorb the payload and thrust effects it looks for.
+
+    Returns
+    -------
+    (System, ndarray of shape (T, p), float or None)
+        The prior on the flight's grid; u = `models.inputs.system_inputs` (quaternion, thrust and battery
+        columns in their log units, width 0 for the kinematic quadrotor); the flight's thrust gain for a prior
+        with a thrust map and ``thrust_gain``, else None (split out for `check_one_vehicle` and the model's
+        lineage).
+
+    Raises
+    ------
+    InvalidInput
+        If ``system`` does not model a flight; `models.inputs.MissingInputs` when the prior needs inputs the
+        flight lacks.
+    """
+    base = system_for(flight, system)
+    prior = replace(base, prior_params=dict(prior_params)) if prior_params is not None else \
+        system_for_flight_thrust(base, flight)
     gain = None
-    if prior.name in THRUST_THROUGH_ATTITUDE:
+    if not thrust_gain:
+        u = system_inputs(flight, prior)
+    elif prior.name in THRUST_THROUGH_ATTITUDE:
         u = system_inputs(flight, prior)
         gain = flight_thrust_gain(flight, prior, u)
         u = with_thrust_gain(u, gain, prior.prior_params["gamma"], cf.thrust_source_of(prior.prior_params))

@@ -72,15 +72,21 @@ def test_the_service_rooms_contract_is_live(graph):
     assert {(d.importer, d.imported) for d in illegal} == {("learnest.service.storage", "learnest.service.operations")}
 
 
-def _cli_imports_broken(graph) -> set:
-    """(importer, forbidden) packages the CLI contract of pyproject.toml finds on ``graph``, as import-linter checks
-    it (on a copy: the check removes the contract's ignored imports from the graph it is given)."""
+def _forbidden_broken(graph, name_start: str) -> set:
+    """(importer, forbidden) modules the forbidden contract of pyproject.toml named so finds on ``graph``, as
+    import-linter checks it (on a copy: the check removes the contract's ignored imports from the graph it is given)."""
     from importlinter.contracts.forbidden import ForbiddenContract
 
-    options = {k: v for k, v in _contract("the CLI imports").items() if k not in ("name", "type")}
-    contract = ForbiddenContract(name="cli", session_options={"root_packages": ["learnest"]}, contract_options=options)
+    options = {k: v for k, v in _contract(name_start).items() if k not in ("name", "type")}
+    contract = ForbiddenContract(name=name_start, session_options={"root_packages": ["learnest"]},
+                                 contract_options=options)
     check = contract.check(deepcopy(graph), verbose=False)
     return {(c["downstream_module"], c["upstream_module"]) for c in check.metadata["invalid_chains"]}
+
+
+def _cli_imports_broken(graph) -> set:
+    """What the CLI contract finds on ``graph`` (`_forbidden_broken`)."""
+    return _forbidden_broken(graph, "the CLI imports")
 
 
 @pytest.mark.parametrize("imported, forbidden", [("learnest.models.presets", "learnest.models"),
@@ -97,3 +103,14 @@ def test_the_cli_contract_is_live(graph, imported, forbidden):
     reaching_past.add_import(importer="learnest.service.cli.arguments", imported=imported, line_number=1,
                              line_contents=f"import {imported}")
     assert _cli_imports_broken(reaching_past) == {("learnest.service.cli", forbidden)}
+
+
+@pytest.mark.parametrize("trainer", ["learnest.models.training", "learnest.models.pooled_training"])
+def test_the_workflows_train_only_through_algorithm1(graph, trainer):
+    """Training has one home: no workflow imports a trainer itself (Table I and the diagnosis train through
+    `estimators.algorithm1.Algorithm1`, which imports them), and one that did would be found."""
+    assert _forbidden_broken(graph, "the workflows train") == set()
+    by_hand = deepcopy(graph)
+    by_hand.add_import(importer="learnest.workflows.table1", imported=trainer, line_number=1,
+                       line_contents=f"import {trainer}")
+    assert _forbidden_broken(by_hand, "the workflows train") == {("learnest.workflows", trainer)}

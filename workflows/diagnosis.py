@@ -18,9 +18,10 @@ from dataclasses import replace
 import numpy as np
 
 from learnest.errors import InvalidInput, LearnestError
+from learnest.estimators.algorithm1 import Algorithm1
 from learnest.estimators.evaluate import evaluate_sequence
-from learnest.estimators.observers import pretraining_observer
-from learnest.estimators.prepared import corrected_flight, model_params, system_for
+from learnest.estimators.flight_training import flight_inputs
+from learnest.estimators.prepared import corrected_flight, model_params
 from learnest.ingest.flight import Flight
 from learnest.ingest.profile import flight_profile
 from learnest.models.diagnosis import select_effects
@@ -28,7 +29,6 @@ from learnest.models.effects import LIBRARY, dynamics_params, effects_for
 from learnest.models.knode import HybridModel
 from learnest.models.presets import CRAZYFLIE_TRAINING, PAPER_TRAINING, diagnosis_fitting_count
 from learnest.models.systems import make_system
-from learnest.models.training import train_knode
 
 from .diagnosis_crazyflie import crazyflie_prior_for, crazyflie_report
 from .diagnosis_format import THRUST_SOURCE_TEXT, confounded_label, format_diagnosis, how_much, unchanged_prior_note
@@ -54,7 +54,7 @@ from .diagnosis_problems import (
     tuned_alike,
 )
 from .diagnosis_stages import DiagnosisStages, StageCallback
-from .flights import evaluate_flight, train_on_flight
+from .flights import evaluate_flight
 from .reports import DiagnosisEffect, DiagnosisFlight, DiagnosisReport, RepairVerdict
 
 # the names callers import from here (the notebook's `diagnose`, the CLI, the service, the tests)
@@ -119,27 +119,29 @@ def diagnose_simulated(system_name: str, simulate: str = "", seed: int = 0,
     system = make_system(system_name)
     system = system.with_true_params(**parse_simulate(system_name, simulate))
     train, test = system.simulate(10_000 + seed), system.simulate(20_000 + seed, eval_samples)
-    zeta = pretraining_observer(system, train.y, train.u, system.dt)
-    problem = dynamics_problem(system, zeta, train.u, system.dt, effects_for(system_name, "dynamics"))
-    selection = select_effects(problem)
-    chosen = [LIBRARY[e["id"]] for e in selection["effects"]]
-    repaired = replace(system, prior_params=dynamics_params(system, selection["values"], chosen))
-
     # retrain on top with a held-out block: once the prior is right there may be nothing left to learn,
     # and then the KNODE should stay the prior rather than fit the observer's noise
     config = replace(PAPER_TRAINING[system_name], validation_fraction=0.2)
     if epochs:
         config = replace(config, epochs=epochs)
-    before = _score_simulated(system, zeta, train, test, methods, config)
+    algorithm = Algorithm1(config=config)
+    # one observation of the training run: the effects are selected on it and both KNODEs learn from it
+    zeta = algorithm.observe(system, train.y, train.u, system.dt)
+    problem = dynamics_problem(system, zeta, train.u, system.dt, effects_for(system_name, "dynamics"))
+    selection = select_effects(problem)
+    chosen = [LIBRARY[e["id"]] for e in selection["effects"]]
+    repaired = replace(system, prior_params=dynamics_params(system, selection["values"], chosen))
+
+    before = _score_simulated(algorithm, system, zeta, train, test, methods)
     # nothing chosen: the repaired prior is the prior, and training is seeded, so the scores would repeat
-    after = _score_simulated(repaired, zeta, train, test, methods, config) if chosen else dict(before)
+    after = _score_simulated(algorithm, repaired, zeta, train, test, methods) if chosen else dict(before)
     return {"system": system_name, "simulated_truth": {k: system.true_params[k] for k in system.true_params},
             **_public(selection), "before": before, "after": after,
             "prior_params_after": repaired.prior_params}
 
 
-def _score_simulated(system, zeta, train, test, methods, config):
-    knode = train_knode(system, zeta, train.u, system.dt, config).model
+def _score_simulated(algorithm, system, zeta, train, test, methods):
+    knode = algorithm.fit_states(system, zeta, train.u, system.dt).model
     prior = HybridModel(system, "prior")
     x0 = test.x_noisy[0]
     results = evaluate_sequence(methods, model_params(prior, x0, system.dt), model_params(knode, x0, system.dt),
@@ -248,24 +250,23 @@ def _diagnose_quadrotor(flights: list[Flight], knode: HybridModel | None, method
     fixed_fitting = [corrected_flight(f, accel["values_identified"]) for f in fitting]
     # the fitting data is one flight (or the first 60 % of one): trace the jerk residual on its states
     fitting_flight = fixed_fitting[0]
-    system = system_for(fitting_flight)
-    no_input = np.zeros((len(fitting_flight.t), 0))
+    system, no_input, _ = flight_inputs(fitting_flight, "quadrotor")   # the kinematic prior: u has width 0
+    config = replace(CRAZYFLIE_TRAINING, epochs=epochs)
+    algorithm = Algorithm1(config=config)
     stages.report("observer", f"pre-training observer ({fitting_flight.name}, 1/2)")
-    zeta = pretraining_observer(system, fitting_flight.measurements(), no_input, system.dt)
+    zeta = algorithm.observe(system, fitting_flight.measurements(), no_input, system.dt)
     dynamics = select_effects(dynamics_problem(system, zeta, no_input, system.dt, effects_for("quadrotor", "dynamics"),
                                                components=[6, 7, 8], name="translational dynamics"),
                               on_stage=stages.part("dynamics"))
     chosen_dyn = [LIBRARY[e["id"]] for e in dynamics["effects"]]
     new_prior = dynamics_params(system, {**_nominal(chosen_dyn), **dynamics["values_identified"]}, chosen_dyn)
 
-    config = replace(CRAZYFLIE_TRAINING, epochs=epochs)
-    knode_before = knode or train_on_flight(fitting[0], config, progress=stages.epochs("before", "the prior",
-                                                                                       epochs)).model
+    knode_before = knode or algorithm.fit_flights(fitting[:1], "quadrotor",
+                                                  progress=stages.epochs("before", "the prior", epochs)).model
     repaired_system = replace(system, prior_params=new_prior)
     stages.report("after", f"pre-training observer ({fitting_flight.name}, 2/2)")
-    zeta_after = pretraining_observer(repaired_system, fitting_flight.measurements(), no_input, system.dt)
-    knode_after = train_knode(repaired_system, zeta_after, no_input, system.dt, config,
-                              progress=stages.epochs("after", "the repaired prior", epochs)).model
+    knode_after = algorithm.fit(repaired_system, fitting_flight.measurements(), no_input, system.dt,
+                                progress=stages.epochs("after", "the repaired prior", epochs)).model
     chosen_meas = [LIBRARY[e["id"]] for e in accel["effects"]]
     knode_after.meta.update({
         "measurement_effects": {p.name: accel["values_identified"][p.name] for e in chosen_meas for p in e.params

@@ -9,8 +9,8 @@ from dataclasses import replace
 import numpy as np
 
 from learnest.errors import InvalidInput
-from learnest.estimators.observers import pretraining_observer
-from learnest.estimators.prepared import system_for
+from learnest.estimators.algorithm1 import Algorithm1
+from learnest.estimators.flight_training import flight_inputs
 from learnest.ingest.flight import Flight
 from learnest.ingest.profile import flight_profile
 from learnest.models import crazyflie as cf
@@ -22,12 +22,10 @@ from learnest.models.inputs import (
     SOURCE_CHANNELS,
     MissingInputs,
     flight_thrust_source,
-    system_inputs,
     training_meta,
 )
 from learnest.models.knode import HybridModel
 from learnest.models.presets import CRAZYFLIE_TRAINING
-from learnest.models.training import train_knode
 
 from .diagnosis_identifiability import map_shape_check, thrust_map_fit, tie_words
 from .diagnosis_problems import (
@@ -50,15 +48,15 @@ def _crazyflie_model(flight: Flight, params: dict, train: bool, config, stages: 
                      part: str = "before") -> HybridModel:
     """The Crazyflie prior with ``params`` on ``flight``'s grid; with ``train``, a KNODE trained on top
     (its observer and epochs reported to ``stages`` as ``part``: "before", the prior, or "after", the repaired)."""
-    system = replace(system_for(flight, "crazyflie"), prior_params=dict(params))
+    # without the thrust gain: it would absorb the thrust and payload effects the diagnosis looks for
+    system, u, _ = flight_inputs(flight, "crazyflie", params, thrust_gain=False)
     if not train:
         return HybridModel(system, "prior")
     stages = stages or DiagnosisStages(None, {})
     what = "the prior" if part == "before" else "the repaired prior"
-    u = system_inputs(flight, system)
     stages.report(part, f"pre-training observer ({flight.name}, for {what})")
-    zeta = pretraining_observer(system, flight.measurements(), u, system.dt)
-    model = train_knode(system, zeta, u, system.dt, config, progress=stages.epochs(part, what, config.epochs)).model
+    model = Algorithm1(config=config).fit(system, flight.measurements(), u, system.dt,
+                                          progress=stages.epochs(part, what, config.epochs)).model
     model.meta.update({"system": "crazyflie", "training_flight": flight.name,
                        "training_flight_sha256": [s["sha256"] for s in flight.meta.get("sources", [])],
                        "training_profile": flight_profile(flight), **training_meta(system, thrust_gain=False)})
@@ -358,7 +356,7 @@ def _diagnosable(flights: list[Flight], knode: HybridModel | None, mass_kg: floa
     flights = [f for f in flights if f.quality["ok"]] or flights
     params, source, declared = crazyflie_prior_for(flights, knode, mass_kg, prior)
     for flight in flights:
-        system_inputs(flight, replace(system_for(flight, "crazyflie"), prior_params=dict(params)))
+        flight_inputs(flight, "crazyflie", params, thrust_gain=False)
     return flights, params, source, declared
 
 

@@ -7,7 +7,7 @@ from functools import partial
 
 import numpy as np
 
-from learnest.estimators.algorithm1 import Algorithm1
+from learnest.estimators.algorithm1 import Algorithm1, TrainingResult
 from learnest.estimators.estimates import FlightEstimates
 from learnest.estimators.evaluate import (
     evaluate_sequence,
@@ -44,7 +44,6 @@ from learnest.models.presets import (
     SG_WINDOW,
     TrainingConfig,
 )
-from learnest.models.training import TrainingResult
 
 # The measurements the prediction check compares (`estimators.evaluate.prediction_check`): the mocap position,
 # which a model must predict through its dynamics.  The accelerometer reads the state a almost directly and its

@@ -26,7 +26,6 @@ from learnest.models.noise import IDENTIFIED, NOISE_SOURCES, NoiseModel, blocks
 from learnest.models.noise import PAPER as PAPER_NOISE
 from learnest.models.presets import MHE_HORIZON, PAPER_OBSERVER, PAPER_TRAINING, TrainingConfig
 from learnest.models.systems import SimulatedRun, make_system
-from learnest.models.training import train_knode
 
 ROWS = ["MHE", "KNODE-MHE", "KNODE-MHE (full state)", "MHE (true dynamics)",
         "UKF", "KNODE-UKF", "KNODE-UKF (full state)", "UKF (true dynamics)"]
@@ -105,7 +104,8 @@ def run_seed(settings: ReproduceSettings, seed: int) -> dict:
         # partial measurements y: the task's observer, then `rounds` rounds of smoothing with the learned model
         # (or, for "joint", the record's states fitted together with the residual from the filter's)
         "KNODE-": Algorithm1(kind, config, rounds).fit(system, train.y, train.u, system.dt).model,
-        "KNODE- (full state)": train_knode(system, zeta_full, train.u, system.dt, config).model,
+        # the states are measured (zeta_full): Algorithm 1 without its pre-training observer
+        "KNODE- (full state)": Algorithm1(config=config).fit_states(system, zeta_full, train.u, system.dt).model,
         " (true dynamics)": HybridModel(system, "true"),
     }
     # the evaluation run seen by the pre-training observer, against the partial-state KNODE's box (for "joint" the
