@@ -63,7 +63,7 @@ MAX_EVALUATIONS = 160
 TOLERANCE_LOG = 0.02
 # The first simplex's width (a factor per block): from the paper's noise, which may be off by decades, 3; from
 # a neighbour's identified noise (a KNODE's search starts from its prior's), 1.3: a residual changes what the
-# filter must absorb by tens of per cent, not by factors, and a narrow simplex needs a third of the evaluations.
+# filter must absorb by tens of per cent, not by factors, and a narrow simplex needs about half the evaluations.
 COLD_STEP, WARM_STEP = 3.0, 1.3
 
 
@@ -324,9 +324,9 @@ def with_identified_noise(model: HybridModel, flights: Sequence[Flight],
                           on_stage: Callable[[str], object] | None = None) -> HybridModel:
     """``model`` with its noise and its prior's identified on ``flights`` (its training flights), each by
     `identify_noise` from the system's fixed noise (the model's search beginning at its prior's result), the
-    process noise only (`FLIGHT_MEASUREMENT_BLOCKS`), scored
-    by the mocap hidden in the yardstick's gaps (`noise_records` with `GapPlan()`, module docstring): the two
-    filters of every later comparison are tuned the same way on the same flights.
+    process noise only (`FLIGHT_MEASUREMENT_BLOCKS`), scored by the mocap hidden in the yardstick's gaps
+    (`noise_records` with `GapPlan()`, module docstring): the two filters of every later comparison are tuned the
+    same way on the same flights.
 
     Parameters
     ----------

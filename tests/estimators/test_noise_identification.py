@@ -87,6 +87,14 @@ def test_maximum_likelihood_recovers_a_simulated_q_and_r_within_20_percent():
     likelihood = found.detail["log_likelihood_per_step"]
     assert likelihood["identified"] > likelihood["start"]
     assert found.detail["held"] == ["Q:p"] and not found.detail["at_bound"]
+    # begun near the answer (as a KNODE's search begins at its prior's), the search lands on the same noise
+    # in fewer filter runs, its factors still on the start's noise
+    nearby = _scaled(paper, system, {name: 1.15 * factor for name, factor in TRUE_FACTORS.items()})
+    near = identify_noise(records, paper, initial=nearby)
+    for name, factor in found.detail["factors"].items():
+        assert near.detail["factors"][name] == pytest.approx(factor, rel=0.05), name
+    assert near.detail["evaluations"] < found.detail["evaluations"]
+    assert near.detail["log_likelihood_per_step"]["start"] == likelihood["start"]
 
 
 def test_the_hidden_mocap_likelihood_recovers_a_simulated_q_within_20_percent():
