@@ -25,7 +25,6 @@ flight's model has its own compiled functions and scratch memory.  The position 
 from __future__ import annotations
 
 import math
-import os
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -36,6 +35,7 @@ from scipy.optimize import minimize
 
 from learnest.errors import InvalidInput
 from learnest.ingest.flight import Flight
+from learnest.models.cores import usable_cores
 from learnest.models.knode import HybridModel
 from learnest.models.noise import IDENTIFIED, PAPER, STD_BOUNDS, NoiseModel, blocks
 
@@ -130,8 +130,7 @@ class _Likelihood:
         for record in records:
             by_functions.setdefault((id(record.model), record.dt), []).append(record)
         self.groups = list(by_functions.values())
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-        self.pool = ThreadPoolExecutor(max_workers=max(1, min(len(self.groups), cores)))
+        self.pool = ThreadPoolExecutor(max_workers=max(1, min(len(self.groups), usable_cores())))
         self.steps = sum(max(0, len(r.y) - round(WARMUP_S / r.dt)) for r in records)
         self.hidden_steps = sum(int(np.sum(r.inside)) for r in records if r.inside is not None)
         if self.steps == 0:

@@ -13,7 +13,6 @@ update and kept epoch are its own, as if it were trained alone, at little more t
 """
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -24,6 +23,7 @@ from numpy.typing import ArrayLike
 
 from learnest.errors import InvalidInput
 
+from .cores import usable_cores
 from .envelope import training_envelope
 from .knode import HybridModel
 from .presets import TrainingConfig
@@ -261,8 +261,8 @@ def _fit_members(system: System, nets: list, seeds: list[int], fit_data, val_dat
 def _groups(members: int) -> list[list[int]]:
     """The members split into one contiguous group per core (at most), each trained on its own thread: torch
     releases the interpreter's lock inside its operations, and one stacked group keeps one core busy."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return [[int(k) for k in chunk] for chunk in np.array_split(np.arange(members), max(1, min(members, cores)))]
+    count = max(1, min(members, usable_cores()))
+    return [[int(k) for k in chunk] for chunk in np.array_split(np.arange(members), count)]
 
 
 def _train_members(system: System, records: list[TrainingRecord], held_out: list[bool], config: TrainingConfig,
